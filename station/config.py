@@ -1,0 +1,281 @@
+"""Station configuration: devices by URL, robots, limits.
+
+A config is a TOML (or JSON) file validated into :class:`StationConfig`
+before anything starts. Every key carries its unit in its name
+(``rp_limit_mm``, ``speed_percent``); unknown keys are refused, which is how
+a value written in the wrong unit (``rp_limit_um``) is caught. Errors are
+:class:`~station.errors.ConfigError` naming the field path, e.g.
+``robots.r1.limits.rp_limit_mm: Input should be greater than 0``.
+
+Device URLs (``scheme://host:port`` or ``scheme:///dev/tty?baud=N``):
+
+=============  ==========================================  =================
+scheme         device                                      default port/baud
+=============  ==========================================  =================
+emscon         laser tracker, Leica emScon TPI over TCP    700
+geocom         tracker/total station, GeoCOM over serial   115200 baud
+modbus+ftp     robot controller: FTP upload + Modbus TCP   21 / 502
+ur             UR-style cobot (RTDE, dashboard, script)    fixed by ur_rtde
+nmea           trailer odometry, NMEA 0183 over serial     57600 baud
+ply            3D scanner clouds from a directory          -
+fake           the station's own simulated device          -
+=============  ==========================================  =================
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+from urllib.parse import parse_qs, urlsplit
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from station.errors import ConfigError
+
+SCHEMES = {
+    "emscon": "laser tracker (Leica emScon TPI over TCP)",
+    "geocom": "tracker/total station (Leica GeoCOM over serial)",
+    "modbus+ftp": "robot controller (FTP upload + Modbus TCP)",
+    "ur": "UR-style cobot (ur_rtde)",
+    "nmea": "trailer odometry (NMEA 0183 over serial)",
+    "ply": "3D scanner point clouds (PLY files in a directory)",
+    "fake": "simulated device of the station's own fake set",
+}
+
+DEVICE_KINDS = {
+    "emscon": "tracker",
+    "geocom": "tracker",
+    "modbus+ftp": "controller",
+    "ur": "cobot",
+    "nmea": "odometry",
+    "ply": "scanner",
+}
+
+_SERIAL_SCHEMES = {"geocom", "nmea"}
+_TCP_SCHEMES = {"emscon", "modbus+ftp", "ur"}
+
+
+class DeviceURL(BaseModel):
+    """A parsed device URL."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    raw: str
+    scheme: str
+    host: str | None = None
+    port: int | None = None
+    path: str | None = None
+    options: dict[str, str] = Field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return DEVICE_KINDS.get(self.scheme, self.path or "fake")
+
+    @property
+    def is_loopback(self) -> bool:
+        return self.host is not None and (self.host == "localhost" or self.host.startswith("127."))
+
+
+def parse_device_url(url: str) -> DeviceURL:
+    """Parse and check a device URL; ConfigError names what is wrong."""
+    if not isinstance(url, str) or "://" not in url:
+        raise ConfigError(f"device URL {url!r} must look like scheme://host:port or scheme:///dev/...")
+    parts = urlsplit(url)
+    scheme = parts.scheme.lower()
+    if scheme not in SCHEMES:
+        known = ", ".join(sorted(SCHEMES))
+        raise ConfigError(f"device URL {url!r}: unknown scheme {scheme!r} (known: {known})")
+    try:
+        port = parts.port
+    except ValueError as exc:
+        raise ConfigError(f"device URL {url!r}: bad port ({exc})") from exc
+    options = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
+    host = parts.hostname
+    path = parts.path or None
+    if scheme in _TCP_SCHEMES and not host:
+        raise ConfigError(f"device URL {url!r}: {scheme} needs a host")
+    if scheme in _SERIAL_SCHEMES:
+        if host and not path:
+            raise ConfigError(f"device URL {url!r}: {scheme} needs a serial device path, e.g. {scheme}:///dev/ttyUSB0")
+        if not path:
+            raise ConfigError(f"device URL {url!r}: {scheme} needs a serial device path")
+        if "baud" in options:
+            try:
+                baud = int(options["baud"])
+            except ValueError as exc:
+                raise ConfigError(f"device URL {url!r}: baud must be an integer") from exc
+            if baud <= 0:
+                raise ConfigError(f"device URL {url!r}: baud must be > 0")
+    if scheme == "fake" and not (host or path):
+        raise ConfigError(f"device URL {url!r}: fake needs a device name, e.g. fake://tracker-emscon")
+    if scheme == "ply" and not path:
+        raise ConfigError(f"device URL {url!r}: ply needs a directory path")
+    return DeviceURL(raw=url, scheme=scheme, host=host, port=port, path=path, options=options)
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+PositiveMM = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class DeviceConfig(_Strict):
+    url: str
+    timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
+
+    @field_validator("url")
+    @classmethod
+    def _check_url(cls, v: str) -> str:
+        try:
+            parse_device_url(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @property
+    def parsed(self) -> DeviceURL:
+        return parse_device_url(self.url)
+
+
+class LimitsConfig(_Strict):
+    """Acceptance limits (manufacturer's figures); None = report only."""
+
+    ap_limit_mm: PositiveMM | None = None
+    rp_limit_mm: PositiveMM | None = None
+    pos_band_mm: PositiveMM | None = None
+    pst_limit_s: PositiveMM | None = None
+    vap_limit_mm: PositiveMM | None = None
+    ad_limit_mm: PositiveMM | None = None
+    rd_limit_mm: PositiveMM | None = None
+    mpt_limit_s: PositiveMM | None = None
+
+
+class WorkspaceConfig(_Strict):
+    min_mm: tuple[float, float, float]
+    max_mm: tuple[float, float, float]
+    max_tcp_speed_mm_s: PositiveMM = 2000.0
+    max_speed_percent: float = Field(100.0, gt=0, le=100)
+    max_accel_percent: float = Field(100.0, gt=0, le=100)
+
+    @model_validator(mode="after")
+    def _box(self) -> "WorkspaceConfig":
+        for i, (lo, hi) in enumerate(zip(self.min_mm, self.max_mm)):
+            if not (math.isfinite(lo) and math.isfinite(hi)) or lo >= hi:
+                raise ValueError(f"workspace axis {'xyz'[i]}: min_mm {lo} must be < max_mm {hi}")
+        return self
+
+
+class RobotConfig(_Strict):
+    model: str
+    serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
+    overhaul_state: Literal["before", "after", "new", "in-service"] = "in-service"
+    payload_kg: float = Field(0.0, ge=0, allow_inf_nan=False)
+    controller: str
+    workspace: WorkspaceConfig
+    limits: LimitsConfig = LimitsConfig()
+
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, v: str) -> str:
+        from station.models.robots import get_robot
+
+        try:
+            get_robot(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+
+class ISOProcedureConfig(_Strict):
+    """Parameters of the ISO 9283 procedure (seed 000 sec. 2-3)."""
+
+    cube_corners_mm: list[tuple[float, float, float]] | None = None
+    inset_mm: float = Field(100.0, gt=0)
+    cycles: int = Field(30, ge=2, le=1000)
+    dwell_s: float = Field(0.5, gt=0, le=60)
+    speed_percent: float = Field(100.0, gt=0, le=100)
+    tracker_rate_hz: float = Field(100.0, ge=10, le=3000)
+    vap_cycles: int = Field(10, ge=2, le=1000)
+    vap_offset_mm: float = Field(100.0, gt=0)
+    distance_cycles: int = Field(10, ge=2, le=1000)
+    mpt_repeats: int = Field(3, ge=1, le=100)
+
+    @field_validator("cube_corners_mm")
+    @classmethod
+    def _eight(cls, v):
+        if v is not None and len(v) != 8:
+            raise ValueError(f"cube_corners_mm needs 8 corners C1..C8, got {len(v)}")
+        return v
+
+
+class StationSection(_Strict):
+    name: str = Field(min_length=1)
+    store_path: str = "station.sqlite"
+    report_dir: str = "reports"
+
+
+class StationConfig(_Strict):
+    station: StationSection
+    devices: dict[str, DeviceConfig]
+    robots: dict[str, RobotConfig]
+    iso9283: ISOProcedureConfig = ISOProcedureConfig()
+
+    @model_validator(mode="after")
+    def _references(self) -> "StationConfig":
+        for rname, robot in self.robots.items():
+            if robot.controller not in self.devices:
+                raise ValueError(
+                    f"robots.{rname}.controller names device {robot.controller!r}, "
+                    f"which is not in devices ({', '.join(sorted(self.devices)) or 'none'})"
+                )
+        return self
+
+    def device(self, name: str) -> DeviceConfig:
+        try:
+            return self.devices[name]
+        except KeyError:
+            raise ConfigError(f"devices.{name}: no such device (have {', '.join(sorted(self.devices))})") from None
+
+
+def _format_validation_error(exc: ValidationError, source: str) -> str:
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field (keys carry their unit, e.g. *_mm, *_s, *_percent; check spelling and unit)"
+        elif err["type"] == "missing":
+            msg = "missing required field"
+        lines.append(f"{loc}: {msg}")
+    return f"{source}: invalid station config:\n  " + "\n  ".join(lines)
+
+
+def config_from_dict(data: dict, source: str = "config") -> StationConfig:
+    """Validate a dict into a StationConfig or raise ConfigError naming every bad field."""
+    try:
+        return StationConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_format_validation_error(exc, source)) from None
+
+
+def load_config(path: str | Path) -> StationConfig:
+    """Read a TOML or JSON station config; ConfigError names the file and field."""
+    path = Path(path)
+    try:
+        text = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from exc
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            data = tomllib.loads(text.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a table")
+    return config_from_dict(data, str(path))

@@ -1,0 +1,375 @@
+"""Executes a procedure step by step and journals every step.
+
+A :class:`Procedure` is a readable list of named :class:`Step` objects. The
+:class:`Runner` runs them in order, and for each attempt journals start, end,
+outcome and output in the run store; samples a step takes go to the store in
+committed batches through :meth:`StepContext.record` before the step is
+marked done. A run stopped at any moment (abort, fault, ``kill -9``) resumes
+with :meth:`Runner.resume`: steps marked ``every_session`` (connect devices,
+bring the robot back to a known pose) run again first, then the run goes on
+from the first step that is not done. Nothing acknowledged is lost: samples of
+an interrupted attempt stay in the store, marked by their attempt number.
+
+Run states (data, not code)::
+
+    running --(all steps done)--> done
+    running --(step raised)-----> failed   (resumable)
+    running --(abort request)---> aborted  (resumable)
+    failed/aborted --(resume)---> running
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TextIO
+
+import numpy as np
+
+from station.errors import StationError
+from station.store import RunStore
+
+TRANSITIONS = {
+    "running": {"done", "failed", "aborted"},
+    "failed": {"running"},
+    "aborted": {"running"},
+    "done": set(),
+}
+
+
+class RunAborted(StationError):
+    """The operator (or a signal) asked the run to stop; it can be resumed."""
+
+
+class RunStateError(StationError):
+    """A run was asked to do something its state does not allow."""
+
+
+class Operator(Protocol):
+    def confirm(self, message: str) -> bool: ...
+
+
+class ScriptedOperator:
+    """Answers every prompt with ``answer`` (``--yes``) and logs it."""
+
+    def __init__(self, answer: bool = True, stream: TextIO | None = None) -> None:
+        self.answer = answer
+        self.stream = stream
+        self.asked: list[str] = []
+
+    def confirm(self, message: str) -> bool:
+        self.asked.append(message)
+        if self.stream is not None:
+            print(f"? {message} -> {'yes' if self.answer else 'no'} (scripted)", file=self.stream)
+        return self.answer
+
+
+class InteractiveOperator:
+    """Asks on the terminal; anything but y/yes is a no."""
+
+    def __init__(self, stdin: TextIO = sys.stdin, stdout: TextIO = sys.stderr) -> None:
+        self.stdin, self.stdout = stdin, stdout
+
+    def confirm(self, message: str) -> bool:
+        self.stdout.write(f"? {message} [y/N] ")
+        self.stdout.flush()
+        line = self.stdin.readline()
+        return line.strip().lower() in ("y", "yes")
+
+
+class RunControl:
+    """Pause and abort requests, safe to call from signal handlers and threads."""
+
+    def __init__(self) -> None:
+        self._abort = threading.Event()
+        self._running = threading.Event()
+        self._running.set()
+
+    def abort(self) -> None:
+        self._abort.set()
+        self._running.set()
+
+    def pause(self) -> None:
+        self._running.clear()
+
+    def resume(self) -> None:
+        self._running.set()
+
+    def toggle_pause(self) -> None:
+        if self._running.is_set():
+            self.pause()
+        else:
+            self.resume()
+
+    @property
+    def paused(self) -> bool:
+        return not self._running.is_set()
+
+    @property
+    def abort_requested(self) -> bool:
+        return self._abort.is_set()
+
+    def checkpoint(self) -> None:
+        """Block while paused; raise RunAborted if an abort was requested."""
+        while not self._running.wait(0.1):
+            pass
+        if self._abort.is_set():
+            raise RunAborted("run aborted on request; resume it with `station run --resume RUN_ID`")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One named step.
+
+    ``run(ctx)`` does the work and returns a JSON-able dict (its output, kept
+    in the journal) or None. ``every_session`` steps (connect, home) run at
+    the start of every session, fresh or resumed. ``label`` is what the
+    progress line shows (e.g. ``"cycle 3/30"``).
+    """
+
+    name: str
+    run: Callable[["StepContext"], Mapping | None]
+    label: str = ""
+    every_session: bool = False
+
+
+@dataclass
+class Procedure:
+    name: str
+    steps: list[Step]
+    #: called with the session dict after a failure or abort, to leave devices safe
+    safe_state: Callable[[dict], None] | None = None
+
+    def __post_init__(self) -> None:
+        names = [s.name for s in self.steps]
+        dupes = {n for n in names if names.count(n) > 1}
+        if dupes:
+            raise StationError(f"procedure {self.name!r}: step names must be unique, repeated: {sorted(dupes)}")
+
+
+@dataclass
+class StepContext:
+    """What a step sees: the store, the live session, earlier outputs, the operator."""
+
+    runner: "Runner"
+    run_id: str
+    idx: int
+    attempt: int
+    step: Step
+    session: dict
+    params: dict
+    outputs: dict[str, Any]
+    n_recorded: int = 0
+
+    @property
+    def store(self) -> RunStore:
+        return self.runner.store
+
+    def record(self, stream: str, columns: Mapping[str, np.ndarray]) -> int:
+        """Commit a batch of samples to the store (acknowledged on return)."""
+        n = self.store.append_samples(self.run_id, stream, self.idx, self.attempt, columns)
+        self.n_recorded += n
+        return n
+
+    def samples(self, stream: str, steps: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Samples of finished steps (optionally only the named ones)."""
+        idx = None
+        if steps is not None:
+            by_name = {s.name: i for i, s in enumerate(self.runner.procedure.steps)}
+            idx = [by_name[n] for n in steps]
+        return self.store.samples(self.run_id, stream, steps=idx)
+
+    def confirm(self, message: str) -> bool:
+        return self.runner.operator.confirm(message)
+
+    def checkpoint(self) -> None:
+        self.runner.control.checkpoint()
+
+    def progress(self, detail: str) -> None:
+        self.runner.progress.update(self.idx, self.step, detail)
+
+    def log(self, message: str) -> None:
+        self.runner.progress.log(message)
+
+
+class ProgressLine:
+    """``[ 12/168] run cycle 3 P4  elapsed 0:41  remaining ~1:10``"""
+
+    def __init__(self, stream: TextIO | None = sys.stderr, total: int = 0) -> None:
+        self.stream = stream
+        self.total = total
+        self.t0 = time.monotonic()
+        self.done = 0
+        self._tty = bool(stream is not None and getattr(stream, "isatty", lambda: False)())
+        self._last = 0.0
+
+    def _fmt(self, seconds: float) -> str:
+        s = int(max(0, seconds))
+        return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+    def update(self, idx: int, step: Step, detail: str = "") -> None:
+        if self.stream is None:
+            return
+        now = time.monotonic()
+        if not self._tty and now - self._last < 1.0 and detail:
+            return
+        self._last = now
+        elapsed = now - self.t0
+        frac = self.done / self.total if self.total else 0.0
+        remaining = f"~{self._fmt(elapsed * (1 - frac) / frac)}" if frac > 0 else "?"
+        width = 24
+        bar = "#" * int(width * frac) + "." * (width - int(width * frac))
+        label = " ".join(x for x in (step.name, step.label, detail) if x)
+        line = f"[{bar}] {idx + 1:>3}/{self.total} {label}  elapsed {self._fmt(elapsed)}  remaining {remaining}"
+        if self._tty:
+            self.stream.write("\r" + line[:150].ljust(150))
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def log(self, message: str) -> None:
+        if self.stream is None:
+            return
+        if self._tty:
+            self.stream.write("\r" + " " * 150 + "\r")
+        self.stream.write(message + "\n")
+        self.stream.flush()
+
+    def finish(self) -> None:
+        if self.stream is not None and self._tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+@dataclass
+class RunOutcome:
+    run_id: str
+    status: str
+    outputs: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+
+
+class Runner:
+    """Runs a :class:`Procedure` against a :class:`RunStore`."""
+
+    def __init__(
+        self,
+        store: RunStore,
+        procedure: Procedure,
+        *,
+        operator: Operator | None = None,
+        control: RunControl | None = None,
+        progress: ProgressLine | None = None,
+        session: dict | None = None,
+    ) -> None:
+        self.store = store
+        self.procedure = procedure
+        self.operator = operator or ScriptedOperator(True)
+        self.control = control or RunControl()
+        self.progress = progress or ProgressLine(None)
+        self.progress.total = len(procedure.steps)
+        self.session: dict = session if session is not None else {}
+
+    def start(
+        self,
+        run_id: str,
+        *,
+        params: Mapping,
+        config: Mapping | None = None,
+        model: str | None = None,
+        serial: str | None = None,
+        overhaul_state: str | None = None,
+    ) -> RunOutcome:
+        self.store.create_run(
+            run_id, self.procedure.name, model=model, serial=serial, overhaul_state=overhaul_state,
+            config=config or {}, params=params,
+        )
+        return self._execute(run_id, first_session=True)
+
+    def resume(self, run_id: str) -> RunOutcome:
+        rec = self.store.run(run_id)
+        if rec.procedure != self.procedure.name:
+            raise RunStateError(f"run {run_id} is a {rec.procedure!r} run, not {self.procedure.name!r}")
+        if rec.status == "done":
+            raise RunStateError(f"run {run_id} is already done; nothing to resume")
+        if rec.status == "running":
+            # the process that ran it died without journaling; that is what resume is for
+            pass
+        self.store.set_run_status(run_id, "running")
+        return self._execute(run_id, first_session=False)
+
+    def _execute(self, run_id: str, *, first_session: bool) -> RunOutcome:
+        rec = self.store.run(run_id)
+        params = rec.params
+        done = self.store.done_steps(run_id)
+        outputs = {self.procedure.steps[i].name: s.output for i, s in done.items() if i < len(self.procedure.steps)}
+        self.progress.done = len(done)
+        pending = [i for i in range(len(self.procedure.steps)) if i not in done]
+        if not first_session and pending:
+            self.progress.log(f"resuming run {run_id} at step {pending[0] + 1}: {self.procedure.steps[pending[0]].name}")
+        try:
+            # every-session steps before the resume point run again first (reconnect, home)
+            first_pending = pending[0] if pending else len(self.procedure.steps)
+            replay = [i for i in range(first_pending) if self.procedure.steps[i].every_session and i in done]
+            for i in replay:
+                self._run_step(run_id, i, params, outputs, replay=True)
+            for i in pending:
+                self._run_step(run_id, i, params, outputs, replay=False)
+        except RunAborted as exc:
+            self._safe_state()
+            self.store.set_run_status(run_id, "aborted")
+            self.progress.finish()
+            return RunOutcome(run_id, "aborted", outputs, str(exc))
+        except Exception as exc:
+            self._safe_state()
+            self.store.set_run_status(run_id, "failed")
+            self.progress.finish()
+            if isinstance(exc, StationError):
+                return RunOutcome(run_id, "failed", outputs, f"{type(exc).__name__}: {exc}")
+            raise
+        self.store.set_run_status(run_id, "done")
+        self.progress.finish()
+        return RunOutcome(run_id, "done", outputs)
+
+    def _run_step(self, run_id: str, idx: int, params: dict, outputs: dict, *, replay: bool) -> None:
+        step = self.procedure.steps[idx]
+        self.control.checkpoint()
+        self.progress.update(idx, step, "(again: new session)" if replay else "")
+        attempt = self.store.step_started(run_id, idx, step.name)
+        ctx = StepContext(self, run_id, idx, attempt, step, self.session, params, outputs)
+        try:
+            out = step.run(ctx)
+            out = dict(out) if out is not None else {}
+            json.dumps(out, default=_json_default)  # refuse non-JSON output before marking done
+        except RunAborted as exc:
+            self.store.step_ended(run_id, idx, attempt, "aborted", message=str(exc))
+            raise
+        except Exception as exc:
+            self.store.step_ended(run_id, idx, attempt, "failed", message=f"{type(exc).__name__}: {exc}")
+            self.progress.log(f"step {idx + 1} {step.name} failed: {exc}")
+            raise
+        out.setdefault("n_samples", ctx.n_recorded)
+        self.store.step_ended(run_id, idx, attempt, "done", output=out)
+        outputs[step.name] = out
+        if not replay:
+            self.progress.done += 1
+
+    def _safe_state(self) -> None:
+        if self.procedure.safe_state is None:
+            return
+        try:
+            self.procedure.safe_state(self.session)
+        except Exception as exc:  # the original error matters more; say what else went wrong
+            self.progress.log(f"warning: bringing devices to a safe state failed: {exc}")
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    raise TypeError(f"step output is not JSON-serialisable: {type(obj).__name__}")

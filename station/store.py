@@ -1,0 +1,509 @@
+"""Run store: one SQLite file per station (WAL), crash-safe.
+
+What it keeps
+-------------
+* ``robots``: identity (model, serial), so history across runs is a query.
+* ``runs``: one row per procedure run (robot, procedure, overhaul state,
+  config and parameters as JSON, status).
+* ``steps``: the journal. Every attempt of every step gets a row when it
+  starts and is updated when it ends (``done``, ``failed``, ``aborted``).
+* ``sample_batches``: raw samples, one row per committed batch, stored as a
+  float64 array blob with its column names. A batch is *acknowledged* when
+  :meth:`RunStore.append_samples` returns: the transaction has committed with
+  ``synchronous=FULL`` in WAL mode, so a killed process (even ``kill -9``)
+  or a power cut after that keeps it.
+* ``results`` (JSON per key) and ``characteristics`` (one row per number, with
+  its unit, limit and verdict) for queries like "every robot whose RP exceeds
+  its limit".
+
+Samples of a step attempt that did not finish are kept (they were
+acknowledged) but marked by their attempt number; analysis reads the samples
+of finished attempts only (:meth:`RunStore.samples`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sqlite3
+import threading
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import DataError, StationError
+
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS robots (
+    robot_id INTEGER PRIMARY KEY,
+    model TEXT NOT NULL,
+    serial TEXT NOT NULL,
+    UNIQUE (model, serial)
+);
+CREATE TABLE IF NOT EXISTS runs (
+    run_id TEXT PRIMARY KEY,
+    robot_id INTEGER REFERENCES robots(robot_id),
+    procedure TEXT NOT NULL,
+    overhaul_state TEXT,
+    config_json TEXT NOT NULL,
+    params_json TEXT NOT NULL,
+    status TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    finished_at REAL
+);
+CREATE TABLE IF NOT EXISTS steps (
+    run_id TEXT NOT NULL REFERENCES runs(run_id),
+    idx INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    name TEXT NOT NULL,
+    status TEXT NOT NULL,
+    started_at REAL NOT NULL,
+    ended_at REAL,
+    output_json TEXT,
+    message TEXT,
+    PRIMARY KEY (run_id, idx, attempt)
+);
+CREATE TABLE IF NOT EXISTS sample_batches (
+    run_id TEXT NOT NULL,
+    stream TEXT NOT NULL,
+    step_idx INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    batch_no INTEGER NOT NULL,
+    n INTEGER NOT NULL,
+    columns TEXT NOT NULL,
+    data BLOB NOT NULL,
+    committed_at REAL NOT NULL,
+    PRIMARY KEY (run_id, stream, step_idx, attempt, batch_no)
+);
+CREATE TABLE IF NOT EXISTS results (
+    run_id TEXT NOT NULL REFERENCES runs(run_id),
+    key TEXT NOT NULL,
+    value_json TEXT NOT NULL,
+    PRIMARY KEY (run_id, key)
+);
+CREATE TABLE IF NOT EXISTS characteristics (
+    run_id TEXT NOT NULL REFERENCES runs(run_id),
+    pose TEXT NOT NULL,
+    name TEXT NOT NULL,
+    value REAL,
+    unit TEXT NOT NULL,
+    limit_value REAL,
+    passed INTEGER,
+    PRIMARY KEY (run_id, pose, name)
+);
+CREATE INDEX IF NOT EXISTS characteristics_by_name ON characteristics (name, pose);
+"""
+
+
+class StoreError(StationError):
+    """The run store refused an operation (unknown run, bad data, ...)."""
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    idx: int
+    attempt: int
+    name: str
+    status: str
+    started_at: float
+    ended_at: float | None
+    output: dict | None
+    message: str | None
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    run_id: str
+    procedure: str
+    model: str | None
+    serial: str | None
+    overhaul_state: str | None
+    config: dict
+    params: dict
+    status: str
+    created_at: float
+    finished_at: float | None
+
+
+class RunStore:
+    """The station's SQLite store. Thread-safe (one connection, one lock)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._db.executescript(_SCHEMA)
+            self._db.execute(
+                "INSERT OR IGNORE INTO meta(key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
+            )
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a usable station store ({exc})") from exc
+        self._lock = threading.RLock()
+
+    # -- plumbing ---------------------------------------------------------
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> "RunStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _tx(self, statements: Iterable[tuple[str, tuple]]) -> None:
+        with self._lock:
+            cur = self._db.cursor()
+            cur.execute("BEGIN IMMEDIATE")
+            try:
+                for sql, args in statements:
+                    cur.execute(sql, args)
+            except BaseException:
+                cur.execute("ROLLBACK")
+                raise
+            cur.execute("COMMIT")
+
+    def _query(self, sql: str, args: tuple = ()) -> list[tuple]:
+        with self._lock:
+            return self._db.execute(sql, args).fetchall()
+
+    # -- robots and runs --------------------------------------------------
+    def robot_id(self, model: str, serial: str) -> int:
+        """Id of the robot (model, serial), created on first use."""
+        with self._lock:
+            self._db.execute("INSERT OR IGNORE INTO robots(model, serial) VALUES (?, ?)", (model, serial))
+            (rid,) = self._db.execute(
+                "SELECT robot_id FROM robots WHERE model=? AND serial=?", (model, serial)
+            ).fetchone()
+        return int(rid)
+
+    def create_run(
+        self,
+        run_id: str,
+        procedure: str,
+        *,
+        model: str | None,
+        serial: str | None,
+        overhaul_state: str | None,
+        config: Mapping,
+        params: Mapping,
+    ) -> None:
+        rid = self.robot_id(model, serial) if model and serial else None
+        try:
+            self._tx(
+                [
+                    (
+                        "INSERT INTO runs(run_id, robot_id, procedure, overhaul_state, config_json, params_json,"
+                        " status, created_at) VALUES (?,?,?,?,?,?,?,?)",
+                        (run_id, rid, procedure, overhaul_state, _dumps(config), _dumps(params), "running", time.time()),
+                    )
+                ]
+            )
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"run {run_id!r} already exists in {self.path}") from exc
+
+    def run(self, run_id: str) -> RunRecord:
+        rows = self._query(
+            "SELECT r.run_id, r.procedure, b.model, b.serial, r.overhaul_state, r.config_json, r.params_json,"
+            " r.status, r.created_at, r.finished_at FROM runs r LEFT JOIN robots b USING (robot_id)"
+            " WHERE r.run_id=?",
+            (run_id,),
+        )
+        if not rows:
+            raise StoreError(f"no run {run_id!r} in {self.path}")
+        r = rows[0]
+        return RunRecord(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]), json.loads(r[6]), r[7], r[8], r[9])
+
+    def runs(self) -> list[RunRecord]:
+        ids = [r[0] for r in self._query("SELECT run_id FROM runs ORDER BY created_at, run_id")]
+        return [self.run(i) for i in ids]
+
+    def set_run_status(self, run_id: str, status: str) -> None:
+        finished = time.time() if status in ("done", "failed") else None
+        self._tx([("UPDATE runs SET status=?, finished_at=? WHERE run_id=?", (status, finished, run_id))])
+
+    # -- journal ----------------------------------------------------------
+    def step_started(self, run_id: str, idx: int, name: str) -> int:
+        """Journal the start of step ``idx``; returns its attempt number (1, 2, ...)."""
+        with self._lock:
+            (last,) = self._db.execute(
+                "SELECT COALESCE(MAX(attempt), 0) FROM steps WHERE run_id=? AND idx=?", (run_id, idx)
+            ).fetchone()
+            attempt = int(last) + 1
+            self._tx(
+                [
+                    (
+                        "INSERT INTO steps(run_id, idx, attempt, name, status, started_at) VALUES (?,?,?,?,?,?)",
+                        (run_id, idx, attempt, name, "running", time.time()),
+                    )
+                ]
+            )
+        return attempt
+
+    def step_ended(
+        self, run_id: str, idx: int, attempt: int, status: str, output: Mapping | None = None, message: str | None = None
+    ) -> None:
+        if status not in ("done", "failed", "aborted"):
+            raise StoreError(f"step status must be done, failed or aborted, got {status!r}")
+        self._tx(
+            [
+                (
+                    "UPDATE steps SET status=?, ended_at=?, output_json=?, message=? WHERE run_id=? AND idx=? AND attempt=?",
+                    (status, time.time(), _dumps(output) if output is not None else None, message, run_id, idx, attempt),
+                )
+            ]
+        )
+
+    def steps(self, run_id: str) -> list[StepRecord]:
+        rows = self._query(
+            "SELECT idx, attempt, name, status, started_at, ended_at, output_json, message FROM steps"
+            " WHERE run_id=? ORDER BY idx, attempt",
+            (run_id,),
+        )
+        return [
+            StepRecord(r[0], r[1], r[2], r[3], r[4], r[5], json.loads(r[6]) if r[6] else None, r[7]) for r in rows
+        ]
+
+    def done_steps(self, run_id: str) -> dict[int, StepRecord]:
+        """The finished attempt of every finished step, by index."""
+        return {s.idx: s for s in self.steps(run_id) if s.status == "done"}
+
+    # -- samples ----------------------------------------------------------
+    def append_samples(
+        self, run_id: str, stream: str, step_idx: int, attempt: int, columns: Mapping[str, np.ndarray]
+    ) -> int:
+        """Commit one batch of samples; when this returns they are acknowledged.
+
+        ``columns`` maps column name to a 1-D array; all the same length.
+        Returns the number of samples committed.
+        """
+        names = list(columns)
+        if not names:
+            raise DataError(f"stream {stream!r}: a batch needs at least one column")
+        arrays = [np.asarray(columns[n], dtype=float).ravel() for n in names]
+        n = arrays[0].size
+        for name, arr in zip(names, arrays):
+            if arr.size != n:
+                raise DataError(f"stream {stream!r}: column {name!r} has {arr.size} values, expected {n}")
+        if n == 0:
+            return 0
+        block = np.ascontiguousarray(np.column_stack(arrays), dtype="<f8")
+        with self._lock:
+            (last,) = self._db.execute(
+                "SELECT COALESCE(MAX(batch_no), -1) FROM sample_batches"
+                " WHERE run_id=? AND stream=? AND step_idx=? AND attempt=?",
+                (run_id, stream, step_idx, attempt),
+            ).fetchone()
+            self._tx(
+                [
+                    (
+                        "INSERT INTO sample_batches(run_id, stream, step_idx, attempt, batch_no, n, columns, data,"
+                        " committed_at) VALUES (?,?,?,?,?,?,?,?,?)",
+                        (run_id, stream, step_idx, attempt, int(last) + 1, n, json.dumps(names), block.tobytes(), time.time()),
+                    )
+                ]
+            )
+        return n
+
+    def sample_count(self, run_id: str, stream: str | None = None, *, finished_only: bool = False) -> int:
+        rows = self._batches(run_id, stream, finished_only=finished_only, with_data=False)
+        return int(sum(r[4] for r in rows))
+
+    def _batches(self, run_id, stream, *, finished_only, with_data, steps=None):
+        sql = (
+            "SELECT b.stream, b.step_idx, b.attempt, b.batch_no, b.n, b.columns"
+            + (", b.data" if with_data else "")
+            + " FROM sample_batches b"
+        )
+        where, args = ["b.run_id=?"], [run_id]
+        if finished_only:
+            sql += " JOIN steps s ON s.run_id=b.run_id AND s.idx=b.step_idx AND s.attempt=b.attempt"
+            where.append("s.status='done'")
+        if stream is not None:
+            where.append("b.stream=?")
+            args.append(stream)
+        if steps is not None:
+            steps = [int(s) for s in steps]
+            where.append(f"b.step_idx IN ({','.join('?' * len(steps))})" if steps else "0")
+            args.extend(steps)
+        sql += " WHERE " + " AND ".join(where) + " ORDER BY b.stream, b.step_idx, b.attempt, b.batch_no"
+        return self._query(sql, tuple(args))
+
+    def samples(
+        self, run_id: str, stream: str, *, finished_only: bool = True, steps: Iterable[int] | None = None
+    ) -> dict[str, np.ndarray]:
+        """All samples of ``stream`` as columns (plus ``step_idx``), in step order.
+
+        By default only the samples of finished step attempts; pass
+        ``finished_only=False`` to see every acknowledged sample.
+        """
+        rows = self._batches(run_id, stream, finished_only=finished_only, with_data=True, steps=steps)
+        if not rows:
+            return {}
+        names = json.loads(rows[0][5])
+        blocks, step_col = [], []
+        for r in rows:
+            cols = json.loads(r[5])
+            if cols != names:
+                raise StoreError(f"run {run_id} stream {stream!r}: batch columns {cols} differ from {names}")
+            block = np.frombuffer(r[6], dtype="<f8").reshape(r[4], len(cols))
+            blocks.append(block)
+            step_col.append(np.full(r[4], r[1], dtype=np.int64))
+        data = np.vstack(blocks)
+        out = {name: data[:, i].copy() for i, name in enumerate(names)}
+        out["step_idx"] = np.concatenate(step_col)
+        return out
+
+    def streams(self, run_id: str) -> list[str]:
+        return [r[0] for r in self._query("SELECT DISTINCT stream FROM sample_batches WHERE run_id=? ORDER BY stream", (run_id,))]
+
+    # -- results ----------------------------------------------------------
+    def put_result(self, run_id: str, key: str, value) -> None:
+        self._tx([("INSERT OR REPLACE INTO results(run_id, key, value_json) VALUES (?,?,?)", (run_id, key, _dumps(value)))])
+
+    def result(self, run_id: str, key: str):
+        rows = self._query("SELECT value_json FROM results WHERE run_id=? AND key=?", (run_id, key))
+        if not rows:
+            raise StoreError(f"run {run_id}: no result {key!r}")
+        return json.loads(rows[0][0])
+
+    def results(self, run_id: str) -> dict:
+        return {k: json.loads(v) for k, v in self._query("SELECT key, value_json FROM results WHERE run_id=?", (run_id,))}
+
+    def put_characteristics(self, run_id: str, rows: Iterable[Mapping]) -> None:
+        """Rows with pose, name, value, unit, limit (or None), passed (or None)."""
+        stmts = []
+        for r in rows:
+            passed = r.get("passed")
+            stmts.append(
+                (
+                    "INSERT OR REPLACE INTO characteristics(run_id, pose, name, value, unit, limit_value, passed)"
+                    " VALUES (?,?,?,?,?,?,?)",
+                    (
+                        run_id,
+                        str(r["pose"]),
+                        str(r["name"]),
+                        None if r.get("value") is None else float(r["value"]),
+                        str(r["unit"]),
+                        None if r.get("limit") is None else float(r["limit"]),
+                        None if passed is None else int(bool(passed)),
+                    ),
+                )
+            )
+        self._tx(stmts)
+
+    def characteristics(self, run_id: str) -> list[dict]:
+        rows = self._query(
+            "SELECT pose, name, value, unit, limit_value, passed FROM characteristics WHERE run_id=? ORDER BY pose, name",
+            (run_id,),
+        )
+        return [
+            {"pose": r[0], "name": r[1], "value": r[2], "unit": r[3], "limit": r[4], "passed": None if r[5] is None else bool(r[5])}
+            for r in rows
+        ]
+
+    # -- history ----------------------------------------------------------
+    def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
+        """One robot's values of a characteristic across its finished runs, oldest first."""
+        sql = (
+            "SELECT r.run_id, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
+            " FROM characteristics c JOIN runs r USING (run_id) JOIN robots b USING (robot_id)"
+            " WHERE b.serial=? AND c.name=? AND r.status='done'"
+        )
+        args: list = [serial, name]
+        if pose is not None:
+            sql += " AND c.pose=?"
+            args.append(pose)
+        sql += " ORDER BY r.created_at, r.run_id, c.pose"
+        return [
+            {"run_id": r[0], "created_at": r[1], "overhaul_state": r[2], "pose": r[3], "value": r[4], "limit": r[5],
+             "passed": None if r[6] is None else bool(r[6])}
+            for r in self._query(sql, tuple(args))
+        ]
+
+    def robots_exceeding(self, name: str, *, latest_only: bool = True) -> list[dict]:
+        """Robots with a value of ``name`` over its limit (in their latest finished run by default)."""
+        sql = (
+            "SELECT b.model, b.serial, r.run_id, r.created_at, c.pose, c.value, c.limit_value"
+            " FROM characteristics c JOIN runs r USING (run_id) JOIN robots b USING (robot_id)"
+            " WHERE c.name=? AND c.limit_value IS NOT NULL AND c.value > c.limit_value AND r.status='done'"
+        )
+        if latest_only:
+            sql += (
+                " AND r.created_at = (SELECT MAX(r2.created_at) FROM runs r2 WHERE r2.robot_id=r.robot_id"
+                " AND r2.status='done' AND r2.run_id IN (SELECT run_id FROM characteristics WHERE name=?))"
+            )
+            args: tuple = (name, name)
+        else:
+            args = (name,)
+        sql += " ORDER BY b.serial, r.created_at, c.pose"
+        return [
+            {"model": r[0], "serial": r[1], "run_id": r[2], "created_at": r[3], "pose": r[4], "value": r[5], "limit": r[6]}
+            for r in self._query(sql, args)
+        ]
+
+    # -- export -----------------------------------------------------------
+    def export(self, run_id: str, out_dir: str | Path, fmt: str = "csv") -> list[Path]:
+        """Write every stream, the journal and the characteristics of a run as CSV or Parquet."""
+        if fmt not in ("csv", "parquet"):
+            raise StoreError(f"export format must be 'csv' or 'parquet', got {fmt!r}")
+        self.run(run_id)  # raises for an unknown run
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        tables: dict[str, dict[str, list | np.ndarray]] = {}
+        for stream in self.streams(run_id):
+            tables[f"samples_{stream}"] = self.samples(run_id, stream, finished_only=False)
+        steps = self.steps(run_id)
+        tables["steps"] = {
+            "idx": [s.idx for s in steps], "attempt": [s.attempt for s in steps], "name": [s.name for s in steps],
+            "status": [s.status for s in steps], "started_at": [s.started_at for s in steps],
+            "ended_at": [s.ended_at for s in steps],
+        }
+        chars = self.characteristics(run_id)
+        tables["characteristics"] = {k: [c[k] for c in chars] for k in ("pose", "name", "value", "unit", "limit", "passed")}
+        written = []
+        for name, cols in tables.items():
+            path = out / f"{name}.{fmt}"
+            if fmt == "csv":
+                _write_csv(path, cols)
+            else:
+                import pyarrow as pa
+                import pyarrow.parquet as pq
+
+                pq.write_table(pa.table({k: list(v) if not isinstance(v, np.ndarray) else v for k, v in cols.items()}), path)
+            written.append(path)
+        return written
+
+
+def _write_csv(path: Path, cols: Mapping[str, Iterable]) -> None:
+    names = list(cols)
+    columns = [list(cols[n]) for n in names]
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(names)
+        for row in zip(*columns):
+            w.writerow(["" if v is None else (repr(float(v)) if isinstance(v, (float, np.floating)) else v) for v in row])
+
+
+def _dumps(value) -> str:
+    return json.dumps(value, default=_json_default, sort_keys=True)
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
