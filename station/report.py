@@ -1,0 +1,201 @@
+"""One self-contained HTML report per run: numbers, verdicts, plots.
+
+Plots are drawn with matplotlib (Agg) into inline SVG, so the file opens
+anywhere with nothing beside it. The plot functions take plain arrays; the
+procedure decides what to show:
+
+* :func:`plot_velocity_windows` — speed and its moving average with the
+  chosen extraction windows (seed 000 Figs. 3-4);
+* :func:`plot_approach` — distance to the attained pose while approaching it,
+  with the limit band, overshoot and settling marked (Figs. 5-6);
+* :func:`plot_clusters` — attained positions per approach direction (Fig. 7);
+* :func:`plot_bars` — per-pose or per-cycle values against a limit (Fig. 8:
+  distance accuracy, posing time);
+* :func:`plot_errors_before_after` — calibration errors before and after.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+def _figure(width_in: float = 8.0, height_in: float = 3.2, ncols: int = 1):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, ncols, figsize=(width_in, height_in), squeeze=False)
+    return fig, axes[0]
+
+
+def _svg(fig) -> str:
+    import matplotlib.pyplot as plt
+
+    buf = io.StringIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="svg")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg"):]
+
+
+def plot_velocity_windows(
+    t_s: np.ndarray, speed_mm_s: np.ndarray, windows: Sequence[tuple[float, float]], *, smooth_n: int = 21,
+    title: str = "Speed and chosen extraction windows",
+) -> str:
+    """Speed, its moving average and the least-speed windows (seed 000 Figs. 3-4)."""
+    t_s, speed = np.asarray(t_s, float), np.asarray(speed_mm_s, float)
+    fig, (ax,) = _figure()
+    ax.plot(t_s, speed, lw=0.6, color="0.6", label="speed")
+    if speed.size >= smooth_n:
+        kernel = np.ones(smooth_n) / smooth_n
+        ax.plot(t_s, np.convolve(np.nan_to_num(speed), kernel, mode="same"), lw=1.0, color="C0", label=f"moving average ({smooth_n})")
+    for k, (a, b) in enumerate(windows):
+        ax.axvspan(a, b, color="C3", alpha=0.35, lw=0, label="extraction window" if k == 0 else None)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("speed [mm/s]")
+    ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=7)
+    return _svg(fig)
+
+
+def plot_approach(
+    t_s: np.ndarray, dist_mm: np.ndarray, band_mm: float, *, t_enter_s: float | None = None,
+    t_settle_s: float | None = None, title: str = "Approach",
+) -> str:
+    """Distance to the attained position while approaching it, with the limit band (Figs. 5-6)."""
+    fig, (ax,) = _figure(6.0, 2.8)
+    ax.plot(t_s, dist_mm, lw=0.9, color="C0", marker=".", ms=2)
+    ax.axhline(band_mm, color="C3", lw=0.8, ls="--", label=f"limit band {band_mm:.3g} mm")
+    if t_enter_s is not None:
+        ax.axvline(t_enter_s, color="C2", lw=0.8, label="first entry")
+    if t_settle_s is not None:
+        ax.axvline(t_settle_s, color="C1", lw=0.8, label="stays inside")
+    top = max(band_mm * 4, float(np.nanmin(dist_mm)) * 1.2 if np.size(dist_mm) else band_mm * 4)
+    ax.set_ylim(0, top)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("distance [mm]")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    return _svg(fig)
+
+
+def plot_clusters(clusters: Mapping[str, np.ndarray], commanded_mm: np.ndarray | None = None, *, title: str = "Attained positions") -> str:
+    """Attained positions per direction, projected on xy, xz and yz (Fig. 7); mm relative to their mean."""
+    all_pts = np.vstack([np.asarray(v, float) for v in clusters.values()])
+    centre = all_pts.mean(axis=0)
+    fig, axes = _figure(9.0, 3.0, ncols=3)
+    for ax, (i, j, lab) in zip(axes, ((0, 1, "x-y"), (0, 2, "x-z"), (1, 2, "y-z"))):
+        for k, (name, pts) in enumerate(clusters.items()):
+            p = np.asarray(pts, float) - centre
+            ax.scatter(p[:, i], p[:, j], s=8, color=f"C{k}", label=name)
+            ax.scatter([p[:, i].mean()], [p[:, j].mean()], s=60, marker="+", color=f"C{k}")
+        if commanded_mm is not None:
+            c = np.asarray(commanded_mm, float) - centre
+            ax.scatter([c[i]], [c[j]], s=50, marker="x", color="k", label="commanded")
+        ax.set_title(f"{title} ({lab}) [mm]", fontsize=8)
+        ax.set_aspect("equal", adjustable="datalim")
+    axes[0].legend(fontsize=6)
+    return _svg(fig)
+
+
+def plot_bars(labels: Sequence[str], values: Sequence[float], *, limit: float | None = None, ylabel: str, title: str) -> str:
+    """One bar per label with an optional limit line (Fig. 8 style)."""
+    fig, (ax,) = _figure(6.0, 2.8)
+    vals = np.asarray(values, float)
+    colors = ["C3" if (limit is not None and v > limit) else "C0" for v in vals]
+    ax.bar(range(len(vals)), vals, color=colors)
+    ax.set_xticks(range(len(vals)), labels, fontsize=7, rotation=45 if len(vals) > 8 else 0)
+    if limit is not None:
+        ax.axhline(limit, color="C3", ls="--", lw=0.8, label=f"limit {limit:g}")
+        ax.legend(fontsize=7)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    return _svg(fig)
+
+
+def plot_errors_before_after(before: np.ndarray, after: np.ndarray, *, ylabel: str = "error [mm]", title: str = "Errors before and after calibration") -> str:
+    fig, (ax,) = _figure(7.0, 2.8)
+    ax.plot(np.abs(before), "o-", ms=3, lw=0.7, color="C0", label=f"before (mean {np.mean(np.abs(before)):.3g})")
+    ax.plot(np.abs(after), "o-", ms=3, lw=0.7, color="C3", label=f"after (mean {np.mean(np.abs(after)):.3g})")
+    ax.set_xlabel("measurement")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    return _svg(fig)
+
+
+@dataclass
+class Report:
+    """What goes into a run's HTML report."""
+
+    title: str
+    facts: dict[str, str] = field(default_factory=dict)
+    #: rows with pose, name, value, unit, limit, passed
+    rows: list[Mapping] = field(default_factory=list)
+    figures: list[tuple[str, str]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> str:
+        judged = [r.get("passed") for r in self.rows if r.get("passed") is not None]
+        if not judged:
+            return "NO LIMITS"
+        return "PASS" if all(judged) else "FAIL"
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
+th{background:#f3f3f3}td.l{text-align:left}.pass{color:#176317;font-weight:600}.fail{color:#b00020;font-weight:600}
+.verdict{font-size:1.4em;padding:.3em .8em;display:inline-block;border-radius:4px}
+.v-PASS{background:#dff3df}.v-FAIL{background:#fbe0e4}.v-NO{background:#eee}
+figure{margin:1.5em 0}figcaption{font-size:.9em;color:#555}
+"""
+
+
+def render_html(report: Report) -> str:
+    """The report as one HTML document (inline CSS and SVG)."""
+    e = html.escape
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>{e(report.title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{e(report.title)}</h1>",
+        f"<p class='verdict v-{report.verdict.split()[0]}'>{e(report.verdict)}</p>",
+        "<table>",
+    ]
+    for k, v in report.facts.items():
+        parts.append(f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>")
+    parts.append("</table><h2>Results</h2><table><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>")
+    for r in report.rows:
+        v = r.get("value")
+        val = "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.4g}"
+        lim = "" if r.get("limit") is None else f"{r['limit']:.4g}"
+        passed = r.get("passed")
+        verdict = "" if passed is None else ("<span class='pass'>pass</span>" if passed else "<span class='fail'>FAIL</span>")
+        parts.append(
+            f"<tr><td class='l'>{e(str(r['pose']))}</td><td class='l'>{e(str(r['name']))}</td><td>{val}</td>"
+            f"<td class='l'>{e(str(r.get('unit', '')))}</td><td>{lim}</td><td>{verdict}</td></tr>"
+        )
+    parts.append("</table>")
+    for note in report.notes:
+        parts.append(f"<p>{e(note)}</p>")
+    for caption, svg in report.figures:
+        parts.append(f"<figure>{svg}<figcaption>{e(caption)}</figcaption></figure>")
+    parts.append(f"<p style='color:#888;font-size:.8em'>written {time.strftime('%Y-%m-%d %H:%M:%S')}</p></body></html>")
+    return "\n".join(parts)
+
+
+def write_report(report: Report, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(render_html(report), encoding="utf-8")
+    return path

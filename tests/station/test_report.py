@@ -1,0 +1,37 @@
+import re
+
+import numpy as np
+
+from station.report import (Report, plot_approach, plot_bars, plot_clusters, plot_errors_before_after,
+                            plot_velocity_windows, render_html, write_report)
+
+
+def test_report_is_self_contained_and_shows_verdicts(tmp_path):
+    rng = np.random.default_rng()
+    t = np.linspace(0, 10, 2001)
+    speed = np.abs(np.sin(t)) * 500
+    rows = [
+        {"pose": "P1", "name": "RP_mm", "value": 0.2, "unit": "mm", "limit": 0.5, "passed": True},
+        {"pose": "P2", "name": "RP_mm", "value": 0.7, "unit": "mm", "limit": 0.5, "passed": False},
+        {"pose": "P3", "name": "vAP_mm", "value": float("nan"), "unit": "mm", "limit": None, "passed": None},
+        {"pose": "<script>", "name": "AP_mm", "value": 1.0, "unit": "mm", "limit": None, "passed": None},
+    ]
+    figs = [
+        ("velocity", plot_velocity_windows(t, speed, [(3.1, 3.3), (6.2, 6.4)])),
+        ("approach", plot_approach(t[:50], np.linspace(2, 0.01, 50), 0.5, t_enter_s=0.1, t_settle_s=0.15)),
+        ("clusters", plot_clusters({"x": rng.normal(size=(10, 3)), "y": rng.normal(size=(10, 3)) + 1}, np.zeros(3))),
+        ("bars", plot_bars(["P1", "P2"], [0.2, 0.7], limit=0.5, ylabel="RP [mm]", title="RP")),
+        ("cal", plot_errors_before_after(rng.normal(size=20), rng.normal(size=20) * 0.1)),
+    ]
+    rep = Report("ISO 9283 run r1", facts={"robot": "SN-1"}, rows=rows, figures=figs)
+    assert rep.verdict == "FAIL"
+    text = render_html(rep)
+    assert text.count("<svg") == 5
+    assert "<script>" not in text and "&lt;script&gt;" in text  # escaped
+    assert re.search(r"class='fail'>FAIL", text) and "n/a" in text
+    assert not re.search(r"(src|href)=['\"]https?://", text)  # nothing fetched from outside
+    p = write_report(rep, tmp_path / "r" / "report.html")
+    assert p.stat().st_size > 10_000
+    rows[1]["passed"] = True
+    assert Report("x", rows=rows).verdict == "PASS"
+    assert Report("x").verdict == "NO LIMITS"
