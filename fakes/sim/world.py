@@ -1,0 +1,402 @@
+"""The simulated world: one clock, one arm, the instruments, one truth.
+
+:func:`make_world` builds everything from a robot name and a seed; every
+random choice (error effects, servo, tracker pose, stopping errors, scanner)
+comes from its own stream spawned from that seed, so a world is reproducible
+and changing one option does not reshuffle the others.
+
+Fakes share a world: the tracker fake measures ``world.tracker_source()``,
+the controller fake moves ``world.arm``, the odometry fake drives
+``world.get_trailer()``; all read ``world.clock``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fakes.sim.arm import SimArm
+from fakes.sim.clock import ManualClock, SimClock
+from fakes.sim.scanner import ScanResult, SimScanner, look_at
+from fakes.sim.tracker import TrackerModel
+from station.errors import ConfigError, StationError
+from station.models import kinematics as kin
+from station.models.effects import EffectSet, realistic_effects, realistic_stop_sigma_rad
+from station.models.jig import CornerJig
+from station.models.motion import PROFILE_KINDS, ServoParams
+from station.models.robots import RobotSpec, get_robot
+
+__all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM"]
+
+#: centre of the seed 000 Table 1 test cube (P1 of Table 2), robot base frame, mm
+ISO_CUBE_CENTRE_MM = (0.0, 1700.0, 1400.0)
+
+
+@dataclass(frozen=True)
+class TrackerSource:
+    """What a tracker fake streams: the arm's reflector through the tracker model.
+
+    Attributes
+    ----------
+    clock : SimClock or ManualClock
+    rate_hz : float
+    tracker : TrackerModel
+    """
+
+    clock: Any
+    rate_hz: float
+    tracker: TrackerModel
+    _arm: SimArm = field(repr=False)
+
+    def measure(self, t_sim) -> tuple[np.ndarray, np.ndarray]:
+        """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``."""
+        return self.tracker.measure(t_sim, self._arm.tool_position_mm)
+
+    def sample_times(self, t_start: float, t_end: float) -> np.ndarray:
+        """World times of the device's grid samples in ``[t_start, t_end)``."""
+        return self.tracker.sample_times(t_start, t_end)
+
+    def device_time(self, t_sim) -> np.ndarray:
+        """Device timestamps of world times."""
+        return self.tracker.device_time(t_sim)
+
+
+@dataclass
+class World:
+    """The simulated cell (build it with :func:`make_world`).
+
+    Attributes
+    ----------
+    clock : SimClock or ManualClock
+    robot : RobotSpec
+    arm : SimArm
+    tracker : TrackerModel
+    scanner : SimScanner
+    rng : numpy.random.Generator
+        A free stream for users of the world (fault injection, ...).
+    seed : int
+    work_centre_mm : ndarray, shape (3,)
+        Centre of the working volume (the ISO cube centre for
+        ``industrial-3100``, else the nominal TCP at home), base frame.
+    trailer : SimTrailer or None
+        Created by :meth:`get_trailer`.
+    """
+
+    clock: Any
+    robot: RobotSpec
+    arm: SimArm
+    tracker: TrackerModel
+    scanner: SimScanner
+    rng: np.random.Generator
+    seed: int
+    work_centre_mm: np.ndarray
+    trailer: Any = None
+    _scan_rng: np.random.Generator = field(default=None, repr=False)
+    _trailer_rng: np.random.Generator = field(default=None, repr=False)
+    _closed: bool = field(default=False, repr=False)
+
+    @property
+    def base_T_tracker(self) -> np.ndarray:
+        """Tracker pose in the robot base frame (the truth a registration estimates)."""
+        return self.tracker.base_T_tracker.copy()
+
+    def tracker_source(self) -> TrackerSource:
+        """The object a tracker fake measures (``clock``, ``rate_hz``, ``measure``)."""
+        return TrackerSource(self.clock, self.tracker.rate_hz, self.tracker, self.arm)
+
+    def scan(self, t_sim: float | None = None) -> ScanResult:
+        """Scan the jig at the arm's true pose at ``t_sim`` (default now)."""
+        t = float(self.clock.now()) if t_sim is None else float(t_sim)
+        return self.scanner.render(self.arm.tool_pose(t), self._scan_rng)
+
+    def get_trailer(self):
+        """The simulated trailer (created on first use, on this world's clock)."""
+        if self.trailer is None:
+            try:
+                from fakes.sim.trailer import SimTrailer
+            except ImportError as exc:
+                raise ConfigError(f"the trailer simulation is not available: {exc}") from exc
+            self.trailer = SimTrailer(self.clock, rng=self._trailer_rng)
+        return self.trailer
+
+    def close(self) -> None:
+        """Release the world (stops the arm; idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.arm.state == "moving":
+                self.arm.protective_stop()
+        except StationError:
+            pass
+        closer = getattr(self.trailer, "close", None)
+        if callable(closer):
+            closer()
+
+    def __enter__(self) -> "World":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def describe(self) -> dict:
+        """JSON-able truth of the world (for people, tests and truth files)."""
+        return {
+            "seed": self.seed,
+            "robot": self.robot.name,
+            "work_centre_mm": self.work_centre_mm.tolist(),
+            "effects": None if self.arm.effects is None else self.arm.effects.to_dict(),
+            "servo": None if self.arm.servo is None else self.arm.servo.to_dict(),
+            "stop_sigma_rad": self.arm.stop_sigma_rad.tolist(),
+            "profile": self.arm.profile,
+            "payload_kg": self.arm.payload_kg,
+            "tracker": self.tracker.describe(),
+            "scanner": self.scanner.describe(),
+        }
+
+
+def realistic_servo(rng: np.random.Generator) -> ServoParams:
+    """Axis loops of an industrial arm: 6-12 Hz natural frequency, damping 0.6-0.9.
+
+    Position loops of large arms close at roughly 5-15 Hz (limited by the
+    structure's first resonances); the damping is tuned for little overshoot.
+    """
+    return ServoParams(2.0 * np.pi * rng.uniform(6.0, 12.0, 6), rng.uniform(0.6, 0.9, 6))
+
+
+def _num(value, name: str, *, positive=False, nonneg=False) -> float:
+    if isinstance(value, bool):
+        raise ConfigError(f"`{name}` must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"`{name}` must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ConfigError(f"`{name}` must be finite, got {value!r}")
+    if positive and v <= 0:
+        raise ConfigError(f"`{name}` must be > 0, got {value!r}")
+    if nonneg and v < 0:
+        raise ConfigError(f"`{name}` must be >= 0, got {value!r}")
+    return v
+
+
+def _draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Tracker 2-4 m (horizontally) from ``centre``, levelled, random heading.
+
+    Rejects spots within 1.5 m of the robot's base axis. Height 1.0-1.7 m
+    above the base (a tripod).
+    """
+    for _ in range(1000):  # rejection sampling of one spot
+        r = rng.uniform(2000.0, 4000.0)
+        az = rng.uniform(0.0, 2.0 * np.pi)
+        xy = centre[:2] + r * np.array([np.cos(az), np.sin(az)])
+        if np.hypot(*xy) >= 1500.0:
+            break
+    z = rng.uniform(1000.0, 1700.0)
+    yaw = rng.uniform(-np.pi, np.pi)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = [xy[0], xy[1], z]
+    return T
+
+
+def make_world(
+    robot: str | RobotSpec = "industrial-3100",
+    seed: int = 0,
+    time_scale: float = 1.0,
+    clock=None,
+    effects: str | EffectSet | None = "realistic",
+    tracker_rate_hz: float = 1000.0,
+    *,
+    servo: str | ServoParams | None = "realistic",
+    stop_sigma_mm: str | float | None = "auto",
+    payload_kg: float = 0.0,
+    profile: str = "scurve",
+    history_s: float = 3600.0,
+    tracker_mpe_a_um: float = 15.0,
+    tracker_mpe_b_um_per_m: float = 6.0,
+    tracker_latency_s: float = 0.0,
+    tracker_clock_offset_s: float = 0.0,
+    beam_breaks=(),
+    random_breaks_per_hour: float = 0.0,
+    base_T_tracker=None,
+    jig: CornerJig | None = None,
+    base_T_scanner=None,
+) -> World:
+    """Build a simulated cell.
+
+    Parameters
+    ----------
+    robot : str or RobotSpec
+        Robot name (:func:`station.models.robots.get_robot`) or a spec.
+    seed : int
+        Seed of every random choice (>= 0).
+    time_scale : float
+        Simulated seconds per real second of a new :class:`SimClock`
+        (ignored when ``clock`` is given).
+    clock : SimClock or ManualClock, optional
+        Use this clock (e.g. ``ManualClock()`` for offline runs).
+    effects : "realistic", EffectSet or None
+        Error effects of the true arm (``"realistic"``: drawn by
+        :func:`station.models.effects.realistic_effects`; ``None``: nominal).
+    tracker_rate_hz : float
+        Tracker output rate, 10-3000 Hz.
+    servo : "realistic", ServoParams or None
+        Axis dynamics (``None``: perfect tracking).
+    stop_sigma_mm : "auto", "realistic", float or None
+        Repeatability scatter per stop (TCP, 1 sigma per coordinate at home).
+        ``"auto"``: realistic when ``effects`` is ``"realistic"``, else none.
+    payload_kg : float
+        Mass at the TCP.
+    profile : {"scurve", "trapezoid"}
+        Velocity profile of the arm's moves.
+    history_s : float
+        Past the arm keeps for queries (see :mod:`fakes.sim.arm`).
+    tracker_mpe_a_um, tracker_mpe_b_um_per_m : float
+        Tracker MPE ``a + b R`` (2 sigma per coordinate).
+    tracker_latency_s, tracker_clock_offset_s : float
+        Tracker timing (see :mod:`fakes.sim.tracker`).
+    beam_breaks : iterable of (float, float)
+        Scheduled beam breaks, simulated seconds.
+    random_breaks_per_hour : float
+        Rate of random beam breaks.
+    base_T_tracker : array_like, shape (4, 4), optional
+        Tracker pose; default drawn 2-4 m from the work centre.
+    jig : CornerJig, optional
+        Jig on the tool (default 60 mm edges, corner at the TCP).
+    base_T_scanner : array_like, shape (4, 4), optional
+        Scanner pose; default 700 mm from the TCP at home, facing the tool.
+
+    Returns
+    -------
+    World
+        The arm rests at ``robot.home_q_rad``.
+
+    Raises
+    ------
+    ConfigError
+        Any bad option; the message names it. Nothing is left half-built.
+    """
+    # ---- validate everything first
+    if isinstance(robot, RobotSpec):
+        spec = robot
+    elif isinstance(robot, str):
+        spec = get_robot(robot)
+    else:
+        raise ConfigError(f"`robot` must be a robot name or a RobotSpec, got {type(robot).__name__}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"`seed` must be a non-negative integer, got {seed!r}")
+    seed = int(seed)
+    if clock is None:
+        time_scale = _num(time_scale, "time_scale", positive=True)
+    elif not (hasattr(clock, "now") and hasattr(clock, "sleep_until")):
+        raise ConfigError(f"`clock` must be a SimClock or ManualClock, got {type(clock).__name__}")
+    if not (isinstance(effects, EffectSet) or effects is None or effects == "realistic"):
+        raise ConfigError(f"`effects` must be 'realistic', an EffectSet or None, got {effects!r}")
+    tracker_rate_hz = _num(tracker_rate_hz, "tracker_rate_hz", positive=True)
+    if not (10.0 <= tracker_rate_hz <= 3000.0):
+        raise ConfigError(f"`tracker_rate_hz` must be within 10-3000 Hz, got {tracker_rate_hz!r}")
+    if not (isinstance(servo, ServoParams) or servo is None or servo == "realistic"):
+        raise ConfigError(f"`servo` must be 'realistic', a ServoParams or None, got {servo!r}")
+    if stop_sigma_mm in ("auto", "realistic") or stop_sigma_mm is None:
+        pass
+    else:
+        stop_sigma_mm = _num(stop_sigma_mm, "stop_sigma_mm", nonneg=True)
+    payload_kg = _num(payload_kg, "payload_kg", nonneg=True)
+    if profile not in PROFILE_KINDS:
+        raise ConfigError(f"`profile` must be one of {PROFILE_KINDS}, got {profile!r}")
+    history_s = _num(history_s, "history_s", positive=True)
+    for name, val in (("tracker_mpe_a_um", tracker_mpe_a_um), ("tracker_mpe_b_um_per_m", tracker_mpe_b_um_per_m),
+                      ("tracker_latency_s", tracker_latency_s), ("random_breaks_per_hour", random_breaks_per_hour)):
+        _num(val, name, nonneg=True)
+    _num(tracker_clock_offset_s, "tracker_clock_offset_s")
+    try:
+        breaks = [(float(a), float(b)) for a, b in beam_breaks]
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"`beam_breaks` must be (t_start, t_end) pairs: {exc}") from exc
+    if jig is not None and not isinstance(jig, CornerJig):
+        raise ConfigError(f"`jig` must be a CornerJig, got {type(jig).__name__}")
+
+    # ---- independent random streams
+    ss = np.random.SeedSequence(seed)
+    s_eff, s_servo, s_track, s_stop, s_scan, s_user, s_trailer, s_tnoise = ss.spawn(8)
+
+    if effects == "realistic":
+        effect_set = realistic_effects(spec, np.random.default_rng(s_eff))
+    else:
+        effect_set = effects
+    servo_params = realistic_servo(np.random.default_rng(s_servo)) if servo == "realistic" else servo
+    rng_stop = np.random.default_rng(s_stop)
+    if stop_sigma_mm == "auto":
+        stop_sigma_mm = "realistic" if effects == "realistic" else None
+    if stop_sigma_mm is None:
+        stop_sigma = np.zeros(6)
+    elif stop_sigma_mm == "realistic":
+        stop_sigma = realistic_stop_sigma_rad(spec, rng_stop)
+    else:
+        stop_sigma = realistic_stop_sigma_rad(spec, rng_stop, sigma_mm=float(stop_sigma_mm))
+
+    if spec.name == "industrial-3100":
+        centre = np.array(ISO_CUBE_CENTRE_MM)
+    else:
+        centre = kin.tool_position(spec.dh_nominal, spec.home_q_rad)
+    rng_track = np.random.default_rng(s_track)
+    T_track = _draw_tracker_pose(centre, rng_track) if base_T_tracker is None else base_T_tracker
+    tracker_seed = int(np.random.default_rng(s_tnoise).integers(0, 2**31 - 1))
+    try:
+        tracker = TrackerModel(
+            T_track,
+            tracker_rate_hz,
+            mpe_a_um=tracker_mpe_a_um,
+            mpe_b_um_per_m=tracker_mpe_b_um_per_m,
+            latency_s=tracker_latency_s,
+            clock_offset_s=tracker_clock_offset_s,
+            beam_breaks=breaks,
+            random_breaks_per_hour=random_breaks_per_hour,
+            seed=tracker_seed,
+        )
+    except ConfigError as exc:
+        raise ConfigError(f"tracker: {exc}") from exc
+
+    jig = jig or CornerJig()
+    if base_T_scanner is None:
+        T_home = kin.fk(spec.dh_nominal, spec.home_q_rad)
+        fp = T_home[:3, :3] @ jig.feature_point_tool_mm + T_home[:3, 3]
+        eye = fp + 700.0 * T_home[:3, 2]
+        base_T_scanner = look_at(eye, fp)
+    try:
+        scanner = SimScanner(base_T_scanner, jig)
+    except ConfigError as exc:
+        raise ConfigError(f"scanner: {exc}") from exc
+
+    clk = clock if clock is not None else SimClock(time_scale)
+    arm = SimArm(
+        spec,
+        clk,
+        effects=effect_set,
+        servo=servo_params,
+        stop_sigma_rad=stop_sigma,
+        rng=rng_stop,
+        profile=profile,
+        history_s=history_s,
+        payload_kg=payload_kg,
+    )
+    return World(
+        clock=clk,
+        robot=spec,
+        arm=arm,
+        tracker=tracker,
+        scanner=scanner,
+        rng=np.random.default_rng(s_user),
+        seed=seed,
+        work_centre_mm=np.asarray(centre, dtype=float),
+        _scan_rng=np.random.default_rng(s_scan),
+        _trailer_rng=np.random.default_rng(s_trailer),
+    )
+
+
+__all__ += ["ManualClock", "SimClock"]

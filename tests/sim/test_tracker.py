@@ -1,0 +1,124 @@
+"""Laser tracker measurement model: noise from the MPE spec, frames, timing, beam breaks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from fakes.sim.tracker import TrackerModel
+from station.errors import ConfigError
+
+
+def _pose(rng):
+    yaw = rng.uniform(-np.pi, np.pi)
+    T = np.eye(4)
+    T[:3, :3] = [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+    T[:3, 3] = rng.uniform(-3000, 3000, 3)
+    return T
+
+
+def _static(p):
+    p = np.asarray(p, dtype=float)
+    return lambda t: np.tile(p, (np.size(t), 1))
+
+
+@pytest.mark.parametrize("rate", [5.0, 3001.0, float("nan"), -10.0])
+def test_rate_outside_range_refused(rate):
+    with pytest.raises(ConfigError, match="rate_hz"):
+        TrackerModel(np.eye(4), rate)
+
+
+def test_bad_configuration_refused():
+    with pytest.raises(ConfigError, match="base_T_tracker"):
+        TrackerModel(np.ones((4, 4)))
+    with pytest.raises(ConfigError, match="mpe_a_um"):
+        TrackerModel(np.eye(4), mpe_a_um=-1)
+    with pytest.raises(ConfigError, match="latency_s"):
+        TrackerModel(np.eye(4), latency_s=float("inf"))
+    with pytest.raises(ConfigError, match="beam break"):
+        TrackerModel(np.eye(4), beam_breaks=[(2.0, 1.0)])
+    for rate in (10.0, 3000.0):
+        assert TrackerModel(np.eye(4), rate).rate_hz == rate
+
+
+@pytest.mark.parametrize("distance_m", [1.5, 8.0])
+def test_noise_matches_mpe_spec(distance_m, rng):
+    """Per-coordinate variance = ((a + b R)/2)^2 (MPE = 2 sigma): chi-square test."""
+    T = _pose(rng)
+    a, b = rng.uniform(5, 30), rng.uniform(2, 10)
+    tr = TrackerModel(T, 1000.0, mpe_a_um=a, mpe_b_um_per_m=b, seed=int(rng.integers(1 << 30)))
+    direction = rng.normal(size=3)
+    p_trk = direction / np.linalg.norm(direction) * distance_m * 1000.0
+    p_base = T[:3, :3] @ p_trk + T[:3, 3]
+    t = tr.sample_times(0.0, 20.0)
+    xyz, valid = tr.measure(t, _static(p_base))
+    assert valid.all()
+    res = xyz - p_trk
+    sigma = (a + b * distance_m) / 2 * 1e-3
+    assert tr.sigma_mm(distance_m * 1000) == pytest.approx(sigma)
+    n = res.shape[0]
+    for k in range(3):
+        chi2 = float(np.sum(res[:, k] ** 2)) / sigma**2  # known mean: n degrees of freedom
+        assert stats.chi2.ppf(1e-5, n) < chi2 < stats.chi2.ppf(1 - 1e-5, n)
+        assert abs(res[:, k].mean()) < 5 * sigma / math.sqrt(n)
+    # coordinates independent
+    c = np.corrcoef(res.T)
+    assert np.abs(c[np.triu_indices(3, 1)]).max() < 5 / math.sqrt(n)
+
+
+def test_frame_latency_and_time_grid(rng):
+    T = _pose(rng)
+    latency = 0.0123
+    offset = rng.uniform(-100, 100)
+    tr = TrackerModel(T, 250.0, mpe_a_um=0.0, mpe_b_um_per_m=0.0, latency_s=latency, clock_offset_s=offset)
+    t = tr.sample_times(3.0, 5.0)
+    dev = tr.device_time(t)
+    k = dev * 250.0
+    np.testing.assert_allclose(k, np.round(k), atol=1e-6)  # the device's own grid
+    assert t[0] >= 3.0 and t[-1] < 5.0 and t.size == 500
+    vel = np.array([100.0, -50.0, 20.0])
+
+    def moving(tt):
+        return np.outer(tt, vel) + 1000.0
+
+    xyz, valid = tr.measure(t, moving)
+    p_base = moving(t - latency)
+    expect = (p_base - T[:3, 3]) @ T[:3, :3]
+    np.testing.assert_allclose(xyz, expect, atol=1e-9)
+    np.testing.assert_allclose(tr.to_tracker_frame(p_base), expect, atol=1e-9)
+
+
+def test_scheduled_beam_breaks_exactly_in_their_windows(rng):
+    breaks = [(1.2345, 1.5), (2.0, 2.25), (2.2, 2.4)]
+    tr = TrackerModel(_pose(rng), 1000.0, beam_breaks=breaks[:2])
+    tr.add_beam_break(*breaks[2])  # added while running (fault injection)
+    t = tr.sample_times(0.0, 4.0)
+    xyz, valid = tr.measure(t, _static([1000.0, 2000.0, 500.0]))
+    inside = np.zeros(t.size, dtype=bool)
+    for a, b in breaks:
+        inside |= (t >= a) & (t < b)
+    np.testing.assert_array_equal(valid, ~inside)
+    assert np.isnan(xyz[~valid]).all() and np.isfinite(xyz[valid]).all()
+    assert (~valid).sum() == pytest.approx(1000 * (0.2655 + 0.4), abs=2)
+
+
+def test_random_breaks_rate_and_reproducibility(rng):
+    rate_per_h = 600.0
+    tr = TrackerModel(_pose(rng), 100.0, random_breaks_per_hour=rate_per_h, random_break_duration_s=(0.1, 0.3),
+                      seed=int(rng.integers(1 << 30)))
+    t = tr.sample_times(0.0, 7200.0)
+    f = _static([500.0, 500.0, 500.0])
+    xyz, valid = tr.measure(t, f)
+    # the same instants measured in chunks give the same values and the same breaks
+    parts = [tr.measure(t[i : i + 77777], f) for i in range(0, t.size, 77777)]
+    np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), valid)
+    np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), xyz)
+    # number of breaks ~ Poisson(rate * 2 h)
+    starts = np.flatnonzero(np.diff(valid.astype(int)) == -1)
+    lam = rate_per_h * 2
+    assert stats.poisson.ppf(1e-4, lam) - 5 <= starts.size <= stats.poisson.ppf(1 - 1e-4, lam)
+    frac = 1 - valid.mean()
+    assert frac == pytest.approx(lam * 0.2 / 7200.0, rel=0.25)
