@@ -34,6 +34,7 @@ from urllib.parse import parse_qs, urlsplit
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from station.errors import ConfigError
+from station.programs.handshake import RegisterMap
 
 SCHEMES = {
     "emscon": "laser tracker (Leica emScon TPI over TCP)",
@@ -126,6 +127,14 @@ PositiveMM = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 class DeviceConfig(_Strict):
     url: str
     timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
+    #: Modbus register layout of a ``modbus+ftp`` controller (default: the documented one)
+    register_map: RegisterMap | None = None
+
+    @model_validator(mode="after")
+    def _map_only_for_controllers(self) -> "DeviceConfig":
+        if self.register_map is not None and not self.url.lower().startswith("modbus+ftp:"):
+            raise ValueError("register_map applies to modbus+ftp controllers only")
+        return self
 
     @field_validator("url")
     @classmethod

@@ -1,0 +1,652 @@
+"""Robot controller driver: program upload by FTP, control by Modbus TCP.
+
+Device URL: ``modbus+ftp://HOST[:FTP_PORT]?modbus_port=502&user=U&password=P&dir=D``
+(FTP port 21 and Modbus port 502 by default).
+
+What the driver does, in order, and what it refuses:
+
+1. **Gate** -- :meth:`ControllerDriver.upload` takes a
+   :class:`~station.programs.model.RenderedProgram` (text made by the
+   station's generators from a validated model) and runs the safety gate on
+   it (:meth:`station.safety.SafetyGate.check_program`) from the joints the
+   controller reports; a refused program never leaves the host.
+2. **Upload** -- ``STOR`` of every file over FTP (binary), then read-back
+   verification: ``SIZE`` must equal the byte count and a ``RETR`` of the
+   file must hash (SHA-256) to what was sent. A mismatch raises
+   :class:`UploadVerificationError`.
+3. **Handshake** over Modbus TCP, register map
+   :class:`~station.programs.handshake.RegisterMap` (documented there):
+   select (the controller's CRC-32 of the loaded file must equal the
+   uploaded one: what starts is what was gated), start, stop, reset, status,
+   cycle counter, fault code.
+
+Errors (all from :mod:`station.errors`)::
+
+    FTP 4xx/5xx reply            -> DeviceError naming the command and reply
+    read-back differs            -> UploadVerificationError(DeviceError)
+    Modbus exception response    -> ModbusExceptionError(ProtocolError), .exception_code
+    no reply / no acknowledge    -> DeviceTimeout
+    connection dropped           -> ConnectionLost
+    command refused (result!=0)  -> CommandRefused(DeviceError), .result
+    controller fault (e-stop...) -> ControllerFault(DeviceFault), .status
+    unsafe program               -> SafetyError (before anything is sent)
+
+Safe state: when anything goes wrong while a program may be running
+(:meth:`start`, :meth:`wait_done`, :meth:`status` during a run), the driver
+sends STOP before raising (reconnecting once if the link dropped) and says in
+the message whether the stop was confirmed. If it cannot be, the
+controller's communication watchdog (``watchdog_ms``, written at start)
+stops the program on its own once the station falls silent.
+
+Measurement data: this driver never holds measurements. The tracker driver
+streams samples to the run's journal as they arrive (the runner journals
+each before a step is marked done); when a controller error interrupts a
+run, the caller catches it, keeps the journaled samples, and uses the
+error's ``status`` (``cycle_count``, ``moves_done``, ``line``) to know which
+cycles are complete. ``wait_done(on_status=...)`` reports progress so the
+caller can journal it too.
+"""
+
+from __future__ import annotations
+
+import ftplib
+import hashlib
+import io
+import math
+import re
+import socket
+import time
+import zlib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+from urllib.parse import parse_qs, unquote, urlsplit
+
+import numpy as np
+
+from station.errors import (
+    ConfigError,
+    ConnectionLost,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    ProtocolError,
+    SafetyError,
+)
+from station.programs.handshake import (
+    Command,
+    Fault,
+    RegisterMap,
+    Result,
+    State,
+    describe,
+    encode_name,
+    join_i32,
+    join_u32,
+)
+from station.programs.model import RenderedProgram
+
+__all__ = [
+    "CommandRefused",
+    "ControllerDriver",
+    "ControllerFault",
+    "ControllerStatus",
+    "ModbusExceptionError",
+    "RegisterMap",
+    "UploadReceipt",
+    "UploadVerificationError",
+]
+
+_REMOTE_NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}\.(mod|src|dat)", re.ASCII)
+
+
+class ModbusExceptionError(ProtocolError):
+    """The controller answered with a Modbus exception response."""
+
+    def __init__(self, message: str, exception_code: int) -> None:
+        super().__init__(message)
+        self.exception_code = exception_code
+
+
+class CommandRefused(DeviceError):
+    """The controller acknowledged a command with a non-OK result."""
+
+    def __init__(self, message: str, result: int, status: "ControllerStatus | None" = None) -> None:
+        super().__init__(message)
+        self.result = result
+        self.status = status
+
+
+class ControllerFault(DeviceFault):
+    """The controller is in fault (emergency stop, protective stop, ...)."""
+
+    def __init__(self, message: str, status: "ControllerStatus") -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class UploadVerificationError(DeviceError):
+    """The file read back from the controller differs from the one sent."""
+
+
+@dataclass(frozen=True)
+class ControllerStatus:
+    """One read of the controller's status registers.
+
+    Attributes
+    ----------
+    state : State
+    result : Result
+        Result of the last acknowledged command.
+    ack_seq : int
+    cycle_count : int
+        Finished cycles of the running (or last) program.
+    fault : Fault
+    line : int
+        Program line running, or the line refused / faulted (0 = none).
+    program_crc32 : int
+        CRC-32 of the selected program file.
+    q_deg : ndarray, shape (6,)
+        Actual joint angles (controller's report), degrees.
+    moves_done : int
+        Motion instructions completed since start.
+    host_time_s : float
+        Host monotonic time of the read (not a measurement time base).
+    """
+
+    state: State
+    result: Result | int
+    ack_seq: int
+    cycle_count: int
+    fault: Fault | int
+    line: int
+    program_crc32: int
+    q_deg: np.ndarray
+    moves_done: int
+    host_time_s: float
+
+    def summary(self) -> str:
+        return (
+            f"state {describe(State, self.state)}, fault {describe(Fault, self.fault)}, line {self.line}, "
+            f"cycles {self.cycle_count}, moves {self.moves_done}"
+        )
+
+
+@dataclass(frozen=True)
+class FileCheck:
+    size: int
+    sha256: str
+    crc32: int
+
+
+@dataclass(frozen=True)
+class UploadReceipt:
+    """What was uploaded and verified: file name -> size and hashes."""
+
+    main_file: str
+    files: dict[str, FileCheck] = field(default_factory=dict)
+
+    @property
+    def main_crc32(self) -> int:
+        return self.files[self.main_file].crc32
+
+
+def _enum(enum_cls, value: int):
+    try:
+        return enum_cls(value)
+    except ValueError:
+        return int(value)
+
+
+class ControllerDriver:
+    """Uploads gated programs by FTP and runs them through a Modbus TCP handshake.
+
+    Parameters
+    ----------
+    host : str
+        Controller address.
+    gate : SafetyGate
+        The safety gate every program passes before upload (required).
+    ftp_port, modbus_port : int
+    register_map : RegisterMap, optional
+        Default: the documented layout.
+    ftp_user, ftp_password : str
+    remote_dir : str
+        FTP directory the programs go to ("" = login directory).
+    timeout_s : float
+        Timeout of every network call and of each handshake step.
+    poll_interval_s : float
+        Status polling interval of the handshake and of :meth:`wait_done`.
+    watchdog_ms : int
+        Communication watchdog written at start (0 = off).
+    ftp_factory : callable, optional
+        ``ftp_factory(timeout_s) -> ftplib.FTP``-like object (injected transport).
+    modbus_client : object, optional
+        A pymodbus-compatible sync client (``connect``, ``close``,
+        ``read_holding_registers``, ``write_registers``); default
+        ``pymodbus.client.ModbusTcpClient(host, port=modbus_port)``.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        *,
+        gate,
+        ftp_port: int = 21,
+        modbus_port: int = 502,
+        register_map: RegisterMap | None = None,
+        ftp_user: str = "anonymous",
+        ftp_password: str = "",
+        remote_dir: str = "",
+        timeout_s: float = 5.0,
+        poll_interval_s: float = 0.02,
+        watchdog_ms: int = 2000,
+        ftp_factory: Callable[[float], Any] | None = None,
+        modbus_client: Any = None,
+    ) -> None:
+        if gate is None or not hasattr(gate, "check_program"):
+            raise ConfigError("ControllerDriver needs a safety gate (station.safety.SafetyGate)")
+        for name, val in (("timeout_s", timeout_s), ("poll_interval_s", poll_interval_s)):
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+                raise ConfigError(f"{name} must be a positive number, got {val!r}")
+        if not (isinstance(watchdog_ms, int) and 0 <= watchdog_ms <= 65535):
+            raise ConfigError(f"watchdog_ms must be an integer in [0, 65535], got {watchdog_ms!r}")
+        for name, port in (("ftp_port", ftp_port), ("modbus_port", modbus_port)):
+            if not (isinstance(port, int) and 0 < port < 65536):
+                raise ConfigError(f"{name} must be in 1..65535, got {port!r}")
+        self.host = host
+        self.gate = gate
+        self.ftp_port = ftp_port
+        self.modbus_port = modbus_port
+        self.map = register_map or RegisterMap()
+        self.ftp_user = ftp_user
+        self.ftp_password = ftp_password
+        self.remote_dir = remote_dir
+        self.timeout_s = float(timeout_s)
+        self.poll_interval_s = float(poll_interval_s)
+        self.watchdog_ms = watchdog_ms
+        self._ftp_factory = ftp_factory or (lambda t: ftplib.FTP(timeout=t))
+        if modbus_client is None:
+            from pymodbus.client import ModbusTcpClient
+
+            modbus_client = ModbusTcpClient(
+                host, port=modbus_port, timeout=self.timeout_s, retries=0, reconnect_delay=0
+            )
+        self._mb = modbus_client
+        self._seq = 0
+        self._receipt: UploadReceipt | None = None
+        self._selected: str | None = None
+        self._running = False
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_url(cls, url: str, *, gate, **kwargs) -> "ControllerDriver":
+        """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password=..&dir=..``."""
+        parts = urlsplit(url)
+        if parts.scheme.lower() != "modbus+ftp" or not parts.hostname:
+            raise ConfigError(f"controller URL {url!r} must look like modbus+ftp://host[:ftp_port]?modbus_port=N")
+        opts = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+        unknown = set(opts) - {"modbus_port", "user", "password", "dir"}
+        if unknown:
+            raise ConfigError(f"controller URL {url!r}: unknown option(s) {', '.join(sorted(unknown))}")
+        try:
+            ftp_port = parts.port or 21
+            modbus_port = int(opts.get("modbus_port", 502))
+        except ValueError as exc:
+            raise ConfigError(f"controller URL {url!r}: bad port ({exc})") from None
+        return cls(
+            parts.hostname,
+            gate=gate,
+            ftp_port=ftp_port,
+            modbus_port=modbus_port,
+            ftp_user=unquote(opts.get("user", "anonymous")),
+            ftp_password=unquote(opts.get("password", "")),
+            remote_dir=unquote(opts.get("dir", "")),
+            **kwargs,
+        )
+
+    def connect(self) -> "ControllerDriver":
+        """Open the Modbus connection (FTP sessions are opened per upload)."""
+        try:
+            ok = self._mb.connect()
+        except Exception as exc:  # noqa: BLE001 - translated at the boundary
+            raise ConnectionLost(f"Modbus connect to {self.host}:{self.modbus_port} failed: {exc}") from exc
+        if not ok:
+            raise ConnectionLost(f"Modbus connect to {self.host}:{self.modbus_port} failed")
+        # start numbering after whatever the controller acknowledged last
+        self._seq = self.status().ack_seq
+        return self
+
+    def close(self) -> None:
+        try:
+            self._mb.close()
+        except Exception:  # noqa: BLE001 - closing is best effort
+            pass
+
+    def __enter__(self) -> "ControllerDriver":
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ Modbus primitives
+    def _call(self, what: str, fn, *args, **kwargs):
+        from pymodbus.exceptions import ConnectionException, ModbusIOException
+
+        try:
+            rr = fn(*args, device_id=self.map.device_id, **kwargs)
+        except ConnectionException as exc:
+            self._drop()
+            raise ConnectionLost(f"Modbus {what}: connection to {self.host}:{self.modbus_port} lost ({exc})") from exc
+        except ModbusIOException as exc:
+            self._drop()  # a late reply must not be taken for the next one
+            raise DeviceTimeout(f"Modbus {what}: no reply from {self.host}:{self.modbus_port} within {self.timeout_s:g} s") from exc
+        except (OSError, socket.timeout) as exc:
+            self._drop()
+            raise ConnectionLost(f"Modbus {what}: {exc}") from exc
+        if rr is None:
+            raise ProtocolError(f"Modbus {what}: empty reply")
+        if rr.isError():
+            code = int(getattr(rr, "exception_code", 0) or 0)
+            raise ModbusExceptionError(f"Modbus {what}: controller answered exception code {code} ({_exc_name(code)})", code)
+        return rr
+
+    def _drop(self) -> None:
+        try:
+            self._mb.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+    def _read(self, address: int, count: int) -> list[int]:
+        rr = self._call(f"read of registers {address}..{address + count - 1}", self._mb.read_holding_registers, address, count=count)
+        regs = list(getattr(rr, "registers", []) or [])
+        if len(regs) != count:
+            raise ProtocolError(f"Modbus read of {count} registers at {address} returned {len(regs)}")
+        return regs
+
+    def _write(self, address: int, values: list[int]) -> None:
+        self._call(f"write of registers {address}..{address + len(values) - 1}", self._mb.write_registers, address, values)
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> ControllerStatus:
+        """Read every status register in one request."""
+        start, count = self.map.status_span()
+        regs = self._read(start, count)
+
+        def reg(name: str, k: int = 0) -> int:
+            return regs[getattr(self.map, name) - start + k]
+
+        q_mdeg = [join_i32(reg("joint_mdeg", 2 * j), reg("joint_mdeg", 2 * j + 1)) for j in range(6)]
+        return ControllerStatus(
+            state=_enum(State, reg("state")),
+            result=_enum(Result, reg("result")),
+            ack_seq=reg("ack_seq"),
+            cycle_count=reg("cycle_count"),
+            fault=_enum(Fault, reg("fault_code")),
+            line=reg("line"),
+            program_crc32=join_u32(reg("program_crc32"), reg("program_crc32", 1)),
+            q_deg=np.array(q_mdeg, dtype=float) / 1000.0,
+            moves_done=reg("moves_done"),
+            host_time_s=time.monotonic(),
+        )
+
+    def _command(self, command: Command, *, prefix: list[tuple[int, list[int]]] = ()) -> ControllerStatus:
+        """Write ``prefix`` registers, then ``[command, seq]``; wait for the acknowledge."""
+        for address, values in prefix:
+            self._write(address, values)
+        self._seq = self._seq % 65535 + 1
+        seq = self._seq
+        self._write(self.map.command, [int(command), seq])
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            st = self.status()
+            if st.ack_seq == seq:
+                break
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(
+                    f"controller did not acknowledge {command.name} (seq {seq}) within {self.timeout_s:g} s "
+                    f"({st.summary()})"
+                )
+            time.sleep(self.poll_interval_s)
+        if st.result != Result.OK:
+            where = f" at line {st.line}" if st.line else ""
+            raise CommandRefused(
+                f"controller refused {command.name}: {describe(Result, st.result)}{where} ({st.summary()})",
+                int(st.result),
+                st,
+            )
+        return st
+
+    # ------------------------------------------------------------------ upload
+    def upload(self, rendered: RenderedProgram, *, q_start=None) -> UploadReceipt:
+        """Gate, upload and verify a rendered program.
+
+        Parameters
+        ----------
+        rendered : RenderedProgram
+        q_start : array_like, shape (6,), optional
+            Joints the program starts from (rad); default: the joints the
+            controller reports now.
+
+        Returns
+        -------
+        UploadReceipt
+
+        Raises
+        ------
+        SafetyError
+            The gate refused the program; nothing was sent.
+        DeviceError, UploadVerificationError, ConnectionLost, DeviceTimeout
+        """
+        if not isinstance(rendered, RenderedProgram) or rendered.program is None:
+            raise SafetyError("only programs rendered by the station's generators can be uploaded (RenderedProgram)")
+        if q_start is None:
+            q_start = np.radians(self.status().q_deg)
+        self.gate.check_program(rendered, q_start=q_start)
+        payloads: dict[str, bytes] = {}
+        for name, text in rendered.files.items():
+            if not _REMOTE_NAME_RE.fullmatch(name):
+                raise ConfigError(f"remote file name {name!r} is not a plain program file name")
+            try:
+                payloads[name] = text.encode("ascii")
+            except UnicodeEncodeError as exc:
+                raise ConfigError(f"{name}: program text is not ASCII ({exc})") from None
+        checks: dict[str, FileCheck] = {}
+        ftp = self._ftp_open()
+        try:
+            for name, data in payloads.items():
+                self._ftp(f"STOR {name}", ftp.storbinary, f"STOR {name}", io.BytesIO(data))
+                checks[name] = self._verify(ftp, name, data)
+        finally:
+            try:
+                ftp.quit()
+            except Exception:  # noqa: BLE001 - the session is over either way
+                ftp.close()
+        self._receipt = UploadReceipt(rendered.main_file, checks)
+        return self._receipt
+
+    def _ftp_open(self):
+        ftp = self._ftp_factory(self.timeout_s)
+        self._ftp(f"connect {self.host}:{self.ftp_port}", ftp.connect, self.host, self.ftp_port, timeout=self.timeout_s)
+        self._ftp(f"login as {self.ftp_user!r}", ftp.login, self.ftp_user, self.ftp_password)
+        if self.remote_dir:
+            self._ftp(f"CWD {self.remote_dir}", ftp.cwd, self.remote_dir)
+        self._ftp("TYPE I", ftp.voidcmd, "TYPE I")
+        return ftp
+
+    def _ftp(self, what: str, fn, *args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except ftplib.error_perm as exc:
+            raise DeviceError(f"FTP {what} refused by {self.host}: {exc}") from exc
+        except ftplib.error_temp as exc:
+            raise DeviceError(f"FTP {what}: temporary failure at {self.host}: {exc}") from exc
+        except ftplib.Error as exc:
+            raise ProtocolError(f"FTP {what}: unexpected reply from {self.host}: {exc}") from exc
+        except (socket.timeout, TimeoutError) as exc:
+            raise DeviceTimeout(f"FTP {what}: no reply from {self.host} within {self.timeout_s:g} s") from exc
+        except (EOFError, OSError) as exc:
+            raise ConnectionLost(f"FTP {what}: connection to {self.host}:{self.ftp_port} lost ({exc})") from exc
+
+    def _verify(self, ftp, name: str, data: bytes) -> FileCheck:
+        size_reply = self._ftp(f"SIZE {name}", ftp.size, name)
+        if size_reply != len(data):
+            raise UploadVerificationError(f"{name}: controller reports {size_reply} bytes, {len(data)} were sent")
+        got = bytearray()
+
+        def collect(block: bytes) -> None:
+            got.extend(block)
+            if len(got) > len(data):  # never buffer more than was sent
+                raise UploadVerificationError(f"{name}: read-back is longer than the {len(data)} bytes sent")
+
+        self._ftp(f"RETR {name}", ftp.retrbinary, f"RETR {name}", collect)
+        sent, back = hashlib.sha256(data).hexdigest(), hashlib.sha256(bytes(got)).hexdigest()
+        if len(got) != len(data) or back != sent:
+            raise UploadVerificationError(
+                f"{name}: read-back differs from what was sent ({len(got)} vs {len(data)} bytes, "
+                f"sha256 {back[:12]} vs {sent[:12]})"
+            )
+        return FileCheck(len(data), sent, zlib.crc32(data) & 0xFFFFFFFF)
+
+    # ------------------------------------------------------------------ handshake
+    def select(self, receipt: UploadReceipt | None = None) -> ControllerStatus:
+        """Select the uploaded program; the controller's CRC-32 must match the upload."""
+        receipt = receipt or self._receipt
+        if receipt is None:
+            raise SafetyError("select: no verified upload; upload (and gate) a program first")
+        st = self._command(Command.SELECT, prefix=[(self.map.program_name, encode_name(receipt.main_file))])
+        if st.program_crc32 != receipt.main_crc32:
+            raise SafetyError(
+                f"select: controller loaded {receipt.main_file} with CRC-32 {st.program_crc32:08x}, "
+                f"the gated upload has {receipt.main_crc32:08x}; refusing to start it"
+            )
+        self._selected = receipt.main_file
+        return st
+
+    def start(self) -> ControllerStatus:
+        """Start the selected program (watchdog armed first)."""
+        if self._selected is None or self._receipt is None:
+            raise SafetyError("start: no gated, uploaded and selected program")
+        self._write(self.map.watchdog_ms, [self.watchdog_ms])
+        self._running = True
+        try:
+            st = self._command(Command.START)
+        except (DeviceError, DeviceTimeout, ConnectionLost) as exc:
+            raise self._stop_after(exc)
+        if st.program_crc32 != self._receipt.main_crc32:
+            raise self._stop_after(SafetyError("start: the controller runs a program other than the gated upload"))
+        return st
+
+    def stop(self) -> ControllerStatus:
+        """Stop the program (controlled stop) and wait for the acknowledge."""
+        st = self._command(Command.STOP)
+        self._running = False
+        return st
+
+    def reset(self) -> ControllerStatus:
+        """Clear a fault (after the cause is removed)."""
+        return self._command(Command.RESET)
+
+    def _stop_after(self, exc: BaseException) -> BaseException:
+        """Best-effort STOP after ``exc``; returns ``exc`` with the outcome noted."""
+        note = self._safe_stop()
+        msg = f"{exc.args[0] if exc.args else exc}; {note}"
+        exc.args = (msg,) + tuple(exc.args[1:])
+        return exc
+
+    def _safe_stop(self) -> str:
+        self._running = False
+        for attempt in range(2):
+            try:
+                if attempt:
+                    self._drop()
+                    if not self._mb.connect():
+                        continue
+                    self._seq = max(self._seq, self.status().ack_seq)
+                self._command(Command.STOP)
+                return "program stopped (STOP acknowledged)"
+            except CommandRefused as exc:
+                if exc.status is not None and exc.status.state in (State.FAULT, State.STOPPED, State.FINISHED, State.READY):
+                    return f"program not running ({exc.status.summary()})"
+                return f"STOP refused: {exc}"
+            except (DeviceError, DeviceTimeout, ConnectionLost):
+                continue
+        wd = f"{self.watchdog_ms} ms" if self.watchdog_ms else "off"
+        return f"STOP could not be confirmed; the controller's comm watchdog ({wd}) stops the program"
+
+    def wait_done(
+        self,
+        timeout_s: float,
+        *,
+        on_status: Callable[[ControllerStatus], None] | None = None,
+    ) -> ControllerStatus:
+        """Poll until the program finishes.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Host seconds to wait at most.
+        on_status : callable, optional
+            Called with every status read (progress for the caller's journal).
+
+        Returns
+        -------
+        ControllerStatus
+            The final status (state FINISHED).
+
+        Raises
+        ------
+        ControllerFault
+            The controller went into fault (its ``status`` says where).
+        DeviceTimeout, ConnectionLost, ModbusExceptionError
+            After a best-effort STOP (noted in the message).
+        """
+        deadline = time.monotonic() + float(timeout_s)
+        try:
+            while True:
+                st = self.status()
+                if on_status is not None:
+                    on_status(st)
+                if st.state == State.FINISHED:
+                    self._running = False
+                    return st
+                if st.state == State.FAULT:
+                    self._running = False
+                    raise ControllerFault(
+                        f"controller fault {describe(Fault, st.fault)} at line {st.line} after "
+                        f"{st.cycle_count} cycles, {st.moves_done} moves; the program is stopped",
+                        st,
+                    )
+                if st.state in (State.STOPPED, State.READY, State.NO_PROGRAM):
+                    self._running = False
+                    raise CommandRefused(f"program is no longer running ({st.summary()})", int(st.result), st)
+                if time.monotonic() >= deadline:
+                    raise DeviceTimeout(f"program did not finish within {timeout_s:g} s ({st.summary()})")
+                time.sleep(self.poll_interval_s)
+        except ControllerFault:
+            raise
+        except CommandRefused:
+            raise
+        except (DeviceError, DeviceTimeout, ConnectionLost) as exc:
+            raise self._stop_after(exc)
+
+    def run(self, rendered: RenderedProgram, *, timeout_s: float, on_status=None) -> ControllerStatus:
+        """Gate, upload, verify, select, start and wait: the whole sequence."""
+        self.upload(rendered)
+        self.select()
+        self.start()
+        return self.wait_done(timeout_s, on_status=on_status)
+
+
+def _exc_name(code: int) -> str:
+    names = {
+        1: "illegal function",
+        2: "illegal data address",
+        3: "illegal data value",
+        4: "server device failure",
+        5: "acknowledge",
+        6: "server device busy",
+        8: "memory parity error",
+        10: "gateway path unavailable",
+        11: "gateway target device failed to respond",
+    }
+    return names.get(code, "unknown exception")

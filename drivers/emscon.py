@@ -1,0 +1,457 @@
+"""Leica emScon TPI tracker driver (binary packets over TCP, port 700).
+
+One reader thread owns the transport's receive side: it decodes packets
+(:mod:`drivers.emscon_codec`), hands command replies to the waiting caller,
+puts continuous samples into the stream's :class:`~drivers.tracker.StreamBuffer`
+and turns system-status changes into events (MeasStatus_NotReady ->
+``beam_broken``, MeasStatus_Ready -> ``target_reacquired``). Bytes that do
+not frame are skipped and counted (``garbage_bytes``, ``rejected_frames``);
+the stream resynchronises at the next plausible header.
+
+When the link drops the reader emits ``connection_lost``, reconnects with
+exponential backoff through the transport factory, restores units,
+coordinate system and - if a stream was running - the continuous mode, and
+emits ``reconnected``. The grid points missed meanwhile are counted as lost.
+
+Errors: a reply with a non-zero status or an error packet raises
+:class:`~station.errors.DeviceNotReady` (tracker not initialised, warming up,
+busy), :class:`~drivers.tracker.BeamBroken` (no target for a measurement) or
+:class:`~station.errors.DeviceError` naming the command and the TPI status;
+no reply in time raises :class:`~station.errors.DeviceTimeout` (a late reply
+is recognised and discarded); a dead link raises
+:class:`~station.errors.ConnectionLost`.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+
+from drivers import emscon_codec as ec
+from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer,
+                             StreamRecord, Tracker, TrackerInfo)
+from drivers.transport import Deadline, Transport, parse_device_url, tcp_factory
+from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
+                            DeviceTimeout, StationError)
+
+_COMMAND_NAMES = {int(c): c.name for c in ec.Command}
+
+
+def _cmd_name(command: int) -> str:
+    return f"{_COMMAND_NAMES.get(command, 'command')} ({command})"
+
+
+class EmsconTracker(Tracker):
+    """emScon TPI client.
+
+    Parameters
+    ----------
+    transport : Transport or callable returning a Transport
+        A factory enables reconnection; a bare transport does not.
+    reply_timeout_s : float
+        Time allowed for each command reply (host seconds).
+    reconnect_timeout_s : float
+        How long to keep trying after the link drops before giving up.
+    backoff_initial_s, backoff_max_s : float
+        Reconnection delays double from the first to the second.
+    max_packet_bytes : int
+        Declared packet lengths above this are refused and skipped.
+    """
+
+    protocol = "emscon"
+
+    def __init__(self, transport, *, reply_timeout_s: float = 5.0, reconnect_timeout_s: float = 10.0,
+                 backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0,
+                 max_packet_bytes: int = ec.DEFAULT_MAX_PACKET_BYTES) -> None:
+        super().__init__()
+        for name, value in (("reply_timeout_s", reply_timeout_s), ("reconnect_timeout_s", reconnect_timeout_s),
+                            ("backoff_initial_s", backoff_initial_s), ("backoff_max_s", backoff_max_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+        if isinstance(transport, Transport):
+            self._factory, self._transport = None, transport
+        elif callable(transport):
+            self._factory, self._transport = transport, None
+        else:
+            raise ConfigError(f"transport must be a Transport or a factory, got {type(transport).__name__}")
+        self.reply_timeout_s = float(reply_timeout_s)
+        self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self._backoff = (float(backoff_initial_s), float(backoff_max_s))
+        self._max_packet = int(max_packet_bytes)
+        self._rx = bytearray()
+        self._write_lock = threading.Lock()
+        self._cmd_lock = threading.Lock()
+        self._reply_lock = threading.Lock()
+        self._replies: queue.Queue = queue.Queue()
+        self._singles: queue.Queue = queue.Queue()
+        self._pending: int | None = None
+        self._awaiting_single = False
+        self._abandoned: Counter = Counter()
+        self._stop = threading.Event()
+        self._link_up = threading.Event()
+        self._failure: BaseException | None = None
+        self._reader: threading.Thread | None = None
+        self._length_unit = ec.LengthUnit.MILLIMETER
+        self._mm_per_unit = 1.0
+        self._separation_ms: int | None = None
+        self._beam_ok = True
+        self._stream_active = False
+        self.info: TrackerInfo | None = None
+
+    @classmethod
+    def from_url(cls, url: str, **options) -> "EmsconTracker":
+        scheme, opts = parse_device_url(url)
+        if scheme not in ("emscon", "tcp"):
+            raise ConfigError(f"not an emScon URL: {url!r}")
+        return cls(tcp_factory(opts["host"], opts["port"]), **options)
+
+    # ------------------------------------------------------------------ public API
+    def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
+        if self._reader is not None:
+            raise DeviceError("already connected")
+        deadline = Deadline(timeout_s)
+        if self._transport is None:
+            self._transport = self._factory()
+        self._link_up.set()
+        self._reader = threading.Thread(target=self._reader_main, name="emscon-reader", daemon=True)
+        self._reader.start()
+        try:
+            self._initialise(deadline, timeout_s)
+            values = self._command(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS),
+                                   timeout_s=min(self.reply_timeout_s, deadline.time_left() or 1e-3)).values
+            self._configure(min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
+        except BaseException:
+            self.close()
+            raise
+        major, minor, build, serial = values[4], values[5], values[6], values[9]
+        self.info = TrackerInfo("emscon", "emScon server", str(serial), f"{major}.{minor}.{build}")
+        return self.info
+
+    def set_units(self, length_unit: str = "mm") -> None:
+        unit = ec.LengthUnit(ec.length_unit_from_name(length_unit))
+        self._command(self._units_packet(unit))
+        self._length_unit = unit
+        self._mm_per_unit = ec.MM_PER_LENGTH_UNIT[int(unit)]
+
+    def measure_stationary(self, duration_s: float = 0.5, timeout_s: float = 10.0) -> StationaryMeasurement:
+        if self._stream_active:
+            raise DeviceError("a continuous stream is running; stop it before a stationary measurement")
+        if not (isinstance(duration_s, (int, float)) and 0 < duration_s <= 3600):
+            raise ConfigError(f"duration_s must be in (0, 3600], got {duration_s!r}")
+        deadline = Deadline(timeout_s)
+        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.STATIONARY,)))
+        meas_ms = max(1, int(round(duration_s * 1000)))
+        self._command(ec.CommandPacket(ec.Command.SET_STATIONARY_MODE_PARAMS, (meas_ms, 0)))
+        while not self._singles.empty():  # stale results of an abandoned measurement
+            self._singles.get_nowait()
+        self._awaiting_single = True
+        try:
+            self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT),
+                          timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
+            try:
+                result = self._singles.get(timeout=deadline.time_left())
+            except queue.Empty:
+                raise DeviceTimeout(f"no stationary result within {timeout_s} s") from None
+        finally:
+            self._awaiting_single = False
+        if isinstance(result, BaseException):
+            raise result
+        if isinstance(result, ec.ErrorPacket):
+            if result.status == 10004:
+                raise BeamBroken(f"stationary measurement failed: status {ec.status_name(result.status)} "
+                                 f"(no target: beam broken)")
+            raise self._status_error(result.command, result.status)
+        k = self._mm_per_unit
+        return StationaryMeasurement(
+            xyz_mm=np.asarray(result.xyz, dtype=float) * k, std_mm=np.asarray(result.std_xyz, dtype=float) * k,
+            t_device_s=None, host_time_s=time.monotonic(), temperature_c=result.temperature,
+            pressure_mbar=result.pressure, humidity_pct=result.humidity)
+
+    def start_stream(self, rate_hz: float) -> None:
+        if self._stream_active:
+            raise DeviceError("a continuous stream is already running")
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ConfigError(f"rate_hz must be a finite number > 0, got {rate_hz!r}")
+        sep = 1000.0 / rate_hz
+        if sep < 1 - 1e-9 or abs(sep - round(sep)) > 1e-6:
+            raise ConfigError(f"emScon continuous time mode spaces points by whole milliseconds: rate_hz "
+                              f"must be 1000/k Hz (1000, 500, 250, ...), got {rate_hz!r}")
+        sep_ms = int(round(sep))
+        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.CONTINUOUS_TIME,)))
+        self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS, (sep_ms, 0, 0, 0)))
+        self._separation_ms = sep_ms
+        self._stream = StreamBuffer(self.protocol, 1000.0 / sep_ms, grid=True)
+        self._stream_active = True
+        try:
+            self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT))
+        except BaseException:
+            self._stream_active = False
+            raise
+
+    def stop_stream(self, timeout_s: float = 5.0) -> StreamRecord:
+        if self._stream is None:
+            raise DeviceError("no stream was started")
+        try:
+            if self._stream_active:
+                self._command(ec.CommandPacket(ec.Command.STOP_MEASUREMENT), timeout_s=timeout_s)
+        finally:
+            self._stream_active = False
+        return self._stream.record()
+
+    def close(self) -> None:
+        if self._stream_active and self._link_up.is_set() and self._failure is None:
+            try:
+                self._command(ec.CommandPacket(ec.Command.STOP_MEASUREMENT), timeout_s=1.0)
+            except StationError:
+                pass
+        self._stream_active = False
+        self._stop.set()
+        transport = self._transport
+        if transport is not None:
+            transport.close()
+        if self._reader is not None and self._reader is not threading.current_thread():
+            self._reader.join(timeout=5.0)
+
+    # ------------------------------------------------------------------ session
+    def _units_packet(self, unit: int) -> ec.CommandPacket:
+        return ec.CommandPacket(ec.Command.SET_UNITS, (int(unit), ec.AngleUnit.RADIAN, ec.TemperatureUnit.CELSIUS,
+                                                       ec.PressureUnit.MBAR, 0))
+
+    def _configure(self, timeout_s: float) -> None:
+        self._command(self._units_packet(self._length_unit), timeout_s=timeout_s)
+        self._command(ec.CommandPacket(ec.Command.SET_COORDINATE_SYSTEM_TYPE, (ec.CoordinateSystemType.RHR,)),
+                      timeout_s=timeout_s)
+
+    def _initialise(self, deadline: Deadline, timeout_s: float) -> None:
+        """GetSystemStatus; Initialize until the tracker processor reports initialised."""
+        delay, last, was_not_ready = self._backoff[0], None, False
+        while True:
+            left = deadline.time_left()
+            status = self._command(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS),
+                                   timeout_s=min(self.reply_timeout_s, max(left, 1e-3))).values
+            if status[1] == ec.TrackerProcessorStatus.INITIALIZED:
+                if was_not_ready:
+                    self._event(EventKind.READY, "tracker initialised")
+                return
+            try:
+                self._command(ec.CommandPacket(ec.Command.INITIALIZE), timeout_s=max(deadline.time_left(), 1e-3))
+                continue
+            except DeviceNotReady as exc:
+                last = exc
+                if not was_not_ready:
+                    self._event(EventKind.NOT_READY, str(exc))
+                was_not_ready = True
+            if deadline.time_left() <= delay:
+                raise DeviceNotReady(f"tracker not ready within {timeout_s:g} s: {last}")
+            if self._stop.wait(delay):
+                raise ConnectionLost("driver closed while waiting for the tracker")
+            delay = min(2 * delay, self._backoff[1])
+
+    def _restore(self) -> None:
+        """After a reconnection: same units, coordinates and, if running, the stream."""
+        self._initialise(Deadline(self.reply_timeout_s * 4), self.reply_timeout_s * 4)
+        self._configure(self.reply_timeout_s)
+        if self._stream_active and self._separation_ms:
+            self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.CONTINUOUS_TIME,)))
+            self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS,
+                                           (self._separation_ms, 0, 0, 0)))
+            self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT))
+
+    # ------------------------------------------------------------------ commands
+    def _status_error(self, command: int, status: int) -> DeviceError:
+        text = f"{_cmd_name(command)} failed with status {ec.status_name(status)}"
+        if status in ec.NOT_READY_STATUSES:
+            return DeviceNotReady(text)
+        return DeviceError(text)
+
+    def _command(self, packet: ec.CommandPacket, *, timeout_s: float | None = None) -> ec.CommandReply:
+        """Send one command and wait for its reply (the reader thread pumps inline)."""
+        timeout_s = self.reply_timeout_s if timeout_s is None else timeout_s
+        deadline = Deadline(timeout_s)
+        on_reader = threading.current_thread() is self._reader
+        if self._failure is not None:
+            raise ConnectionLost(f"emScon link is down: {self._failure}")
+        if not on_reader:
+            if not self._link_up.wait(deadline.time_left()):
+                raise DeviceTimeout(f"{_cmd_name(packet.command)}: link not restored within {timeout_s} s")
+            if self._failure is not None:
+                raise ConnectionLost(f"emScon link is down: {self._failure}")
+        if not self._cmd_lock.acquire(timeout=deadline.time_left()):
+            raise DeviceTimeout(f"{_cmd_name(packet.command)}: another command still waits for its reply")
+        try:
+            with self._reply_lock:
+                while not self._replies.empty():
+                    self._replies.get_nowait()
+                self._pending = packet.command
+            self._write(packet.encode(), deadline.time_left())
+            reply = None
+            while reply is None:
+                try:
+                    if on_reader:
+                        reply = self._replies.get_nowait()
+                    else:
+                        reply = self._replies.get(timeout=max(deadline.time_left(), 0))
+                except queue.Empty:
+                    if on_reader and not deadline.expired():
+                        self._pump(min(0.05, deadline.time_left()))
+                        continue
+                    with self._reply_lock:
+                        try:
+                            reply = self._replies.get_nowait()
+                        except queue.Empty:
+                            self._abandoned[packet.command] += 1
+                            raise DeviceTimeout(f"no reply to {_cmd_name(packet.command)} within "
+                                                f"{timeout_s:g} s") from None
+        finally:
+            with self._reply_lock:
+                self._pending = None
+            self._cmd_lock.release()
+        if isinstance(reply, BaseException):
+            raise reply
+        if isinstance(reply, ec.ErrorPacket) or reply.status != 0:
+            raise self._status_error(reply.command, reply.status)
+        return reply
+
+    def _write(self, data: bytes, timeout_s: float) -> None:
+        transport = self._transport
+        if transport is None:
+            raise ConnectionLost("not connected")
+        with self._write_lock:
+            transport.write(data, max(timeout_s, 1e-3))
+
+    # ------------------------------------------------------------------ reader thread
+    def _buffer(self) -> StreamBuffer:
+        return self._stream if (self._stream is not None and self._stream_active) else self._idle
+
+    def _reader_main(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self._pump(0.1)
+            except ConnectionLost as exc:
+                if self._stop.is_set():
+                    break
+                self._link_lost(exc)
+                if not self._reconnect():
+                    break
+            except Exception as exc:  # a bug must not kill the stream silently
+                self._fail(DeviceError(f"emScon reader failed: {exc!r}"))
+                break
+
+    def _pump(self, timeout_s: float) -> None:
+        data = self._transport.read(1 << 16, timeout_s)
+        if not data:
+            return
+        self._rx += data
+        snapshot = bytes(self._rx)
+        view = memoryview(snapshot)
+        off = 0
+        while True:
+            consumed, frame = ec.decode(view[off:], from_server=True, max_packet_bytes=self._max_packet)
+            if consumed == 0:
+                break
+            off += consumed
+            self._handle(frame)
+        del self._rx[:off]
+
+    def _handle(self, frame) -> None:
+        if isinstance(frame, (ec.CommandReply, ec.ErrorPacket)):
+            with self._reply_lock:
+                if self._awaiting_single and isinstance(frame, ec.ErrorPacket) \
+                        and frame.command == ec.Command.START_MEASUREMENT and self._pending is None:
+                    self._singles.put(frame)
+                elif self._pending == frame.command:
+                    self._replies.put(frame)
+                elif self._abandoned[frame.command] > 0:
+                    self._abandoned[frame.command] -= 1  # late reply to a timed-out command
+                elif isinstance(frame, ec.ErrorPacket):
+                    self._event(EventKind.DEVICE_ERROR,
+                                f"unsolicited error for {_cmd_name(frame.command)}: {ec.status_name(frame.status)}")
+            return
+        if isinstance(frame, ec.MultiMeasResult):
+            buf = self._stream
+            if buf is None:
+                self._idle.count_garbage(0)
+                return
+            k = self._mm_per_unit
+            s = frame.samples
+            xyz = np.column_stack([s["val1"], s["val2"], s["val3"]])
+            buf.add(ec.join_time_s(s["time1"], s["time2"]), xyz * k if k != 1.0 else xyz, s["status"])
+            return
+        if isinstance(frame, ec.SingleMeasResult):
+            self._singles.put(frame)
+            return
+        if isinstance(frame, ec.StatusChangePacket):
+            if frame.event == ec.SystemStatusChange.MEAS_STATUS_NOT_READY:
+                self._beam_ok = False
+                self._event(EventKind.BEAM_BROKEN, "MeasStatus_NotReady")
+            elif frame.event == ec.SystemStatusChange.MEAS_STATUS_READY:
+                if not self._beam_ok:
+                    self._event(EventKind.TARGET_REACQUIRED, "MeasStatus_Ready")
+                self._beam_ok = True
+            return
+        if isinstance(frame, ec.Garbage):
+            self._buffer().count_garbage(frame.nbytes)
+
+    def _link_lost(self, exc: BaseException) -> None:
+        self._link_up.clear()
+        transport = self._transport
+        if transport is not None:
+            transport.close()
+        self._rx.clear()
+        with self._reply_lock:
+            if self._pending is not None:
+                self._replies.put(ConnectionLost(f"link dropped while waiting for "
+                                                 f"{_cmd_name(self._pending)}: {exc}"))
+            if self._awaiting_single:
+                self._singles.put(ConnectionLost(f"link dropped during a stationary measurement: {exc}"))
+        self._event(EventKind.CONNECTION_LOST, str(exc))
+
+    def _reconnect(self) -> bool:
+        if self._factory is None:
+            self._fail(ConnectionLost("emScon link dropped and no transport factory was given to reconnect"))
+            return False
+        deadline = Deadline(self.reconnect_timeout_s)
+        delay, last, attempts = self._backoff[0], None, 0
+        while not self._stop.is_set():
+            attempts += 1
+            try:
+                self._transport = self._factory()
+                self._rx.clear()
+                self._restore()
+            except (ConnectionLost, DeviceTimeout, DeviceError) as exc:
+                last = exc
+                if self._transport is not None:
+                    self._transport.close()
+            else:
+                self._link_up.set()
+                self._event(EventKind.RECONNECTED, f"after {attempts} attempt(s)")
+                return True
+            if deadline.time_left() <= delay:
+                break
+            if self._stop.wait(delay):
+                return False
+            delay = min(2 * delay, self._backoff[1])
+        if not self._stop.is_set():
+            self._fail(ConnectionLost(f"emScon link lost; {attempts} reconnection attempt(s) in "
+                                      f"{self.reconnect_timeout_s:g} s failed: {last}"))
+        return False
+
+    def _fail(self, exc: BaseException) -> None:
+        self._failure = exc
+        self._link_up.set()  # wake waiting callers; they see _failure
+        with self._reply_lock:
+            if self._pending is not None:
+                self._replies.put(exc)
+        if self._awaiting_single:
+            self._singles.put(exc)
+        if self._stream is not None:
+            self._stream.fail(exc)
+        self._idle.fail(exc)
+
+
+__all__ = ["EmsconTracker"]

@@ -1,0 +1,483 @@
+"""Leica GeoCOM tracker / total-station driver (ASCII request/reply over serial).
+
+Wire format (ASCII lines, CR LF terminated, CRC off)::
+
+    request  %R1Q,<rpc>,<trid>:<p1>,<p2>,...
+    reply    %R1P,<com_rc>,<trid>:<rc>[,<v1>,...]
+
+The transaction id is echoed; a reply with another id is stale (it answers
+a request that timed out) and is skipped. ``com_rc`` non-zero is a
+communication-level error (ProtocolError); ``rc`` is the rpc's return code,
+mapped to exceptions by :func:`geocom_error`. Coordinates come in metres,
+angles in radians, times in milliseconds of the instrument clock; samples are
+delivered in mm and seconds.
+
+RPCs used: COM_NullProc 0, COM_GetDoublePrecision 108, CSV_GetInstrumentName
+5004, CSV_GetInstrumentNo 5003, CSV_GetSWVersion 5034, TMC_DoMeasure 2008
+(program, inclination mode), TMC_GetCoordinate 2082 (wait ms, inclination
+mode) -> E, N, H, time, E_cont, N_cont, H_cont, time_cont.
+
+GeoCOM has no pushed stream: :meth:`GeoComTracker.start_stream` starts the
+tracking program (TMC_DoMeasure TRACK) and a poll thread that asks for the
+coordinate at ``rate_hz`` (host time); every sample is stamped with the
+instrument's coordinate time. A poll without an answer counts as lost, a
+malformed answer as rejected, a repeated coordinate time as a duplicate, a
+poll answered "no distance" (beam broken) as not measured.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer, StreamRecord,
+                             Tracker, TrackerInfo)
+from drivers.transport import Deadline, LineReader, Transport, parse_device_url, serial_factory
+from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceFault, DeviceNotReady,
+                            DeviceTimeout, ProtocolError, StationError)
+
+
+class Rpc:
+    NULL_PROC = 0
+    GET_DOUBLE_PRECISION = 108
+    GET_GEOCOM_VERSION = 110
+    GET_INSTRUMENT_NO = 5003
+    GET_INSTRUMENT_NAME = 5004
+    GET_SW_VERSION = 5034
+    DO_MEASURE = 2008
+    GET_COORDINATE = 2082
+    GET_ANGLE = 2107
+    GET_SIMPLE_MEA = 2108
+    GET_SIMPLE_COORD = 2116
+
+
+#: number of values each rpc returns after its return code
+REPLY_VALUES = {0: 0, 108: 1, 110: 3, 5003: 1, 5004: 1, 5034: 3, 2008: 0, 2082: 8, 2107: 2,
+                2108: 3, 2116: 3}
+
+
+class MeasureProgram:
+    """``TMC_MEASURE_PRG``."""
+
+    STOP = 0
+    DISTANCE = 1
+    TRACK = 2
+    CLEAR = 3
+
+
+INCLINATION_AUTO = 1
+
+#: return codes (GeoCOM reference) with names for messages
+RC_NAMES = {
+    0: "OK", 1: "UNDEFINED", 2: "IVPARAM", 3: "IVRESULT", 4: "FATAL", 5: "NOT_IMPL", 6: "TIME_OUT",
+    7: "SET_INCOMPL", 8: "ABORT", 9: "NOMEMORY", 10: "NOTINIT", 12: "SHUT_DOWN", 13: "SYSBUSY",
+    14: "HWFAILURE", 1283: "TMC_NO_FULL_CORRECTION", 1284: "TMC_ACCURACY_GUARANTEE",
+    1285: "TMC_ANGLE_OK", 1288: "TMC_ANGLE_NO_FULL_CORRECTION", 1289: "TMC_ANGLE_ACCURACY_GUARANTEE",
+    1290: "TMC_ANGLE_ERROR", 1291: "TMC_DIST_PPM", 1292: "TMC_DIST_ERROR", 1293: "TMC_BUSY",
+    1294: "TMC_SIGNAL_ERROR", 3073: "COM_CANT_ENCODE", 3074: "COM_CANT_DECODE", 3075: "COM_CANT_SEND",
+    3076: "COM_CANT_RECV", 3077: "COM_TIMEDOUT", 3078: "COM_WRONG_FORMAT", 3079: "COM_VER_MISMATCH",
+    3080: "COM_CANT_DECODE_REQ", 8710: "AUT_NO_TARGET",
+}
+#: codes after which the values are still valid (accuracy warnings)
+RC_WARNINGS = frozenset({1283, 1284})
+RC_NO_TARGET = frozenset({1285, 1288, 1289, 1292, 1294, 8710})
+RC_NOT_READY = frozenset({10, 13, 1293})
+RC_FAULT = frozenset({4, 8, 12, 14, 1290})
+
+
+def rc_name(rc: int) -> str:
+    name = RC_NAMES.get(rc)
+    return f"{rc} ({name})" if name else str(rc)
+
+
+def geocom_error(rpc: int, rc: int) -> DeviceError | DeviceTimeout:
+    """The exception for a non-OK return code of ``rpc``."""
+    text = f"GeoCOM rpc {rpc} failed with rc {rc_name(rc)}"
+    if rc in RC_NO_TARGET:
+        return BeamBroken(text + ": no distance (no target, beam broken?)")
+    if rc in RC_NOT_READY:
+        return DeviceNotReady(text)
+    if rc in RC_FAULT:
+        return DeviceFault(text)
+    if rc == 6:
+        return DeviceTimeout(text)
+    if rc == 5:
+        return DeviceError(text + ": the instrument does not implement this rpc")
+    if rc == 2:
+        return DeviceError(text + ": invalid parameter")
+    return DeviceError(text)
+
+
+# ----------------------------------------------------------------------------- codec
+
+def _format_param(value) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ConfigError(f"GeoCOM parameter must be finite, got {value!r}")
+        return repr(value)
+    if isinstance(value, str):
+        if '"' in value or "\r" in value or "\n" in value:
+            raise ConfigError(f"GeoCOM string parameter cannot hold quotes or line ends: {value!r}")
+        return f'"{value}"'
+    raise ConfigError(f"unsupported GeoCOM parameter type {type(value).__name__}")
+
+
+def encode_request(rpc: int, trid: int, params=()) -> bytes:
+    """``%R1Q,<rpc>,<trid>:<params>`` + CR LF."""
+    if not (isinstance(rpc, int) and 0 <= rpc <= 65535):
+        raise ConfigError(f"rpc must be an integer in 0..65535, got {rpc!r}")
+    if not (isinstance(trid, int) and 0 <= trid < 2**15):
+        raise ConfigError(f"trid must be an integer in 0..32767, got {trid!r}")
+    return f"%R1Q,{rpc},{trid}:{','.join(_format_param(p) for p in params)}\r\n".encode("ascii")
+
+
+@dataclass(frozen=True)
+class GeoComReply:
+    com_rc: int
+    trid: int
+    rc: int
+    values: tuple
+
+
+_REPLY = re.compile(r"^%R1P,(\d+),(\d+)(?:,\d+)?:(\d+)(?:,(.*))?$")
+
+
+def split_values(text: str) -> tuple:
+    """Split reply values on commas outside double quotes."""
+    out, cur, quoted = [], [], False
+    for ch in text:
+        if ch == '"':
+            quoted = not quoted
+            cur.append(ch)
+        elif ch == "," and not quoted:
+            out.append("".join(cur))
+            cur = []
+        else:
+            cur.append(ch)
+    if quoted:
+        raise ProtocolError(f"unterminated string in GeoCOM reply values {text[:60]!r}")
+    out.append("".join(cur))
+    return tuple(out)
+
+
+def parse_reply(line: bytes) -> GeoComReply:
+    """Parse one reply line (without its terminator); ProtocolError if malformed."""
+    text = line.decode("latin-1")
+    m = _REPLY.match(text)
+    if not m:
+        raise ProtocolError(f"not a GeoCOM reply: {text[:80]!r}")
+    com_rc, trid, rc, values = m.groups()
+    return GeoComReply(int(com_rc), int(trid), int(rc), split_values(values) if values is not None else ())
+
+
+def parse_float(rpc: int, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ProtocolError(f"reply to rpc {rpc}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ProtocolError(f"reply to rpc {rpc}: {text!r} is not finite")
+    return value
+
+
+def parse_int(rpc: int, text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ProtocolError(f"reply to rpc {rpc}: {text!r} is not an integer") from None
+
+
+# ----------------------------------------------------------------------------- driver
+
+class GeoComTracker(Tracker):
+    """GeoCOM client over a serial line (pty in tests).
+
+    Parameters
+    ----------
+    transport : Transport or callable returning a Transport
+        A factory allows reopening the port after the line went dead.
+    reply_timeout_s : float
+        Time allowed for each reply (host seconds).
+    reconnect_timeout_s : float
+        How long a stream keeps trying to revive a dead line.
+    dead_after : int
+        Consecutive unanswered polls after which the line is reopened.
+    """
+
+    protocol = "geocom"
+
+    def __init__(self, transport, *, reply_timeout_s: float = 3.0, reconnect_timeout_s: float = 10.0,
+                 backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0, dead_after: int = 2,
+                 max_line_bytes: int = 1024) -> None:
+        super().__init__()
+        for name, value in (("reply_timeout_s", reply_timeout_s), ("reconnect_timeout_s", reconnect_timeout_s),
+                            ("backoff_initial_s", backoff_initial_s), ("backoff_max_s", backoff_max_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+        if not (isinstance(dead_after, int) and dead_after >= 1):
+            raise ConfigError(f"dead_after must be an integer >= 1, got {dead_after!r}")
+        if isinstance(transport, Transport):
+            self._factory, self._transport = None, transport
+        elif callable(transport):
+            self._factory, self._transport = transport, None
+        else:
+            raise ConfigError(f"transport must be a Transport or a factory, got {type(transport).__name__}")
+        self.reply_timeout_s = float(reply_timeout_s)
+        self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self._backoff = (float(backoff_initial_s), float(backoff_max_s))
+        self._dead_after = dead_after
+        self._max_line = int(max_line_bytes)
+        self._lines: LineReader | None = None
+        self._lock = threading.Lock()
+        self._trid = 0
+        self._stop = threading.Event()
+        self._poller: threading.Thread | None = None
+        self._beam_ok = True
+        self._ready = True
+        self.info: TrackerInfo | None = None
+
+    @classmethod
+    def from_url(cls, url: str, **options) -> "GeoComTracker":
+        scheme, opts = parse_device_url(url)
+        if scheme != "geocom":
+            raise ConfigError(f"not a GeoCOM URL: {url!r}")
+        return cls(serial_factory(opts["serial"], baudrate=opts["baudrate"]), **options)
+
+    # ------------------------------------------------------------------ public API
+    def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
+        deadline = Deadline(timeout_s)
+        if self._transport is None:
+            self._transport = self._factory()
+        self._lines = LineReader(self._transport, max_line_bytes=self._max_line)
+        self._transport.write(b"\n", self.reply_timeout_s)  # clear the instrument's receive buffer
+        self.request(Rpc.NULL_PROC, timeout_s=min(self.reply_timeout_s, deadline.time_left()))
+        name = self._optional(Rpc.GET_INSTRUMENT_NAME)
+        number = self._optional(Rpc.GET_INSTRUMENT_NO)
+        version = self._optional(Rpc.GET_SW_VERSION)
+        self.info = TrackerInfo("geocom", name[0].strip('"') if name else "?", number[0] if number else "?",
+                                ".".join(version) if version else "?")
+        return self.info
+
+    def set_units(self, length_unit: str = "mm") -> None:
+        """GeoCOM always reports metres and radians; samples come out in mm either way."""
+        if length_unit not in ("mm", "m"):
+            raise ConfigError(f"GeoCOM length unit must be 'mm' or 'm' (the wire is always metres), "
+                              f"got {length_unit!r}")
+
+    def measure_stationary(self, duration_s: float = 0.5, timeout_s: float = 10.0) -> StationaryMeasurement:
+        """One distance measurement (GeoCOM does not average; ``duration_s`` is unused)."""
+        if self._stream_active:
+            raise DeviceError("a stream is running; stop it before a stationary measurement")
+        deadline = Deadline(timeout_s)
+        self.request(Rpc.DO_MEASURE, (MeasureProgram.DISTANCE, INCLINATION_AUTO),
+                     timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
+        wait_ms = int(max(0.0, min(deadline.time_left(), self.reply_timeout_s)) * 500)
+        values = self.request(Rpc.GET_COORDINATE, (wait_ms, INCLINATION_AUTO),
+                              timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
+        xyz, t_s = self._coordinate(values)
+        return StationaryMeasurement(xyz_mm=xyz, std_mm=np.full(3, np.nan), t_device_s=t_s,
+                                     host_time_s=time.monotonic())
+
+    def start_stream(self, rate_hz: float) -> None:
+        if self._stream_active:
+            raise DeviceError("a stream is already running")
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
+            raise ConfigError(f"rate_hz must be in (0, 1000] for a polled GeoCOM stream, got {rate_hz!r}")
+        self.request(Rpc.DO_MEASURE, (MeasureProgram.TRACK, INCLINATION_AUTO))
+        self._stream = StreamBuffer(self.protocol, rate_hz, grid=False)
+        self._stream_active = True
+        self._stop.clear()
+        self._poller = threading.Thread(target=self._poll_main, args=(1.0 / rate_hz,),
+                                        name="geocom-poller", daemon=True)
+        self._poller.start()
+
+    def stop_stream(self, timeout_s: float = 5.0) -> StreamRecord:
+        if self._stream is None:
+            raise DeviceError("no stream was started")
+        self._stop.set()
+        if self._poller is not None:
+            self._poller.join(timeout=timeout_s + self.reply_timeout_s)
+            self._poller = None
+        was_active, self._stream_active = self._stream_active, False
+        if was_active:
+            self.request(Rpc.DO_MEASURE, (MeasureProgram.STOP, INCLINATION_AUTO), timeout_s=timeout_s)
+        return self._stream.record()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._poller is not None and self._poller is not threading.current_thread():
+            self._poller.join(timeout=self.reply_timeout_s * 2)
+            self._poller = None
+        if self._stream_active:
+            self._stream_active = False
+            try:
+                self.request(Rpc.DO_MEASURE, (MeasureProgram.STOP, INCLINATION_AUTO), timeout_s=0.5)
+            except StationError:
+                pass
+        if self._transport is not None:
+            self._transport.close()
+
+    # ------------------------------------------------------------------ requests
+    def _sink(self) -> StreamBuffer:
+        return self._stream if (self._stream is not None and self._stream_active) else self._idle
+
+    def request(self, rpc: int, params=(), *, timeout_s: float | None = None) -> tuple:
+        """Send one rpc and return its values (strings); raise on a non-OK rc."""
+        timeout_s = self.reply_timeout_s if timeout_s is None else timeout_s
+        if self._transport is None or self._lines is None:
+            raise ConnectionLost("GeoCOM tracker is not connected")
+        deadline = Deadline(timeout_s)
+        if not self._lock.acquire(timeout=max(deadline.time_left(), 0)):
+            raise DeviceTimeout(f"rpc {rpc}: the line is busy with another request")
+        try:
+            trid = self._trid
+            self._trid = (self._trid + 1) % 2**15
+            self._transport.write(encode_request(rpc, trid, params), max(deadline.time_left(), 1e-3))
+            while True:
+                try:
+                    line = self._lines.read_line(deadline.time_left())
+                except DeviceTimeout:
+                    raise DeviceTimeout(f"no reply to GeoCOM rpc {rpc} within {timeout_s:g} s") from None
+                except ProtocolError:
+                    self._sink().count_garbage(0)
+                    continue
+                start = line.rfind(b"%R1P,")
+                if start < 0:
+                    if line:
+                        self._sink().count_garbage(len(line))
+                    continue
+                if start > 0:
+                    self._sink().count_garbage(start)
+                    line = line[start:]
+                try:
+                    reply = parse_reply(line)
+                except ProtocolError:
+                    self._sink().count_garbage(len(line))
+                    continue
+                if reply.trid != trid:
+                    continue  # stale reply to a request that timed out
+                break
+        finally:
+            self._lock.release()
+        if reply.com_rc != 0:
+            raise ProtocolError(f"GeoCOM rpc {rpc}: communication error {rc_name(reply.com_rc)}")
+        if reply.rc != 0 and reply.rc not in RC_WARNINGS:
+            raise geocom_error(rpc, reply.rc)
+        want = REPLY_VALUES.get(rpc)
+        if want is not None and len(reply.values) != want:
+            raise ProtocolError(f"reply to GeoCOM rpc {rpc} carries {len(reply.values)} values, expected {want}")
+        return reply.values
+
+    def _optional(self, rpc: int):
+        try:
+            return self.request(rpc)
+        except DeviceError:
+            return None
+
+    @staticmethod
+    def _coordinate(values: tuple) -> tuple[np.ndarray, float]:
+        e, n, h = (parse_float(Rpc.GET_COORDINATE, v) for v in values[0:3])
+        t_ms = parse_int(Rpc.GET_COORDINATE, values[3])
+        return np.array([e, n, h]) * 1000.0, t_ms / 1000.0
+
+    # ------------------------------------------------------------------ polling
+    def _poll_main(self, period_s: float) -> None:
+        buf = self._stream
+        silent = 0
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                values = self.request(Rpc.GET_COORDINATE, (0, INCLINATION_AUTO))
+            except DeviceTimeout:
+                buf.count_lost(1)
+                silent += 1
+                if silent >= self._dead_after and not self._revive(buf):
+                    return
+                continue
+            except ConnectionLost as exc:
+                buf.count_lost(1)
+                if not self._revive(buf, exc):
+                    return
+                continue
+            except BeamBroken as exc:
+                silent = 0
+                buf.count_not_measured(1)
+                if self._beam_ok:
+                    self._beam_ok = False
+                    buf.event(EventKind.BEAM_BROKEN, str(exc))
+            except DeviceNotReady as exc:
+                silent = 0
+                buf.count_not_measured(1)
+                if self._ready:
+                    self._ready = False
+                    buf.event(EventKind.NOT_READY, str(exc))
+            except ProtocolError:
+                silent = 0
+                buf.count_rejected(1)
+            except DeviceError as exc:
+                silent = 0
+                buf.count_rejected(1)
+                buf.event(EventKind.DEVICE_ERROR, str(exc))
+            else:
+                silent = 0
+                try:
+                    xyz, t_s = self._coordinate(values)
+                except ProtocolError:
+                    buf.count_rejected(1)
+                else:
+                    if not self._beam_ok:
+                        self._beam_ok = True
+                        buf.event(EventKind.TARGET_REACQUIRED, "coordinate available again")
+                    if not self._ready:
+                        self._ready = True
+                        buf.event(EventKind.READY, "coordinate available again")
+                    buf.add([t_s], xyz[None, :], [0])
+            next_t += period_s
+            delay = next_t - time.monotonic()
+            if delay < 0:
+                next_t = time.monotonic()
+            elif self._stop.wait(delay):
+                return
+
+    def _revive(self, buf: StreamBuffer, cause: BaseException | None = None) -> bool:
+        """Reopen a silent line with backoff and restart tracking; False when giving up."""
+        buf.event(EventKind.CONNECTION_LOST, f"line silent: {cause or 'no replies'}")
+        deadline = Deadline(self.reconnect_timeout_s)
+        delay, last = self._backoff[0], cause
+        while not self._stop.is_set():
+            if self._factory is not None:
+                try:
+                    self._transport.close()
+                    self._transport = self._factory()
+                    self._lines = LineReader(self._transport, max_line_bytes=self._max_line)
+                except (ConnectionLost, DeviceTimeout) as exc:
+                    last = exc
+            try:
+                self.request(Rpc.NULL_PROC)
+                self.request(Rpc.DO_MEASURE, (MeasureProgram.TRACK, INCLINATION_AUTO))
+            except (ConnectionLost, DeviceTimeout, DeviceError) as exc:
+                last = exc
+            else:
+                buf.event(EventKind.RECONNECTED, "line answers again")
+                return True
+            if deadline.time_left() <= delay:
+                break
+            if self._stop.wait(delay):
+                return False
+            delay = min(2 * delay, self._backoff[1])
+        if not self._stop.is_set():
+            buf.fail(ConnectionLost(f"GeoCOM line dead for {self.reconnect_timeout_s:g} s: {last}"))
+        return False
+
+
+__all__ = ["GeoComTracker", "encode_request", "parse_reply", "GeoComReply", "geocom_error", "Rpc",
+           "REPLY_VALUES", "RC_NAMES"]

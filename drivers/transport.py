@@ -1,0 +1,354 @@
+"""Byte transports that drivers get injected: TCP socket, serial port, serial URL.
+
+Every driver in ``drivers/`` talks to its device through a :class:`Transport`,
+so the same codec runs over a real port, a pty in tests, or a loopback socket.
+All reads and writes take a timeout measured on the monotonic clock; nothing
+here blocks without one.
+
+Errors (from :mod:`station.errors`)::
+
+    read/write on a dropped link      -> ConnectionLost
+    write that cannot finish in time  -> DeviceTimeout
+    line longer than its limit        -> ProtocolError (never buffered unbounded)
+    bad URL                           -> ConfigError
+
+A read that times out is not an error: :meth:`Transport.read` returns ``b""``
+and the caller decides (see :class:`LineReader` for a line protocol that turns
+it into :class:`~station.errors.DeviceTimeout`).
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import socket
+import time
+from typing import Callable, Protocol, runtime_checkable
+from urllib.parse import parse_qs, urlsplit
+
+from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
+
+#: default TCP port of each protocol scheme
+DEFAULT_PORTS = {"emscon": 700, "tcp": None}
+
+
+class Deadline:
+    """A point in monotonic time: ``time_left()`` and ``expired()``.
+
+    Parameters
+    ----------
+    timeout_s : float or None
+        Seconds from now; ``None`` means never.
+    """
+
+    __slots__ = ("_end",)
+
+    def __init__(self, timeout_s: float | None) -> None:
+        if timeout_s is not None and not (isinstance(timeout_s, (int, float)) and timeout_s >= 0):
+            raise ConfigError(f"timeout_s must be >= 0 or None, got {timeout_s!r}")
+        self._end = math.inf if timeout_s is None else time.monotonic() + float(timeout_s)
+
+    def time_left(self) -> float:
+        """Seconds left (0.0 once expired, ``inf`` for no deadline)."""
+        return max(0.0, self._end - time.monotonic())
+
+    def expired(self) -> bool:
+        return time.monotonic() >= self._end
+
+
+@runtime_checkable
+class Transport(Protocol):
+    """A bidirectional byte pipe with timeouts on every call."""
+
+    description: str
+
+    def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        """Return 1..max_bytes bytes, or ``b""`` if none arrived within ``timeout_s``.
+
+        Raises ConnectionLost when the link is down.
+        """
+
+    def write(self, data: bytes, timeout_s: float) -> None:
+        """Write all of ``data`` within ``timeout_s`` (DeviceTimeout otherwise)."""
+
+    def close(self) -> None:
+        """Release the link; idempotent."""
+
+    @property
+    def closed(self) -> bool: ...
+
+
+TransportFactory = Callable[[], Transport]
+
+
+class TcpTransport:
+    """A TCP client socket.
+
+    Parameters
+    ----------
+    host, port : str, int
+        Peer address.
+    connect_timeout_s : float
+        Time allowed for the TCP handshake.
+    sock : socket.socket, optional
+        An already connected socket to wrap instead (``host``/``port`` then
+        only describe it).
+    """
+
+    def __init__(self, host: str, port: int, *, connect_timeout_s: float = 5.0,
+                 sock: socket.socket | None = None) -> None:
+        if not isinstance(port, int) or not 0 < port < 65536:
+            raise ConfigError(f"port must be an integer in 1..65535, got {port!r}")
+        self.description = f"tcp://{host}:{port}"
+        if sock is None:
+            try:
+                sock = socket.create_connection((host, port), timeout=connect_timeout_s)
+            except socket.timeout as exc:
+                raise DeviceTimeout(f"connecting to {self.description} took longer than "
+                                    f"{connect_timeout_s} s") from exc
+            except OSError as exc:
+                raise ConnectionLost(f"cannot connect to {self.description}: {exc}") from exc
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._sock = sock
+        self._closed = False
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        if self._closed:
+            raise ConnectionLost(f"{self.description} is closed")
+        try:
+            ready, _, _ = select.select([self._sock], [], [], max(0.0, timeout_s))
+            if not ready:
+                return b""
+            data = self._sock.recv(max_bytes)
+        except (OSError, ValueError) as exc:
+            raise ConnectionLost(f"reading from {self.description} failed: {exc}") from exc
+        if not data:
+            raise ConnectionLost(f"{self.description} closed by the peer")
+        return data
+
+    def write(self, data: bytes, timeout_s: float) -> None:
+        if self._closed:
+            raise ConnectionLost(f"{self.description} is closed")
+        view = memoryview(data)
+        deadline = Deadline(timeout_s)
+        try:
+            while view:
+                left = deadline.time_left()
+                _, ready, _ = select.select([], [self._sock], [], left)
+                if not ready:
+                    raise DeviceTimeout(f"writing {len(data)} bytes to {self.description} "
+                                        f"took longer than {timeout_s} s")
+                sent = self._sock.send(view)
+                view = view[sent:]
+        except DeviceTimeout:
+            raise
+        except (OSError, ValueError) as exc:
+            raise ConnectionLost(f"writing to {self.description} failed: {exc}") from exc
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self._sock.close()
+
+
+class SerialTransport:
+    """A pyserial port: a device path (``/dev/ttyUSB0``, a pty slave) or a
+    pyserial URL (``socket://127.0.0.1:4001``, ``loop://``).
+
+    Parameters
+    ----------
+    port : str or serial.SerialBase
+        Path, URL, or an already opened pyserial object.
+    baudrate : int
+        Line speed (ignored by ptys and sockets).
+    """
+
+    def __init__(self, port, *, baudrate: int = 9600) -> None:
+        import serial  # local: only serial users pay for the import
+
+        self._serial_exc = serial.SerialException
+        if isinstance(port, str):
+            if not isinstance(baudrate, int) or baudrate <= 0:
+                raise ConfigError(f"baudrate must be a positive integer, got {baudrate!r}")
+            try:
+                if "://" in port:
+                    self._port = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
+                else:
+                    self._port = serial.Serial(port, baudrate=baudrate, timeout=0)
+            except (serial.SerialException, OSError, ValueError) as exc:
+                raise ConnectionLost(f"cannot open serial port {port!r}: {exc}") from exc
+            self.description = port
+        else:
+            self._port = port
+            self.description = str(getattr(port, "port", port))
+        self._timeout: float | None = None
+        self._closed = False
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _set_timeout(self, timeout_s: float) -> None:
+        if self._timeout != timeout_s:  # pyserial reconfigures the port on every set
+            self._port.timeout = timeout_s
+            self._timeout = timeout_s
+
+    def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        if self._closed:
+            raise ConnectionLost(f"{self.description} is closed")
+        try:
+            waiting = self._port.in_waiting
+            if waiting:
+                self._set_timeout(0)
+                return self._port.read(min(waiting, max_bytes))
+            self._set_timeout(max(0.0, timeout_s))
+            first = self._port.read(1)
+            if not first:
+                return b""
+            more = self._port.in_waiting
+            if more and max_bytes > 1:
+                self._set_timeout(0)
+                first += self._port.read(min(more, max_bytes - 1))
+            return first
+        except (self._serial_exc, OSError, TypeError, AttributeError) as exc:
+            raise ConnectionLost(f"reading from {self.description} failed: {exc}") from exc
+
+    def write(self, data: bytes, timeout_s: float) -> None:
+        if self._closed:
+            raise ConnectionLost(f"{self.description} is closed")
+        try:
+            self._port.write_timeout = max(0.001, timeout_s)
+            self._port.write(data)
+            self._port.flush()
+        except Exception as exc:  # pyserial raises SerialTimeoutException or OSError
+            if type(exc).__name__ == "SerialTimeoutException":
+                raise DeviceTimeout(f"writing {len(data)} bytes to {self.description} took "
+                                    f"longer than {timeout_s} s") from exc
+            raise ConnectionLost(f"writing to {self.description} failed: {exc}") from exc
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._port.close()
+        except Exception:
+            pass
+
+
+class LineReader:
+    """Reads terminated lines from a transport, never buffering more than
+    ``max_line_bytes`` of one line.
+
+    Parameters
+    ----------
+    transport : Transport
+    terminator : bytes
+        Line end (``b"\\n"``; a preceding ``\\r`` is stripped too).
+    max_line_bytes : int
+        A line longer than this raises ProtocolError and its bytes are dropped
+        up to the next terminator.
+    """
+
+    def __init__(self, transport: Transport, *, terminator: bytes = b"\n",
+                 max_line_bytes: int = 4096) -> None:
+        self.transport = transport
+        self._term = terminator
+        self._max = int(max_line_bytes)
+        self._buf = bytearray()
+        self._discarding = False
+        #: bytes dropped because a line overflowed
+        self.overflow_bytes = 0
+
+    def clear(self) -> None:
+        self._buf.clear()
+        self._discarding = False
+
+    def read_line(self, timeout_s: float) -> bytes:
+        """Next line without its terminator; DeviceTimeout if none in time."""
+        deadline = Deadline(timeout_s)
+        while True:
+            idx = self._buf.find(self._term)
+            if idx >= 0:
+                line = bytes(self._buf[:idx])
+                del self._buf[: idx + len(self._term)]
+                if self._discarding:
+                    self._discarding = False
+                    self.overflow_bytes += len(line)
+                    raise ProtocolError(f"line longer than {self._max} bytes on "
+                                        f"{self.transport.description}; dropped")
+                return line[:-1] if line.endswith(b"\r") else line
+            if len(self._buf) > self._max:
+                self.overflow_bytes += len(self._buf)
+                self._buf.clear()
+                self._discarding = True
+            left = deadline.time_left()
+            if left <= 0:
+                raise DeviceTimeout(f"no complete line from {self.transport.description} "
+                                    f"within {timeout_s} s")
+            self._buf += self.transport.read(4096, left)
+
+
+def parse_device_url(url: str) -> tuple[str, dict]:
+    """Split a device URL into ``(scheme, options)``.
+
+    ``emscon://HOST[:PORT]`` -> ``("emscon", {"host", "port"})`` (port 700 default);
+    ``tcp://HOST:PORT``; ``geocom:///dev/ttyX?baud=N`` or
+    ``geocom+socket://HOST:PORT`` -> ``("geocom", {"serial": path_or_url, "baudrate"})``.
+    """
+    if not isinstance(url, str) or "://" not in url:
+        raise ConfigError(f"device URL must look like scheme://..., got {url!r}")
+    parts = urlsplit(url)
+    scheme = parts.scheme.lower()
+    query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+    if scheme in ("emscon", "tcp"):
+        if not parts.hostname:
+            raise ConfigError(f"device URL {url!r} has no host")
+        try:
+            port = parts.port or DEFAULT_PORTS.get(scheme)
+        except ValueError as exc:
+            raise ConfigError(f"device URL {url!r} has a bad port") from exc
+        if port is None:
+            raise ConfigError(f"device URL {url!r} needs a port")
+        return scheme, {"host": parts.hostname, "port": int(port)}
+    if scheme.startswith("geocom"):
+        baud = query.get("baud", "9600")
+        if not baud.isdigit():
+            raise ConfigError(f"baud in {url!r} must be an integer, got {baud!r}")
+        if scheme == "geocom":
+            if not parts.path:
+                raise ConfigError(f"device URL {url!r} names no serial device")
+            target = parts.path
+        elif scheme.startswith("geocom+"):
+            inner = scheme.split("+", 1)[1]
+            target = f"{inner}://{parts.netloc}{parts.path}"
+        else:
+            raise ConfigError(f"unknown device URL scheme {scheme!r} in {url!r}")
+        return "geocom", {"serial": target, "baudrate": int(baud)}
+    raise ConfigError(f"unknown device URL scheme {scheme!r} in {url!r}; "
+                      f"known: emscon, tcp, geocom, geocom+socket")
+
+
+def tcp_factory(host: str, port: int, *, connect_timeout_s: float = 5.0) -> TransportFactory:
+    """A factory that opens a new :class:`TcpTransport` on each call (reconnection)."""
+    return lambda: TcpTransport(host, port, connect_timeout_s=connect_timeout_s)
+
+
+def serial_factory(port: str, *, baudrate: int = 9600) -> TransportFactory:
+    """A factory that (re)opens a :class:`SerialTransport` on each call."""
+    return lambda: SerialTransport(port, baudrate=baudrate)
+
+
+__all__ = [
+    "Deadline", "Transport", "TransportFactory", "TcpTransport", "SerialTransport",
+    "LineReader", "parse_device_url", "tcp_factory", "serial_factory",
+]

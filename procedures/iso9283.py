@@ -1,0 +1,486 @@
+"""ISO 9283 acceptance procedure (seed 000), as a readable list of steps.
+
+The tests of seed 000 Table 3 on one robot with one laser tracker:
+
+1. ``check programs`` — test poses from the cube (seed 000 sec. 2.1-2.2), every
+   program generated (ABB RAPID) and passed through the safety gate before
+   anything connects;
+2. ``mount reflector`` / ``clear the cell`` — operator prompts (``--yes``
+   answers them from a script); the cell is cleared again in every session;
+3. ``connect devices`` — tracker (emScon/GeoCOM) and controller (FTP+Modbus);
+4. ``home`` — the robot goes to P1, a known pose (again after a resume);
+5. ``register base frame`` — stationary tracker points at the inset cube
+   corners, rigid best fit tracker <- base
+   (:mod:`station.analysis.registration`);
+6. ``pose cycle k`` (k = 1..n) — one P1-P2-P3-P4-P5-P1 cycle at rated speed
+   with 0.5 s fine-stop dwells while the tracker streams (sec. 3.1.3): AP,
+   RP (eq. (1)-(2)), POS/PST (5)-(6), AD/RD (8)-(9) between P2 and P4,
+   MPT (10);
+7. ``vAP cycle k`` — P1, P2, P4 approached along x, y and z (sec. 3.3, eq. (7));
+8. ``analyse`` — attained-pose extraction and every characteristic, with
+   verdicts against the configured limits;
+9. ``report`` — one HTML file with the plots of Figs. 3-8.
+
+Samples go to the run store in committed batches while the robot moves, so
+a run killed at any moment keeps every acknowledged sample and resumes at
+the cycle it was in.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from station.analysis.iso9283 import analyze_iso9283
+from station.analysis.iso_poses import cube_test_poses
+from station.analysis.registration import Registration, fit_rigid
+from station.errors import ConfigError, DeviceFault, InsufficientDataError, StationError
+from station.models.robots import RobotSpec, get_robot
+from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2, vap_program
+from station.programs.model import CartesianTarget, Dwell, Move, Program, quat_from_matrix
+from station.programs.handshake import Fault, State, describe
+from station.programs.rapid import render_rapid
+from station.runner import Procedure, Step, StepContext
+from station.safety import SafetyGate, SafetyLimits
+
+#: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
+SEED_CUBE_MM = (
+    (600, 2300, 2000), (600, 1100, 2000), (-600, 1100, 2000), (-600, 2300, 2000),
+    (600, 2300, 800), (600, 1100, 800), (-600, 1100, 800), (-600, 2300, 800),
+)
+#: the poses approached from three directions in seed 000 Fig. 7 / Table 3
+VAP_POSES = ("P1", "P2", "P4")
+#: limit keys of the config -> characteristic keys of the analysis
+LIMIT_KEYS = {
+    "ap_limit_mm": "AP_mm", "rp_limit_mm": "RP_mm", "pst_limit_s": "PST_s", "vap_limit_mm": "vAP_mm",
+    "ad_limit_mm": "AD_mm", "rd_limit_mm": "RD_mm", "mpt_limit_s": "MPT_s",
+}
+STREAM = "tracker"
+
+
+@dataclass(frozen=True)
+class IsoPlan:
+    """Everything the procedure needs to know before it starts (JSON-able via :meth:`params`)."""
+
+    robot: RobotSpec
+    workspace_min_mm: tuple[float, float, float]
+    workspace_max_mm: tuple[float, float, float]
+    max_tcp_speed_mm_s: float
+    poses_mm: dict[str, tuple[float, float, float]]
+    registration_mm: dict[str, tuple[float, float, float]]
+    cycles: int = 30
+    vap_cycles: int = 10
+    dwell_s: float = 0.5
+    speed_frac: float = 1.0
+    vap_offset_mm: float = 100.0
+    tracker_rate_hz: float = 100.0
+    limits: dict[str, float] = field(default_factory=dict)
+    band_mm: float | None = None
+    payload_kg: float = 0.0
+    report_dir: str = "reports"
+    max_speed_frac: float = 1.0
+    max_accel_frac: float = 1.0
+
+    def gate(self) -> SafetyGate:
+        return SafetyGate(
+            self.robot,
+            SafetyLimits(workspace_min_mm=self.workspace_min_mm, workspace_max_mm=self.workspace_max_mm,
+                         max_tcp_speed_mm_s=self.max_tcp_speed_mm_s, max_speed_frac=self.max_speed_frac,
+                         max_accel_frac=self.max_accel_frac),
+        )
+
+    def params(self) -> dict:
+        return {
+            "robot": self.robot.name, "workspace_min_mm": list(self.workspace_min_mm),
+            "workspace_max_mm": list(self.workspace_max_mm), "max_tcp_speed_mm_s": self.max_tcp_speed_mm_s,
+            "poses_mm": {k: list(v) for k, v in self.poses_mm.items()},
+            "registration_mm": {k: list(v) for k, v in self.registration_mm.items()},
+            "cycles": self.cycles, "vap_cycles": self.vap_cycles, "dwell_s": self.dwell_s,
+            "speed_frac": self.speed_frac, "vap_offset_mm": self.vap_offset_mm,
+            "tracker_rate_hz": self.tracker_rate_hz, "limits": dict(self.limits), "band_mm": self.band_mm,
+            "payload_kg": self.payload_kg, "report_dir": self.report_dir,
+            "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
+        }
+
+    @classmethod
+    def from_params(cls, p: Mapping) -> "IsoPlan":
+        return cls(
+            robot=get_robot(p["robot"]), workspace_min_mm=tuple(p["workspace_min_mm"]),
+            workspace_max_mm=tuple(p["workspace_max_mm"]), max_tcp_speed_mm_s=float(p["max_tcp_speed_mm_s"]),
+            poses_mm={k: tuple(v) for k, v in p["poses_mm"].items()},
+            registration_mm={k: tuple(v) for k, v in p["registration_mm"].items()},
+            cycles=int(p["cycles"]), vap_cycles=int(p["vap_cycles"]), dwell_s=float(p["dwell_s"]),
+            speed_frac=float(p["speed_frac"]), vap_offset_mm=float(p["vap_offset_mm"]),
+            tracker_rate_hz=float(p["tracker_rate_hz"]), limits=dict(p["limits"]), band_mm=p["band_mm"],
+            payload_kg=float(p["payload_kg"]), report_dir=str(p["report_dir"]),
+            max_speed_frac=float(p.get("max_speed_frac", 1.0)), max_accel_frac=float(p.get("max_accel_frac", 1.0)),
+        )
+
+
+def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
+    """Build the plan from a validated :class:`~station.config.StationConfig`."""
+    if robot_name not in cfg.robots:
+        raise ConfigError(f"robots.{robot_name}: no such robot (have {', '.join(sorted(cfg.robots))})")
+    rc = cfg.robots[robot_name]
+    iso = cfg.iso9283
+    corners = np.asarray(iso.cube_corners_mm or SEED_CUBE_MM, dtype=float)
+    tp = cube_test_poses(corners, inset_mm=iso.inset_mm)
+    poses = {n: tuple(float(v) for v in p) for n, p in zip(tp.names, tp.positions_mm)}
+    centre = corners.mean(axis=0)
+    inset = corners - np.sign(corners - centre) * iso.inset_mm
+    registration = {f"R{k + 1}": tuple(float(v) for v in c) for k, c in enumerate(inset)}
+    limits = {LIMIT_KEYS[k]: v for k, v in rc.limits.model_dump().items() if k in LIMIT_KEYS and v is not None}
+    kw = dict(
+        robot=get_robot(rc.model), workspace_min_mm=tuple(rc.workspace.min_mm),
+        workspace_max_mm=tuple(rc.workspace.max_mm), max_tcp_speed_mm_s=rc.workspace.max_tcp_speed_mm_s,
+        poses_mm=poses, registration_mm=registration, cycles=iso.cycles, vap_cycles=iso.vap_cycles,
+        dwell_s=iso.dwell_s, speed_frac=min(iso.speed_percent, rc.workspace.max_speed_percent) / 100.0,
+        vap_offset_mm=iso.vap_offset_mm, tracker_rate_hz=iso.tracker_rate_hz, limits=limits,
+        band_mm=rc.limits.pos_band_mm or rc.limits.rp_limit_mm, payload_kg=rc.payload_kg,
+        report_dir=cfg.station.report_dir,
+        max_speed_frac=rc.workspace.max_speed_percent / 100.0,
+        max_accel_frac=rc.workspace.max_accel_percent / 100.0,
+    )
+    kw.update(overrides)
+    return IsoPlan(**kw)
+
+
+# --------------------------------------------------------------------------
+# programs
+# --------------------------------------------------------------------------
+
+
+def _quat():
+    return quat_from_matrix(TOOL_DOWN)
+
+
+def _point_program(plan: IsoPlan, name: str, xyz, *, dwell_s: float, speed_frac: float = 0.2) -> Program:
+    target = CartesianTarget(name, tuple(xyz), _quat(), label=f"{name}")
+    return Program(
+        name=f"ST_{name}", robot_name=plan.robot.name, rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
+        statements=(Move(target, "joint", speed_frac), Dwell(dwell_s)), accel_frac=0.5,
+        title=f"station: go to {name}", rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot),
+    )
+
+
+def programs(plan: IsoPlan) -> dict[str, object]:
+    """Every program of the procedure, rendered (RAPID)."""
+    out = {"home": render_rapid(_point_program(plan, "P1", plan.poses_mm["P1"], dwell_s=plan.dwell_s))}
+    for name, xyz in plan.registration_mm.items():
+        out[f"register {name}"] = render_rapid(_point_program(plan, name, xyz, dwell_s=0.2))
+    out["pose cycle"] = render_rapid(
+        iso_pose_program(plan.robot, plan.poses_mm, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac)
+    )
+    vap = {n: plan.poses_mm[n] for n in VAP_POSES}
+    out["vAP cycle"] = render_rapid(
+        vap_program(plan.robot, vap, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac,
+                    approach_mm=plan.vap_offset_mm)
+    )
+    return out
+
+
+# --------------------------------------------------------------------------
+# steps
+# --------------------------------------------------------------------------
+
+
+def _plan(ctx: StepContext) -> IsoPlan:
+    plan = ctx.session.get("plan")
+    if plan is None:
+        plan = ctx.session["plan"] = IsoPlan.from_params(ctx.params)
+    return plan
+
+
+def step_check_programs(ctx: StepContext) -> dict:
+    plan = _plan(ctx)
+    gate = plan.gate()
+    q = plan.robot.home_q_rad
+    checked = {}
+    for name, rendered in programs(plan).items():
+        report = gate.check_program(rendered.program, q_start=None)
+        checked[name] = {"file": rendered.main_file, "moves": int(report.q_rad.shape[0]),
+                         "peak_tcp_speed_mm_s": float(report.peak_tcp_speed_mm_s)}
+    ctx.session["gate"] = gate
+    return {"programs": checked, "poses_mm": {k: list(v) for k, v in plan.poses_mm.items()}}
+
+
+def _prompt(message: str):
+    def run(ctx: StepContext) -> dict:
+        if not ctx.confirm(message):
+            raise StationError(f"operator declined: {message}")
+        return {"confirmed": message}
+    return run
+
+
+def step_connect(ctx: StepContext) -> dict:
+    from drivers.controller import ControllerDriver
+    from drivers.tracker import open_tracker
+
+    plan = _plan(ctx)
+    devices = ctx.session["devices"]
+    tracker = open_tracker(devices["tracker"])
+    info = tracker.connect()
+    tracker.set_units("mm")
+    ctx.session["tracker"] = tracker
+    controller = ControllerDriver.from_url(devices["controller"], gate=ctx.session.get("gate") or plan.gate(),
+                                           **({"register_map": devices["register_map"]}
+                                              if devices.get("register_map") else {}))
+    controller.connect()
+    ctx.session["controller"] = controller
+    status = controller.status()
+    took_over = ""
+    if status.state == State.RUNNING:
+        # a program of an earlier session (killed station process) is still running: stop it first
+        status = controller.stop()
+        took_over = "stopped a program left running by an earlier session"
+    elif status.state == State.FAULT:
+        if status.fault != Fault.COMM_WATCHDOG:
+            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
+        # the watchdog stopped the program when the earlier session died: that is ours to clear
+        status = controller.reset()
+        took_over = "cleared the comm-watchdog fault of an earlier session"
+    return {"tracker": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+
+
+def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) -> dict:
+    """Run one program; with ``stream`` the tracker streams and samples are committed as they come."""
+    plan = _plan(ctx)
+    tracker, controller = ctx.session["tracker"], ctx.session["controller"]
+    events: list[str] = []
+
+    def drain(timeout: float = 0.0) -> None:
+        batch = tracker.read_samples(timeout_s=timeout)
+        for ev in batch.events:
+            events.append(f"{ev.kind.value}@{ev.t_device_s}")
+        if len(batch):
+            ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
+                                "z": batch.xyz_mm[:, 2], "status": batch.status})
+
+    last = [time.monotonic()]
+
+    def on_status(st) -> None:
+        ctx.checkpoint()
+        ctx.progress(f"line {st.line} moves {st.moves_done}")
+        if stream and time.monotonic() - last[0] > 0.2:
+            drain()
+            last[0] = time.monotonic()
+
+    if stream:
+        tracker.start_stream(plan.tracker_rate_hz)
+    try:
+        status = controller.run(rendered, timeout_s=timeout_s, on_status=on_status)
+    finally:
+        if stream:
+            try:
+                # let the last dwell's samples arrive, then stop and keep everything delivered
+                drain(0.05)
+                record = tracker.stop_stream()
+                drain(0.0)
+            except StationError:
+                record = None
+    out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
+    if stream and record is not None:
+        out.update(received=record.received, lost=record.lost, rejected=record.rejected,
+                   not_measured=record.not_measured, reconnects=record.reconnects,
+                   gaps=[[g.t_before_s, g.t_after_s, g.missing, g.cause] for g in record.gaps])
+    return out
+
+
+def _timeout(ctx: StepContext, sim_seconds: float) -> float:
+    scale = ctx.session.get("time_scale") or 1.0
+    return 30.0 + sim_seconds / scale * 3.0
+
+
+def step_home(ctx: StepContext) -> dict:
+    return _run_program(ctx, programs(_plan(ctx))["home"], timeout_s=_timeout(ctx, 60), stream=False)
+
+
+def step_register(ctx: StepContext) -> dict:
+    plan = _plan(ctx)
+    tracker = ctx.session["tracker"]
+    progs = programs(plan)
+    measured, names = [], []
+    for name in plan.registration_mm:
+        ctx.checkpoint()
+        _run_program(ctx, progs[f"register {name}"], timeout_s=_timeout(ctx, 60), stream=False)
+        m = tracker.measure_stationary(duration_s=0.2)
+        measured.append(np.asarray(m.xyz_mm, dtype=float))
+        names.append(name)
+        ctx.progress(f"point {name}")
+    base = np.array([plan.registration_mm[n] for n in names])
+    reg = fit_rigid(base, np.array(measured))
+    return {"R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
+            "residuals_mm": reg.residuals_mm.tolist(), "points_tracker_mm": np.array(measured).tolist()}
+
+
+def step_pose_cycle(k: int):
+    def run(ctx: StepContext) -> dict:
+        plan = _plan(ctx)
+        sim = 8.0 * (plan.dwell_s + 2.0)
+        return _run_program(ctx, programs(plan)["pose cycle"], timeout_s=_timeout(ctx, sim), stream=True)
+    return run
+
+
+def step_vap_cycle(k: int):
+    def run(ctx: StepContext) -> dict:
+        plan = _plan(ctx)
+        sim = 12.0 * (plan.dwell_s + 2.0)
+        return _run_program(ctx, programs(plan)["vAP cycle"], timeout_s=_timeout(ctx, sim), stream=True)
+    return run
+
+
+def registration_of(outputs: Mapping) -> Registration:
+    out = outputs["register base frame"]
+    return Registration(R=np.asarray(out["R"]), t_mm=np.asarray(out["t_mm"]),
+                        residuals_mm=np.asarray(out["residuals_mm"]), rms_mm=float(out["rms_mm"]),
+                        n=len(out["residuals_mm"]))
+
+
+def _stream_in_base(ctx: StepContext, step_names: list[str]):
+    s = ctx.samples(STREAM, steps=step_names)
+    if not s:
+        raise InsufficientDataError(f"no tracker samples recorded for {step_names[0]}..{step_names[-1]}")
+    reg = registration_of(ctx.outputs)
+    xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
+    order = np.argsort(s["t"], kind="stable")
+    return s["t"][order], xyz[order], s["status"][order]
+
+
+def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None):
+    """Both analyses of the procedure's data (pure: arrays in, results out)."""
+    names = list(plan.poses_mm)
+    commanded = np.array([plan.poses_mm[n] for n in names])
+    main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=plan.limits,
+                           band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles))
+    vap = None
+    if vap_t is not None and len(vap_t):
+        vnames = list(VAP_POSES)
+        vcmd = np.array([plan.poses_mm[n] for n in vnames])
+        # each vAP pose is approached three times in a row: that is the commanded order
+        order = [n for n in vnames for _ in range(3)]
+        vlim = {k: v for k, v in plan.limits.items() if k == "vAP_mm"}
+        vap = analyze_iso9283(vap_t, vap_xyz, vcmd, names=vnames, order=order, limits=vlim,
+                              distance_pairs=None, band_mm=plan.band_mm)
+    return main, vap
+
+
+def characteristic_rows(main, vap) -> list[dict]:
+    """One row per number (pose, name, value, unit, limit, passed) for the store and the report."""
+    rows: list[dict] = []
+    verdicts = {(v.characteristic, v.subject): v for v in main.verdicts}
+    if vap is not None:
+        verdicts.update({(v.characteristic, v.subject): v for v in vap.verdicts if v.characteristic == "vAP_mm"})
+
+    def add(pose, name, value, unit):
+        v = verdicts.get((name, pose))
+        value = None if value is None or (isinstance(value, float) and not math.isfinite(value)) else float(value)
+        rows.append({"pose": pose, "name": name, "value": value, "unit": unit,
+                     "limit": None if v is None else v.limit, "passed": None if v is None else v.passed})
+
+    for name, pr in main.poses.items():
+        add(name, "AP_mm", pr.accuracy.AP_mm if pr.accuracy else None, "mm")
+        add(name, "RP_mm", pr.repeatability.RP_mm if pr.repeatability else None, "mm")
+        add(name, "POS_mm", pr.overshoot.POS_mm if pr.overshoot else None, "mm")
+        add(name, "PST_s", pr.overshoot.PST_s if pr.overshoot else None, "s")
+        add(name, "n_cycles", pr.n_cycles, "1")
+    if vap is not None:
+        for name, pr in vap.poses.items():
+            add(name, "vAP_mm", pr.multidirectional.vAP_mm, "mm")
+    for d in main.distances:
+        add(f"{d.pose_a}-{d.pose_b}", "AD_mm", d.AD_mm, "mm")
+        add(f"{d.pose_a}-{d.pose_b}", "RD_mm", d.RD_mm, "mm")
+    for m in main.posing_times:
+        add(f"{m.from_pose}->{m.to_pose}", "MPT_s", m.MPT_s, "s")
+    return rows
+
+
+def step_analyse(ctx: StepContext) -> dict:
+    plan = _plan(ctx)
+    pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
+    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)]
+    t, xyz, _ = _stream_in_base(ctx, pose_steps)
+    vt = vxyz = None
+    if vap_steps:
+        vt, vxyz, _ = _stream_in_base(ctx, vap_steps)
+    main, vap = analyse(plan, t, xyz, vt, vxyz)
+    rows = characteristic_rows(main, vap)
+    ctx.store.put_characteristics(ctx.run_id, rows)
+    result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
+    ctx.store.put_result(ctx.run_id, "iso9283", result)
+    ctx.session["analysis"] = (main, vap)
+    judged = [r["passed"] for r in rows if r["passed"] is not None]
+    return {"passed": (all(judged) if judged else None), "partial": bool(main.partial),
+            "warnings": list(main.warnings) + (list(vap.warnings) if vap is not None else []),
+            "n_rows": len(rows)}
+
+
+def step_report(ctx: StepContext) -> dict:
+    from procedures.iso9283_report import build_report
+    from station.report import write_report
+
+    plan = _plan(ctx)
+    main, vap = ctx.session.get("analysis") or _reanalyse(ctx, plan)
+    rows = ctx.store.characteristics(ctx.run_id)
+    run = ctx.store.run(ctx.run_id)
+    report = build_report(ctx, plan, run, rows, main, vap)
+    path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
+    return {"report": str(path.resolve()), "verdict": report.verdict}
+
+
+def _reanalyse(ctx: StepContext, plan: IsoPlan):
+    pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
+    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)]
+    t, xyz, _ = _stream_in_base(ctx, pose_steps)
+    vt, vxyz, _ = _stream_in_base(ctx, vap_steps) if vap_steps else (None, None, None)
+    return analyse(plan, t, xyz, vt, vxyz)
+
+
+def safe_state(session: dict) -> None:
+    """Stop the program and the stream; keep the connections for a resume to reopen."""
+    errors = []
+    controller = session.get("controller")
+    if controller is not None:
+        try:
+            controller.stop()
+        except Exception as exc:  # report, keep going: the stream must stop too
+            errors.append(f"controller stop: {exc}")
+    tracker = session.get("tracker")
+    if tracker is not None and getattr(tracker, "streaming", False):
+        try:
+            tracker.stop_stream()
+        except Exception as exc:
+            errors.append(f"tracker stop: {exc}")
+    if errors:
+        raise StationError("; ".join(errors))
+
+
+def close_devices(session: dict) -> None:
+    for key in ("tracker", "controller"):
+        dev = session.pop(key, None)
+        if dev is not None:
+            try:
+                dev.close()
+            except Exception:
+                pass
+
+
+def build_procedure(plan: IsoPlan) -> Procedure:
+    """The ISO 9283 procedure as named steps."""
+    steps = [
+        Step("check programs", step_check_programs, every_session=True),
+        Step("mount reflector", _prompt("Mount the tracker reflector on the tool flange (SMR in its nest)")),
+        Step("clear the cell", _prompt("Clear the robot cell and close the safety fence"), every_session=True),
+        Step("connect devices", step_connect, every_session=True),
+        Step("home", step_home, every_session=True),
+        Step("register base frame", step_register),
+    ]
+    steps += [Step(f"pose cycle {k}", step_pose_cycle(k), label=f"{k}/{plan.cycles}") for k in range(1, plan.cycles + 1)]
+    steps += [Step(f"vAP cycle {k}", step_vap_cycle(k), label=f"{k}/{plan.vap_cycles}")
+              for k in range(1, plan.vap_cycles + 1)]
+    steps += [Step("analyse", step_analyse), Step("report", step_report)]
+    return Procedure("iso9283", steps, safe_state=safe_state)

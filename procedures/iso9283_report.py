@@ -1,0 +1,110 @@
+"""The HTML report of an ISO 9283 run: the seed's tables and figures.
+
+Figures (seed 000): speed and the chosen extraction windows of the first
+cycles (Figs. 3-4), the approach to P1 with the limit band (Figs. 5-6), the
+attained-pose clusters per approach direction (Fig. 7), and per-pose
+accuracy, repeatability, distance and posing time against the limits
+(Table 3, Fig. 8).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.report import Report, plot_approach, plot_bars, plot_clusters, plot_velocity_windows
+
+
+def _rows_used(ex, idx):
+    idx = np.asarray(idx, dtype=np.int64)
+    return idx if ex.rows_used is None else np.asarray(ex.rows_used)[idx]
+
+
+def _first_cycles_figure(t, xyz, main, n_cycles: int = 3) -> str | None:
+    ex = main.extraction
+    st = ex.stops
+    if st.n == 0:
+        return None
+    k = min(st.n - 1, 5 * n_cycles)
+    t_end = float(st.t_s[k]) + 0.5
+    sel = t <= t_end
+    ts, ps = t[sel], xyz[sel]
+    if ts.size < 3:
+        return None
+    speed = np.linalg.norm(np.diff(ps, axis=0), axis=1) / np.diff(ts)
+    first = _rows_used(ex, st.i_window_first[: k + 1])
+    last = _rows_used(ex, st.i_window_last[: k + 1])
+    windows = [(float(t[a]), float(t[b])) for a, b in zip(first, last)]
+    return plot_velocity_windows(ts[1:], speed, windows, title=f"Speed, first {n_cycles} cycles, with the least-speed windows")
+
+
+def _approach_figure(t, xyz, main, pose: str = "P1") -> str | None:
+    pr = main.poses.get(pose)
+    if pr is None or pr.overshoot is None or pr.overshoot.rows.size == 0:
+        return None
+    ov = pr.overshoot
+    row = int(ov.rows[0])
+    entry = int(ov.row_entry[0]) if ov.row_entry.size else -1
+    start = max(0, (entry if entry >= 0 else row) - 30)
+    seg = slice(start, row + 1)
+    dist = np.linalg.norm(xyz[seg] - xyz[row], axis=1)
+    settle = int(ov.row_settled[0]) if ov.row_settled.size else -1
+    return plot_approach(
+        t[seg], dist, ov.band_mm, t_enter_s=float(t[entry]) if entry >= 0 else None,
+        t_settle_s=float(t[settle]) if settle >= 0 else None,
+        title=f"Approach to {pose}, first cycle (band {ov.band_mm:.3g} mm, {ov.band_source})",
+    )
+
+
+def _cluster_figures(vap_xyz, vap, plan) -> list[tuple[str, str]]:
+    figs = []
+    if vap is None:
+        return figs
+    for name, pr in vap.poses.items():
+        groups = pr.multidirectional.groups
+        if len(groups) < 2:
+            continue
+        clusters = {g.label: vap_xyz[np.asarray(g.rows, dtype=np.int64)] for g in groups}
+        vap_txt = "n/a" if pr.multidirectional.vAP_mm is None else f"{pr.multidirectional.vAP_mm:.3f} mm"
+        figs.append((f"Fig. 7: attained positions of {name} per approach direction (vAP = {vap_txt})",
+                     plot_clusters(clusters, np.asarray(plan.poses_mm[name]), title=name)))
+    return figs
+
+
+def build_report(ctx, plan, run, rows, main, vap) -> Report:
+    from procedures.iso9283 import VAP_POSES, _stream_in_base, registration_of
+
+    t, xyz, _ = _stream_in_base(ctx, [f"pose cycle {k}" for k in range(1, plan.cycles + 1)])
+    vxyz = None
+    if vap is not None:
+        _, vxyz, _ = _stream_in_base(ctx, [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)])
+    reg = registration_of(ctx.outputs)
+    facts = {
+        "run": run.run_id,
+        "robot": f"{run.model} serial {run.serial} ({run.overhaul_state})",
+        "procedure": f"ISO 9283, {plan.cycles} pose cycles, {plan.vap_cycles} vAP cycles (poses {', '.join(VAP_POSES)}), "
+                     f"{plan.speed_frac * 100:.0f} % speed, {plan.dwell_s} s dwell, tracker {plan.tracker_rate_hz:g} Hz",
+        "base frame registration": f"{reg.n} points, rms {reg.rms_mm:.3f} mm (AP is relative to the best-fit base frame)",
+        "ISO conformant": "yes" if main.iso_conformant else "no (fewer than 30 cycles or missing stops)",
+    }
+    figs: list[tuple[str, str]] = []
+    f = _first_cycles_figure(t, xyz, main)
+    if f:
+        figs.append(("Figs. 3-4: speed of the tool point and the windows the attained poses were taken from", f))
+    f = _approach_figure(t, xyz, main)
+    if f:
+        figs.append(("Figs. 5-6: approach to P1 with the limit band", f))
+    figs += _cluster_figures(vxyz, vap, plan)
+    by = {}
+    for r in rows:
+        by.setdefault(r["name"], []).append(r)
+    for key, unit, title in (("AP_mm", "mm", "Position accuracy AP per pose, eq. (1)"),
+                             ("RP_mm", "mm", "Position repeatability RP per pose, eq. (2)"),
+                             ("MPT_s", "s", "Minimum posing time per move, eq. (10)")):
+        rs = [r for r in by.get(key, []) if r["value"] is not None]
+        if rs:
+            lim = next((r["limit"] for r in rs if r["limit"] is not None), None)
+            figs.append((title, plot_bars([r["pose"] for r in rs], [r["value"] for r in rs], limit=lim,
+                                          ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
+    notes = list(main.warnings) + (list(vap.warnings) if vap is not None else [])
+    shown = [r for r in rows if r["name"] != "n_cycles"]
+    return Report(title=f"ISO 9283 run {run.run_id}", facts=facts, rows=shown, figures=figs, notes=notes)

@@ -1,0 +1,122 @@
+"""A small API for acceptance scripts after overhaul.
+
+An acceptance script should read like the procedure it checks::
+
+    def test_robot_back_in_spec(fake_station):          # or Station.from_config(...)
+        run = fake_station.iso9283(cycles=30)
+        run.assert_within_limits()                      # every configured limit
+        assert run.value("P1", "RP_mm") <= 0.3          # a plant's own, tighter figure
+
+:class:`Station` runs procedures through the same runner, drivers and store
+as ``station run``; :class:`AcceptanceRun` reads the stored results. The
+pytest plugin :mod:`station.testing` provides the ``fake_station`` fixture.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+from station.config import StationConfig, config_from_dict, load_config
+from station.errors import DataError
+from station.store import RunStore
+
+
+@dataclass
+class AcceptanceRun:
+    """The stored outcome of one run."""
+
+    run_id: str
+    status: str
+    store_path: Path
+    characteristics: list[dict]
+    output: str
+
+    def value(self, pose: str, name: str) -> float:
+        """A characteristic's value, e.g. ``value("P1", "RP_mm")``; DataError if absent."""
+        for c in self.characteristics:
+            if c["pose"] == pose and c["name"] == name:
+                if c["value"] is None:
+                    raise DataError(f"{name} of {pose} was not computed in run {self.run_id}")
+                return float(c["value"])
+        have = sorted({(c["pose"], c["name"]) for c in self.characteristics})
+        raise DataError(f"run {self.run_id} has no {name} for {pose} (have {have[:8]}...)")
+
+    @property
+    def poses(self) -> list[str]:
+        return sorted({c["pose"] for c in self.characteristics if c["name"] == "AP_mm"})
+
+    @property
+    def failures(self) -> list[str]:
+        return [f"{c['pose']} {c['name']} = {c['value']:.4g} > limit {c['limit']:g}"
+                for c in self.characteristics if c["passed"] is False]
+
+    @property
+    def passed(self) -> bool | None:
+        judged = [c["passed"] for c in self.characteristics if c["passed"] is not None]
+        return (all(judged) if judged else None) if self.status == "done" else False
+
+    def assert_within_limits(self) -> None:
+        if self.status != "done":
+            raise AssertionError(f"run {self.run_id} did not finish ({self.status}):\n{self.output}")
+        if self.failures:
+            raise AssertionError("outside the limits: " + "; ".join(self.failures))
+
+
+class Station:
+    """The station, for scripts: a config, devices (fakes unless ``arm``), a store."""
+
+    def __init__(self, config: StationConfig, *, workdir: str | Path, arm: bool = False,
+                 time_scale: float = 20.0, seed: int = 0) -> None:
+        self.config = config
+        self.workdir = Path(workdir)
+        self.arm = arm
+        self.time_scale = time_scale
+        self.seed = seed
+        self._n = 0
+
+    @classmethod
+    def from_config(cls, path: str | Path, *, arm: bool = False, **kw) -> "Station":
+        return cls(load_config(path), workdir=Path(path).resolve().parent, arm=arm, **kw)
+
+    @classmethod
+    def fake(cls, workdir: str | Path, *, seed: int = 0, time_scale: float = 20.0,
+             limits: dict | None = None, serial: str = "SIM-0001") -> "Station":
+        """A station whose devices are the fake cell (started for each run, same seed)."""
+        from station.commands.demo import demo_config
+
+        workdir = Path(workdir)
+        cfg = demo_config(workdir.resolve(), cycles=30, vap_cycles=10, rate_hz=100.0)
+        cfg["robots"]["r1"]["serial"] = serial
+        if limits is not None:
+            cfg["robots"]["r1"]["limits"] = dict(limits)
+        return cls(config_from_dict(cfg, "fake station"), workdir=workdir, seed=seed, time_scale=time_scale)
+
+    def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
+                run_id: str | None = None) -> AcceptanceRun:
+        """Run the ISO 9283 procedure (scripted: prompts answered yes) and return its results."""
+        from station.commands.run import execute
+
+        overrides = {}
+        if cycles is not None:
+            overrides["cycles"] = int(cycles)
+        if vap_cycles is not None:
+            overrides["vap_cycles"] = int(vap_cycles)
+        self._n += 1
+        run_id = run_id or f"{self.config.robots[robot].serial}-accept-{self._n}"
+        out = io.StringIO()
+        execute(self.config, robot=robot, run_id=run_id, arm=self.arm, yes=True, quiet=True,
+                time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=overrides,
+                stdout=out)
+        store_path = Path(self.config.station.store_path)
+        store_path = store_path if store_path.is_absolute() else self.workdir / store_path
+        with RunStore(store_path) as store:
+            return AcceptanceRun(run_id, store.run(run_id).status, store_path, store.characteristics(run_id),
+                                 out.getvalue())
+
+    def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
+        store_path = Path(self.config.station.store_path)
+        store_path = store_path if store_path.is_absolute() else self.workdir / store_path
+        with RunStore(store_path) as store:
+            return store.history(serial, name, pose)

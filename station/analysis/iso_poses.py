@@ -1,0 +1,193 @@
+"""ISO 9283 test poses from the test cube (seed 000, section 2.1-2.2).
+
+The cube has edges parallel to the robot base frame and corners labelled as in
+seed 000 Table 1::
+
+    C1 (xmax, ymax, zmax)   C5 (xmax, ymax, zmin)
+    C2 (xmax, ymin, zmax)   C6 (xmax, ymin, zmin)
+    C3 (xmin, ymin, zmax)   C7 (xmin, ymin, zmin)
+    C4 (xmin, ymax, zmax)   C8 (xmin, ymax, zmin)
+
+The five commanded poses lie in the measuring plane C4-C1-C6-C7 (a diagonal
+plane of the cube): P1 is the cube centre (the crossing of the plane's
+diagonals C4-C6 and C1-C7); P2, P3, P4, P5 lie on those diagonals, moved from
+the corners C4, C1, C6, C7 towards the centre, at (10 +/- 2) % of the
+diagonal's length from the corner.  The seed moves each corner by 100 mm along
+x, y and z, which for the 1200 mm cube of Table 1 is 8.33 % of the diagonal
+and gives Table 2 exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.errors import ConfigError
+
+#: seed 000 Table 1, corners C1..C8 of the NACHI 8608 test cube, mm (base frame)
+TABLE1_CORNERS_MM: tuple[tuple[float, float, float], ...] = (
+    (600.0, 2300.0, 2000.0),
+    (600.0, 1100.0, 2000.0),
+    (-600.0, 1100.0, 2000.0),
+    (-600.0, 2300.0, 2000.0),
+    (600.0, 2300.0, 800.0),
+    (600.0, 1100.0, 800.0),
+    (-600.0, 1100.0, 800.0),
+    (-600.0, 2300.0, 800.0),
+)
+
+#: seed 000 Table 2, commanded poses P1..P5, mm
+TABLE2_POSES_MM: tuple[tuple[float, float, float], ...] = (
+    (0.0, 1700.0, 1400.0),
+    (-500.0, 2200.0, 1900.0),
+    (500.0, 2200.0, 1900.0),
+    (500.0, 1200.0, 900.0),
+    (-500.0, 1200.0, 900.0),
+)
+
+#: corner (0-based index into C1..C8) from which P2, P3, P4, P5 are inset
+_CORNER_OF_POSE = (3, 0, 5, 6)  # C4, C1, C6, C7
+#: sign pattern of each corner relative to the cube centre, C1..C8
+_CORNER_SIGNS = np.array(
+    [
+        [+1, +1, +1],
+        [+1, -1, +1],
+        [-1, -1, +1],
+        [-1, +1, +1],
+        [+1, +1, -1],
+        [+1, -1, -1],
+        [-1, -1, -1],
+        [-1, +1, -1],
+    ],
+    dtype=float,
+)
+
+
+@dataclass(frozen=True)
+class TestPoses:
+    """Commanded test poses P1..P5 of ISO 9283 (seed 000 Table 2).
+
+    Attributes
+    ----------
+    names : tuple of str
+        ``("P1", "P2", "P3", "P4", "P5")``.
+    positions_mm : ndarray, shape (5, 3)
+        Commanded positions in the cube's (base) frame, mm.
+    fraction_of_diagonal : ndarray, shape (4,)
+        Distance of P2..P5 from their corner (C4, C1, C6, C7) as a fraction of
+        the diagonal's length (the (10 +/- 2) % rule).
+    corners_mm : ndarray, shape (8, 3)
+        The cube corners C1..C8 the poses came from.
+    inset_mm : ndarray, shape (3,)
+        The per-axis move from the corner towards the centre.
+    """
+
+    __test__ = False  # not a pytest test class despite the name
+
+    names: tuple[str, ...]
+    positions_mm: np.ndarray
+    fraction_of_diagonal: np.ndarray
+    corners_mm: np.ndarray
+    inset_mm: np.ndarray
+
+    def as_rows(self) -> list[tuple[str, float, float, float]]:
+        """``[(name, x_mm, y_mm, z_mm), ...]`` for a ``name,x,y,z`` poses file."""
+        return [(n, *map(float, p)) for n, p in zip(self.names, self.positions_mm)]
+
+
+def cube_test_poses(
+    corners_mm,
+    inset_mm=100.0,
+    *,
+    fraction_range: tuple[float, float] = (0.08, 0.12),
+    rel_tol: float = 1e-9,
+) -> TestPoses:
+    """Commanded poses P1..P5 from the test cube (seed 000 section 2.2).
+
+    Parameters
+    ----------
+    corners_mm : array_like, shape (8, 3)
+        Corners C1..C8 in the order and labelling of seed 000 Table 1, mm.
+        They must form a cube with edges parallel to the base frame.
+    inset_mm : float or array_like, shape (3,)
+        Move of each corner towards the centre along x, y and z, mm (the seed
+        uses 100 mm).  The moved point must stay on the plane's diagonal.
+    fraction_range : (float, float)
+        Allowed distance from the corner as a fraction of the diagonal,
+        default (0.08, 0.12) = (10 +/- 2) %.
+    rel_tol : float
+        Relative tolerance for the cube shape and the on-diagonal check.
+
+    Returns
+    -------
+    TestPoses
+
+    Raises
+    ------
+    ConfigError
+        The corners are not an axis-parallel cube labelled as in Table 1, the
+        inset leaves the diagonal, or it breaks the (10 +/- 2) % rule.
+    """
+    c = np.asarray(corners_mm, dtype=float)
+    if c.shape != (8, 3):
+        raise ConfigError(f"corners_mm must have shape (8, 3) (C1..C8 x xyz), got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        bad = np.argwhere(~np.isfinite(c))[0]
+        raise ConfigError(f"corners_mm: C{bad[0] + 1} {'xyz'[bad[1]]} is not finite")
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo)
+    edge = hi - lo
+    scale = float(max(edge.max(), 1.0))
+    if np.any(edge <= rel_tol * scale):
+        raise ConfigError(f"corners_mm: the cube is degenerate (edges {edge.tolist()} mm)")
+    expected = centre + _CORNER_SIGNS * half
+    err = np.abs(c - expected).max(axis=1)
+    if np.any(err > rel_tol * scale):
+        k = int(np.argmax(err))
+        raise ConfigError(
+            f"corners_mm: C{k + 1} = {c[k].tolist()} is not the corner expected for an "
+            f"axis-parallel cube labelled as in seed 000 Table 1 (expected {expected[k].tolist()})"
+        )
+    if np.ptp(edge) > rel_tol * scale:
+        raise ConfigError(
+            f"corners_mm: not a cube, edge lengths x, y, z = {edge.tolist()} mm differ"
+        )
+
+    inset = np.broadcast_to(np.asarray(inset_mm, dtype=float), (3,)).copy()
+    if not np.all(np.isfinite(inset)) or np.any(inset <= 0):
+        raise ConfigError(f"inset_mm must be finite and > 0 per axis, got {inset.tolist()}")
+    lo_f, hi_f = fraction_range
+    if not (0 < lo_f < hi_f < 0.5):
+        raise ConfigError(f"fraction_range must satisfy 0 < low < high < 0.5, got {fraction_range}")
+
+    corners = c[list(_CORNER_OF_POSE)]  # (4, 3)
+    towards = -_CORNER_SIGNS[list(_CORNER_OF_POSE)]  # unit signs pointing at the centre
+    poses = corners + towards * inset
+    diag_vec = 2.0 * half * towards  # corner -> opposite corner of the plane
+    diag_len = float(np.linalg.norm(diag_vec[0]))
+    move = poses - corners
+    # on the diagonal: the move must be parallel to the diagonal direction
+    cross = np.linalg.norm(np.cross(move, diag_vec), axis=1) / diag_len
+    if np.any(cross > rel_tol * scale):
+        raise ConfigError(
+            f"inset_mm {inset.tolist()} moves the corners off the diagonals of the measuring "
+            f"plane C4-C1-C6-C7 (off by {cross.max():.3g} mm); use an inset proportional to "
+            f"the cube's edges"
+        )
+    frac = np.linalg.norm(move, axis=1) / diag_len
+    if np.any(frac < lo_f * (1 - rel_tol)) or np.any(frac > hi_f * (1 + rel_tol)):
+        raise ConfigError(
+            f"inset_mm {inset.tolist()} puts P2..P5 at {100 * frac[0]:.2f} % of the diagonal "
+            f"({diag_len:.1f} mm) from the corners; ISO 9283 requires "
+            f"{100 * lo_f:.0f}..{100 * hi_f:.0f} % (10 +/- 2 %)"
+        )
+    positions = np.vstack([centre, poses])
+    return TestPoses(
+        names=("P1", "P2", "P3", "P4", "P5"),
+        positions_mm=positions,
+        fraction_of_diagonal=frac,
+        corners_mm=c.copy(),
+        inset_mm=inset,
+    )

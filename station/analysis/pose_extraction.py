@@ -1,0 +1,1074 @@
+"""Attained poses from a continuous tracker stream (seed 000, section 3.1.3).
+
+The robot runs the ISO 9283 cycle with a short dwell at every commanded pose
+while the tracker streams the tool point (``t, x, y, z``, 10-3000 Hz, with
+holes where the beam broke).  This module finds, in that stream, one attained
+pose per stop and assigns it to its commanded pose and cycle, as the seed does:
+
+1. velocity from successive samples, eq. (3):
+   ``v(i) = |p(i) - p(i-1)| / (t(i) - t(i-1))``;
+2. a moving average of the velocity splits the stream into acceleration
+   phases and deceleration phases (seed Figs. 3-4).  We average the velocity
+   *vector* with time weights over ``2h+1`` samples, which telescopes to
+   ``|p(i+h) - p(i-h)| / (t(i+h) - t(i-h))``: at rest it has no noise floor
+   (the mean of ``|v|`` would), so one threshold separates motion from rest at
+   any sampling rate.  A deceleration phase runs from the speed peak of a move
+   to the start of the next move;
+3. moving horizons ``M_j`` of ``2M+1`` samples centred on ``j = Mp, 2Mp, ...``
+   (eq. (4)); in each deceleration phase the horizon with the least sum of
+   ``v`` over its ``2M+1`` samples is the least-velocity window, and its centre
+   sample ``p(j)`` is the attained pose.  Taking the centre of the quietest
+   window, not the single slowest sample, avoids picking the best point and so
+   flattering the repeatability (seed 3.1.3).
+
+Beam breaks are handled explicitly: a step in time longer than
+``break_factor`` sampling intervals splits the stream; no velocity and no
+window spans it, and the smoothed speed near it is one-sided.  Every gap is
+reported.  A deceleration phase in which no full horizon fits (a break inside
+a short dwell) is retried with smaller horizons down to ``2*1+1`` samples; the
+stop then carries ``window_M < M``.  A phase with no valid horizon at all is
+reported as a failed phase, never filled in.
+
+Stops are assigned to the nearest commanded pose within ``assign_tol_mm`` and
+then walked through the commanded order: a pose skipped in the order is a
+*missing* stop (with the reason: beam break, failed phase, or no stop); a stop
+far from every pose is *unassigned* (e.g. the start points of multi-direction
+approaches); a stop near a pose but inconsistent with the order and the
+elapsed time is *out of sequence*.  Nothing is silently shifted.
+
+All functions are pure: arrays in, frozen dataclasses out.  Sample indices in
+the results are rows of the stream as given (0-based, header excluded).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from station.errors import DataError, InsufficientDataError
+
+#: stop status codes (``Stops.status``)
+STATUS_ASSIGNED = 0
+STATUS_UNASSIGNED = 1  # farther than assign_tol_mm from every commanded pose
+STATUS_OUT_OF_SEQUENCE = 2  # near a pose, but not where the commanded order allows
+STATUS_NOT_IN_ORDER = 3  # near a pose that the commanded order never visits
+STATUS_NAMES = ("assigned", "unassigned", "out_of_sequence", "not_in_order")
+
+#: accepted sampling rates, Hz (with a little slack for clock jitter)
+RATE_RANGE_HZ = (10.0, 3000.0)
+
+
+@dataclass(frozen=True)
+class ExtractionParams:
+    """The numbers the extraction ran with (all derived ones included).
+
+    Attributes
+    ----------
+    rate_hz : float
+        Sampling rate from the median sampling interval.
+    median_dt_s : float
+        Median sampling interval, s.
+    lag : int
+        Velocity of eq. (3) taken between samples ``lag`` apart (1 = successive
+        samples; more on streams faster than the seed's 100 Hz, see
+        ``velocity_step_s``).
+    M : int
+        Horizon half size, samples (window = 2M+1 samples), eq. (4).
+    Mp : int
+        Horizon step, samples, eq. (4).
+    h : int
+        Half width of the moving average that splits the phases, samples.
+    noise_mm : float
+        Per-axis position noise estimated from second differences, mm.
+    v_rest_mm_s : float
+        Moving-average speed below which the tool is at rest, mm/s.
+    gap_factor : float
+        A step longer than ``gap_factor`` sampling intervals is a reported gap.
+    break_s : float
+        A step longer than this splits the stream (beam break), s.
+    min_move_mm : float
+        A move shorter than this (net) is not a move.
+    min_dwell_s : float
+        A rest shorter than this is not a stop.
+    assign_tol_mm : float
+        Largest distance from a stop to its commanded pose, mm.
+    """
+
+    rate_hz: float
+    median_dt_s: float
+    lag: int
+    M: int
+    Mp: int
+    h: int
+    noise_mm: float
+    v_rest_mm_s: float
+    gap_factor: float
+    break_s: float
+    min_move_mm: float
+    min_dwell_s: float
+    assign_tol_mm: float
+
+
+@dataclass(frozen=True)
+class Gaps:
+    """Holes in the stream (lost samples, beam breaks), shape (G,) each.
+
+    ``row_before``/``row_after`` are the stream rows either side of the hole;
+    ``splits`` marks the holes longer than ``break_s`` (no window spans them).
+    """
+
+    row_before: np.ndarray
+    row_after: np.ndarray
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    lost_samples: np.ndarray
+    splits: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.row_before.size)
+
+    @property
+    def duration_s(self) -> np.ndarray:
+        return self.t_end_s - self.t_start_s
+
+
+@dataclass(frozen=True)
+class Stops:
+    """One entry per deceleration phase that gave an attained pose, shape (K,).
+
+    Index attributes starting with ``i_`` index the *used* samples (the stream
+    without the rows flagged invalid); ``row`` is the stream row of the
+    attained pose.
+
+    Attributes
+    ----------
+    row : ndarray of int, (K,)
+        Stream row of the attained pose (centre of the least-velocity window).
+    i_center, i_window_first, i_window_last : ndarray of int, (K,)
+        Used-sample indices of the window centre and its first/last sample.
+    i_phase_start, i_phase_end : ndarray of int, (K,)
+        Deceleration phase: from the speed peak of the move to the sample
+        before the next move.
+    i_move_start : ndarray of int, (K,)
+        First sample of the move that ends in this stop.
+    t_s : ndarray, (K,)
+        Time of the attained pose, s.
+    position_mm : ndarray, (K, 3)
+        Attained position, mm.
+    window_sum_mm_s : ndarray, (K,)
+        Sum of the 2M+1 velocities in the chosen window, mm/s.
+    window_M : ndarray of int, (K,)
+        Horizon half size actually used (``< M`` only after a fallback).
+    fallback : ndarray of bool, (K,)
+        The phase's least-velocity horizon was not at rest (a beam break cut
+        the rest short); the horizon was then taken inside the rest, with the
+        largest ``window_M <= M`` that fits.
+    approach_unit : ndarray, (K, 3)
+        Unit vector from the start of the move to the attained pose.
+    approach_mm : ndarray, (K,)
+        Length of that move, mm.
+    gap_in_approach : ndarray of bool, (K,)
+        A beam break lies between the start of the move and the attained pose.
+    pose : ndarray of int, (K,)
+        Index of the commanded pose, -1 if none.
+    cycle : ndarray of int, (K,)
+        Cycle number (0-based, counted from the first assigned stop), -1 if none.
+    seq : ndarray of int, (K,)
+        Position in the unrolled commanded order (cycle * L + k), -1 if none.
+    distance_to_pose_mm : ndarray, (K,)
+        Distance to the nearest commanded pose, mm.
+    nearest_pose : ndarray of int, (K,)
+        Index of the nearest commanded pose (even when unassigned).
+    status : ndarray of int, (K,)
+        One of the ``STATUS_*`` codes.
+    """
+
+    row: np.ndarray
+    i_center: np.ndarray
+    i_window_first: np.ndarray
+    i_window_last: np.ndarray
+    i_phase_start: np.ndarray
+    i_phase_end: np.ndarray
+    i_move_start: np.ndarray
+    t_s: np.ndarray
+    position_mm: np.ndarray
+    window_sum_mm_s: np.ndarray
+    window_M: np.ndarray
+    fallback: np.ndarray
+    approach_unit: np.ndarray
+    approach_mm: np.ndarray
+    gap_in_approach: np.ndarray
+    pose: np.ndarray
+    cycle: np.ndarray
+    seq: np.ndarray
+    distance_to_pose_mm: np.ndarray
+    nearest_pose: np.ndarray
+    status: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.row.size)
+
+
+@dataclass(frozen=True)
+class MissingStop:
+    """A commanded pose of the order with no attained pose in its cycle."""
+
+    cycle: int
+    pose: str
+    seq: int
+    reason: str
+    t_after_s: float  # time of the last attained pose before the hole
+    t_before_s: float  # time of the first attained pose after it
+
+
+@dataclass(frozen=True)
+class FailedPhase:
+    """A deceleration phase in which no least-velocity window could be taken."""
+
+    i_phase_start: int
+    i_phase_end: int
+    row_start: int
+    row_end: int
+    t_start_s: float
+    t_end_s: float
+    reason: str
+
+
+@dataclass(frozen=True)
+class Extraction:
+    """Attained poses of a stream, with everything that went wrong reported.
+
+    Attributes
+    ----------
+    params : ExtractionParams
+    names : tuple of str
+        Commanded pose names, shape (P,).
+    commanded_mm : ndarray, (P, 3)
+    order : tuple of int
+        Commanded order of one cycle as pose indices (length L).
+    n_rows : int
+        Rows in the stream as given.
+    n_used : int
+        Rows used (``valid`` true).
+    rows_used : ndarray of int or None
+        Stream row of every used sample, None when all rows were used.
+    gaps : Gaps
+    stops : Stops
+    missing : tuple of MissingStop
+    failed_phases : tuple of FailedPhase
+    moves_i : ndarray of int, (R, 3)
+        Every move found: used-sample indices of start, speed peak, end.
+    initial_rest_i : tuple of int or None
+        Rest before the first move (used-sample index range), not a stop.
+    trailing_motion : bool
+        The stream ends while the tool moves (last move has no stop).
+    n_cycles : int
+        Cycles touched from the first to the last assigned stop.
+    """
+
+    params: ExtractionParams
+    names: tuple[str, ...]
+    commanded_mm: np.ndarray
+    order: tuple[int, ...]
+    n_rows: int
+    n_used: int
+    rows_used: np.ndarray | None
+    gaps: Gaps
+    stops: Stops
+    missing: tuple[MissingStop, ...]
+    failed_phases: tuple[FailedPhase, ...]
+    moves_i: np.ndarray
+    initial_rest_i: tuple[int, int] | None
+    trailing_motion: bool
+    n_cycles: int
+    warnings: tuple[str, ...] = field(default=())
+
+    def to_rows(self, i) -> np.ndarray:
+        """Used-sample indices -> stream rows."""
+        i = np.asarray(i, dtype=np.int64)
+        return i.copy() if self.rows_used is None else self.rows_used[i]
+
+    def assigned(self, pose: int) -> np.ndarray:
+        """Indices into ``stops`` of the assigned stops of one pose, in time order."""
+        s = self.stops
+        return np.flatnonzero((s.pose == pose) & (s.status == STATUS_ASSIGNED))
+
+
+# --------------------------------------------------------------------------
+# input validation
+# --------------------------------------------------------------------------
+
+
+def validate_stream(t_s, xyz_mm, valid=None, *, extra=None):
+    """Check a stream and drop the rows flagged invalid.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Device timestamps, s; strictly increasing over the valid rows.
+    xyz_mm : array_like, shape (N, 3)
+        Positions, mm.  NaN is allowed only in rows flagged invalid.
+    valid : array_like of bool, shape (N,), optional
+        False for rows the instrument flagged (beam broken, not ready).
+    extra : dict of str -> array_like, shape (N, k), optional
+        Further per-row arrays (e.g. orientation) checked and compressed the
+        same way.
+
+    Returns
+    -------
+    t : ndarray (n,), xyz : ndarray (n, 3) (column-major), rows_used :
+    ndarray (n,) or None (all rows used), extra : dict of compressed arrays
+
+    Raises
+    ------
+    DataError
+        Wrong shapes, NaN/inf in a valid row (naming row and column), time
+        not strictly increasing (naming the rows), duplicate timestamps.
+    """
+    t = np.asarray(t_s, dtype=float)
+    xyz = np.asarray(xyz_mm, dtype=float)
+    if t.ndim != 1:
+        raise DataError(f"t_s must be 1-D (N,), got shape {t.shape}")
+    if xyz.shape != (t.size, 3):
+        raise DataError(f"xyz_mm must have shape (N, 3) = ({t.size}, 3), got {xyz.shape}")
+    extra = {k: np.asarray(v, dtype=float) for k, v in (extra or {}).items()}
+    for k, v in extra.items():
+        if v.shape[:1] != (t.size,):
+            raise DataError(f"{k} must have {t.size} rows like t_s, got shape {v.shape}")
+    rows_used = None
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != t.shape or valid.dtype != bool:
+            raise DataError(f"valid must be a bool array of shape {t.shape}, got {valid.dtype} {valid.shape}")
+        if not valid.all():
+            rows_used = np.flatnonzero(valid)
+            t = t[rows_used]
+            xyz = xyz[rows_used]
+            extra = {k: v[rows_used] for k, v in extra.items()}
+
+    def row(i):
+        return int(i) if rows_used is None else int(rows_used[i])
+
+    if t.size == 0:
+        raise InsufficientDataError("the stream has no valid samples")
+    # column-major: every per-axis operation here and below runs on contiguous memory
+    xyz = np.asfortranarray(xyz)
+    bad = ~np.isfinite(t)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(f"t_s is not finite at row {row(i)} ({t[i]!r})")
+    for k, name in enumerate("xyz"):
+        bad = ~np.isfinite(xyz[:, k])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise DataError(
+                f"xyz_mm column {name} is not finite at row {row(i)} ({xyz[i, k]!r}); "
+                f"flag such rows invalid (status) instead of writing NaN"
+            )
+    for key, v in extra.items():
+        bad = ~np.isfinite(v)
+        if bad.any():
+            i = int(np.argwhere(bad)[0][0])
+            raise DataError(f"{key} is not finite at row {row(i)}")
+    nonpos = t[1:] <= t[:-1]
+    if nonpos.any():
+        dt = np.diff(t)
+        i = int(np.argmax(nonpos))
+        if dt[i] == 0:
+            raise DataError(f"t_s has duplicate timestamps at rows {row(i)} and {row(i + 1)} (t = {t[i]!r} s)")
+        raise DataError(
+            f"t_s is not sorted: row {row(i + 1)} (t = {t[i + 1]!r} s) comes after row {row(i)} "
+            f"(t = {t[i]!r} s)"
+        )
+    return t, xyz, rows_used, extra
+
+
+# --------------------------------------------------------------------------
+# building blocks (vectorised)
+# --------------------------------------------------------------------------
+
+
+def sample_velocity(t, xyz, step_invalid=None, fill=np.nan, lag: int = 1):
+    """Velocity from successive samples, seed eq. (3), shape (N,).
+
+    ``v(i) = |p(i) - p(i-lag)| / (t(i) - t(i-lag))``; ``lag = 1`` is the seed's
+    formula, a larger lag takes it over the seed's sampling interval on a
+    faster stream.  ``v[:lag]`` and the indices in ``step_invalid`` (e.g. the
+    samples whose step crosses a beam break) are set to ``fill`` (NaN by
+    default).
+    """
+    n = t.size
+    lag = int(lag)
+    v = np.empty(n)
+    v[:lag] = fill
+    if n > lag:
+        acc = v[lag:]
+        d = np.empty(n - lag)
+        for k in range(3):  # loop over axes
+            col = xyz[:, k]
+            np.subtract(col[lag:], col[:-lag], out=d)
+            np.multiply(d, d, out=d)
+            if k == 0:
+                acc[:] = d
+            else:
+                acc += d
+        np.sqrt(acc, out=acc)
+        np.subtract(t[lag:], t[:-lag], out=d)
+        acc /= d
+    if step_invalid is not None and len(step_invalid):
+        v[step_invalid] = fill
+    return v
+
+
+def moving_speed(t, xyz, h, block_starts):
+    """Moving average of the velocity vector over 2h+1 samples, its norm, (N,).
+
+    ``|p(i+h) - p(i-h)| / (t(i+h) - t(i-h))``, clamped to the contiguous block
+    (between beam breaks) that holds sample i.  NaN for a one-sample block.
+    """
+    n = t.size
+    u = np.full(n, np.nan)
+    if n >= 2 * h + 1:
+        num = u[h : n - h]
+        d = np.empty(n - 2 * h)
+        for k in range(3):  # loop over axes
+            col = xyz[:, k]
+            np.subtract(col[2 * h :], col[: n - 2 * h], out=d)
+            np.multiply(d, d, out=d)
+            if k == 0:
+                num[:] = d
+            else:
+                num += d
+        np.sqrt(num, out=num)
+        np.subtract(t[2 * h :], t[: n - 2 * h], out=d)
+        num /= d
+        del d
+    # samples whose span would cross a block edge: recompute one-sided
+    edges = np.concatenate([block_starts, [n]])
+    near = np.concatenate(
+        [np.arange(max(e - h, 0), min(e + h, n)) for e in edges]
+    ) if edges.size else np.zeros(0, np.int64)
+    near = np.unique(near)
+    if near.size:
+        blk = np.searchsorted(block_starts, near, side="right") - 1
+        b_lo = block_starts[blk]
+        b_hi = edges[blk + 1] - 1
+        lo = np.maximum(near - h, b_lo)
+        hi = np.minimum(near + h, b_hi)
+        ok = hi > lo
+        d = xyz[hi[ok]] - xyz[lo[ok]]
+        uu = np.full(near.size, np.nan)
+        uu[ok] = np.sqrt(np.einsum("ij,ij->i", d, d)) / (t[hi[ok]] - t[lo[ok]])
+        u[near] = uu
+    return u
+
+
+def estimate_noise_mm(xyz, t=None, max_points=100_000, at=None):
+    """Per-axis white position noise from second differences (robust MAD), mm.
+
+    With ``t`` the second difference is taken of the velocities (times the
+    median interval), so a constant velocity sampled at uneven instants adds
+    nothing.  Evaluated on at most ``max_points`` evenly spread samples, or
+    on the samples ``at`` (e.g. those at rest; 1 <= at <= N-2).
+    """
+    n = xyz.shape[0]
+    if n < 3:
+        return 0.0
+    if at is None:
+        step = max(1, (n - 2) // max_points)
+        i = np.arange(1, n - 1, step)
+    else:
+        i = np.asarray(at, dtype=np.int64)
+        i = i[(i >= 1) & (i <= n - 2)]
+        if i.size > max_points:
+            i = i[:: i.size // max_points]
+        if i.size < 10:
+            return estimate_noise_mm(xyz, t, max_points)
+    if t is not None:
+        dt0, dt1 = t[i] - t[i - 1], t[i + 1] - t[i]
+        med = float(np.median(dt1))
+    sig = []
+    for k in range(3):  # loop over axes
+        if t is None:
+            d2 = xyz[i + 1, k] - 2.0 * xyz[i, k] + xyz[i - 1, k]
+        else:
+            d2 = ((xyz[i + 1, k] - xyz[i, k]) / dt1 - (xyz[i, k] - xyz[i - 1, k]) / dt0) * med
+        sig.append(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
+    return float(np.sqrt(np.mean(np.square(sig))))
+
+
+def window_sums(v, M, centers, invalid=None):
+    """Sum of v over the 2M+1 samples around each centre.
+
+    Parameters
+    ----------
+    v : ndarray (N,)
+        Velocities; NaN marks an undefined step unless ``invalid`` is given.
+    M : int
+    centers : ndarray of int (W,), with M <= c < N - M
+    invalid : ndarray of int, optional
+        Sorted indices of undefined steps (then ``v`` must hold finite values
+        there, e.g. 0, and is not copied).
+
+    Returns
+    -------
+    sums : ndarray (W,), valid : ndarray of bool (W,) (no undefined step inside)
+    """
+    if invalid is None:
+        invalid = np.flatnonzero(np.isnan(v))
+        if invalid.size:
+            v = v.copy()
+            v[invalid] = 0.0
+    c = np.empty(v.size + 1)
+    c[0] = 0.0
+    np.cumsum(v, out=c[1:])
+    sums = c[centers + M + 1] - c[centers - M]
+    del c
+    nbad = np.searchsorted(invalid, centers + M, side="right") - np.searchsorted(invalid, centers - M, side="left")
+    return sums, nbad == 0
+
+
+def least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid=None, origin=0):
+    """The least-velocity horizon of each deceleration phase, seed eq. (4).
+
+    Parameters
+    ----------
+    v : ndarray, (N,)
+        Velocity from successive samples (NaN where undefined, or see
+        ``invalid`` of :func:`window_sums`).
+    M, Mp : int
+        Horizon half size and step, samples.
+    phase_start, phase_end : ndarray of int, (R,)
+        Inclusive sample ranges of the phases (disjoint, increasing).
+
+    origin : int
+        Index in the whole stream of ``v[0]`` when ``v`` is a piece of it; the
+        horizons stay on the stream's grid ``j = Mp, 2Mp, ...``.
+
+    Returns
+    -------
+    center : ndarray of int, (R,)
+        Centre sample of the least-velocity horizon (index into ``v``), -1
+        where none fits.
+    wsum : ndarray, (R,)
+        Its velocity sum (NaN where none).
+    """
+    n = v.size
+    R = phase_start.size
+    center = np.full(R, -1, dtype=np.int64)
+    wsum = np.full(R, np.nan)
+    if R == 0:
+        return center, wsum
+    g0 = -(-(M + origin) // Mp)  # first grid point with j - M >= 0 (j local)
+    g1 = (n - 1 - M + origin) // Mp
+    if g1 < max(g0, 1):
+        return center, wsum
+    j = np.arange(max(g0, 1), g1 + 1, dtype=np.int64) * Mp - origin
+    r = np.searchsorted(phase_start, j - M, side="right") - 1
+    inside = r >= 0
+    inside[inside] &= j[inside] + M <= phase_end[r[inside]]
+    j, r = j[inside], r[inside]
+    if j.size == 0:
+        return center, wsum
+    sums, ok = window_sums(v, M, j, invalid)
+    j, r, sums = j[ok], r[ok], sums[ok]
+    order = np.lexsort((j, sums, r))  # by phase, then least sum, then earliest
+    rs = r[order]
+    first = np.concatenate([[True], rs[1:] != rs[:-1]]) if rs.size else np.zeros(0, bool)
+    pick = order[first]
+    center[r[pick]] = j[pick]
+    wsum[r[pick]] = sums[pick]
+    return center, wsum
+
+
+def _runs(mask):
+    """Start and end (inclusive) indices of the runs of True in a bool array."""
+    if mask.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    d = np.diff(mask.view(np.int8))
+    starts = np.flatnonzero(d == 1) + 1
+    ends = np.flatnonzero(d == -1)
+    if mask[0]:
+        starts = np.concatenate([[0], starts])
+    if mask[-1]:
+        ends = np.concatenate([ends, [mask.size - 1]])
+    return starts.astype(np.int64), ends.astype(np.int64)
+
+
+# --------------------------------------------------------------------------
+# the extraction
+# --------------------------------------------------------------------------
+
+
+def _check_commanded(commanded_mm, names, order):
+    c = np.asarray(commanded_mm, dtype=float)
+    if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
+        raise DataError(f"commanded_mm must have shape (P, 3) with P >= 1, got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise DataError("commanded_mm contains NaN or inf")
+    if names is None:
+        names = tuple(f"P{k + 1}" for k in range(c.shape[0]))
+    names = tuple(str(n) for n in names)
+    if len(names) != c.shape[0]:
+        raise DataError(f"names has {len(names)} entries for {c.shape[0]} commanded poses")
+    if len(set(names)) != len(names):
+        raise DataError(f"names must be unique, got {list(names)}")
+    if order is None:
+        order_idx = tuple(range(c.shape[0]))
+    else:
+        lookup = {n: k for k, n in enumerate(names)}
+        order_idx = []
+        for item in order:
+            if isinstance(item, (int, np.integer)) and not isinstance(item, bool):
+                if not 0 <= int(item) < c.shape[0]:
+                    raise DataError(f"order: pose index {item} out of range 0..{c.shape[0] - 1}")
+                order_idx.append(int(item))
+            elif str(item) in lookup:
+                order_idx.append(lookup[str(item)])
+            else:
+                raise DataError(f"order: unknown pose {item!r} (known: {', '.join(names)})")
+        order_idx = tuple(order_idx)
+        if not order_idx:
+            raise DataError("order must name at least one pose")
+    return c, names, order_idx
+
+
+def extract_attained_poses(
+    t_s,
+    xyz_mm,
+    commanded_mm,
+    *,
+    names=None,
+    order=None,
+    valid=None,
+    window_s: float = 0.1,
+    velocity_step_s: float = 0.01,
+    M: int | None = None,
+    Mp: int | None = None,
+    smooth_s: float | None = None,
+    v_rest_mm_s: float | None = None,
+    min_move_mm: float = 1.0,
+    min_dwell_s: float | None = None,
+    gap_factor: float = 1.5,
+    break_factor: float = 5.0,
+    assign_tol_mm: float = 25.0,
+    min_fallback_M: int = 1,
+) -> Extraction:
+    """Attained poses of a continuous stream, assigned to commanded poses and cycles.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Device timestamps, s, strictly increasing.
+    xyz_mm : array_like, shape (N, 3)
+        Tool positions in the frame of ``commanded_mm``, mm.
+    commanded_mm : array_like, shape (P, 3)
+        Commanded positions, mm.
+    names : sequence of str, length P, optional
+        Pose names (default ``P1..PP``).
+    order : sequence of str or int, optional
+        Commanded order of one cycle; a pose may appear more than once.
+        Default: the poses in the given order, rotated so that the cycle
+        starts with the first stop found (the seed starts at rest at P1 and
+        runs P2, P3, P4, P5, P1).
+    valid : array_like of bool, shape (N,), optional
+        False for rows the instrument flagged invalid (dropped, reported).
+    window_s : float
+        Horizon length 2M+1 in seconds when ``M`` is not given (default 0.1 s;
+        the seed used 21 samples at 100 Hz).
+    velocity_step_s : float
+        Interval over which the velocity of eq. (3) is taken: the samples
+        ``lag = max(1, round(velocity_step_s * rate))`` apart.  The default
+        0.01 s is the seed's sampling interval: at 100 Hz and below it is the
+        seed's velocity from successive samples; on a faster stream the
+        successive-sample velocity is dominated by measurement noise
+        (sqrt(2) sigma / dt) and would hide the last of the settling, making
+        the attained pose depend on the tracker's rate.  0 = successive
+        samples at any rate.
+    M, Mp : int, optional
+        Horizon half size and step in samples, eq. (4) (default from
+        ``window_s``; ``Mp`` defaults to ``M`` as in the seed).
+    smooth_s : float, optional
+        Length of the moving average that splits the phases (default
+        ``window_s / 2``).
+    v_rest_mm_s : float, optional
+        Rest threshold on the moving-average speed (default: the larger of
+        2 mm/s and 6x the speed noise of the moving average).
+    min_move_mm : float
+        Net displacement below which a move is ignored (noise, ringing).
+    min_dwell_s : float, optional
+        Rest shorter than this is not a stop (default ``window_s``).
+    gap_factor : float
+        Steps longer than ``gap_factor`` sampling intervals are reported gaps.
+    break_factor : float
+        Steps longer than ``break_factor`` intervals split the stream.
+    assign_tol_mm : float
+        Largest distance from a stop to the commanded pose it is assigned to.
+    min_fallback_M : int
+        Smallest horizon half size tried when the full horizon does not fit.
+
+    Returns
+    -------
+    Extraction
+
+    Raises
+    ------
+    DataError
+        Bad input (named); sampling rate outside 10-3000 Hz.
+    InsufficientDataError
+        Fewer than 3 samples, or no move at all.
+    """
+    n_rows = int(np.shape(t_s)[0]) if np.ndim(t_s) else 0
+    t, xyz, rows_used, _ = validate_stream(t_s, xyz_mm, valid)
+    return extract_validated(
+        t, xyz, rows_used, n_rows, commanded_mm, names=names, order=order, window_s=window_s,
+        velocity_step_s=velocity_step_s, M=M, Mp=Mp,
+        smooth_s=smooth_s, v_rest_mm_s=v_rest_mm_s, min_move_mm=min_move_mm, min_dwell_s=min_dwell_s,
+        gap_factor=gap_factor, break_factor=break_factor, assign_tol_mm=assign_tol_mm,
+        min_fallback_M=min_fallback_M,
+    )
+
+
+def extract_validated(
+    t,
+    xyz,
+    rows_used,
+    n_rows,
+    commanded_mm,
+    *,
+    names=None,
+    order=None,
+    window_s: float = 0.1,
+    velocity_step_s: float = 0.01,
+    M: int | None = None,
+    Mp: int | None = None,
+    smooth_s: float | None = None,
+    v_rest_mm_s: float | None = None,
+    min_move_mm: float = 1.0,
+    min_dwell_s: float | None = None,
+    gap_factor: float = 1.5,
+    break_factor: float = 5.0,
+    assign_tol_mm: float = 25.0,
+    min_fallback_M: int = 1,
+) -> Extraction:
+    """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`.
+
+    ``rows_used`` maps used samples to stream rows (None: identity);
+    ``n_rows`` is the number of rows of the stream as given.
+    """
+    commanded, names, order_idx = _check_commanded(commanded_mm, names, order)
+    for pname, val in (("window_s", window_s), ("min_move_mm", min_move_mm), ("gap_factor", gap_factor),
+                       ("break_factor", break_factor), ("assign_tol_mm", assign_tol_mm)):
+        if not (np.isfinite(val) and val > 0):
+            raise DataError(f"{pname} must be finite and > 0, got {val!r}")
+    if gap_factor <= 1.0 or break_factor < gap_factor:
+        raise DataError(f"need 1 < gap_factor <= break_factor, got {gap_factor}, {break_factor}")
+    n = t.size
+    if n < 3:
+        raise InsufficientDataError(f"the stream has {n} valid samples, at least 3 are needed")
+    dt = np.diff(t)
+    med_dt = float(np.median(dt[:: max(1, dt.size // 500_000)]))
+    rate = 1.0 / med_dt
+    lo_r, hi_r = RATE_RANGE_HZ
+    if not (0.95 * lo_r <= rate <= 1.05 * hi_r):
+        raise DataError(f"sampling rate {rate:.3g} Hz (median interval {med_dt:.3g} s) is outside {lo_r:g}-{hi_r:g} Hz")
+
+    # --- parameters in samples
+    if not (np.isfinite(velocity_step_s) and velocity_step_s >= 0):
+        raise DataError(f"velocity_step_s must be finite and >= 0, got {velocity_step_s!r}")
+    lag = max(1, int(round(velocity_step_s * rate)))
+    if M is None:
+        M = max(1, int(round((window_s * rate - 1) / 2)))
+    if Mp is None:
+        Mp = M
+    M, Mp = int(M), int(Mp)
+    if M < 1 or Mp < 1:
+        raise DataError(f"M and Mp must be >= 1, got M={M}, Mp={Mp}")
+    smooth = 0.5 * window_s if smooth_s is None else float(smooth_s)
+    if not (np.isfinite(smooth) and smooth > 0):
+        raise DataError(f"smooth_s must be finite and > 0, got {smooth_s!r}")
+    h = max(1, int(round((smooth * rate - 1) / 2)))
+    min_dwell = window_s if min_dwell_s is None else float(min_dwell_s)
+    break_s = break_factor * med_dt
+
+    # --- gaps and beam breaks
+    gap_i = np.flatnonzero(dt > gap_factor * med_dt)
+    split = dt[gap_i] > break_s
+    to_row = (lambda i: i) if rows_used is None else (lambda i: rows_used[i])
+    gaps = Gaps(
+        row_before=np.asarray(to_row(gap_i), dtype=np.int64),
+        row_after=np.asarray(to_row(gap_i + 1), dtype=np.int64),
+        t_start_s=t[gap_i],
+        t_end_s=t[gap_i + 1],
+        lost_samples=np.maximum(np.rint(dt[gap_i] / med_dt).astype(np.int64) - 1, 0),
+        splits=split,
+    )
+    brk = gap_i[split]  # break between brk and brk+1
+    block_starts = np.concatenate([[0], brk + 1]).astype(np.int64)
+    del dt
+
+    # --- phases from the moving-average speed
+    noise = estimate_noise_mm(xyz, t)
+    if v_rest_mm_s is None:
+        v_noise = np.sqrt(2.0) * noise / ((2 * h) * med_dt)
+        v_rest = max(2.0, 6.0 * v_noise)
+    else:
+        v_rest = float(v_rest_mm_s)
+        if not (np.isfinite(v_rest) and v_rest > 0):
+            raise DataError(f"v_rest_mm_s must be finite and > 0, got {v_rest_mm_s!r}")
+    u = moving_speed(t, xyz, h, block_starts)
+    moving = u > v_rest  # NaN -> False
+    starts, ends = _runs(moving)
+    # the noise as reported: from samples at rest (motion has acceleration in it)
+    probe = np.arange(1, n - 1, max(1, n // 100_000))
+    probe = probe[~(moving[probe - 1] | moving[probe] | moving[probe + 1])]
+    noise = estimate_noise_mm(xyz, t, at=probe)
+    del moving
+    if starts.size:
+        disp = np.linalg.norm(xyz[ends] - xyz[starts], axis=1)
+        keep = disp >= min_move_mm
+        starts, ends = starts[keep], ends[keep]
+    if starts.size > 1:
+        rest_dur = t[starts[1:] - 1] - t[ends[:-1] + 1]
+        # a rest of at most one sample has duration 0 by this measure; a rest cut
+        # short by a beam break is a stop if it has 3 samples
+        n_brk_in = np.searchsorted(brk, starts[1:], side="left") - np.searchsorted(brk, ends[:-1], side="left")
+        boundary = (rest_dur >= min_dwell) | ((n_brk_in > 0) & (starts[1:] - ends[:-1] - 1 >= 3))
+        starts = starts[np.concatenate([[True], boundary])]
+        ends = ends[np.concatenate([boundary, [True]])]
+    if starts.size == 0:
+        raise InsufficientDataError(
+            f"no move found in the stream: the moving-average speed never exceeded "
+            f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm"
+        )
+    R = starts.size
+    # speed peak of each move: the first sample of the run's largest moving-average speed
+    # (the maximum over [start_r, start_r+1) is the run's: the rest after it is slower)
+    u[np.isnan(u)] = -np.inf
+    umax = np.maximum.reduceat(u, starts)
+    lens = np.diff(np.append(starts, n))
+    hits = np.flatnonzero(u[starts[0]:] == np.repeat(umax, lens)) + starts[0]
+    peaks = hits[np.searchsorted(hits, starts, side="left")]
+    moves_i = np.stack([starts, peaks, ends], axis=1)
+    initial_rest = (0, int(starts[0]) - 1) if starts[0] > 0 else None
+    trailing_motion = bool(ends[-1] >= n - 1)
+    phase_start = peaks
+    phase_end = np.concatenate([starts[1:] - 1, [n - 1]])
+
+    # --- least-velocity horizons
+    # velocities whose step has no predecessor or crosses a beam break
+    invalid = np.unique(np.concatenate([np.arange(min(lag, n))] + [np.arange(b + 1, min(b + 1 + lag, n))
+                                                                      for b in brk])).astype(np.int64)
+    v = sample_velocity(t, xyz, invalid, fill=0.0, lag=lag)
+    center, wsum = least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid)
+    if trailing_motion:  # the last move never came to rest: its phase has no stop
+        center[-1], wsum[-1] = -1, np.nan
+    # the attained pose is a sample at rest; a window chosen in motion means the
+    # rest (cut short by a beam break) holds no full horizon: retry inside it
+    in_motion = center >= 0
+    in_motion[in_motion] = u[center[in_motion]] > v_rest
+    center[in_motion], wsum[in_motion] = -1, np.nan
+    wM = np.where(center >= 0, M, 0)
+    fallback = np.zeros(R, bool)
+    failed: list[FailedPhase] = []
+    for r in np.flatnonzero(center < 0):  # loop over the few phases without a full horizon at rest
+        pe = int(phase_end[r])
+        ps = int(max(phase_start[r], ends[r] + 1))  # the rest part of the phase
+        got = False
+        inv_local = invalid[(invalid >= ps) & (invalid <= pe)] - ps
+        if not (r == R - 1 and trailing_motion):
+            for m in range(min(M, (pe - ps) // 2), min_fallback_M - 1, -1):
+                mp = max(1, int(round(m * Mp / M)))
+                c1, s1 = least_velocity_windows(v[ps : pe + 1], m, mp, np.array([0]), np.array([pe - ps]),
+                                                inv_local, origin=ps)
+                if c1[0] >= 0 and not u[c1[0] + ps] > v_rest:
+                    center[r], wsum[r], wM[r] = c1[0] + ps, s1[0], m
+                    fallback[r] = got = True
+                    break
+        if not got:
+            rest0 = int(ends[r]) + 1
+            n_brk = int(np.count_nonzero((brk >= ps) & (brk < pe)))
+            ps = int(phase_start[r])
+            if r == R - 1 and trailing_motion:
+                reason = "the stream ends before the tool came to rest"
+            elif n_brk:
+                reason = f"beam break(s) ({n_brk}) leave no window of 3 valid samples in the dwell"
+            else:
+                reason = f"the rest ({max(pe - rest0 + 1, 0)} samples) holds no window of 3 samples"
+            failed.append(
+                FailedPhase(ps, pe, int(to_row(ps)), int(to_row(pe)), float(t[ps]), float(t[pe]), reason)
+            )
+    del v, u
+    ok = center >= 0
+    k_phase = np.flatnonzero(ok)
+    ci = center[ok]
+    pos = xyz[ci].copy()
+    mstart = starts[ok]
+    app = pos - xyz[mstart]
+    app_len = np.linalg.norm(app, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        app_unit = np.where(app_len[:, None] > 0, app / app_len[:, None], 0.0)
+    gap_app = (np.searchsorted(brk, ci, side="left") - np.searchsorted(brk, mstart, side="left")) > 0
+
+    # --- assignment to commanded poses
+    d = np.linalg.norm(pos[:, None, :] - commanded[None, :, :], axis=2)  # (K, P)
+    nearest = np.argmin(d, axis=1) if d.size else np.zeros(0, np.int64)
+    dist = d[np.arange(d.shape[0]), nearest] if d.size else np.zeros(0)
+    K = ci.size
+    status = np.where(dist <= assign_tol_mm, STATUS_ASSIGNED, STATUS_UNASSIGNED).astype(np.int64)
+    in_order = np.zeros(commanded.shape[0], bool)
+    in_order[list(order_idx)] = True
+    status[(status == STATUS_ASSIGNED) & ~in_order[nearest]] = STATUS_NOT_IN_ORDER
+    pose = np.where(status == STATUS_ASSIGNED, nearest, -1)
+    t_stop = t[ci]
+    if order is None and np.any(pose >= 0):
+        # default order: the poses as listed, one cycle starting at the first stop
+        first = int(pose[np.argmax(pose >= 0)])
+        k0 = order_idx.index(first)
+        order_idx = order_idx[k0:] + order_idx[:k0]
+    seq, cycle, missing, st2 = _walk_order(
+        pose, t_stop, order_idx, names, brk, t, failed
+    )
+    status = np.where((status == STATUS_ASSIGNED) & (st2 == STATUS_OUT_OF_SEQUENCE), STATUS_OUT_OF_SEQUENCE, status)
+    pose = np.where(status == STATUS_ASSIGNED, pose, -1)
+    L = len(order_idx)
+    n_cycles = int(seq[seq >= 0].max() // L + 1) if np.any(seq >= 0) else 0
+
+    stops = Stops(
+        row=np.asarray(to_row(ci), dtype=np.int64),
+        i_center=ci,
+        i_window_first=ci - wM[ok],
+        i_window_last=ci + wM[ok],
+        i_phase_start=phase_start[ok],
+        i_phase_end=phase_end[ok],
+        i_move_start=mstart,
+        t_s=t_stop,
+        position_mm=pos,
+        window_sum_mm_s=wsum[ok],
+        window_M=wM[ok].astype(np.int64),
+        fallback=fallback[ok],
+        approach_unit=app_unit,
+        approach_mm=app_len,
+        gap_in_approach=gap_app,
+        pose=pose.astype(np.int64),
+        cycle=cycle,
+        seq=seq,
+        distance_to_pose_mm=dist,
+        nearest_pose=nearest.astype(np.int64),
+        status=status,
+    )
+    warnings = []
+    if K and np.any(stops.fallback):
+        warnings.append(
+            f"{int(np.count_nonzero(stops.fallback))} stop(s) took their horizon inside a rest cut short by a "
+            f"beam break ({int(np.count_nonzero(stops.window_M < M))} with fewer than 2M+1 = {2 * M + 1} samples)"
+        )
+    del k_phase
+    return Extraction(
+        params=ExtractionParams(
+            rate_hz=rate, median_dt_s=med_dt, lag=lag, M=M, Mp=Mp, h=h, noise_mm=noise, v_rest_mm_s=v_rest,
+            gap_factor=gap_factor, break_s=break_s, min_move_mm=float(min_move_mm),
+            min_dwell_s=float(min_dwell), assign_tol_mm=float(assign_tol_mm),
+        ),
+        names=names,
+        commanded_mm=commanded,
+        order=order_idx,
+        n_rows=n_rows,
+        n_used=n,
+        rows_used=rows_used,
+        gaps=gaps,
+        stops=stops,
+        missing=tuple(missing),
+        failed_phases=tuple(failed),
+        moves_i=moves_i,
+        initial_rest_i=initial_rest,
+        trailing_motion=trailing_motion,
+        n_cycles=n_cycles,
+        warnings=tuple(warnings),
+    )
+
+
+def _walk_order(pose, t_stop, order_idx, names, brk, t, failed):
+    """Walk the assigned stops through the commanded order.
+
+    Each stop takes the next position of its pose in the unrolled order; the
+    positions it skips are missing stops.  A stop that would skip more
+    positions than the elapsed time allows (1.5x the median time per stop,
+    plus a half) is out of sequence and left out.  Vectorised when no stop is
+    out of sequence and no pose repeats within the order; otherwise a loop over
+    stops.
+
+    Returns seq (K,), cycle (K,), missing list, status (K,) with
+    STATUS_OUT_OF_SEQUENCE where a stop does not fit the order.
+    """
+    K = pose.size
+    L = len(order_idx)
+    seq = np.full(K, -1, dtype=np.int64)
+    status = np.zeros(K, dtype=np.int64)
+    idx = np.flatnonzero(pose >= 0)
+    if idx.size == 0:
+        return seq, seq.copy(), [], status
+    pos_in_order: dict[int, list[int]] = {}
+    for k, p in enumerate(order_idx):
+        pos_in_order.setdefault(p, []).append(k)
+    ts = t_stop[idx]
+    step_dt = float(np.median(np.diff(ts))) if idx.size > 1 else np.inf
+    timed = np.isfinite(step_dt) and step_dt > 0
+
+    done = False
+    if all(len(v) == 1 for v in pos_in_order.values()):
+        posmap = np.full(max(order_idx) + 1, -1, dtype=np.int64)
+        posmap[list(order_idx)] = np.arange(L)
+        kpos = posmap[pose[idx]]
+        adv = (kpos[1:] - kpos[:-1]) % L
+        adv[adv == 0] = L
+        allowed = np.maximum(1.0, 1.5 * np.diff(ts) / step_dt + 0.5) if timed else np.full(adv.size, np.inf)
+        if np.all(adv <= allowed):
+            seq[idx] = kpos[0] + np.concatenate([[0], np.cumsum(adv)])
+            done = True
+    if not done:
+
+        def next_ptr(e, p):
+            return min(e + ((k - e) % L) for k in pos_in_order[p])
+
+        e = None  # next expected position in the unrolled order
+        prev_k = None
+        for k in idx:  # loop over stops
+            p = int(pose[k])
+            if e is None:
+                q = pos_in_order[p][0]
+            else:
+                q = next_ptr(e, p)
+                adv1 = q - (e - 1)
+                allowed1 = max(1.0, 1.5 * float(t_stop[k] - t_stop[prev_k]) / step_dt + 0.5) if timed else np.inf
+                if adv1 > allowed1:
+                    status[k] = STATUS_OUT_OF_SEQUENCE
+                    continue
+            seq[k] = q
+            e, prev_k = q + 1, k
+
+    # missing stops: positions skipped between consecutive accepted stops
+    acc = idx[seq[idx] >= 0]
+    sq = seq[acc]
+    holes = np.flatnonzero(np.diff(sq) > 1)
+    missing: list[MissingStop] = []
+    failed_t = np.array([f.t_start_s for f in failed]) if failed else np.zeros(0)
+    t_brk0, t_brk1 = t[brk], t[brk + 1]
+    for h in holes:  # loop over holes
+        t0, t1 = float(t_stop[acc[h]]), float(t_stop[acc[h + 1]])
+        fin = (failed_t > t0) & (failed_t < t1)
+        b = (t_brk1 > t0) & (t_brk0 < t1)
+        if fin.any():
+            reason = "stop not extracted: " + failed[int(np.argmax(fin))].reason
+        elif b.any():
+            j = int(np.argmax(b))
+            reason = f"beam break {t_brk0[j]:.3f}-{t_brk1[j]:.3f} s hides the stop"
+        else:
+            reason = "no stop found near the pose (the robot did not come to rest there)"
+        for s_ in range(int(sq[h]) + 1, int(sq[h + 1])):
+            missing.append(MissingStop(s_ // L, names[order_idx[s_ % L]], s_, reason, t0, t1))
+    cycle = np.where(seq >= 0, seq // L, -1)
+    return seq, cycle, missing, status

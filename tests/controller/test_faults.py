@@ -1,0 +1,199 @@
+"""Every injected fault ends in a clear error and a safe state (program stopped, arm at rest)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from drivers.controller import ControllerFault, ModbusExceptionError, UploadVerificationError
+from station.errors import ConnectionLost, DeviceError, DeviceTimeout
+from station.programs import expected_stops, iso_pose_program, render_rapid
+from station.programs.handshake import Fault, State
+
+
+@pytest.fixture
+def program(robot, iso_poses):
+    return render_rapid(iso_pose_program(robot, iso_poses, cycles=4))
+
+
+def assert_safe(fake, world, *, allowed=(State.STOPPED, State.READY, State.FAULT, State.NO_PROGRAM)):
+    """Controller not running, arm at rest with nothing queued."""
+    assert fake.core.state in allowed, fake.core.state
+    world.arm.wait_idle(timeout_s=5.0)
+    assert world.arm.state in ("idle", "protective_stop")
+    t = world.clock.now()
+    q0 = world.arm.commanded_q_rad(t)
+    world.clock.sleep(2.0)  # two simulated seconds later it has not moved
+    assert np.allclose(world.arm.commanded_q_rad(world.clock.now()), q0, atol=1e-12)
+
+
+def wait_moves(drv, n, timeout_s=20.0):
+    end = time.monotonic() + timeout_s
+    while True:
+        st = drv.status()
+        if st.moves_done >= n:
+            return st
+        assert time.monotonic() < end, "the program did not progress"
+        time.sleep(0.01)
+
+
+@pytest.mark.parametrize("what, reply", [("login", "530"), ("stor", "550"), ("retr", "550"), ("size", "550")])
+def test_ftp_refusals(start_controller, make_driver, world, program, what, reply):
+    fake = start_controller({"ftp_refuse": what})
+    drv = make_driver(fake)
+    with pytest.raises(DeviceError, match=reply) as ei:
+        drv.upload(program)
+    assert "FTP" in str(ei.value) and not isinstance(ei.value, UploadVerificationError)
+    assert world.arm.moves == []
+    assert fake.core.state == State.NO_PROGRAM
+
+
+@pytest.mark.parametrize("kind, match", [("flip", "sha256"), ("truncate", "bytes")])
+def test_corrupted_upload_is_caught_by_read_back(start_controller, make_driver, world, program, kind, match):
+    fake = start_controller({"ftp_corrupt": kind})
+    drv = make_driver(fake)
+    with pytest.raises(UploadVerificationError, match=match):
+        drv.upload(program)
+    with pytest.raises(Exception, match="no verified upload"):
+        drv.select()
+    assert world.arm.moves == []
+
+
+@pytest.mark.parametrize("code", [4, 6])
+def test_modbus_exception_on_start(start_controller, make_driver, world, program, code):
+    fake = start_controller({"modbus_exception": str(code), "modbus_exception_on": "start"})
+    drv = make_driver(fake)
+    drv.upload(program)
+    drv.select()
+    with pytest.raises(ModbusExceptionError, match=f"exception code {code}") as ei:
+        drv.start()
+    assert ei.value.exception_code == code
+    assert "STOP acknowledged" in str(ei.value) or "not running" in str(ei.value)
+    assert_safe(fake, world)
+    assert drv.status().moves_done == 0
+
+
+def test_modbus_exception_while_running_stops_the_program(start_controller, make_driver, world, program):
+    fake = start_controller({"modbus_exception": "4", "modbus_exception_on": "status", "modbus_exception_count": "1"})
+    drv = make_driver(fake)
+    drv.upload(program)
+    drv.select()
+    with pytest.raises(ModbusExceptionError, match="program stopped"):
+        drv.start()  # the first status read of a running program may already be in start's handshake
+        drv.wait_done(30.0)
+    st = drv.status()
+    assert st.state == State.STOPPED
+    assert st.moves_done < len(expected_stops(program.program))
+    assert_safe(fake, world)
+
+
+def test_dropped_connection_while_running(start_controller, make_driver, world, program):
+    fake = start_controller({"drop_connection": "status"})
+    drv = make_driver(fake)
+    drv.upload(program)
+    drv.select()
+    with pytest.raises(ConnectionLost, match="lost.*program stopped"):
+        drv.start()
+        drv.wait_done(30.0)
+    assert drv.status().state == State.STOPPED
+    assert_safe(fake, world)
+
+
+def test_no_reply_is_a_timeout(start_controller, make_driver, world, program):
+    fake = start_controller({"modbus_silent": "start"})
+    drv = make_driver(fake, timeout_s=0.5)
+    drv.upload(program)
+    drv.select()
+    t0 = time.monotonic()
+    with pytest.raises(DeviceTimeout, match="no reply .* within 0.5 s") as ei:
+        drv.start()
+    assert time.monotonic() - t0 < 5.0
+    assert "program" in str(ei.value)
+    assert drv.status().state != State.RUNNING
+    assert_safe(fake, world)
+
+
+def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, program):
+    fake = start_controller({"ack_stall": "start"})
+    drv = make_driver(fake, timeout_s=0.5)
+    drv.upload(program)
+    drv.select()
+    with pytest.raises(DeviceTimeout, match="did not acknowledge START.*STOP acknowledged"):
+        drv.start()
+    assert drv.status().state == State.READY
+    assert_safe(fake, world)
+    assert world.arm.moves == []
+
+
+@pytest.mark.parametrize("key, fault", [("protective_stop_move", Fault.PROTECTIVE_STOP), ("emergency_stop_move", Fault.EMERGENCY_STOP)])
+def test_stop_in_the_middle_of_a_move(start_controller, make_driver, world, robot, iso_poses, key, fault):
+    rng = np.random.default_rng()
+    n = int(rng.integers(2, 12))
+    world.clock.set_time_scale(20.0)  # the fault must land inside a move of ~1.5 s: leave the fake time
+    fake = start_controller({key: str(n)})
+    drv = make_driver(fake)
+    r = render_rapid(iso_pose_program(robot, iso_poses, cycles=4))
+    moves = [ins for s in r.program.statements for ins in getattr(s, "body", (s,)) if hasattr(ins, "target")]
+    order = [moves[0]] + moves[1:] * 4  # execution order of the moves
+    drv.upload(r)
+    drv.select()
+    t0 = world.clock.now()
+    drv.start()
+    seen = []
+    with pytest.raises(ControllerFault, match=fault.name) as ei:
+        drv.wait_done(30.0, on_status=seen.append)
+    st = ei.value.status
+    assert st.fault == fault and st.state == State.FAULT
+    assert st.moves_done == n - 1
+    assert st.line == order[n - 1].source_line
+    # what was reported before the fault is still there, and agrees with the error's status
+    assert seen and seen[-1].moves_done == st.moves_done and seen[-1].cycle_count == st.cycle_count
+    assert st.cycle_count == max(0, (n - 2) // 5)
+    # the arm halted between the previous target and the n-th one, and stays there
+    assert world.arm.state == "protective_stop"
+    assert_safe(fake, world, allowed=(State.FAULT,))
+    p_end = world.arm.tool_position_mm(np.array([world.clock.now()]))[0]
+    a = np.array(order[n - 2].target.xyz_mm)
+    b = np.array(order[n - 1].target.xyz_mm)
+    stops = [m for m in world.arm.moves if m.kind == "stop" and m.t_start >= t0]
+    motions = [m for m in world.arm.moves if m.kind in ("joint", "linear") and m.t_start >= t0]
+    info = f"n={n} stops={[(m.t_start, m.t_end) for m in stops]} move={motions[n - 1].t_start, motions[n - 1].t_end}"
+    assert len(stops) == 1, info
+    assert np.linalg.norm(p_end - b) > 10.0 and np.linalg.norm(p_end - a) > 10.0, info
+    # start is refused until the fault is reset; reset brings it back
+    with pytest.raises(DeviceError, match="FAULT_ACTIVE"):
+        drv.start()
+    st = drv.reset()
+    assert st.state == State.READY and st.fault == Fault.NONE
+    assert world.arm.state == "idle"
+
+
+def test_watchdog_stops_a_program_when_the_station_falls_silent(start_controller, make_driver, world, robot, iso_poses):
+    program = render_rapid(iso_pose_program(robot, iso_poses, cycles=20))
+    fake = start_controller()
+    drv = make_driver(fake, watchdog_ms=150)
+    drv.upload(program)
+    drv.select()
+    drv.start()
+    wait_moves(drv, 1)
+    drv.close()  # the station "crashes": no STOP, no more requests
+    end = time.monotonic() + 10.0
+    while fake.core.state == State.RUNNING:
+        assert time.monotonic() < end, "watchdog did not stop the program"
+        time.sleep(0.01)
+    assert fake.core.state == State.FAULT and fake.core.fault == Fault.COMM_WATCHDOG
+    assert fake.core.moves_done < len(expected_stops(program.program))
+    assert_safe(fake, world, allowed=(State.FAULT,))
+
+
+def test_unknown_fault_keys_are_refused(start_controller):
+    from station.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="unknown fault 'ftp_refsue'"):
+        start_controller({"ftp_refsue": "stor"})
+    with pytest.raises(ConfigError, match="modbus_exception needs an integer"):
+        start_controller({"modbus_exception": "busy"})
+    with pytest.raises(ConfigError, match="loopback"):
+        start_controller(host="0.0.0.0")

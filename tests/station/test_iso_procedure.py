@@ -1,0 +1,101 @@
+"""The ISO 9283 procedure end to end on the fake cell, through the real drivers.
+
+Truth comes from the simulated world: the tool's true position at the
+instants the extraction picked, mapped into the registered base frame. The
+measured attained poses differ from it by tracker noise (and the
+registration's own noise) only, so the tolerances come from the tracker's
+noise model.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+from procedures.iso9283 import registration_of
+from station.commands.run import execute
+from station.config import config_from_dict
+from station.errors import ConfigError
+from station.store import RunStore
+
+CYCLES, VAP_CYCLES = 3, 2
+
+
+def _run(fake_cell, tmp_path, **iso):
+    cfg = config_from_dict(fake_cell.config_dict(
+        store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
+        iso9283={"cycles": CYCLES, "vap_cycles": VAP_CYCLES, **iso}))
+    code = execute(cfg, arm=True, yes=True, quiet=True, run_id="t1", config_dir=tmp_path,
+                   json_out=str(tmp_path / "out.json"))
+    return code, RunStore(tmp_path / "s.sqlite")
+
+
+def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp_path):
+    code, store = _run(fake_cell, tmp_path)
+    assert code == 0, store.steps("t1")[-1].message
+    world = fake_cell.world
+    steps = store.steps("t1")
+    assert [s.name for s in steps if s.status == "done"][-2:] == ["analyse", "report"]
+    # no sample lost on the wire in any cycle
+    for s in steps:
+        if s.name.startswith(("pose cycle", "vAP cycle")):
+            assert s.output["lost"] == 0 and s.output["received"] > 100, s.output
+    result = store.result("t1", "iso9283")["pose"]
+    reg = registration_of({s.name: s.output for s in steps if s.status == "done"})
+    sigma = float(np.max(world.tracker.sigma_mm(3000.0)))  # per-coordinate noise, tracker ~2-4 m away
+    # registration: rms residual of the rigid fit is robot error + noise; it must be small but not zero
+    assert 0 < reg.rms_mm < 2.0
+    chars = {(c["pose"], c["name"]): c for c in store.characteristics("t1")}
+    for name, pose in result["poses"].items():
+        att = pose["attained"]
+        meas = np.column_stack([att["x_mm"], att["y_mm"], att["z_mm"]])
+        assert meas.shape == (CYCLES, 3)
+        true_base = world.arm.tool_position_mm(np.asarray(att["t_s"]))
+        true_tracker = true_base @ world.tracker.tracker_T_base[:3, :3].T + world.tracker.tracker_T_base[:3, 3]
+        true_in_fit = reg.to_base(true_tracker)
+        err = np.linalg.norm(meas - true_in_fit, axis=1)
+        # tracker noise of one sample (3-D: sigma*sqrt(3)); 5 sigma bound
+        assert np.all(err < 5 * sigma * np.sqrt(3) + 0.005), (name, err, sigma)
+        commanded = np.asarray(pose["commanded_mm"])
+        ap_true = np.linalg.norm(true_in_fit.mean(axis=0) - commanded)
+        assert abs(chars[(name, "AP_mm")]["value"] - ap_true) < 5 * sigma * np.sqrt(3 / CYCLES) + 0.005
+        assert chars[(name, "n_cycles")]["value"] == CYCLES
+        assert chars[(name, "RP_mm")]["passed"] is (chars[(name, "RP_mm")]["value"] <= 0.5)
+    # three-direction approaches gave vAP for P1, P2, P4 and none for P3, P5 (seed Table 3)
+    assert chars[("P1", "vAP_mm")]["value"] is not None and chars[("P4", "vAP_mm")]["value"] is not None
+    assert ("P3", "vAP_mm") not in chars
+    out = json.loads((tmp_path / "out.json").read_text())
+    assert out["status"] == "done" and out["results"]["pose"]["poses"]["P1"]["AP_mm"] == pytest.approx(
+        chars[("P1", "AP_mm")]["value"], abs=1e-6)
+    report = next(s.output["report"] for s in steps if s.name == "report")
+    html = open(report).read()
+    assert html.count("<svg") >= 5 and "P2-P4" in html
+
+
+def test_unsafe_plan_is_refused_before_anything_moves(fake_cell, tmp_path):
+    """A cube outside the workspace box: the gate refuses in the first step; the arm never moved."""
+    t0 = fake_cell.world.clock.now()
+    q0 = fake_cell.world.arm.actual_q_rad(np.array([t0]))[0]
+    big = [(x * 1.6, 1700 + (y - 1700) * 1.6, 1400 + (z - 1400) * 1.6) for x, y, z in
+           [(600, 2300, 2000), (600, 1100, 2000), (-600, 1100, 2000), (-600, 2300, 2000),
+            (600, 2300, 800), (600, 1100, 800), (-600, 1100, 800), (-600, 2300, 800)]]
+    code, store = _run(fake_cell, tmp_path, cube_corners_mm=big, inset_mm=160.0)
+    assert code == 1
+    steps = store.steps("t1")
+    assert steps[0].name == "check programs" and steps[0].status == "failed"
+    assert "workspace" in steps[0].message or "reach" in steps[0].message
+    assert len(steps) == 1
+    q1 = fake_cell.world.arm.actual_q_rad(np.array([fake_cell.world.clock.now()]))[0]
+    np.testing.assert_allclose(q1, q0, atol=1e-9)
+
+
+def test_malformed_station_config_refused_before_start(tmp_path):
+    from station.cli import main
+
+    bad = tmp_path / "c.toml"
+    bad.write_text('[station]\nname = "x"\n[devices.tracker]\nurl = "laser://1.2.3.4"\n[robots]\n')
+    assert main(["run", "iso9283", "--config", str(bad), "--yes"]) == 2
+    assert not (tmp_path / "station.sqlite").exists()
+    with pytest.raises(ConfigError, match="unknown scheme 'laser'"):
+        from station.config import load_config
+        load_config(bad)
