@@ -26,6 +26,7 @@ FAKES = {
     "controller": "fakes.controller",
     "ur": "fakes.ur",
     "odometry": "fakes.odometry",
+    "station": "fakes.station",
 }
 
 
