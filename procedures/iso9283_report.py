@@ -44,10 +44,11 @@ def _approach_figure(t, xyz, main, pose: str = "P1") -> str | None:
     ov = pr.overshoot
     row = int(ov.rows[0])
     entry = int(ov.row_entry[0]) if ov.row_entry.size else -1
-    start = max(0, (entry if entry >= 0 else row) - 30)
-    seg = slice(start, row + 1)
-    dist = np.linalg.norm(xyz[seg] - xyz[row], axis=1)
     settle = int(ov.row_settled[0]) if ov.row_settled.size else -1
+    start = max(0, (entry if entry >= 0 else row) - 20)
+    end = min(row, max(settle, entry, start) + 40)  # the approach and the settling, not the whole dwell
+    seg = slice(start, end + 1)
+    dist = np.linalg.norm(xyz[seg] - xyz[row], axis=1)
     return plot_approach(
         t[seg], dist, ov.band_mm, t_enter_s=float(t[entry]) if entry >= 0 else None,
         t_settle_s=float(t[settle]) if settle >= 0 else None,

@@ -14,7 +14,7 @@ import sys
 from station.errors import StationError
 
 #: command groups, in the order ``station --help`` lists them
-GROUPS = ("simulate", "analyze", "calibrate", "fakes", "run", "demo")
+GROUPS = ("demo", "run", "store", "simulate", "analyze", "calibrate", "fakes")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -96,7 +96,8 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
     else:
         from fakes.station import FakeStation
 
-        station = FakeStation.start(seed=fake["seed"], time_scale=fake["time_scale"], robot=plan.robot.name)
+        station = FakeStation.start(seed=fake["seed"], time_scale=fake["time_scale"], robot=plan.robot.name,
+                                    payload_kg=plan.payload_kg)
         devices = {"tracker": station.tracker_url, "controller": station.controller_url}
         scale = fake["time_scale"]
 
