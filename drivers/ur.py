@@ -1,0 +1,980 @@
+"""Universal Robots e-Series cobot driver built on the real ``ur_rtde`` package.
+
+* **State** from ``rtde_receive.RTDEReceiveInterface``: timestamp (the
+  controller's clock), joint positions, commanded joints, TCP pose and speed,
+  robot mode, safety mode and status bits, runtime state, and two output
+  integer registers the driver's programs write.
+* **Motion** by URScript sent to the script port (``script_client``): every
+  move is a small ``def ... end`` program that writes a sequence number to
+  output register ``register_base`` when it starts and to
+  ``register_base + 1`` when its motion is done, so the driver knows from the
+  RTDE stream alone that *its* program ran. **The safety gate checks every
+  target, path and speed before a byte is sent** (:class:`station.safety.SafetyGate`).
+* **Program and power state** through ``dashboard_client.DashboardClient``.
+
+``RTDEReceiveInterface``'s constructor holds the Python GIL while it waits
+for the controller's handshake replies, so a controller served by the same
+process (the station's simulated world and its fakes) could never answer. The
+receive interface therefore lives in a small **sidecar process** owned by the
+driver (``multiprocessing`` spawn context): it polls the interface's getters,
+keeps every new timestamp's sample and ships them to the driver on request.
+The dashboard and script clients release the GIL and stay in-process.
+
+Errors (:mod:`station.errors`)::
+
+    target, path or speed refused            -> SafetyError (nothing sent)
+    robot powered off / in protective stop   -> DeviceNotReady
+    protective stop during a move            -> DeviceFault (robot halted, program stopped)
+    dashboard refusal, program not started   -> DeviceError
+    RTDE stream lost or stale                -> ConnectionLost (motion halted if possible)
+    no reply / motion not done in time       -> DeviceTimeout
+
+Units: joint angles rad, positions mm, TCP rotations as rotation vectors
+(rad), speeds mm/s; the controller's wire units (m, m/s) are converted here.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Collection
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from station.errors import (
+    ConfigError,
+    ConnectionLost,
+    DeviceError,
+    DeviceFault,
+    DeviceNotReady,
+    DeviceTimeout,
+    SafetyError,
+)
+
+DASHBOARD_PORT = 29999
+SCRIPT_PORT = 30003
+
+ROBOT_MODE_POWER_OFF, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 5, 7
+SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED = 1, 2
+RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = 1, 2, 4
+_SAFETY_BIT_PROTECTIVE = 1 << 2
+_SAFETY_BITS_EMERGENCY = (1 << 5) | (1 << 6) | (1 << 7)
+
+# sample row layout shipped by the sidecar
+_C_T = 0
+_C_Q = slice(1, 7)
+_C_QT = slice(7, 13)
+_C_POSE = slice(13, 19)
+_C_SPEED = slice(19, 25)
+_C_ROBOT_MODE, _C_SAFETY_MODE, _C_SAFETY_BITS, _C_RUNTIME, _C_STATUS, _C_REG_START, _C_REG_DONE = range(25, 32)
+N_COLUMNS = 32
+
+
+def rtde_variables(register_base: int) -> list[str]:
+    """Output variables the driver's receive interface asks for."""
+    return [
+        "timestamp", "actual_q", "target_q", "actual_TCP_pose", "actual_TCP_speed",
+        "robot_mode", "safety_mode", "safety_status_bits", "runtime_state", "robot_status_bits",
+        f"output_int_register_{register_base}", f"output_int_register_{register_base + 1}",
+    ]
+
+
+# ====================================================================== sidecar
+
+
+def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll_s: float, max_samples: int):
+    """Child process: own the RTDE receive interface, buffer every new sample.
+
+    Returns the interface (still connected) so that the caller decides when it
+    is destroyed (its destructor sleeps 0.5 s).
+    """
+    parent = os.getppid()
+    try:
+        import rtde_receive
+
+        rtde = rtde_receive.RTDEReceiveInterface(host, float(frequency_hz), rtde_variables(register_base))
+    except Exception as exc:  # noqa: BLE001 - reported to the parent verbatim
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        conn.close()
+        return None
+    lock = threading.Lock()
+    buf: deque = deque()
+    state = {"dropped": 0, "connected": True}
+    stop = threading.Event()
+    r0, r1 = register_base, register_base + 1
+
+    def read_row(ts: float):
+        row = [ts]
+        row += rtde.getActualQ()
+        row += rtde.getTargetQ()
+        row += rtde.getActualTCPPose()
+        row += rtde.getActualTCPSpeed()
+        row += [rtde.getRobotMode(), rtde.getSafetyMode(), rtde.getSafetyStatusBits(),
+                rtde.getRuntimeState(), rtde.getRobotStatus(),
+                rtde.getOutputIntRegister(r0), rtde.getOutputIntRegister(r1)]
+        return row
+
+    def sample() -> None:
+        last = None
+        while not stop.is_set():
+            ts = rtde.getTimestamp()
+            if ts == last:
+                connected = rtde.isConnected()
+                with lock:
+                    state["connected"] = connected
+                time.sleep(poll_s)
+                continue
+            if ts > 0:
+                for _ in range(5):  # the receive thread may update between getters
+                    row = read_row(ts)
+                    ts2 = rtde.getTimestamp()
+                    if ts2 == ts:
+                        break
+                    ts = ts2
+                if len(row) == N_COLUMNS:
+                    with lock:
+                        if len(buf) >= max_samples:
+                            buf.popleft()
+                            state["dropped"] += 1
+                        buf.append(row)
+            last = ts
+
+    sampler = threading.Thread(target=sample, name="ur-rtde-sampler")
+    sampler.start()
+    conn.send(("ready", None))
+    try:
+        while True:
+            if not conn.poll(0.1):
+                if os.getppid() != parent:
+                    break  # the driver's process is gone
+                continue
+            msg = conn.recv()
+            if msg[0] == "drain":
+                with lock:
+                    rows = list(buf)
+                    buf.clear()
+                    dropped, state["dropped"] = state["dropped"], 0
+                    connected = state["connected"]
+                arr = np.array(rows, dtype=float).reshape(-1, N_COLUMNS)
+                conn.send(("samples", arr, dropped, connected))
+            elif msg[0] == "close":
+                break
+    except (EOFError, OSError):
+        pass
+    stop.set()
+    sampler.join()
+    try:
+        conn.send(("closed", None))
+        conn.close()
+    except (OSError, ValueError):
+        pass
+    return rtde
+
+
+def _sidecar_entry() -> None:
+    """``python -c 'import drivers.ur as m; m._sidecar_entry()' FD HOST FREQ BASE POLL MAX``."""
+    from multiprocessing.connection import Connection
+
+    fd, host, freq, base, poll, max_samples = sys.argv[1:7]
+    rtde = _sidecar_main(Connection(int(fd)), host, float(freq), int(base), float(poll), int(max_samples))
+    # leave at once, rtde still referenced: ur_rtde's disconnect() sleeps 0.5 s; the kernel closes the socket
+    sys.stdout.flush()
+    os._exit(0)
+
+
+class RtdeSidecar:
+    """``ur_rtde``'s receive interface in a child process (see module docstring).
+
+    The child is a fresh interpreter (``subprocess``) that imports only this
+    module and ``rtde_receive``; it talks to the driver over a socket pair
+    wrapped in ``multiprocessing.connection.Connection``.
+
+    Parameters
+    ----------
+    host : str
+    frequency_hz : float
+        RTDE output frequency to ask for (e-Series: up to 500 Hz).
+    register_base : int
+        First of the two output integer registers the driver's programs write.
+    poll_s : float
+        How often the child polls the interface's timestamp (real seconds).
+    max_samples : int
+        Samples the child keeps between two drains (older ones are counted as dropped).
+    """
+
+    def __init__(self, host: str, frequency_hz: float = 500.0, register_base: int = 12,
+                 poll_s: float = 2e-4, max_samples: int = 200_000) -> None:
+        self.host = host
+        self.frequency_hz = float(frequency_hz)
+        self.register_base = int(register_base)
+        self.poll_s = float(poll_s)
+        self.max_samples = int(max_samples)
+        self._proc: subprocess.Popen | None = None
+        self._conn = None
+        self._lock = threading.Lock()
+
+    def start(self, timeout_s: float) -> None:
+        from multiprocessing.connection import Connection
+
+        ours, theirs = socket.socketpair()
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        try:
+            proc = subprocess.Popen(
+                [sys.executable, "-c", "import drivers.ur as m; m._sidecar_entry()", str(theirs.fileno()),
+                 self.host, repr(self.frequency_hz), str(self.register_base), repr(self.poll_s),
+                 str(self.max_samples)],
+                pass_fds=(theirs.fileno(),),
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                env=env,
+            )
+        except OSError as exc:
+            ours.close()
+            theirs.close()
+            raise DeviceNotReady(f"RTDE {self.host}: cannot start the receive process: {exc}") from exc
+        theirs.close()
+        self._proc, self._conn = proc, Connection(ours.detach())
+        if not self._conn.poll(timeout_s):
+            self._kill()
+            raise DeviceTimeout(f"RTDE {self.host}:30004: no handshake within {timeout_s} s")
+        try:
+            kind, info = self._conn.recv()
+        except (EOFError, OSError) as exc:
+            self._kill()
+            raise ConnectionLost(f"RTDE {self.host}:30004: receive process ended during the handshake") from exc
+        if kind != "ready":
+            self._kill()
+            raise ConnectionLost(f"RTDE {self.host}:30004: ur_rtde could not connect: {info}")
+
+    def drain(self, timeout_s: float = 5.0) -> tuple[np.ndarray, int, bool]:
+        """``(rows (N, 32), dropped, connected)`` since the last drain."""
+        with self._lock:
+            if self._conn is None:
+                raise ConnectionLost(f"RTDE {self.host}: receive process not running")
+            try:
+                self._conn.send(("drain",))
+                if not self._conn.poll(timeout_s):
+                    raise DeviceTimeout(f"RTDE {self.host}: receive process did not answer within {timeout_s} s")
+                kind, rows, dropped, connected = self._conn.recv()
+            except (EOFError, OSError) as exc:
+                raise ConnectionLost(f"RTDE {self.host}: receive process ended") from exc
+        return rows, dropped, connected
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        with self._lock:
+            conn, proc = self._conn, self._proc
+            self._conn = self._proc = None
+        if proc is None:
+            return
+        try:
+            conn.send(("close",))
+            if conn.poll(timeout_s):
+                conn.recv()
+        except (EOFError, OSError):
+            pass
+        conn.close()
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout_s)
+
+    def _kill(self) -> None:
+        proc, conn = self._proc, self._conn
+        self._proc = self._conn = None
+        if proc is not None:
+            proc.kill()
+            proc.wait(5.0)
+        if conn is not None:
+            conn.close()
+
+
+# ====================================================================== state
+
+
+def rotvec_to_matrix(rv) -> np.ndarray:
+    """Rotation vectors (..., 3) -> rotation matrices (..., 3, 3) (Rodrigues)."""
+    rv = np.asarray(rv, dtype=float)
+    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
+    k = np.where(theta[..., 0] > 1e-12, rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0), 0.0)
+    K = np.zeros(rv.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
+
+
+def matrix_to_rotvec(R) -> np.ndarray:
+    """Rotation matrix (3, 3) -> rotation vector (3,), robust near 0 and pi."""
+    R = np.asarray(R, dtype=float)
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    theta = math.acos(cos)
+    if theta < 1e-9:
+        return np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
+    if math.pi - theta < 1e-6:
+        B = (R + np.eye(3)) / 2.0
+        axis = np.sqrt(np.clip(np.diag(B), 0.0, None))
+        i = int(np.argmax(axis))
+        axis = B[i] / axis[i]
+        return theta * axis / np.linalg.norm(axis)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return theta * w / (2.0 * math.sin(theta))
+
+
+def ur_pose_to_T(pose) -> np.ndarray:
+    """UR pose(s) ``[x, y, z, rx, ry, rz]`` (m, rotation vector) -> (..., 4, 4) in mm."""
+    p = np.asarray(pose, dtype=float)
+    T = np.zeros(p.shape[:-1] + (4, 4))
+    T[..., :3, :3] = rotvec_to_matrix(p[..., 3:])
+    T[..., :3, 3] = 1000.0 * p[..., :3]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+@dataclass(frozen=True)
+class URState:
+    """One RTDE sample.
+
+    Attributes
+    ----------
+    t_s : float
+        Controller timestamp, s.
+    q_rad, target_q_rad : ndarray, shape (6,)
+        Measured and commanded joint angles.
+    tcp_T : ndarray, shape (4, 4)
+        TCP pose reported by the controller (its nominal kinematics), mm.
+    tcp_rotvec_rad : ndarray, shape (3,)
+    tcp_speed : ndarray, shape (6,)
+        Linear mm/s and angular rad/s.
+    robot_mode, safety_mode, safety_status_bits, runtime_state, robot_status_bits : int
+    register_start, register_done : int
+        The driver's program sequence registers.
+    """
+
+    t_s: float
+    q_rad: np.ndarray
+    target_q_rad: np.ndarray
+    tcp_T: np.ndarray
+    tcp_rotvec_rad: np.ndarray
+    tcp_speed: np.ndarray
+    robot_mode: int
+    safety_mode: int
+    safety_status_bits: int
+    runtime_state: int
+    robot_status_bits: int
+    register_start: int
+    register_done: int
+
+    @classmethod
+    def from_row(cls, row: np.ndarray) -> "URState":
+        pose = row[_C_POSE]
+        speed = row[_C_SPEED].copy()
+        speed[:3] *= 1000.0
+        return cls(
+            t_s=float(row[_C_T]),
+            q_rad=row[_C_Q].copy(),
+            target_q_rad=row[_C_QT].copy(),
+            tcp_T=ur_pose_to_T(pose),
+            tcp_rotvec_rad=pose[3:].copy(),
+            tcp_speed=speed,
+            robot_mode=int(row[_C_ROBOT_MODE]),
+            safety_mode=int(row[_C_SAFETY_MODE]),
+            safety_status_bits=int(row[_C_SAFETY_BITS]),
+            runtime_state=int(row[_C_RUNTIME]),
+            robot_status_bits=int(row[_C_STATUS]),
+            register_start=int(row[_C_REG_START]),
+            register_done=int(row[_C_REG_DONE]),
+        )
+
+    @property
+    def tcp_xyz_mm(self) -> np.ndarray:
+        return self.tcp_T[:3, 3].copy()
+
+    @property
+    def protective_stopped(self) -> bool:
+        return bool(self.safety_status_bits & _SAFETY_BIT_PROTECTIVE)
+
+    @property
+    def emergency_stopped(self) -> bool:
+        return bool(self.safety_status_bits & _SAFETY_BITS_EMERGENCY)
+
+    @property
+    def program_running(self) -> bool:
+        return self.runtime_state == RUNTIME_PLAYING
+
+    @property
+    def ready_to_move(self) -> bool:
+        return (
+            self.robot_mode == ROBOT_MODE_RUNNING
+            and self.safety_mode in (SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED)
+            and not self.protective_stopped
+            and not self.emergency_stopped
+        )
+
+
+@dataclass(frozen=True)
+class URSamples:
+    """RTDE samples collected by the driver, in time order.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (N,)
+        Controller timestamps.
+    q_rad : ndarray, shape (N, 6)
+    tcp_xyz_mm : ndarray, shape (N, 3)
+    tcp_rotvec_rad : ndarray, shape (N, 3)
+    dropped : int
+        Samples lost to full buffers since the previous collection.
+    missed : int
+        Controller periods (``1 / rtde_frequency_hz``) without a sample
+        between consecutive timestamps, the previous collection's last one
+        included: packages ``ur_rtde`` superseded by newer ones before the
+        driver read them (it keeps only the newest), or never sent.
+    """
+
+    t_s: np.ndarray
+    q_rad: np.ndarray
+    tcp_xyz_mm: np.ndarray
+    tcp_rotvec_rad: np.ndarray
+    dropped: int
+    missed: int
+
+
+# ====================================================================== driver
+
+
+def parse_ur_url(url: str) -> str:
+    """``ur://HOST`` -> HOST (ports are fixed by ur_rtde)."""
+    parts = urlsplit(url)
+    if parts.scheme != "ur" or not parts.hostname:
+        raise ConfigError(f"UR device URL must look like ur://HOST, got {url!r}")
+    if parts.port not in (None,):
+        raise ConfigError(f"UR device URL {url!r}: ur_rtde fixes the ports (30004, 29999, 30003); give no port")
+    return parts.hostname
+
+
+def _fmt(x: float) -> str:
+    if not math.isfinite(x):
+        raise SafetyError(f"non-finite number {x!r} in a UR program")
+    return repr(float(x))
+
+
+class URDriver:
+    """A UR cobot through ``ur_rtde``, every motion checked by the safety gate.
+
+    Parameters
+    ----------
+    host : str
+        Controller address.
+    robot : RobotSpec
+        The arm (nominal model, speed limits).
+    gate : SafetyGate
+        Checks every target, path and speed before anything is sent.
+    rtde_frequency_hz : float
+        RTDE output frequency (e-Series: <= 500).
+    register_base : int
+        Output integer registers ``register_base`` and ``+1`` (0..46) carry the
+        driver's program sequence numbers.
+    trusted_programs : collection of str
+        Controller programs (``.urp``) that :meth:`play` may start; the gate
+        cannot see inside them, so nothing else is played.
+    tcp_accel_limit_mm_s2 : float
+        Rated linear acceleration; ``accel_mm_s2 / this`` is checked against
+        the gate's acceleration cap.
+    connect_timeout_s, start_timeout_s, motion_timeout_s, stale_after_s, settle_timeout_s : float
+        Real (host) seconds: handshake; until a sent program reports that it
+        started; until it reports done; without a new RTDE sample before the
+        link counts as lost; for the arm to settle on its target.
+    q_tol_rad, rest_speed_mm_s : float
+        A move is done when every joint is within ``q_tol_rad`` of the target
+        and the TCP slower than ``rest_speed_mm_s``.
+    rtde, dashboard, script : optional
+        Injected clients (default: the sidecar, ``DashboardClient``, ``ScriptClient``).
+    """
+
+    def __init__(
+        self,
+        host: str,
+        robot,
+        gate,
+        *,
+        rtde_frequency_hz: float = 500.0,
+        register_base: int = 12,
+        trusted_programs: Collection[str] = (),
+        tcp_accel_limit_mm_s2: float = 2500.0,
+        connect_timeout_s: float = 15.0,
+        start_timeout_s: float = 3.0,
+        motion_timeout_s: float = 300.0,
+        stale_after_s: float = 1.5,
+        settle_timeout_s: float = 10.0,
+        q_tol_rad: float = 1e-3,
+        rest_speed_mm_s: float = 1.0,
+        max_buffer_samples: int = 200_000,
+        rtde=None,
+        dashboard=None,
+        script=None,
+    ) -> None:
+        if not isinstance(host, str) or not re.fullmatch(r"[A-Za-z0-9.\-]+", host):
+            raise ConfigError(f"UR host must be a host name or IPv4 address, got {host!r}")
+        if not (0 < float(rtde_frequency_hz) <= 500):
+            raise ConfigError(f"rtde_frequency_hz must be in (0, 500], got {rtde_frequency_hz!r}")
+        if not (isinstance(register_base, int) and 0 <= register_base <= 46):
+            raise ConfigError(f"register_base must be an integer 0..46, got {register_base!r}")
+        for name, val in (("tcp_accel_limit_mm_s2", tcp_accel_limit_mm_s2), ("connect_timeout_s", connect_timeout_s),
+                          ("start_timeout_s", start_timeout_s), ("motion_timeout_s", motion_timeout_s),
+                          ("stale_after_s", stale_after_s), ("settle_timeout_s", settle_timeout_s),
+                          ("q_tol_rad", q_tol_rad), ("rest_speed_mm_s", rest_speed_mm_s)):
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+                raise ConfigError(f"{name} must be a finite number > 0, got {val!r}")
+        self.host = host
+        self.robot = robot
+        self.gate = gate
+        self.rtde_frequency_hz = float(rtde_frequency_hz)
+        self.register_base = register_base
+        self.trusted_programs = frozenset(trusted_programs)
+        self.tcp_accel_limit_mm_s2 = float(tcp_accel_limit_mm_s2)
+        self.connect_timeout_s = float(connect_timeout_s)
+        self.start_timeout_s = float(start_timeout_s)
+        self.motion_timeout_s = float(motion_timeout_s)
+        self.stale_after_s = float(stale_after_s)
+        self.settle_timeout_s = float(settle_timeout_s)
+        self.q_tol_rad = float(q_tol_rad)
+        self.rest_speed_mm_s = float(rest_speed_mm_s)
+        self.max_buffer_samples = int(max_buffer_samples)
+        self._rtde = rtde
+        self._dashboard = dashboard
+        self._script = script
+        self._chunks: deque = deque()  # arrays of sample rows not yet collected by samples()
+        self._n_rows = 0
+        self._dropped = 0
+        self._latest: np.ndarray | None = None
+        self._latest_at = 0.0
+        self._last_collected_t: float | None = None
+        self._seq = 0
+        self._lock = threading.RLock()
+        self._connected = False
+
+    @classmethod
+    def from_url(cls, url: str, robot, gate, **kwargs) -> "URDriver":
+        """Driver for ``ur://HOST``."""
+        return cls(parse_ur_url(url), robot, gate, **kwargs)
+
+    # ------------------------------------------------------------------ lifetime
+    def connect(self) -> "URDriver":
+        """Open RTDE (sidecar), dashboard and script connections."""
+        import dashboard_client
+        import script_client
+
+        if self._rtde is None:
+            self._rtde = RtdeSidecar(self.host, self.rtde_frequency_hz, self.register_base,
+                                     max_samples=self.max_buffer_samples)
+        self._rtde.start(self.connect_timeout_s)
+        try:
+            if self._dashboard is None:
+                self._dashboard = dashboard_client.DashboardClient(self.host, DASHBOARD_PORT)
+            try:
+                self._dashboard.connect()
+            except RuntimeError as exc:
+                raise ConnectionLost(f"dashboard {self.host}:{DASHBOARD_PORT}: {exc}") from exc
+            version = self._dashboard_call("PolyscopeVersion", self._dashboard.polyscopeVersion)
+            m = re.search(r"(\d+)\.(\d+)", version)
+            major, minor = (int(m.group(1)), int(m.group(2))) if m else (5, 11)
+            if self._script is None:
+                self._script = script_client.ScriptClient(self.host, major, minor, SCRIPT_PORT)
+            try:
+                self._script.connect()
+            except RuntimeError as exc:
+                raise ConnectionLost(f"script port {self.host}:{SCRIPT_PORT}: {exc}") from exc
+            self._connected = True
+            st = self.state(timeout_s=self.connect_timeout_s)
+            self._seq = max(st.register_start, st.register_done, 0)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Close every connection and the sidecar (idempotent)."""
+        self._connected = False
+        if self._rtde is not None:
+            self._rtde.close()
+        if self._dashboard is not None:
+            try:
+                self._dashboard.disconnect()
+            except RuntimeError:
+                pass
+        if self._script is not None:
+            try:
+                self._script.disconnect()
+            except RuntimeError:
+                pass
+
+    def __enter__(self) -> "URDriver":
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ state
+    def _pull(self) -> None:
+        rows, dropped, connected = self._rtde.drain()
+        now = time.monotonic()
+        with self._lock:
+            self._dropped += dropped
+            if len(rows):
+                fresh = rows[rows[:, _C_T] > (self._latest[_C_T] if self._latest is not None else -np.inf)]
+                if len(fresh):
+                    self._chunks.append(fresh)
+                    self._n_rows += len(fresh)
+                    self._latest = fresh[-1]
+                    self._latest_at = now
+                while self._n_rows > self.max_buffer_samples:  # oldest first, counted
+                    excess = self._n_rows - self.max_buffer_samples
+                    head = self._chunks[0]
+                    cut = min(excess, len(head))
+                    self._chunks[0] = head[cut:]
+                    if not len(self._chunks[0]):
+                        self._chunks.popleft()
+                    self._n_rows -= cut
+                    self._dropped += cut
+        if not connected:
+            raise ConnectionLost(
+                f"RTDE connection to {self.host}:30004 lost"
+                + (f" (last sample t = {self._latest[_C_T]:.3f} s)" if self._latest is not None else "")
+            )
+
+    def state(self, timeout_s: float | None = None) -> URState:
+        """The newest RTDE sample; waits up to ``timeout_s`` for the first one.
+
+        Raises
+        ------
+        ConnectionLost
+            The link dropped, or no new sample for ``stale_after_s``.
+        """
+        deadline = time.monotonic() + (self.stale_after_s if timeout_s is None else timeout_s)
+        while True:
+            self._pull()
+            with self._lock:
+                latest, at = self._latest, self._latest_at
+            now = time.monotonic()
+            if latest is not None and now - at <= self.stale_after_s:
+                return URState.from_row(latest)
+            if now >= deadline:
+                if latest is None:
+                    raise DeviceTimeout(f"RTDE {self.host}: no sample within {timeout_s} s")
+                raise ConnectionLost(
+                    f"RTDE {self.host}: no new sample for {now - at:.1f} s (last t = {latest[_C_T]:.3f} s)"
+                )
+            time.sleep(0.002)
+
+    def samples(self) -> URSamples:
+        """Every sample received since the previous call (time order)."""
+        self._pull()
+        with self._lock:
+            rows = np.concatenate(list(self._chunks)) if self._chunks else np.zeros((0, N_COLUMNS))
+            self._chunks.clear()
+            self._n_rows = 0
+            dropped, self._dropped = self._dropped, 0
+            t = rows[:, _C_T]
+            if self._last_collected_t is not None:
+                t = np.concatenate([[self._last_collected_t], t])
+            periods = np.round(np.diff(t) * self.rtde_frequency_hz).astype(np.int64)
+            missed = int(np.sum(np.clip(periods - 1, 0, None)))
+            if len(rows):
+                self._last_collected_t = float(rows[-1, _C_T])
+        return URSamples(
+            t_s=rows[:, _C_T].copy(),
+            q_rad=rows[:, _C_Q].copy(),
+            tcp_xyz_mm=1000.0 * rows[:, _C_POSE][:, :3],
+            tcp_rotvec_rad=rows[:, _C_POSE][:, 3:].copy(),
+            dropped=dropped,
+            missed=missed,
+        )
+
+    # ------------------------------------------------------------------ motion
+    def _require_ready(self, label: str) -> URState:
+        if not self._connected:
+            raise DeviceNotReady(f"{label}: UR driver is not connected")
+        st = self.state()
+        if not st.ready_to_move:
+            raise DeviceNotReady(
+                f"{label}: robot not ready to move (robot_mode {st.robot_mode}, safety_mode {st.safety_mode}, "
+                f"protective stop {st.protective_stopped})"
+            )
+        return st
+
+    def move_joint(self, q_rad, *, speed_frac: float = 0.25, accel_frac: float = 0.25,
+                   label: str = "joint move") -> URState:
+        """Move to joint angles (``movej``) after the gate; block until done.
+
+        Speeds are fractions of the robot's slowest joint limits (``movej``'s
+        ``v``/``a`` are the leading axis speed and acceleration).
+
+        Returns
+        -------
+        URState
+            The first sample with the arm settled on the target.
+        """
+        st = self._require_ready(label)
+        q = self.gate.check_joint_target(q_rad, label)
+        self.gate.check_speed(label, speed_frac=speed_frac, accel_frac=accel_frac)
+        self.gate.check_joint_path(st.q_rad, q, label)
+        peak = self.gate.joint_move_peak_tcp_speed(st.q_rad, q, speed_frac)
+        if peak > self.gate.max_tcp_speed_mm_s * (1 + 1e-9):
+            raise SafetyError(
+                f"{label}: estimated peak TCP speed {peak:.0f} mm/s exceeds the cap {self.gate.max_tcp_speed_mm_s:.0f} mm/s"
+            )
+        v = speed_frac * float(np.min(self.robot.joint_speed_limits_rad_s))
+        a = accel_frac * float(np.min(self.robot.joint_accel_limits_rad_s2))
+        body = f"movej([{', '.join(_fmt(x) for x in q)}], a={_fmt(a)}, v={_fmt(v)})"
+        return self._run_motion(body, q, label)
+
+    def move_linear(self, target, *, speed_mm_s: float = 100.0, accel_mm_s2: float = 500.0,
+                    label: str = "linear move") -> URState:
+        """Straight TCP move (``movel``) after the gate; block until done.
+
+        Parameters
+        ----------
+        target : array_like, shape (3,) or (4, 4)
+            Position (mm; keeps the current orientation) or pose (mm).
+        """
+        st = self._require_ready(label)
+        t = np.asarray(target, dtype=float)
+        if t.shape == (3,):
+            T = st.tcp_T.copy()
+            T[:3, 3] = t
+        elif t.shape == (4, 4):
+            T = t
+        else:
+            raise SafetyError(f"{label}: target must be (3,) mm or a (4, 4) pose, got shape {t.shape}")
+        q = self.gate.check_cartesian_target(T, label, q_seed=st.q_rad)
+        self.gate.check_speed(label, tcp_speed_mm_s=speed_mm_s,
+                              accel_frac=float(accel_mm_s2) / self.tcp_accel_limit_mm_s2)
+        self.gate.check_linear_path(st.tcp_T, T, st.q_rad, q, label)
+        pose = list(T[:3, 3] / 1000.0) + list(matrix_to_rotvec(T[:3, :3]))
+        body = (f"movel(p[{', '.join(_fmt(x) for x in pose)}], a={_fmt(accel_mm_s2 / 1000.0)}, "
+                f"v={_fmt(speed_mm_s / 1000.0)})")
+        return self._run_motion(body, q, label)
+
+    def _next_seq(self) -> int:
+        with self._lock:
+            self._seq = self._seq + 1 if self._seq < 2**31 - 2 else 1
+            return self._seq
+
+    def _send_script(self, text: str, label: str) -> None:
+        try:
+            ok = self._script.sendScriptCommand(text)
+        except RuntimeError as exc:
+            raise ConnectionLost(f"{label}: script port {self.host}:{SCRIPT_PORT}: {exc}") from exc
+        if ok is False:
+            raise ConnectionLost(f"{label}: script port {self.host}:{SCRIPT_PORT} refused the write")
+
+    def _run_motion(self, body: str, q_target: np.ndarray, label: str) -> URState:
+        seq = self._next_seq()
+        r0, r1 = self.register_base, self.register_base + 1
+        text = (
+            f"def station_move_{seq}():\n"
+            f"  write_output_integer_register({r0}, {seq})\n"
+            f"  {body}\n"
+            f"  write_output_integer_register({r1}, {seq})\n"
+            f"end\n"
+        )
+        self._send_script(text, label)
+        t_sent = time.monotonic()
+        started = False
+        try:
+            while True:
+                st = self.state()
+                if st.protective_stopped or st.emergency_stopped:
+                    self._after_fault(label)
+                    raise DeviceFault(
+                        f"{label}: {'protective' if st.protective_stopped else 'emergency'} stop during the move "
+                        f"(t = {st.t_s:.3f} s, q = {np.round(np.degrees(st.q_rad), 3).tolist()} deg); the robot is "
+                        f"halted and the program stopped; inspect the cause, then unlock_protective_stop()"
+                    )
+                if st.register_done == seq:
+                    break
+                if st.register_start == seq:
+                    started = True
+                elif not started and time.monotonic() - t_sent > self.start_timeout_s:
+                    raise DeviceError(
+                        f"{label}: the controller did not start program station_move_{seq} within "
+                        f"{self.start_timeout_s} s (refused by the controller? robot_mode {st.robot_mode})"
+                    )
+                if started and st.runtime_state == RUNTIME_STOPPED and st.register_done != seq:
+                    raise DeviceError(f"{label}: program station_move_{seq} stopped before its motion finished")
+                if time.monotonic() - t_sent > self.motion_timeout_s:
+                    self.stop_motion()
+                    raise DeviceTimeout(f"{label}: motion not done within {self.motion_timeout_s} s; robot stopped")
+                time.sleep(0.001)
+            return self._settle(q_target, label)
+        except ConnectionLost:
+            self._halt_best_effort()
+            raise
+
+    def _settle(self, q_target: np.ndarray, label: str) -> URState:
+        deadline = time.monotonic() + self.settle_timeout_s
+        while True:
+            st = self.state()
+            err = float(np.max(np.abs(st.q_rad - q_target)))
+            speed = float(np.linalg.norm(st.tcp_speed[:3]))
+            if err <= self.q_tol_rad and speed <= self.rest_speed_mm_s:
+                return st
+            if st.protective_stopped:
+                raise DeviceFault(f"{label}: protective stop while settling on the target")
+            if time.monotonic() > deadline:
+                raise DeviceError(
+                    f"{label}: arm did not come to rest within {self.q_tol_rad:g} rad of the target "
+                    f"(off by {err:.3g} rad, TCP at {speed:.3g} mm/s after {self.settle_timeout_s} s)"
+                )
+            time.sleep(0.001)
+
+    def _after_fault(self, label: str) -> None:
+        """Leave a safe state: program stopped, arm at rest (waited for, bounded)."""
+        try:
+            if self._dashboard is not None and self._dashboard.running():
+                self._dashboard.stop()
+        except RuntimeError:
+            pass
+        deadline = time.monotonic() + self.settle_timeout_s
+        while time.monotonic() < deadline:
+            st = self.state()
+            if float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s and not st.program_running:
+                return
+            time.sleep(0.002)
+
+    def _halt_best_effort(self) -> None:
+        try:
+            self._send_script("stopj(2.0)\n", "halt")
+        except ConnectionLost:
+            pass
+        try:
+            if self._dashboard is not None:
+                self._dashboard.stop()
+        except RuntimeError:
+            pass
+
+    def stop_motion(self, decel_rad_s2: float = 2.0) -> None:
+        """Halt the arm now (``stopj``; stopping needs no gate)."""
+        self._send_script(f"stopj({_fmt(decel_rad_s2)})\n", "stop")
+
+    # ------------------------------------------------------------------ dashboard
+    def _dashboard_call(self, what: str, fn, *args):
+        if self._dashboard is None:
+            raise DeviceNotReady(f"dashboard {what}: not connected")
+        try:
+            return fn(*args)
+        except (RuntimeError, ValueError) as exc:
+            connected = True
+            try:
+                connected = bool(self._dashboard.isConnected())
+            except RuntimeError:
+                connected = False
+            if not connected:
+                raise ConnectionLost(f"dashboard {self.host}:{DASHBOARD_PORT} lost during {what!r}: {exc}") from exc
+            raise DeviceError(f"dashboard {what!r} refused: controller replied {str(exc)!r}") from exc
+
+    def load_program(self, name: str) -> None:
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_./\-]+\.urp", name):
+            raise ConfigError(f"program name must be a .urp path of letters, digits, _ . / -, got {name!r}")
+        self._dashboard_call(f"load {name}", self._dashboard.loadURP, name)
+
+    def loaded_program(self) -> str | None:
+        reply = self._dashboard_call("get loaded program", self._dashboard.getLoadedProgram)
+        m = re.match(r"Loaded program:\s*(.+)$", reply.strip())
+        return m.group(1) if m else None
+
+    def play(self) -> None:
+        """Start the loaded program (only a trusted one) or resume a paused one."""
+        st = self.state()
+        if st.runtime_state != RUNTIME_PAUSED:
+            name = self.loaded_program()
+            base = name.rsplit("/", 1)[-1] if name else None
+            if name is None or (name not in self.trusted_programs and base not in self.trusted_programs):
+                raise SafetyError(
+                    f"play: program {name!r} is not in the driver's trusted_programs; the safety gate cannot "
+                    f"check a controller-side program"
+                )
+        self._dashboard_call("play", self._dashboard.play)
+
+    def pause(self) -> None:
+        self._dashboard_call("pause", self._dashboard.pause)
+
+    def stop_program(self) -> None:
+        self._dashboard_call("stop", self._dashboard.stop)
+
+    def is_running(self) -> bool:
+        return bool(self._dashboard_call("running", self._dashboard.running))
+
+    def program_state(self) -> str:
+        return str(self._dashboard_call("programState", self._dashboard.programState))
+
+    def _dashboard_command(self, command: str, expect: str) -> str:
+        """Send a command whose reply ``ur_rtde`` does not check; check it here."""
+
+        def call():
+            self._dashboard.send(command + "\n")
+            return self._dashboard.receive()
+
+        reply = self._dashboard_call(command, call)
+        if not reply.startswith(expect):
+            raise DeviceError(f"dashboard {command!r} refused: controller replied {reply!r}")
+        return reply
+
+    def power_on(self, timeout_s: float = 30.0) -> URState:
+        """Power on and release the brakes; wait for robot mode RUNNING."""
+        self._dashboard_command("power on", "Powering on")
+        self._wait_mode({ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING}, timeout_s, "power on")
+        self._dashboard_command("brake release", "Brake releasing")
+        return self._wait_mode({ROBOT_MODE_RUNNING}, timeout_s, "brake release")
+
+    def power_off(self, timeout_s: float = 30.0) -> URState:
+        self._dashboard_command("power off", "Powering off")
+        return self._wait_mode({ROBOT_MODE_POWER_OFF}, timeout_s, "power off")
+
+    def _wait_mode(self, modes: set, timeout_s: float, what: str) -> URState:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            st = self.state()
+            if st.robot_mode in modes:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"{what}: robot mode still {st.robot_mode} after {timeout_s} s")
+            time.sleep(0.005)
+
+    def unlock_protective_stop(self, timeout_s: float = 30.0) -> URState:
+        """Unlock a protective stop (the controller allows it 5 s after the stop).
+
+        Retries while the controller answers that it is too early.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self._dashboard.unlockProtectiveStop()
+            except (RuntimeError, ValueError) as exc:  # ur_rtde raises logic_error -> RuntimeError
+                if "5s" not in str(exc) and "Cannot unlock" not in str(exc):
+                    raise DeviceError(f"unlock protective stop refused: {exc}") from exc
+                if time.monotonic() > deadline:
+                    raise DeviceTimeout(f"protective stop still locked after {timeout_s} s: {exc}") from exc
+                time.sleep(0.05)
+                continue
+            break
+        while True:
+            st = self.state()
+            if not st.protective_stopped:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"protective stop still reported {timeout_s} s after unlocking")
+            time.sleep(0.005)

@@ -1,0 +1,1573 @@
+"""Fake Universal Robots e-Series controller that the real ``ur_rtde`` connects to.
+
+Three servers on one loopback address of its own (``ur_rtde`` fixes the
+ports, so several fakes run side by side on 127.0.0.2, 127.0.0.3, ...):
+
+* **RTDE** (30004): protocol version 2 handshake, controller version 5.11,
+  output recipes with the types of the UR RTDE guide (``NOT_FOUND`` for an
+  unknown variable), input recipes (``IN_USE`` for an input another client
+  owns), start/pause, and data packages at the requested frequency (1..500
+  Hz) on the **world's clock**: sample ``k`` is the state at simulated time
+  ``t0 + k / f``, its ``timestamp`` is that time, and every due sample is
+  sent (a late sender catches up, it never skips). Text messages (``M``)
+  report refused scripts and faults to every started session.
+* **Dashboard** (29999): the line protocol of PolyScope 5.11 (``play``,
+  ``stop``, ``pause``, ``load``, ``running``, ``programState``,
+  ``robotmode``, ``safetymode``, ``power on``/``off``, ``brake release``,
+  ``unlock protective stop``, ``PolyscopeVersion``, ``get serial number``...);
+  anything else gets ``could not understand: '<line>'``.
+* **Script** (30003): a URScript subset, one program per ``def ... end``
+  block or per bare line. A new program replaces the running one (as on the
+  real controller). Supported: ``movej``/``movel`` (joint list or ``p[...]``
+  pose; ``a``, ``v``, ``t``, ``r`` by position or keyword), ``stopj``,
+  ``stopl``, ``sleep``, ``sync``, ``textmsg``,
+  ``write_output_{integer,float,boolean}_register``; numbers, ``pi``, lists,
+  poses, strings, ``True``/``False``. This port does not stream the legacy
+  realtime state (``ur_rtde``'s script client only writes).
+
+**Refusals** (documented behaviour): a script the fake does not understand
+(unknown function, expression, statement) is *not run*; the fake sends an
+RTDE text message ``Compile error: ...`` (level error) and records it in
+``handle.script_errors``. A program that fails while running (unreachable
+pose, joint target outside the limits, robot not ready) stops with a
+``Runtime error: ...`` text message; the robot halts, no protective stop.
+Blend radii ``r`` are accepted and not applied (every move ends in a stop).
+``movej`` speed ``v`` (rad/s) and acceleration ``a`` (rad/s^2) are taken as
+fractions of the robot's slowest joint limits; ``movel``'s are the path speed
+and acceleration (m/s, m/s^2); ``t`` > 0 stretches either move to about that
+duration (trapezoid estimate; never faster than the limits allow).
+
+The reported ``actual_TCP_pose`` is what a controller computes: the nominal
+forward kinematics of ``actual_q`` (metres, axis-angle rotation vector); the
+true tool pose (with the world's error effects) is what a tracker sees.
+
+Fault injection (``faults`` dict, string values):
+
+``protective_stop_move=N``
+    protective stop during the N-th motion command the fake executes (1-based);
+``protective_stop_fraction=F``
+    where in that move, as a fraction of its commanded duration (default 0.5);
+``rtde_drop_after_s=S``
+    the first RTDE session that starts streaming is closed abruptly S
+    simulated seconds after its start (later sessions are not dropped);
+``dashboard_refuse=CMD[,CMD...]``
+    those dashboard commands (first word, e.g. ``play``, ``stop``, ``load``)
+    answer ``Failed to execute: <cmd>``; ``connect`` closes every dashboard
+    connection at once, without the greeting.
+
+Dashboard ``pause`` halts the arm (controlled stop) and ``play`` resumes the
+program, re-issuing the interrupted move to the same target; ``stop``,
+``stopj``/``stopl`` and a replacing program halt it likewise. A protective
+stop can be unlocked 5 simulated seconds after it occurred (earlier, the
+dashboard answers as PolyScope does). The controller starts powered on with
+the brakes released (robot mode RUNNING); ``power off``, ``power on``,
+``brake release`` walk POWER_OFF -> IDLE -> RUNNING. One program is stored:
+``/programs/station_idle.urp`` (sleeps, never moves).
+
+Test-only controls start with ``sim_``: ``sim_add_program(path, urscript)``
+stores a program for ``load``/``play``; ``sim_drop_rtde()`` resets every RTDE
+connection now. ``packets_sent``, ``scripts_received``, ``script_errors``,
+``messages``, ``protocol_errors`` and ``rtde_drops`` record what happened.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import select
+import socket
+import struct
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from fakes import rtde_protocol as rp
+from station.errors import ConfigError, DataError, ProtocolError
+from station.models import kinematics
+
+PORTS = {"rtde": 30004, "dashboard": 29999, "script": 30003}
+CONTROLLER_VERSION = (5, 11, 0, 108318)
+POLYSCOPE_VERSION = "URSoftware 5.11.0.108318 (Mar 08 2021)"
+SERIAL_NUMBER = "20215300001"
+MAX_FREQUENCY_HZ = 500.0
+TICK_S = 0.002  # controller cycle (e-Series 500 Hz)
+UNLOCK_DELAY_S = 5.0  # protective stop may be unlocked 5 s after it occurred
+
+# robot_mode
+ROBOT_MODE = {
+    -1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
+    4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE",
+}
+MODE_POWER_OFF, MODE_IDLE, MODE_RUNNING = 3, 5, 7
+# safety_mode
+SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP = 1, 3
+SAFETY_MODE = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
+               6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT"}
+# runtime_state
+RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = 1, 2, 4
+# joint_mode
+JOINT_POWER_OFF, JOINT_IDLE, JOINT_RUNNING = 238, 255, 253
+
+MAX_SCRIPT_BYTES = 1 << 20
+MAX_DASHBOARD_LINE = 4096
+FD_STEP_S = TICK_S  # backward difference for velocities
+MAX_BATCH = 256  # data packages packed per send
+
+
+# ====================================================================== faults
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    """Parsed fault-injection keys (see the module docstring)."""
+
+    protective_stop_move: int | None = None
+    protective_stop_fraction: float = 0.5
+    rtde_drop_after_s: float | None = None
+    dashboard_refuse: frozenset = frozenset()
+
+    KEYS = ("protective_stop_move", "protective_stop_fraction", "rtde_drop_after_s", "dashboard_refuse")
+
+    @classmethod
+    def parse(cls, faults: dict | None) -> "FaultPlan":
+        faults = dict(faults or {})
+        unknown = sorted(set(faults) - set(cls.KEYS))
+        if unknown:
+            raise ConfigError(f"unknown UR fault key(s) {unknown}; known: {list(cls.KEYS)}")
+        kw: dict = {}
+        if "protective_stop_move" in faults:
+            kw["protective_stop_move"] = _parse_number(faults, "protective_stop_move", int, lo=1)
+        if "protective_stop_fraction" in faults:
+            f = _parse_number(faults, "protective_stop_fraction", float, lo=0.0)
+            if not 0.0 < f < 1.0:
+                raise ConfigError(f"fault protective_stop_fraction must be in (0, 1), got {f!r}")
+            kw["protective_stop_fraction"] = f
+        if "rtde_drop_after_s" in faults:
+            kw["rtde_drop_after_s"] = _parse_number(faults, "rtde_drop_after_s", float, lo=0.0)
+        if "dashboard_refuse" in faults:
+            words = {w.strip().lower() for w in str(faults["dashboard_refuse"]).split(",") if w.strip()}
+            if not words:
+                raise ConfigError("fault dashboard_refuse needs at least one command word")
+            kw["dashboard_refuse"] = frozenset(words)
+        return cls(**kw)
+
+
+def _parse_number(faults: dict, key: str, kind, lo: float):
+    raw = faults[key]
+    try:
+        val = kind(str(raw).strip())
+    except ValueError as exc:
+        raise ConfigError(f"fault {key} must be a {kind.__name__}, got {raw!r}") from exc
+    if isinstance(val, float) and not math.isfinite(val):
+        raise ConfigError(f"fault {key} must be finite, got {raw!r}")
+    if val < lo:
+        raise ConfigError(f"fault {key} must be >= {lo}, got {raw!r}")
+    return val
+
+
+# ====================================================================== URScript subset
+
+
+class ScriptError(ProtocolError):
+    """A URScript program the fake cannot compile or run."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    """``p[x, y, z, rx, ry, rz]``: metres and an axis-angle rotation vector."""
+
+    values: tuple
+
+
+@dataclass(frozen=True)
+class Call:
+    """One statement: ``name(args, key=value)`` at ``line`` of its program."""
+
+    name: str
+    args: tuple
+    kwargs: dict
+    line: int
+
+
+@dataclass(frozen=True)
+class ScriptProgram:
+    name: str
+    statements: tuple
+    text: str
+
+
+_TOKEN = re.compile(
+    r"\s*(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
+    r"|(?P<name>[A-Za-z_][A-Za-z_0-9]*)"
+    r"|(?P<str>\"[^\"\\\n]*\")"
+    r"|(?P<op>[\[\]\(\),=+\-*/]))"
+)
+
+_CONSTANTS = {"pi": math.pi, "True": True, "False": False}
+
+
+def _tokenize(text: str, line: int) -> list[tuple[str, str]]:
+    tokens, pos = [], 0
+    text = text.rstrip()
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None or m.end() == pos:
+            raise ScriptError(f"line {line}: cannot read {text[pos:pos + 20]!r}")
+        kind = m.lastgroup
+        tokens.append((kind, m.group(kind)))
+        pos = m.end()
+    return tokens
+
+
+class _Parser:
+    """Recursive descent over one statement: ``name(arg, ..., key=value)``."""
+
+    def __init__(self, tokens, line):
+        self.t, self.i, self.line = tokens, 0, line
+
+    def peek(self):
+        return self.t[self.i] if self.i < len(self.t) else (None, None)
+
+    def take(self, value=None):
+        tok = self.peek()
+        if tok[0] is None or (value is not None and tok[1] != value):
+            want = f"{value!r}" if value else "more input"
+            raise ScriptError(f"line {self.line}: expected {want}, found {tok[1]!r}")
+        self.i += 1
+        return tok
+
+    def statement(self) -> Call:
+        kind, name = self.take()
+        if kind != "name":
+            raise ScriptError(f"line {self.line}: a statement must start with a function name, found {name!r}")
+        if self.peek()[1] != "(":
+            raise ScriptError(f"line {self.line}: unsupported statement {name!r} (only function calls)")
+        self.take("(")
+        args, kwargs = [], {}
+        if self.peek()[1] != ")":
+            while True:
+                if self.peek()[0] == "name" and self.i + 1 < len(self.t) and self.t[self.i + 1][1] == "=":
+                    key = self.take()[1]
+                    self.take("=")
+                    kwargs[key] = self.expr()
+                else:
+                    if kwargs:
+                        raise ScriptError(f"line {self.line}: positional argument after keyword in {name}()")
+                    args.append(self.expr())
+                if self.peek()[1] == ",":
+                    self.take(",")
+                    continue
+                break
+        self.take(")")
+        if self.peek()[0] is not None:
+            raise ScriptError(f"line {self.line}: unexpected {self.peek()[1]!r} after {name}(...)")
+        return Call(name, tuple(args), kwargs, self.line)
+
+    def expr(self):
+        val = self.term()
+        while self.peek()[1] in ("+", "-"):
+            op = self.take()[1]
+            rhs = self.term()
+            val = self._arith(val, rhs, op)
+        return val
+
+    def term(self):
+        val = self.unary()
+        while self.peek()[1] in ("*", "/"):
+            op = self.take()[1]
+            rhs = self.unary()
+            val = self._arith(val, rhs, op)
+        return val
+
+    def _arith(self, a, b, op):
+        if not (_is_number(a) and _is_number(b)):
+            raise ScriptError(f"line {self.line}: arithmetic {op!r} needs numbers")
+        if op == "/" and b == 0:
+            raise ScriptError(f"line {self.line}: division by zero")
+        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b if op == "/" else 0}[op]
+
+    def unary(self):
+        if self.peek()[1] in ("-", "+"):
+            op = self.take()[1]
+            v = self.unary()
+            if not _is_number(v):
+                raise ScriptError(f"line {self.line}: unary {op!r} needs a number")
+            return -v if op == "-" else v
+        return self.atom()
+
+    def atom(self):
+        kind, val = self.take()
+        if kind == "num":
+            return float(val)
+        if kind == "str":
+            return val[1:-1]
+        if val == "[":
+            return self._list()
+        if val == "(":
+            v = self.expr()
+            self.take(")")
+            return v
+        if kind == "name":
+            if val == "p" and self.peek()[1] == "[":
+                self.take("[")
+                items = self._list()
+                if len(items) != 6 or not all(_is_number(x) for x in items):
+                    raise ScriptError(f"line {self.line}: a pose p[...] needs 6 numbers")
+                return Pose(tuple(float(x) for x in items))
+            if val in _CONSTANTS:
+                return _CONSTANTS[val]
+            raise ScriptError(f"line {self.line}: unsupported name {val!r} in an expression")
+        raise ScriptError(f"line {self.line}: unexpected {val!r}")
+
+    def _list(self):
+        items = []
+        if self.peek()[1] == "]":
+            self.take("]")
+            return items
+        while True:
+            items.append(self.expr())
+            if self.peek()[1] == ",":
+                self.take(",")
+                continue
+            self.take("]")
+            return items
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+_DEF = re.compile(r"^def\s+([A-Za-z_][A-Za-z_0-9]*)\s*\(\s*\)\s*:\s*$")
+_BLOCK_OPENERS = re.compile(r"^(def|sec|if|elif|else|while|for|thread)\b")
+
+
+def _strip_comment(line: str) -> str:
+    out, quoted = [], False
+    for ch in line:
+        if ch == '"':
+            quoted = not quoted
+        if ch == "#" and not quoted:
+            break
+        out.append(ch)
+    return "".join(out).strip()
+
+
+#: statement name -> (positional parameter names, required count)
+_SIGNATURES = {
+    "movej": (("q", "a", "v", "t", "r"), 1),
+    "movel": (("pose", "a", "v", "t", "r"), 1),
+    "stopj": (("a",), 1),
+    "stopl": (("a",), 1),
+    "sleep": (("t",), 1),
+    "sync": ((), 0),
+    "textmsg": (("s1", "s2"), 1),
+    "write_output_integer_register": (("address", "value"), 2),
+    "write_output_float_register": (("address", "value"), 2),
+    "write_output_boolean_register": (("address", "value"), 2),
+}
+
+
+def _bind(call: Call) -> dict:
+    """Check a call against its signature; return ``{parameter: value}``."""
+    if call.name not in _SIGNATURES:
+        raise ScriptError(f"line {call.line}: unsupported function {call.name}()")
+    params, required = _SIGNATURES[call.name]
+    if len(call.args) > len(params):
+        raise ScriptError(f"line {call.line}: {call.name}() takes at most {len(params)} arguments")
+    bound = dict(zip(params, call.args))
+    for k, v in call.kwargs.items():
+        if k not in params:
+            raise ScriptError(f"line {call.line}: {call.name}() has no argument {k!r}")
+        if k in bound:
+            raise ScriptError(f"line {call.line}: {call.name}() got {k!r} twice")
+        bound[k] = v
+    missing = [p for p in params[:required] if p not in bound]
+    if missing:
+        raise ScriptError(f"line {call.line}: {call.name}() needs {', '.join(missing)}")
+    for k in ("a", "v", "t", "r"):
+        if k in bound and not (_is_number(bound[k]) and math.isfinite(bound[k]) and bound[k] >= 0):
+            raise ScriptError(f"line {call.line}: {call.name}() argument {k} must be a number >= 0")
+    if call.name in ("movej", "movel"):
+        target = bound["q" if call.name == "movej" else "pose"]
+        if isinstance(target, Pose):
+            pass
+        elif isinstance(target, list) and len(target) == 6 and all(_is_number(x) for x in target):
+            bound["q" if call.name == "movej" else "pose"] = [float(x) for x in target]
+        else:
+            raise ScriptError(f"line {call.line}: {call.name}() target must be 6 joint angles or a pose p[...]")
+        vals = target.values if isinstance(target, Pose) else target
+        if not all(math.isfinite(x) for x in vals):
+            raise ScriptError(f"line {call.line}: {call.name}() target is not finite")
+    if call.name == "sleep" and not (_is_number(bound["t"]) and bound["t"] >= 0 and math.isfinite(bound["t"])):
+        raise ScriptError(f"line {call.line}: sleep() needs a time >= 0")
+    if call.name.startswith("write_output_"):
+        addr = bound["address"]
+        if not (_is_number(addr) and float(addr).is_integer()):
+            raise ScriptError(f"line {call.line}: {call.name}() address must be an integer")
+        kind = call.name.split("_")[2]
+        lo, hi = (64, 127) if kind == "boolean" else (0, 47)
+        if not lo <= int(addr) <= hi:
+            raise ScriptError(f"line {call.line}: {call.name}() address {int(addr)} outside {lo}..{hi}")
+        val = bound["value"]
+        if kind == "integer" and not (_is_number(val) and float(val).is_integer() and -2**31 <= val < 2**31):
+            raise ScriptError(f"line {call.line}: {call.name}() value must be a 32-bit integer")
+        if kind == "float" and not _is_number(val):
+            raise ScriptError(f"line {call.line}: {call.name}() value must be a number")
+        if kind == "boolean" and not isinstance(val, bool):
+            raise ScriptError(f"line {call.line}: {call.name}() value must be True or False")
+    return bound
+
+
+def parse_program(text: str, default_name: str = "script") -> ScriptProgram:
+    """Compile one program (a ``def`` block or a single statement line).
+
+    Raises
+    ------
+    ScriptError
+        Naming the line and what is not supported.
+    """
+    lines = text.split("\n")
+    body = [(i + 1, _strip_comment(s)) for i, s in enumerate(lines)]
+    body = [(n, s) for n, s in body if s]
+    if not body:
+        raise ScriptError("empty program")
+    name = default_name
+    m = _DEF.match(body[0][1])
+    if m:
+        name = m.group(1)
+        if body[-1][1] != "end":
+            raise ScriptError(f"program {name}: missing 'end'")
+        body = body[1:-1]
+    elif body[0][1].startswith(("def ", "sec ")):
+        raise ScriptError(f"line {body[0][0]}: unsupported program header {body[0][1]!r} (only 'def name():')")
+    statements = []
+    for n, s in body:
+        if _BLOCK_OPENERS.match(s) or s == "end":
+            raise ScriptError(f"line {n}: unsupported block statement {s.split()[0]!r} (the fake runs straight-line programs)")
+        call = _Parser(_tokenize(s, n), n).statement()
+        _bind(call)
+        statements.append(call)
+    return ScriptProgram(name, tuple(statements), text)
+
+
+class ScriptSplitter:
+    """Splits the script port's byte stream into whole programs.
+
+    A ``def ...:`` line opens a block that the matching ``end`` closes (nested
+    openers are counted so the compiler can refuse them by line); any other
+    non-empty line outside a block is a program of its own.
+    """
+
+    def __init__(self, max_bytes: int = MAX_SCRIPT_BYTES) -> None:
+        self._buf = b""
+        self._block: list[str] | None = None
+        self._depth = 0
+        self._size = 0
+        self.max_bytes = max_bytes
+
+    def feed(self, data: bytes) -> list[str]:
+        """Add bytes; return the programs completed by them (as text)."""
+        self._buf += data
+        if len(self._buf) > self.max_bytes:
+            self._buf = b""
+            self.reset()
+            raise ScriptError(f"script line longer than {self.max_bytes} bytes")
+        done: list[str] = []
+        while b"\n" in self._buf:
+            raw, self._buf = self._buf.split(b"\n", 1)
+            line = raw.decode("utf-8", "replace").rstrip("\r")
+            stripped = _strip_comment(line)
+            if self._block is None:
+                if not stripped:
+                    continue
+                if stripped.startswith(("def ", "sec ")):
+                    self._block, self._depth, self._size = [line], 1, len(raw)
+                else:
+                    done.append(line)
+                continue
+            self._block.append(line)
+            self._size += len(raw) + 1
+            if self._size > self.max_bytes:
+                self.reset()
+                raise ScriptError(f"script program longer than {self.max_bytes} bytes")
+            if _BLOCK_OPENERS.match(stripped) and not stripped.startswith(("elif", "else")):
+                self._depth += 1
+            elif stripped == "end":
+                self._depth -= 1
+                if self._depth == 0:
+                    done.append("\n".join(self._block))
+                    self._block = None
+        return done
+
+    def pending(self) -> bool:
+        return self._block is not None
+
+    def reset(self) -> None:
+        self._block, self._depth, self._size = None, 0, 0
+
+
+# ====================================================================== state
+
+
+def _rotvec_to_matrix(rv) -> np.ndarray:
+    return Rotation.from_rotvec(np.asarray(rv, dtype=float)).as_matrix()
+
+
+def pose_to_T(pose_m_rotvec) -> np.ndarray:
+    """UR pose ``[x, y, z, rx, ry, rz]`` (m, rotation vector) -> (4, 4) in mm."""
+    p = np.asarray(pose_m_rotvec, dtype=float)
+    T = np.eye(4)
+    T[:3, :3] = _rotvec_to_matrix(p[3:])
+    T[:3, 3] = 1000.0 * p[:3]
+    return T
+
+
+def T_to_pose(T) -> np.ndarray:
+    """(N, 4, 4) mm -> (N, 6) UR poses (m, rotation vector)."""
+    T = np.asarray(T, dtype=float).reshape(-1, 4, 4)
+    out = np.empty((len(T), 6))
+    out[:, :3] = T[:, :3, 3] / 1000.0
+    out[:, 3:] = Rotation.from_matrix(T[:, :3, :3]).as_rotvec() if len(T) else np.zeros((0, 3))
+    return out
+
+
+def _angular_velocity(T_now: np.ndarray, T_prev: np.ndarray, dt: float) -> np.ndarray:
+    dR = np.einsum("nij,nkj->nik", T_now[:, :3, :3], T_prev[:, :3, :3])
+    return Rotation.from_matrix(dR).as_rotvec() / dt
+
+
+def _vector_query(fn, ts: np.ndarray) -> np.ndarray:
+    """Call an arm query vectorised if it is, else one time at a time."""
+    out = np.asarray(fn(ts), dtype=float)
+    if out.shape == (len(ts), 6):
+        return out
+    return np.array([np.asarray(fn(float(t)), dtype=float).reshape(6) for t in ts])
+
+
+def _query_with_history(fn, ts: np.ndarray, steps: int) -> np.ndarray:
+    """``fn`` at ``ts, ts - h, ..., ts - steps h`` stacked ((steps + 1) N, 6).
+
+    Times before the arm's history (a stream that starts within a few ms of
+    the world's creation) repeat the sample itself: zero velocity there.
+    """
+    n = len(ts)
+    try:
+        return _vector_query(fn, np.concatenate([ts - k * FD_STEP_S for k in range(steps + 1)]))
+    except DataError:
+        now = _vector_query(fn, ts)
+        return np.concatenate([now] * (steps + 1)) if n else now
+
+
+class _Controller:
+    """The controller's state shared by the three servers and the interpreter."""
+
+    def __init__(self, world, plan: FaultPlan) -> None:
+        self.world = world
+        self.clock = world.clock
+        self.arm = world.arm
+        self.robot = world.robot
+        self.dh = np.asarray(self.robot.dh_nominal, dtype=float)
+        self.plan = plan
+        self.lock = threading.RLock()
+        self.robot_mode = MODE_RUNNING
+        self.protective_stop_t: float | None = None
+        self.runtime_state = RUNTIME_STOPPED
+        self.loaded_program: str | None = None
+        self.programs: dict[str, str] = {
+            "/programs/station_idle.urp": "def station_idle():\n  sleep(86400)\nend\n",
+        }
+        self.out_int = np.zeros(48, dtype=np.int64)
+        self.out_double = np.zeros(48)
+        self.out_bits = 0  # registers 64..127 as a 64-bit word
+        self.in_int = np.zeros(48, dtype=np.int64)
+        self.in_double = np.zeros(48)
+        self.in_bits = 0
+        self.inputs_in_use: set[str] = set()
+        self.script_line = 0
+        self.motion_count = 0
+        self.scripts_received: list[str] = []
+        self.script_errors: list[str] = []
+        self.messages: list[str] = []
+        self._listeners: list[deque] = []
+        self.rtde_drop_used = False
+        self.packets_sent = 0
+
+    # ---------------------------------------------------------------- messages
+    def subscribe(self) -> deque:
+        q: deque = deque(maxlen=256)
+        with self.lock:
+            self._listeners.append(q)
+        return q
+
+    def unsubscribe(self, q: deque) -> None:
+        with self.lock:
+            if q in self._listeners:
+                self._listeners.remove(q)
+
+    def message(self, text: str, level: int = rp.MESSAGE_ERROR) -> None:
+        with self.lock:
+            self.messages.append(text)
+            for q in self._listeners:
+                q.append((text, level))
+
+    # ---------------------------------------------------------------- modes
+    def safety_mode(self) -> int:
+        with self.lock:
+            if self.protective_stop_t is not None:
+                return SAFETY_PROTECTIVE_STOP
+            return SAFETY_NORMAL
+
+    def enter_protective_stop(self, reason: str) -> None:
+        with self.lock:
+            if self.protective_stop_t is None:
+                self.protective_stop_t = self.clock.now()
+        self.message(f"C153A1: Protective stop: {reason}")
+
+    def ready_to_move(self) -> str | None:
+        """None when a program may move the arm, else why not."""
+        with self.lock:
+            if self.robot_mode != MODE_RUNNING:
+                return f"robot is in mode {ROBOT_MODE.get(self.robot_mode, self.robot_mode)}"
+            if self.safety_mode() != SAFETY_NORMAL:
+                return "robot is in protective stop"
+            return None
+
+    # ---------------------------------------------------------------- state
+    def columns(self, names: list[str], ts: np.ndarray) -> dict:
+        """Values of ``names`` at simulated times ``ts`` (N,): name -> (N,) or (N, w)."""
+        need = set(names)
+        n = len(ts)
+        cols: dict = {}
+        with self.lock:
+            modes = (self.robot_mode, self.safety_mode(), self.runtime_state)
+            out_int, out_double, out_bits = self.out_int.copy(), self.out_double.copy(), self.out_bits
+            in_int, in_double, in_bits = self.in_int.copy(), self.in_double.copy(), self.in_bits
+            line = self.script_line
+        robot_mode, safety_mode, runtime = modes
+        want_actual = need & {"actual_q", "actual_qd", "actual_TCP_pose", "actual_TCP_speed", "target_moment",
+                              "target_current", "actual_current", "actual_tool_accelerometer", "elbow_position",
+                              "elbow_velocity", "actual_current_window", "joint_control_output"}
+        want_target = need & {"target_q", "target_qd", "target_qdd", "target_TCP_pose", "target_TCP_speed"}
+        if want_actual:
+            qa = _query_with_history(self.arm.actual_q_rad, ts, 1)
+            q, q_prev = qa[:n], qa[n:]
+            cols["actual_q"] = q
+            cols["actual_qd"] = (q - q_prev) / FD_STEP_S
+            if need & {"actual_TCP_pose", "actual_TCP_speed", "actual_tool_accelerometer"}:
+                T = kinematics.fk(self.dh, qa)
+                T_now, T_prev = T[:n], T[n:]
+                cols["actual_TCP_pose"] = T_to_pose(T_now)
+                speed = np.empty((n, 6))
+                speed[:, :3] = (T_now[:, :3, 3] - T_prev[:, :3, 3]) / 1000.0 / FD_STEP_S
+                speed[:, 3:] = _angular_velocity(T_now, T_prev, FD_STEP_S)
+                cols["actual_TCP_speed"] = speed
+                cols["actual_tool_accelerometer"] = np.einsum("nji,j->ni", T_now[:, :3, :3], [0.0, 0.0, 9.80665])
+            if need & {"elbow_position", "elbow_velocity"}:
+                F = kinematics.frames(self.dh, qa)
+                e = F[:, 3, :3, 3] / 1000.0
+                cols["elbow_position"] = e[:n]
+                cols["elbow_velocity"] = (e[:n] - e[n:]) / FD_STEP_S
+            if need & {"target_moment", "target_current", "actual_current", "joint_control_output",
+                       "actual_current_window"}:
+                from station.models.robots import gravity_torques
+
+                tau = np.asarray(gravity_torques(self.robot, self.dh, q)).reshape(n, 6)
+                cols["target_moment"] = tau
+                amps = tau / 10.0  # illustrative torque constant x gear ratio, N m / A
+                cols["target_current"] = amps
+                cols["actual_current"] = amps
+                cols["joint_control_output"] = amps
+                cols["actual_current_window"] = np.zeros((n, 6))
+        if want_target:
+            qt = _query_with_history(self.arm.commanded_q_rad, ts, 2)
+            q0, q1, q2 = qt[:n], qt[n:2 * n], qt[2 * n:]
+            cols["target_q"] = q0
+            cols["target_qd"] = (q0 - q1) / FD_STEP_S
+            cols["target_qdd"] = (q0 - 2 * q1 + q2) / FD_STEP_S**2
+            if need & {"target_TCP_pose", "target_TCP_speed"}:
+                T = kinematics.fk(self.dh, qt[: 2 * n])
+                cols["target_TCP_pose"] = T_to_pose(T[:n])
+                sp = np.empty((n, 6))
+                sp[:, :3] = (T[:n, :3, 3] - T[n:, :3, 3]) / 1000.0 / FD_STEP_S
+                sp[:, 3:] = _angular_velocity(T[:n], T[n:], FD_STEP_S)
+                cols["target_TCP_speed"] = sp
+        powered = robot_mode in (4, 5, 6, 7)
+        running = runtime == RUNTIME_PLAYING
+        pstop = safety_mode == SAFETY_PROTECTIVE_STOP
+        joint_mode = JOINT_RUNNING if robot_mode == MODE_RUNNING else (JOINT_IDLE if powered else JOINT_POWER_OFF)
+        scalars = {
+            "timestamp": ts,
+            "robot_mode": robot_mode,
+            "safety_mode": safety_mode,
+            "safety_status": safety_mode,
+            "runtime_state": runtime,
+            "robot_status_bits": (1 if powered else 0) | (2 if running else 0),
+            "safety_status_bits": (4 | (1 << 10)) if pstop else 1,
+            "joint_mode": [joint_mode] * 6,
+            "speed_scaling": 0.0 if pstop else 1.0,
+            "target_speed_fraction": 1.0,
+            "actual_execution_time": 0.3,
+            "actual_momentum": 0.0,
+            "actual_main_voltage": 48.0,
+            "actual_robot_voltage": 48.0 if powered else 0.0,
+            "actual_robot_current": 0.6 if powered else 0.0,
+            "actual_joint_voltage": [48.0 if powered else 0.0] * 6,
+            "joint_temperatures": [30.0] * 6,
+            "actual_TCP_force": [0.0] * 6,
+            "ft_raw_wrench": [0.0] * 6,
+            "payload": 0.0,
+            "payload_cog": [0.0] * 3,
+            "payload_inertia": [0.0] * 6,
+            "script_control_line": line,
+            "output_bit_registers0_to_31": 0,
+            "output_bit_registers32_to_63": 0,
+            "input_bit_registers0_to_31": 0,
+            "input_bit_registers32_to_63": 0,
+            "joint_position_deviation_ratio": [0.0] * 6,
+            "collision_detection_ratio": 0.0,
+            "time_scale_source": 0,
+            "tool_output_voltage": 0,
+            "tool_temperature": 30.0,
+        }
+        for name in need:
+            if name in cols:
+                continue
+            if name in scalars:
+                cols[name] = scalars[name]
+                continue
+            m = re.match(r"^(input|output)_(int|double|bit)_register_(\d+)$", name)
+            if m:
+                io, kind, idx = m.group(1), m.group(2), int(m.group(3))
+                if kind == "int":
+                    cols[name] = int((out_int if io == "output" else in_int)[idx])
+                elif kind == "double":
+                    cols[name] = float((out_double if io == "output" else in_double)[idx])
+                else:
+                    bits = out_bits if io == "output" else in_bits
+                    cols[name] = bool((bits >> (idx - 64)) & 1)
+                continue
+            width = rp.TYPE_WIDTHS[rp.output_type(name)]
+            cols[name] = 0 if width == 1 else [0] * width
+        return cols
+
+
+# ====================================================================== interpreter
+
+
+class _Abort(Exception):
+    """The running program was stopped (new program, stop, protective stop)."""
+
+
+class _Interpreter:
+    """Runs one program at a time on the simulated arm (its own thread)."""
+
+    def __init__(self, ctl: _Controller, stop: threading.Event) -> None:
+        self.ctl = ctl
+        self.stop_all = stop
+        self.cond = threading.Condition(ctl.lock)
+        self.pending: ScriptProgram | None = None
+        self.abort_reason: str | None = None
+        self.paused = False
+        self.pause_epoch = 0  # a pause halts the arm; the move is re-issued on resume
+        self.wake = threading.Event()
+        self.busy = False
+        self.thread = threading.Thread(target=self._run, name="ur-fake-interpreter")
+
+    # ------------------------------------------------------------ commands
+    def submit(self, program: ScriptProgram) -> None:
+        with self.cond:
+            self.pending = program
+            if self.busy:
+                self.abort_reason = "replaced by a new program"
+            self.paused = False
+            self.wake.set()
+            self.cond.notify_all()
+
+    def abort(self, reason: str) -> bool:
+        with self.cond:
+            self.pending = None
+            self.paused = False
+            if not self.busy:
+                return False
+            self.abort_reason = reason
+            self.wake.set()
+            self.cond.notify_all()
+            return True
+
+    def pause(self) -> bool:
+        with self.cond:
+            if not self.busy or self.paused:
+                return False
+            self.paused = True
+            self.pause_epoch += 1
+            self.ctl.runtime_state = RUNTIME_PAUSED
+            self.wake.set()
+            return True
+
+    def resume(self) -> bool:
+        with self.cond:
+            if not self.busy or not self.paused:
+                return False
+            self.paused = False
+            self.ctl.runtime_state = RUNTIME_PLAYING
+            self.cond.notify_all()
+            return True
+
+    # ------------------------------------------------------------ thread
+    def _run(self) -> None:
+        while not self.stop_all.is_set():
+            with self.cond:
+                while self.pending is None and not self.stop_all.is_set():
+                    self.cond.wait(0.1)
+                if self.stop_all.is_set():
+                    return
+                program, self.pending = self.pending, None
+                self.abort_reason = None
+                self.wake.clear()
+                why = self.ctl.ready_to_move()
+                if why is not None:
+                    self.ctl.message(f"Runtime error: cannot start program {program.name}: {why}")
+                    continue
+                self.busy = True
+                self.ctl.runtime_state = RUNTIME_PLAYING
+            try:
+                self._execute(program)
+            except _Abort:
+                pass
+            except ScriptError as exc:
+                self.ctl.message(f"Runtime error in program {program.name}: {exc}")
+                _halt(self.ctl.arm)
+            finally:
+                with self.cond:
+                    self.busy = False
+                    self.paused = False
+                    self.ctl.runtime_state = RUNTIME_STOPPED
+                    self.ctl.script_line = 0
+                    self.cond.notify_all()
+
+    def _check(self) -> None:
+        """Raise _Abort if told to stop; block while paused."""
+        with self.cond:
+            while True:
+                if self.stop_all.is_set():
+                    raise _Abort()
+                if self.abort_reason is not None:
+                    raise _Abort()
+                if self.ctl.safety_mode() != SAFETY_NORMAL:
+                    raise _Abort()
+                if not self.paused:
+                    return
+                self.cond.wait(0.05)
+
+    def _wait_until(self, t_sim: float) -> None:
+        """Sleep on the world's clock until ``t_sim``, interruptible."""
+        clock = self.ctl.clock
+        while True:
+            self._check()
+            if clock.now() >= t_sim:
+                return
+            self.wake.clear()
+            self._check()
+            clock.sleep_until(t_sim, self.wake)
+
+    def _execute(self, program: ScriptProgram) -> None:
+        for call in program.statements:
+            self._check()
+            with self.ctl.lock:
+                self.ctl.script_line = call.line
+            b = _bind(call)
+            name = call.name
+            if name in ("movej", "movel"):
+                self._move(program, call, b)
+            elif name in ("stopj", "stopl"):
+                _halt(self.ctl.arm)
+            elif name == "sleep":
+                self._wait_until(self.ctl.clock.now() + float(b["t"]))
+            elif name == "sync":
+                self._wait_until(self.ctl.clock.now() + TICK_S)
+            elif name == "textmsg":
+                self.ctl.message(f"{b['s1']}{b.get('s2', '')}", rp.MESSAGE_INFO)
+            elif name == "write_output_integer_register":
+                with self.ctl.lock:
+                    self.ctl.out_int[int(b["address"])] = int(b["value"])
+            elif name == "write_output_float_register":
+                with self.ctl.lock:
+                    self.ctl.out_double[int(b["address"])] = float(b["value"])
+            elif name == "write_output_boolean_register":
+                bit = 1 << (int(b["address"]) - 64)
+                with self.ctl.lock:
+                    self.ctl.out_bits = (self.ctl.out_bits | bit) if b["value"] else (self.ctl.out_bits & ~bit)
+
+    def _move(self, program: ScriptProgram, call: Call, b: dict) -> None:
+        ctl, arm, robot = self.ctl, self.ctl.arm, self.ctl.robot
+        why = ctl.ready_to_move()
+        if why is not None:
+            raise ScriptError(f"line {call.line}: {call.name}: {why}")
+        lim = np.asarray(robot.joint_limits_rad, dtype=float)
+        q_now = _vector_query(arm.commanded_q_rad, np.array([ctl.clock.now()]))[0]
+        if call.name == "movej":
+            target = b["q"]
+            if isinstance(target, Pose):
+                res = kinematics.ik(ctl.dh, pose_to_T(target.values), q_now, lim)
+                if not bool(res.success[0]):
+                    raise ScriptError(f"line {call.line}: movej: inverse kinematics failed for p{list(target.values)}")
+                q = res.q_rad[0]
+            else:
+                q = np.asarray(target, dtype=float)
+            bad = np.nonzero((q < lim[:, 0]) | (q > lim[:, 1]))[0]
+            if bad.size:
+                j = int(bad[0])
+                raise ScriptError(f"line {call.line}: movej: joint {j + 1} target {q[j]:.6g} rad outside its limits")
+            v_lim = float(np.min(robot.joint_speed_limits_rad_s))
+            a_lim = float(np.min(robot.joint_accel_limits_rad_s2))
+            speed_frac = min(1.0, float(b.get("v", 1.05)) / v_lim) if b.get("v", 1.05) > 0 else 1.0
+            accel_frac = min(1.0, float(b.get("a", 1.4)) / a_lim) if b.get("a", 1.4) > 0 else 1.0
+            t_req = float(b.get("t", 0.0))
+            if t_req > 0:
+                speed_frac = _speed_frac_for_time(q - q_now, t_req, robot, accel_frac)
+            start = lambda: arm.move_joint(q, speed_frac=speed_frac, accel_frac=accel_frac)  # noqa: E731
+        else:
+            target = b["pose"]
+            if isinstance(target, Pose):
+                T = pose_to_T(target.values)
+            else:
+                T = kinematics.fk(ctl.dh, np.asarray(target, dtype=float))
+            v = float(b.get("v", 0.25)) * 1000.0
+            a = float(b.get("a", 1.2)) * 1000.0
+            v = min(v, float(robot.max_tcp_speed_mm_s)) if v > 0 else float(robot.max_tcp_speed_mm_s)
+            a = a if a > 0 else 1200.0
+            t_req = float(b.get("t", 0.0))
+            if t_req > 0:  # the path speed whose trapezoid over the straight distance lasts t
+                p_now = kinematics.tool_position(ctl.dh, q_now)
+                dist = np.array([float(np.linalg.norm(T[:3, 3] - p_now))])
+                if dist[0] > 0 and _trap_time(dist, np.array([v]), np.array([a])) < t_req:
+                    frac = _speed_frac_for_time_1d(dist, t_req, v, a)
+                    v = max(frac * v, 1e-3)
+            start = lambda: arm.move_linear(T, speed_mm_s=v, accel_mm_s2=a)  # noqa: E731
+        with ctl.lock:
+            ctl.motion_count += 1
+            count = ctl.motion_count
+        plan = ctl.plan
+        while True:
+            epoch = self.pause_epoch
+            try:
+                move = start()
+            except Exception as exc:  # the arm refuses (unreachable, limits): a runtime error
+                raise ScriptError(f"line {call.line}: {call.name}: {exc}") from exc
+            try:
+                if plan.protective_stop_move == count:
+                    t_stop = move.t_start + plan.protective_stop_fraction * (move.t_end - move.t_start)
+                    self._wait_until(t_stop)
+                    if self.pause_epoch == epoch:
+                        arm.protective_stop()
+                        ctl.enter_protective_stop(
+                            f"fault injected during motion {count} (program {program.name} line {call.line})"
+                        )
+                        raise _Abort()
+                self._wait_until(move.t_end)
+            except _Abort:
+                if ctl.safety_mode() == SAFETY_NORMAL:
+                    _halt(arm)
+                raise
+            if self.pause_epoch == epoch:
+                return
+            # paused during the move: the arm was halted; go on to the same target
+
+
+def _trap_time(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> float:
+    """Longest trapezoid/triangle time over joints for displacements d."""
+    d = np.abs(d)
+    tri = d <= v * v / a
+    t = np.where(tri, 2.0 * np.sqrt(d / a), d / v + v / a)
+    return float(np.max(t)) if len(t) else 0.0
+
+
+def _speed_frac_for_time(dq, t_req: float, robot, accel_frac: float) -> float:
+    """Speed fraction whose synchronised joint move lasts ``t_req`` (bisection)."""
+    vmax = np.asarray(robot.joint_speed_limits_rad_s, dtype=float)
+    amax = accel_frac * np.asarray(robot.joint_accel_limits_rad_s2, dtype=float)
+    if _trap_time(dq, vmax, amax) >= t_req:
+        return 1.0
+    lo, hi = 1e-4, 1.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if _trap_time(dq, mid * vmax, amax) > t_req:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _speed_frac_for_time_1d(dist: np.ndarray, t_req: float, v: float, a: float) -> float:
+    lo, hi = 1e-6, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _trap_time(dist, np.array([mid * v]), np.array([a])) > t_req:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _halt(arm) -> None:
+    """Bring the arm to a controlled stop (stopj/stopl, program stop, pause).
+
+    The simulated arm's stop ramp (``protective_stop``) decelerates every axis
+    at its rated acceleration; ``reset`` right after lets the next move queue
+    behind the ramp. The controller's safety mode is its own flag, so this
+    ordinary stop is never reported as a protective stop.
+    """
+    if getattr(arm, "state", "idle") == "protective_stop":
+        return  # a real protective stop is already bringing the arm to rest
+    arm.protective_stop()
+    arm.reset()
+
+
+# ====================================================================== servers
+
+
+class _Session(threading.Thread):
+    def __init__(self, fake: "URFake", sock: socket.socket, kind: str) -> None:
+        super().__init__(name=f"ur-fake-{kind}", daemon=False)
+        self.fake, self.ctl, self.sock, self.kind = fake, fake.ctl, sock, kind
+        self.stop = fake.stop_event
+        sock.setblocking(True)
+        sock.settimeout(2.0)  # bounds sendall to a client that does not read
+
+        self.drop = threading.Event()  # set by sim_drop_rtde: the session thread aborts its link
+
+    def close(self) -> None:
+        """Close the socket; call from the session's own thread (or after it ended)."""
+        try:
+            self.sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self.sock.close()
+
+    def abort(self) -> None:
+        """Drop the link without a goodbye (TCP reset), as a pulled cable or a crash would."""
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        except OSError:
+            pass
+        self.sock.close()
+
+    def readable(self, timeout: float) -> bool:
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+        return bool(r)
+
+
+class _RtdeSession(_Session):
+    """One RTDE client: handshake, recipes, streaming."""
+
+    def run(self) -> None:
+        ctl = self.ctl
+        buf = bytearray()
+        recipe: rp.Recipe | None = None
+        freq = 0.0
+        inputs: dict[int, rp.Recipe] = {}
+        owned: set[str] = set()
+        streaming = False
+        t0 = 0.0
+        next_k = 0
+        drop_at: float | None = None
+        messages = ctl.subscribe()
+        clock = ctl.clock
+        scale = getattr(clock, "time_scale", 1.0)
+        try:
+            while not self.stop.is_set():
+                wait = 0.05
+                if self.drop.is_set():
+                    self.abort()
+                    return
+                if streaming:
+                    now = clock.now()
+                    if drop_at is not None and now >= drop_at:
+                        self.fake.rtde_drops += 1
+                        self.abort()
+                        return
+                    k_due = math.floor((now - t0) * freq + 1e-9)
+                    if k_due >= next_k:
+                        ks = np.arange(next_k, min(k_due, next_k + MAX_BATCH - 1) + 1)
+                        ts = t0 + ks / freq
+                        cols = ctl.columns(recipe.names, ts)
+                        self.sock.sendall(recipe.encode_batch(cols, len(ts)))
+                        next_k = int(ks[-1]) + 1
+                        self.fake.count_sent(len(ks))
+                    while messages:
+                        text, level = messages.popleft()
+                        self.sock.sendall(rp.encode_text_message(text, "Controller", level))
+                    left_sim = t0 + next_k / freq - clock.now()
+                    wait = 0.0 if left_sim <= 0 else (min(0.05, left_sim / scale) if math.isfinite(scale) else 0.005)
+                if not self.readable(wait):
+                    continue
+                data = self.sock.recv(65536)
+                if not data:
+                    return
+                buf += data
+                while True:
+                    n, pkt = rp.decode(buf)
+                    if not n:
+                        break
+                    del buf[:n]
+                    c = pkt.command
+                    if c == rp.CMD_REQUEST_PROTOCOL_VERSION:
+                        version = rp.parse_protocol_version_request(pkt.payload)
+                        self.sock.sendall(rp.encode_protocol_version_reply(version == rp.PROTOCOL_VERSION))
+                    elif c == rp.CMD_GET_URCONTROL_VERSION:
+                        self.sock.sendall(rp.encode_controller_version(*CONTROLLER_VERSION))
+                    elif c == rp.CMD_SETUP_OUTPUTS:
+                        f, names = rp.parse_setup_outputs(pkt.payload)
+                        types = [rp.output_type(nm) for nm in names]
+                        ok = rp.NOT_FOUND not in types and f <= MAX_FREQUENCY_HZ and not streaming
+                        if ok:
+                            recipe, freq = rp.Recipe(1, names, types), f
+                        elif f > MAX_FREQUENCY_HZ:
+                            ctl.message(f"RTDE output frequency {f:g} Hz above {MAX_FREQUENCY_HZ:g} Hz", rp.MESSAGE_ERROR)
+                        self.sock.sendall(rp.encode_setup_reply(c, 1 if ok else 0, types))
+                    elif c == rp.CMD_SETUP_INPUTS:
+                        names = rp.parse_setup_inputs(pkt.payload)
+                        with ctl.lock:
+                            types = [
+                                rp.IN_USE if (nm in ctl.inputs_in_use and nm not in owned) else rp.input_type(nm)
+                                for nm in names
+                            ]
+                            ok = not ({rp.NOT_FOUND, rp.IN_USE} & set(types)) and len(inputs) < 255
+                            rid = len(inputs) + 1 if ok else 0
+                            if ok:
+                                inputs[rid] = rp.Recipe(rid, names, types)
+                                owned.update(names)
+                                ctl.inputs_in_use.update(names)
+                        self.sock.sendall(rp.encode_setup_reply(c, rid, types))
+                    elif c == rp.CMD_START:
+                        ok = recipe is not None or bool(inputs)
+                        self.sock.sendall(rp.encode_start_reply(ok))
+                        if ok and recipe is not None and not streaming:
+                            streaming = True
+                            t0 = math.ceil(clock.now() / TICK_S) * TICK_S
+                            next_k = 0
+                            with ctl.lock:
+                                if ctl.plan.rtde_drop_after_s is not None and not ctl.rtde_drop_used:
+                                    ctl.rtde_drop_used = True
+                                    drop_at = t0 + ctl.plan.rtde_drop_after_s
+                    elif c == rp.CMD_PAUSE:
+                        streaming = False
+                        self.sock.sendall(rp.encode_pause_reply(True))
+                    elif c == rp.CMD_DATA_PACKAGE:
+                        rid = rp.data_recipe_id(pkt.payload)
+                        if rid not in inputs:
+                            raise ProtocolError(f"RTDE data package for unknown input recipe {rid}")
+                        self._apply_inputs(inputs[rid].decode(pkt.payload))
+                    elif c == rp.CMD_TEXT_MESSAGE:
+                        text, source, _level = rp.parse_text_message(pkt.payload)
+                        ctl.message(f"client {source}: {text}", rp.MESSAGE_INFO)
+        except (ProtocolError, DataError) as exc:
+            self.fake.protocol_errors.append(str(exc))
+            try:
+                self.sock.sendall(rp.encode_text_message(f"RTDE protocol error: {exc}", "Controller", rp.MESSAGE_ERROR))
+            except OSError:
+                pass
+        except OSError:
+            pass
+        finally:
+            ctl.unsubscribe(messages)
+            with ctl.lock:
+                ctl.inputs_in_use.difference_update(owned)
+            self.close()
+
+    def _apply_inputs(self, values: dict) -> None:
+        ctl = self.ctl
+        with ctl.lock:
+            for name, v in values.items():
+                m = re.match(r"^input_(int|double|bit)_register_(\d+)$", name)
+                if not m:
+                    continue
+                idx = int(m.group(2))
+                if m.group(1) == "int":
+                    ctl.in_int[idx] = int(v)
+                elif m.group(1) == "double":
+                    ctl.in_double[idx] = float(v)
+                else:
+                    bit = 1 << (idx - 64)
+                    ctl.in_bits = (ctl.in_bits | bit) if v else (ctl.in_bits & ~bit)
+
+
+class _DashboardSession(_Session):
+    GREETING = "Connected: Universal Robots Dashboard Server"
+
+    def run(self) -> None:
+        try:
+            if "connect" in self.ctl.plan.dashboard_refuse:
+                return
+            self.sock.sendall((self.GREETING + "\n").encode())
+            buf = b""
+            while not self.stop.is_set():
+                if not self.readable(0.1):
+                    continue
+                data = self.sock.recv(4096)
+                if not data:
+                    return
+                buf += data
+                while b"\n" in buf:
+                    raw, buf = buf.split(b"\n", 1)
+                    line = raw.decode("utf-8", "replace").strip()
+                    reply, close = self.fake.dashboard_reply(line)
+                    self.sock.sendall((reply + "\n").encode("utf-8"))
+                    if close:
+                        return
+                if len(buf) > MAX_DASHBOARD_LINE:
+                    buf = b""
+                    self.sock.sendall(b"could not understand: line too long\n")
+        except OSError:
+            pass
+        finally:
+            self.close()
+
+
+class _ScriptSession(_Session):
+    def run(self) -> None:
+        splitter = ScriptSplitter()
+        try:
+            while not self.stop.is_set():
+                if not self.readable(0.1):
+                    continue
+                data = self.sock.recv(65536)
+                if not data:
+                    break
+                try:
+                    programs = splitter.feed(data)
+                except ScriptError as exc:
+                    self.fake.refuse_script(str(exc))
+                    continue
+                for text in programs:
+                    self.fake.run_script(text)
+            if splitter.pending():
+                self.fake.refuse_script("program not terminated by 'end' when the connection closed")
+        except OSError:
+            pass
+        finally:
+            self.close()
+
+
+class _Listener(threading.Thread):
+    def __init__(self, fake: "URFake", sock: socket.socket, kind: str, session_cls) -> None:
+        super().__init__(name=f"ur-fake-listen-{kind}", daemon=False)
+        self.fake, self.sock, self.kind, self.session_cls = fake, sock, kind, session_cls
+
+    def run(self) -> None:
+        while not self.fake.stop_event.is_set():
+            r, _, _ = select.select([self.sock], [], [], 0.1)
+            if not r:
+                continue
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            session = self.session_cls(self.fake, conn, self.kind)
+            if not self.fake.add_session(session):
+                conn.close()
+                return
+            session.start()
+        self.sock.close()
+
+
+# ====================================================================== the fake
+
+
+def _bind_all(host: str, ports: dict) -> dict[str, socket.socket]:
+    socks: dict[str, socket.socket] = {}
+    try:
+        for kind, port in ports.items():
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            socks[kind] = s
+            s.bind((host, port))
+            s.listen(8)
+    except OSError:
+        for s in socks.values():
+            s.close()
+        raise
+    return socks
+
+
+def _check_loopback(host: str) -> None:
+    parts = host.split(".")
+    if len(parts) != 4 or not all(p.isdigit() and 0 <= int(p) <= 255 for p in parts) or parts[0] != "127":
+        raise ConfigError(f"UR fake host must be an IPv4 loopback address 127.x.y.z, got {host!r}")
+
+
+class URFake:
+    """Handle of a running UR fake: ``endpoint``, ``close()`` and ``sim_`` controls.
+
+    Attributes
+    ----------
+    endpoint : dict
+        ``{"host": "127.0.0.N", "rtde": 30004, "dashboard": 29999, "script": 30003}``
+    scripts_received : list of str
+        Every program text that reached the script port, in order.
+    script_errors : list of str
+        Refusals (compile errors), in order.
+    messages : list of str
+        Every text message the controller emitted.
+    """
+
+    def __init__(self, world, host: str, plan: FaultPlan, socks: dict[str, socket.socket]) -> None:
+        self.world = world
+        self.plan = plan
+        self.ctl = _Controller(world, plan)
+        self.stop_event = threading.Event()
+        self.endpoint = {"host": host, **{k: socks[k].getsockname()[1] for k in ("rtde", "dashboard", "script")}}
+        self.protocol_errors: list[str] = []
+        self.rtde_drops = 0
+        self._sent_lock = threading.Lock()
+        self._packets_sent = 0
+        self._sessions: list[_Session] = []
+        self._sessions_lock = threading.Lock()
+        self._closed = False
+        self.interpreter = _Interpreter(self.ctl, self.stop_event)
+        self._listeners = [
+            _Listener(self, socks["rtde"], "rtde", _RtdeSession),
+            _Listener(self, socks["dashboard"], "dashboard", _DashboardSession),
+            _Listener(self, socks["script"], "script", _ScriptSession),
+        ]
+        self.interpreter.thread.start()
+        for t in self._listeners:
+            t.start()
+
+    # ------------------------------------------------------------ bookkeeping
+    @property
+    def scripts_received(self) -> list[str]:
+        with self.ctl.lock:
+            return list(self.ctl.scripts_received)
+
+    @property
+    def script_errors(self) -> list[str]:
+        with self.ctl.lock:
+            return list(self.ctl.script_errors)
+
+    @property
+    def messages(self) -> list[str]:
+        with self.ctl.lock:
+            return list(self.ctl.messages)
+
+    @property
+    def packets_sent(self) -> int:
+        """RTDE data packages sent to all sessions so far."""
+        with self._sent_lock:
+            return self._packets_sent
+
+    def count_sent(self, n: int) -> None:
+        with self._sent_lock:
+            self._packets_sent += n
+
+    def add_session(self, s: _Session) -> bool:
+        with self._sessions_lock:
+            if self._closed:
+                return False
+            self._sessions = [x for x in self._sessions if x.is_alive()]
+            self._sessions.append(s)
+            return True
+
+    def sim_drop_rtde(self) -> int:
+        """Close every RTDE connection abruptly now (test-only control); how many."""
+        with self._sessions_lock:
+            victims = [s for s in self._sessions if isinstance(s, _RtdeSession) and s.is_alive()]
+        for s in victims:
+            s.drop.set()
+        self.rtde_drops += len(victims)
+        return len(victims)
+
+    def sim_add_program(self, path: str, urscript: str) -> None:
+        """Store a program that ``load <path>`` then ``play`` runs (test-only control)."""
+        parse_program(urscript, "program")  # refuse at once what could never run
+        if not path.startswith("/"):
+            path = "/programs/" + path
+        with self.ctl.lock:
+            self.ctl.programs[path] = urscript
+
+    # ------------------------------------------------------------ script port
+    def refuse_script(self, why: str) -> None:
+        with self.ctl.lock:
+            self.ctl.script_errors.append(why)
+        self.ctl.message(f"Compile error: {why}")
+
+    def run_script(self, text: str) -> None:
+        with self.ctl.lock:
+            self.ctl.scripts_received.append(text)
+        try:
+            program = parse_program(text)
+        except ScriptError as exc:
+            self.refuse_script(str(exc))
+            return
+        self.interpreter.submit(program)
+
+    # ------------------------------------------------------------ dashboard
+    def dashboard_reply(self, line: str) -> tuple[str, bool]:
+        """Reply to one dashboard command line; (reply, close connection)."""
+        ctl = self.ctl
+        low = line.lower()
+        word = low.split(" ", 1)[0] if low else ""
+        if word in self.plan.dashboard_refuse or low in self.plan.dashboard_refuse:
+            return f"Failed to execute: {line}", False
+        with ctl.lock:
+            name = ctl.loaded_program
+            base = name.rsplit("/", 1)[-1] if name else "<unnamed>"
+            if low == "play":
+                if name is None or ctl.ready_to_move() is not None:
+                    return "Failed to execute: play", False
+                if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():
+                    return "Starting program", False
+                if ctl.runtime_state == RUNTIME_PLAYING:
+                    return "Failed to execute: play", False
+                program = parse_program(ctl.programs[name], base.rsplit(".", 1)[0])
+                self.interpreter.submit(program)
+                ctl.runtime_state = RUNTIME_PLAYING
+                return "Starting program", False
+            if low == "stop":
+                if ctl.runtime_state == RUNTIME_STOPPED and not self.interpreter.busy:
+                    return "Failed to execute: stop", False
+                self.interpreter.abort("stopped from the dashboard")
+                ctl.runtime_state = RUNTIME_STOPPED
+                return "Stopped", False
+            if low == "pause":
+                if ctl.runtime_state != RUNTIME_PLAYING or not self.interpreter.pause():
+                    return "Failed to execute: pause", False
+                _halt(ctl.arm)
+                return "Pausing program", False
+            if word == "load":
+                path = line[5:].strip()
+                full = path if path.startswith("/") else "/programs/" + path
+                if full not in ctl.programs:
+                    return f"File not found: {path}", False
+                if ctl.runtime_state != RUNTIME_STOPPED:
+                    return f"Error while loading program: {path}", False
+                ctl.loaded_program = full
+                return f"Loading program: {path}", False
+            if low == "running":
+                return f"Program running: {'true' if ctl.runtime_state == RUNTIME_PLAYING else 'false'}", False
+            if low == "programstate":
+                state = {RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED"}.get(ctl.runtime_state, "STOPPED")
+                return f"{state} {base}", False
+            if low == "get loaded program":
+                return (f"Loaded program: {name}" if name else "No program loaded"), False
+            if low == "isprogramsaved":
+                return f"true {base}", False
+            if low == "robotmode":
+                return f"Robotmode: {ROBOT_MODE[ctl.robot_mode]}", False
+            if low == "safetymode":
+                return f"Safetymode: {SAFETY_MODE[ctl.safety_mode()]}", False
+            if low == "safetystatus":
+                return f"Safetystatus: {SAFETY_MODE[ctl.safety_mode()]}", False
+            if low == "power on":
+                if ctl.robot_mode == MODE_POWER_OFF:
+                    ctl.robot_mode = MODE_IDLE
+                return "Powering on", False
+            if low == "power off":
+                self.interpreter.abort("robot powered off")
+                ctl.robot_mode = MODE_POWER_OFF
+                return "Powering off", False
+            if low == "brake release":
+                if ctl.robot_mode == MODE_IDLE:
+                    ctl.robot_mode = MODE_RUNNING
+                return "Brake releasing", False
+            if low == "unlock protective stop":
+                if ctl.safety_mode() == SAFETY_PROTECTIVE_STOP:
+                    since = ctl.clock.now() - (ctl.protective_stop_t if ctl.protective_stop_t is not None else -1e9)
+                    if since < UNLOCK_DELAY_S:
+                        return ("Cannot unlock protective stop until 5s after occurrence. "
+                                "Always inspect cause of protective stop before unlocking"), False
+                    if getattr(ctl.arm, "state", "") == "protective_stop":
+                        ctl.arm.reset()
+                    ctl.protective_stop_t = None
+                return "Protective stop releasing", False
+            if low == "close safety popup":
+                return "closing safety popup", False
+            if low == "restart safety":
+                return "Restarting safety", False
+            if low == "is in remote control":
+                return "true", False
+            if low == "polyscopeversion":
+                return POLYSCOPE_VERSION, False
+            if low == "get serial number":
+                return SERIAL_NUMBER, False
+            if low == "get robot model":
+                return ctl.robot.name.upper().rstrip("E") if ctl.robot.name.lower().startswith("ur") else "UR5", False
+            if word == "popup":
+                return "showing popup", False
+            if low == "close popup":
+                return "closing popup", False
+            if word == "addtolog":
+                return "Added log message", False
+            if low == "quit":
+                return "Disconnected", True
+            if low == "shutdown":
+                self.interpreter.abort("shutdown")
+                ctl.robot_mode = MODE_POWER_OFF
+                return "Shutting down", True
+        return f"could not understand: '{line}'", False
+
+    # ------------------------------------------------------------ lifetime
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop the servers and the interpreter; join every thread."""
+        with self._sessions_lock:
+            if self._closed:
+                return
+            self._closed = True
+            sessions = list(self._sessions)
+        self.stop_event.set()
+        self.interpreter.wake.set()
+        with self.interpreter.cond:
+            self.interpreter.cond.notify_all()
+        for t in self._listeners:
+            t.join(timeout_s)
+        for s in sessions:  # each session sees stop_event within 0.1 s and closes its own socket
+            s.join(timeout_s)
+        self.interpreter.thread.join(timeout_s)
+        alive = [t.name for t in (*self._listeners, *sessions, self.interpreter.thread) if t.is_alive()]
+        if alive:
+            raise RuntimeError(f"UR fake threads did not stop: {alive}")
+
+    def __enter__(self) -> "URFake":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def start_fake(world, *, host: str | None = None, port: int | None = None, faults: dict | None = None) -> URFake:
+    """Start the UR fake on a loopback address of its own.
+
+    Parameters
+    ----------
+    world : World
+        Supplies ``clock``, ``robot`` and ``arm``.
+    host : str, optional
+        ``127.x.y.z``; default: the first of 127.0.0.2 .. 127.0.0.254 whose
+        three ports are free.
+    port : int, optional
+        Must be None or 30004: ``ur_rtde`` fixes the ports.
+    faults : dict of str, optional
+        Fault injection keys (module docstring).
+    """
+    if port not in (None, PORTS["rtde"]):
+        raise ConfigError(f"the UR fake serves the fixed ur_rtde ports {PORTS}; port {port!r} cannot be chosen")
+    plan = FaultPlan.parse(faults)
+    if host is not None:
+        _check_loopback(host)
+        try:
+            socks = _bind_all(host, PORTS)
+        except OSError as exc:
+            raise ConfigError(f"cannot bind the UR ports {sorted(PORTS.values())} on {host}: {exc}") from exc
+        return URFake(world, host, plan, socks)
+    for n in range(2, 255):
+        candidate = f"127.0.0.{n}"
+        try:
+            socks = _bind_all(candidate, PORTS)
+        except OSError:
+            continue
+        return URFake(world, candidate, plan, socks)
+    raise ConfigError("no free loopback address 127.0.0.2..254 has the UR ports free")

@@ -1,0 +1,267 @@
+"""The UR driver end to end: ur_rtde clients -> the UR fake -> the simulated arm."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import script_client
+from fakes import rtde_protocol as rp
+from fakes.ur import Pose, parse_program
+from station.errors import ConnectionLost, DeviceFault, DeviceNotReady, SafetyError
+from station.models import kinematics
+from tests.ur.conftest import box_gate, finish_probe, start_probe
+
+
+def _wait(pred, timeout_s=10.0, what="condition"):
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.002)
+
+
+def _drain(buf: bytearray, sock) -> list:
+    """Read once from ``sock``; every whole RTDE packet now in ``buf``."""
+    buf.extend(sock.recv(65536))
+    out = []
+    while True:
+        n, pkt = rp.decode(buf)
+        if not n:
+            return out
+        del buf[:n]
+        out.append(pkt)
+
+
+def _new_scripts(fake, n0):
+    return fake.scripts_received[n0:]
+
+
+def test_move_joint_runs_one_checked_program_and_reports_the_truth(world, fake, make_driver, rng):
+    d = make_driver(fake)
+    arm = world.arm
+    q_goal = world.robot.home_q_rad + rng.uniform(-0.4, 0.4, 6)
+    n0, m0 = len(fake.scripts_received), len(arm.moves)
+    st = d.move_joint(q_goal, speed_frac=0.2, accel_frac=0.5, label="P1")
+    scripts = _new_scripts(fake, n0)
+    assert len(scripts) == 1 and len(arm.moves) == m0 + 1
+    prog = parse_program(scripts[0])
+    movej = [c for c in prog.statements if c.name == "movej"]
+    assert len(movej) == 1
+    np.testing.assert_array_equal(movej[0].args[0], q_goal)  # repr() round trip: exact
+    assert movej[0].kwargs["v"] == pytest.approx(0.2 * np.min(world.robot.joint_speed_limits_rad_s))
+    move = arm.moves[-1]
+    assert move.kind == "joint" and not move.cancelled
+    np.testing.assert_array_equal(move.q_target_rad, q_goal)
+    # the returned state is an RTDE sample: the arm's truth at its timestamp, settled on the goal
+    assert st.t_s >= move.t_end
+    np.testing.assert_allclose(st.q_rad, arm.actual_q_rad(st.t_s), atol=1e-12)
+    assert np.max(np.abs(st.q_rad - q_goal)) <= d.q_tol_rad
+    T = kinematics.fk(world.robot.dh_nominal, st.q_rad)
+    np.testing.assert_allclose(st.tcp_T, T, atol=1e-6)
+    # the driver's sample stream covers the move, in time order, and is the truth too
+    s = d.samples()
+    assert s.dropped == 0 and np.all(np.diff(s.t_s) > 0)
+    assert s.t_s[0] <= move.t_start and s.t_s[-1] >= move.t_end
+    periods = np.round(np.diff(s.t_s) * d.rtde_frequency_hz)
+    np.testing.assert_allclose(np.diff(s.t_s) * d.rtde_frequency_hz, periods, atol=1e-6)  # on the 1/f grid
+    assert s.missed == int(np.sum(periods - 1))  # superseded packages are counted, not hidden
+    np.testing.assert_allclose(s.q_rad, arm.actual_q_rad(s.t_s), atol=1e-12)
+
+
+def test_move_linear_reaches_the_position_on_a_straight_line(world, fake, make_driver, rng):
+    d = make_driver(fake)
+    arm = world.arm
+    start = d.state()
+    offset = rng.uniform(-60, 60, 3)
+    goal = start.tcp_xyz_mm + offset
+    d.samples()
+    st = d.move_linear(goal, speed_mm_s=150.0, accel_mm_s2=800.0)
+    assert arm.moves[-1].kind == "linear"
+    prog = parse_program(fake.scripts_received[-1])
+    movel = [c for c in prog.statements if c.name == "movel"][0]
+    assert isinstance(movel.args[0], Pose)
+    np.testing.assert_allclose(np.array(movel.args[0].values[:3]) * 1000.0, goal, atol=1e-9)
+    assert movel.kwargs["v"] == pytest.approx(0.15)
+    p_end = kinematics.tool_position(world.robot.dh_nominal, arm.commanded_q_rad(st.t_s))
+    np.testing.assert_allclose(p_end, goal, atol=1e-3)
+    np.testing.assert_allclose(st.tcp_xyz_mm, goal, atol=0.5)  # encoder reading after settling
+    np.testing.assert_allclose(st.tcp_rotvec_rad, start.tcp_rotvec_rad, atol=1e-3)  # orientation kept
+    # every sample of the move lies on the segment (commanded path, nominal model)
+    s = d.samples()
+    moving = (s.t_s >= arm.moves[-1].t_start) & (s.t_s <= arm.moves[-1].t_end)
+    p = kinematics.tool_position(world.robot.dh_nominal, arm.commanded_q_rad(s.t_s[moving]))
+    u = offset / np.linalg.norm(offset)
+    rel = p - start.tcp_xyz_mm
+    off_line = np.linalg.norm(rel - np.outer(rel @ u, u), axis=1)
+    assert moving.sum() > 10 and off_line.max() < 0.05
+
+
+def test_unsafe_targets_are_refused_before_anything_is_sent(world, fake, make_driver):
+    gate = box_gate(world, half_mm=250.0)
+    d = make_driver(fake, gate=gate)
+    arm = world.arm
+    home_tcp = d.state().tcp_xyz_mm
+    n0, m0 = len(fake.scripts_received), len(arm.moves)
+    q_out = world.robot.home_q_rad + np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0])  # TCP far outside the box
+    with pytest.raises(SafetyError, match=r"P9: joint target .* outside the workspace box"):
+        d.move_joint(q_out, label="P9")
+    with pytest.raises(SafetyError, match=r"P10: position .* outside the workspace box x"):
+        d.move_linear(home_tcp + [400.0, 0.0, 0.0], label="P10")
+    with pytest.raises(SafetyError, match=r"speed 90 % exceeds the cap 60 %"):
+        d.move_joint(world.robot.home_q_rad + 0.05, speed_frac=0.9)
+    with pytest.raises(SafetyError, match=r"TCP speed 800 mm/s exceeds the cap 500 mm/s"):
+        d.move_linear(home_tcp + [10.0, 0.0, 0.0], speed_mm_s=800.0)
+    with pytest.raises(SafetyError, match=r"joint target .* not finite"):
+        d.move_joint([0, 0, float("nan"), 0, 0, 0])
+    assert _new_scripts(fake, n0) == [] and len(arm.moves) == m0  # nothing reached the controller
+    d.move_linear(home_tcp + [100.0, 0.0, 0.0])  # a safe target still goes through
+    assert len(_new_scripts(fake, n0)) == 1
+
+
+def test_protective_stop_mid_move_ends_in_a_clear_error_and_a_safe_state(world, make_fake, make_driver, rng):
+    fake = make_fake({"protective_stop_move": "1", "protective_stop_fraction": "0.4"})
+    d = make_driver(fake)
+    arm = world.arm
+    q_goal = world.robot.home_q_rad + rng.choice([-1, 1], 6) * rng.uniform(0.3, 0.5, 6)
+    with pytest.raises(DeviceFault, match=r"protective stop during the move .* robot is halted"):
+        d.move_joint(q_goal, speed_frac=0.15, accel_frac=0.5, label="P3")
+    st = d.state()
+    assert st.protective_stopped and st.runtime_state == 1 and not st.program_running
+    assert arm.state == "protective_stop" and arm.moves[-2].cancelled
+    t = world.clock.now()
+    q_rest = arm.commanded_q_rad(t)
+    assert np.max(np.abs(q_rest - q_goal)) > 0.05  # stopped short of the goal
+    assert np.linalg.norm(st.tcp_speed[:3]) <= d.rest_speed_mm_s  # at rest
+    _wait(lambda: world.clock.now() > t + 0.3)
+    np.testing.assert_allclose(arm.commanded_q_rad(world.clock.now()), q_rest, atol=1e-12)
+    assert any("Protective stop" in m for m in fake.messages)
+    n0 = len(fake.scripts_received)
+    with pytest.raises(DeviceNotReady, match="protective stop True"):
+        d.move_joint(q_goal)
+    assert len(fake.scripts_received) == n0
+    st = d.unlock_protective_stop(timeout_s=20.0)  # retried until the controller's 5 s have passed
+    assert not st.protective_stopped and world.clock.now() >= arm.moves[-1].t_end + 5.0 - 1.0
+    st = d.move_joint(q_goal, speed_frac=0.15)  # the next move (fault injected once) arrives
+    assert np.max(np.abs(st.q_rad - q_goal)) <= d.q_tol_rad
+
+
+def test_dropped_rtde_connection_mid_move_is_reported_and_the_arm_halted(world, fake, make_driver, rng):
+    d = make_driver(fake, stale_after_s=1.0)
+    arm = world.arm
+    q_goal = world.robot.home_q_rad + rng.choice([-1, 1], 6) * 0.8
+    result = {}
+
+    def run():
+        try:
+            result["state"] = d.move_joint(q_goal, speed_frac=0.1, accel_frac=0.5)
+        except Exception as exc:  # noqa: BLE001 - judged below
+            result["error"] = exc
+
+    th = threading.Thread(target=run)
+    th.start()
+    _wait(lambda: arm.state == "moving", what="motion start")
+    assert fake.sim_drop_rtde() == 1
+    th.join(15.0)
+    assert not th.is_alive()
+    err = result.get("error")
+    assert isinstance(err, ConnectionLost) and "RTDE" in str(err), result
+    _wait(lambda: fake.scripts_received[-1].startswith("stopj("), what="stopj")  # halted via the script port
+    _wait(lambda: arm.state == "idle", what="halt")
+    q_rest = arm.commanded_q_rad(world.clock.now())
+    assert np.max(np.abs(q_rest - q_goal)) > 0.1
+    with pytest.raises(ConnectionLost):
+        d.state()
+
+
+def test_rtde_drop_fault_key_closes_the_first_stream(world, make_fake):
+    fake = make_fake({"rtde_drop_after_s": "2.0"})
+    probe = start_probe(fake.endpoint["host"], 125.0, 0.8)
+    report = finish_probe(probe)
+    t = np.array(report["rows"])[:, 0]
+    assert report["connected"] is False and fake.rtde_drops == 1
+    assert 1.0 < t.max() - t.min() <= 2.0 + 1e-9  # the stream ended 2 s (simulated) after it started
+
+
+def test_script_the_fake_does_not_understand_is_refused_with_a_text_message(world, fake):
+    host = fake.endpoint["host"]
+    rtde = socket.create_connection((host, 30004), timeout=5)
+    rtde.sendall(rp.encode(rp.CMD_SETUP_OUTPUTS, struct.pack(">d", 10.0) + b"timestamp"))
+    rtde.sendall(rp.encode(rp.CMD_START))
+    buf = bytearray()
+    while not any(p.command == rp.CMD_DATA_PACKAGE for p in _drain(buf, rtde)):
+        pass  # streaming: from now on this client receives the controller's messages
+    sc = script_client.ScriptClient(host, 5, 11)
+    sc.connect()
+    m0 = len(world.arm.moves)
+    try:
+        assert sc.sendScriptCommand("def bad():\n  movej([0,0,0,0,0,0])\n  servoj([0,0,0,0,0,0], t=0.008)\nend\n")
+        text = None
+        deadline = time.monotonic() + 10
+        while text is None and time.monotonic() < deadline:
+            for pkt in _drain(buf, rtde):
+                if pkt.command == rp.CMD_TEXT_MESSAGE:
+                    text = rp.parse_text_message(pkt.payload)
+        assert text is not None and text[0].startswith("Compile error") and "servoj" in text[0]
+        assert text[2] == rp.MESSAGE_ERROR
+        assert fake.script_errors == ["line 3: unsupported function servoj()"]
+        assert len(world.arm.moves) == m0  # not even the valid first line ran
+    finally:
+        sc.disconnect()
+        rtde.close()
+
+
+def test_urls_and_configuration_are_validated(world, gate):
+    from drivers.ur import URDriver, parse_ur_url, ur_pose_to_T, matrix_to_rotvec
+    from station.errors import ConfigError
+
+    assert parse_ur_url("ur://127.0.0.5") == "127.0.0.5"
+    with pytest.raises(ConfigError, match="fixes the ports"):
+        parse_ur_url("ur://127.0.0.5:30004")
+    with pytest.raises(ConfigError, match="ur://HOST"):
+        parse_ur_url("tcp://127.0.0.5")
+    with pytest.raises(ConfigError, match="host"):
+        URDriver("127.0.0.5; rm", world.robot, gate)
+    with pytest.raises(ConfigError, match="rtde_frequency_hz"):
+        URDriver("127.0.0.5", world.robot, gate, rtde_frequency_hz=1000)
+    with pytest.raises(ConfigError, match="register_base"):
+        URDriver("127.0.0.5", world.robot, gate, register_base=47)
+    # pose conversions against scipy, including rotations near pi
+    from scipy.spatial.transform import Rotation
+
+    rv = Rotation.random(200, random_state=4).as_rotvec()
+    rv[:3] = [[np.pi, 0, 0], [0, np.pi - 1e-8, 0], [1e-13, 0, 0]]
+    T = ur_pose_to_T(np.hstack([np.ones((200, 3)), rv]))
+    np.testing.assert_allclose(T[:, :3, :3], Rotation.from_rotvec(rv).as_matrix(), atol=1e-12)
+    back = np.array([matrix_to_rotvec(R) for R in T[:, :3, :3]])
+    np.testing.assert_allclose(Rotation.from_rotvec(back).as_matrix(), T[:, :3, :3], atol=1e-7)
+
+
+def test_script_port_movej_and_movel_with_a_duration(world, fake):
+    arm = world.arm
+    sc = script_client.ScriptClient(fake.endpoint["host"], 5, 11)
+    sc.connect()
+    try:
+        q = world.robot.home_q_rad + np.array([0.2, -0.1, 0.1, 0.0, 0.1, 0.2])
+        m0 = len(arm.moves)
+        assert sc.sendScriptCommand(f"movej({q.tolist()}, a=1.0, v=1.0, t=3.0)\n")
+        _wait(lambda: len(arm.moves) == m0 + 1, what="movej queued")
+        mj = arm.moves[-1]
+        assert mj.kind == "joint" and abs(mj.duration_s - 3.0) < 0.3, mj.duration_s
+        _wait(lambda: world.clock.now() > mj.t_end and arm.state == "idle", what="movej done")
+        p = kinematics.tool_position(world.robot.dh_nominal, q) / 1000.0
+        T = kinematics.fk(world.robot.dh_nominal, q)
+        from drivers.ur import matrix_to_rotvec
+
+        rv = matrix_to_rotvec(T[:3, :3])
+        pose = [float(x) for x in (p[0] + 0.05, p[1], p[2], *rv)]
+        assert sc.sendScriptCommand(f"def lin():\n  movel(p{pose}, a=0.5, v=0.25, t=2.5)\nend\n")
+        _wait(lambda: len(arm.moves) == m0 + 2, what=f"movel queued {fake.messages}")
+        ml = arm.moves[-1]
+        assert ml.kind == "linear" and abs(ml.duration_s - 2.5) < 0.3, ml.duration_s
+    finally:
+        sc.disconnect()
