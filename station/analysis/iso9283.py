@@ -597,24 +597,6 @@ def _rows(rows, n):
     return r
 
 
-def _segments(starts, ends):
-    """Concatenated inclusive ranges: (idx, seg, offsets)."""
-    lens = ends - starts + 1
-    offs = np.zeros(lens.size, dtype=np.int64)
-    np.cumsum(lens[:-1], out=offs[1:])
-    seg = np.repeat(np.arange(lens.size, dtype=np.int64), lens)
-    idx = np.arange(int(lens.sum()), dtype=np.int64)
-    idx += (starts - offs)[seg]
-    return idx, seg, offs
-
-
-def _dist_to(xyz, idx, ref, seg):
-    d2 = np.square(xyz[idx, 0] - ref[seg, 0])
-    d2 += np.square(xyz[idx, 1] - ref[seg, 1])
-    d2 += np.square(xyz[idx, 2] - ref[seg, 2])
-    return np.sqrt(d2, out=d2)
-
-
 def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -764,6 +746,9 @@ def analyze_iso9283(
         unknown = set(bdict) - set(names)
         if unknown:
             raise ConfigError(f"band_mm names unknown poses {sorted(unknown)}")
+        for k, v in bdict.items():
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"band_mm[{k!r}] must be finite and > 0, got {v!r}")
     else:
         bv = float(band_mm)
         if not (math.isfinite(bv) and bv > 0):
@@ -771,7 +756,6 @@ def analyze_iso9283(
         bdict = {n: bv for n in names}
 
     # --- per pose: direction groups, AP, RP
-    primary = np.zeros(st.n, bool)
     pose_info = {}
     for p, name in enumerate(names):  # loop over poses
         k_all = ex.assigned(p)
@@ -788,7 +772,6 @@ def analyze_iso9283(
             kp = groups[gp][0]
         else:
             gp, kp = -1, np.zeros(0, np.int64)
-        primary[kp] = True
         a = st.position_mm[kp]
         rows = st.row[kp]
         acc = rep = None

@@ -6,27 +6,36 @@ holes where the beam broke).  This module finds, in that stream, one attained
 pose per stop and assigns it to its commanded pose and cycle, as the seed does:
 
 1. velocity from successive samples, eq. (3):
-   ``v(i) = |p(i) - p(i-1)| / (t(i) - t(i-1))``;
+   ``v(i) = |p(i) - p(i-1)| / (t(i) - t(i-1))``.  On streams faster than the
+   seed's 100 Hz the difference is taken over the seed's sampling interval
+   (``lag = round(0.01 s * rate)`` samples; ``velocity_step_s=0`` keeps
+   successive samples): at 1 kHz the successive-sample velocity is mostly
+   measurement noise (sqrt(2) sigma / dt ~ 20 mm/s) and hides the last of the
+   settling, which would make the attained pose depend on the tracker's rate;
 2. a moving average of the velocity splits the stream into acceleration
    phases and deceleration phases (seed Figs. 3-4).  We average the velocity
    *vector* with time weights over ``2h+1`` samples, which telescopes to
    ``|p(i+h) - p(i-h)| / (t(i+h) - t(i-h))``: at rest it has no noise floor
-   (the mean of ``|v|`` would), so one threshold separates motion from rest at
-   any sampling rate.  A deceleration phase runs from the speed peak of a move
-   to the start of the next move;
+   (the mean of ``|v|`` would), so one threshold ``v_rest`` separates motion
+   from rest at any sampling rate.  A deceleration phase runs from the speed
+   peak of a move to the start of the next move;
 3. moving horizons ``M_j`` of ``2M+1`` samples centred on ``j = Mp, 2Mp, ...``
    (eq. (4)); in each deceleration phase the horizon with the least sum of
    ``v`` over its ``2M+1`` samples is the least-velocity window, and its centre
    sample ``p(j)`` is the attained pose.  Taking the centre of the quietest
    window, not the single slowest sample, avoids picking the best point and so
-   flattering the repeatability (seed 3.1.3).
+   flattering the repeatability (seed 3.1.3).  The attained pose must be a
+   sample at rest (moving average below ``v_rest``).
 
 Beam breaks are handled explicitly: a step in time longer than
 ``break_factor`` sampling intervals splits the stream; no velocity and no
-window spans it, and the smoothed speed near it is one-sided.  Every gap is
-reported.  A deceleration phase in which no full horizon fits (a break inside
-a short dwell) is retried with smaller horizons down to ``2*1+1`` samples; the
-stop then carries ``window_M < M``.  A phase with no valid horizon at all is
+window spans it, and the moving average near it is one-sided.  Every gap is
+reported.  A deceleration phase with a beam break inside (or whose
+least-velocity horizon is not at rest) is split at the breaks: each piece of
+its rest gets the largest horizon ``M' <= M`` that fits (down to ``2*1+1``
+samples) and the pieces compete on mean velocity per sample (the seed's least
+sum when the sizes are equal); the stop then carries ``fallback`` (and
+``window_M < M`` if smaller).  A phase with no valid horizon at rest is
 reported as a failed phase, never filled in.
 
 Stops are assigned to the nearest commanded pose within ``assign_tol_mm`` and
@@ -162,11 +171,17 @@ class Stops:
     window_M : ndarray of int, (K,)
         Horizon half size actually used (``< M`` only after a fallback).
     fallback : ndarray of bool, (K,)
-        The phase's least-velocity horizon was not at rest (a beam break cut
-        the rest short); the horizon was then taken inside the rest, with the
-        largest ``window_M <= M`` that fits.
+        The phase had a beam break inside, or its least-velocity horizon was
+        not at rest: the horizon was taken inside the rest, piece by piece
+        between breaks, with the largest ``window_M <= M`` that fits, the
+        pieces compared by mean velocity per sample.
     approach_unit : ndarray, (K, 3)
-        Unit vector from the start of the move to the attained pose.
+        Unit vector of the final approach: from the last sample of the move
+        that is at least ``approach_final_mm`` from the attained pose (the
+        start of the move when it is shorter) to the attained pose. A robot
+        passing a pre-point without dwelling (ISO 9283 multi-directional
+        approaches) merges two moves into one deceleration phase; the final
+        stretch still gives the direction it came in along.
     approach_mm : ndarray, (K,)
         Length of that move, mm.
     gap_in_approach : ndarray of bool, (K,)
@@ -584,6 +599,23 @@ def least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid=None, origi
     return center, wsum
 
 
+def final_approach_start(xyz, move_start, center, approach_final_mm):
+    """Index of the last sample in ``[move_start, center)`` at least ``approach_final_mm`` from ``xyz[center]``.
+
+    One small array operation per stop (a loop over stops, not samples);
+    ``move_start`` where no sample is that far (a short move).
+    """
+    out = np.asarray(move_start, dtype=np.int64).copy()
+    for k, (a, c) in enumerate(zip(move_start, center)):
+        if c <= a:
+            continue
+        seg = xyz[a:c] - xyz[c]
+        far = np.flatnonzero(np.einsum("ij,ij->i", seg, seg) >= approach_final_mm**2)
+        if far.size:
+            out[k] = a + far[-1]
+    return out
+
+
 def _runs(mask):
     """Start and end (inclusive) indices of the runs of True in a bool array."""
     if mask.size == 0:
@@ -656,6 +688,7 @@ def extract_attained_poses(
     break_factor: float = 5.0,
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
+    approach_final_mm: float = 50.0,
 ) -> Extraction:
     """Attained poses of a continuous stream, assigned to commanded poses and cycles.
 
@@ -677,8 +710,8 @@ def extract_attained_poses(
     valid : array_like of bool, shape (N,), optional
         False for rows the instrument flagged invalid (dropped, reported).
     window_s : float
-        Horizon length 2M+1 in seconds when ``M`` is not given (default 0.1 s;
-        the seed used 21 samples at 100 Hz).
+        Horizon length when ``M`` is not given: ``M = round(window_s * rate / 2)``
+        (default 0.1 s; the seed's M = 10 at 100 Hz is 0.2 s).
     velocity_step_s : float
         Interval over which the velocity of eq. (3) is taken: the samples
         ``lag = max(1, round(velocity_step_s * rate))`` apart.  The default
@@ -709,6 +742,9 @@ def extract_attained_poses(
         Largest distance from a stop to the commanded pose it is assigned to.
     min_fallback_M : int
         Smallest horizon half size tried when the full horizon does not fit.
+    approach_final_mm : float
+        Length of the final stretch of a move that gives its approach
+        direction (``Stops.approach_unit``; vAP groups stops by it), mm.
 
     Returns
     -------
@@ -728,7 +764,7 @@ def extract_attained_poses(
         velocity_step_s=velocity_step_s, M=M, Mp=Mp,
         smooth_s=smooth_s, v_rest_mm_s=v_rest_mm_s, min_move_mm=min_move_mm, min_dwell_s=min_dwell_s,
         gap_factor=gap_factor, break_factor=break_factor, assign_tol_mm=assign_tol_mm,
-        min_fallback_M=min_fallback_M,
+        min_fallback_M=min_fallback_M, approach_final_mm=approach_final_mm,
     )
 
 
@@ -753,6 +789,7 @@ def extract_validated(
     break_factor: float = 5.0,
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
+    approach_final_mm: float = 50.0,
 ) -> Extraction:
     """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`.
 
@@ -761,7 +798,8 @@ def extract_validated(
     """
     commanded, names, order_idx = _check_commanded(commanded_mm, names, order)
     for pname, val in (("window_s", window_s), ("min_move_mm", min_move_mm), ("gap_factor", gap_factor),
-                       ("break_factor", break_factor), ("assign_tol_mm", assign_tol_mm)):
+                       ("break_factor", break_factor), ("assign_tol_mm", assign_tol_mm),
+                       ("approach_final_mm", approach_final_mm)):
         if not (np.isfinite(val) and val > 0):
             raise DataError(f"{pname} must be finite and > 0, got {val!r}")
     if gap_factor <= 1.0 or break_factor < gap_factor:
@@ -781,7 +819,7 @@ def extract_validated(
         raise DataError(f"velocity_step_s must be finite and >= 0, got {velocity_step_s!r}")
     lag = max(1, int(round(velocity_step_s * rate)))
     if M is None:
-        M = max(1, int(round((window_s * rate - 1) / 2)))
+        M = max(1, int(round(window_s * rate / 2)))  # 0.2 s at 100 Hz: M = 10, as in the seed
     if Mp is None:
         Mp = M
     M, Mp = int(M), int(Mp)
@@ -790,7 +828,7 @@ def extract_validated(
     smooth = 0.5 * window_s if smooth_s is None else float(smooth_s)
     if not (np.isfinite(smooth) and smooth > 0):
         raise DataError(f"smooth_s must be finite and > 0, got {smooth_s!r}")
-    h = max(1, int(round((smooth * rate - 1) / 2)))
+    h = max(1, int(round(smooth * rate / 2)))
     min_dwell = window_s if min_dwell_s is None else float(min_dwell_s)
     break_s = break_factor * med_dt
 
@@ -814,7 +852,7 @@ def extract_validated(
     noise = estimate_noise_mm(xyz, t)
     if v_rest_mm_s is None:
         v_noise = np.sqrt(2.0) * noise / ((2 * h) * med_dt)
-        v_rest = max(2.0, 6.0 * v_noise)
+        v_rest = float(max(2.0, 6.0 * v_noise))
     else:
         v_rest = float(v_rest_mm_s)
         if not (np.isfinite(v_rest) and v_rest > 0):
@@ -866,51 +904,66 @@ def extract_validated(
     center, wsum = least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid)
     if trailing_motion:  # the last move never came to rest: its phase has no stop
         center[-1], wsum[-1] = -1, np.nan
-    # the attained pose is a sample at rest; a window chosen in motion means the
-    # rest (cut short by a beam break) holds no full horizon: retry inside it
+    # Special phases, taken one by one (a loop over phases, few of them):
+    # a beam break inside the phase, a least-velocity horizon not at rest, or
+    # none at all.  The rest part of the phase is split at the breaks; each
+    # piece gets the largest horizon M' <= M that fits with its centre at rest,
+    # and the pieces compete on the mean velocity per sample (for equal M' the
+    # seed's least sum).  Without a break this is the seed's choice restricted
+    # to the rest with the largest horizon that fits.
+    n_brk_phase = np.searchsorted(brk, phase_end, side="left") - np.searchsorted(brk, phase_start, side="left")
     in_motion = center >= 0
     in_motion[in_motion] = u[center[in_motion]] > v_rest
-    center[in_motion], wsum[in_motion] = -1, np.nan
+    special = (center < 0) | in_motion | (n_brk_phase > 0)
+    if trailing_motion:
+        special[-1] = False
     wM = np.where(center >= 0, M, 0)
     fallback = np.zeros(R, bool)
     failed: list[FailedPhase] = []
-    for r in np.flatnonzero(center < 0):  # loop over the few phases without a full horizon at rest
+    for r in np.flatnonzero(special | (center < 0)):  # loop over the few special phases
         pe = int(phase_end[r])
-        ps = int(max(phase_start[r], ends[r] + 1))  # the rest part of the phase
-        got = False
-        inv_local = invalid[(invalid >= ps) & (invalid <= pe)] - ps
-        if not (r == R - 1 and trailing_motion):
-            for m in range(min(M, (pe - ps) // 2), min_fallback_M - 1, -1):
-                mp = max(1, int(round(m * Mp / M)))
-                c1, s1 = least_velocity_windows(v[ps : pe + 1], m, mp, np.array([0]), np.array([pe - ps]),
-                                                inv_local, origin=ps)
-                if c1[0] >= 0 and not u[c1[0] + ps] > v_rest:
-                    center[r], wsum[r], wM[r] = c1[0] + ps, s1[0], m
-                    fallback[r] = got = True
-                    break
-        if not got:
-            rest0 = int(ends[r]) + 1
-            n_brk = int(np.count_nonzero((brk >= ps) & (brk < pe)))
-            ps = int(phase_start[r])
-            if r == R - 1 and trailing_motion:
-                reason = "the stream ends before the tool came to rest"
-            elif n_brk:
-                reason = f"beam break(s) ({n_brk}) leave no window of 3 valid samples in the dwell"
-            else:
-                reason = f"the rest ({max(pe - rest0 + 1, 0)} samples) holds no window of 3 samples"
-            failed.append(
-                FailedPhase(ps, pe, int(to_row(ps)), int(to_row(pe)), float(t[ps]), float(t[pe]), reason)
-            )
+        rs = int(max(phase_start[r], ends[r] + 1))  # the rest part of the phase
+        center[r], wsum[r], wM[r] = -1, np.nan, 0
+        best = None
+        if special[r]:
+            cuts = brk[(brk >= rs) & (brk < pe)]
+            for a, b in zip(np.concatenate([[rs], cuts + 1]), np.concatenate([cuts, [pe]])):  # pieces
+                a, b = int(a), int(b)
+                inv_local = invalid[(invalid >= a) & (invalid <= b)] - a
+                for m in range(min(M, (b - a) // 2), min_fallback_M - 1, -1):
+                    mp = max(1, int(round(m * Mp / M)))
+                    c1, s1 = least_velocity_windows(v[a : b + 1], m, mp, np.array([0]), np.array([b - a]),
+                                                    inv_local, origin=a)
+                    if c1[0] >= 0 and not u[c1[0] + a] > v_rest:
+                        mean = s1[0] / (2 * m + 1)
+                        if best is None or mean < best[0]:
+                            best = (mean, c1[0] + a, s1[0], m)
+                        break
+        if best is not None:
+            _, center[r], wsum[r], wM[r] = best
+            fallback[r] = True
+            continue
+        rest0 = int(ends[r]) + 1
+        ps = int(phase_start[r])
+        n_brk = int(n_brk_phase[r])
+        if r == R - 1 and trailing_motion:
+            reason = "the stream ends before the tool came to rest"
+        elif n_brk:
+            reason = f"beam break(s) ({n_brk}) leave no window of 3 valid samples at rest in the dwell"
+        else:
+            reason = f"the rest ({max(pe - rest0 + 1, 0)} samples) holds no window of 3 samples"
+        failed.append(FailedPhase(ps, pe, int(to_row(ps)), int(to_row(pe)), float(t[ps]), float(t[pe]), reason))
     del v, u
     ok = center >= 0
-    k_phase = np.flatnonzero(ok)
     ci = center[ok]
     pos = xyz[ci].copy()
     mstart = starts[ok]
-    app = pos - xyz[mstart]
-    app_len = np.linalg.norm(app, axis=1)
+    app_len = np.linalg.norm(pos - xyz[mstart], axis=1)
+    app_from = final_approach_start(xyz, mstart, ci, approach_final_mm)
+    app = pos - xyz[app_from]
     with np.errstate(invalid="ignore", divide="ignore"):
-        app_unit = np.where(app_len[:, None] > 0, app / app_len[:, None], 0.0)
+        n_app = np.linalg.norm(app, axis=1)
+        app_unit = np.where(n_app[:, None] > 0, app / n_app[:, None], 0.0)
     gap_app = (np.searchsorted(brk, ci, side="left") - np.searchsorted(brk, mstart, side="left")) > 0
 
     # --- assignment to commanded poses
@@ -963,13 +1016,12 @@ def extract_validated(
     warnings = []
     if K and np.any(stops.fallback):
         warnings.append(
-            f"{int(np.count_nonzero(stops.fallback))} stop(s) took their horizon inside a rest cut short by a "
-            f"beam break ({int(np.count_nonzero(stops.window_M < M))} with fewer than 2M+1 = {2 * M + 1} samples)"
+            f"{int(np.count_nonzero(stops.fallback))} stop(s) took their horizon between beam breaks or inside a "
+            f"short rest ({int(np.count_nonzero(stops.window_M < M))} with fewer than 2M+1 = {2 * M + 1} samples)"
         )
-    del k_phase
     return Extraction(
         params=ExtractionParams(
-            rate_hz=rate, median_dt_s=med_dt, lag=lag, M=M, Mp=Mp, h=h, noise_mm=noise, v_rest_mm_s=v_rest,
+            rate_hz=float(rate), median_dt_s=med_dt, lag=lag, M=M, Mp=Mp, h=h, noise_mm=noise, v_rest_mm_s=v_rest,
             gap_factor=gap_factor, break_s=break_s, min_move_mm=float(min_move_mm),
             min_dwell_s=float(min_dwell), assign_tol_mm=float(assign_tol_mm),
         ),

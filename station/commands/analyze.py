@@ -59,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="pose pair for AD/RD (default P2,P4 when present); repeatable")
     s.add_argument("--linear-paths", action="store_true", help="moves are linear: compute AT/RT")
     s.add_argument("--window-s", type=float, default=0.1, help="moving horizon length 2M+1, s (default 0.1)")
+    s.add_argument("--velocity-step-s", type=float, default=0.01,
+                   help="interval of the velocity of eq. (3), s (default 0.01, the seed's sampling; "
+                        "0 = successive samples at any rate)")
     s.add_argument("--assign-tol-mm", type=float, default=25.0,
                    help="largest distance from a stop to its commanded pose, mm (default 25)")
     s.add_argument("--json", type=Path, default=None, help="write the results JSON here")
@@ -170,6 +173,12 @@ def read_stream_csv(path: Path) -> dict[str, np.ndarray]:
             what = "empty or not a number" if np.isnan(out[c][r]) else f"{out[c][r]!r}"
             hint = "" if c == "t" else " (flag such rows with a status instead)"
             raise DataError(f"{path}: line {r + 2}, column {c!r}: {what}{hint}")
+    dt = np.diff(out["t"])
+    if np.any(dt <= 0):
+        r = int(np.argmax(dt <= 0)) + 1
+        what = "repeats" if dt[r - 1] == 0 else "is before"
+        raise DataError(f"{path}: line {r + 2}, column 't': {out['t'][r]!r} {what} the time on line {r + 1} "
+                        f"({out['t'][r - 1]!r}); the stream must be sorted by time without duplicates")
     out["valid"] = valid
     return out
 
@@ -277,7 +286,8 @@ def _iso9283(args: argparse.Namespace) -> int:
         orientation_rad=ori, commanded_orientation_rad=None if cori is None else np.radians(cori),
         limits=limits, band_mm=args.limit_mm if band == "limit" else None, distance_pairs=pairs,
         linear_paths=bool(args.linear_paths),
-        extraction=dict(window_s=args.window_s, assign_tol_mm=args.assign_tol_mm),
+        extraction=dict(window_s=args.window_s, velocity_step_s=args.velocity_step_s,
+                        assign_tol_mm=args.assign_tol_mm),
     )
     print(format_table(res, args.stream))
     if args.json is not None:

@@ -171,6 +171,7 @@ def vap_program(
     approach_mm: float = 100.0,
     directions: Sequence[str] = ("+x", "+y", "+z"),
     approach_speed_frac: float = 0.2,
+    pre_dwell_s: float = 0.2,
     orientation=None,
     name: str = "ISO_VAP",
     title: str = "ISO 9283 multi-directional pose accuracy",
@@ -178,8 +179,10 @@ def vap_program(
     """Three-direction approaches for vAP (seed 000 sec. 3.3, eq. (7)).
 
     Each cycle visits every pose three times: a linear move to the pre-point
-    ``pose - approach_mm * d`` and a linear move along ``d`` onto the pose,
-    then a fine stop and a dwell; ``d`` runs over ``directions`` (three
+    ``pose - approach_mm * d`` (a fine stop and ``pre_dwell_s`` there, so each
+    approach starts from rest and its direction is defined by the pre-point)
+    and a linear move along ``d`` onto the pose, then a fine stop and a dwell;
+    ``d`` runs over ``directions`` (three
     mutually orthogonal base axes, signs chosen so the pre-points stay in the
     test cube).
 
@@ -196,10 +199,12 @@ def vap_program(
     quat = _orientation(robot, orientation)  # default TOOL_DOWN, as iso_pose_program
     targets = _poses(poses, quat, "vAP")
     dwell = Dwell(check_number(dwell_s, "dwell_s", lo=0.0, hi=60.0))
+    pre_dwell = Dwell(check_number(pre_dwell_s, "pre_dwell_s", lo=0.0, hi=60.0))
     body: list = []
     for t in targets:
         for d in dirs:
-            body += [Move(approach_target(t, d, dist), "linear", speed_frac), Move(t, "linear", speed_frac), dwell]
+            pre = [Move(approach_target(t, d, dist), "linear", speed_frac)] + ([pre_dwell] if pre_dwell_s > 0 else [])
+            body += pre + [Move(t, "linear", speed_frac), dwell]
     body.append(CycleMark())
     first = approach_target(targets[0], dirs[0], dist)
     statements = [Move(first, "joint", min(approach_speed_frac, speed_frac)), Loop(cycles, tuple(body))]

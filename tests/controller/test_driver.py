@@ -62,7 +62,7 @@ def test_the_tracker_sees_the_run(start_controller, make_driver, world, robot, i
     fake = start_controller()
     drv = make_driver(fake)
     sub = {n: iso_poses[n] for n in ("P1", "P2", "P4")}
-    prog = vap_program(robot, sub, cycles=2, approach_mm=80.0)
+    prog = vap_program(robot, sub, cycles=2, approach_mm=80.0, pre_dwell_s=0.0)
     t0 = world.clock.now()
     drv.run(render_rapid(prog), timeout_s=30.0)
     t, _ = _dwell_positions(world, t0)

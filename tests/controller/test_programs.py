@@ -109,7 +109,11 @@ def test_expected_stops_and_vap_directions(robot, iso_poses):
     dist = float(rng.uniform(20, 150))
     dirs = tuple(rng.choice(["+", "-"]) + a for a in ("x", "y", "z"))
     sub = {n: iso_poses[n] for n in ("P1", "P2", "P4")}
-    prog = vap_program(robot, sub, cycles=cycles, approach_mm=dist, directions=dirs)
+    # with the default short dwell at each pre-point, every approach starts from rest there
+    with_pre = expected_stops(vap_program(robot, sub, cycles=cycles, approach_mm=dist, directions=dirs))
+    assert len(with_pre) == 2 * 3 * 3 * cycles
+    assert all(s.target.name.startswith(tuple(sub)) and s.target.name not in sub for s in with_pre[0::2])
+    prog = vap_program(robot, sub, cycles=cycles, approach_mm=dist, directions=dirs, pre_dwell_s=0.0)
     stops = expected_stops(prog)
     assert len(stops) == 3 * 3 * cycles
     assert [s.cycle for s in stops] == [c for c in range(1, cycles + 1) for _ in range(9)]
