@@ -84,6 +84,11 @@ class EmsconTracker(Tracker):
         self._backoff = (float(backoff_initial_s), float(backoff_max_s))
         self._max_packet = int(max_packet_bytes)
         self._rx = bytearray()
+        self._rx_time = 0.0
+        #: quiet time after which received packets are final (host s)
+        self.quiet_s = 0.02
+        #: time an incomplete packet may wait for its rest before it is skipped (host s)
+        self.stall_s = 0.5
         self._write_lock = threading.Lock()
         self._cmd_lock = threading.Lock()
         self._reply_lock = threading.Lock()
@@ -113,7 +118,12 @@ class EmsconTracker(Tracker):
     # ------------------------------------------------------------------ public API
     def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
         if self._reader is not None:
-            raise DeviceError("already connected")
+            if self._reader.is_alive():
+                raise DeviceError("already connected")
+            if self._factory is None:
+                raise ConnectionLost("the driver was closed and a bare transport cannot be reopened")
+            self._stop, self._failure, self._transport = threading.Event(), None, None
+            self._rx.clear()
         deadline = Deadline(timeout_s)
         if self._transport is None:
             self._transport = self._factory()
@@ -343,15 +353,34 @@ class EmsconTracker(Tracker):
                 break
 
     def _pump(self, timeout_s: float) -> None:
-        data = self._transport.read(1 << 16, timeout_s)
-        if not data:
-            return
-        self._rx += data
+        """Read once and dispatch every complete packet.
+
+        While bytes flow, a multi result waits for the start of what follows
+        it (truncation check); when the link is quiet for ``quiet_s`` what is
+        complete is final, and an incomplete packet still pending after
+        ``stall_s`` is skipped as truncated.
+        """
+        data = self._transport.read(1 << 16, min(timeout_s, self.quiet_s) if self._rx else timeout_s)
+        now = time.monotonic()
+        if data:
+            self._rx += data
+            self._rx_time = now
+            self._decode(flowing=True)
+        elif self._rx:
+            self._decode(flowing=False)
+            if self._rx and now - self._rx_time > self.stall_s:
+                consumed, frame = ec.skip_stalled(bytes(self._rx), max_packet_bytes=self._max_packet)
+                del self._rx[:consumed]
+                self._handle(frame)
+                self._decode(flowing=False)
+
+    def _decode(self, flowing: bool) -> None:
         snapshot = bytes(self._rx)
         view = memoryview(snapshot)
         off = 0
         while True:
-            consumed, frame = ec.decode(view[off:], from_server=True, max_packet_bytes=self._max_packet)
+            consumed, frame = ec.decode(view[off:], from_server=True, max_packet_bytes=self._max_packet,
+                                        require_successor=flowing)
             if consumed == 0:
                 break
             off += consumed

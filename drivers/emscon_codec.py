@@ -237,10 +237,13 @@ REPLY_FORMATS: dict[int, str] = {
 }
 
 #: replies to commands outside the subset may carry up to this many data bytes
-MAX_OTHER_REPLY_BYTES = 4096
+#: (GetReflectors, the largest fixed reply of TPI 3.6, carries 84)
+MAX_OTHER_REPLY_BYTES = 256
 _REPLY_MAX = np.full(MAX_COMMAND_ID + 1, 16 + MAX_OTHER_REPLY_BYTES, dtype=np.int64)
 for _cmd in PARAM_FORMATS:
     _REPLY_MAX[_cmd] = 16 + struct.calcsize(REPLY_FORMATS.get(_cmd, "<"))
+#: bytes after a multi result that show whether a packet follows it
+_SUCCESSOR_BYTES = 24
 #: result statuses lie in 0..99 or ES_API_ERROR_OFFSET (10000) + 0..99
 _STATUS_MAX = 10_099
 
@@ -574,6 +577,9 @@ def _next_candidate(buf, start: int, from_server: bool, max_bytes: int, *,
         if stop is not None and pos >= stop:
             break
         size, ptype = HEADER.unpack_from(buf, pos)
+        if ptype in (DataType.COMMAND, DataType.ERROR) and pos + 12 <= n \
+                and _I.unpack_from(buf, pos + 8)[0] not in PARAM_FORMATS:
+            continue  # resynchronise only onto replies to commands of the subset
         end = pos + size
         if end <= n:
             if _decode_body(buf[pos:], size, ptype, from_server)[1] is not None:
@@ -651,7 +657,7 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
     max_packet_bytes : int
         Declared lengths above this are refused from the header alone.
     require_successor : bool
-        Hold a complete multi result back (``(0, None)``) until 8 more bytes
+        Hold a complete multi result back (``(0, None)``) until 24 more bytes
         show what follows it. A multi result followed by an implausible
         header while a valid packet starts inside it was truncated (its
         declared length swallowed the next packet's start) and is rejected.
@@ -683,10 +689,9 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
     if problem is not None:
         return _skip(buf, problem, from_server, max_packet_bytes)
     if ptype == DataType.MULTI_MEAS_RESULT and from_server:
-        if n - size < HEADER_BYTES:
-            if require_successor:
-                return 0, None
-        elif not _plausible_at(buf, size, from_server, max_packet_bytes):
+        if require_successor and n - size < _SUCCESSOR_BYTES:
+            return 0, None  # too little follows to tell junk from a swallowed packet
+        if n - size >= HEADER_BYTES and not _plausible_at(buf, size, from_server, max_packet_bytes):
             inner = _next_candidate(buf, HEADER_BYTES, from_server, max_packet_bytes, stop=size, confirm=True)
             if inner is not None:
                 return inner, Garbage(inner, f"multi result of {size} bytes is truncated: a packet "

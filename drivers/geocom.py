@@ -255,8 +255,11 @@ class GeoComTracker(Tracker):
     # ------------------------------------------------------------------ public API
     def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
         deadline = Deadline(timeout_s)
-        if self._transport is None:
+        if self._transport is None or self._transport.closed:
+            if self._factory is None:
+                raise ConnectionLost("the driver was closed and a bare transport cannot be reopened")
             self._transport = self._factory()
+        self._stop.clear()
         self._lines = LineReader(self._transport, max_line_bytes=self._max_line)
         self._transport.write(b"\n", self.reply_timeout_s)  # clear the instrument's receive buffer
         self.request(Rpc.NULL_PROC, timeout_s=min(self.reply_timeout_s, deadline.time_left()))

@@ -15,14 +15,15 @@ between the first and last sample::
 
 * ``received``: samples accepted and handed to the caller;
 * ``rejected``: samples that arrived but failed validation (non-finite
-  values, off the time grid, time going backwards) - not delivered;
+  values, off the time grid) - not delivered;
 * ``lost``: grid points the device measured that never arrived (dropped
   connection, device buffer overflow, corrupt packets);
 * ``not_measured``: grid points inside a beam break (the device had no
   target, so there was nothing to measure).
 
-Plus ``rejected_frames`` and ``garbage_bytes`` from the framing layer and
-every gap with its cause in ``gaps``.
+Plus ``duplicates`` (a grid point that arrived again or out of order, not
+delivered twice), ``rejected_frames`` and ``garbage_bytes`` from the framing
+layer, and every gap with its cause in ``gaps``.
 
 Errors come from :mod:`station.errors`; drivers add :class:`BeamBroken`.
 """
@@ -34,11 +35,11 @@ import enum
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from station.errors import ConfigError, ConnectionLost, DeviceError
+from station.errors import ConfigError, DeviceError
 
 
 class BeamBroken(DeviceError):
@@ -169,9 +170,6 @@ class TrackerInfo:
     firmware: str
 
 
-EMPTY_BATCH_DTYPE = np.float64
-
-
 def _empty_batch(events=()) -> SampleBatch:
     return SampleBatch(np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int8), tuple(events))
 
@@ -277,7 +275,9 @@ class StreamBuffer:
                 # strictly increasing grid index against everything accepted before
                 prev = -(2**62) if self._last_k is None else self._last_k
                 run = np.maximum.accumulate(np.concatenate([[prev], np.where(keep, k, prev)]))[:-1]
-                keep &= k > run
+                repeat = keep & (k <= run)  # a grid point already delivered (or out of order)
+                self.duplicates += int(repeat.sum())
+                keep &= ~repeat
             else:
                 finite = keep
                 prev = -np.inf if self._last_t is None else self._last_t
@@ -286,7 +286,7 @@ class StreamBuffer:
                 self.rejected += int((~finite).sum()) + int((finite & (t_s < run)).sum())
                 keep = finite & (t_s > run)
             if self.grid:
-                rej = ~keep
+                rej = ~keep & ~repeat
                 self.rejected += int(rej.sum())
                 idx = np.flatnonzero(keep)
                 if idx.size:
@@ -430,7 +430,7 @@ class Tracker(abc.ABC):
         """
         buf = self._stream
         if buf is None:
-            return _empty_batch(self._idle.take_events())
+            return self._idle.take(timeout_s)  # events only
         idle = self._idle.take_events()
         batch = buf.take(timeout_s, max_samples)
         if idle:
@@ -484,5 +484,5 @@ def open_tracker(url: str, **options) -> Tracker:
 
 __all__ = [
     "BeamBroken", "EventKind", "TrackerEvent", "Gap", "SampleBatch", "StationaryMeasurement",
-    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker", "open_tracker", "ConnectionLost",
+    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker", "open_tracker",
 ]

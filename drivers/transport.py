@@ -281,7 +281,7 @@ class LineReader:
             if idx >= 0:
                 line = bytes(self._buf[:idx])
                 del self._buf[: idx + len(self._term)]
-                if self._discarding:
+                if self._discarding or len(line) > self._max:
                     self._discarding = False
                     self.overflow_bytes += len(line)
                     raise ProtocolError(f"line longer than {self._max} bytes on "

@@ -9,7 +9,8 @@ StartMeasurement, StopMeasurement. Anything else is answered with status
 NotImplemented. Stationary measurements send a SingleMeasResultT after the
 measurement time; continuous-time mode streams MultiMeasResultT packets
 (``packet_rate_hz`` per simulated second) of samples on the device time grid
-``t_k = k * lTimeSeparation``; beam breaks are announced with
+``t_k = k * lTimeSeparation`` (the source's device clock when it has one:
+``device_time``); beam breaks are announced with
 SystemStatusChange MeasStatus_NotReady / MeasStatus_Ready and leave a hole
 in the grid. A client that reads too slowly overflows the device buffer
 (``device_buffer_s``): the oldest samples are dropped, as a real device does.
@@ -208,6 +209,9 @@ class EmsconFake:
         self._faults = parse_tracker_faults(faults, allowed=EMSCON_FAULTS, drop_default_s=0.0)
         self._source = world.tracker_source()
         self._clock = self._source.clock
+        # device clock = world clock + offset (a source without ``device_time`` has none)
+        device_time = getattr(self._source, "device_time", None)
+        self._offset = float(np.ravel(device_time(np.zeros(1)))[0]) if device_time else 0.0
         self._rng = np.random.default_rng(self._faults.seed)
         host = check_loopback(host or "127.0.0.1")
         if port is not None and not (isinstance(port, int) and 0 <= port < 65536):
@@ -223,7 +227,7 @@ class EmsconFake:
         self.endpoint = {"host": host, "port": self._listener.getsockname()[1]}
         self.stats = {"connections": 0, "refused": 0, "commands": 0, "data_packets": 0, "samples_sent": 0,
                       "samples_dropped": 0, "garbage_bytes": 0, "truncated_packets": 0,
-                      "truncated_samples": 0, "huge_headers": 0, "drops": 0, "protocol_errors": [],
+                      "truncated_samples": 0, "truncated_spans": [], "huge_headers": 0, "drops": 0, "protocol_errors": [],
                       "anchor_t": None}
         # tracker state survives client sessions, as a real server's does
         self._t_started = self._clock.now()
@@ -278,13 +282,15 @@ class EmsconFake:
     def _not_ready(self) -> bool:
         return self._clock.now() - self._t_started < self._faults.not_ready_s
 
-    def _measure(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _measure(self, t_dev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Measure at device times (the source works in world times)."""
+        t = np.asarray(t_dev, dtype=float) - self._offset
         xyz, valid = self._source.measure(t)
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         valid = np.asarray(valid, dtype=bool).ravel().copy()
         anchor = self.stats["anchor_t"]
         if anchor is not None and self._faults.beam_break:
-            valid &= ~self._faults.beam_blocked(np.asarray(t) - anchor)
+            valid &= ~self._faults.beam_blocked(t - anchor)
         return xyz, valid
 
 
@@ -447,7 +453,7 @@ class _Session:
                 self.single_window = (now, now + fake._stationary_ms / 1000.0)
             else:
                 sep_us = fake._separation_ms * 1000
-                self.next_k = int(math.ceil(now * 1e6 / sep_us))
+                self.next_k = max(0, int(math.ceil((now + fake._offset) * 1e6 / sep_us)))
                 self.streaming = True
             return _reply(command, _RS_OK)
         if command == 52:  # StopMeasurement
@@ -468,7 +474,7 @@ class _Session:
             self.single_window = None
             n = max(1, int(round((t1 - t0) * self.fake._source.rate_hz)))
             t = np.linspace(t0, t1, n)
-            xyz, valid = fake._measure(t)
+            xyz, valid = fake._measure(t + fake._offset)
             if not valid.all():
                 self._send(_error(49, _RS_MEAS_NOT_READY))
                 return
@@ -485,13 +491,13 @@ class _Session:
         if not self.streaming:
             return None
         sep_us = self.fake._separation_ms * 1000
-        return (self.next_k + self._per_packet() - 1) * sep_us / 1e6
+        return (self.next_k + self._per_packet() - 1) * sep_us / 1e6 - self.fake._offset
 
     def _stream(self, flush: bool = False) -> None:
         fake = self.fake
         sep_us = fake._separation_ms * 1000
         per = self._per_packet()
-        k_now = int(math.floor(fake._clock.now() * 1e6 / sep_us))
+        k_now = int(math.floor((fake._clock.now() + fake._offset) * 1e6 / sep_us))
         backlog = k_now - self.next_k + 1
         limit = int(fake._faults.device_buffer_s * 1e6 / sep_us)
         if backlog > limit + per:  # the client did not keep up: the device buffer overflowed
@@ -511,12 +517,13 @@ class _Session:
                     if not self.beam_ok:
                         self._send(_status_change(_SSC_READY))
                         self.beam_ok = True
-                    self._data_packet(_multi(t_us[lo:hi], xyz_unit[lo:hi]), hi - lo)
+                    self._data_packet(_multi(t_us[lo:hi], xyz_unit[lo:hi]), hi - lo,
+                                      (t_us[lo] / 1e6, t_us[hi - 1] / 1e6))
                 elif self.beam_ok:
                     self._send(_status_change(_SSC_NOT_READY))
                     self.beam_ok = False
 
-    def _data_packet(self, packet: bytes, n_samples: int) -> None:
+    def _data_packet(self, packet: bytes, n_samples: int, span_s: tuple) -> None:
         fake, faults, stats = self.fake, self.fake._faults, self.fake.stats
         self.packets += 1
         stats["data_packets"] += 1
@@ -529,6 +536,7 @@ class _Session:
             cut = int(fake._rng.integers(8, len(packet)))
             stats["truncated_packets"] += 1
             stats["truncated_samples"] += int(n_samples)
+            stats["truncated_spans"].append((*span_s, int(n_samples)))
             self._send(packet[:cut])
         else:
             stats["samples_sent"] += int(n_samples)

@@ -4,7 +4,8 @@ Requests ``%R1Q,<rpc>,<trid>:<params>`` CR LF are answered with
 ``%R1P,0,<trid>:<rc>[,values]`` CR LF; the transaction id is echoed. Empty
 lines (the ``\\n`` a client sends on connect) get no reply. Coordinates are in
 metres (E, N, H = tracker x, y, z), angles in radians (Hz clockwise from N,
-V zenith angle), times in milliseconds of the world clock. Measurements come
+V zenith angle), times in milliseconds of the instrument clock (the source's
+``device_time`` when it has one, else the world clock). Measurements come
 from ``world.tracker_source()`` on the world's clock.
 
 RPCs: 0 COM_NullProc; 108 COM_GetDoublePrecision; 110 COM_GetSWVersion;
@@ -73,6 +74,8 @@ class GeoComFake:
         self._faults = parse_tracker_faults(faults, allowed=GEOCOM_FAULTS, drop_default_s=1.0)
         self._source = world.tracker_source()
         self._clock = self._source.clock
+        device_time = getattr(self._source, "device_time", None)
+        self._offset = float(np.ravel(device_time(np.zeros(1)))[0]) if device_time else 0.0
         self._rng = np.random.default_rng(self._faults.seed)
         self._master, self._slave = pty.openpty()
         tty.setraw(self._slave)
@@ -105,6 +108,7 @@ class GeoComFake:
     # ------------------------------------------------------------------ I/O
     def _serve(self) -> None:
         buf = bytearray()
+        discarding = False  # inside an overlong line
         while not self._stop.is_set():
             ready, _, _ = select.select([self._master], [], [], 0.05)
             if not ready:
@@ -123,11 +127,18 @@ class GeoComFake:
                 idx = buf.find(b"\n")
                 if idx < 0:
                     if len(buf) > _MAX_LINE:
-                        self.stats["malformed"] += 1
+                        if not discarding:
+                            self.stats["malformed"] += 1
+                        discarding = True
                         buf.clear()
                     break
                 line = bytes(buf[:idx]).rstrip(b"\r")
                 del buf[: idx + 1]
+                if discarding or len(line) > _MAX_LINE:
+                    if not discarding:
+                        self.stats["malformed"] += 1
+                    discarding = False
+                    continue
                 self._line(line)
 
     def _write(self, data: bytes) -> None:
@@ -195,15 +206,16 @@ class GeoComFake:
         return self._clock.now() - self._t_started < self._faults.not_ready_s
 
     def _measure_now(self) -> tuple[np.ndarray, float, bool]:
-        """The latest sample on the instrument's grid: (xyz_mm, t_s, valid)."""
+        """The latest sample on the instrument's grid: (xyz_mm, device t_s, valid)."""
         rate = self._source.rate_hz
-        t = math.floor(self._clock.now() * rate) / rate
+        t_dev = math.floor((self._clock.now() + self._offset) * rate) / rate
+        t = t_dev - self._offset
         xyz, valid = self._source.measure(np.array([t]))
         ok = bool(np.asarray(valid).ravel()[0])
         anchor = self.stats["anchor_t"]
         if anchor is not None and self._faults.beam_break:
             ok &= not bool(self._faults.beam_blocked(np.array([t - anchor]))[0])
-        return np.asarray(xyz, dtype=float).reshape(3), t, ok
+        return np.asarray(xyz, dtype=float).reshape(3), t_dev, ok
 
     def _rpc(self, rpc: int, params: list[str]) -> tuple[int, tuple]:
         def ints(count: int):
@@ -230,8 +242,9 @@ class GeoComFake:
             p = ints(2)
             if p is None:
                 return _IVPARAM, ()
-            if self.stats["anchor_t"] is None:
-                self.stats["anchor_t"] = self._clock.now()
+            if self.stats["anchor_t"] is None:  # on the instrument's grid, like its samples
+                rate = self._source.rate_hz
+                self.stats["anchor_t"] = math.floor((self._clock.now() + self._offset) * rate) / rate - self._offset
             if self._not_ready():
                 return _BUSY, ()
             program = p[0]

@@ -64,3 +64,18 @@ def world():
 @pytest.fixture
 def make_world():
     return CircleWorld
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_threads():
+    """Every driver and fake thread is joined by the end of its test."""
+    import threading
+    import time
+
+    yield
+    ours = ("emscon-", "geocom-")
+    deadline = time.monotonic() + 2.0
+    for thread in [t for t in threading.enumerate() if t.name.startswith(ours)]:
+        thread.join(timeout=max(0.0, deadline - time.monotonic()))
+    alive = [t.name for t in threading.enumerate() if t.name.startswith(ours)]
+    assert not alive, f"threads left running: {alive}"

@@ -160,7 +160,7 @@ def _same(a, b) -> bool:
 
 @pytest.mark.parametrize("chunk", [None, 1, 7, 1000])
 def test_stream_decodes_in_any_chunking(chunk):
-    frames = _stream_frames(np.random.default_rng(5), 40)
+    frames = _stream_frames(np.random.default_rng(5), 12 if chunk == 1 else 40)
     got, garbage, left = _decode_all(b"".join(f.encode() for f in frames), chunk)
     assert garbage == 0 and left == 0
     assert len(got) == len(frames) and all(_same(a, b) for a, b in zip(frames, got))
@@ -183,18 +183,44 @@ def test_garbage_between_packets_is_skipped_and_counted_exactly():
 
 
 def test_truncated_packet_loses_only_itself():
+    """A packet cut short anywhere is rejected; the packets around it survive.
+
+    The one cut no framing without a checksum can see - the missing tail is
+    exactly as long as the next packet, which then fills it - is not drawn.
+    """
     rng = np.random.default_rng()
-    frames = _stream_frames(rng, 30)
-    frames = [f for f in frames if isinstance(f, ec.MultiMeasResult)]
-    victim = len(frames) // 2
-    data = bytearray()
-    for i, f in enumerate(frames):
-        wire = f.encode()
-        data += wire[: int(rng.integers(8, len(wire)))] if i == victim else wire
-    got, garbage, left = _decode_all(bytes(data))
-    expected = frames[:victim] + frames[victim + 1:]
-    assert left == 0
-    assert len(got) == len(expected) and all(_same(a, b) for a, b in zip(expected, got))
+    for _ in range(40):
+        frames = [f for f in _stream_frames(rng, 30) if isinstance(f, ec.MultiMeasResult)]
+        victim = int(rng.integers(0, len(frames) - 1))
+        data = bytearray()
+        for i, f in enumerate(frames):
+            wire = f.encode()
+            if i == victim:
+                lengths = np.arange(8, len(wire))
+                lengths = lengths[len(wire) - lengths != len(frames[i + 1].encode())]
+                wire = wire[: int(rng.choice(lengths))]
+            data += wire
+        got, garbage, left = _decode_all(bytes(data), chunk=int(rng.integers(1, 400)))
+        expected = frames[:victim] + frames[victim + 1:]
+        assert left == 0
+        assert len(got) == len(expected) and all(_same(a, b) for a, b in zip(expected, got))
+
+
+def test_truncated_last_packet_waits_then_is_skipped_when_the_link_is_quiet():
+    wire = ec.MultiMeasResult.from_arrays([1000, 2000, 3000], np.ones((3, 3))).encode()
+    cut = wire[:100]
+    assert ec.decode(cut) == (0, None)  # could still be arriving
+    consumed, frame = ec.skip_stalled(cut)
+    assert consumed == 100 and isinstance(frame, ec.Garbage) and "100 of 156 bytes" in frame.reason
+
+
+def test_flowing_reader_holds_a_multi_result_until_its_successor_shows():
+    wire = ec.MultiMeasResult.from_arrays([1000], np.ones((1, 3))).encode()
+    assert ec.decode(wire, require_successor=True) == (0, None)
+    nxt = ec.CommandReply(52, 0).encode() + ec.StatusChangePacket(27).encode()
+    consumed, frame = ec.decode(wire + nxt, require_successor=True)
+    assert consumed == len(wire) and isinstance(frame, ec.MultiMeasResult)
+    assert ec.decode(wire, require_successor=False)[0] == len(wire)
 
 
 def test_huge_declared_length_is_refused_from_the_header():

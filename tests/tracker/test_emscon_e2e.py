@@ -1,0 +1,242 @@
+"""The emScon driver against the emScon fake over real loopback sockets, every fault."""
+
+from __future__ import annotations
+
+import socket
+import struct
+
+import numpy as np
+import pytest
+
+from drivers import emscon_codec as ec
+from drivers.emscon import EmsconTracker
+from drivers.tracker import BeamBroken, EventKind, open_tracker
+from drivers.transport import TcpTransport, tcp_factory
+from fakes.emscon import start_fake
+from station.errors import ConfigError, DeviceNotReady, DeviceTimeout
+
+from .conftest import CircleWorld
+from .helpers import check_stream_invariants, collect, finish
+
+RATE = 1000.0
+
+
+@pytest.fixture
+def rig(request):
+    """(world, fake, tracker) with faults from ``@pytest.mark.parametrize('faults', ...)``."""
+    made = []
+
+    def make(faults=None, world=None, connect=True, **driver_options):
+        world = world or CircleWorld()
+        fake = start_fake(world, faults=faults)
+        ep = fake.endpoint
+        tracker = EmsconTracker(tcp_factory(ep["host"], ep["port"]), **driver_options)
+        made.append((world, fake, tracker))
+        if connect:
+            tracker.connect(timeout_s=10)
+        return world, fake, tracker
+
+    yield make
+    for world, fake, tracker in made:
+        tracker.close()
+        fake.close()
+        world.close()
+
+
+def _grid_count(t0: float, t1: float, rate: float = RATE) -> int:
+    """Grid points k/rate in [t0, t1)."""
+    return int(np.ceil(t1 * rate - 1e-9) - np.ceil(t0 * rate - 1e-9))
+
+
+def test_connect_initialises_the_tracker(rig):
+    world, fake, tracker = rig(connect=False)
+    info = tracker.connect(timeout_s=10)
+    assert info.serial_number == "424242" and info.firmware == "3.6.0"
+    raw = TcpTransport(**{"host": fake.endpoint["host"], "port": fake.endpoint["port"]})
+    tracker.close()  # one client at a time: free the fake for a raw look
+    raw.write(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS).encode(), 2.0)
+    reply = _read_frame(raw)
+    raw.close()
+    assert reply.values[1] == ec.TrackerProcessorStatus.INITIALIZED
+
+
+def _read_frame(transport, timeout_s: float = 2.0):
+    buf = b""
+    while True:
+        consumed, frame = ec.decode(buf)
+        if consumed:
+            return frame
+        data = transport.read(4096, timeout_s)
+        assert data, "no reply"
+        buf += data
+
+
+@pytest.mark.parametrize("unit", ["mm", "m", "in", "um"])
+def test_stationary_measurement_in_any_unit_comes_back_in_mm(rig, unit):
+    center = np.array([2100.0, -340.5, 615.25])
+    world, fake, tracker = rig(world=CircleWorld(center_mm=center, radius_mm=0.0))
+    tracker.set_units(unit)
+    m = tracker.measure_stationary(duration_s=0.2)
+    np.testing.assert_allclose(m.xyz_mm, center, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(m.std_mm, 0.0, atol=1e-9)
+
+
+def test_stream_at_1000_hz_is_exact_and_complete(rig):
+    world, fake, tracker = rig()
+    tracker.set_units("m")  # wire in metres, samples still in mm
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 2.0, world.clock))
+    assert record.received > 1500 and record.received == fake.stats["samples_sent"]
+    assert (record.lost, record.rejected, record.not_measured, record.garbage_bytes) == (0, 0, 0, 0)
+    assert events == [] and not np.any(status)
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_rates_must_be_whole_milliseconds(rig):
+    world, fake, tracker = rig()
+    for bad in (300.0, 1500.0, 0.0, float("nan")):
+        with pytest.raises(ConfigError, match="rate_hz"):
+            tracker.start_stream(bad)
+    tracker.start_stream(250.0)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 1.0, world.clock))
+    assert record.rate_hz == 250.0 and record.lost == 0
+    check_stream_invariants(t, xyz, record, world.source.truth, 250.0)
+
+
+def test_beam_break_is_an_event_and_a_counted_gap(rig):
+    start, dur = 0.6, 0.35
+    world, fake, tracker = rig(faults={"beam_break": f"{start}:{dur}"})
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 1.6, world.clock))
+    kinds = [e.kind for e in events]
+    assert kinds == [EventKind.BEAM_BROKEN, EventKind.TARGET_REACQUIRED]
+    anchor = fake.stats["anchor_t"]
+    assert record.not_measured == _grid_count(anchor + start, anchor + start + dur)
+    assert record.lost == 0
+    (gap,) = record.gaps
+    assert gap.cause == "beam_broken" and gap.t_before_s < anchor + start <= gap.t_before_s + 1e-3
+    assert events[0].t_device_s == pytest.approx(gap.t_before_s)
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_stationary_measurement_without_target_raises_beam_broken(rig):
+    world, fake, tracker = rig(faults={"beam_break": "0:100"})
+    with pytest.raises(BeamBroken, match="10004"):
+        tracker.measure_stationary(0.1)
+
+
+def test_dropped_connection_reconnects_with_backoff_and_counts_the_loss(rig):
+    world, fake, tracker = rig(faults={"drop_connection": "0.5:2.0"}, backoff_initial_s=0.02)
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 3.5, world.clock))
+    kinds = [e.kind for e in events]
+    assert kinds == [EventKind.CONNECTION_LOST, EventKind.RECONNECTED]
+    assert fake.stats["refused"] >= 1 and fake.stats["connections"] >= 2
+    assert record.reconnects == 1
+    assert record.lost >= 2.0 * RATE * 0.9  # at least the refused time is missing
+    assert [g.cause for g in record.gaps] == ["lost"]
+    assert t[-1] > fake.stats["anchor_t"] + 2.5  # the stream came back
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_garbage_bytes_are_skipped_and_counted_exactly(rig):
+    world, fake, tracker = rig(faults={"garbage": "2", "seed": str(np.random.default_rng().integers(1 << 30))})
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 2.0, world.clock))
+    assert fake.stats["garbage_bytes"] > 0
+    assert record.garbage_bytes == fake.stats["garbage_bytes"]
+    assert record.lost == 0 and record.received == fake.stats["samples_sent"]
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_truncated_packets_are_rejected_and_their_samples_counted_lost(rig):
+    world, fake, tracker = rig(faults={"truncate": "3", "seed": str(np.random.default_rng().integers(1 << 30))})
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 2.0, world.clock))
+    assert fake.stats["truncated_packets"] >= 4
+    # a truncated packet after the last received sample leaves no gap to see
+    inside = sum(n for t0, t1, n in fake.stats["truncated_spans"] if t1 < t[-1])
+    assert inside >= 300 and record.lost == inside
+    assert record.rejected_frames >= fake.stats["truncated_packets"]
+    assert record.received == fake.stats["samples_sent"]
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_huge_declared_length_in_the_stream_is_skipped(rig):
+    world, fake, tracker = rig(faults={"huge_length": "3"})
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 1.0, world.clock))
+    assert fake.stats["huge_headers"] == 1
+    assert record.garbage_bytes == 8 and record.lost == 0
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+
+
+def test_slow_reply_times_out_and_the_late_reply_is_discarded(rig):
+    world, fake, tracker = rig(faults={"slow_reply_s": "2.0"}, connect=False)  # 0.1 s real each
+    tracker.connect(timeout_s=10)
+    tracker.reply_timeout_s = 0.03
+    with pytest.raises(DeviceTimeout, match=r"SET_UNITS \(5\)"):
+        tracker.set_units("m")
+    tracker.reply_timeout_s = 2.0
+    tracker.set_units("mm")  # the late reply to the first SetUnits must not answer this one
+    m = tracker.measure_stationary(0.1)
+    assert np.all(np.isfinite(m.xyz_mm))
+
+
+def test_tracker_that_never_gets_ready_raises_not_ready(rig):
+    world, fake, tracker = rig(faults={"not_ready": "always"}, connect=False)
+    with pytest.raises(DeviceNotReady, match="SensorNotWarmedUp"):
+        tracker.connect(timeout_s=0.5)
+    assert [e.kind for e in tracker.poll_events()] == [EventKind.NOT_READY]
+
+
+def test_connect_can_be_retried_after_not_ready(rig):
+    world, fake, tracker = rig(faults={"not_ready": "3.0"}, connect=False)
+    with pytest.raises(DeviceNotReady):
+        tracker.connect(timeout_s=0.02)
+    tracker.connect(timeout_s=10)
+    assert tracker.measure_stationary(0.05).xyz_mm.shape == (3,)
+
+
+def test_tracker_warming_up_is_waited_for(rig):
+    world, fake, tracker = rig(faults={"not_ready": "3.0"}, connect=False)
+    tracker.connect(timeout_s=10)
+    assert [e.kind for e in tracker.poll_events()] == [EventKind.NOT_READY, EventKind.READY]
+    assert world.clock.now() - fake._t_started >= 3.0
+
+
+def test_open_tracker_by_url(rig):
+    world, fake, _ = rig(connect=False)
+    _.close()
+    with open_tracker(f"emscon://{fake.endpoint['host']}:{fake.endpoint['port']}") as tracker:
+        assert isinstance(tracker, EmsconTracker)
+        tracker.connect(timeout_s=10)
+        assert tracker.measure_stationary(0.05).xyz_mm.shape == (3,)
+
+
+# -- bad input to the fake (the fake must refuse it clearly and keep serving) -----------
+
+def test_fake_refuses_a_huge_declared_length_and_keeps_serving(world):
+    with start_fake(world) as fake:
+        ep = (fake.endpoint["host"], fake.endpoint["port"])
+        with socket.create_connection(ep, timeout=2.0) as s:
+            s.sendall(struct.pack("<ii", 2**31 - 1, 0))
+            assert s.recv(100) == b""  # closed, nothing allocated
+        assert "length 2147483647" in fake.stats["protocol_errors"][0]
+        raw = TcpTransport(*ep)
+        raw.write(ec.CommandPacket(99).encode(), 2.0)  # unknown command
+        assert _read_frame(raw) == ec.CommandReply(99, 2)
+        raw.write(ec.CommandPacket(ec.Command.SET_UNITS, raw=b"\x01\0\0\0").encode(), 2.0)  # short params
+        assert _read_frame(raw) == ec.CommandReply(5, 3)
+        raw.write(ec.CommandPacket(ec.Command.START_MEASUREMENT).encode(), 2.0)  # not initialised
+        assert _read_frame(raw) == ec.CommandReply(49, 39)
+        raw.close()
+
+
+def test_fake_binds_loopback_only(world):
+    with pytest.raises(ConfigError, match="loopback"):
+        start_fake(world, host="0.0.0.0")
+    with pytest.raises(ConfigError, match="unknown fault 'bogus'"):
+        start_fake(world, faults={"bogus": "1"})
+    with pytest.raises(ConfigError, match="beam_break"):
+        start_fake(world, faults={"beam_break": "soon"})

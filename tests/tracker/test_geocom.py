@@ -1,0 +1,223 @@
+"""GeoCOM: codec, the driver against the pty fake with every fault, and geocompy as judge."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from drivers.geocom import (GeoComReply, GeoComTracker, encode_request, geocom_error, parse_reply,
+                            split_values)
+from drivers.tracker import BeamBroken, EventKind, open_tracker
+from drivers.transport import LineReader, SerialTransport, serial_factory
+from fakes.geocom import start_fake
+from station.errors import (ConfigError, DeviceError, DeviceFault, DeviceNotReady, DeviceTimeout,
+                            ProtocolError)
+
+from .conftest import CircleWorld
+
+
+# -- codec ------------------------------------------------------------------------------
+
+def test_request_bytes():
+    assert encode_request(0, 0) == b"%R1Q,0,0:\r\n"
+    assert encode_request(2008, 7, (1, 1)) == b"%R1Q,2008,7:1,1\r\n"
+    assert encode_request(2082, 12, (5000, 1)) == b"%R1Q,2082,12:5000,1\r\n"
+    assert encode_request(9, 1, (0.25, "AT", True)) == b'%R1Q,9,1:0.25,"AT",1\r\n'
+    with pytest.raises(ConfigError):
+        encode_request(1, 2**15)
+    with pytest.raises(ConfigError):
+        encode_request(1, 1, (float("nan"),))
+
+
+def test_reply_parsing():
+    assert parse_reply(b"%R1P,0,7:0") == GeoComReply(0, 7, 0, ())
+    assert parse_reply(b"%R1P,0,3:0,1.5,-2,100") == GeoComReply(0, 3, 0, ("1.5", "-2", "100"))
+    assert parse_reply(b'%R1P,0,4:0,"TS,16"') == GeoComReply(0, 4, 0, ('"TS,16"',))
+    assert parse_reply(b"%R1P,0,5,1234:1292,0.0") == GeoComReply(0, 5, 1292, ("0.0",))  # with CRC field
+    for bad in (b"", b"%R1Q,0,0:", b"%R1P,0:0", b"R1P,0,1:0", b"%R1P,x,1:0"):
+        with pytest.raises(ProtocolError, match="not a GeoCOM reply"):
+            parse_reply(bad)
+    with pytest.raises(ProtocolError, match="unterminated string"):
+        split_values('"abc,1')
+
+
+@pytest.mark.parametrize("rc, cls, text", [
+    (1292, BeamBroken, "TMC_DIST_ERROR"), (1285, BeamBroken, "TMC_ANGLE_OK"),
+    (1293, DeviceNotReady, "TMC_BUSY"), (13, DeviceNotReady, "SYSBUSY"),
+    (4, DeviceFault, "FATAL"), (6, DeviceTimeout, "TIME_OUT"), (5, DeviceError, "does not implement"),
+    (2, DeviceError, "invalid parameter"), (4242, DeviceError, "rc 4242"),
+])
+def test_return_codes_map_to_clear_errors(rc, cls, text):
+    err = geocom_error(2082, rc)
+    assert isinstance(err, cls) and text in str(err) and "rpc 2082" in str(err)
+
+
+# -- driver against the fake on a pty ------------------------------------------------------
+
+@pytest.fixture
+def rig():
+    made = []
+
+    def make(faults=None, world=None, connect=True, **options):
+        world = world or CircleWorld()
+        fake = start_fake(world, faults=faults)
+        options.setdefault("reply_timeout_s", 0.5)
+        tracker = GeoComTracker(serial_factory(fake.endpoint["device"]), **options)
+        made.append((world, fake, tracker))
+        if connect:
+            tracker.connect(timeout_s=5)
+        return world, fake, tracker
+
+    yield make
+    for world, fake, tracker in made:
+        tracker.close()
+        fake.close()
+
+
+def _stream(tracker, real_s: float, rate_hz: float = 200.0):
+    tracker.start_stream(rate_hz)
+    ts, xs, events = [], [], []
+    end = time.monotonic() + real_s
+    while time.monotonic() < end:
+        b = tracker.read_samples(0.05)
+        ts.append(b.t_s), xs.append(b.xyz_mm), events.extend(b.events)
+    record = tracker.stop_stream()
+    b = tracker.read_samples(0.0)
+    ts.append(b.t_s), xs.append(b.xyz_mm), events.extend(b.events)
+    return np.concatenate(ts), np.concatenate(xs), events, record
+
+
+def test_connect_and_stationary_point_equal_the_truth(rig):
+    world, fake, tracker = rig(connect=False)
+    info = tracker.connect(timeout_s=5)
+    assert (info.name, info.serial_number, info.firmware) == ("AT960", "424242", "7.0.0")
+    m = tracker.measure_stationary()
+    np.testing.assert_allclose(m.xyz_mm, world.source.truth([m.t_device_s])[0], rtol=0, atol=1e-9)
+    assert m.t_device_s * 1000 == pytest.approx(round(m.t_device_s * 1000))
+
+
+def test_polled_stream_is_exact(rig):
+    world, fake, tracker = rig()
+    t, xyz, events, record = _stream(tracker, 0.4)
+    assert record.received >= 20 and record.received == len(t)
+    assert record.lost == record.rejected == record.not_measured == 0
+    assert np.all(np.diff(t) > 0) and events == []
+    np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_beam_break_raises_and_is_an_event_in_a_stream(rig):
+    world, fake, tracker = rig(faults={"beam_break": "0:8"})
+    with pytest.raises(BeamBroken, match="1292"):
+        tracker.measure_stationary()
+    t, xyz, events, record = _stream(tracker, 0.8)  # world runs 20x: the break ends after 0.4 s
+    kinds = [e.kind for e in events]
+    assert kinds[:2] == [EventKind.BEAM_BROKEN, EventKind.TARGET_REACQUIRED]
+    assert record.not_measured >= 1 and record.received >= 1
+    assert t[0] >= fake.stats["anchor_t"] + 8.0 - 1e-3
+    np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_garbage_is_skipped_and_counted(rig):
+    world, fake, tracker = rig(faults={"garbage": "2", "seed": "3"})
+    t, xyz, events, record = _stream(tracker, 0.4)
+    assert record.received >= 20
+    counted = record.garbage_bytes + tracker.link_record().garbage_bytes
+    assert 0 < counted <= fake.stats["garbage_bytes"]
+    np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_truncated_replies_are_rejected_or_lost_never_wrong(rig):
+    world, fake, tracker = rig(faults={"truncate": "3", "seed": "5"}, reply_timeout_s=0.1)
+    t, xyz, events, record = _stream(tracker, 0.6)
+    assert record.received >= 10
+    assert record.rejected + record.lost >= 1
+    assert record.rejected + record.lost <= fake.stats["truncated"]
+    np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_slow_reply_times_out_then_stale_reply_is_skipped(rig):
+    world, fake, tracker = rig(faults={"slow_reply_s": "2.0"}, reply_timeout_s=1.0)  # 0.1 s real
+    with pytest.raises(DeviceTimeout, match="rpc 0 within 0.02"):
+        tracker.request(0, timeout_s=0.02)
+    values = tracker.request(5004)  # the late NullProc reply arrives first and is skipped by trid
+    assert values == ('"AT960"',)
+
+
+def test_not_ready_instrument(rig):
+    world, fake, tracker = rig(faults={"not_ready": "always"})
+    with pytest.raises(DeviceNotReady, match="TMC_BUSY"):
+        tracker.measure_stationary()
+
+
+def test_dead_line_is_revived_with_backoff(rig):
+    world, fake, tracker = rig(faults={"drop_connection": "0.5:4"}, reply_timeout_s=0.05,
+                               backoff_initial_s=0.02)
+    t, xyz, events, record = _stream(tracker, 0.8)
+    kinds = [e.kind for e in events]
+    assert kinds == [EventKind.CONNECTION_LOST, EventKind.RECONNECTED]
+    assert record.lost >= 2 and fake.stats["dropped_requests"] >= 2
+    assert t[-1] > fake.stats["anchor_t"] + 4.5
+    np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_bad_requests_get_clear_errors(rig):
+    world, fake, tracker = rig()
+    with pytest.raises(DeviceError, match="rpc 9999 failed with rc 5 .*does not implement"):
+        tracker.request(9999)
+    with pytest.raises(DeviceError, match="rpc 2082 failed with rc 2 .*invalid parameter"):
+        tracker.request(2082, (1,))
+    with pytest.raises(ConfigError):
+        tracker.set_units("ft")
+
+
+def test_fake_answers_a_malformed_request_with_a_com_error(world):
+    with start_fake(world) as fake:
+        port = SerialTransport(fake.endpoint["device"])
+        lines = LineReader(port)
+        port.write(b"%R1Q,12,3:\r\n", 1.0)
+        assert parse_reply(lines.read_line(1.0)) == GeoComReply(0, 3, 5, ())
+        port.write(b"%R1Q,2008,4;1,1\r\n", 1.0)  # ';' instead of ':'
+        assert parse_reply(lines.read_line(1.0)).com_rc == 3078
+        port.write(b"x" * 5000 + b"\r\n%R1Q,0,5:\r\n", 1.0)  # an overlong line is dropped
+        assert parse_reply(lines.read_line(1.0)) == GeoComReply(0, 5, 0, ())
+        port.close()
+        assert fake.stats["malformed"] == 2
+    with pytest.raises(ConfigError, match="pty"):
+        start_fake(world, host="127.0.0.1")
+
+
+def test_open_tracker_by_url(world):
+    with start_fake(world) as fake, open_tracker(f"geocom://{fake.endpoint['device']}?baud=115200") as tracker:
+        assert isinstance(tracker, GeoComTracker)
+        tracker.connect(timeout_s=5)
+        m = tracker.measure_stationary()
+        np.testing.assert_allclose(m.xyz_mm, world.source.truth([m.t_device_s])[0], rtol=0, atol=1e-9)
+
+
+# -- the third-party client judges the fake --------------------------------------------------
+
+def test_geocompy_measures_through_the_fake(world):
+    from geocompy.communication import open_serial
+    from geocompy.geo import GeoCom
+    from geocompy.geo.gctypes import GeoComCode
+
+    with start_fake(world) as fake:
+        with open_serial(fake.endpoint["device"], timeout=5) as line:
+            tps = GeoCom(line)  # NullProc, precision, name, serial, versions
+            assert tps.precision == 15
+            assert tps.csv.get_instrument_name().params == "AT960"
+            assert tps.tmc.do_measurement().error == GeoComCode.OK
+            resp = tps.tmc.get_coordinate()
+            assert resp.error == GeoComCode.OK
+            coord, t_ms, cont, t_cont_ms = resp.params
+            truth_m = world.source.truth([t_ms / 1000.0])[0] / 1000.0
+            np.testing.assert_allclose([coord.x, coord.y, coord.z], truth_m, rtol=0, atol=1e-12)
+            assert t_cont_ms >= t_ms
+            hz, v, dist = tps.tmc.get_simple_measurement().params
+            assert dist == pytest.approx(np.linalg.norm(truth_m), abs=1e-12)
+            assert float(v) == pytest.approx(np.arctan2(np.hypot(*truth_m[:2]), truth_m[2]), abs=1e-12)
+            assert float(hz) == pytest.approx(np.arctan2(truth_m[0], truth_m[1]) % (2 * np.pi), abs=1e-12)
+            assert tps.request(9999).error == GeoComCode.NOT_IMPL
+        assert fake.stats["malformed"] == 0

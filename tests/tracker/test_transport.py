@@ -1,0 +1,89 @@
+"""Transports: timeouts on the monotonic clock, dropped links, bounded lines, URLs."""
+
+from __future__ import annotations
+
+import os
+import pty
+import socket
+import time
+import tty
+
+import pytest
+
+from drivers.transport import (Deadline, LineReader, SerialTransport, TcpTransport, parse_device_url)
+from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
+
+
+@pytest.fixture
+def server():
+    lsock = socket.socket()
+    lsock.bind(("127.0.0.1", 0))
+    lsock.listen(1)
+    yield lsock
+    lsock.close()
+
+
+def test_tcp_read_times_out_then_sees_the_peer_close(server):
+    t = TcpTransport("127.0.0.1", server.getsockname()[1], connect_timeout_s=2.0)
+    peer, _ = server.accept()
+    start = time.monotonic()
+    assert t.read(100, 0.05) == b""
+    assert 0.04 <= time.monotonic() - start < 1.0
+    peer.sendall(b"abc")
+    assert t.read(100, 1.0) == b"abc"
+    peer.close()
+    with pytest.raises(ConnectionLost, match="closed by the peer"):
+        t.read(100, 1.0)
+    t.close()
+    with pytest.raises(ConnectionLost, match="is closed"):
+        t.write(b"x", 1.0)
+
+
+def test_tcp_connect_refused_is_connection_lost(server):
+    port = server.getsockname()[1]
+    server.close()
+    with pytest.raises(ConnectionLost, match="cannot connect"):
+        TcpTransport("127.0.0.1", port, connect_timeout_s=1.0)
+
+
+def test_line_reader_bounds_lines_and_times_out():
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    port = SerialTransport(os.ttyname(slave))
+    try:
+        lines = LineReader(port, max_line_bytes=64)
+        os.write(master, b"first\r\n" + b"y" * 200 + b"\r\nsecond\n")
+        assert lines.read_line(1.0) == b"first"
+        with pytest.raises(ProtocolError, match="longer than 64 bytes"):
+            lines.read_line(1.0)
+        assert lines.read_line(1.0) == b"second"
+        assert lines.overflow_bytes >= 200
+        with pytest.raises(DeviceTimeout, match="within 0.05 s"):
+            lines.read_line(0.05)
+        os.close(master)
+        with pytest.raises(ConnectionLost):
+            port.read(10, 0.5)
+    finally:
+        port.close()
+        os.close(slave)
+
+
+def test_device_urls():
+    assert parse_device_url("emscon://10.0.0.5") == ("emscon", {"host": "10.0.0.5", "port": 700})
+    assert parse_device_url("emscon://127.0.0.1:7001") == ("emscon", {"host": "127.0.0.1", "port": 7001})
+    assert parse_device_url("geocom:///dev/ttyUSB0?baud=115200") == (
+        "geocom", {"serial": "/dev/ttyUSB0", "baudrate": 115200})
+    assert parse_device_url("geocom+socket://127.0.0.1:4001") == (
+        "geocom", {"serial": "socket://127.0.0.1:4001", "baudrate": 9600})
+    for bad, why in [("ftp://x", "unknown device URL scheme"), ("nothing", "scheme://"),
+                     ("geocom:///dev/x?baud=fast", "baud"), ("tcp://host", "needs a port")]:
+        with pytest.raises(ConfigError, match=why):
+            parse_device_url(bad)
+
+
+def test_deadline():
+    d = Deadline(0.0)
+    assert d.expired() and d.time_left() == 0.0
+    assert Deadline(None).time_left() == float("inf")
+    with pytest.raises(ConfigError):
+        Deadline(-1)
