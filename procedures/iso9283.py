@@ -247,6 +247,17 @@ def step_connect(ctx: StepContext) -> dict:
     return {"tracker": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
 
 
+def _move_targets(rendered) -> list[str]:
+    """Target name of every move in execution order (loop bodies once): what the progress line shows."""
+    from station.programs.model import Loop, Move
+
+    names: list[str] = []
+    for st in rendered.program.statements:
+        body = st.body if isinstance(st, Loop) else (st,)
+        names += [ins.target.name for ins in body if isinstance(ins, Move)]
+    return names
+
+
 def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) -> dict:
     """Run one program; with ``stream`` the tracker streams and samples are committed as they come."""
     plan = _plan(ctx)
@@ -263,9 +274,12 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
 
     last = [time.monotonic()]
 
+    targets = _move_targets(rendered)
+
     def on_status(st) -> None:
         ctx.checkpoint()
-        ctx.progress(f"line {st.line} moves {st.moves_done}")
+        k = int(st.moves_done)
+        ctx.progress(f"-> {targets[k]}" if k < len(targets) else f"line {st.line}")
         if stream and time.monotonic() - last[0] > 0.2:
             drain()
             last[0] = time.monotonic()

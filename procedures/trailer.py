@@ -10,7 +10,8 @@ The steps (each ``step(ctx) -> dict | None``, JSON-able output):
    then the speed;
 3. ``command k`` — hold the command's start curvature for ``settle_s`` (the
    joint angle settles), then stream the profile as curvature set points,
-   one per odometry sample (each set point for the next control tick),
+   one per control tick after the newest sample (the jump to the start
+   value is ramped at ``curvature_rate``),
    recording every sample (device time, speed, curvature, joint angle, the
    set point in force, segment and phase);
 4. ``stop`` — speed 0, curvature 0;
@@ -42,7 +43,7 @@ from station.models.trailer import (
 
 #: speed limit of the plan, m/s
 MAX_PLAN_SPEED_M_S = 3.0
-COLUMNS = ("t", "v", "kappa", "psi", "kappa_cmd", "segment", "phase")
+COLUMNS = ("t", "v", "kappa", "psi", "kappa_set", "segment", "phase")
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,10 @@ class TrailerCalibrationPlan:
         Longest wait for one odometry sample.
     omega_rad_s : float
         Rate of the command signals (seed: 0.1 rad/s).
+    curvature_rate : float
+        Largest change of the curvature set point while settling, 1/(m s):
+        the jumps between commands are ramped (steps of curvature between
+        two samples would bias the dynamic estimate).
     """
 
     commands: tuple = (("H", 0.2), ("C", 0.2), ("L", 0.2))
@@ -79,6 +84,7 @@ class TrailerCalibrationPlan:
     compare: tuple = ("M17", "M21")
     sample_timeout_s: float = 2.0
     omega_rad_s: float = COMMAND_OMEGA_RAD_S
+    curvature_rate: float = 0.1
 
     def __post_init__(self) -> None:
         if not self.commands:
@@ -91,7 +97,7 @@ class TrailerCalibrationPlan:
                 raise ConfigError(f"plan.commands[{i}] kind must be one of {COMMAND_KINDS}, got {kind!r}")
             if not (isinstance(M, (int, float)) and math.isfinite(M) and M != 0):
                 raise ConfigError(f"plan.commands[{i}] amplitude M must be a non-zero number, got {M!r}")
-        for name in ("duration_s", "sample_timeout_s", "omega_rad_s"):
+        for name in ("duration_s", "sample_timeout_s", "omega_rad_s", "curvature_rate"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"plan.{name} must be a number > 0, got {value!r}")
@@ -113,7 +119,10 @@ class TrailerCalibrationContext:
     """What the steps share: the driver, the plan, the record, the results.
 
     ``record(stream, columns)`` is called with every batch of samples as it
-    is taken (default: nothing beyond the in-memory record).
+    is taken (stream ``"odometry"``) and with the curvature set points of
+    each command once it is done (stream ``"setpoints"``: the device time
+    each was applied — from its acknowledgement, or the intended tick when
+    the acknowledgement was lost on the line — and its value).
     """
 
     driver: object
@@ -125,12 +134,36 @@ class TrailerCalibrationContext:
     log: list = field(default_factory=list)
     kappa_cmd: float = 0.0
     max_steady_psi_rad: float = 0.0
+    setpoints: list = field(default_factory=list)  # [SentCommand-like, intended apply time]
+
+    def setpoint_timeline(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_applied, value)`` of every curvature set point, device time, in send order.
+
+        Set points take effect in the order sent, so one whose acknowledgement
+        was lost on the line took effect no later than the next acknowledged
+        one: it gets that one's time (at most one tick late); after the last
+        acknowledgement, its intended tick.
+        """
+        if not self.setpoints:
+            return np.zeros(0), np.zeros(0)
+        acked = np.array([np.inf if getattr(sp, "t_applied_s", None) is None else sp.t_applied_s
+                          for sp, _ in self.setpoints], dtype=float)
+        intended = np.array([ti for _, ti in self.setpoints], dtype=float)
+        val = np.array([sp.value for sp, _ in self.setpoints], dtype=float)
+        next_acked = np.minimum.accumulate(acked[::-1])[::-1]
+        t = np.where(np.isfinite(acked), acked, np.where(np.isfinite(next_acked), next_acked, intended))
+        t = np.maximum.accumulate(t)  # in send order, never earlier than the one before
+        return t, val
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The record so far as arrays (``segment``, ``phase`` as int)."""
+        """The record so far as arrays (``segment``, ``phase`` as int), with
+        ``kappa_cmd``: the set points in force averaged over each sample's
+        interval (the meaning of the odometry's curvature)."""
         out = {c: np.asarray(self.samples[c], dtype=float) for c in COLUMNS}
         out["segment"] = out["segment"].astype(int)
         out["phase"] = out["phase"].astype(int)
+        t_sp, v_sp = self.setpoint_timeline()
+        out["kappa_cmd"] = interval_average(out["t"], t_sp, v_sp, out["kappa_set"])
         return out
 
 
@@ -147,26 +180,40 @@ def check_plan(ctx: TrailerCalibrationContext) -> dict:
         except StationError as exc:
             raise type(exc)(f"plan.commands[{i}] ({kind}, M={M}): {exc}") from exc
     ctx.max_steady_psi_rad = worst
-    return {"commands": [list(c) for c in plan.commands], "max_steady_psi_deg": math.degrees(worst)}
+    # time to ramp into each command and let the joint angle settle (3 L2/v)
+    ends = [0.0] + [float(command_curvature(k, M, np.array([plan.duration_s]), plan.omega_rad_s)[0])
+                    for k, M in plan.commands[:-1]]
+    starts = [float(command_curvature(k, M, np.array([0.0]), plan.omega_rad_s)[0]) for k, M in plan.commands]
+    need = [abs(b - a) / plan.curvature_rate + 3 * plan.nominal_L2_m / plan.v_m_s for a, b in zip(ends, starts)]
+    return {"commands": [list(c) for c in plan.commands], "max_steady_psi_deg": math.degrees(worst),
+            "settle_needed_s": need, "settle_s": plan.settle_s,
+            "settled": bool(all(n <= plan.settle_s for n in need))}
 
 
 def start_driving(ctx: TrailerCalibrationContext) -> dict:
-    """Step 2: start curvature of the first command, then the speed."""
+    """Step 2: at rest, steer to the first command's start curvature, then drive."""
     kind, M = ctx.plan.commands[0]
     k0 = float(command_curvature(kind, M, np.array([0.0]), ctx.plan.omega_rad_s)[0])
+    ctx.driver.command_speed(0.0)
     t_k = ctx.driver.command_curvature(k0)
+    ctx.setpoints.append((_Applied(k0, t_k), t_k))
     ctx.kappa_cmd = k0
     t_v = ctx.driver.command_speed(ctx.plan.v_m_s)
     return {"kappa0_1_m": k0, "t_kappa_s": t_k, "t_speed_s": t_v}
 
 
 def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
-    """Step 3: settle, then stream command ``index`` of the plan, recording every sample."""
+    """Step 3: settle, then stream command ``index`` of the plan, recording every sample.
+
+    Each round takes every sample waiting (all recorded) and sets the point
+    for the tick after the newest one, so the set points follow the device's
+    time even when the station lags behind the stream.
+    """
     plan = ctx.plan
     kind, M = plan.commands[index]
     drv = ctx.driver
-    first = drv.read_sample(plan.sample_timeout_s)
-    t_seg = first.t_s
+    waiting = [drv.read_sample(plan.sample_timeout_s)] + drv.drain()
+    t_seg = waiting[-1].t_s
     t_prof = t_seg + plan.settle_s
     t_end = t_prof + plan.duration_s
     dt = None
@@ -174,30 +221,43 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
     k0 = float(command_curvature(kind, M, np.array([0.0]), plan.omega_rad_s)[0])
     batch = {c: [] for c in COLUMNS}
     n = 0
-    sample = first
     while True:
-        phase = 0 if sample.t_s < t_prof else 1
-        for c, val in zip(COLUMNS, (sample.t_s, sample.v_m_s, sample.kappa_1_m, sample.psi_rad,
-                                    ctx.kappa_cmd, index, phase)):
-            batch[c].append(val)
-        n += 1
-        if last_t is not None and sample.t_s > last_t:
-            dt = sample.t_s - last_t if dt is None else 0.8 * dt + 0.2 * (sample.t_s - last_t)
-        last_t = sample.t_s
-        if sample.t_s >= t_end:
+        for sample in waiting:
+            phase = 0 if sample.t_s < t_prof else 1
+            for c, val in zip(COLUMNS, (sample.t_s, sample.v_m_s, sample.kappa_1_m, sample.psi_rad,
+                                        ctx.kappa_cmd, index, phase)):
+                batch[c].append(val)
+            n += 1
+            if last_t is not None and sample.t_s > last_t:
+                gap = sample.t_s - last_t
+                dt = gap if dt is None else min(dt, gap) if gap < 1.5 * dt else dt
+            last_t = sample.t_s
+        if last_t >= t_end:
             break
-        # set point for the next control tick
-        t_apply = sample.t_s + (dt or 0.0)
-        tau = min(max(t_apply - t_prof, 0.0), plan.duration_s)
-        target = k0 if t_apply < t_prof else float(command_curvature(kind, M, np.array([tau]),
-                                                                    plan.omega_rad_s)[0])
+        # set point for the tick after the newest sample: ramp to the start value, then the profile
+        step = dt or 0.1
+        t_apply = last_t + step
+        if t_apply < t_prof:
+            room = plan.curvature_rate * step
+            target = ctx.kappa_cmd + min(max(k0 - ctx.kappa_cmd, -room), room)
+        else:
+            tau = min(t_apply - t_prof, plan.duration_s)
+            target = float(command_curvature(kind, M, np.array([tau]), plan.omega_rad_s)[0])
         if abs(target - ctx.kappa_cmd) > 1e-9:
-            drv.send_curvature(target)  # streamed; a refusal raises from the next read
+            sent = drv.send_curvature(target)  # streamed; a refusal raises from the next read
+            ctx.setpoints.append((sent, t_apply))
             ctx.kappa_cmd = target
         if len(batch["t"]) >= 100:
             _flush(ctx, batch)
-        sample = drv.read_sample(plan.sample_timeout_s)
+        waiting = [drv.read_sample(plan.sample_timeout_s)] + drv.drain()
     _flush(ctx, batch)
+    if ctx.record is not None:
+        seg = [(sp, ti) for sp, ti in ctx.setpoints if ti > t_seg]
+        ctx.record("setpoints", {
+            "t_intended": np.array([ti for _, ti in seg]),
+            "t_applied": np.array([np.nan if getattr(sp, "t_applied_s", None) is None else sp.t_applied_s
+                                   for sp, _ in seg]),
+            "value": np.array([sp.value for sp, _ in seg])})
     return {"command": [kind, M], "samples": n, "t_start_s": t_seg, "t_profile_s": t_prof, "t_end_s": last_t,
             "line": drv.stats.as_dict() if hasattr(drv, "stats") else None,
             "set_points": drv.command_stats.as_dict() if hasattr(drv, "command_stats") else None}
@@ -207,6 +267,7 @@ def stop(ctx: TrailerCalibrationContext) -> dict:
     """Step 4: speed 0 and straight ahead; samples taken meanwhile are kept (phase 2)."""
     t_v = ctx.driver.command_speed(0.0)
     t_k = ctx.driver.command_curvature(0.0)
+    ctx.setpoints.append((_Applied(0.0, t_k), t_k))
     ctx.kappa_cmd = 0.0
     batch = {c: [] for c in COLUMNS}
     for s in ctx.driver.drain():
@@ -319,6 +380,40 @@ def run_trailer_calibration(driver, plan: TrailerCalibrationPlan | None = None, 
                                     ctx.arrays(), outputs, outputs["report"])
 
 
+@dataclass(frozen=True)
+class _Applied:
+    """A set point acknowledged by a blocking command."""
+
+    value: float
+    t_applied_s: float
+
+
+def interval_average(t_s, t_change, values, fallback) -> np.ndarray:
+    """Average over each sample interval ``(t_{k-1}, t_k]`` of the piecewise-constant
+    set point that takes ``values[j]`` from ``t_change[j]`` on (sorted).
+
+    Before the first change, and for the first sample, ``fallback`` (the set
+    point the procedure had in force when it took the sample) is used.
+    Shapes: ``t_s`` (N,), ``t_change``/``values`` (M,) -> (N,).
+    """
+    t = np.asarray(t_s, dtype=float)
+    fb = np.asarray(fallback, dtype=float)
+    if t.size == 0 or len(t_change) == 0:
+        return fb.copy()
+    tc = np.asarray(t_change, dtype=float)
+    vc = np.asarray(values, dtype=float)
+    # cumulative integral of the set point at each change time
+    F_knots = np.concatenate([[0.0], np.cumsum(vc[:-1] * np.diff(tc))])
+    j = np.searchsorted(tc, t, side="right") - 1
+    inside = j >= 0
+    jj = np.clip(j, 0, None)
+    F = np.where(inside, F_knots[jj] + vc[jj] * (t - tc[jj]), np.nan)
+    out = fb.copy()
+    ok = inside[1:] & inside[:-1] & (np.diff(t) > 0)
+    out[1:][ok] = (F[1:][ok] - F[:-1][ok]) / np.diff(t)[ok]
+    return out
+
+
 def _flush(ctx: TrailerCalibrationContext, batch: dict) -> None:
     if not batch["t"]:
         return
@@ -332,5 +427,5 @@ def _flush(ctx: TrailerCalibrationContext, batch: dict) -> None:
 __all__ = [
     "ESTIMATORS", "TrailerCalibrationPlan", "TrailerCalibrationContext", "TrailerCalibrationResult",
     "check_plan", "start_driving", "run_command", "stop", "estimate", "report", "safe_state",
-    "calibration_steps", "estimate_trailer", "run_trailer_calibration",
+    "calibration_steps", "estimate_trailer", "run_trailer_calibration", "interval_average",
 ]

@@ -1,0 +1,487 @@
+"""Trailer odometry over NMEA 0183 on a serial line (pyserial).
+
+Wire format: NMEA 0183 sentences ``$<body>*hh\\r\\n`` where ``hh`` is the XOR
+of the body's bytes in two upper-case hex digits. The odometry unit speaks a
+proprietary talker (``P`` + manufacturer ``ODO``); the first field's tail
+names the sentence::
+
+    device -> host
+      $PODO,<t_s>,<v_m_s>,<kappa_1_m>,<psi_rad>*hh   odometry sample, device time
+      $PODOA,<cmd>,<t_s>,<value>*hh                  command <cmd> applied at t_s
+      $PODON,<cmd>,<reason>*hh                       command <cmd> refused
+    host -> device (same line)
+      $PODOC,<kappa_1_m>*hh                          hold this path curvature
+      $PODOV,<v_m_s>*hh                              drive at this speed
+
+Units: s, m/s, 1/m, rad (seed 003).
+
+Robustness: a sentence with a wrong checksum is counted and skipped; a
+partial line (characters lost, a ``$`` before the end of the previous line,
+no ``*hh``, overlong) is counted and skipped and the stream resynchronises on
+the next ``$``; other talkers are counted as ignored. Nothing that parses is
+ever dropped: samples read while waiting for a command's acknowledgement are
+queued. Every blocking call has a timeout on the monotonic clock
+(:class:`~station.errors.DeviceTimeout`); a refused command raises
+:class:`~station.errors.DeviceFault`; a command whose acknowledgement is lost
+is re-sent (set points are idempotent).
+
+The codec (:class:`NmeaDecoder`, :func:`encode_sentence`) is pure: bytes in,
+messages out, no I/O.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import dataclass
+from urllib.parse import parse_qs, urlsplit
+
+from drivers.transport import Deadline, SerialTransport, Transport
+from station.errors import ConfigError, DeviceFault, DeviceTimeout
+
+#: manufacturer code of the proprietary talker
+MANUFACTURER = "ODO"
+#: longest sentence accepted, bytes from ``$`` to the line end (NMEA says 82)
+MAX_SENTENCE_BYTES = 120
+#: default line speed of the unit
+DEFAULT_BAUD = 57600
+
+
+# ----------------------------------------------------------------------------- messages
+@dataclass(frozen=True)
+class OdometrySample:
+    """One odometry sample in device time."""
+
+    t_s: float
+    v_m_s: float
+    kappa_1_m: float
+    psi_rad: float
+
+
+@dataclass(frozen=True)
+class CommandAck:
+    """The device applied command ``cmd`` (``"C"`` or ``"V"``) at ``t_s``."""
+
+    cmd: str
+    t_s: float
+    value: float
+
+
+@dataclass(frozen=True)
+class CommandNak:
+    """The device refused command ``cmd``."""
+
+    cmd: str
+    reason: str
+
+
+@dataclass
+class LineStats:
+    """Counters of what the decoder saw (never reset silently)."""
+
+    sentences: int = 0
+    samples: int = 0
+    checksum_errors: int = 0
+    partial_lines: int = 0
+    malformed: int = 0
+    ignored: int = 0
+    bytes_discarded: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+# ----------------------------------------------------------------------------- codec
+def checksum(body: bytes) -> int:
+    """XOR of the bytes between ``$`` and ``*``."""
+    c = 0
+    for b in body:
+        c ^= b
+    return c
+
+
+def _fmt(value: float) -> str:
+    if not math.isfinite(value):
+        raise ConfigError(f"cannot send a non-finite value {value!r}")
+    return f"{value:.6f}"
+
+
+def encode_sentence(fields: list[str]) -> bytes:
+    """``["PODOC", "0.1"]`` -> ``b"$PODOC,0.1*hh\\r\\n"``."""
+    body = ",".join(fields).encode("ascii")
+    if b"*" in body or b"$" in body or b"\n" in body or b"\r" in body:
+        raise ConfigError(f"NMEA fields must not contain $ * or line ends: {fields!r}")
+    if len(body) + 6 > MAX_SENTENCE_BYTES:
+        raise ConfigError(f"sentence of {len(body) + 6} bytes is longer than {MAX_SENTENCE_BYTES}")
+    return b"$" + body + b"*%02X\r\n" % checksum(body)
+
+
+def encode_curvature_command(kappa_1_m: float) -> bytes:
+    """``$PODOC,<kappa>*hh``."""
+    return encode_sentence([f"P{MANUFACTURER}C", _fmt(kappa_1_m)])
+
+
+def encode_speed_command(v_m_s: float) -> bytes:
+    """``$PODOV,<v>*hh``."""
+    return encode_sentence([f"P{MANUFACTURER}V", _fmt(v_m_s)])
+
+
+def _floats(fields: list[str], n: int, what: str) -> list[float]:
+    if len(fields) != n:
+        raise ValueError(f"{what} needs {n} fields, got {len(fields)}")
+    out = [float(f) for f in fields]
+    if not all(math.isfinite(x) for x in out):
+        raise ValueError(f"{what} has a non-finite field")
+    return out
+
+
+def parse_body(body: str):
+    """Message of a checksum-verified body (without ``$`` and ``*hh``).
+
+    Returns an :class:`OdometrySample`, :class:`CommandAck`,
+    :class:`CommandNak`, or ``None`` for another talker. Raises ValueError
+    for a malformed odometry sentence.
+    """
+    fields = body.split(",")
+    head = fields[0]
+    if not head.startswith("P" + MANUFACTURER):
+        return None
+    kind = head[1 + len(MANUFACTURER):]
+    if kind == "":
+        t, v, k, p = _floats(fields[1:], 4, "$PODO")
+        return OdometrySample(t, v, k, p)
+    if kind == "A":
+        if len(fields) != 4 or fields[1] not in ("C", "V"):
+            raise ValueError("$PODOA needs cmd,t,value")
+        t, val = _floats(fields[2:], 2, "$PODOA")
+        return CommandAck(fields[1], t, val)
+    if kind == "N":
+        if len(fields) != 3:
+            raise ValueError("$PODON needs cmd,reason")
+        return CommandNak(fields[1], fields[2])
+    return None  # another sentence of the unit (e.g. a command echoed by a loopback)
+
+
+class NmeaDecoder:
+    """Incremental NMEA 0183 framer and parser with resynchronisation.
+
+    ``feed(data)`` returns the messages completed by ``data`` (samples, acks,
+    naks) in order; errors are counted in :attr:`stats`, never raised.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._discarding = False  # inside the tail of an overlong line (already counted)
+        self.stats = LineStats()
+
+    def _junk(self, data: bytes) -> None:
+        junk = data.strip()
+        if junk:
+            self.stats.bytes_discarded += len(junk)
+            if not self._discarding:
+                self.stats.partial_lines += 1
+
+    def feed(self, data: bytes) -> list:
+        self._buf += data
+        out = []
+        buf = self._buf
+        while True:
+            start = buf.find(b"$")
+            if start < 0:
+                nl = buf.rfind(b"\n")
+                if nl >= 0:  # junk up to a line end: one partial line, the rest waits
+                    self._junk(bytes(buf[:nl + 1]))
+                    self._discarding = False
+                    del buf[:nl + 1]
+                elif len(buf) > MAX_SENTENCE_BYTES:
+                    self._junk(bytes(buf))
+                    self._discarding = True
+                    buf.clear()
+                break
+            if start > 0:
+                self._junk(bytes(buf[:start]))
+                del buf[:start]
+            self._discarding = False
+            end = buf.find(b"\n")
+            nxt = buf.find(b"$", 1)
+            if nxt >= 0 and (end < 0 or nxt < end):
+                # a new sentence starts before this one ended: characters were lost
+                self._junk(bytes(buf[:nxt]))
+                del buf[:nxt]
+                continue
+            if end < 0:
+                if len(buf) > MAX_SENTENCE_BYTES:
+                    self._junk(bytes(buf))
+                    self._discarding = True
+                    buf.clear()
+                break
+            line = bytes(buf[:end]).rstrip(b"\r")
+            del buf[:end + 1]
+            msg = self._line(line)
+            if msg is not None:
+                out.append(msg)
+        return out
+
+    def _line(self, line: bytes):
+        star = line.rfind(b"*")
+        if len(line) > MAX_SENTENCE_BYTES or star < 0 or len(line) - star != 3:
+            self.stats.partial_lines += 1
+            self.stats.bytes_discarded += len(line)
+            return None
+        body, hh = line[1:star], line[star + 1:]
+        try:
+            expected = int(hh.decode("ascii"), 16)
+            text = body.decode("ascii")
+        except (ValueError, UnicodeDecodeError):
+            self.stats.partial_lines += 1
+            self.stats.bytes_discarded += len(line)
+            return None
+        if checksum(body) != expected:
+            self.stats.checksum_errors += 1
+            self.stats.bytes_discarded += len(line)
+            return None
+        self.stats.sentences += 1
+        try:
+            msg = parse_body(text)
+        except ValueError:
+            self.stats.malformed += 1
+            return None
+        if msg is None:
+            self.stats.ignored += 1
+        elif isinstance(msg, OdometrySample):
+            self.stats.samples += 1
+        return msg
+
+
+# ----------------------------------------------------------------------------- driver
+@dataclass
+class SentCommand:
+    """A command on its way: ``status`` becomes ``"acked"``, ``"refused"`` or ``"lost"``."""
+
+    cmd: str
+    value: float
+    status: str | None = None
+    t_applied_s: float | None = None
+    reason: str | None = None
+
+
+@dataclass
+class CommandStats:
+    """Counters of the commands this driver sent."""
+
+    sent: int = 0
+    acked: int = 0
+    refused: int = 0
+    lost: int = 0
+    garbled: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def parse_odometry_url(url: str) -> tuple[str, int]:
+    """``nmea:///dev/ttyS1?baud=57600`` / ``/dev/pts/3`` / ``socket://h:p`` -> (port, baud)."""
+    if not isinstance(url, str) or not url:
+        raise ConfigError(f"odometry device must be a path or URL, got {url!r}")
+    if url.startswith("nmea://"):
+        parts = urlsplit(url)
+        if not parts.path:
+            raise ConfigError(f"device URL {url!r} names no serial device")
+        baud = parse_qs(parts.query).get("baud", [str(DEFAULT_BAUD)])[-1]
+        if not baud.isdigit() or int(baud) <= 0:
+            raise ConfigError(f"baud in {url!r} must be a positive integer, got {baud!r}")
+        return parts.path, int(baud)
+    return url, DEFAULT_BAUD
+
+
+class OdometryDriver:
+    """Reads odometry samples and sends curvature/speed commands.
+
+    Parameters
+    ----------
+    transport : Transport
+        A byte pipe (e.g. :class:`drivers.transport.SerialTransport`).
+    timeout_s : float
+        Default timeout for a sample, s.
+    ack_timeout_s : float
+        Wait for a command's acknowledgement before re-sending it, s.
+    command_retries : int
+        Re-sends of a blocking command whose acknowledgement does not come.
+
+    Commands come in two kinds: :meth:`command_curvature` /
+    :meth:`command_speed` block until acknowledged (start, stop), and
+    :meth:`send_curvature` streams set points without waiting — their
+    acknowledgements are matched as samples are read, a refusal raises
+    :class:`~station.errors.DeviceFault` from the next read, and a set point
+    whose acknowledgement never comes is counted in
+    :attr:`command_stats` (``lost``).
+    """
+
+    def __init__(self, transport: Transport, *, timeout_s: float = 2.0, ack_timeout_s: float = 0.5,
+                 command_retries: int = 2) -> None:
+        for name, value in (("timeout_s", timeout_s), ("ack_timeout_s", ack_timeout_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name} must be > 0, got {value!r}")
+        if not (isinstance(command_retries, int) and command_retries >= 0):
+            raise ConfigError(f"command_retries must be an integer >= 0, got {command_retries!r}")
+        self.transport = transport
+        self.timeout_s = float(timeout_s)
+        self.ack_timeout_s = float(ack_timeout_s)
+        self.command_retries = command_retries
+        self._decoder = NmeaDecoder()
+        self._samples: collections.deque[OdometrySample] = collections.deque()
+        self._unacked: collections.deque[SentCommand] = collections.deque()
+        self._refusals: collections.deque[SentCommand] = collections.deque()
+        self.command_stats = CommandStats()
+
+    @classmethod
+    def open(cls, device: str, *, baudrate: int | None = None, timeout_s: float = 2.0,
+             ack_timeout_s: float = 0.5, command_retries: int = 2) -> "OdometryDriver":
+        """Open a serial device path, ``nmea://`` URL or pyserial URL."""
+        port, baud = parse_odometry_url(device)
+        return cls(SerialTransport(port, baudrate=baudrate or baud), timeout_s=timeout_s,
+                   ack_timeout_s=ack_timeout_s, command_retries=command_retries)
+
+    # -- state ------------------------------------------------------------------------
+    @property
+    def stats(self) -> LineStats:
+        """Counters of sentences, samples, checksum errors, partial lines..."""
+        return self._decoder.stats
+
+    @property
+    def queued(self) -> int:
+        """Samples received and not yet returned."""
+        return len(self._samples)
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> "OdometryDriver":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- reading ----------------------------------------------------------------------
+    def _pump(self, deadline: Deadline) -> bool:
+        """Read once (up to the deadline); dispatch messages. True if bytes came."""
+        data = self.transport.read(4096, min(deadline.time_left(), 0.25))
+        if not data:
+            return False
+        for msg in self._decoder.feed(data):
+            if isinstance(msg, OdometrySample):
+                self._samples.append(msg)
+            elif isinstance(msg, CommandAck):
+                self._settle(msg.cmd, msg.value, "acked", t_applied=msg.t_s)
+            elif isinstance(msg, CommandNak):
+                if msg.cmd in ("C", "V"):
+                    self._settle(msg.cmd, None, "refused", reason=msg.reason)
+                else:
+                    self.command_stats.garbled += 1  # the unit could not read a command
+        return True
+
+    def _settle(self, cmd: str, value: float | None, status: str, *, t_applied=None, reason=None) -> None:
+        """Match a reply to the oldest open command of its kind (older ones were lost)."""
+        for i, sent in enumerate(self._unacked):
+            if sent.cmd != cmd:
+                continue
+            if value is not None and abs(sent.value - value) > 1e-6 * max(1.0, abs(sent.value)):
+                continue
+            for older in list(self._unacked)[:i]:
+                if older.cmd == cmd:
+                    older.status = "lost"
+                    self.command_stats.lost += 1
+            self._unacked = collections.deque(c for j, c in enumerate(self._unacked)
+                                              if j > i or (j < i and c.cmd != cmd))
+            sent.status, sent.t_applied_s, sent.reason = status, t_applied, reason
+            if status == "acked":
+                self.command_stats.acked += 1
+            else:
+                self.command_stats.refused += 1
+                self._refusals.append(sent)
+            return
+        # a reply to nothing open (e.g. the first ack of a re-sent command): ignore
+
+    def _raise_refusal(self) -> None:
+        if self._refusals:
+            sent = self._refusals.popleft()
+            raise DeviceFault(f"odometry unit refused command {sent.cmd}={sent.value:g}: {sent.reason}")
+
+    def read_sample(self, timeout_s: float | None = None) -> OdometrySample:
+        """The next sample (queued first); DeviceTimeout if none within the timeout.
+
+        Raises DeviceFault first if the unit refused a streamed set point.
+        """
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        deadline = Deadline(timeout)
+        while not self._samples:
+            self._raise_refusal()
+            if deadline.expired():
+                raise DeviceTimeout(
+                    f"no odometry sample from {self.transport.description} within {timeout} s "
+                    f"(line stats: {self.stats.as_dict()})")
+            self._pump(deadline)
+        self._raise_refusal()
+        return self._samples.popleft()
+
+    def read_samples(self, n: int, timeout_s: float | None = None) -> list[OdometrySample]:
+        """``n`` consecutive samples; each must come within the timeout."""
+        if not isinstance(n, int) or n < 0:
+            raise ConfigError(f"n must be an integer >= 0, got {n!r}")
+        return [self.read_sample(timeout_s) for _ in range(n)]
+
+    def drain(self) -> list[OdometrySample]:
+        """Samples already received (reads what is waiting, without blocking)."""
+        self._pump(Deadline(0.0))
+        out = list(self._samples)
+        self._samples.clear()
+        return out
+
+    # -- commands ---------------------------------------------------------------------
+    def send_curvature(self, kappa_1_m: float) -> SentCommand:
+        """Stream a curvature set point without waiting for its acknowledgement."""
+        self._raise_refusal()
+        return self._send("C", float(kappa_1_m), encode_curvature_command(float(kappa_1_m)))
+
+    def command_curvature(self, kappa_1_m: float, timeout_s: float | None = None) -> float:
+        """Send a curvature set point and wait for it; return the device time it was applied."""
+        return self._command("C", float(kappa_1_m), encode_curvature_command(float(kappa_1_m)), timeout_s)
+
+    def command_speed(self, v_m_s: float, timeout_s: float | None = None) -> float:
+        """Send a speed set point and wait for it; return the device time it was applied."""
+        return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
+
+    def _send(self, cmd: str, value: float, frame: bytes) -> SentCommand:
+        sent = SentCommand(cmd, value)
+        self.transport.write(frame, self.ack_timeout_s)
+        self._unacked.append(sent)
+        self.command_stats.sent += 1
+        return sent
+
+    def _command(self, cmd: str, value: float, frame: bytes, timeout_s: float | None) -> float:
+        timeout = self.ack_timeout_s if timeout_s is None else timeout_s
+        self._raise_refusal()
+        for _ in range(self.command_retries + 1):
+            sent = self._send(cmd, value, frame)
+            deadline = Deadline(timeout)
+            while sent.status is None and not deadline.expired():
+                self._pump(deadline)
+            if sent.status == "acked":
+                return sent.t_applied_s
+            if sent.status == "refused":
+                self._refusals = collections.deque(r for r in self._refusals if r is not sent)
+                raise DeviceFault(f"odometry unit refused command {cmd}={value:g}: {sent.reason}")
+            if sent.status is None:  # no reply in time: give up on this copy, re-send
+                sent.status = "lost"
+                self.command_stats.lost += 1
+                self._unacked = collections.deque(c for c in self._unacked if c is not sent)
+        raise DeviceTimeout(f"no acknowledgement of command {cmd}={value:g} from "
+                            f"{self.transport.description} after {self.command_retries + 1} "
+                            f"attempt(s) of {timeout} s")
+
+
+__all__ = [
+    "MANUFACTURER", "MAX_SENTENCE_BYTES", "DEFAULT_BAUD", "OdometrySample", "CommandAck", "CommandNak",
+    "LineStats", "checksum", "encode_sentence", "encode_curvature_command", "encode_speed_command",
+    "parse_body", "NmeaDecoder", "parse_odometry_url", "OdometryDriver", "SentCommand", "CommandStats",
+]
