@@ -221,6 +221,28 @@ class ISOProcedureConfig(_Strict):
         return v
 
 
+class TrailerConfig(_Strict):
+    """The trailer calibration of seed 003 (lengths m, curvature 1/m, speed m/s)."""
+
+    odometry: str = Field(description="device name of the odometry (nmea://...)")
+    serial: str = Field("TRAILER-0001", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
+    nominal_L1_m: float = Field(1.25, gt=0, allow_inf_nan=False)
+    nominal_L2_m: float = Field(2.48, gt=0, allow_inf_nan=False)
+    commands: list[tuple[Literal["H", "C", "L"], float]] = [("H", 0.2), ("C", 0.2), ("L", 0.2)]
+    v_m_s: float = Field(1.0, gt=0, le=3.0)
+    settle_s: float = Field(20.0, ge=0, le=1e4)
+    duration_s: float = Field(63.0, gt=0, le=1e4)
+    method: str = "dynamic"
+
+    @model_validator(mode="after")
+    def _links(self) -> "TrailerConfig":
+        if self.nominal_L2_m <= self.nominal_L1_m:
+            raise ValueError(f"nominal_L2_m {self.nominal_L2_m} must exceed nominal_L1_m {self.nominal_L1_m} (seed 003 eq. (25))")
+        if not self.commands:
+            raise ValueError("commands must list at least one (kind, M)")
+        return self
+
+
 class StationSection(_Strict):
     name: str = Field(min_length=1)
     store_path: str = "station.sqlite"
@@ -230,11 +252,15 @@ class StationSection(_Strict):
 class StationConfig(_Strict):
     station: StationSection
     devices: dict[str, DeviceConfig]
-    robots: dict[str, RobotConfig]
+    robots: dict[str, RobotConfig] = Field(default_factory=dict)
     iso9283: ISOProcedureConfig = ISOProcedureConfig()
+    trailer: TrailerConfig | None = None
 
     @model_validator(mode="after")
     def _references(self) -> "StationConfig":
+        if self.trailer is not None and self.trailer.odometry not in self.devices:
+            raise ValueError(f"trailer.odometry names device {self.trailer.odometry!r}, which is not in devices "
+                             f"({', '.join(sorted(self.devices)) or 'none'})")
         for rname, robot in self.robots.items():
             if robot.controller not in self.devices:
                 raise ValueError(

@@ -122,6 +122,21 @@ def plot_bars(labels: Sequence[str], values: Sequence[float], *, limit: float | 
     return _svg(fig)
 
 
+def plot_xy(series: Sequence[tuple[str, np.ndarray, np.ndarray, str]], *, xlabel: str, ylabel: str, title: str) -> str:
+    """Lines or points: ``series`` of (label, x, y, style) with style ``"-"`` (line) or ``"."`` (points)."""
+    fig, (ax,) = _figure(7.0, 3.2)
+    for k, (label, x, y, style) in enumerate(series):
+        if style == ".":
+            ax.plot(x, y, ".", ms=2, color=f"C{k}", label=label, alpha=0.6)
+        else:
+            ax.plot(x, y, "-", lw=1.2, color=f"C{k}", label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    return _svg(fig)
+
+
 def plot_errors_before_after(before: np.ndarray, after: np.ndarray, *, ylabel: str = "error [mm]", title: str = "Errors before and after calibration") -> str:
     fig, (ax,) = _figure(7.0, 2.8)
     ax.plot(np.abs(before), "o-", ms=3, lw=0.7, color="C0", label=f"before (mean {np.mean(np.abs(before)):.3g})")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from station.errors import ConfigError, SafetyError
 
-PROCEDURES = ("iso9283",)
+PROCEDURES = ("iso9283", "trailer")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,11 +46,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from station.config import load_config
 
     if not args.resume and not args.procedure:
-        raise ConfigError("name a procedure (iso9283) or --resume RUN_ID")
+        raise ConfigError("name a procedure (iso9283, trailer) or --resume RUN_ID")
     cfg = load_config(args.config)
-    return execute(cfg, procedure=args.procedure or "iso9283", robot=args.robot, resume=args.resume,
+    procedure = args.procedure
+    if args.resume and not procedure:
+        procedure = _stored_procedure(cfg, args.resume, Path(args.config).resolve().parent)
+    return execute(cfg, procedure=procedure, robot=args.robot, resume=args.resume,
                    run_id=args.run_id, arm=args.arm, yes=args.yes, time_scale=args.time_scale, seed=args.seed,
                    json_out=args.json, quiet=args.quiet, config_dir=Path(args.config).resolve().parent)
+
+
+def _store_path(cfg, base: Path) -> Path:
+    p = Path(cfg.station.store_path)
+    return p if p.is_absolute() else base / p
+
+
+def _stored_procedure(cfg, run_id: str, base: Path) -> str:
+    from station.store import RunStore
+
+    with RunStore(_store_path(cfg, base)) as store:
+        return store.run(run_id).procedure
 
 
 def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str | None = None,
@@ -58,14 +73,14 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
             seed: int = 0, json_out: str | None = None, quiet: bool = False, config_dir: Path | None = None,
             plan_overrides: dict | None = None, stdout=sys.stdout) -> int:
     """Run or resume a procedure; prints the results table; returns the exit code."""
+    if procedure == "trailer":
+        return execute_trailer(cfg, resume=resume, run_id=run_id, arm=arm, yes=yes, time_scale=time_scale,
+                               seed=seed, json_out=json_out, quiet=quiet, config_dir=config_dir, stdout=stdout)
     from procedures.iso9283 import build_procedure, close_devices, plan_from_config, IsoPlan
-    from station.runner import InteractiveOperator, ProgressLine, RunControl, Runner, ScriptedOperator
     from station.store import RunStore
 
     base = config_dir or Path.cwd()
-    store_path = Path(cfg.station.store_path)
-    store_path = store_path if store_path.is_absolute() else base / store_path
-    store = RunStore(store_path)
+    store = RunStore(_store_path(cfg, base))
     rc = cfg.robots.get(robot)
     if rc is None:
         raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
@@ -83,7 +98,7 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
         fake = None if arm else {"seed": int(seed), "time_scale": float(time_scale)}
         run_id = run_id or f"{rc.serial}-{time.strftime('%Y%m%d-%H%M%S')}"
 
-    operator = ScriptedOperator(True, stream=None if quiet else sys.stderr) if yes else InteractiveOperator()
+    operator = _operator(yes, quiet)
     if fake is None:
         if not yes and not operator.confirm(
             f"ARMED: real devices will move ({cfg.robots[robot].model} serial {rc.serial}). Continue?"
@@ -101,6 +116,32 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
         devices = {"tracker": station.tracker_url, "controller": station.controller_url}
         scale = fake["time_scale"]
 
+    session = {"devices": devices, "time_scale": scale}
+    params = plan.params()
+    if fake is not None:
+        params["fake"] = fake
+    start = dict(params=params, config=cfg.model_dump(mode="json"), model=rc.model, serial=rc.serial,
+                 overhaul_state=rc.overhaul_state)
+    try:
+        outcome = _drive(store, build_procedure(plan), session, run_id, resume, start, operator, quiet)
+    finally:
+        close_devices(session)
+        if station is not None:
+            station.close()
+    print_results(store, run_id, outcome, stdout)
+    return _finish(store, run_id, outcome, json_out, "iso9283")
+
+
+def _operator(yes: bool, quiet: bool):
+    from station.runner import InteractiveOperator, ScriptedOperator
+
+    return ScriptedOperator(True, stream=None if quiet else sys.stderr) if yes else InteractiveOperator()
+
+
+def _drive(store, procedure, session, run_id, resume, start: dict, operator, quiet: bool):
+    """Run or resume with Ctrl-C = abort (resumable) and SIGUSR1 = pause/continue."""
+    from station.runner import ProgressLine, RunControl, Runner
+
     control = RunControl()
     old = {}
     for sig, handler in ((signal.SIGINT, lambda *_: control.abort()), (signal.SIGUSR1, lambda *_: control.toggle_pause())):
@@ -108,31 +149,21 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
             old[sig] = signal.signal(sig, handler)
         except ValueError:  # not the main thread
             pass
-    session = {"devices": devices, "time_scale": scale}
-    runner = Runner(store, build_procedure(plan), operator=operator, control=control, session=session,
+    runner = Runner(store, procedure, operator=operator, control=control, session=session,
                     progress=ProgressLine(None if quiet else sys.stderr))
     try:
-        if resume:
-            outcome = runner.resume(run_id)
-        else:
-            params = plan.params()
-            if fake is not None:
-                params["fake"] = fake
-            outcome = runner.start(run_id, params=params, config=cfg.model_dump(mode="json"), model=rc.model,
-                                   serial=rc.serial, overhaul_state=rc.overhaul_state)
+        return runner.resume(run_id) if resume else runner.start(run_id, **start)
     finally:
-        close_devices(session)
-        if station is not None:
-            station.close()
         for sig, h in old.items():
             signal.signal(sig, h)
 
-    print_results(store, run_id, outcome, stdout)
+
+def _finish(store, run_id, outcome, json_out, result_key: str) -> int:
     if json_out:
         payload = {"run_id": run_id, "status": outcome.status, "error": outcome.error,
                    "characteristics": store.characteristics(run_id)}
         try:
-            payload["results"] = store.result(run_id, "iso9283")
+            payload["results"] = store.result(run_id, result_key)
         except Exception:
             payload["results"] = None
         Path(json_out).write_text(json.dumps(payload, indent=2, default=float))
@@ -140,6 +171,83 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
     if outcome.status == "done":
         return 0
     return 3 if outcome.status == "aborted" else 1
+
+
+def execute_trailer(cfg, *, resume=None, run_id=None, arm=False, yes=False, time_scale=20.0, seed=0,
+                    json_out=None, quiet=False, config_dir=None, stdout=sys.stdout, true_lengths_m=None) -> int:
+    """The trailer calibration (seed 003) through the odometry driver; fakes unless ``arm``."""
+    from procedures import trailer as tp
+    from procedures.trailer_run import build_procedure, close_devices, plan_from_params, plan_params
+    from station.store import RunStore
+
+    tc = cfg.trailer
+    if tc is None:
+        raise ConfigError("trailer: the config has no [trailer] section (odometry device, nominal lengths)")
+    base = config_dir or Path.cwd()
+    store = RunStore(_store_path(cfg, base))
+    if resume:
+        rec = store.run(resume)
+        params = rec.params
+        fake = params.get("fake")
+        run_id = resume
+    else:
+        plan = tp.TrailerCalibrationPlan(
+            commands=tuple((k, float(m)) for k, m in tc.commands), duration_s=tc.duration_s, settle_s=tc.settle_s,
+            v_m_s=tc.v_m_s, nominal_L1_m=tc.nominal_L1_m, nominal_L2_m=tc.nominal_L2_m, method=tc.method)
+        report_dir = Path(cfg.station.report_dir)
+        params = {"plan": plan_params(plan),
+                  "report_dir": str(report_dir if report_dir.is_absolute() else base / report_dir)}
+        fake = None if arm else {"seed": int(seed), "time_scale": float(time_scale),
+                                 "true_lengths_m": list(true_lengths_m) if true_lengths_m else None}
+        if fake is not None:
+            params["fake"] = fake
+        run_id = run_id or f"{tc.serial}-{time.strftime('%Y%m%d-%H%M%S')}"
+    plan = plan_from_params(params["plan"])
+    operator = _operator(yes, quiet)
+    world = handle = None
+    if fake is None:
+        if not yes and not operator.confirm(f"ARMED: the trailer (serial {tc.serial}) will drive. Continue?"):
+            raise SafetyError("armed run not confirmed by the operator; nothing moved")
+        devices = {"odometry": cfg.device(tc.odometry).url}
+    else:
+        from fakes.odometry import start_fake
+        from fakes.sim.trailer import SimTrailer
+        from fakes.sim.world import make_world
+
+        world = make_world(seed=fake["seed"], time_scale=fake["time_scale"], effects=None)
+        if fake.get("true_lengths_m"):
+            L1, L2 = fake["true_lengths_m"]
+            world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
+        handle = start_fake(world)
+        devices = {"odometry": handle.endpoint["device"]}
+    session = {"devices": devices}
+    start = dict(params=params, config=cfg.model_dump(mode="json"), model="trailer", serial=tc.serial,
+                 overhaul_state=None)
+    try:
+        outcome = _drive(store, build_procedure(plan), session, run_id, resume, start, operator, quiet)
+    finally:
+        close_devices(session)
+        if handle is not None:
+            handle.close()
+        if world is not None:
+            world.close()
+    print_trailer_results(store, run_id, outcome, stdout)
+    return _finish(store, run_id, outcome, json_out, "trailer")
+
+
+def print_trailer_results(store, run_id, outcome, out=sys.stdout) -> None:
+    print(f"run {run_id}: {outcome.status}" + (f" ({outcome.error})" if outcome.error else ""), file=out)
+    if outcome.status != "done":
+        print(f"resume with: station run --resume {run_id} --config <config>", file=out)
+        return
+    res = store.result(run_id, "trailer")
+    rows = [res["result"]] + list(res["comparisons"].values())
+    print(f"{'method':<10}{'L1 m':>10}{'+-':>8}{'L2 m':>10}{'+-':>8}{'cond':>10}", file=out)
+    for r in rows:
+        f = lambda v, w, d: f"{v:>{w}.{d}f}" if v is not None else f"{'-':>{w}}"
+        print(f"{r['method']:<10}{f(r['L1_m'], 10, 4)}{f(r['L1_sigma_m'], 8, 4)}{f(r['L2_m'], 10, 4)}"
+              f"{f(r['L2_sigma_m'], 8, 4)}{f(r['condition_number'], 10, 1)}", file=out)
+    print(f"report: {res['report']}", file=out)
 
 
 def print_results(store, run_id: str, outcome, out=sys.stdout) -> None:
