@@ -38,11 +38,11 @@ import numpy as np
 
 from station.analysis.iso9283 import analyze_iso9283
 from station.analysis.iso_poses import cube_test_poses
-from station.analysis.registration import Registration, fit_rigid
+from station.analysis.registration import Registration, fit_rigid, register_by_axes
 from station.errors import ConfigError, DeviceFault, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2, vap_program
-from station.programs.model import CartesianTarget, Dwell, Move, Program, quat_from_matrix
+from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Program, quat_from_matrix
 from station.programs.handshake import Fault, State, describe
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
@@ -85,6 +85,7 @@ class IsoPlan:
     report_dir: str = "reports"
     max_speed_frac: float = 1.0
     max_accel_frac: float = 1.0
+    registration: str = "axes"
 
     def gate(self) -> SafetyGate:
         return SafetyGate(
@@ -105,6 +106,7 @@ class IsoPlan:
             "tracker_rate_hz": self.tracker_rate_hz, "limits": dict(self.limits), "band_mm": self.band_mm,
             "payload_kg": self.payload_kg, "report_dir": self.report_dir,
             "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
+            "registration": self.registration,
         }
 
     @classmethod
@@ -119,6 +121,7 @@ class IsoPlan:
             tracker_rate_hz=float(p["tracker_rate_hz"]), limits=dict(p["limits"]), band_mm=p["band_mm"],
             payload_kg=float(p["payload_kg"]), report_dir=str(p["report_dir"]),
             max_speed_frac=float(p.get("max_speed_frac", 1.0)), max_accel_frac=float(p.get("max_accel_frac", 1.0)),
+            registration=str(p.get("registration", "axes")),
         )
 
 
@@ -145,6 +148,7 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
         report_dir=cfg.station.report_dir,
         max_speed_frac=rc.workspace.max_speed_percent / 100.0,
         max_accel_frac=rc.workspace.max_accel_percent / 100.0,
+        registration=iso.registration,
     )
     kw.update(overrides)
     return IsoPlan(**kw)
@@ -168,11 +172,41 @@ def _point_program(plan: IsoPlan, name: str, xyz, *, dwell_s: float, speed_frac:
     )
 
 
+#: joint sweeps of the axis registration about the P1 configuration, deg: (joint index, angles)
+AXIS_SWEEPS = ((0, np.linspace(-25.0, 25.0, 7)), (1, np.linspace(-15.0, 15.0, 7)))
+
+
+def _joint_program(plan: IsoPlan, name: str, q_deg, *, dwell_s: float) -> Program:
+    target = JointTarget(name, tuple(float(v) for v in q_deg), label=name)
+    return Program(
+        name=f"ST_{name}", robot_name=plan.robot.name, rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
+        statements=(Move(target, "joint", 0.2), Dwell(dwell_s)), accel_frac=0.5,
+        title=f"station: joint pose {name}", rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot),
+    )
+
+
+def axis_sweep_q_deg(plan: IsoPlan) -> dict[str, np.ndarray]:
+    """Joint configurations of the axis registration: joint 1, then joint 2, turned about P1's configuration."""
+    p1 = CartesianTarget("P1", tuple(plan.poses_mm["P1"]), _quat())
+    q0 = np.degrees(plan.gate().check_cartesian_target(p1.pose, "P1 (registration)"))
+    out = {}
+    for j, angles in AXIS_SWEEPS:
+        for k, a in enumerate(angles):
+            q = q0.copy()
+            q[j] += a
+            out[f"J{j + 1}_{k + 1}"] = q
+    return out
+
+
 def programs(plan: IsoPlan) -> dict[str, object]:
     """Every program of the procedure, rendered (RAPID)."""
     out = {"home": render_rapid(_point_program(plan, "P1", plan.poses_mm["P1"], dwell_s=plan.dwell_s))}
-    for name, xyz in plan.registration_mm.items():
-        out[f"register {name}"] = render_rapid(_point_program(plan, name, xyz, dwell_s=0.2))
+    if plan.registration == "axes":
+        for name, q in axis_sweep_q_deg(plan).items():
+            out[f"register {name}"] = render_rapid(_joint_program(plan, name, q, dwell_s=0.2))
+    else:
+        for name, xyz in plan.registration_mm.items():
+            out[f"register {name}"] = render_rapid(_point_program(plan, name, xyz, dwell_s=0.2))
     out["pose cycle"] = render_rapid(
         iso_pose_program(plan.robot, plan.poses_mm, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac)
     )
@@ -315,21 +349,28 @@ def step_home(ctx: StepContext) -> dict:
 
 
 def step_register(ctx: StepContext) -> dict:
+    """Tie the tracker to the robot base: joint-1/joint-2 circles (default) or a best fit."""
     plan = _plan(ctx)
     tracker = ctx.session["tracker"]
     progs = programs(plan)
-    measured, names = [], []
-    for name in plan.registration_mm:
+    names = [k.split(" ", 1)[1] for k in progs if k.startswith("register ")]
+    measured = []
+    for name in names:
         ctx.checkpoint()
         _run_program(ctx, progs[f"register {name}"], timeout_s=_timeout(ctx, 60), stream=False)
         m = tracker.measure_stationary(duration_s=0.2)
         measured.append(np.asarray(m.xyz_mm, dtype=float))
-        names.append(name)
         ctx.progress(f"point {name}")
-    base = np.array([plan.registration_mm[n] for n in names])
-    reg = fit_rigid(base, np.array(measured))
-    return {"R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
-            "residuals_mm": reg.residuals_mm.tolist(), "points_tracker_mm": np.array(measured).tolist()}
+    measured = np.array(measured)
+    if plan.registration == "axes":
+        q = axis_sweep_q_deg(plan)
+        n1 = len(AXIS_SWEEPS[0][1])
+        qr = np.radians(np.array([q[n] for n in names]))
+        reg = register_by_axes(plan.robot.dh_nominal, qr[:n1], measured[:n1], qr[n1:], measured[n1:])
+    else:
+        reg = fit_rigid(np.array([plan.registration_mm[n] for n in names]), measured)
+    return {"method": plan.registration, "R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
+            "residuals_mm": reg.residuals_mm.tolist(), "points": names, "points_tracker_mm": measured.tolist()}
 
 
 def step_pose_cycle(k: int):

@@ -84,7 +84,11 @@ def build_report(ctx, plan, run, rows, main, vap) -> Report:
         "robot": f"{run.model} serial {run.serial} ({run.overhaul_state})",
         "procedure": f"ISO 9283, {plan.cycles} pose cycles, {plan.vap_cycles} vAP cycles (poses {', '.join(VAP_POSES)}), "
                      f"{plan.speed_frac * 100:.0f} % speed, {plan.dwell_s} s dwell, tracker {plan.tracker_rate_hz:g} Hz",
-        "base frame registration": f"{reg.n} points, rms {reg.rms_mm:.3f} mm (AP is relative to the best-fit base frame)",
+        "base frame registration": (
+            f"joint-1 and joint-2 circles, {reg.n} points, circle fit rms {reg.rms_mm:.3f} mm"
+            if ctx.outputs["register base frame"].get("method", "best-fit") == "axes" else
+            f"rigid best fit over {reg.n} points, rms {reg.rms_mm:.3f} mm (AP is relative to the best-fit frame, "
+            f"which absorbs part of the robot's error)"),
         "ISO conformant": "yes" if main.iso_conformant else "no (fewer than 30 cycles or missing stops)",
     }
     figs: list[tuple[str, str]] = []

@@ -212,6 +212,9 @@ class ISOProcedureConfig(_Strict):
     vap_offset_mm: float = Field(100.0, gt=0)
     distance_cycles: int = Field(10, ge=2, le=1000)
     mpt_repeats: int = Field(3, ge=1, le=100)
+    #: how the tracker is tied to the robot base: circles of joints 1 and 2 (ISO/TR 13309 practice) or a
+    #: rigid best fit over the inset cube corners (absorbs part of the robot's error into the frame)
+    registration: Literal["axes", "best-fit"] = "axes"
 
     @field_validator("cube_corners_mm")
     @classmethod

@@ -103,3 +103,91 @@ def fit_rigid(p_base_mm, p_tracker_mm) -> Registration:
     t = cb - R @ ca
     res = np.linalg.norm(a @ R.T + t - b, axis=1)
     return Registration(R=R, t_mm=t, residuals_mm=res, rms_mm=float(np.sqrt(np.mean(res**2))), n=int(a.shape[0]))
+
+
+@dataclass(frozen=True)
+class Circle3D:
+    """A circle in space: ``centre_mm`` (3,), unit ``normal`` (3,), ``radius_mm``, ``rms_mm`` of the fit."""
+
+    centre_mm: np.ndarray
+    normal: np.ndarray
+    radius_mm: float
+    rms_mm: float
+
+
+def fit_circle(points_mm) -> Circle3D:
+    """Least-squares circle through points on an arc (the path of a point turning about one axis).
+
+    The plane is the SVD best fit; the circle in it the algebraic (Kasa) fit.
+    The normal points along the rotation of the points' order (right-hand rule),
+    so a joint turned through increasing angles gives its axis direction.
+    """
+    p = np.asarray(points_mm, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
+        raise DataError(f"points_mm must be a finite (N, 3) array, got shape {p.shape}")
+    if p.shape[0] < 4:
+        raise InsufficientDataError(f"a circle fit needs at least 4 points, got {p.shape[0]}")
+    c0 = p.mean(axis=0)
+    _, s, Vt = np.linalg.svd(p - c0)
+    if s[1] < 1e-6 * s[0]:
+        raise InsufficientDataError("the points are collinear: no circle (did the joint turn?)")
+    e1, e2, n = Vt[0], Vt[1], Vt[2]
+    uv = np.column_stack([(p - c0) @ e1, (p - c0) @ e2])
+    A = np.column_stack([2 * uv, np.ones(len(uv))])
+    sol, *_ = np.linalg.lstsq(A, (uv**2).sum(axis=1), rcond=None)
+    cu, cv = sol[0], sol[1]
+    r = float(np.sqrt(sol[2] + cu**2 + cv**2))
+    centre = c0 + cu * e1 + cv * e2
+    turn = np.cross(p[0] - centre, p[-1] - centre)
+    if float(turn @ n) < 0:
+        n = -n
+    d_plane = (p - centre) @ n
+    d_radial = np.linalg.norm((p - centre) - np.outer(d_plane, n), axis=1) - r
+    rms = float(np.sqrt(np.mean(d_plane**2 + d_radial**2)))
+    return Circle3D(centre, n, r, rms)
+
+
+def register_by_axes(dh_nominal, q1_rad, p1_tracker_mm, q2_rad, p2_tracker_mm) -> Registration:
+    """Robot base frame in the tracker frame from the circles of joints 1 and 2.
+
+    The tool point is measured while joint 1 alone turns (``q1_rad`` (N1, 6),
+    points ``p1_tracker_mm``) and while joint 2 alone turns (``q2_rad``,
+    ``p2_tracker_mm``). The measured circles give the two axes in the tracker
+    frame; the nominal model gives the same circles in the base frame. The
+    rotation takes the nominal axis directions onto the measured ones; the
+    base origin is placed so that the measured joint-1 axis is the nominal
+    one (across it) and the measured joint-2 axis has its nominal height
+    (along it). This is the usual way to tie an instrument to a robot's base
+    (ISO/TR 13309) and, unlike a best fit over test poses, it does not absorb
+    the errors of the links beyond joint 2 into the frame — those stay in AP.
+
+    Returns
+    -------
+    Registration
+        ``residuals_mm`` are the two circles' fit residuals (N1 + N2).
+    """
+    from station.models.kinematics import tool_position
+
+    meas1, meas2 = fit_circle(p1_tracker_mm), fit_circle(p2_tracker_mm)
+    nom1 = fit_circle(tool_position(dh_nominal, np.asarray(q1_rad, dtype=float)))
+    nom2 = fit_circle(tool_position(dh_nominal, np.asarray(q2_rad, dtype=float)))
+    if abs(float(nom1.normal @ nom2.normal)) > 0.99:
+        raise InsufficientDataError("joints 1 and 2 are (nearly) parallel in these poses: the frame is not determined")
+    a = np.array([nom1.normal, nom2.normal, np.cross(nom1.normal, nom2.normal)])
+    b = np.array([meas1.normal, meas2.normal, np.cross(meas1.normal, meas2.normal)])
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    z = meas1.normal
+    t1 = meas1.centre_mm - R @ nom1.centre_mm
+    t2 = meas2.centre_mm - R @ nom2.centre_mm
+    t = (t1 - (t1 @ z) * z) + (t2 @ z) * z
+    p1 = np.asarray(p1_tracker_mm, dtype=float)
+    p2 = np.asarray(p2_tracker_mm, dtype=float)
+    res = []
+    for c, p in ((meas1, p1), (meas2, p2)):
+        dpl = (p - c.centre_mm) @ c.normal
+        drad = np.linalg.norm((p - c.centre_mm) - np.outer(dpl, c.normal), axis=1) - c.radius_mm
+        res.append(np.sqrt(dpl**2 + drad**2))
+    res = np.concatenate(res)
+    return Registration(R=R, t_mm=t, residuals_mm=res, rms_mm=float(np.sqrt(np.mean(res**2))), n=int(res.size))

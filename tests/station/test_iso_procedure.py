@@ -30,8 +30,9 @@ def _run(fake_cell, tmp_path, **iso):
     return code, RunStore(tmp_path / "s.sqlite")
 
 
-def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp_path):
-    code, store = _run(fake_cell, tmp_path)
+@pytest.mark.parametrize("registration", ["axes", "best-fit"])
+def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp_path, registration):
+    code, store = _run(fake_cell, tmp_path, registration=registration)
     assert code == 0, store.steps("t1")[-1].message
     world = fake_cell.world
     steps = store.steps("t1")
@@ -42,6 +43,7 @@ def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp
             assert s.output["lost"] == 0 and s.output["received"] > 100, s.output
     result = store.result("t1", "iso9283")["pose"]
     reg = registration_of({s.name: s.output for s in steps if s.status == "done"})
+    assert steps[[s.name for s in steps].index("register base frame")].output["method"] == registration
     sigma = float(np.max(world.tracker.sigma_mm(3000.0)))  # per-coordinate noise, tracker ~2-4 m away
     # registration: rms residual of the rigid fit is robot error + noise; it must be small but not zero
     assert 0 < reg.rms_mm < 2.0
