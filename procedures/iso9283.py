@@ -17,6 +17,8 @@ The tests of seed 000 Table 3 on one robot with one laser tracker:
    RP (eq. (1)-(2)), POS/PST (5)-(6), AD/RD (8)-(9) between P2 and P4,
    MPT (10);
 7. ``vAP cycle k`` — P1, P2, P4 approached along x, y and z (sec. 3.3, eq. (7));
+   the tracker streams continuously from the first cycle to ``stop stream``,
+   each step committing what arrived while it ran;
 8. ``analyse`` — attained-pose extraction and every characteristic, with
    verdicts against the configured limits;
 9. ``report`` — one HTML file with the plots of Figs. 3-8.
@@ -318,25 +320,41 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
             drain()
             last[0] = time.monotonic()
 
-    if stream:
+    if stream and not tracker.streaming:
+        # one continuous stream across the cycles (seed 000: the tracker measures the whole run);
+        # a new session (resume) starts it again
         tracker.start_stream(plan.tracker_rate_hz)
     try:
         status = controller.run(rendered, timeout_s=timeout_s, on_status=on_status)
     finally:
         if stream:
-            try:
-                # let the last dwell's samples arrive, then stop and keep everything delivered
-                drain(0.05)
-                record = tracker.stop_stream()
-                drain(0.0)
-            except StationError:
-                record = None
+            # let the last dwell's samples arrive and commit everything delivered so far
+            drain(0.05)
     out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
-    if stream and record is not None:
-        out.update(received=record.received, lost=record.lost, rejected=record.rejected,
-                   not_measured=record.not_measured, reconnects=record.reconnects,
-                   gaps=[[g.t_before_s, g.t_after_s, g.missing, g.cause] for g in record.gaps])
+    record = tracker.stream_record() if stream else None
+    if record is not None:
+        out.update(_record_counts(record))
     return out
+
+
+def _record_counts(record) -> dict:
+    """Stream counters so far (cumulative over the session's stream)."""
+    return {"received": record.received, "lost": record.lost, "rejected": record.rejected,
+            "not_measured": record.not_measured, "reconnects": record.reconnects,
+            "gaps": [[g.t_before_s, g.t_after_s, g.missing, g.cause] for g in record.gaps]}
+
+
+def step_stop_stream(ctx: StepContext) -> dict:
+    """End of the measured block: stop the stream, commit the last samples, keep the counters."""
+    tracker = ctx.session["tracker"]
+    if not tracker.streaming:
+        return {"streaming": False}
+    record = tracker.stop_stream()
+    batch = tracker.read_samples(timeout_s=0.0)
+    if len(batch):
+        ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
+                            "z": batch.xyz_mm[:, 2], "status": batch.status})
+    return {"streaming": True, **_record_counts(record)}
 
 
 def _timeout(ctx: StepContext, sim_seconds: float) -> float:
@@ -457,7 +475,7 @@ def characteristic_rows(main, vap) -> list[dict]:
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
-    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)]
+    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
     t, xyz, _ = _stream_in_base(ctx, pose_steps)
     vt = vxyz = None
     if vap_steps:
@@ -489,7 +507,7 @@ def step_report(ctx: StepContext) -> dict:
 
 def _reanalyse(ctx: StepContext, plan: IsoPlan):
     pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
-    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)]
+    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
     t, xyz, _ = _stream_in_base(ctx, pose_steps)
     vt, vxyz, _ = _stream_in_base(ctx, vap_steps) if vap_steps else (None, None, None)
     return analyse(plan, t, xyz, vt, vxyz)
@@ -537,5 +555,5 @@ def build_procedure(plan: IsoPlan) -> Procedure:
     steps += [Step(f"pose cycle {k}", step_pose_cycle(k), label=f"{k}/{plan.cycles}") for k in range(1, plan.cycles + 1)]
     steps += [Step(f"vAP cycle {k}", step_vap_cycle(k), label=f"{k}/{plan.vap_cycles}")
               for k in range(1, plan.vap_cycles + 1)]
-    steps += [Step("analyse", step_analyse), Step("report", step_report)]
+    steps += [Step("stop stream", step_stop_stream), Step("analyse", step_analyse), Step("report", step_report)]
     return Procedure("iso9283", steps, safe_state=safe_state)

@@ -77,7 +77,7 @@ def build_report(ctx, plan, run, rows, main, vap) -> Report:
     t, xyz, _ = _stream_in_base(ctx, [f"pose cycle {k}" for k in range(1, plan.cycles + 1)])
     vxyz = None
     if vap is not None:
-        _, vxyz, _ = _stream_in_base(ctx, [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)])
+        _, vxyz, _ = _stream_in_base(ctx, [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"])
     reg = registration_of(ctx.outputs)
     facts = {
         "run": run.run_id,

@@ -87,7 +87,7 @@ class Station:
         from station.commands.demo import demo_config
 
         workdir = Path(workdir)
-        cfg = demo_config(workdir.resolve(), cycles=30, vap_cycles=10, rate_hz=100.0)
+        cfg = demo_config(workdir.resolve(), cycles=30, vap_cycles=30, rate_hz=100.0)
         cfg["robots"]["r1"]["serial"] = serial
         if limits is not None:
             cfg["robots"]["r1"]["limits"] = dict(limits)

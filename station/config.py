@@ -208,7 +208,7 @@ class ISOProcedureConfig(_Strict):
     dwell_s: float = Field(0.5, gt=0, le=60)
     speed_percent: float = Field(100.0, gt=0, le=100)
     tracker_rate_hz: float = Field(100.0, ge=10, le=3000)
-    vap_cycles: int = Field(10, ge=2, le=1000)
+    vap_cycles: int = Field(30, ge=2, le=1000)
     vap_offset_mm: float = Field(100.0, gt=0)
     distance_cycles: int = Field(10, ge=2, le=1000)
     mpt_repeats: int = Field(3, ge=1, le=100)

@@ -3,7 +3,7 @@
 Starts a simulated cell (industrial arm with realistic errors, emScon
 tracker fake, controller fake with FTP upload and Modbus TCP) on loopback,
 runs the full procedure of seed 000 Table 3 (30 pose cycles P1..P5 at rated
-speed, 10 multi-directional cycles, registration, analysis, report) through
+speed, 30 multi-directional cycles, registration, analysis, report) through
 the real drivers in accelerated time, prints the results table and the
 report's path.
 """
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="ISO 9283 on the fake station, end to end, in accelerated time")
     p.add_argument("--out", default=None, help="directory for the store and the report (default: ./demo-runs)")
     p.add_argument("--cycles", type=int, default=30, help="pose cycles (ISO: 30)")
-    p.add_argument("--vap-cycles", type=int, default=10, help="multi-directional cycles")
+    p.add_argument("--vap-cycles", type=int, default=30, help="multi-directional cycles (ISO: 30)")
     p.add_argument("--time-scale", type=float, default=20.0, help="simulated seconds per real second")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell")
     p.add_argument("--rate", type=float, default=100.0, help="tracker rate, Hz (seed 000: 100)")

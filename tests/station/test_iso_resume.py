@@ -79,7 +79,7 @@ def _pose_table(store, run_id):
 def test_killed_run_resumes_with_nothing_lost(tmp_path, trial):
     rng = np.random.default_rng()
     seed = int(rng.integers(0, 2**31))
-    total_steps = 6 + CYCLES + VAP + 2
+    total_steps = 6 + CYCLES + VAP + 3
     kill_after = int(rng.integers(5, total_steps - 1))  # somewhere from registration to analysis
     with FakeStation.start(seed=seed, time_scale=20.0) as cell:
         cfg = _config(cell, tmp_path, "killed")
