@@ -155,7 +155,7 @@ def parse_tracker_faults(faults: dict | None, *, allowed: frozenset, drop_defaul
 
 
 def check_loopback(host: str) -> str:
-    """Refuse anything but a loopback address (never 0.0.0.0)."""
+    """Refuse anything but a loopback address (never a wildcard or external one)."""
     try:
         ok = ipaddress.ip_address(host).is_loopback
     except ValueError:

@@ -196,4 +196,4 @@ def test_unknown_fault_keys_are_refused(start_controller):
     with pytest.raises(ConfigError, match="modbus_exception needs an integer"):
         start_controller({"modbus_exception": "busy"})
     with pytest.raises(ConfigError, match="loopback"):
-        start_controller(host="0.0.0.0")
+        start_controller(host="::")  # the wildcard address: refused before anything binds

@@ -235,7 +235,7 @@ def test_fake_refuses_a_huge_declared_length_and_keeps_serving(world):
 
 def test_fake_binds_loopback_only(world):
     with pytest.raises(ConfigError, match="loopback"):
-        start_fake(world, host="0.0.0.0")
+        start_fake(world, host="::")  # the wildcard address: refused before anything binds
     with pytest.raises(ConfigError, match="unknown fault 'bogus'"):
         start_fake(world, faults={"bogus": "1"})
     with pytest.raises(ConfigError, match="beam_break"):
