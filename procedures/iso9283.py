@@ -88,6 +88,8 @@ class IsoPlan:
     max_speed_frac: float = 1.0
     max_accel_frac: float = 1.0
     registration: str = "axes"
+    axis_sweep_deg: tuple[float, float] = (25.0, 30.0)
+    axis_sweep_points: int = 13
 
     def gate(self) -> SafetyGate:
         return SafetyGate(
@@ -108,7 +110,8 @@ class IsoPlan:
             "tracker_rate_hz": self.tracker_rate_hz, "limits": dict(self.limits), "band_mm": self.band_mm,
             "payload_kg": self.payload_kg, "report_dir": self.report_dir,
             "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
-            "registration": self.registration,
+            "registration": self.registration, "axis_sweep_deg": list(self.axis_sweep_deg),
+            "axis_sweep_points": self.axis_sweep_points,
         }
 
     @classmethod
@@ -124,6 +127,8 @@ class IsoPlan:
             payload_kg=float(p["payload_kg"]), report_dir=str(p["report_dir"]),
             max_speed_frac=float(p.get("max_speed_frac", 1.0)), max_accel_frac=float(p.get("max_accel_frac", 1.0)),
             registration=str(p.get("registration", "axes")),
+            axis_sweep_deg=tuple(p.get("axis_sweep_deg", (25.0, 30.0))),
+            axis_sweep_points=int(p.get("axis_sweep_points", 13)),
         )
 
 
@@ -151,6 +156,8 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
         max_speed_frac=rc.workspace.max_speed_percent / 100.0,
         max_accel_frac=rc.workspace.max_accel_percent / 100.0,
         registration=iso.registration,
+        axis_sweep_deg=tuple(iso.axis_sweep_deg),
+        axis_sweep_points=iso.axis_sweep_points,
     )
     kw.update(overrides)
     return IsoPlan(**kw)
@@ -174,15 +181,28 @@ def _point_program(plan: IsoPlan, name: str, xyz, *, dwell_s: float, speed_frac:
     )
 
 
-#: joint sweeps of the axis registration about the P1 configuration, deg: (joint index, angles)
-AXIS_SWEEPS = ((0, np.linspace(-25.0, 25.0, 7)), (1, np.linspace(-15.0, 15.0, 7)))
+def axis_sweeps(plan: IsoPlan) -> tuple[tuple[int, np.ndarray], ...]:
+    """Joint sweeps of the axis registration about the P1 configuration: (joint index, angles deg)."""
+    a1, a2 = plan.axis_sweep_deg
+    n = plan.axis_sweep_points
+    return ((0, np.linspace(-a1, a1, n)), (1, np.linspace(-a2, a2, n)))
 
 
-def _joint_program(plan: IsoPlan, name: str, q_deg, *, dwell_s: float) -> Program:
+#: every registration point is approached with each joint moving in + (backlash on one side), deg
+UNIDIRECTIONAL_PRE_DEG = 2.0
+
+
+def _joint_program(plan: IsoPlan, name: str, q_deg, *, dwell_s: float, pre_deg: float | None = None) -> Program:
+    """Joint move to ``q_deg`` and a dwell; with ``pre_deg`` first to ``q_deg - pre_deg`` on every joint,
+    so each joint's last motion before the measurement is positive whatever came before."""
     target = JointTarget(name, tuple(float(v) for v in q_deg), label=name)
+    moves: tuple = (Move(target, "joint", 0.2),)
+    if pre_deg:
+        pre = JointTarget(f"{name}_pre", tuple(float(v) - pre_deg for v in q_deg), label=f"{name} pre-position")
+        moves = (Move(pre, "joint", 0.2),) + moves
     return Program(
         name=f"ST_{name}", robot_name=plan.robot.name, rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
-        statements=(Move(target, "joint", 0.2), Dwell(dwell_s)), accel_frac=0.5,
+        statements=moves + (Dwell(dwell_s),), accel_frac=0.5,
         title=f"station: joint pose {name}", rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot),
     )
 
@@ -192,7 +212,7 @@ def axis_sweep_q_deg(plan: IsoPlan) -> dict[str, np.ndarray]:
     p1 = CartesianTarget("P1", tuple(plan.poses_mm["P1"]), _quat())
     q0 = np.degrees(plan.gate().check_cartesian_target(p1.pose, "P1 (registration)"))
     out = {}
-    for j, angles in AXIS_SWEEPS:
+    for j, angles in axis_sweeps(plan):
         for k, a in enumerate(angles):
             q = q0.copy()
             q[j] += a
@@ -204,8 +224,10 @@ def programs(plan: IsoPlan) -> dict[str, object]:
     """Every program of the procedure, rendered (RAPID)."""
     out = {"home": render_rapid(_point_program(plan, "P1", plan.poses_mm["P1"], dwell_s=plan.dwell_s))}
     if plan.registration == "axes":
+        # each sweep starts from a pre-position below its first point and turns one way only
         for name, q in axis_sweep_q_deg(plan).items():
-            out[f"register {name}"] = render_rapid(_joint_program(plan, name, q, dwell_s=0.2))
+            pre = UNIDIRECTIONAL_PRE_DEG if name.endswith("_1") else None
+            out[f"register {name}"] = render_rapid(_joint_program(plan, name, q, dwell_s=0.2, pre_deg=pre))
     else:
         for name, xyz in plan.registration_mm.items():
             out[f"register {name}"] = render_rapid(_point_program(plan, name, xyz, dwell_s=0.2))
@@ -235,7 +257,6 @@ def _plan(ctx: StepContext) -> IsoPlan:
 def step_check_programs(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     gate = plan.gate()
-    q = plan.robot.home_q_rad
     checked = {}
     for name, rendered in programs(plan).items():
         report = gate.check_program(rendered.program, q_start=None)
@@ -382,13 +403,43 @@ def step_register(ctx: StepContext) -> dict:
     measured = np.array(measured)
     if plan.registration == "axes":
         q = axis_sweep_q_deg(plan)
-        n1 = len(AXIS_SWEEPS[0][1])
+        n1 = len(axis_sweeps(plan)[0][1])
         qr = np.radians(np.array([q[n] for n in names]))
-        reg = register_by_axes(plan.robot.dh_nominal, qr[:n1], measured[:n1], qr[n1:], measured[n1:])
+
+        def fit(keep):
+            k1, k2 = keep[:n1], keep[n1:]
+            return register_by_axes(plan.robot.dh_nominal, qr[:n1][k1], measured[:n1][k1],
+                                    qr[n1:][k2], measured[n1:][k2])
     else:
-        reg = fit_rigid(np.array([plan.registration_mm[n] for n in names]), measured)
+        base = np.array([plan.registration_mm[n] for n in names])
+
+        def fit(keep):
+            return fit_rigid(base[keep], measured[keep])
+    n = len(names)
+    reg = fit(np.ones(n, bool))
+    u = registration_uncertainty(fit, n, reg, np.array(list(plan.poses_mm.values())))
     return {"method": plan.registration, "R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
-            "residuals_mm": reg.residuals_mm.tolist(), "points": names, "points_tracker_mm": measured.tolist()}
+            "residuals_mm": reg.residuals_mm.tolist(), "points": names, "points_tracker_mm": measured.tolist(),
+            "uncertainty_at_poses_mm": dict(zip(plan.poses_mm, np.round(u, 4).tolist()))}
+
+
+def registration_uncertainty(fit, n: int, reg: Registration, poses_mm: np.ndarray) -> np.ndarray:
+    """Jackknife standard error of where the registered frame puts each pose, mm (one per pose).
+
+    Each point is left out in turn and the frame refitted; the spread of the
+    poses' tracker coordinates over the refits, scaled by sqrt(n - 1), is the
+    frame's own uncertainty at the poses (from the robot's stop scatter and the
+    tracker's noise in the registration points). It bounds how much of AP is
+    the registration's.
+    """
+    refs = []
+    for k in range(n):
+        keep = np.ones(n, bool)
+        keep[k] = False
+        refs.append(fit(keep).to_tracker(poses_mm))
+    refs = np.array(refs)  # (n, P, 3)
+    dev = refs - refs.mean(axis=0)
+    return np.sqrt((n - 1) / n * np.sum(dev**2, axis=(0, 2)))
 
 
 def step_pose_cycle(k: int):

@@ -89,6 +89,8 @@ def build_report(ctx, plan, run, rows, main, vap) -> Report:
             if ctx.outputs["register base frame"].get("method", "best-fit") == "axes" else
             f"rigid best fit over {reg.n} points, rms {reg.rms_mm:.3f} mm (AP is relative to the best-fit frame, "
             f"which absorbs part of the robot's error)"),
+        "registration uncertainty at the test poses (jackknife, 1 sigma)": ", ".join(
+            f"{k} {v:.3f} mm" for k, v in ctx.outputs["register base frame"].get("uncertainty_at_poses_mm", {}).items()),
         "ISO conformant": "yes" if main.iso_conformant else "no (fewer than 30 cycles or missing stops)",
     }
     figs: list[tuple[str, str]] = []

@@ -247,7 +247,7 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
             sent = drv.send_curvature(target)  # streamed; a refusal raises from the next read
             ctx.setpoints.append((sent, t_apply))
             ctx.kappa_cmd = target
-        if len(batch["t"]) >= 100:
+        if len(batch["t"]) >= 20:  # commit often: what is not committed is not yet acknowledged
             _flush(ctx, batch)
         waiting = [drv.read_sample(plan.sample_timeout_s)] + drv.drain()
     _flush(ctx, batch)

@@ -215,6 +215,16 @@ class ISOProcedureConfig(_Strict):
     #: how the tracker is tied to the robot base: circles of joints 1 and 2 (ISO/TR 13309 practice) or a
     #: rigid best fit over the inset cube corners (absorbs part of the robot's error into the frame)
     registration: Literal["axes", "best-fit"] = "axes"
+    #: half ranges of the joint-1 and joint-2 sweeps of the axis registration, deg, and points per sweep
+    axis_sweep_deg: tuple[float, float] = (25.0, 30.0)
+    axis_sweep_points: int = Field(13, ge=5, le=61)
+
+    @field_validator("axis_sweep_deg")
+    @classmethod
+    def _sweep(cls, v):
+        if not all(2.0 <= a <= 90.0 for a in v):
+            raise ValueError(f"axis_sweep_deg half ranges must be in [2, 90] deg, got {v}")
+        return v
 
     @field_validator("cube_corners_mm")
     @classmethod

@@ -12,7 +12,6 @@ from station.models.kinematics import frames, tool_position
 from station.models.robots import (
     GRAVITY_M_S2,
     ROBOT_NAMES,
-    RobotSpec,
     get_robot,
     gravity_torques,
     potential_energy,

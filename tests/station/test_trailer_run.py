@@ -71,8 +71,11 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
             deadline = time.monotonic() + 60
             while time.monotonic() < deadline and not done.is_set():
                 steps = store.steps("a1") if store.runs() else []
-                if any(s.name.startswith("command 2") and s.status == "running" for s in steps):
-                    time.sleep(float(rng.uniform(0.3, 2.0)))
+                running = [s for s in steps if s.name.startswith("command 2") and s.status == "running"]
+                # abort once the command has committed samples of its own, at a random moment after that
+                if running and store.sample_count("a1", "odometry") > store.sample_count(
+                        "a1", "odometry", finished_only=True):
+                    time.sleep(float(rng.uniform(0.0, 1.5)))
                     control.abort()
                     return
                 time.sleep(0.05)
