@@ -59,7 +59,7 @@ class FakeStation:
         except BaseException:
             self.tracker.close()
             raise
-        te, ce = self.tracker.endpoint, self.controller.endpoint
+        te = self.tracker.endpoint
         self.tracker_url = f"emscon://{te['host']}:{te['port']}"
         self.controller_url = self.controller.url
         self.endpoint = {

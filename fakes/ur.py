@@ -797,9 +797,18 @@ class _Interpreter:
             self.cond.notify_all()
             return True
 
+    def _active(self) -> bool:
+        """A program is running or accepted by play and about to run (the thread picks it up)."""
+        return self.busy or self.pending is not None
+
+    def stoppable(self) -> bool:
+        """A program runs (and is not already being stopped) or waits to start."""
+        with self.cond:
+            return (self.busy and self.abort_reason is None) or self.pending is not None
+
     def pause(self) -> bool:
         with self.cond:
-            if not self.busy or self.paused:
+            if not self._active() or self.paused:
                 return False
             self.paused = True
             self.pause_epoch += 1
@@ -809,7 +818,7 @@ class _Interpreter:
 
     def resume(self) -> bool:
         with self.cond:
-            if not self.busy or not self.paused:
+            if not self._active() or not self.paused:
                 return False
             self.paused = False
             self.ctl.runtime_state = RUNTIME_PLAYING
@@ -830,9 +839,11 @@ class _Interpreter:
                 why = self.ctl.ready_to_move()
                 if why is not None:
                     self.ctl.message(f"Runtime error: cannot start program {program.name}: {why}")
+                    self.paused = False
                     continue
                 self.busy = True
-                self.ctl.runtime_state = RUNTIME_PLAYING
+                # paused between play and this pickup: it starts paused
+                self.ctl.runtime_state = RUNTIME_PAUSED if self.paused else RUNTIME_PLAYING
             try:
                 self._execute(program)
             except _Abort:
@@ -1428,7 +1439,7 @@ class URFake:
                 ctl.runtime_state = RUNTIME_PLAYING
                 return "Starting program", False
             if low == "stop":
-                if ctl.runtime_state == RUNTIME_STOPPED and not self.interpreter.busy:
+                if ctl.runtime_state == RUNTIME_STOPPED and not self.interpreter.stoppable():
                     return "Failed to execute: stop", False
                 self.interpreter.abort("stopped from the dashboard")
                 ctl.runtime_state = RUNTIME_STOPPED
