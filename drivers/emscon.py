@@ -35,7 +35,7 @@ import numpy as np
 from drivers import emscon_codec as ec
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer,
                              StreamRecord, Tracker, TrackerInfo)
-from drivers.transport import Deadline, Transport, parse_device_url, tcp_factory
+from drivers.transport import Deadline, check_positive, parse_device_url, tcp_factory, transport_or_factory
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
                             DeviceTimeout, StationError)
 
@@ -69,16 +69,9 @@ class EmsconTracker(Tracker):
                  backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0,
                  max_packet_bytes: int = ec.DEFAULT_MAX_PACKET_BYTES) -> None:
         super().__init__()
-        for name, value in (("reply_timeout_s", reply_timeout_s), ("reconnect_timeout_s", reconnect_timeout_s),
-                            ("backoff_initial_s", backoff_initial_s), ("backoff_max_s", backoff_max_s)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
-        if isinstance(transport, Transport):
-            self._factory, self._transport = None, transport
-        elif callable(transport):
-            self._factory, self._transport = transport, None
-        else:
-            raise ConfigError(f"transport must be a Transport or a factory, got {type(transport).__name__}")
+        check_positive(reply_timeout_s=reply_timeout_s, reconnect_timeout_s=reconnect_timeout_s,
+                       backoff_initial_s=backoff_initial_s, backoff_max_s=backoff_max_s)
+        self._factory, self._transport = transport_or_factory(transport)
         self.reply_timeout_s = float(reply_timeout_s)
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self._backoff = (float(backoff_initial_s), float(backoff_max_s))

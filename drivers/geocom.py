@@ -37,7 +37,8 @@ import numpy as np
 
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer, StreamRecord,
                              Tracker, TrackerInfo)
-from drivers.transport import Deadline, LineReader, Transport, parse_device_url, serial_factory
+from drivers.transport import (Deadline, LineReader, check_positive, parse_device_url, serial_factory,
+                               transport_or_factory)
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceFault, DeviceNotReady,
                             DeviceTimeout, ProtocolError, StationError)
 
@@ -219,18 +220,11 @@ class GeoComTracker(Tracker):
                  backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0, dead_after: int = 2,
                  max_line_bytes: int = 1024) -> None:
         super().__init__()
-        for name, value in (("reply_timeout_s", reply_timeout_s), ("reconnect_timeout_s", reconnect_timeout_s),
-                            ("backoff_initial_s", backoff_initial_s), ("backoff_max_s", backoff_max_s)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+        check_positive(reply_timeout_s=reply_timeout_s, reconnect_timeout_s=reconnect_timeout_s,
+                       backoff_initial_s=backoff_initial_s, backoff_max_s=backoff_max_s)
         if not (isinstance(dead_after, int) and dead_after >= 1):
             raise ConfigError(f"dead_after must be an integer >= 1, got {dead_after!r}")
-        if isinstance(transport, Transport):
-            self._factory, self._transport = None, transport
-        elif callable(transport):
-            self._factory, self._transport = transport, None
-        else:
-            raise ConfigError(f"transport must be a Transport or a factory, got {type(transport).__name__}")
+        self._factory, self._transport = transport_or_factory(transport)
         self.reply_timeout_s = float(reply_timeout_s)
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self._backoff = (float(backoff_initial_s), float(backoff_max_s))

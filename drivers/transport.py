@@ -81,6 +81,22 @@ class Transport(Protocol):
 TransportFactory = Callable[[], Transport]
 
 
+def check_positive(**values: float) -> None:
+    """ConfigError naming the first value that is not a finite number > 0."""
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def transport_or_factory(transport) -> tuple[TransportFactory | None, Transport | None]:
+    """``(factory, None)`` for a factory (the driver can reconnect), ``(None, transport)`` for an open one."""
+    if isinstance(transport, Transport):
+        return None, transport
+    if callable(transport):
+        return transport, None
+    raise ConfigError(f"transport must be a Transport or a factory, got {type(transport).__name__}")
+
+
 class TcpTransport:
     """A TCP client socket.
 

@@ -38,15 +38,14 @@ from __future__ import annotations
 import errno
 import math
 import os
-import pty
 import re
 import select
 import threading
-import tty
 
 import numpy as np
 
 from fakes.emscon import parse_tracker_faults
+from fakes.pty_port import PtyPort
 from station.errors import ConfigError
 
 GEOCOM_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "slow_reply_s",
@@ -77,10 +76,9 @@ class GeoComFake:
         device_time = getattr(self._source, "device_time", None)
         self._offset = float(np.ravel(device_time(np.zeros(1)))[0]) if device_time else 0.0
         self._rng = np.random.default_rng(self._faults.seed)
-        self._master, self._slave = pty.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.endpoint = {"device": os.ttyname(self._slave)}
+        self._port = PtyPort()
+        self._master = self._port.master
+        self.endpoint = {"device": self._port.device}
         self.stats = {"requests": 0, "replies": 0, "ignored_lines": 0, "malformed": 0, "garbage_bytes": 0,
                       "truncated": 0, "dropped_requests": 0, "anchor_t": None}
         self._t_started = self._clock.now()
@@ -93,11 +91,7 @@ class GeoComFake:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=10.0)
-        for fd in (self._master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        self._port.close()
 
     def __enter__(self):
         return self

@@ -32,13 +32,12 @@ from __future__ import annotations
 import errno
 import math
 import os
-import pty
 import select
 import threading
-import tty
 
 import numpy as np
 
+from fakes.pty_port import PtyPort
 from station.errors import ConfigError, DataError
 from station.models.trailer import CurvatureBoundError, JointAngleLimitError
 
@@ -128,10 +127,9 @@ class OdometryFake:
                       "stalled_samples": 0, "commands": 0, "acks": 0, "naks": 0, "overflow_bytes": 0}
         self._pending: list[tuple[str, float]] = []
         self._out = bytearray()
-        self._master, self._slave = pty.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.endpoint = {"device": os.ttyname(self._slave)}
+        self._port = PtyPort()
+        self._master = self._port.master
+        self.endpoint = {"device": self._port.device}
         self._t0 = float(clock.now())
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="odometry-fake", daemon=True)
@@ -140,11 +138,7 @@ class OdometryFake:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=10.0)
-        for fd in (self._master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        self._port.close()
 
     def __enter__(self) -> "OdometryFake":
         return self

@@ -315,6 +315,12 @@ def _move_targets(rendered) -> list[str]:
     return names
 
 
+def _record_batch(ctx: StepContext, batch) -> None:
+    """Commit one batch of tracker samples (device time, tracker frame) to the run's stream."""
+    ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
+                        "z": batch.xyz_mm[:, 2], "status": batch.status})
+
+
 def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) -> dict:
     """Run one program; with ``stream`` the tracker streams and samples are committed as they come."""
     plan = _plan(ctx)
@@ -326,8 +332,7 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
         for ev in batch.events:
             events.append(f"{ev.kind.value}@{ev.t_device_s}")
         if len(batch):
-            ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
-                                "z": batch.xyz_mm[:, 2], "status": batch.status})
+            _record_batch(ctx, batch)
 
     last = [time.monotonic()]
 
@@ -373,8 +378,7 @@ def step_stop_stream(ctx: StepContext) -> dict:
     record = tracker.stop_stream()
     batch = tracker.read_samples(timeout_s=0.0)
     if len(batch):
-        ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
-                            "z": batch.xyz_mm[:, 2], "status": batch.status})
+        _record_batch(ctx, batch)
     return {"streaming": True, **_record_counts(record)}
 
 
@@ -523,15 +527,22 @@ def characteristic_rows(main, vap) -> list[dict]:
     return rows
 
 
+def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
+    streams = ctx.session.get("streams")
+    if streams is None:
+        pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
+        # the stream's tail (the last vAP dwell) arrives in the step that stops it
+        vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
+        streams = ctx.session["streams"] = {
+            "pose": _stream_in_base(ctx, pose_steps)[:2], "vap": _stream_in_base(ctx, vap_steps)[:2]}
+    return streams
+
+
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
-    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
-    t, xyz, _ = _stream_in_base(ctx, pose_steps)
-    vt = vxyz = None
-    if vap_steps:
-        vt, vxyz, _ = _stream_in_base(ctx, vap_steps)
-    main, vap = analyse(plan, t, xyz, vt, vxyz)
+    streams = measured_streams(ctx, plan)
+    main, vap = analyse(plan, *streams["pose"], *streams["vap"])
     rows = characteristic_rows(main, vap)
     ctx.store.put_characteristics(ctx.run_id, rows)
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
@@ -548,20 +559,15 @@ def step_report(ctx: StepContext) -> dict:
     from station.report import write_report
 
     plan = _plan(ctx)
-    main, vap = ctx.session.get("analysis") or _reanalyse(ctx, plan)
+    if "analysis" not in ctx.session:  # a resumed run whose analysis ran in an earlier session
+        streams = measured_streams(ctx, plan)
+        ctx.session["analysis"] = analyse(plan, *streams["pose"], *streams["vap"])
+    main, vap = ctx.session["analysis"]
     rows = ctx.store.characteristics(ctx.run_id)
     run = ctx.store.run(ctx.run_id)
     report = build_report(ctx, plan, run, rows, main, vap)
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     return {"report": str(path.resolve()), "verdict": report.verdict}
-
-
-def _reanalyse(ctx: StepContext, plan: IsoPlan):
-    pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
-    vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
-    t, xyz, _ = _stream_in_base(ctx, pose_steps)
-    vt, vxyz, _ = _stream_in_base(ctx, vap_steps) if vap_steps else (None, None, None)
-    return analyse(plan, t, xyz, vt, vxyz)
 
 
 def safe_state(session: dict) -> None:

@@ -72,12 +72,11 @@ def _cluster_figures(vap_xyz, vap, plan) -> list[tuple[str, str]]:
 
 
 def build_report(ctx, plan, run, rows, main, vap) -> Report:
-    from procedures.iso9283 import VAP_POSES, _stream_in_base, registration_of
+    from procedures.iso9283 import VAP_POSES, measured_streams, registration_of
 
-    t, xyz, _ = _stream_in_base(ctx, [f"pose cycle {k}" for k in range(1, plan.cycles + 1)])
-    vxyz = None
-    if vap is not None:
-        _, vxyz, _ = _stream_in_base(ctx, [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"])
+    streams = measured_streams(ctx, plan)
+    t, xyz = streams["pose"]
+    vxyz = streams["vap"][1] if vap is not None else None
     reg = registration_of(ctx.outputs)
     facts = {
         "run": run.run_id,

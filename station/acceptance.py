@@ -109,14 +109,11 @@ class Station:
         execute(self.config, robot=robot, run_id=run_id, arm=self.arm, yes=True, quiet=True,
                 time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=overrides,
                 stdout=out)
-        store_path = Path(self.config.station.store_path)
-        store_path = store_path if store_path.is_absolute() else self.workdir / store_path
+        store_path = self.config.station.store_file(self.workdir)
         with RunStore(store_path) as store:
             return AcceptanceRun(run_id, store.run(run_id).status, store_path, store.characteristics(run_id),
                                  out.getvalue())
 
     def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
-        store_path = Path(self.config.station.store_path)
-        store_path = store_path if store_path.is_absolute() else self.workdir / store_path
-        with RunStore(store_path) as store:
+        with RunStore(self.config.station.store_file(self.workdir)) as store:
             return store.history(serial, name, pose)

@@ -261,6 +261,19 @@ class StationSection(_Strict):
     store_path: str = "station.sqlite"
     report_dir: str = "reports"
 
+    def store_file(self, base: Path) -> Path:
+        """The store's path; a relative one is relative to ``base`` (the config's folder)."""
+        return _under(base, self.store_path)
+
+    def report_folder(self, base: Path) -> Path:
+        """The report folder; a relative one is relative to ``base``."""
+        return _under(base, self.report_dir)
+
+
+def _under(base: Path, path: str) -> Path:
+    p = Path(path)
+    return p if p.is_absolute() else Path(base) / p
+
 
 class StationConfig(_Strict):
     station: StationSection

@@ -56,15 +56,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
                    json_out=args.json, quiet=args.quiet, config_dir=Path(args.config).resolve().parent)
 
 
-def _store_path(cfg, base: Path) -> Path:
-    p = Path(cfg.station.store_path)
-    return p if p.is_absolute() else base / p
-
-
 def _stored_procedure(cfg, run_id: str, base: Path) -> str:
     from station.store import RunStore
 
-    with RunStore(_store_path(cfg, base)) as store:
+    with RunStore(cfg.station.store_file(base)) as store:
         return store.run(run_id).procedure
 
 
@@ -80,7 +75,7 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
     from station.store import RunStore
 
     base = config_dir or Path.cwd()
-    store = RunStore(_store_path(cfg, base))
+    store = RunStore(cfg.station.store_file(base))
     rc = cfg.robots.get(robot)
     if rc is None:
         raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
@@ -91,8 +86,7 @@ def execute(cfg, *, procedure: str = "iso9283", robot: str = "r1", resume: str |
         fake = rec.params.get("fake")
         run_id = resume
     else:
-        report_dir = Path(cfg.station.report_dir)
-        overrides = {"report_dir": str(report_dir if report_dir.is_absolute() else base / report_dir)}
+        overrides = {"report_dir": str(cfg.station.report_folder(base))}
         overrides.update(plan_overrides or {})
         plan = plan_from_config(cfg, robot, **overrides)
         fake = None if arm else {"seed": int(seed), "time_scale": float(time_scale)}
@@ -184,7 +178,7 @@ def execute_trailer(cfg, *, resume=None, run_id=None, arm=False, yes=False, time
     if tc is None:
         raise ConfigError("trailer: the config has no [trailer] section (odometry device, nominal lengths)")
     base = config_dir or Path.cwd()
-    store = RunStore(_store_path(cfg, base))
+    store = RunStore(cfg.station.store_file(base))
     if resume:
         rec = store.run(resume)
         params = rec.params
@@ -194,9 +188,7 @@ def execute_trailer(cfg, *, resume=None, run_id=None, arm=False, yes=False, time
         plan = tp.TrailerCalibrationPlan(
             commands=tuple((k, float(m)) for k, m in tc.commands), duration_s=tc.duration_s, settle_s=tc.settle_s,
             v_m_s=tc.v_m_s, nominal_L1_m=tc.nominal_L1_m, nominal_L2_m=tc.nominal_L2_m, method=tc.method)
-        report_dir = Path(cfg.station.report_dir)
-        params = {"plan": plan_params(plan),
-                  "report_dir": str(report_dir if report_dir.is_absolute() else base / report_dir)}
+        params = {"plan": plan_params(plan), "report_dir": str(cfg.station.report_folder(base))}
         fake = None if arm else {"seed": int(seed), "time_scale": float(time_scale),
                                  "true_lengths_m": list(true_lengths_m) if true_lengths_m else None}
         if fake is not None:

@@ -46,10 +46,7 @@ def _open(config: str):
     from station.store import RunStore
 
     cfg = load_config(config)
-    path = Path(cfg.station.store_path)
-    if not path.is_absolute():
-        path = Path(config).resolve().parent / path
-    return RunStore(path)
+    return RunStore(cfg.station.store_file(Path(config).resolve().parent))
 
 
 def _ts(t: float | None) -> str:

@@ -72,7 +72,7 @@ def test_export_csv_and_parquet(tmp_path):
         store.export("a1", tmp_path / "x", "xlsx")
 
 
-def test_store_uses_wal_and_full_sync(tmp_path):
+def test_store_file_is_in_wal_mode(tmp_path):
     RunStore(tmp_path / "s.sqlite").close()
     db = sqlite3.connect(tmp_path / "s.sqlite")
     assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"

@@ -1,0 +1,30 @@
+"""A pty that a serial fake serves: the slave path is the device a driver opens.
+
+The slave is put in raw mode (no echo, no CR/LF translation, as a real
+serial line) and the master is non-blocking, read and written by the fake's
+own thread with ``select``.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import tty
+
+
+class PtyPort:
+    """``master`` fd for the fake, ``device`` path (``/dev/pts/N``) for the driver."""
+
+    def __init__(self) -> None:
+        self.master, self._slave = pty.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self.master, False)
+        self.device = os.ttyname(self._slave)
+
+    def close(self) -> None:
+        """Close both ends (idempotent); call after the serving thread has stopped."""
+        for fd in (self.master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
