@@ -5,7 +5,13 @@ cycles; a plant would use 30 and 10) on the station's devices and checks the
 manufacturer's limits from the station config (RP 0.5 mm, AP 5 mm, vAP 2 mm)
 plus a plant's own figures. With `fake_station` it runs on the fake cell;
 point `Station.from_config("station.toml", arm=True)` at real devices.
+
+`fake_station` stands for a robot that came back from overhaul inside its
+maker's limits (drawn at random, with realistic errors, in spec by a margin);
+`fake_station_out_of_spec` for one that did not: the same script refuses it.
 """
+
+import pytest
 
 
 def test_iso9283_after_overhaul(fake_station):
@@ -18,6 +24,15 @@ def test_iso9283_after_overhaul(fake_station):
         assert run.value(pose, "PST_s") <= 0.5, f"{pose}: settles too slowly after a stop"
     assert abs(run.value("P2-P4", "AD_mm")) <= 2.0
     run.assert_within_limits()
+    assert run.passed is True
+
+
+def test_a_robot_outside_the_limits_is_refused(fake_station_out_of_spec):
+    run = fake_station_out_of_spec.iso9283(cycles=3, vap_cycles=2)
+    assert run.status == "done", run.output
+    with pytest.raises(AssertionError, match=r"P\d AP_mm = [\d.]+ > limit 5"):
+        run.assert_within_limits()
+    assert run.passed is False
 
 
 def test_history_shows_the_run(fake_station):

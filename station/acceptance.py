@@ -19,8 +19,64 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from station.config import StationConfig, config_from_dict, load_config
-from station.errors import DataError
+from station.errors import ConfigError, DataError, InsufficientDataError
 from station.store import RunStore
+
+#: robots a fake station can be asked for (:meth:`Station.fake`)
+CONDITIONS = ("as-drawn", "in-spec", "out-of-spec")
+#: distance kept between a predicted AP or AD and its limit when a fake robot is drawn in or out of
+#: spec, mm: the measured AP differs from the noise-free prediction by the registration's and the
+#: stop scatter's share, at most 0.4 mm over 40 cells (tests/iso9283/test_truth.py)
+SPEC_MARGIN_MM = 1.5
+
+
+def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str = "r1", *,
+                    margin_mm: float = SPEC_MARGIN_MM, max_tries: int = 5000) -> int:
+    """The first fake-cell seed from ``seed`` on whose robot is in or out of spec.
+
+    The cell's true error effects are drawn exactly as the fake station draws
+    them; :func:`procedures.iso9283_truth.predict_static` gives the AP of
+    every pose and the AD of P2-P4 an ideal run would measure. ``"in-spec"``:
+    every AP at least ``margin_mm`` under ``ap_limit_mm`` and |AD| as far
+    under ``ad_limit_mm`` (the limits configured; RP, vAP and PST of the
+    simulated arms are bounded by their draws, 0.05-0.15 mm, < 0.5 mm and
+    < 0.1 s). ``"out-of-spec"``: some pose's AP at least ``margin_mm`` over
+    ``ap_limit_mm``.
+
+    Raises
+    ------
+    ConfigError
+        Unknown condition, or ``"out-of-spec"`` without an AP limit.
+    InsufficientDataError
+        No such cell among ``max_tries`` seeds (limits too tight or too loose for the simulated arms).
+    """
+    from fakes.sim.clock import ManualClock
+    from fakes.sim.world import make_world
+    from procedures.iso9283 import plan_from_config
+    from procedures.iso9283_truth import predict_static
+
+    if condition not in ("in-spec", "out-of-spec"):
+        raise ConfigError(f"condition must be 'in-spec' or 'out-of-spec', got {condition!r}")
+    plan = plan_from_config(config, robot)
+    ap_lim = plan.limits.get("AP_mm")
+    ad_lim = plan.limits.get("AD_mm")
+    if condition == "out-of-spec" and ap_lim is None:
+        raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot out of spec")
+    for s in range(int(seed), int(seed) + max_tries):
+        world = make_world(robot=plan.robot.name, seed=s, clock=ManualClock(), payload_kg=plan.payload_kg)
+        try:
+            pred = predict_static(plan, world.arm.effects)
+        finally:
+            world.close()
+        worst_ap = pred.worst_AP_mm()
+        worst_ad = max((abs(v) for v in pred.AD_mm.values()), default=0.0)
+        if condition == "out-of-spec":
+            if worst_ap >= ap_lim + margin_mm:
+                return s
+        elif (ap_lim is None or worst_ap <= ap_lim - margin_mm) and (ad_lim is None or worst_ad <= ad_lim - margin_mm):
+            return s
+    raise InsufficientDataError(f"no fake cell {condition} among seeds {seed}..{seed + max_tries - 1} "
+                                f"(AP limit {ap_lim}, AD limit {ad_lim}, margin {margin_mm} mm)")
 
 
 @dataclass
@@ -82,8 +138,16 @@ class Station:
 
     @classmethod
     def fake(cls, workdir: str | Path, *, seed: int = 0, time_scale: float = 20.0,
-             limits: dict | None = None, serial: str = "SIM-0001") -> "Station":
-        """A station whose devices are the fake cell (started for each run, same seed)."""
+             limits: dict | None = None, serial: str = "SIM-0001", condition: str = "as-drawn") -> "Station":
+        """A station whose devices are the fake cell (started for each run, same seed).
+
+        ``condition`` chooses the simulated robot: ``"as-drawn"`` takes the
+        cell of ``seed`` whatever its errors (an uncalibrated arm after
+        overhaul: AP of about 1-6 mm); ``"in-spec"`` and ``"out-of-spec"``
+        take the first cell from ``seed`` on whose robot is inside, or
+        outside, the configured limits by a clear margin
+        (:func:`fake_robot_seed`). ``self.seed`` is the cell used.
+        """
         from station.commands.demo import demo_config
 
         workdir = Path(workdir)
@@ -91,7 +155,12 @@ class Station:
         cfg["robots"]["r1"]["serial"] = serial
         if limits is not None:
             cfg["robots"]["r1"]["limits"] = dict(limits)
-        return cls(config_from_dict(cfg, "fake station"), workdir=workdir, seed=seed, time_scale=time_scale)
+        config = config_from_dict(cfg, "fake station")
+        if condition not in CONDITIONS:
+            raise ConfigError(f"condition must be one of {', '.join(CONDITIONS)}, got {condition!r}")
+        if condition != "as-drawn":
+            seed = fake_robot_seed(config, seed, condition)
+        return cls(config, workdir=workdir, seed=seed, time_scale=time_scale)
 
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
                 run_id: str | None = None) -> AcceptanceRun:

@@ -38,7 +38,7 @@ def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float) -> d
                 "controller": "controller",
                 "workspace": {"min_mm": [-900.0, 800.0, 500.0], "max_mm": [900.0, 2600.0, 2300.0],
                               "max_tcp_speed_mm_s": 2000.0},
-                "limits": {"rp_limit_mm": 0.5, "ap_limit_mm": 5.0, "vap_limit_mm": 2.0},
+                "limits": {"rp_limit_mm": 0.5, "ap_limit_mm": 5.0, "vap_limit_mm": 2.0, "ad_limit_mm": 2.0},
             }
         },
         "iso9283": {"cycles": cycles, "vap_cycles": vap_cycles, "tracker_rate_hz": rate_hz},

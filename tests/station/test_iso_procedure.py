@@ -8,11 +8,14 @@ noise model.
 """
 
 import json
+import math
 
 import numpy as np
 import pytest
 
-from procedures.iso9283 import registration_of
+from procedures.iso9283 import plan_from_config, registration_of
+from procedures.iso9283_truth import pose_joints_rad, predict_static
+from station.models.kinematics import joint_jacobian
 from station.commands.run import execute
 from station.config import config_from_dict
 from station.errors import ConfigError
@@ -21,12 +24,15 @@ from station.store import RunStore
 CYCLES, VAP_CYCLES = 3, 2
 
 
-def _run(fake_cell, tmp_path, **iso):
-    cfg = config_from_dict(fake_cell.config_dict(
+def _config(fake_cell, tmp_path, **iso):
+    return config_from_dict(fake_cell.config_dict(
         store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
         iso9283={"cycles": CYCLES, "vap_cycles": VAP_CYCLES, **iso}))
-    code = execute(cfg, arm=True, yes=True, quiet=True, run_id="t1", config_dir=tmp_path,
-                   json_out=str(tmp_path / "out.json"))
+
+
+def _run(fake_cell, tmp_path, **iso):
+    code = execute(_config(fake_cell, tmp_path, **iso), arm=True, yes=True, quiet=True, run_id="t1",
+                   config_dir=tmp_path, json_out=str(tmp_path / "out.json"))
     return code, RunStore(tmp_path / "s.sqlite")
 
 
@@ -72,6 +78,31 @@ def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp
     report = next(s.output["report"] for s in steps if s.name == "report")
     html = open(report).read()
     assert html.count("<svg") >= 5 and "P2-P4" in html
+    if registration == "axes":
+        _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars)
+
+
+def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars):
+    """AP and AD against procedures.iso9283_truth from the cell's true effects.
+
+    What the prediction leaves out: the registration's noise (its jackknife
+    standard error at each pose is in the run) and the mean of the n stop
+    offsets (per-coordinate sigma from the arm's joint scatter through the
+    Jacobian, / sqrt(n)); both enter with 5 sigma.
+    """
+    world = fake_cell.world
+    plan = plan_from_config(_config(fake_cell, tmp_path, registration="axes"))
+    t_all = np.concatenate([p["attained"]["t_s"] for p in result["poses"].values()])
+    pred = predict_static(plan, world.arm.effects, warmup_s=float(t_all.mean() - world.arm.warmup_origin_s))
+    u_reg = next(s.output for s in steps if s.name == "register base frame")["uncertainty_at_poses_mm"]
+    J = joint_jacobian(plan.robot.dh_nominal, pose_joints_rad(plan))[:, :3] * world.arm.stop_sigma_rad
+    stop_mean_sd = np.sqrt(np.einsum("nij,nij->n", J, J) / CYCLES)  # 3-D, over the n cycles
+    for k, name in enumerate(plan.poses_mm):
+        tol = 5 * math.hypot(u_reg[name], stop_mean_sd[k]) + 0.01
+        assert abs(chars[(name, "AP_mm")]["value"] - pred.AP_mm[name]) < tol, (name, pred.AP_mm, tol)
+    # a distance does not depend on the frame: only the two poses' stop means enter
+    tol_ad = 5 * math.hypot(stop_mean_sd[1], stop_mean_sd[3]) + 0.01
+    assert abs(chars[("P2-P4", "AD_mm")]["value"] - pred.AD_mm["P2-P4"]) < tol_ad
 
 
 def test_unsafe_plan_is_refused_before_anything_moves(fake_cell, tmp_path):
