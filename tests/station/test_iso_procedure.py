@@ -88,7 +88,9 @@ def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars
     What the prediction leaves out: the registration's noise (its jackknife
     standard error at each pose is in the run) and the mean of the n stop
     offsets (per-coordinate sigma from the arm's joint scatter through the
-    Jacobian, / sqrt(n)); both enter with 5 sigma.
+    Jacobian, / sqrt(n)); both enter with 5 sigma, plus 0.05 mm for what the
+    prediction simplifies (one warm-up time for all poses, the direction of a
+    joint that barely moves).
     """
     world = fake_cell.world
     plan = plan_from_config(_config(fake_cell, tmp_path, registration="axes"))
@@ -98,7 +100,7 @@ def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars
     J = joint_jacobian(plan.robot.dh_nominal, pose_joints_rad(plan))[:, :3] * world.arm.stop_sigma_rad
     stop_mean_sd = np.sqrt(np.einsum("nij,nij->n", J, J) / CYCLES)  # 3-D, over the n cycles
     for k, name in enumerate(plan.poses_mm):
-        tol = 5 * math.hypot(u_reg[name], stop_mean_sd[k]) + 0.01
+        tol = 5 * math.hypot(u_reg[name], stop_mean_sd[k]) + 0.05
         assert abs(chars[(name, "AP_mm")]["value"] - pred.AP_mm[name]) < tol, (name, pred.AP_mm, tol)
     # a distance does not depend on the frame: only the two poses' stop means enter
     tol_ad = 5 * math.hypot(stop_mean_sd[1], stop_mean_sd[3]) + 0.01
