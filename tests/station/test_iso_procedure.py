@@ -51,8 +51,9 @@ def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp
     reg = registration_of({s.name: s.output for s in steps if s.status == "done"})
     assert steps[[s.name for s in steps].index("register base frame")].output["method"] == registration
     sigma = float(np.max(world.tracker.sigma_mm(3000.0)))  # per-coordinate noise, tracker ~2-4 m away
-    # registration: rms residual of the rigid fit is robot error + noise; it must be small but not zero
-    assert 0 < reg.rms_mm < 2.0
+    # registration: rms residual of the fit is robot error + noise; it must be small but not zero (the
+    # best fit over the eight inset corners of the drawn robots: 0.8 mm median, 1.7 mm at 99.9 %)
+    assert 0 < reg.rms_mm < 3.0
     chars = {(c["pose"], c["name"]): c for c in store.characteristics("t1")}
     for name, pose in result["poses"].items():
         att = pose["attained"]
