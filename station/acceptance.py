@@ -40,9 +40,9 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     every pose and the AD of P2-P4 an ideal run would measure. ``"in-spec"``:
     every AP at least ``margin_mm`` under ``ap_limit_mm`` and |AD| as far
     under ``ad_limit_mm`` (the limits configured; RP, vAP and PST of the
-    simulated arms are bounded by their draws, 0.05-0.15 mm, < 0.5 mm and
-    < 0.1 s). ``"out-of-spec"``: some pose's AP at least ``margin_mm`` over
-    ``ap_limit_mm``.
+    simulated arms are bounded by their draws: over 50 cells at 5 cycles the
+    largest were 0.23 mm, 0.54 mm and 0.09 s). ``"out-of-spec"``: some pose's
+    AP at least ``margin_mm`` over ``ap_limit_mm``.
 
     Raises
     ------
