@@ -10,13 +10,16 @@ direction of the last motion), and from them AP (seed 000 eq. (1), the
 distance of the attained from the commanded position) and AD (eq. (8), the
 attained minus the commanded distance of P2-P4).
 
-What it leaves out is random or dynamic: the stop scatter (its mean over n
-cycles shifts AP by about sigma / sqrt(n)), the tracker's noise and the
-registration's own uncertainty from it, the servo's settling and the thermal
-growth during the run (evaluated at one warm-up time). Over 50 fake cells
-(5 cycles each, 250 poses) the measured AP differed from this prediction by
-0.00 +/- 0.22 mm, at most 0.68 mm, about 0.6 of the run's own registration
-uncertainty (0.13-0.97 mm); AD by 0.02 +/- 0.02 mm (``bench/bench_fake_truth.py``).
+What it leaves out is random or dynamic, and :func:`prediction_scatter`
+estimates the random part by Monte Carlo: the stop scatter of the sweep
+points, which the circle fits of two short arcs amplify about sevenfold into
+the frame's error at the poses, the mean of the n stops at each pose and the
+tracker's noise. The servo's settling and the thermal growth during the run
+(evaluated at one warm-up time) are left out. Over 50 fake cells (5 cycles
+each, 250 poses) the measured AP differed from the prediction by 0.00 +/-
+0.22 mm, at most 0.68 mm; measured in the scatter's rms length at each pose
+(0.27-0.55 mm), at most 1.7 of it; AD by 0.02 +/- 0.02 mm
+(``bench/bench_fake_truth.py``).
 
 Used to draw simulated cells whose robot is inside or outside its
 manufacturer's limits on purpose (:mod:`station.testing`).
@@ -98,7 +101,36 @@ def arrival_directions(plan: IsoPlan, q_rad: np.ndarray, *, back_mm: float = 1.0
     return out
 
 
-def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float = 0.0) -> StaticPrediction:
+@dataclass(frozen=True)
+class RunGeometry:
+    """The joints a run of ``plan`` visits (the same for every arm of the model; compute once).
+
+    ``q_sweep_rad`` (M, 6): registration points, the first ``n_sweep1`` of
+    them the joint-1 sweep; ``q_pose_rad`` (P, 6): P1..P5; ``arrival_dir``
+    (P, 6): sign of each joint's motion arriving at each pose.
+    """
+
+    q_sweep_rad: np.ndarray
+    n_sweep1: int
+    q_pose_rad: np.ndarray
+    arrival_dir: np.ndarray
+
+    @classmethod
+    def of(cls, plan: IsoPlan) -> "RunGeometry":
+        if plan.registration != "axes":
+            raise ConfigError("the prediction needs the axis registration (iso9283.registration = 'axes')")
+        q_sweep = np.radians(np.array(list(axis_sweep_q_deg(plan).values())))
+        q_pose = pose_joints_rad(plan)
+        return cls(q_sweep, len(axis_sweeps(plan)[0][1]), q_pose, arrival_directions(plan, q_pose))
+
+
+def _registration(plan: IsoPlan, geo: RunGeometry, p_sweep: np.ndarray):
+    n1, q = geo.n_sweep1, geo.q_sweep_rad
+    return register_by_axes(plan.robot.dh_nominal, q[:n1], p_sweep[:n1], q[n1:], p_sweep[n1:])
+
+
+def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float = 0.0,
+                   geometry: RunGeometry | None = None) -> StaticPrediction:
     """Noise-free AP per pose and AD of P2-P4 of an arm with ``effects`` (``None``: nominal arm).
 
     Parameters
@@ -109,24 +141,19 @@ def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float 
         The arm's error effects.
     warmup_s : float
         Time since the arm started working, s (thermal drift).
+    geometry : RunGeometry, optional
+        ``RunGeometry.of(plan)``, when many arms are predicted for one plan.
 
     Raises
     ------
     ConfigError
         The plan registers by a best fit (that frame depends on the noise of all points).
     """
-    if plan.registration != "axes":
-        raise ConfigError("predict_static needs the axis registration (iso9283.registration = 'axes')")
-    sweeps = axis_sweep_q_deg(plan)
-    q_sweep = np.radians(np.array(list(sweeps.values())))
-    n1 = len(axis_sweeps(plan)[0][1])
-    p_sweep = _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s)
-    reg = register_by_axes(plan.robot.dh_nominal, q_sweep[:n1], p_sweep[:n1], q_sweep[n1:], p_sweep[n1:])
-
+    geo = geometry or RunGeometry.of(plan)
+    q_sweep = geo.q_sweep_rad
+    reg = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
     names = list(plan.poses_mm)
-    q = pose_joints_rad(plan)
-    last_dir = arrival_directions(plan, q)
-    p_true = _true_positions(plan, effects, q, last_dir, warmup_s)
+    p_true = _true_positions(plan, effects, geo.q_pose_rad, geo.arrival_dir, warmup_s)
     # the registration maps the (estimated) base frame into the true one: invert it
     p_base = (p_true - reg.t_mm) @ reg.R
     cmd = np.array([plan.poses_mm[n] for n in names])
@@ -140,3 +167,87 @@ def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float 
         AD_mm=ad,
         attained_base_mm={n: tuple(float(v) for v in p) for n, p in zip(names, p_base)},
     )
+
+
+@dataclass(frozen=True)
+class PredictionScatter:
+    """How far a real run's results scatter about :func:`predict_static` (mm, per pose / pair).
+
+    ``AP_rms_mm[pose]`` is the rms length of the error of the attained
+    position in the registered frame (registration noise and the mean of the
+    stop offsets together): ``|AP_measured - AP_predicted|`` is at most that
+    length. ``AD_sd_mm`` is the standard deviation of AD.
+    """
+
+    AP_rms_mm: dict[str, float]
+    AD_sd_mm: dict[str, float]
+    draws: int
+
+
+def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad, *, cycles: int,
+                       tracker_sigma_mm: float = 0.0, draws: int = 200, rng: np.random.Generator | None = None,
+                       warmup_s: float = 0.0, geometry: RunGeometry | None = None) -> PredictionScatter:
+    """Monte Carlo of the random part that :func:`predict_static` leaves out.
+
+    Each draw gives every registration point its own stop offset (joints,
+    ``N(0, stop_sigma_rad)``, as the simulated arm and a real one stop) and
+    tracker noise (``tracker_sigma_mm`` per coordinate), fits the axis
+    registration to them, and stops ``cycles`` times at each pose with fresh
+    offsets; the mean attained position, mapped by that registration, is
+    compared with the noise-free one. The circle fits of a +-25 deg and a
+    +-30 deg arc turn a few hundredths of a millimetre of stop scatter into
+    tenths of a millimetre of frame error at the poses, so this is most of the
+    difference between a run and its prediction.
+
+    Parameters
+    ----------
+    stop_sigma_rad : array_like, shape (6,)
+        1-sigma joint offset of each stop.
+    cycles : int
+        Stops per pose whose mean is the attained pose (>= 1).
+    tracker_sigma_mm : float
+        Tracker noise per coordinate of one registration point.
+    draws : int
+        Monte Carlo draws (>= 10).
+
+    Raises
+    ------
+    ConfigError
+        Bad ``cycles``, ``draws``, ``stop_sigma_rad`` or ``tracker_sigma_mm``, or a
+        best-fit registration.
+    """
+    sigma = np.asarray(stop_sigma_rad, dtype=float)
+    if sigma.shape != (6,) or not np.all(np.isfinite(sigma)) or np.any(sigma < 0):
+        raise ConfigError(f"stop_sigma_rad must be 6 finite values >= 0, got {stop_sigma_rad!r}")
+    if int(cycles) < 1 or int(draws) < 10:
+        raise ConfigError(f"prediction_scatter needs cycles >= 1 and draws >= 10, got {cycles}, {draws}")
+    if not (np.isfinite(tracker_sigma_mm) and tracker_sigma_mm >= 0):
+        raise ConfigError(f"tracker_sigma_mm must be finite and >= 0, got {tracker_sigma_mm!r}")
+    geo = geometry or RunGeometry.of(plan)
+    rng = rng if rng is not None else np.random.default_rng()
+    cycles, draws = int(cycles), int(draws)
+    q_sweep, q_pose, dirs = geo.q_sweep_rad, geo.q_pose_rad, geo.arrival_dir
+    m, P = len(q_sweep), len(q_pose)
+    names = list(plan.poses_mm)
+    exact = _true_positions(plan, effects, q_pose, dirs, warmup_s)
+    # the noise-free frame is the reference: the prediction maps through it
+    reg0 = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
+    base0 = (exact - reg0.t_mm) @ reg0.R
+
+    qs = q_sweep[None] + rng.normal(size=(draws, m, 6)) * sigma
+    ps = _true_positions(plan, effects, qs.reshape(-1, 6), np.ones((draws * m, 6)), warmup_s).reshape(draws, m, 3)
+    ps = ps + rng.normal(size=ps.shape) * tracker_sigma_mm
+    qp = q_pose[None, None] + rng.normal(size=(draws, cycles, P, 6)) * sigma
+    pp = _true_positions(plan, effects, qp.reshape(-1, 6), np.tile(dirs, (draws * cycles, 1)), warmup_s)
+    mean_true = pp.reshape(draws, cycles, P, 3).mean(axis=1)  # (draws, P, 3), true base frame
+    err = np.empty((draws, P, 3))
+    for k in range(draws):
+        reg = _registration(plan, geo, ps[k])
+        err[k] = (mean_true[k] - reg.t_mm) @ reg.R - base0
+    ap_rms = np.sqrt(np.mean(np.sum(err**2, axis=2), axis=0))
+    ad = {}
+    if "P2" in names and "P4" in names:
+        i, j = names.index("P2"), names.index("P4")
+        d = np.linalg.norm(mean_true[:, i] - mean_true[:, j], axis=1) - np.linalg.norm(exact[i] - exact[j])
+        ad["P2-P4"] = float(np.sqrt(np.mean(d**2)))
+    return PredictionScatter(AP_rms_mm={n: float(v) for n, v in zip(names, ap_rms)}, AD_sd_mm=ad, draws=draws)

@@ -77,3 +77,28 @@ def test_prediction_needs_the_axis_registration(plan):
 
     with pytest.raises(ConfigError, match="axis registration"):
         predict_static(replace(plan, registration="best-fit"), None)
+
+
+def test_scatter_is_zero_without_noise_and_grows_with_it(plan, rng):
+    from procedures.iso9283_truth import RunGeometry, prediction_scatter
+
+    geo = RunGeometry.of(plan)
+    none = prediction_scatter(plan, None, np.zeros(6), cycles=3, draws=20, geometry=geo)
+    assert max(none.AP_rms_mm.values()) < 1e-6 and none.AD_sd_mm["P2-P4"] < 1e-6
+    sigma = np.full(6, math.radians(rng.uniform(2e-4, 1e-3)))  # ~0.01-0.05 mm at the TCP
+    seed = int(rng.integers(2**31))
+    one = prediction_scatter(plan, None, sigma, cycles=3, draws=40, rng=np.random.default_rng(seed), geometry=geo)
+    two = prediction_scatter(plan, None, 2 * sigma, cycles=3, draws=40, rng=np.random.default_rng(seed), geometry=geo)
+    # rms length of one stop's TCP offset at each pose
+    J = kin.joint_jacobian(plan.robot.dh_nominal, pose_joints_rad(plan))[:, :3] * sigma
+    stop_rms = np.sqrt(np.einsum("pij,pij->p", J, J))
+    for k, n in enumerate(plan.poses_mm):
+        # the same normal draws: small errors propagate linearly through the fits
+        assert two.AP_rms_mm[n] == pytest.approx(2 * one.AP_rms_mm[n], rel=0.02)
+        # the short arcs' circle fits amplify the point scatter: the frame error at the poses is far
+        # above one stop's offset, let alone the mean of three
+        assert one.AP_rms_mm[n] > 3 * stop_rms[k], (n, one.AP_rms_mm[n], stop_rms[k])
+    with pytest.raises(ConfigError, match="stop_sigma_rad"):
+        prediction_scatter(plan, None, np.zeros(5), cycles=3)
+    with pytest.raises(ConfigError, match="cycles >= 1"):
+        prediction_scatter(plan, None, sigma, cycles=0)

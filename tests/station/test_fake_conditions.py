@@ -6,8 +6,8 @@ import pytest
 from fakes.sim.clock import ManualClock
 from fakes.sim.world import make_world
 from procedures.iso9283 import plan_from_config
-from procedures.iso9283_truth import predict_static
-from station.acceptance import SPEC_MARGIN_MM, Station, fake_robot_seed
+from procedures.iso9283_truth import predict_static, prediction_scatter
+from station.acceptance import SPEC_SIGMAS, Station, fake_robot_seed
 from station.errors import ConfigError, InsufficientDataError
 
 
@@ -15,21 +15,26 @@ def _prediction(station: Station):
     plan = plan_from_config(station.config, "r1")
     world = make_world(robot=plan.robot.name, seed=station.seed, clock=ManualClock(), payload_kg=plan.payload_kg)
     try:
-        return plan, predict_static(plan, world.arm.effects)
+        pred = predict_static(plan, world.arm.effects)
+        sc = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=2, draws=50)
     finally:
         world.close()
+    ap = np.array(list(pred.AP_mm.values()))
+    rms = np.array(list(sc.AP_rms_mm.values()))
+    return plan, pred, ap, rms
 
 
 def test_in_and_out_of_spec_cells_keep_their_margin(tmp_path, world_seed):
     good = Station.fake(tmp_path / "a", seed=world_seed, condition="in-spec")
     bad = Station.fake(tmp_path / "b", seed=world_seed, condition="out-of-spec")
     assert good.seed >= world_seed and bad.seed >= world_seed and good.seed != bad.seed
-    plan, pred = _prediction(good)
-    assert pred.worst_AP_mm() <= plan.limits["AP_mm"] - SPEC_MARGIN_MM
-    assert abs(pred.AD_mm["P2-P4"]) <= plan.limits["AD_mm"] - SPEC_MARGIN_MM
-    plan, pred = _prediction(bad)
-    assert pred.worst_AP_mm() >= plan.limits["AP_mm"] + SPEC_MARGIN_MM
-    # the first such cell: every seed before it is not out of spec
+    # the scatter is re-estimated here with other draws: allow its Monte Carlo error (50 vs 200 draws)
+    plan, pred, ap, rms = _prediction(good)
+    assert np.all(ap + 0.7 * SPEC_SIGMAS * rms <= plan.limits["AP_mm"])
+    assert abs(pred.AD_mm["P2-P4"]) < plan.limits["AD_mm"]
+    plan, pred, ap, rms = _prediction(bad)
+    assert np.any(ap - 0.7 * SPEC_SIGMAS * rms >= plan.limits["AP_mm"])
+    # the first such cell: asking again from the same seed gives the same one
     assert fake_robot_seed(bad.config, world_seed, "out-of-spec") == bad.seed
     # as drawn: the seed asked for
     assert Station.fake(tmp_path / "c", seed=world_seed).seed == world_seed

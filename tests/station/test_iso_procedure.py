@@ -8,14 +8,12 @@ noise model.
 """
 
 import json
-import math
 
 import numpy as np
 import pytest
 
 from procedures.iso9283 import plan_from_config, registration_of
-from procedures.iso9283_truth import pose_joints_rad, predict_static
-from station.models.kinematics import joint_jacobian
+from procedures.iso9283_truth import predict_static, prediction_scatter
 from station.commands.run import execute
 from station.config import config_from_dict
 from station.errors import ConfigError
@@ -86,25 +84,25 @@ def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp
 def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars):
     """AP and AD against procedures.iso9283_truth from the cell's true effects.
 
-    What the prediction leaves out: the registration's noise (its jackknife
-    standard error at each pose is in the run) and the mean of the n stop
-    offsets (per-coordinate sigma from the arm's joint scatter through the
-    Jacobian, / sqrt(n)); both enter with 5 sigma, plus 0.05 mm for what the
-    prediction simplifies (one warm-up time for all poses, the direction of a
-    joint that barely moves).
+    What the prediction leaves out, the registration's error from the stop
+    scatter of its points, the mean of the n stop offsets and the tracker's
+    noise, is the Monte Carlo scatter of ``prediction_scatter``: |AP measured -
+    predicted| is at most the length of that error vector, allowed 4 rms
+    lengths; AD 5 sd. Each plus 0.05 mm for what both simplify (one warm-up
+    time for all poses, the direction of a joint that barely moves).
     """
     world = fake_cell.world
     plan = plan_from_config(_config(fake_cell, tmp_path, registration="axes"))
     t_all = np.concatenate([p["attained"]["t_s"] for p in result["poses"].values()])
-    pred = predict_static(plan, world.arm.effects, warmup_s=float(t_all.mean() - world.arm.warmup_origin_s))
-    u_reg = next(s.output for s in steps if s.name == "register base frame")["uncertainty_at_poses_mm"]
-    J = joint_jacobian(plan.robot.dh_nominal, pose_joints_rad(plan))[:, :3] * world.arm.stop_sigma_rad
-    stop_mean_sd = np.sqrt(np.einsum("nij,nij->n", J, J) / CYCLES)  # 3-D, over the n cycles
-    for k, name in enumerate(plan.poses_mm):
-        tol = 5 * math.hypot(u_reg[name], stop_mean_sd[k]) + 0.05
+    warm = float(t_all.mean() - world.arm.warmup_origin_s)
+    pred = predict_static(plan, world.arm.effects, warmup_s=warm)
+    sigma = float(np.max(world.tracker.sigma_mm(3000.0)))
+    scatter = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=CYCLES,
+                                 tracker_sigma_mm=sigma, warmup_s=warm)
+    for name in plan.poses_mm:
+        tol = 4 * scatter.AP_rms_mm[name] + 0.05
         assert abs(chars[(name, "AP_mm")]["value"] - pred.AP_mm[name]) < tol, (name, pred.AP_mm, tol)
-    # a distance does not depend on the frame: only the two poses' stop means enter
-    tol_ad = 5 * math.hypot(stop_mean_sd[1], stop_mean_sd[3]) + 0.01
+    tol_ad = 5 * scatter.AD_sd_mm["P2-P4"] + 0.05
     assert abs(chars[("P2-P4", "AD_mm")]["value"] - pred.AD_mm["P2-P4"]) < tol_ad
 
 
