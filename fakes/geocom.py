@@ -35,7 +35,6 @@ after the first TMC_DoMeasure, unless noted)::
 
 from __future__ import annotations
 
-import errno
 import math
 import os
 import re
@@ -107,15 +106,12 @@ class GeoComFake:
             ready, _, _ = select.select([self._master], [], [], 0.05)
             if not ready:
                 continue
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
+            data = self._port.read()
+            if data is None:  # no driver has the device open at the moment
+                self._stop.wait(0.01)
                 continue
-            except OSError as exc:
-                if exc.errno == errno.EIO:  # no slave open at the moment
-                    self._stop.wait(0.01)
-                    continue
-                raise
+            if not data:
+                continue
             buf += data
             while True:
                 idx = buf.find(b"\n")

@@ -29,7 +29,6 @@ port do not apply to a pty.
 
 from __future__ import annotations
 
-import errno
 import math
 import os
 import select
@@ -163,15 +162,12 @@ class OdometryFake:
                 self._flush()
             if not ready:
                 continue
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
+            data = self._port.read()
+            if data is None:  # no driver has the device open at the moment
+                self._stop.wait(0.01)
                 continue
-            except OSError as exc:
-                if exc.errno == errno.EIO:  # no slave open at the moment
-                    self._stop.wait(0.01)
-                    continue
-                raise
+            if not data:
+                continue
             if self._stalled(self._clock.now()):
                 continue  # the line is dead: input is lost
             buf += data

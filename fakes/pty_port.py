@@ -7,6 +7,7 @@ own thread with ``select``.
 
 from __future__ import annotations
 
+import errno
 import os
 import pty
 import tty
@@ -20,6 +21,18 @@ class PtyPort:
         tty.setraw(self._slave)
         os.set_blocking(self.master, False)
         self.device = os.ttyname(self._slave)
+
+    def read(self, n: int = 4096) -> bytes | None:
+        """What the driver wrote, up to ``n`` bytes: ``b""`` if nothing yet, ``None`` while no driver has
+        the device open (the master then reads as EIO: wait a little before asking again)."""
+        try:
+            return os.read(self.master, n)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return None
+            raise
 
     def close(self) -> None:
         """Close both ends (idempotent); call after the serving thread has stopped."""
