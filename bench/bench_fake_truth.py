@@ -28,11 +28,9 @@ import time
 
 import numpy as np
 
-from fakes.sim.clock import ManualClock
-from fakes.sim.world import make_world
 from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import predict_static, prediction_scatter
-from station.acceptance import Station
+from station.acceptance import Station, fake_cell_truth
 from station.store import RunStore
 
 
@@ -40,15 +38,10 @@ def one_cell(seed: int, cycles: int) -> dict:
     with tempfile.TemporaryDirectory() as d:
         st = Station.fake(d, seed=seed, time_scale=20.0)
         plan = plan_from_config(st.config, "r1")
-        world = make_world(robot=plan.robot.name, seed=seed, clock=ManualClock(), payload_kg=plan.payload_kg)
-        try:
-            pred = predict_static(plan, world.arm.effects)
-            reach = np.linalg.norm(np.array(list(plan.poses_mm.values())) - world.tracker.base_T_tracker[:3, 3],
-                                   axis=1).max()
-            scatter = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=cycles,
-                                         tracker_sigma_mm=float(np.max(world.tracker.sigma_mm(reach))), draws=300)
-        finally:
-            world.close()
+        cell = fake_cell_truth(plan, seed)
+        pred = predict_static(plan, cell.effects)
+        scatter = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=cycles,
+                                     tracker_sigma_mm=cell.tracker_sigma_mm, draws=300)
         run = st.iso9283(cycles=cycles, vap_cycles=2)
         with RunStore(run.store_path) as store:
             reg = next(s.output for s in store.steps(run.run_id) if s.name == "register base frame" and s.status == "done")

@@ -37,6 +37,7 @@ from station.errors import ConfigError
 from station.models import kinematics as kin
 from station.models.effects import EffectContext, EffectSet
 from station.programs.builders import TOOL_DOWN
+from station.programs.model import CartesianTarget, quat_from_matrix
 
 
 @dataclass(frozen=True)
@@ -46,9 +47,6 @@ class StaticPrediction:
     AP_mm: dict[str, float]
     AD_mm: dict[str, float]
     attained_base_mm: dict[str, tuple[float, float, float]]
-
-    def worst_AP_mm(self) -> float:
-        return max(self.AP_mm.values())
 
 
 def _true_positions(plan: IsoPlan, effects: EffectSet | None, q_rad: np.ndarray, last_dir: np.ndarray,
@@ -62,15 +60,17 @@ def _true_positions(plan: IsoPlan, effects: EffectSet | None, q_rad: np.ndarray,
     return kin.fk(dh, q)[:, :3, 3]
 
 
+def _tool_down(xyz) -> np.ndarray:
+    """The pose the procedure's programs command at ``xyz`` (tool pointing down), (4, 4)."""
+    return CartesianTarget("T", tuple(float(v) for v in xyz), quat_from_matrix(TOOL_DOWN)).pose
+
+
 def pose_joints_rad(plan: IsoPlan) -> np.ndarray:
     """Joints of P1..P5 (nominal IK from the safety gate, each from the previous pose's branch)."""
     gate = plan.gate()
     out, prev = [], None
     for name, xyz in plan.poses_mm.items():
-        T = np.eye(4)
-        T[:3, :3] = TOOL_DOWN
-        T[:3, 3] = xyz
-        prev = gate.check_cartesian_target(T, name, q_seed=prev)
+        prev = gate.check_cartesian_target(_tool_down(xyz), name, q_seed=prev)
         out.append(prev)
     return np.array(out)
 
@@ -84,15 +84,14 @@ def arrival_directions(plan: IsoPlan, q_rad: np.ndarray, *, back_mm: float = 1.0
     that does not move on the way in keeps the direction of the move before.
     """
     gate = plan.gate()
+    names = list(plan.poses_mm)
     xyz = np.array(list(plan.poses_mm.values()), dtype=float)
     n = len(xyz)
     step = np.zeros((n, 6))
     for k in range(n):
         back = xyz[k - 1] - xyz[k]
-        T = np.eye(4)
-        T[:3, :3] = TOOL_DOWN
-        T[:3, 3] = xyz[k] + back / np.linalg.norm(back) * back_mm
-        step[k] = q_rad[k] - gate.check_cartesian_target(T, f"before {list(plan.poses_mm)[k]}", q_seed=q_rad[k])
+        before = _tool_down(xyz[k] + back / np.linalg.norm(back) * back_mm)
+        step[k] = q_rad[k] - gate.check_cartesian_target(before, f"before {names[k]}", q_seed=q_rad[k])
     moving = np.abs(step) > 1e-9
     out = np.sign(step)
     for _ in range(2):  # twice round the cycle carries a direction into every pose
@@ -129,6 +128,18 @@ def _registration(plan: IsoPlan, geo: RunGeometry, p_sweep: np.ndarray):
     return register_by_axes(plan.robot.dh_nominal, q[:n1], p_sweep[:n1], q[n1:], p_sweep[n1:])
 
 
+def _noise_free(plan: IsoPlan, effects: EffectSet | None, geo: RunGeometry, warmup_s: float):
+    """True attained positions of P1..P5 (base frame) and the frame the registration finds, without noise."""
+    q_sweep = geo.q_sweep_rad
+    reg = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
+    return _true_positions(plan, effects, geo.q_pose_rad, geo.arrival_dir, warmup_s), reg
+
+
+def _distance_pair(names: list[str]) -> tuple[int, int] | None:
+    """Indices of P2 and P4, the pair of the procedure's AD and RD."""
+    return (names.index("P2"), names.index("P4")) if {"P2", "P4"} <= set(names) else None
+
+
 def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float = 0.0,
                    geometry: RunGeometry | None = None) -> StaticPrediction:
     """Noise-free AP per pose and AD of P2-P4 of an arm with ``effects`` (``None``: nominal arm).
@@ -149,18 +160,15 @@ def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float 
     ConfigError
         The plan registers by a best fit (that frame depends on the noise of all points).
     """
-    geo = geometry or RunGeometry.of(plan)
-    q_sweep = geo.q_sweep_rad
-    reg = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
+    p_true, reg = _noise_free(plan, effects, geometry or RunGeometry.of(plan), warmup_s)
     names = list(plan.poses_mm)
-    p_true = _true_positions(plan, effects, geo.q_pose_rad, geo.arrival_dir, warmup_s)
     # the registration maps the (estimated) base frame into the true one: invert it
     p_base = (p_true - reg.t_mm) @ reg.R
     cmd = np.array([plan.poses_mm[n] for n in names])
     ap = np.linalg.norm(p_base - cmd, axis=1)
     ad = {}
-    if "P2" in names and "P4" in names:
-        i, j = names.index("P2"), names.index("P4")
+    if (pair := _distance_pair(names)) is not None:
+        i, j = pair
         ad["P2-P4"] = float(np.linalg.norm(p_true[i] - p_true[j]) - np.linalg.norm(cmd[i] - cmd[j]))
     return StaticPrediction(
         AP_mm={n: float(v) for n, v in zip(names, ap)},
@@ -229,9 +237,8 @@ def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad,
     q_sweep, q_pose, dirs = geo.q_sweep_rad, geo.q_pose_rad, geo.arrival_dir
     m, P = len(q_sweep), len(q_pose)
     names = list(plan.poses_mm)
-    exact = _true_positions(plan, effects, q_pose, dirs, warmup_s)
     # the noise-free frame is the reference: the prediction maps through it
-    reg0 = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
+    exact, reg0 = _noise_free(plan, effects, geo, warmup_s)
     base0 = (exact - reg0.t_mm) @ reg0.R
 
     qs = q_sweep[None] + rng.normal(size=(draws, m, 6)) * sigma
@@ -246,8 +253,8 @@ def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad,
         err[k] = (mean_true[k] - reg.t_mm) @ reg.R - base0
     ap_rms = np.sqrt(np.mean(np.sum(err**2, axis=2), axis=0))
     ad = {}
-    if "P2" in names and "P4" in names:
-        i, j = names.index("P2"), names.index("P4")
+    if (pair := _distance_pair(names)) is not None:
+        i, j = pair
         d = np.linalg.norm(mean_true[:, i] - mean_true[:, j], axis=1) - np.linalg.norm(exact[i] - exact[j])
         ad["P2-P4"] = float(np.sqrt(np.mean(d**2)))
     return PredictionScatter(AP_rms_mm={n: float(v) for n, v in zip(names, ap_rms)}, AD_sd_mm=ad, draws=draws)

@@ -18,6 +18,8 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from station.config import StationConfig, config_from_dict, load_config
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.store import RunStore
@@ -32,6 +34,41 @@ SPEC_SIGMAS = 4.0
 _SPEC_CYCLES = 2
 #: warm-up time of a fully warm arm, s (thermal drift: the robot must be in spec cold and warm)
 _WARM_S = 1.0e6
+
+
+@dataclass(frozen=True)
+class CellTruth:
+    """What the fake cell of one seed really is (drawn as the fake station draws it)."""
+
+    seed: int
+    effects: object  # station.models.effects.EffectSet
+    stop_sigma_rad: np.ndarray
+    #: tracker noise per coordinate at the farthest test pose, mm
+    tracker_sigma_mm: float
+
+
+def fake_cell_truth(plan, seed: int) -> CellTruth:
+    """The true error effects, stop scatter and tracker noise of the fake cell ``seed`` for ``plan``."""
+    from fakes.sim.clock import ManualClock
+    from fakes.sim.world import make_world
+
+    world = make_world(robot=plan.robot.name, seed=int(seed), clock=ManualClock(), payload_kg=plan.payload_kg)
+    try:
+        tracker_at = world.tracker.base_T_tracker[:3, 3]
+        reach = np.linalg.norm(np.array(list(plan.poses_mm.values())) - tracker_at, axis=1).max()
+        return CellTruth(int(seed), world.arm.effects, world.arm.stop_sigma_rad.copy(),
+                         float(np.max(world.tracker.sigma_mm(reach))))
+    finally:
+        world.close()
+
+
+def _meets(condition, ap_lo, ap_hi, ad_hi, ap_margin, ad_margin, ap_lim, ad_lim) -> bool:
+    """In spec: every AP and |AD| plus its margin within its limit (no limit, no bound); out of spec:
+    some pose's AP minus its margin at or over the AP limit."""
+    if condition == "out-of-spec":
+        return bool(np.any(ap_lo - ap_margin >= ap_lim))
+    return (ap_lim is None or bool(np.all(ap_hi + ap_margin <= ap_lim))) and (
+        ad_lim is None or ad_hi + ad_margin <= ad_lim)
 
 
 def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str = "r1", *,
@@ -58,10 +95,6 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     InsufficientDataError
         No such cell among ``max_tries`` seeds (limits too tight or too loose for the simulated arms).
     """
-    import numpy as np
-
-    from fakes.sim.clock import ManualClock
-    from fakes.sim.world import make_world
     from procedures.iso9283 import plan_from_config
     from procedures.iso9283_truth import RunGeometry, predict_static, prediction_scatter
 
@@ -72,36 +105,22 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     ad_lim = plan.limits.get("AD_mm")
     if condition == "out-of-spec" and ap_lim is None:
         raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot out of spec")
-    inf = float("inf")
     names = list(plan.poses_mm)
     geo = RunGeometry.of(plan)
     for s in range(int(seed), int(seed) + max_tries):
-        world = make_world(robot=plan.robot.name, seed=s, clock=ManualClock(), payload_kg=plan.payload_kg)
-        try:
-            cold = predict_static(plan, world.arm.effects, geometry=geo)
-            warm = predict_static(plan, world.arm.effects, warmup_s=_WARM_S, geometry=geo)
-            ap_hi = np.array([max(cold.AP_mm[n], warm.AP_mm[n]) for n in names])
-            ap_lo = np.array([min(cold.AP_mm[n], warm.AP_mm[n]) for n in names])
-            ad_hi = max((abs(v) for p in (cold, warm) for v in p.AD_mm.values()), default=0.0)
-            # the cheap test first: the noise-free numbers must already be on the right side
-            if condition == "out-of-spec" and ap_lo.max() < ap_lim:
-                continue
-            if condition == "in-spec" and (ap_hi.max() > (ap_lim or inf) or ad_hi > (ad_lim or inf)):
-                continue
-            tracker_at = world.tracker.base_T_tracker[:3, 3]
-            reach = np.linalg.norm(np.array(list(plan.poses_mm.values())) - tracker_at, axis=1).max()
-            sc = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=_SPEC_CYCLES,
-                                    tracker_sigma_mm=float(np.max(world.tracker.sigma_mm(reach))),
-                                    rng=np.random.default_rng(s), geometry=geo)
-        finally:
-            world.close()
+        cell = fake_cell_truth(plan, s)
+        cold, warm = (predict_static(plan, cell.effects, warmup_s=w, geometry=geo) for w in (0.0, _WARM_S))
+        ap = np.array([[p.AP_mm[n] for n in names] for p in (cold, warm)])
+        ap_lo, ap_hi = ap.min(axis=0), ap.max(axis=0)
+        ad_hi = max((abs(v) for p in (cold, warm) for v in p.AD_mm.values()), default=0.0)
+        # the cheap test first: the noise-free numbers must already be on the right side
+        if not _meets(condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0, ap_lim, ad_lim):
+            continue
+        sc = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=_SPEC_CYCLES,
+                                tracker_sigma_mm=cell.tracker_sigma_mm, rng=np.random.default_rng(s), geometry=geo)
         rms = np.array([sc.AP_rms_mm[n] for n in names])
         ad_sd = max(sc.AD_sd_mm.values(), default=0.0)
-        if condition == "out-of-spec":
-            if np.any(ap_lo - sigmas * rms >= ap_lim):
-                return s
-        elif (ap_lim is None or np.all(ap_hi + sigmas * rms <= ap_lim)) and (
-                ad_lim is None or ad_hi + sigmas * ad_sd <= ad_lim):
+        if _meets(condition, ap_lo, ap_hi, ad_hi, sigmas * rms, sigmas * ad_sd, ap_lim, ad_lim):
             return s
     raise InsufficientDataError(f"no fake cell {condition} among seeds {seed}..{seed + max_tries - 1} "
                                 f"(AP limit {ap_lim}, AD limit {ad_lim}, {sigmas:g} sigma)")

@@ -3,22 +3,17 @@
 import numpy as np
 import pytest
 
-from fakes.sim.clock import ManualClock
-from fakes.sim.world import make_world
 from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import predict_static, prediction_scatter
-from station.acceptance import SPEC_SIGMAS, Station, fake_robot_seed
+from station.acceptance import SPEC_SIGMAS, Station, fake_cell_truth, fake_robot_seed
 from station.errors import ConfigError, InsufficientDataError
 
 
 def _prediction(station: Station):
     plan = plan_from_config(station.config, "r1")
-    world = make_world(robot=plan.robot.name, seed=station.seed, clock=ManualClock(), payload_kg=plan.payload_kg)
-    try:
-        pred = predict_static(plan, world.arm.effects)
-        sc = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=2, draws=50)
-    finally:
-        world.close()
+    cell = fake_cell_truth(plan, station.seed)
+    pred = predict_static(plan, cell.effects)
+    sc = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=2, draws=50)
     ap = np.array(list(pred.AP_mm.values()))
     rms = np.array(list(sc.AP_rms_mm.values()))
     return plan, pred, ap, rms
