@@ -690,13 +690,7 @@ class SimArm:
         -------
         ndarray, shape (4, 4) or (N, 4, 4)
         """
-        tt, scalar = self._times(t)
-        out = np.empty((tt.size, 4, 4))
-        for i in range(0, tt.size, _CHUNK):  # chunks of samples bound the memory of FK
-            sl = slice(i, i + _CHUNK)
-            dh, q = self.true_model(tt[sl])
-            out[sl] = kin.fk(dh, q)
-        return out[0] if scalar else out
+        return self._true_fk(t, position_only=False)
 
     def tool_position_mm(self, t=None) -> np.ndarray:
         """True TCP position in the robot base frame, mm.
@@ -709,12 +703,15 @@ class SimArm:
         -------
         ndarray, shape (3,) or (N, 3)
         """
+        return self._true_fk(t, position_only=True)
+
+    def _true_fk(self, t, position_only: bool) -> np.ndarray:
         tt, scalar = self._times(t)
-        out = np.empty((tt.size, 3))
-        for i in range(0, tt.size, _CHUNK):
+        out = np.empty((tt.size, 3) if position_only else (tt.size, 4, 4))
+        for i in range(0, tt.size, _CHUNK):  # chunks of samples bound the memory of FK
             sl = slice(i, i + _CHUNK)
-            dh, q = self.true_model(tt[sl])
-            out[sl] = kin.fk(dh, q)[:, :3, 3]
+            T = kin.fk(*self.true_model(tt[sl]))
+            out[sl] = T[:, :3, 3] if position_only else T
         return out[0] if scalar else out
 
     def commanded_tool_pose(self, t=None) -> np.ndarray:
