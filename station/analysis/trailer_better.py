@@ -126,6 +126,49 @@ def _solve_damped(N, g, lam):
 
 
 # ----------------------------------------------------------------------------- ODR on eq. (23)
+def _levenberg_marquardt(objective, theta, batch, *, max_iter, tol, xtol, adjust=None):
+    """Batched Levenberg-Marquardt over the leading axes ``batch`` of ``theta``.
+
+    ``objective(theta) -> (r, J, ps, extra)``: residuals (..., m), their
+    Jacobian (..., m, n), the simulated joint angle, and a term added to the
+    cost ``sum(r^2) + extra`` (0 for plain least squares). ``adjust(theta,
+    ps, N, g) -> (N, g)`` may change the normal matrix and gradient of the
+    step (the bias compensation of :func:`fit_dynamic`). Each problem stops on
+    its own (small step, small relative decrease, or damping beyond 1e12).
+
+    Returns ``theta, r, J, iterations, converged`` at the last accepted step.
+    """
+    r, J, ps, extra = objective(theta)
+    current = np.sum(r * r, axis=-1) + extra
+    lam = np.full(batch, 1e-3)
+    converged = np.zeros(batch, dtype=bool)
+    it = 0
+    for it in range(1, max_iter + 1):
+        N = np.einsum("...pi,...pj->...ij", J, J)
+        g = np.einsum("...pi,...p->...i", J, r)
+        if adjust is not None:
+            N, g = adjust(theta, ps, N, g)
+        step = -_solve_damped(N, g, lam)
+        th_new = theta + np.where(converged[..., None], 0.0, step)
+        with np.errstate(invalid="ignore", over="ignore"):
+            r_new, J_new, ps_new, extra_new = objective(th_new)
+            new = np.sum(r_new * r_new, axis=-1) + extra_new
+        better = np.isfinite(new) & (new <= current) & ~converged
+        rel = np.abs(current - new) / np.maximum(np.abs(current), 1e-300)
+        theta = np.where(better[..., None], th_new, theta)
+        r = np.where(better[..., None], r_new, r)
+        ps = np.where(better[..., None], ps_new, ps)
+        J = np.where(better[..., None, None], J_new, J)
+        small = np.max(np.abs(step) / (1.0 + np.abs(theta)), axis=-1) < xtol
+        converged |= small | (better & (rel < tol))
+        current = np.where(better, new, current)
+        lam = np.where(better, lam * 0.3, lam * 10.0)
+        converged |= lam > 1e12
+        if np.all(converged):
+            break
+    return theta, r, J, it, converged
+
+
 def _odr_terms(k, p, theta, psihat, sk, sp, with_offset):
     L1 = theta[..., 0:1]
     L2 = theta[..., 1:2]
@@ -363,38 +406,20 @@ def fit_dynamic(t_s, kappa, psi, v_m_s, theta0=None, *, fit_psi_offset: bool = F
             / (4 * h[..., 0] * h[..., 1])
         return g, H
 
-    r, J, ps, trace = model(theta)
-    current = np.sum(r * r, axis=-1) - sk2 * trace
-    lam = np.full(batch, 1e-3)
-    converged = np.zeros(batch, dtype=bool)
-    it = 0
-    for it in range(1, max_iter + 1):  # iterations of Levenberg-Marquardt
-        N = np.einsum("...pi,...pj->...ij", J, J)
-        g = np.einsum("...pi,...p->...i", J, r)
-        if bias_compensation:
-            gT, HT = trace_derivatives(theta, ps)
-            g = g - 0.5 * sk2[..., None] * gT
-            N_eff = N - 0.5 * sk2[..., None, None] * HT
-            pos = np.all(np.linalg.eigvalsh(N_eff) > 0, axis=-1)
-            N = np.where(pos[..., None, None], N_eff, N)
-        step = -_solve_damped(N, g, lam)
-        th_new = theta + np.where(converged[..., None], 0.0, step)
-        with np.errstate(invalid="ignore", over="ignore"):
-            r_new, J_new, ps_new, trace_new = model(th_new)
-            new = np.sum(r_new * r_new, axis=-1) - sk2 * trace_new
-        better = np.isfinite(new) & (new <= current) & ~converged
-        rel = np.abs(current - new) / np.maximum(np.abs(current), 1e-300)
-        theta = np.where(better[..., None], th_new, theta)
-        r = np.where(better[..., None], r_new, r)
-        ps = np.where(better[..., None], ps_new, ps)
-        J = np.where(better[..., None, None], J_new, J)
-        small = np.max(np.abs(step) / (1.0 + np.abs(theta)), axis=-1) < xtol
-        converged |= small | (better & (rel < tol))
-        current = np.where(better, new, current)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        converged |= lam > 1e12
-        if np.all(converged):
-            break
+    def objective(th):  # residuals, Jacobian, simulated psi, and the noise-trace term of the cost
+        r, J, ps, trace = model(th)
+        return r, J, ps, -sk2 * trace
+
+    def compensate(theta, ps, N, g):  # the trace term's gradient and curvature (bias compensation)
+        if not bias_compensation:
+            return N, g
+        gT, HT = trace_derivatives(theta, ps)
+        N_eff = N - 0.5 * sk2[..., None, None] * HT
+        pos = np.all(np.linalg.eigvalsh(N_eff) > 0, axis=-1)
+        return np.where(pos[..., None, None], N_eff, N), g - 0.5 * sk2[..., None] * gT
+
+    theta, r, J, it, converged = _levenberg_marquardt(objective, theta, batch, max_iter=max_iter, tol=tol,
+                                                      xtol=xtol, adjust=compensate)
     N = np.einsum("...pi,...pj->...ij", J, J)
     dof = p.shape[-1] - n
     ssr = np.sum(r * r, axis=-1)
@@ -481,32 +506,8 @@ def fit_dynamic_instrumented(t_s, kappa, psi, v_m_s, kappa_cmd, theta0=None, *,
         Jk[..., 4] = -1.0 / sk[..., None]
         return np.concatenate([rp, rk], axis=-1), np.concatenate([Jp, Jk], axis=-2), ps
 
-    r, J, ps = model(theta)
-    current = np.sum(r * r, axis=-1)
-    lam = np.full(batch, 1e-3)
-    converged = np.zeros(batch, dtype=bool)
-    it = 0
-    for it in range(1, max_iter + 1):  # iterations of Levenberg-Marquardt
-        N = np.einsum("...pi,...pj->...ij", J, J)
-        grad = np.einsum("...pi,...p->...i", J, r)
-        step = -_solve_damped(N, grad, lam)
-        th_new = theta + np.where(converged[..., None], 0.0, step)
-        with np.errstate(invalid="ignore", over="ignore"):
-            r_new, J_new, ps_new = model(th_new)
-            new = np.sum(r_new * r_new, axis=-1)
-        better = np.isfinite(new) & (new <= current) & ~converged
-        rel = np.abs(current - new) / np.maximum(np.abs(current), 1e-300)
-        theta = np.where(better[..., None], th_new, theta)
-        r = np.where(better[..., None], r_new, r)
-        ps = np.where(better[..., None], ps_new, ps)
-        J = np.where(better[..., None, None], J_new, J)
-        small = np.max(np.abs(step) / (1.0 + np.abs(theta)), axis=-1) < xtol
-        converged |= small | (better & (rel < tol))
-        current = np.where(better, new, current)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        converged |= lam > 1e12
-        if np.all(converged):
-            break
+    theta, r, J, it, converged = _levenberg_marquardt(lambda th: (*model(th), 0.0), theta, batch,
+                                                      max_iter=max_iter, tol=tol, xtol=xtol)
     N = np.einsum("...pi,...pj->...ij", J, J)
     m = p.shape[-1]
     dof = 2 * m - n
