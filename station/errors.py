@@ -64,3 +64,15 @@ class DeviceTimeout(StationError, TimeoutError):
 
 class ConnectionLost(StationError, ConnectionError):
     """The transport to a device dropped."""
+
+
+class RunStateError(StationError):
+    """A run was asked to do something its state does not allow (see ``station.store.RUN_TRANSITIONS``)."""
+
+
+class PreflightError(ConfigError):
+    """The plan cannot be run by the devices it names; nothing has moved. ``problems`` lists every reason."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = list(problems)
+        super().__init__("the run cannot start; nothing moved:\n  - " + "\n  - ".join(self.problems))

@@ -10,12 +10,19 @@ bring the robot back to a known pose) run again first, then the run goes on
 from the first step that is not done. Nothing acknowledged is lost: samples of
 an interrupted attempt stay in the store, marked by their attempt number.
 
-Run states (data, not code)::
+Run states (data, not code: :data:`station.store.RUN_TRANSITIONS`, enforced
+by the store)::
 
     running --(all steps done)--> done
     running --(step raised)-----> failed   (resumable)
     running --(abort request)---> aborted  (resumable)
     failed/aborted --(resume)---> running
+    running --(resume after kill -9)--> running
+
+The runner does not know what a session holds: each procedure keeps its live
+objects (devices, plan, intermediate results) in a typed session object of its
+own, which the runner hands to every step as ``ctx.session`` and to the
+procedure's ``safe_state`` after a failure or abort.
 """
 
 from __future__ import annotations
@@ -30,23 +37,13 @@ from typing import Any, Protocol, TextIO
 
 import numpy as np
 
-from station.errors import StationError
-from station.store import RunStore
+from station.errors import RunStateError, StationError
+from station.store import RUN_TRANSITIONS, RunStore  # noqa: F401  (the state table, re-exported)
 
-TRANSITIONS = {
-    "running": {"done", "failed", "aborted"},
-    "failed": {"running"},
-    "aborted": {"running"},
-    "done": set(),
-}
 
 
 class RunAborted(StationError):
     """The operator (or a signal) asked the run to stop; it can be resumed."""
-
-
-class RunStateError(StationError):
-    """A run was asked to do something its state does not allow."""
 
 
 class Operator(Protocol):
@@ -141,8 +138,8 @@ class Step:
 class Procedure:
     name: str
     steps: list[Step]
-    #: called with the session dict after a failure or abort, to leave devices safe
-    safe_state: Callable[[dict], None] | None = None
+    #: called with the session after a failure or abort, to leave devices safe
+    safe_state: Callable[[Any], None] | None = None
 
     def __post_init__(self) -> None:
         names = [s.name for s in self.steps]
@@ -160,7 +157,7 @@ class StepContext:
     idx: int
     attempt: int
     step: Step
-    session: dict
+    session: Any
     params: dict
     outputs: dict[str, Any]
     n_recorded: int = 0
@@ -264,7 +261,7 @@ class Runner:
         operator: Operator | None = None,
         control: RunControl | None = None,
         progress: ProgressLine | None = None,
-        session: dict | None = None,
+        session: Any = None,
     ) -> None:
         self.store = store
         self.procedure = procedure
@@ -272,7 +269,7 @@ class Runner:
         self.control = control or RunControl()
         self.progress = progress or ProgressLine(None)
         self.progress.total = len(procedure.steps)
-        self.session: dict = session if session is not None else {}
+        self.session: Any = session if session is not None else {}
 
     def start(
         self,
@@ -296,9 +293,7 @@ class Runner:
             raise RunStateError(f"run {run_id} is a {rec.procedure!r} run, not {self.procedure.name!r}")
         if rec.status == "done":
             raise RunStateError(f"run {run_id} is already done; nothing to resume")
-        if rec.status == "running":
-            # the process that ran it died without journaling; that is what resume is for
-            pass
+        # a "running" run is one whose process died without journaling its end: resume is for that too
         self.store.set_run_status(run_id, "running")
         return self._execute(run_id, first_session=False)
 

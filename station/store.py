@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import DataError, StationError
+from station.errors import DataError, RunStateError, StationError
 
 SCHEMA_VERSION = 1
 
@@ -103,6 +103,17 @@ CREATE INDEX IF NOT EXISTS characteristics_by_name ON characteristics (name, pos
 
 class StoreError(StationError):
     """The run store refused an operation (unknown run, bad data, ...)."""
+
+
+#: The run state machine, as data: the states a run may go to from each state.
+#: ``running -> running`` is a resume after the process that ran it died without
+#: journaling its end (``kill -9``); a done run is final.
+RUN_TRANSITIONS: dict[str, frozenset[str]] = {
+    "running": frozenset({"done", "failed", "aborted", "running"}),
+    "failed": frozenset({"running"}),
+    "aborted": frozenset({"running"}),
+    "done": frozenset(),
+}
 
 
 @dataclass(frozen=True)
@@ -229,8 +240,19 @@ class RunStore:
         return [self.run(i) for i in ids]
 
     def set_run_status(self, run_id: str, status: str) -> None:
-        finished = time.time() if status in ("done", "failed") else None
-        self._tx([("UPDATE runs SET status=?, finished_at=? WHERE run_id=?", (status, finished, run_id))])
+        """Move a run to ``status``; a move that :data:`RUN_TRANSITIONS` does not allow raises RunStateError."""
+        if status not in RUN_TRANSITIONS:
+            raise RunStateError(f"run {run_id}: unknown status {status!r} (one of {', '.join(RUN_TRANSITIONS)})")
+        with self._lock:
+            row = self._db.execute("SELECT status FROM runs WHERE run_id=?", (run_id,)).fetchone()
+            if row is None:
+                raise StoreError(f"no run {run_id!r} in {self.path}")
+            current = row[0]
+            if status not in RUN_TRANSITIONS.get(current, frozenset()):
+                allowed = ", ".join(sorted(RUN_TRANSITIONS.get(current, ()))) or "nothing: it is final"
+                raise RunStateError(f"run {run_id} is {current}; it cannot become {status} (allowed: {allowed})")
+            finished = time.time() if status in ("done", "failed") else None
+            self._tx([("UPDATE runs SET status=?, finished_at=? WHERE run_id=?", (status, finished, run_id))])
 
     # -- journal ----------------------------------------------------------
     def step_started(self, run_id: str, idx: int, name: str) -> int:

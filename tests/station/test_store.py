@@ -83,3 +83,30 @@ def test_not_a_database_refused(tmp_path):
     bad.write_bytes(b"this is not sqlite" * 100)
     with pytest.raises(StoreError, match="not a usable station store"):
         RunStore(bad)
+
+
+def test_run_state_machine_is_enforced_from_its_table(tmp_path):
+    from station.errors import RunStateError
+    from station.store import RUN_TRANSITIONS
+
+    store = RunStore(tmp_path / "s.sqlite")
+    # every (from, to) pair of states: allowed exactly when the table says so
+    for i, (src, allowed) in enumerate(RUN_TRANSITIONS.items()):
+        for dst in RUN_TRANSITIONS:
+            run_id = f"r{i}-{dst}"
+            store.create_run(run_id, "p", model=None, serial=None, overhaul_state=None, config={}, params={})
+            path = {"running": [], "failed": ["failed"], "aborted": ["aborted"], "done": ["done"]}[src]
+            for s in path:
+                store.set_run_status(run_id, s)
+            assert store.run(run_id).status == src
+            if dst in allowed:
+                store.set_run_status(run_id, dst)
+                assert store.run(run_id).status == dst
+            else:
+                with pytest.raises(RunStateError, match=f"is {src}; it cannot become {dst}"):
+                    store.set_run_status(run_id, dst)
+                assert store.run(run_id).status == src
+    with pytest.raises(RunStateError, match="unknown status 'finished'"):
+        store.set_run_status("r0-done", "finished")
+    with pytest.raises(StoreError, match="no run"):
+        store.set_run_status("nope", "done")
