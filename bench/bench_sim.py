@@ -27,12 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fakes.sim.clock import ManualClock  # noqa: E402
 from fakes.sim.world import make_world  # noqa: E402
 from station.analysis.iso_poses import TABLE2_POSES_MM  # noqa: E402
-from station.commands.simulate import CYCLE_ORDER, _commanded_joints  # noqa: E402
+from fakes.sim.iso_run import CYCLE_ORDER, commanded_joints  # noqa: E402
 
 
 def run(hours: float, rate_hz: float, chunk_s: float, effects: str | None) -> dict:
     world = make_world(seed=1, clock=ManualClock(), effects=effects, tracker_rate_hz=rate_hz)
-    _, q = _commanded_joints(world.robot, np.array(TABLE2_POSES_MM))
+    _, q = commanded_joints(world.robot, np.array(TABLE2_POSES_MM))
     names = ("P1", "P2", "P3", "P4", "P5")
     arm = world.arm
     t0 = time.perf_counter()

@@ -175,16 +175,25 @@ class EmsconTracker(Tracker):
             t_device_s=None, host_time_s=time.monotonic(), temperature_c=result.temperature,
             pressure_mbar=result.pressure, humidity_pct=result.humidity)
 
+    @staticmethod
+    def rate_problem(rate_hz) -> str | None:
+        """Why the tracker cannot stream at ``rate_hz`` (None if it can): continuous time
+        mode spaces points by whole milliseconds, so only 1000/k Hz."""
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+            return f"rate_hz must be a finite number > 0, got {rate_hz!r}"
+        sep = 1000.0 / rate_hz
+        if sep < 1 - 1e-9 or abs(sep - round(sep)) > 1e-6:
+            return (f"emScon continuous time mode spaces points by whole milliseconds: rate_hz "
+                    f"must be 1000/k Hz (1000, 500, 250, ...), got {rate_hz!r}")
+        return None
+
     def start_stream(self, rate_hz: float) -> None:
         if self._stream_active:
             raise DeviceError("a continuous stream is already running")
-        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ConfigError(f"rate_hz must be a finite number > 0, got {rate_hz!r}")
-        sep = 1000.0 / rate_hz
-        if sep < 1 - 1e-9 or abs(sep - round(sep)) > 1e-6:
-            raise ConfigError(f"emScon continuous time mode spaces points by whole milliseconds: rate_hz "
-                              f"must be 1000/k Hz (1000, 500, 250, ...), got {rate_hz!r}")
-        sep_ms = int(round(sep))
+        problem = self.rate_problem(rate_hz)
+        if problem:
+            raise ConfigError(problem)
+        sep_ms = int(round(1000.0 / rate_hz))
         self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.CONTINUOUS_TIME,)))
         self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS, (sep_ms, 0, 0, 0)))
         self._separation_ms = sep_ms

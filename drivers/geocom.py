@@ -284,11 +284,19 @@ class GeoComTracker(Tracker):
         return StationaryMeasurement(xyz_mm=xyz, std_mm=np.full(3, np.nan), t_device_s=t_s,
                                      host_time_s=time.monotonic())
 
+    @staticmethod
+    def rate_problem(rate_hz) -> str | None:
+        """Why a polled GeoCOM stream cannot run at ``rate_hz`` (None if it can)."""
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
+            return f"rate_hz must be in (0, 1000] for a polled GeoCOM stream, got {rate_hz!r}"
+        return None
+
     def start_stream(self, rate_hz: float) -> None:
         if self._stream_active:
             raise DeviceError("a stream is already running")
-        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
-            raise ConfigError(f"rate_hz must be in (0, 1000] for a polled GeoCOM stream, got {rate_hz!r}")
+        problem = self.rate_problem(rate_hz)
+        if problem:
+            raise ConfigError(problem)
         self.request(Rpc.DO_MEASURE, (MeasureProgram.TRACK, INCLINATION_AUTO))
         self._stream = StreamBuffer(self.protocol, rate_hz, grid=False)
         self._stream_active = True

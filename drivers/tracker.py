@@ -1,6 +1,6 @@
 """The laser-tracker interface procedures use, whatever the wire protocol.
 
-A procedure opens a tracker by URL (:func:`open_tracker`), connects, sets
+A procedure opens a tracker by URL (:func:`drivers.tracker_url.open_tracker`), connects, sets
 units, takes stationary measurements, and runs continuous time-based
 streams whose samples carry **device time**. Status changes (beam broken,
 target reacquired, not ready, connection lost/restored) are
@@ -463,26 +463,7 @@ class Tracker(abc.ABC):
         self.close()
 
 
-def open_tracker(url: str, **options) -> Tracker:
-    """A tracker driver for a device URL (not yet connected).
-
-    ``emscon://HOST[:PORT]`` (TCP, port 700 by default) -> EmsconTracker;
-    ``geocom:///dev/ttyUSB0?baud=115200`` or ``geocom+socket://HOST:PORT`` ->
-    GeoComTracker. ``options`` go to the driver's constructor.
-    """
-    from drivers.transport import parse_device_url, serial_factory, tcp_factory
-
-    scheme, opts = parse_device_url(url)
-    if scheme in ("emscon", "tcp"):
-        from drivers.emscon import EmsconTracker
-
-        return EmsconTracker(tcp_factory(opts["host"], opts["port"]), **options)
-    from drivers.geocom import GeoComTracker
-
-    return GeoComTracker(serial_factory(opts["serial"], baudrate=opts["baudrate"]), **options)
-
-
 __all__ = [
     "BeamBroken", "EventKind", "TrackerEvent", "Gap", "SampleBatch", "StationaryMeasurement",
-    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker", "open_tracker",
+    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker",
 ]

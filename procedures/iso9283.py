@@ -34,6 +34,7 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,9 @@ from station.programs.handshake import Fault, State, describe
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
+from procedures.preflight import report_dir_problems, tracker_rate_problems
+from procedures.registry import ProcedureSpec, Subject
+from procedures.session import Session
 
 #: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
 SEED_CUBE_MM = (
@@ -247,11 +251,24 @@ def programs(plan: IsoPlan) -> dict[str, object]:
 # --------------------------------------------------------------------------
 
 
+@dataclass
+class IsoSession(Session):
+    """What the ISO 9283 steps share within one session."""
+
+    plan: IsoPlan | None = None
+    gate: SafetyGate | None = None
+    tracker: Any = None
+    controller: Any = None
+    #: ``{"pose": (t, xyz), "vap": (t, xyz)}`` in the base frame, read from the store once per session
+    streams: dict | None = None
+    #: ``(main, vap)`` analysis results
+    analysis: tuple | None = None
+
+
 def _plan(ctx: StepContext) -> IsoPlan:
-    plan = ctx.session.get("plan")
-    if plan is None:
-        plan = ctx.session["plan"] = IsoPlan.from_params(ctx.params)
-    return plan
+    if ctx.session.plan is None:
+        ctx.session.plan = IsoPlan.from_params(ctx.params)
+    return ctx.session.plan
 
 
 def step_check_programs(ctx: StepContext) -> dict:
@@ -262,7 +279,7 @@ def step_check_programs(ctx: StepContext) -> dict:
         report = gate.check_program(rendered.program, q_start=None)
         checked[name] = {"file": rendered.main_file, "moves": int(report.q_rad.shape[0]),
                          "peak_tcp_speed_mm_s": float(report.peak_tcp_speed_mm_s)}
-    ctx.session["gate"] = gate
+    ctx.session.gate = gate
     return {"programs": checked, "poses_mm": {k: list(v) for k, v in plan.poses_mm.items()}}
 
 
@@ -275,20 +292,13 @@ def _prompt(message: str):
 
 
 def step_connect(ctx: StepContext) -> dict:
-    from drivers.controller import ControllerDriver
-    from drivers.tracker import open_tracker
-
     plan = _plan(ctx)
-    devices = ctx.session["devices"]
-    tracker = open_tracker(devices["tracker"])
+    session: IsoSession = ctx.session
+    tracker = session.tracker = session.device("tracker")
     info = tracker.connect()
     tracker.set_units("mm")
-    ctx.session["tracker"] = tracker
-    controller = ControllerDriver.from_url(devices["controller"], gate=ctx.session.get("gate") or plan.gate(),
-                                           **({"register_map": devices["register_map"]}
-                                              if devices.get("register_map") else {}))
+    controller = session.controller = session.device("controller", gate=session.gate or plan.gate())
     controller.connect()
-    ctx.session["controller"] = controller
     status = controller.status()
     took_over = ""
     if status.state == State.RUNNING:
@@ -324,7 +334,7 @@ def _record_batch(ctx: StepContext, batch) -> None:
 def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) -> dict:
     """Run one program; with ``stream`` the tracker streams and samples are committed as they come."""
     plan = _plan(ctx)
-    tracker, controller = ctx.session["tracker"], ctx.session["controller"]
+    tracker, controller = ctx.session.tracker, ctx.session.controller
     events: list[str] = []
 
     def drain(timeout: float = 0.0) -> None:
@@ -372,7 +382,7 @@ def _record_counts(record) -> dict:
 
 def step_stop_stream(ctx: StepContext) -> dict:
     """End of the measured block: stop the stream, commit the last samples, keep the counters."""
-    tracker = ctx.session["tracker"]
+    tracker = ctx.session.tracker
     if not tracker.streaming:
         return {"streaming": False}
     record = tracker.stop_stream()
@@ -383,7 +393,7 @@ def step_stop_stream(ctx: StepContext) -> dict:
 
 
 def _timeout(ctx: StepContext, sim_seconds: float) -> float:
-    scale = ctx.session.get("time_scale") or 1.0
+    scale = ctx.session.time_scale or 1.0
     return 30.0 + sim_seconds / scale * 3.0
 
 
@@ -394,7 +404,7 @@ def step_home(ctx: StepContext) -> dict:
 def step_register(ctx: StepContext) -> dict:
     """Tie the tracker to the robot base: joint-1/joint-2 circles (default) or a best fit."""
     plan = _plan(ctx)
-    tracker = ctx.session["tracker"]
+    tracker = ctx.session.tracker
     progs = programs(plan)
     names = [k.split(" ", 1)[1] for k in progs if k.startswith("register ")]
     measured = []
@@ -529,12 +539,12 @@ def characteristic_rows(main, vap) -> list[dict]:
 
 def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
-    streams = ctx.session.get("streams")
+    streams = ctx.session.streams
     if streams is None:
         pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
         # the stream's tail (the last vAP dwell) arrives in the step that stops it
         vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
-        streams = ctx.session["streams"] = {
+        streams = ctx.session.streams = {
             "pose": _stream_in_base(ctx, pose_steps)[:2], "vap": _stream_in_base(ctx, vap_steps)[:2]}
     return streams
 
@@ -547,7 +557,7 @@ def step_analyse(ctx: StepContext) -> dict:
     ctx.store.put_characteristics(ctx.run_id, rows)
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
     ctx.store.put_result(ctx.run_id, "iso9283", result)
-    ctx.session["analysis"] = (main, vap)
+    ctx.session.analysis = (main, vap)
     judged = [r["passed"] for r in rows if r["passed"] is not None]
     return {"passed": (all(judged) if judged else None), "partial": bool(main.partial),
             "warnings": list(main.warnings) + (list(vap.warnings) if vap is not None else []),
@@ -559,27 +569,28 @@ def step_report(ctx: StepContext) -> dict:
     from station.report import write_report
 
     plan = _plan(ctx)
-    if "analysis" not in ctx.session:  # a resumed run whose analysis ran in an earlier session
+    if ctx.session.analysis is None:  # a resumed run whose analysis ran in an earlier session
         streams = measured_streams(ctx, plan)
-        ctx.session["analysis"] = analyse(plan, *streams["pose"], *streams["vap"])
-    main, vap = ctx.session["analysis"]
+        ctx.session.analysis = analyse(plan, *streams["pose"], *streams["vap"])
+    main, vap = ctx.session.analysis
     rows = ctx.store.characteristics(ctx.run_id)
     run = ctx.store.run(ctx.run_id)
-    report = build_report(ctx, plan, run, rows, main, vap)
+    report = build_report(ctx, plan, run, rows, main, vap, streams=measured_streams(ctx, plan),
+                          reg=registration_of(ctx.outputs), vap_poses=VAP_POSES)
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     return {"report": str(path.resolve()), "verdict": report.verdict}
 
 
-def safe_state(session: dict) -> None:
+def safe_state(session: IsoSession) -> None:
     """Stop the program and the stream; keep the connections for a resume to reopen."""
     errors = []
-    controller = session.get("controller")
+    controller = session.controller
     if controller is not None:
         try:
             controller.stop()
         except Exception as exc:  # report, keep going: the stream must stop too
             errors.append(f"controller stop: {exc}")
-    tracker = session.get("tracker")
+    tracker = session.tracker
     if tracker is not None and getattr(tracker, "streaming", False):
         try:
             tracker.stop_stream()
@@ -587,16 +598,6 @@ def safe_state(session: dict) -> None:
             errors.append(f"tracker stop: {exc}")
     if errors:
         raise StationError("; ".join(errors))
-
-
-def close_devices(session: dict) -> None:
-    for key in ("tracker", "controller"):
-        dev = session.pop(key, None)
-        if dev is not None:
-            try:
-                dev.close()
-            except Exception:
-                pass
 
 
 def build_procedure(plan: IsoPlan) -> Procedure:
@@ -614,3 +615,93 @@ def build_procedure(plan: IsoPlan) -> Procedure:
               for k in range(1, plan.vap_cycles + 1)]
     steps += [Step("stop stream", step_stop_stream), Step("analyse", step_analyse), Step("report", step_report)]
     return Procedure("iso9283", steps, safe_state=safe_state)
+
+
+# --------------------------------------------------------------------------
+# the procedure's entry in the registry
+# --------------------------------------------------------------------------
+
+
+def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
+    """The stored plan of a new run."""
+    return plan_from_config(cfg, robot, **{"report_dir": report_dir, **overrides}).params()
+
+
+def subject(cfg, robot: str) -> Subject:
+    rc = cfg.robots.get(robot)
+    if rc is None:
+        raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
+    return Subject(rc.model, rc.serial, rc.overhaul_state, f"{rc.model} serial {rc.serial}")
+
+
+def device_roles(cfg, robot: str) -> dict[str, str]:
+    subject(cfg, robot)
+    return {"tracker": "tracker", "controller": cfg.robots[robot].controller}
+
+
+def _fmt(r) -> str:
+    if r is None or r["value"] is None:
+        return "-"
+    v = r["value"]
+    mark = "" if r["passed"] is None else ("" if r["passed"] else "!")
+    return f"{v:.0f}" if r["name"] == "n_cycles" else f"{v:.3f}{mark}"
+
+
+def summary(store, run_id: str) -> list[str]:
+    """The results table, the verdict and the report, as console lines."""
+    rows = store.characteristics(run_id)
+    if not rows:
+        return []
+    lines = []
+    by_pose: dict[str, dict] = {}
+    for r in rows:
+        by_pose.setdefault(r["pose"], {})[r["name"]] = r
+    cols = [("AP_mm", "AP mm"), ("RP_mm", "RP mm"), ("POS_mm", "POS mm"), ("PST_s", "PST s"), ("vAP_mm", "vAP mm"),
+            ("n_cycles", "n")]
+    lines.append(f"{'pose':<8}" + "".join(f"{h:>10}" for _, h in cols))
+    for pose in sorted(p for p in by_pose if p.startswith("P") and "-" not in p):
+        lines.append(f"{pose:<8}" + "".join(f"{_fmt(by_pose[pose].get(key)):>10}" for key, _ in cols))
+    for pose, d in sorted(by_pose.items()):
+        for key in ("AD_mm", "RD_mm", "MPT_s"):
+            if key in d:
+                lines.append(f"{key:<7} {pose:<8} {_fmt(d[key]):>10}")
+    judged = [r["passed"] for r in rows if r["passed"] is not None]
+    verdict = "no limits configured" if not judged else ("PASS" if all(judged) else "FAIL")
+    failed = [f"{r['pose']} {r['name']} {r['value']:.4g} > {r['limit']:g}" for r in rows if r["passed"] is False]
+    lines.append(f"verdict: {verdict}" + (f" ({'; '.join(failed)})" if failed else ""))
+    rep = [s.output["report"] for s in store.steps(run_id) if s.name == "report" and s.status == "done"]
+    if rep:
+        lines.append(f"report: {rep[0]}")
+    return lines
+
+
+def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
+    """The plan against its tracker's rates, the safety gate (every program, every target) and the report folder."""
+    plan = IsoPlan.from_params(params)
+    problems = report_dir_problems(plan.report_dir)
+    problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
+    try:
+        rendered = programs(plan)
+    except StationError as exc:
+        return problems + [f"programs: {exc}"]
+    gate = plan.gate()
+    for name, prog in rendered.items():
+        try:
+            gate.check_program(prog.program, q_start=None)
+        except StationError as exc:
+            problems.append(f"program {name!r}: {exc}")
+    return problems
+
+
+SPEC = ProcedureSpec(
+    name="iso9283",
+    new_params=new_params,
+    build=lambda params: build_procedure(IsoPlan.from_params(params)),
+    new_session=lambda devices: IsoSession(devices),
+    subject=subject,
+    device_roles=device_roles,
+    fake_cell="fakes.cells:iso9283_cell",
+    result_key="iso9283",
+    summary=summary,
+    preflight=preflight_problems,
+)

@@ -71,17 +71,18 @@ def _cluster_figures(vap_xyz, vap, plan) -> list[tuple[str, str]]:
     return figs
 
 
-def build_report(ctx, plan, run, rows, main, vap) -> Report:
-    from procedures.iso9283 import VAP_POSES, measured_streams, registration_of
+def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) -> Report:
+    """The run's HTML report.
 
-    streams = measured_streams(ctx, plan)
+    ``streams`` is ``{"pose": (t, xyz), "vap": (t, xyz)}`` in the base frame,
+    ``reg`` the base-frame registration, ``vap_poses`` the poses of the vAP cycles.
+    """
     t, xyz = streams["pose"]
     vxyz = streams["vap"][1] if vap is not None else None
-    reg = registration_of(ctx.outputs)
     facts = {
         "run": run.run_id,
         "robot": f"{run.model} serial {run.serial} ({run.overhaul_state})",
-        "procedure": f"ISO 9283, {plan.cycles} pose cycles, {plan.vap_cycles} vAP cycles (poses {', '.join(VAP_POSES)}), "
+        "procedure": f"ISO 9283, {plan.cycles} pose cycles, {plan.vap_cycles} vAP cycles (poses {', '.join(vap_poses)}), "
                      f"{plan.speed_frac * 100:.0f} % speed, {plan.dwell_s} s dwell, tracker {plan.tracker_rate_hz:g} Hz",
         "base frame registration": (
             f"joint-1 and joint-2 circles, {reg.n} points, circle fit rms {reg.rms_mm:.3f} mm"

@@ -19,10 +19,11 @@ The steps (each ``step(ctx) -> dict | None``, JSON-able output):
    the whole continuous record) and by the comparison methods;
 6. ``report`` — a JSON-able summary.
 
-:func:`calibration_steps` lists them as ``(name, function)`` pairs so a runner
-can journal them; :func:`run_trailer_calibration` runs them in order and
-leaves the trailer stopped if a step fails. Samples go through
-``ctx.record(stream, columns)`` as they are taken (hook for the run store).
+:mod:`procedures.trailer_run` runs them as journaled steps of the station's
+runner (the one way every procedure runs). Samples go through
+``ctx.record(stream, columns)`` as they are taken (the run store), and
+``ctx.checkpoint()`` is called before every sample read, so a pause or abort
+takes effect inside a command that streams for a minute.
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from station.analysis.trailer_better import ESTIMATORS, estimate_trailer
-from station.analysis.trailer_ls import TrailerEstimate
 from station.errors import ConfigError, StationError
 from station.models.trailer import (
     COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,
@@ -128,6 +128,8 @@ class TrailerCalibrationContext:
     driver: object
     plan: TrailerCalibrationPlan = field(default_factory=TrailerCalibrationPlan)
     record: Callable[[str, dict], None] | None = None
+    #: called before every sample read: blocks while the run is paused, raises when it is aborted
+    checkpoint: Callable[[], None] | None = None
     samples: dict = field(default_factory=lambda: {c: [] for c in COLUMNS})
     estimates: dict = field(default_factory=dict)
     errors: dict = field(default_factory=dict)
@@ -212,7 +214,7 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
     plan = ctx.plan
     kind, M = plan.commands[index]
     drv = ctx.driver
-    waiting = [drv.read_sample(plan.sample_timeout_s)] + drv.drain()
+    waiting = _read(ctx)
     t_seg = waiting[-1].t_s
     t_prof = t_seg + plan.settle_s
     t_end = t_prof + plan.duration_s
@@ -249,7 +251,7 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
             ctx.kappa_cmd = target
         if len(batch["t"]) >= 20:  # commit often: what is not committed is not yet acknowledged
             _flush(ctx, batch)
-        waiting = [drv.read_sample(plan.sample_timeout_s)] + drv.drain()
+        waiting = _read(ctx)
     _flush(ctx, batch)
     if ctx.record is not None:
         seg = [(sp, ti) for sp, ti in ctx.setpoints if ti > t_seg]
@@ -261,6 +263,13 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
     return {"command": [kind, M], "samples": n, "t_start_s": t_seg, "t_profile_s": t_prof, "t_end_s": last_t,
             "line": drv.stats.as_dict() if hasattr(drv, "stats") else None,
             "set_points": drv.command_stats.as_dict() if hasattr(drv, "command_stats") else None}
+
+
+def _read(ctx: TrailerCalibrationContext) -> list:
+    """The next sample (waiting for it) and every one already queued, after the run's checkpoint."""
+    if ctx.checkpoint is not None:
+        ctx.checkpoint()
+    return [ctx.driver.read_sample(ctx.plan.sample_timeout_s)] + ctx.driver.drain()
 
 
 def stop(ctx: TrailerCalibrationContext) -> dict:
@@ -309,77 +318,6 @@ def report(ctx: TrailerCalibrationContext) -> dict:
     }
 
 
-def safe_state(ctx: TrailerCalibrationContext) -> None:
-    """Leave the trailer stopped (best effort, after a failure)."""
-    try:
-        ctx.driver.command_speed(0.0)
-    except StationError:
-        pass
-
-
-def calibration_steps(plan: TrailerCalibrationPlan) -> list[tuple[str, Callable]]:
-    """The procedure as ``(name, step(ctx))`` pairs, in order."""
-    steps: list[tuple[str, Callable]] = [("check plan", check_plan), ("start driving", start_driving)]
-    for i, (kind, M) in enumerate(plan.commands):
-        steps.append((f"command {i + 1}/{len(plan.commands)}: {kind} M={M:g}",
-                      lambda ctx, i=i: run_command(ctx, i)))
-    steps += [("stop", stop), ("estimate", estimate), ("report", report)]
-    return steps
-
-
-# ----------------------------------------------------------------------------- entry point
-@dataclass(frozen=True)
-class TrailerCalibrationResult:
-    """Outcome of :func:`run_trailer_calibration`."""
-
-    estimate: TrailerEstimate
-    comparisons: dict
-    samples: dict
-    steps: dict
-    report: dict
-
-
-def run_trailer_calibration(driver, plan: TrailerCalibrationPlan | None = None, *,
-                            record: Callable[[str, dict], None] | None = None,
-                            on_step: Callable[[str, dict | None], None] | None = None
-                            ) -> TrailerCalibrationResult:
-    """Run the whole procedure on an odometry driver.
-
-    Parameters
-    ----------
-    driver : drivers.odometry.OdometryDriver
-        Or anything with ``read_sample``, ``drain``, ``send_curvature``,
-        ``command_curvature``, ``command_speed`` (and optionally ``stats``,
-        ``command_stats``).
-    plan : TrailerCalibrationPlan, optional
-    record : callable, optional
-        ``record("odometry", columns)`` for each batch of samples.
-    on_step : callable, optional
-        ``on_step(name, output)`` after each step (progress, journal).
-    """
-    ctx = TrailerCalibrationContext(driver, plan or TrailerCalibrationPlan(), record)
-    outputs = {}
-    moving = False
-    try:
-        for name, step in calibration_steps(ctx.plan):
-            if name == "start driving":
-                moving = True
-            out = step(ctx)
-            if name == "stop":
-                moving = False
-            outputs[name] = out
-            ctx.log.append(name)
-            if on_step is not None:
-                on_step(name, out)
-    except BaseException:
-        if moving:
-            safe_state(ctx)
-        raise
-    main = ctx.estimates[ctx.plan.method]
-    return TrailerCalibrationResult(main, {k: v for k, v in ctx.estimates.items() if k != ctx.plan.method},
-                                    ctx.arrays(), outputs, outputs["report"])
-
-
 @dataclass(frozen=True)
 class _Applied:
     """A set point acknowledged by a blocking command."""
@@ -425,7 +363,7 @@ def _flush(ctx: TrailerCalibrationContext, batch: dict) -> None:
 
 
 __all__ = [
-    "ESTIMATORS", "TrailerCalibrationPlan", "TrailerCalibrationContext", "TrailerCalibrationResult",
-    "check_plan", "start_driving", "run_command", "stop", "estimate", "report", "safe_state",
-    "calibration_steps", "estimate_trailer", "run_trailer_calibration", "interval_average",
+    "ESTIMATORS", "TrailerCalibrationPlan", "TrailerCalibrationContext",
+    "check_plan", "start_driving", "run_command", "stop", "estimate", "report",
+    "estimate_trailer", "interval_average",
 ]

@@ -17,13 +17,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
 from procedures import trailer as tp
-from station.errors import StationError
+from procedures.preflight import report_dir_problems
+from procedures.registry import ProcedureSpec, Subject
+from procedures.session import Session
+from station.errors import ConfigError, StationError
 from station.runner import Procedure, Step, StepContext
 
 
@@ -41,9 +47,18 @@ def plan_from_params(p: dict) -> tp.TrailerCalibrationPlan:
     return tp.TrailerCalibrationPlan(**kw)
 
 
+@dataclass
+class TrailerSession(Session):
+    """What the trailer steps share within one session."""
+
+    odometry: Any = None
+    trailer_ctx: tp.TrailerCalibrationContext | None = None
+
+
 def _tc(ctx: StepContext) -> tp.TrailerCalibrationContext:
     """The procedure's shared context, rebuilt from the store in a new session."""
-    tc = ctx.session.get("trailer_ctx")
+    session: TrailerSession = ctx.session
+    tc = session.trailer_ctx
     if tc is None:
         tc = tp.TrailerCalibrationContext(driver=None, plan=plan_from_params(ctx.params["plan"]))
         done = ctx.samples("odometry")
@@ -56,43 +71,19 @@ def _tc(ctx: StepContext) -> tp.TrailerCalibrationContext:
                 (SimpleNamespace(value=float(v), t_applied_s=None if math.isnan(ta) else float(ta)), float(ti))
                 for v, ta, ti in zip(sp["value"], sp["t_applied"], sp["t_intended"])
             ]
-        ctx.session["trailer_ctx"] = tc
-    drv = ctx.session.get("odometry")
-    tc.driver = _Checkpointed(drv, ctx.checkpoint) if drv is not None else None
+        session.trailer_ctx = tc
+    tc.driver = session.odometry
     tc.record = ctx.record
+    tc.checkpoint = ctx.checkpoint
     return tc
 
 
-class _Checkpointed:
-    """The odometry driver, with the run's pause/abort checked before every sample read.
-
-    A command streams for a minute or more; this is how an abort or a pause
-    takes effect inside it, not only between steps.
-    """
-
-    def __init__(self, driver, checkpoint) -> None:
-        self._driver = driver
-        self._checkpoint = checkpoint
-
-    def read_sample(self, *args, **kwargs):
-        self._checkpoint()
-        return self._driver.read_sample(*args, **kwargs)
-
-    def __getattr__(self, name):
-        return getattr(self._driver, name)
-
-
 def _connect(ctx: StepContext) -> dict:
-    from drivers.odometry import OdometryDriver
-
-    old = ctx.session.pop("odometry", None)
-    if old is not None:
-        old.close()
-    drv = OdometryDriver.open(ctx.session["devices"]["odometry"])
-    ctx.session["odometry"] = drv
+    session: TrailerSession = ctx.session
+    drv = session.odometry = session.device("odometry")
     # whatever an earlier session left running: stand still first
     t_v = drv.command_speed(0.0)
-    return {"device": ctx.session["devices"]["odometry"], "t_stopped_s": t_v}
+    return {"device": session.devices.describe("odometry"), "t_stopped_s": t_v}
 
 
 def _wrap(fn):
@@ -219,22 +210,13 @@ def _steady_psi(kappa: np.ndarray, L1: float, L2: float) -> np.ndarray:
         return np.arcsin(c / r) - np.arctan2(b, 1.0)
 
 
-def safe_state(session: dict) -> None:
-    drv = session.get("odometry")
+def safe_state(session: TrailerSession) -> None:
+    drv = session.odometry
     if drv is not None:
         try:
             drv.command_speed(0.0)
         except StationError as exc:
             raise StationError(f"could not stop the trailer: {exc}") from exc
-
-
-def close_devices(session: dict) -> None:
-    drv = session.pop("odometry", None)
-    if drv is not None:
-        try:
-            drv.close()
-        except Exception:
-            pass
 
 
 def build_procedure(plan: tp.TrailerCalibrationPlan) -> Procedure:
@@ -247,3 +229,69 @@ def build_procedure(plan: tp.TrailerCalibrationPlan) -> Procedure:
         steps.append(Step(f"command {i + 1}/{len(plan.commands)}: {kind} M={M:g}", _command(i)))
     steps += [Step("stop", _wrap(tp.stop)), Step("estimate", _estimate), Step("report", _report)]
     return Procedure("trailer", steps, safe_state=safe_state)
+
+
+# ----------------------------------------------------------------------------- the registry entry
+def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
+    """The stored plan of a new run, from the config's [trailer] section."""
+    tc = _trailer_section(cfg)
+    kw = dict(commands=tuple((k, float(m)) for k, m in tc.commands), duration_s=tc.duration_s,
+              settle_s=tc.settle_s, v_m_s=tc.v_m_s, nominal_L1_m=tc.nominal_L1_m, nominal_L2_m=tc.nominal_L2_m,
+              method=tc.method)
+    kw.update(overrides)
+    return {"plan": plan_params(tp.TrailerCalibrationPlan(**kw)), "report_dir": report_dir}
+
+
+def _trailer_section(cfg):
+    if cfg.trailer is None:
+        raise ConfigError("trailer: the config has no [trailer] section (odometry device, nominal lengths)")
+    return cfg.trailer
+
+
+def subject(cfg, robot: str) -> Subject:
+    tc = _trailer_section(cfg)
+    return Subject("trailer", tc.serial, None, f"the trailer (serial {tc.serial})")
+
+
+def device_roles(cfg, robot: str) -> dict[str, str]:
+    return {"odometry": _trailer_section(cfg).odometry}
+
+
+def summary(store, run_id: str) -> list[str]:
+    """The estimates (chosen method first, then the comparisons) and the report, as console lines."""
+    res = store.result(run_id, "trailer")
+    rows = [res["result"]] + list(res["comparisons"].values())
+
+    def f(v, w, d):
+        return f"{v:>{w}.{d}f}" if v is not None else f"{'-':>{w}}"
+
+    lines = [f"{'method':<10}{'L1 m':>10}{'+-':>8}{'L2 m':>10}{'+-':>8}{'cond':>10}"]
+    for r in rows:
+        lines.append(f"{r['method']:<10}{f(r['L1_m'], 10, 4)}{f(r['L1_sigma_m'], 8, 4)}{f(r['L2_m'], 10, 4)}"
+                     f"{f(r['L2_sigma_m'], 8, 4)}{f(r['condition_number'], 10, 1)}")
+    lines.append(f"report: {res['report']}")
+    return lines
+
+
+def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
+    """The plan against eq. (25), the 45 deg joint-angle limit and the report folder."""
+    problems = report_dir_problems(params.get("report_dir", "reports"))
+    try:
+        tp.check_plan(tp.TrailerCalibrationContext(driver=None, plan=plan_from_params(params["plan"])))
+    except StationError as exc:
+        problems.append(f"trailer plan: {exc}")
+    return problems
+
+
+SPEC = ProcedureSpec(
+    name="trailer",
+    new_params=new_params,
+    build=lambda params: build_procedure(plan_from_params(params["plan"])),
+    new_session=lambda devices: TrailerSession(devices),
+    subject=subject,
+    device_roles=device_roles,
+    fake_cell="fakes.cells:trailer_cell",
+    result_key="trailer",
+    summary=summary,
+    preflight=preflight_problems,
+)

@@ -195,7 +195,7 @@ class Station:
         outside, the configured limits by a clear margin
         (:func:`fake_robot_seed`). ``self.seed`` is the cell used.
         """
-        from station.commands.demo import demo_config
+        from fakes.cells import demo_config
 
         workdir = Path(workdir)
         cfg = demo_config(workdir.resolve(), cycles=30, vap_cycles=30, rate_hz=100.0)
@@ -212,7 +212,7 @@ class Station:
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
                 run_id: str | None = None) -> AcceptanceRun:
         """Run the ISO 9283 procedure (scripted: prompts answered yes) and return its results."""
-        from station.commands.run import execute
+        from station.assemble import run_procedure
 
         overrides = {}
         if cycles is not None:
@@ -222,7 +222,7 @@ class Station:
         self._n += 1
         run_id = run_id or f"{self.config.robots[robot].serial}-accept-{self._n}"
         out = io.StringIO()
-        execute(self.config, robot=robot, run_id=run_id, arm=self.arm, yes=True, quiet=True,
+        run_procedure(self.config, "iso9283", robot=robot, run_id=run_id, arm=self.arm, yes=True, quiet=True,
                 time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=overrides,
                 stdout=out)
         store_path = self.config.station.store_file(self.workdir)

@@ -27,26 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_demo)
 
 
-def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float) -> dict:
-    """The demo station's config; device URLs are replaced by the fakes' at start."""
-    return {
-        "station": {"name": "demo cell", "store_path": str(out / "station.sqlite"), "report_dir": str(out / "reports")},
-        "devices": {"tracker": {"url": "fake://tracker-emscon"}, "controller": {"url": "fake://controller"}},
-        "robots": {
-            "r1": {
-                "model": "industrial-3100", "serial": "DEMO-0001", "overhaul_state": "after", "payload_kg": 0.0,
-                "controller": "controller",
-                "workspace": {"min_mm": [-900.0, 800.0, 500.0], "max_mm": [900.0, 2600.0, 2300.0],
-                              "max_tcp_speed_mm_s": 2000.0},
-                "limits": {"rp_limit_mm": 0.5, "ap_limit_mm": 5.0, "vap_limit_mm": 2.0, "ad_limit_mm": 2.0},
-            }
-        },
-        "iso9283": {"cycles": cycles, "vap_cycles": vap_cycles, "tracker_rate_hz": rate_hz},
-    }
-
-
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from station.commands.run import execute
+    from fakes.cells import demo_config
+    from station.assemble import run_procedure
     from station.config import config_from_dict
 
     out = Path(args.out) if args.out else Path.cwd() / "demo-runs"
@@ -54,5 +37,5 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     cfg = config_from_dict(demo_config(out.resolve(), cycles=args.cycles, vap_cycles=args.vap_cycles,
                                        rate_hz=args.rate), "demo config")
     print(f"demo: fake cell (seed {args.seed}, {args.time_scale:g}x real time), store {out / 'station.sqlite'}")
-    return execute(cfg, procedure="iso9283", yes=True, time_scale=args.time_scale, seed=args.seed,
+    return run_procedure(cfg, "iso9283", yes=True, time_scale=args.time_scale, seed=args.seed,
                    json_out=args.json, quiet=args.quiet, config_dir=out)

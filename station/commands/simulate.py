@@ -1,4 +1,5 @@
-"""`station simulate iso9283 --out DIR`: an offline ISO 9283 run on the simulated cell.
+"""`station simulate iso9283 --out DIR`: an offline ISO 9283 run on the simulated cell
+(:mod:`fakes.sim.iso_run`; this module parses the arguments).
 
 The world (:func:`fakes.sim.world.make_world`, on a ``ManualClock`` so it runs
 as fast as the machine computes) drives its arm through the cycles of seed
@@ -24,22 +25,9 @@ Files written to DIR:
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import re
-from pathlib import Path
-
-import numpy as np
 
 from station.errors import ConfigError
-
-__all__ = ["register", "simulate_iso9283", "STATUS_VALID", "STATUS_BEAM_BROKEN"]
-
-STATUS_VALID = 0
-STATUS_BEAM_BROKEN = 1
-
-#: visiting order of one cycle after the initial wait at P1 (seed 000 sec. 3.1.3)
-CYCLE_ORDER = ("P2", "P3", "P4", "P5", "P1")
 
 
 def _parse_break(text: str) -> tuple[float, float]:
@@ -72,6 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_iso9283(args: argparse.Namespace) -> int:
+    from fakes.sim.iso_run import simulate_iso9283
+
     summary = simulate_iso9283(
         args.out,
         cycles=args.cycles,
@@ -93,213 +83,3 @@ def _run_iso9283(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check(cycles, dwell_s, rate_hz, seed, wait_s, move, effects) -> None:
-    if isinstance(cycles, bool) or not isinstance(cycles, (int, np.integer)) or cycles < 1:
-        raise ConfigError(f"--cycles must be an integer >= 1, got {cycles!r}")
-    if not (math.isfinite(dwell_s) and dwell_s >= 0):
-        raise ConfigError(f"--dwell must be finite and >= 0 s, got {dwell_s!r}")
-    if not (math.isfinite(rate_hz) and 10.0 <= rate_hz <= 3000.0):
-        raise ConfigError(f"--rate must be within 10-3000 Hz, got {rate_hz!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ConfigError(f"--seed must be a non-negative integer, got {seed!r}")
-    if not (math.isfinite(wait_s) and wait_s >= 0):
-        raise ConfigError(f"--wait must be finite and >= 0 s, got {wait_s!r}")
-    if move not in ("joint", "linear"):
-        raise ConfigError(f"--move must be 'joint' or 'linear', got {move!r}")
-    if effects not in ("realistic", "none"):
-        raise ConfigError(f"--effects must be 'realistic' or 'none', got {effects!r}")
-
-
-def _commanded_joints(robot, positions_mm: np.ndarray):
-    """Nominal IK of the five poses with the orientation IK picks for P1."""
-    from station.models import kinematics as kin
-
-    first = kin.ik(robot.dh_nominal, positions_mm[0], robot.home_q_rad, robot.joint_limits_rad)
-    if not first.all_success:
-        raise ConfigError(f"robot {robot.name!r} cannot reach P1 {positions_mm[0].tolist()} mm of seed 000 Table 2")
-    T1 = kin.fk(robot.dh_nominal, first.q_rad[0])
-    targets = np.repeat(T1[None], len(positions_mm), axis=0)
-    targets[:, :3, 3] = positions_mm
-    sol = kin.ik(robot.dh_nominal, targets, first.q_rad[0], robot.joint_limits_rad)
-    if not sol.all_success:
-        bad = int(np.nonzero(~sol.success)[0][0])
-        raise ConfigError(
-            f"robot {robot.name!r} cannot reach P{bad + 1} {positions_mm[bad].tolist()} mm "
-            f"of seed 000 Table 2 with the tool orientation of P1"
-        )
-    return targets, sol.q_rad
-
-
-def simulate_iso9283(
-    out_dir,
-    *,
-    cycles: int = 3,
-    dwell_s: float = 0.5,
-    rate_hz: float = 1000.0,
-    seed: int = 0,
-    robot: str = "industrial-3100",
-    wait_s: float = 4.0,
-    move: str = "joint",
-    effects: str = "realistic",
-    beam_breaks=(),
-    chunk_s: float = 60.0,
-) -> dict:
-    """Run the ISO 9283 cycles offline and write ``stream.csv``, ``poses.csv``, ``truth.json``.
-
-    Parameters
-    ----------
-    out_dir : str or Path
-    cycles : int
-        Cycles of P2, P3, P4, P5, P1 after the initial wait at P1.
-    dwell_s : float
-        Dwell at each pose, s.
-    rate_hz : float
-        Tracker rate (10-3000 Hz).
-    seed : int
-        Seed of the world.
-    robot : str
-        Robot model; it must reach seed 000 Table 2.
-    wait_s : float
-        Time at P1 with the tracker measuring before the first move.
-    move : {"joint", "linear"}
-        PTP joint moves at 100 % rated joint speed, or linear moves at the
-        rated TCP speed.
-    effects : {"realistic", "none"}
-    beam_breaks : iterable of (float, float)
-        Beam breaks, seconds after the recording starts.
-    chunk_s : float
-        The stream is measured and written in chunks of this simulated time.
-
-    Returns
-    -------
-    dict
-        Paths, sample counts and the stop list.
-    """
-    _check(cycles, float(dwell_s), float(rate_hz), seed, float(wait_s), move, effects)
-    from fakes.sim.clock import ManualClock
-    from fakes.sim.world import make_world
-    from station.analysis.iso_poses import TABLE2_POSES_MM
-
-    names = ("P1", "P2", "P3", "P4", "P5")
-    positions = np.array(TABLE2_POSES_MM, dtype=float)
-    clock = ManualClock()
-    world = make_world(robot=robot, seed=seed, clock=clock, effects="realistic" if effects == "realistic" else None,
-                       tracker_rate_hz=rate_hz)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        targets, q_cmd = _commanded_joints(world.robot, positions)
-        arm = world.arm
-        source = world.tracker_source()
-        tracker = world.tracker
-
-        def go(i: int):
-            if move == "joint":
-                return arm.move_joint(q_cmd[i], speed_frac=1.0)
-            return arm.move_linear(targets[i], speed_mm_s=world.robot.max_tcp_speed_mm_s,
-                                   accel_mm_s2=world.robot.max_tcp_speed_mm_s / 0.5)
-
-        # approach P1 from home (not recorded), settle, then the recording starts
-        arm.move_joint(q_cmd[0], speed_frac=0.5)
-        arm.dwell(1.0)
-        arm.wait_idle()
-        t_rec = float(clock.now())
-        for a, b in beam_breaks:
-            tracker.add_beam_break(t_rec + a, t_rec + b)
-
-        stream_path = out / "stream.csv"
-        tmp = stream_path.with_name(stream_path.name + ".tmp")
-        n_samples = n_invalid = 0
-        t_written = t_rec
-        stops = []
-        with open(tmp, "w", encoding="ascii", newline="\n") as fh:
-            fh.write("t,x,y,z,status\n")
-
-            def flush(t_upto: float) -> None:
-                nonlocal n_samples, n_invalid, t_written
-                while t_written < t_upto:
-                    t1 = min(t_upto, t_written + chunk_s)
-                    t = source.sample_times(t_written, t1)
-                    t_written = t1
-                    if t.size == 0:
-                        continue
-                    xyz, valid = source.measure(t)
-                    status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
-                    rows = np.column_stack([source.device_time(t), xyz, status])
-                    np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")
-                    n_samples += t.size
-                    n_invalid += int(np.count_nonzero(~valid))
-
-            arm.dwell(float(wait_s))
-            for c in range(1, cycles + 1):
-                for name in CYCLE_ORDER:
-                    i = names.index(name)
-                    m = go(i)
-                    arm.dwell(float(dwell_s))
-                    stops.append({"cycle": c, "pose": name, "t_start_s": m.t_start, "t_end_s": m.t_end,
-                                  "t_leave_s": m.t_end + float(dwell_s)})
-                arm.wait_idle()
-                flush(float(clock.now()))
-        tmp.replace(stream_path)
-
-        # true attained positions: the settled pose late in each dwell
-        t_att = np.array([s["t_end_s"] + 0.9 * float(dwell_s) for s in stops])
-        p_base = arm.tool_position_mm(t_att)
-        p_trk = tracker.to_tracker_frame(p_base)
-        for s, pb, pt, ta in zip(stops, p_base, p_trk, t_att):
-            s["t_attained_s"] = float(ta)
-            s["t_attained_device_s"] = float(source.device_time(ta))
-            s["true_base_mm"] = pb.tolist()
-            s["true_tracker_mm"] = pt.tolist()
-
-        # The commanded poses in the tracker frame come from the world's true
-        # base transform here; a real station gets that transform from a
-        # registration (measuring known points), with its own uncertainty.
-        cmd_trk = tracker.to_tracker_frame(positions)
-        poses_path = out / "poses.csv"
-        with open(poses_path, "w", encoding="ascii", newline="\n") as fh:
-            fh.write("name,x,y,z\n")
-            for name, p in zip(names, cmd_trk):
-                fh.write(f"{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}\n")
-
-        truth = {
-            "description": "truth of a simulated ISO 9283 run (seed 000 sec. 3.1.3); mm, s, deg",
-            "robot": world.robot.name,
-            "seed": seed,
-            "cycles": cycles,
-            "dwell_s": float(dwell_s),
-            "move": move,
-            "rate_hz": float(rate_hz),
-            "t_record_start_s": t_rec,
-            "base_T_tracker": world.base_T_tracker.tolist(),
-            "frames_note": "poses.csv uses the true base_T_tracker; a real station estimates it by registration",
-            "commanded": {
-                name: {
-                    "base_mm": positions[i].tolist(),
-                    "tracker_mm": cmd_trk[i].tolist(),
-                    "q_deg": np.rad2deg(q_cmd[i]).tolist(),
-                }
-                for i, name in enumerate(names)
-            },
-            "stops": stops,
-            "world": world.describe(),
-        }
-        truth_path = out / "truth.json"
-        text = json.dumps(truth, indent=1)
-        # one line per list of numbers, so a person can read the file
-        text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
-        truth_path.write_text(text)
-    finally:
-        world.close()
-    return {
-        "stream_csv": str(stream_path),
-        "poses_csv": str(poses_path),
-        "truth_json": str(truth_path),
-        "n_samples": n_samples,
-        "n_invalid": n_invalid,
-        "n_stops": len(stops),
-        "cycles": cycles,
-        "rate_hz": float(rate_hz),
-        "duration_s": n_samples / float(rate_hz),
-        "stops": stops,
-    }

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from station.cli import main
-from station.commands.simulate import simulate_iso9283
+from fakes.sim.iso_run import simulate_iso9283
 
 from .conftest import chi3_q
 

@@ -15,7 +15,7 @@ import pytest
 
 from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import pose_joints_rad, predict_static
-from station.commands.demo import demo_config
+from fakes.cells import demo_config
 from station.config import config_from_dict
 from station.errors import ConfigError
 from station.models import kinematics as kin

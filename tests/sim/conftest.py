@@ -30,8 +30,8 @@ def rng(request):
 @pytest.fixture(scope="session")
 def iso_q(robot):
     """Nominal joint angles of seed 000 Table 2 (P1..P5) with P1's tool orientation."""
-    from station.commands.simulate import _commanded_joints
+    from fakes.sim.iso_run import commanded_joints
     from station.analysis.iso_poses import TABLE2_POSES_MM
 
-    _, q = _commanded_joints(robot, np.array(TABLE2_POSES_MM))
+    _, q = commanded_joints(robot, np.array(TABLE2_POSES_MM))
     return q

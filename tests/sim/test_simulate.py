@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from station.cli import main
-from station.commands.simulate import simulate_iso9283
+from fakes.sim.iso_run import simulate_iso9283
 
 
 def _stops_in_stream(t, xyz, valid, speed_mm_s=5.0, min_s=0.3):

@@ -14,7 +14,8 @@ import pytest
 
 from procedures.iso9283 import plan_from_config, registration_of
 from procedures.iso9283_truth import predict_static, prediction_scatter
-from station.commands.run import execute
+from station.assemble import run_procedure
+from station.errors import PreflightError
 from station.config import config_from_dict
 from station.errors import ConfigError
 from station.store import RunStore
@@ -29,8 +30,8 @@ def _config(fake_cell, tmp_path, **iso):
 
 
 def _run(fake_cell, tmp_path, **iso):
-    code = execute(_config(fake_cell, tmp_path, **iso), arm=True, yes=True, quiet=True, run_id="t1",
-                   config_dir=tmp_path, json_out=str(tmp_path / "out.json"))
+    code = run_procedure(_config(fake_cell, tmp_path, **iso), "iso9283", arm=True, yes=True, quiet=True, run_id="t1",
+                         config_dir=tmp_path, json_out=str(tmp_path / "out.json"))
     return code, RunStore(tmp_path / "s.sqlite")
 
 
@@ -106,21 +107,36 @@ def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars
     assert abs(chars[("P2-P4", "AD_mm")]["value"] - pred.AD_mm["P2-P4"]) < tol_ad
 
 
+def _arm_q(world):
+    return world.arm.actual_q_rad(np.array([world.clock.now()]))[0]
+
+
 def test_unsafe_plan_is_refused_before_anything_moves(fake_cell, tmp_path):
-    """A cube outside the workspace box: the gate refuses in the first step; the arm never moved."""
-    t0 = fake_cell.world.clock.now()
-    q0 = fake_cell.world.arm.actual_q_rad(np.array([t0]))[0]
+    """A cube outside the reach: the preflight lists every program that cannot run; no run, the arm never moved."""
+    q0 = _arm_q(fake_cell.world)
     big = [(x * 1.6, 1700 + (y - 1700) * 1.6, 1400 + (z - 1400) * 1.6) for x, y, z in
            [(600, 2300, 2000), (600, 1100, 2000), (-600, 1100, 2000), (-600, 2300, 2000),
             (600, 2300, 800), (600, 1100, 800), (-600, 1100, 800), (-600, 2300, 800)]]
-    code, store = _run(fake_cell, tmp_path, cube_corners_mm=big, inset_mm=160.0)
-    assert code == 1
-    steps = store.steps("t1")
-    assert steps[0].name == "check programs" and steps[0].status == "failed"
-    assert "workspace" in steps[0].message or "reach" in steps[0].message
-    assert len(steps) == 1
-    q1 = fake_cell.world.arm.actual_q_rad(np.array([fake_cell.world.clock.now()]))[0]
-    np.testing.assert_allclose(q1, q0, atol=1e-9)
+    with pytest.raises(PreflightError) as err:
+        _run(fake_cell, tmp_path, cube_corners_mm=big, inset_mm=160.0)
+    progs = {p.split("'")[1] for p in err.value.problems if p.startswith("program")}
+    assert {"pose cycle", "vAP cycle"} <= progs, err.value.problems
+    assert all("reach" in p or "workspace" in p for p in err.value.problems)
+    assert "nothing moved" in str(err.value)
+    assert RunStore(tmp_path / "s.sqlite").runs() == []
+    np.testing.assert_allclose(_arm_q(fake_cell.world), q0, atol=1e-9)
+
+
+def test_a_rate_the_tracker_cannot_stream_is_refused_before_anything_moves(fake_cell, tmp_path):
+    """emScon spaces points by whole milliseconds: a rate that is not 1000/k Hz is refused up front."""
+    rng = np.random.default_rng()
+    rate = float(rng.choice([3000.0, 2000.0, 300.0, 700.0, 1000.0 / 2.5]))
+    q0 = _arm_q(fake_cell.world)
+    with pytest.raises(PreflightError, match="tracker_rate_hz: emScon continuous time mode") as err:
+        _run(fake_cell, tmp_path, tracker_rate_hz=rate)
+    assert len(err.value.problems) == 1 and f"{rate!r}" in err.value.problems[0]
+    assert RunStore(tmp_path / "s.sqlite").runs() == []
+    np.testing.assert_allclose(_arm_q(fake_cell.world), q0, atol=1e-9)
 
 
 def test_malformed_station_config_refused_before_start(tmp_path):

@@ -14,8 +14,10 @@ from fakes.odometry import start_fake
 from fakes.sim.trailer import SimTrailer
 from fakes.sim.world import make_world
 from procedures import trailer as tp
-from procedures.trailer_run import build_procedure, close_devices, plan_params
-from station.commands.run import execute_trailer
+from procedures.devices import DeviceSet
+from procedures.trailer_run import TrailerSession, build_procedure, plan_params
+from station.assemble import run_procedure
+from station.errors import PreflightError
 from station.config import config_from_dict
 from station.runner import RunControl, Runner
 from station.store import RunStore
@@ -37,8 +39,9 @@ def test_trailer_calibration_end_to_end_recovers_the_true_lengths(tmp_path):
         "trailer": {"odometry": "odo", "serial": "TR-1", "commands": [list(c) for c in SHORT["commands"]],
                     "settle_s": SHORT["settle_s"], "duration_s": SHORT["duration_s"]},
     })
-    code = execute_trailer(cfg, run_id="t1", yes=True, quiet=True, time_scale=20.0,
-                           seed=int(rng.integers(2**31)), true_lengths_m=(L1, L2), config_dir=tmp_path)
+    code = run_procedure(cfg, "trailer", run_id="t1", yes=True, quiet=True, time_scale=20.0,
+                         seed=int(rng.integers(2**31)), fake_options={"true_lengths_m": [L1, L2]},
+                         config_dir=tmp_path)
     store = RunStore(tmp_path / "s.sqlite")
     assert code == 0, [s.message for s in store.steps("t1") if s.message]
     res = store.result("t1", "trailer")["result"]
@@ -63,7 +66,7 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
     params = {"plan": plan_params(plan), "report_dir": str(tmp_path / "r")}
     try:
         control = RunControl()
-        session = {"devices": {"odometry": fake.endpoint["device"]}}
+        session = TrailerSession(DeviceSet(urls={"odometry": fake.endpoint["device"]}))
         runner = Runner(store, build_procedure(plan), control=control, session=session)
         done = threading.Event()
 
@@ -85,13 +88,13 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
         out = runner.start("a1", params=params, model="trailer", serial="TR-2")
         done.set()
         th.join()
-        close_devices(session)
+        session.close()
         assert out.status == "aborted"
         kept = store.sample_count("a1", "odometry")
         assert kept > store.sample_count("a1", "odometry", finished_only=True)  # the aborted attempt's samples stay
-        session = {"devices": {"odometry": fake.endpoint["device"]}}
+        session = TrailerSession(DeviceSet(urls={"odometry": fake.endpoint["device"]}))
         out = Runner(store, build_procedure(plan), session=session).resume("a1")
-        close_devices(session)
+        session.close()
         assert out.status == "done", out.error
         assert store.sample_count("a1", "odometry") > kept
         names = [s.name for s in store.steps("a1") if s.status == "done"]
@@ -110,10 +113,11 @@ def test_unsafe_trailer_plan_refused_before_anything_moves(tmp_path):
         "devices": {"odo": {"url": "nmea:///dev/ttyS1"}},
         "trailer": {"odometry": "odo", "commands": [["H", 0.6]]},  # beyond eq. (25) for 1.25/2.48 m
     })
-    assert execute_trailer(cfg, run_id="u1", yes=True, quiet=True, config_dir=tmp_path) == 1
-    steps = RunStore(tmp_path / "s.sqlite").steps("u1")
-    assert [s.name for s in steps] == ["check plan"] and steps[0].status == "failed"
-    assert "eq. (25)" in steps[0].message or "45" in steps[0].message
+    # refused by the preflight: no run is created, nothing is commanded
+    with pytest.raises(PreflightError, match=r"eq\. \(25\)|45") as err:
+        run_procedure(cfg, "trailer", run_id="u1", yes=True, quiet=True, config_dir=tmp_path)
+    assert "nothing moved" in str(err.value) and len(err.value.problems) == 1
+    assert RunStore(tmp_path / "s.sqlite").runs() == []
 
 
 def test_pieces_and_inverse_covariance_combination():

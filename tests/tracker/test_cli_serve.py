@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.tracker import open_tracker
+from drivers.tracker_url import open_tracker
 
 pytest.importorskip("fakes.sim.world")
 

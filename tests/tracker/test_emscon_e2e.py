@@ -10,7 +10,8 @@ import pytest
 
 from drivers import emscon_codec as ec
 from drivers.emscon import EmsconTracker
-from drivers.tracker import BeamBroken, EventKind, open_tracker
+from drivers.tracker import BeamBroken, EventKind
+from drivers.tracker_url import open_tracker
 from drivers.transport import TcpTransport, tcp_factory
 from fakes.emscon import start_fake
 from station.errors import ConfigError, DeviceNotReady, DeviceTimeout

@@ -9,7 +9,8 @@ import pytest
 
 from drivers.geocom import (GeoComReply, GeoComTracker, encode_request, geocom_error, parse_reply,
                             split_values)
-from drivers.tracker import BeamBroken, EventKind, open_tracker
+from drivers.tracker import BeamBroken, EventKind
+from drivers.tracker_url import open_tracker
 from drivers.transport import LineReader, SerialTransport, serial_factory
 from fakes.geocom import start_fake
 from station.errors import (ConfigError, DeviceError, DeviceFault, DeviceNotReady, DeviceTimeout,

@@ -8,36 +8,50 @@ import numpy as np
 import pytest
 
 from fakes.sim.trailer import record_commands
-from procedures.trailer import (
-    TrailerCalibrationContext, TrailerCalibrationPlan, calibration_steps, check_plan, run_trailer_calibration,
-)
+from procedures.devices import DeviceSet
+from procedures.trailer import TrailerCalibrationContext, TrailerCalibrationPlan, check_plan
+from procedures.trailer_run import TrailerSession, build_procedure, plan_params, preflight_problems
 from station.cli import main
 from station.commands.calibrate import read_trailer_csv, write_trailer_csv
 from station.errors import ConfigError, DataError, DeviceTimeout
-from station.models.trailer import CurvatureBoundError, JointAngleLimitError
+from station.models.trailer import JointAngleLimitError
+from station.runner import Runner
+from station.store import RunStore
 
 SHORT = dict(commands=(("H", 0.2), ("C", 0.2)), duration_s=40.0, settle_s=10.0, compare=("M17",))
 
 
+def _run(drv, plan, tmp_path):
+    """The trailer procedure through the application layer's session, on an injected (already open) driver."""
+    store = RunStore(tmp_path / "s.sqlite")
+    session = TrailerSession(DeviceSet(drivers={"odometry": drv}))
+    params = {"plan": plan_params(plan), "report_dir": str(tmp_path / "r")}
+    out = Runner(store, build_procedure(plan), session=session).start("t", params=params, model="trailer",
+                                                                       serial="TR-T")
+    session.close()
+    return out, store, session
+
+
 @pytest.mark.parametrize("odometry_fake", [{"checksum_rate": "0.05", "drop_rate": "0.05", "seed": "9"}],
                          indirect=True)
-def test_procedure_calibrates_through_driver_and_fake(odometry):
+def test_procedure_calibrates_through_driver_and_fake(odometry, tmp_path):
     drv, fake = odometry
-    journal = []
-    res = run_trailer_calibration(drv, TrailerCalibrationPlan(**SHORT),
-                                  record=lambda stream, cols: journal.append((stream, cols)))
-    est = res.estimate
+    plan = TrailerCalibrationPlan(**SHORT)
+    out, store, session = _run(drv, plan, tmp_path)
+    assert out.status == "done", out.error
+    tc = session.trailer_ctx
+    est = tc.estimates["dynamic"]
     assert est.method == "dynamic" and est.details["input"] == "commanded curvature as instrument"
     assert abs(est.L1_m - 1.25) < 5 * est.L1_sigma_m and abs(est.L2_m - 2.48) < 5 * est.L2_sigma_m
     assert est.L2_sigma_m < 0.03
-    assert "M17" in res.comparisons
-    assert list(res.steps) == [name for name, _ in calibration_steps(TrailerCalibrationPlan(**SHORT))]
-    # every sample the driver decoded is in the record, once, in time order
-    s = res.samples
-    assert s["t"].size == drv.stats.samples - drv.queued \
-        == sum(len(c["t"]) for name, c in journal if name == "odometry")
-    setpoints = [c for name, c in journal if name == "setpoints"]
-    assert len(setpoints) == 2 and np.isfinite(np.concatenate([c["t_applied"] for c in setpoints])).mean() > 0.8
+    assert "M17" in tc.estimates
+    assert [s.name for s in store.steps("t")] == [st.name for st in build_procedure(plan).steps]
+    # every sample the driver decoded is in the record and the store, once, in time order
+    s = tc.arrays()
+    assert s["t"].size == drv.stats.samples - drv.queued == store.sample_count("t", "odometry")
+    setpoints = store.samples("t", "setpoints")
+    assert np.isfinite(setpoints["t_applied"]).mean() > 0.8
+    assert all(st.output["samples"] > 100 for st in store.steps("t") if st.name.startswith("command"))
     # the set points averaged over each sample's interval explain the measured curvature
     drive = s["phase"] == 1
     resid = s["kappa"][drive] - s["kappa_cmd"][drive]
@@ -47,16 +61,22 @@ def test_procedure_calibrates_through_driver_and_fake(odometry):
     prof = s["phase"] == 1
     assert np.ptp(s["t"][prof & (s["segment"] == 0)]) >= 40.0 - 0.5
     # the set points streamed were applied (each either acknowledged or its reply lost on the line)
-    cs = res.report["set_points"]
+    cs = store.result("t", "trailer")["set_points"]
     assert cs["refused"] == 0 and cs["acked"] + cs["lost"] >= cs["sent"] - 2 and cs["acked"] > 0.8 * cs["sent"]
     assert fake.trailer.state().v_m_s == 0.0  # stopped at the end
-    json.dumps(res.report)  # JSON-able
 
 
-def test_plan_check_refuses_before_anything_moves(odometry):
+def test_plan_check_refuses_before_anything_moves(odometry, tmp_path):
     drv, fake = odometry
-    with pytest.raises(CurvatureBoundError, match=r"plan.commands\[1\]"):
-        run_trailer_calibration(drv, TrailerCalibrationPlan(commands=(("H", 0.2), ("C", 0.5))))
+    bad = TrailerCalibrationPlan(commands=(("H", 0.2), ("C", 0.5)))
+    # the preflight names it before a run exists ...
+    problems = preflight_problems({"plan": plan_params(bad), "report_dir": str(tmp_path)}, None,
+                                DeviceSet(drivers={"odometry": drv}))
+    assert len(problems) == 1 and "plan.commands[1]" in problems[0]
+    # ... and the procedure's first step refuses it too, before the first command
+    out, store, _ = _run(drv, bad, tmp_path)
+    assert out.status == "failed" and "CurvatureBoundError" in out.error and "plan.commands[1]" in out.error
+    assert [s.name for s in store.steps("t")] == ["check plan"]
     with pytest.raises(JointAngleLimitError, match="45"):
         check_plan(TrailerCalibrationContext(drv, TrailerCalibrationPlan(commands=(("L", 0.22),))))
     assert fake.stats["commands"] == 0
@@ -84,10 +104,10 @@ class _FailingDriver:
         return getattr(self._drv, name)
 
 
-def test_a_failed_step_leaves_the_trailer_stopped(odometry):
+def test_a_failed_step_leaves_the_trailer_stopped(odometry, tmp_path):
     drv, fake = odometry
-    with pytest.raises(DeviceTimeout, match="line died"):
-        run_trailer_calibration(_FailingDriver(drv, 50), TrailerCalibrationPlan(**SHORT))
+    out, _, _ = _run(_FailingDriver(drv, 50), TrailerCalibrationPlan(**SHORT), tmp_path)
+    assert out.status == "failed" and "line died" in out.error
     assert fake.trailer.state().v_m_s == 0.0
 
 

@@ -1,0 +1,87 @@
+"""Fake cells that serve a procedure's devices, one per procedure kind.
+
+A procedure's registry entry names its cell here (``"fakes.cells:iso9283_cell"``);
+the front door that assembles a run without ``--arm`` starts it. Each cell
+takes the run's stored plan (``params``) and the fake's own parameters
+(``fake``: ``seed``, ``time_scale``, and what the cell adds), and returns an
+object with ``urls`` (device role -> endpoint), ``time_scale`` and ``close()``.
+The same parameters give the same simulated cell, so a resumed run meets the
+robot it started with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass
+class FakeCell:
+    """A running fake cell: the endpoints of its devices and how to stop it."""
+
+    urls: dict[str, str]
+    time_scale: float
+    _close: Callable[[], None]
+
+    def close(self) -> None:
+        self._close()
+
+    def __enter__(self) -> "FakeCell":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
+    """The simulated arm of the plan's model with its controller and emScon tracker on loopback."""
+    from fakes.station import FakeStation
+
+    station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
+                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)))
+    return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
+                    float(fake["time_scale"]), station.close)
+
+
+def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
+    """The simulated trailer with its NMEA odometry on a pty (``true_lengths_m`` picks its links)."""
+    from fakes.odometry import start_fake
+    from fakes.sim.trailer import SimTrailer
+    from fakes.sim.world import make_world
+
+    world = make_world(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), effects=None)
+    try:
+        if fake.get("true_lengths_m"):
+            L1, L2 = fake["true_lengths_m"]
+            world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
+        handle = start_fake(world)
+    except BaseException:
+        world.close()
+        raise
+
+    def close() -> None:
+        try:
+            handle.close()
+        finally:
+            world.close()
+
+    return FakeCell({"odometry": handle.endpoint["device"]}, float(fake["time_scale"]), close)
+
+
+def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float) -> dict:
+    """The demo station's config; device URLs are replaced by the fakes' at start."""
+    return {
+        "station": {"name": "demo cell", "store_path": str(out / "station.sqlite"), "report_dir": str(out / "reports")},
+        "devices": {"tracker": {"url": "fake://tracker-emscon"}, "controller": {"url": "fake://controller"}},
+        "robots": {
+            "r1": {
+                "model": "industrial-3100", "serial": "DEMO-0001", "overhaul_state": "after", "payload_kg": 0.0,
+                "controller": "controller",
+                "workspace": {"min_mm": [-900.0, 800.0, 500.0], "max_mm": [900.0, 2600.0, 2300.0],
+                              "max_tcp_speed_mm_s": 2000.0},
+                "limits": {"rp_limit_mm": 0.5, "ap_limit_mm": 5.0, "vap_limit_mm": 2.0, "ad_limit_mm": 2.0},
+            }
+        },
+        "iso9283": {"cycles": cycles, "vap_cycles": vap_cycles, "tracker_rate_hz": rate_hz},
+    }

@@ -1,0 +1,94 @@
+"""The procedures the station can run, by name.
+
+Each entry names the module that defines the procedure; that module exposes
+``SPEC``, a :class:`ProcedureSpec` that says everything the application layer
+(:mod:`procedures.execute`) needs to plan, assemble and run it. Adding a
+procedure is adding its module and one line in :data:`REGISTRY`.
+
+The fake cell that serves a procedure's devices is *named* in its spec
+(``"module:function"``), not imported: procedures depend on drivers, never on
+fakes; the front door that chooses the fake cell imports it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from station.errors import ConfigError
+
+#: procedure name -> module whose ``SPEC`` defines it
+REGISTRY: dict[str, str] = {
+    "iso9283": "procedures.iso9283",
+    "trailer": "procedures.trailer_run",
+}
+
+
+@dataclass(frozen=True)
+class Subject:
+    """What a run is made on: stored with the run, shown in the armed-run prompt."""
+
+    model: str | None
+    serial: str | None
+    overhaul_state: str | None
+    what: str  # e.g. "industrial-3100 serial NA8608-0042"
+
+
+@dataclass(frozen=True)
+class ProcedureSpec:
+    """How to plan, assemble and run one procedure.
+
+    Attributes
+    ----------
+    name : str
+        The name runs are stored under (``station run NAME``).
+    new_params : callable
+        ``new_params(cfg, robot, report_dir, overrides) -> dict``: the JSON-able
+        plan of a new run, stored with it (a resume rebuilds from it alone).
+    build : callable
+        ``build(params) -> station.runner.Procedure``: the named steps.
+    new_session : callable
+        ``new_session(devices) -> Session``: the typed session of one process.
+    subject : callable
+        ``subject(cfg, robot) -> Subject``.
+    device_roles : callable
+        ``device_roles(cfg, robot) -> {role: device name in the config}``:
+        what ``--arm`` opens.
+    fake_cell : str
+        ``"module:function"`` of the fake cell serving the roles
+        (``function(params, fake) -> cell`` with ``urls``, ``time_scale``, ``close()``).
+    result_key : str
+        The store's result entry of the run (``--json`` writes it).
+    summary : callable
+        ``summary(store, run_id) -> list[str]``: the results as console lines.
+    preflight : callable
+        ``preflight(params, cfg, devices) -> list[str]``: every reason the
+        devices cannot run the plan, found before anything moves.
+    """
+
+    name: str
+    new_params: Callable[[Any, str, str, Mapping], dict]
+    build: Callable[[Mapping], Any]
+    new_session: Callable[[Any], Any]
+    subject: Callable[[Any, str], Subject]
+    device_roles: Callable[[Any, str], dict[str, str]]
+    fake_cell: str
+    result_key: str
+    summary: Callable[[Any, str], list[str]]
+    preflight: Callable[[Mapping, Any, Any], list[str]] = field(default=lambda params, cfg, devices: [])
+
+
+def procedure_names() -> tuple[str, ...]:
+    return tuple(REGISTRY)
+
+
+def get_procedure(name: str) -> ProcedureSpec:
+    """The spec of procedure ``name``; ConfigError naming the known ones otherwise."""
+    if name not in REGISTRY:
+        raise ConfigError(f"unknown procedure {name!r}; known: {', '.join(REGISTRY)}")
+    spec = importlib.import_module(REGISTRY[name]).SPEC
+    if spec.name != name:
+        raise ConfigError(f"registry entry {name!r} points at the spec of {spec.name!r}")
+    return spec

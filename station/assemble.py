@@ -1,0 +1,129 @@
+"""Where a run is assembled: which procedure, on which devices, with which operator.
+
+Every front door (``station run``, ``station demo``, the acceptance API and its
+pytest fixtures) comes through :func:`run_procedure`. It
+
+* prepares the run through the application layer (:mod:`procedures.execute`):
+  the plan from the config, or the stored plan of a run to resume;
+* chooses its devices: those a caller passes (a test's injected drivers), the
+  configured device URLs with ``arm`` (real hardware: the operator confirms
+  unless ``yes``), or else the procedure's fake cell (named in its registry
+  entry, started here, the same cell again on a resume);
+* runs the preflight checks before anything moves, then the procedure with
+  Ctrl-C = abort (resumable) and SIGUSR1 = pause/continue;
+* prints the results and writes ``--json``.
+
+This is a front door, not the core: it may import procedures and fakes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import signal
+import sys
+from contextlib import ExitStack
+from pathlib import Path
+
+from procedures.devices import DeviceSet, configured_devices
+from procedures.execute import execute, prepare, preflight
+from station.errors import ConfigError, SafetyError
+from station.runner import InteractiveOperator, ProgressLine, RunControl, ScriptedOperator
+from station.store import RunStore
+
+
+def operator_for(yes: bool, quiet: bool):
+    """``--yes``: every prompt answered yes (logged); otherwise asked on the terminal."""
+    return ScriptedOperator(True, stream=None if quiet else sys.stderr) if yes else InteractiveOperator()
+
+
+def start_fake_cell(spec, params: dict, fake: dict):
+    """Start the fake cell that the procedure's registry entry names."""
+    module, _, func = spec.fake_cell.partition(":")
+    return getattr(importlib.import_module(module), func)(params, fake)
+
+
+def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", resume: str | None = None,
+                  run_id: str | None = None, arm: bool = False, yes: bool = False, time_scale: float = 20.0,
+                  seed: int = 0, json_out: str | None = None, quiet: bool = False,
+                  config_dir: Path | None = None, plan_overrides: dict | None = None,
+                  fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
+                  control: RunControl | None = None, stdout=sys.stdout) -> int:
+    """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
+
+    ``devices`` overrides the choice of devices (a test injecting drivers);
+    ``fake_options`` adds to the fake cell's stored parameters (e.g. a
+    trailer's ``true_lengths_m``).
+    """
+    base = config_dir or Path.cwd()
+    operator = operator or operator_for(yes, quiet)
+    with ExitStack() as stack:
+        store = stack.enter_context(RunStore(cfg.station.store_file(base)))
+        fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
+                                                          **(fake_options or {})}
+        prepared = prepare(cfg, store, procedure, robot=robot, resume=resume, run_id=run_id,
+                           report_dir=cfg.station.report_folder(base), plan_overrides=plan_overrides, fake=fake)
+        spec = prepared.spec
+        if devices is None and prepared.fake is None:
+            devices = configured_devices(cfg, spec.device_roles(cfg, robot))
+        if devices is None:
+            cell = start_fake_cell(spec, prepared.params, prepared.fake)
+            stack.callback(cell.close)
+            devices = DeviceSet(urls=dict(cell.urls), time_scale=cell.time_scale)
+        # every reason the devices cannot run the plan, before anything moves
+        preflight(prepared, cfg, devices)
+        if devices.armed and not yes and not operator.confirm(
+                f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
+            raise SafetyError("armed run not confirmed by the operator; nothing moved")
+        outcome = _drive(store, prepared, cfg, devices, operator, control, quiet)
+        print(f"run {prepared.run_id}: {outcome.status}" + (f" ({outcome.error})" if outcome.error else ""),
+              file=stdout)
+        if outcome.status != "done":
+            print(f"resume with: station run --resume {prepared.run_id} --config <config>", file=stdout)
+        lines = []
+        try:
+            lines = spec.summary(store, prepared.run_id)
+        except Exception:  # a failed run may have no results to show
+            if outcome.status == "done":
+                raise
+        for line in lines:
+            print(line, file=stdout)
+        if json_out:
+            _write_json(store, prepared.run_id, outcome, json_out, spec.result_key)
+    if outcome.status == "done":
+        return 0
+    return 3 if outcome.status == "aborted" else 1
+
+
+def _drive(store, prepared, cfg, devices, operator, control, quiet: bool):
+    control = control or RunControl()
+    old = {}
+    for sig, handler in ((signal.SIGINT, lambda *_: control.abort()), (signal.SIGUSR1, lambda *_: control.toggle_pause())):
+        try:
+            old[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread
+            pass
+    try:
+        return execute(store, prepared, cfg, devices, operator=operator, control=control,
+                       progress=ProgressLine(None if quiet else sys.stderr))
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _write_json(store, run_id, outcome, json_out, result_key: str) -> None:
+    payload = {"run_id": run_id, "status": outcome.status, "error": outcome.error,
+               "characteristics": store.characteristics(run_id)}
+    try:
+        payload["results"] = store.result(run_id, result_key)
+    except Exception:
+        payload["results"] = None
+    Path(json_out).write_text(json.dumps(payload, indent=2, default=float))
+
+
+def stored_procedure(cfg, run_id: str, base: Path) -> str:
+    with RunStore(cfg.station.store_file(base)) as store:
+        return store.run(run_id).procedure
+
+
+__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "ConfigError"]

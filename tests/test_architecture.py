@@ -1,0 +1,63 @@
+"""The direction of dependencies holds by construction (contracts in pyproject.toml)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LINT = shutil.which("lint-imports", path=str(Path(sys.executable).parent)) or shutil.which("lint-imports")
+
+
+def _lint(cwd: Path, pythonpath: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(pythonpath)}
+    return subprocess.run([LINT, str(cwd / "pyproject.toml")], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+def _copy_code(dst: Path) -> None:
+    for pkg in ("station", "drivers", "fakes", "procedures"):
+        shutil.copytree(ROOT / pkg, dst / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", dst / "pyproject.toml")
+
+
+@pytest.fixture(scope="module")
+def lint():
+    if LINT is None:
+        pytest.fail("lint-imports is not installed (it is in the test extra: pip install -e '.[test]')")
+    return _lint
+
+
+def test_the_import_contracts_hold(lint):
+    res = lint(ROOT, ROOT)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
+    assert "0 broken" in res.stdout
+
+
+@pytest.mark.parametrize("importer, imported, contract", [
+    ("station/models/leak.py", "fakes.sim", "The core imports no drivers"),
+    ("station/analysis/leak.py", "procedures.execute", "The core imports no drivers"),
+    ("drivers/leak.py", "fakes.sim", "Drivers never import fakes"),
+    ("fakes/leak.py", "drivers.tracker", "Fakes never import drivers"),
+    ("procedures/leak.py", "fakes.sim", "Procedures never import fakes"),
+])
+def test_a_forbidden_import_breaks_the_contracts(lint, tmp_path, importer, imported, contract):
+    """The same contracts on a copy of the code with one forbidden import added."""
+    _copy_code(tmp_path)
+    (tmp_path / importer).write_text(f"import {imported}\n")
+    res = lint(tmp_path, tmp_path)
+    assert res.returncode != 0
+    assert contract in res.stdout and "BROKEN" in res.stdout, res.stdout[-2000:]
+
+
+def test_an_import_cycle_breaks_the_contracts(lint, tmp_path):
+    _copy_code(tmp_path)
+    (tmp_path / "procedures" / "a.py").write_text("import procedures.b\n")
+    (tmp_path / "procedures" / "b.py").write_text("def f():\n    import procedures.a\n")
+    res = lint(tmp_path, tmp_path)
+    assert res.returncode != 0 and "No import cycles" in res.stdout, res.stdout[-2000:]
