@@ -59,10 +59,10 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from typing import Any, Callable
-from urllib.parse import parse_qs, unquote, urlsplit
 
 import numpy as np
 
+from station.device_urls import parse_device_url
 from station.errors import (
     ConfigError,
     ConnectionLost,
@@ -280,27 +280,17 @@ class ControllerDriver:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_url(cls, url: str, *, gate, **kwargs) -> "ControllerDriver":
-        """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password=..&dir=..``."""
-        parts = urlsplit(url)
-        if parts.scheme.lower() != "modbus+ftp" or not parts.hostname:
-            raise ConfigError(f"controller URL {url!r} must look like modbus+ftp://host[:ftp_port]?modbus_port=N")
-        opts = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-        unknown = set(opts) - {"modbus_port", "user", "password", "dir"}
-        if unknown:
-            raise ConfigError(f"controller URL {url!r}: unknown option(s) {', '.join(sorted(unknown))}")
-        try:
-            ftp_port = parts.port or 21
-            modbus_port = int(opts.get("modbus_port", 502))
-        except ValueError as exc:
-            raise ConfigError(f"controller URL {url!r}: bad port ({exc})") from None
+        """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password=..&dir=..``
+        (defaults from :mod:`station.device_urls`: FTP 21, Modbus 502, user anonymous)."""
+        u = parse_device_url(url, scheme="modbus+ftp")
         return cls(
-            parts.hostname,
+            u.host,
             gate=gate,
-            ftp_port=ftp_port,
-            modbus_port=modbus_port,
-            ftp_user=unquote(opts.get("user", "anonymous")),
-            ftp_password=unquote(opts.get("password", "")),
-            remote_dir=unquote(opts.get("dir", "")),
+            ftp_port=u.port,
+            modbus_port=u.int_option("modbus_port"),
+            ftp_user=u.options["user"],
+            ftp_password=u.options["password"],
+            remote_dir=u.options["dir"],
             **kwargs,
         )
 

@@ -35,7 +35,8 @@ import numpy as np
 from drivers import emscon_codec as ec
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer,
                              StreamRecord, Tracker, TrackerInfo)
-from drivers.transport import Deadline, check_positive, parse_device_url, tcp_factory, transport_or_factory
+from drivers.transport import Deadline, check_positive, tcp_factory, transport_or_factory
+from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
                             DeviceTimeout, StationError)
 
@@ -103,10 +104,9 @@ class EmsconTracker(Tracker):
 
     @classmethod
     def from_url(cls, url: str, **options) -> "EmsconTracker":
-        scheme, opts = parse_device_url(url)
-        if scheme not in ("emscon", "tcp"):
-            raise ConfigError(f"not an emScon URL: {url!r}")
-        return cls(tcp_factory(opts["host"], opts["port"]), **options)
+        """``emscon://HOST[:PORT]`` (port 700 by default; :mod:`station.device_urls`)."""
+        u = parse_device_url(url, scheme="emscon")
+        return cls(tcp_factory(u.host, u.port), **options)
 
     # ------------------------------------------------------------------ public API
     def connect(self, timeout_s: float = 30.0) -> TrackerInfo:

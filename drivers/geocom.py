@@ -37,8 +37,9 @@ import numpy as np
 
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer, StreamRecord,
                              Tracker, TrackerInfo)
-from drivers.transport import (Deadline, LineReader, check_positive, parse_device_url, serial_factory,
+from drivers.transport import (Deadline, LineReader, check_positive, serial_factory,
                                transport_or_factory)
+from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceFault, DeviceNotReady,
                             DeviceTimeout, ProtocolError, StationError)
 
@@ -241,10 +242,12 @@ class GeoComTracker(Tracker):
 
     @classmethod
     def from_url(cls, url: str, **options) -> "GeoComTracker":
-        scheme, opts = parse_device_url(url)
-        if scheme != "geocom":
-            raise ConfigError(f"not a GeoCOM URL: {url!r}")
-        return cls(serial_factory(opts["serial"], baudrate=opts["baudrate"]), **options)
+        """``geocom:///dev/ttyX[?baud=N]`` (115200 baud by default) or ``geocom+socket://HOST:PORT``
+        (a TCP serial bridge), as :mod:`station.device_urls` defines them."""
+        u = parse_device_url(url, scheme=("geocom", "geocom+socket"))
+        if u.scheme == "geocom":
+            return cls(serial_factory(u.path, baudrate=u.int_option("baud")), **options)
+        return cls(serial_factory(f"socket://{u.host}:{u.port}"), **options)
 
     # ------------------------------------------------------------------ public API
     def connect(self, timeout_s: float = 30.0) -> TrackerInfo:

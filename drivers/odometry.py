@@ -34,9 +34,9 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass
-from urllib.parse import parse_qs, urlsplit
 
 from drivers.transport import Deadline, SerialTransport, Transport
+from station.device_urls import SCHEMES, parse_device_url
 from station.errors import ConfigError, DeviceFault, DeviceTimeout
 
 #: manufacturer code of the proprietary talker
@@ -44,7 +44,7 @@ MANUFACTURER = "ODO"
 #: longest sentence accepted, bytes from ``$`` to the line end (NMEA says 82)
 MAX_SENTENCE_BYTES = 120
 #: default line speed of the unit
-DEFAULT_BAUD = 57600
+DEFAULT_BAUD = int(SCHEMES["nmea"].options["baud"])
 
 
 # ----------------------------------------------------------------------------- messages
@@ -280,17 +280,13 @@ class CommandStats:
 
 
 def parse_odometry_url(url: str) -> tuple[str, int]:
-    """``nmea:///dev/ttyS1?baud=57600`` / ``/dev/pts/3`` / ``socket://h:p`` -> (port, baud)."""
+    """``nmea:///dev/ttyS1?baud=57600`` (:mod:`station.device_urls`), or a plain device path /
+    pyserial URL at the default baud -> (port, baud)."""
     if not isinstance(url, str) or not url:
         raise ConfigError(f"odometry device must be a path or URL, got {url!r}")
-    if url.startswith("nmea://"):
-        parts = urlsplit(url)
-        if not parts.path:
-            raise ConfigError(f"device URL {url!r} names no serial device")
-        baud = parse_qs(parts.query).get("baud", [str(DEFAULT_BAUD)])[-1]
-        if not baud.isdigit() or int(baud) <= 0:
-            raise ConfigError(f"baud in {url!r} must be a positive integer, got {baud!r}")
-        return parts.path, int(baud)
+    if url.lower().startswith("nmea:"):
+        u = parse_device_url(url, scheme="nmea")
+        return u.path, u.int_option("baud")
     return url, DEFAULT_BAUD
 
 

@@ -29,7 +29,6 @@ from urllib.parse import parse_qs, urlsplit
 from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
 
 #: default TCP port of each protocol scheme
-DEFAULT_PORTS = {"emscon": 700, "tcp": None}
 
 
 class Deadline:
@@ -192,6 +191,8 @@ class SerialTransport:
         import serial  # local: only serial users pay for the import
 
         self._serial_exc = serial.SerialException
+        #: the line speed asked for, baud
+        self.baudrate = baudrate
         if isinstance(port, str):
             if not isinstance(baudrate, int) or baudrate <= 0:
                 raise ConfigError(f"baudrate must be a positive integer, got {baudrate!r}")
@@ -314,46 +315,6 @@ class LineReader:
             self._buf += self.transport.read(4096, left)
 
 
-def parse_device_url(url: str) -> tuple[str, dict]:
-    """Split a device URL into ``(scheme, options)``.
-
-    ``emscon://HOST[:PORT]`` -> ``("emscon", {"host", "port"})`` (port 700 default);
-    ``tcp://HOST:PORT``; ``geocom:///dev/ttyX?baud=N`` or
-    ``geocom+socket://HOST:PORT`` -> ``("geocom", {"serial": path_or_url, "baudrate"})``.
-    """
-    if not isinstance(url, str) or "://" not in url:
-        raise ConfigError(f"device URL must look like scheme://..., got {url!r}")
-    parts = urlsplit(url)
-    scheme = parts.scheme.lower()
-    query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-    if scheme in ("emscon", "tcp"):
-        if not parts.hostname:
-            raise ConfigError(f"device URL {url!r} has no host")
-        try:
-            port = parts.port or DEFAULT_PORTS.get(scheme)
-        except ValueError as exc:
-            raise ConfigError(f"device URL {url!r} has a bad port") from exc
-        if port is None:
-            raise ConfigError(f"device URL {url!r} needs a port")
-        return scheme, {"host": parts.hostname, "port": int(port)}
-    if scheme.startswith("geocom"):
-        baud = query.get("baud", "9600")
-        if not baud.isdigit():
-            raise ConfigError(f"baud in {url!r} must be an integer, got {baud!r}")
-        if scheme == "geocom":
-            if not parts.path:
-                raise ConfigError(f"device URL {url!r} names no serial device")
-            target = parts.path
-        elif scheme.startswith("geocom+"):
-            inner = scheme.split("+", 1)[1]
-            target = f"{inner}://{parts.netloc}{parts.path}"
-        else:
-            raise ConfigError(f"unknown device URL scheme {scheme!r} in {url!r}")
-        return "geocom", {"serial": target, "baudrate": int(baud)}
-    raise ConfigError(f"unknown device URL scheme {scheme!r} in {url!r}; "
-                      f"known: emscon, tcp, geocom, geocom+socket")
-
-
 def tcp_factory(host: str, port: int, *, connect_timeout_s: float = 5.0) -> TransportFactory:
     """A factory that opens a new :class:`TcpTransport` on each call (reconnection)."""
     return lambda: TcpTransport(host, port, connect_timeout_s=connect_timeout_s)
@@ -366,5 +327,5 @@ def serial_factory(port: str, *, baudrate: int = 9600) -> TransportFactory:
 
 __all__ = [
     "Deadline", "Transport", "TransportFactory", "TcpTransport", "SerialTransport",
-    "LineReader", "parse_device_url", "tcp_factory", "serial_factory",
+    "LineReader", "tcp_factory", "serial_factory",
 ]

@@ -46,10 +46,10 @@ import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Collection
-from urllib.parse import urlsplit
 
 import numpy as np
 
+from station.device_urls import parse_device_url
 from station.errors import (
     ConfigError,
     ConnectionLost,
@@ -456,13 +456,8 @@ class URSamples:
 
 
 def parse_ur_url(url: str) -> str:
-    """``ur://HOST`` -> HOST (ports are fixed by ur_rtde)."""
-    parts = urlsplit(url)
-    if parts.scheme != "ur" or not parts.hostname:
-        raise ConfigError(f"UR device URL must look like ur://HOST, got {url!r}")
-    if parts.port not in (None,):
-        raise ConfigError(f"UR device URL {url!r}: ur_rtde fixes the ports (30004, 29999, 30003); give no port")
-    return parts.hostname
+    """``ur://HOST`` -> HOST (ports are fixed by ur_rtde; :mod:`station.device_urls`)."""
+    return parse_device_url(url, scheme="ur").host
 
 
 def _fmt(x: float) -> str:

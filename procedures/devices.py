@@ -20,28 +20,37 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from station.device_urls import parse_device_url
 from station.errors import ConfigError
 
 
-def _open_tracker(url: str, **options):
+def _open_tracker(url: str, *, timeout_s: float | None = None, **options):
     from drivers.tracker_url import open_tracker
 
+    if timeout_s is not None:
+        options["reply_timeout_s"] = timeout_s
     return open_tracker(url, **options)
 
 
-def _open_controller(url: str, **options):
+def _open_controller(url: str, *, timeout_s: float | None = None, **options):
     from drivers.controller import ControllerDriver
 
+    if timeout_s is not None:
+        options["timeout_s"] = timeout_s
     return ControllerDriver.from_url(url, **options)
 
 
-def _open_odometry(url: str, **options):
+def _open_odometry(url: str, *, timeout_s: float | None = None, **options):
     from drivers.odometry import OdometryDriver
 
+    if timeout_s is not None:
+        options["timeout_s"] = timeout_s
     return OdometryDriver.open(url, **options)
 
 
-#: role -> how a URL of that role is opened (the driver module that speaks its protocol)
+#: device kind (of the URL's scheme, :mod:`station.device_urls`) -> how it is opened (the driver
+#: module that speaks its protocol);
+#: ``timeout_s`` (the config's ``devices.*.timeout_s``) becomes the driver's reply timeout
 OPENERS: dict[str, Callable[..., Any]] = {
     "tracker": _open_tracker,
     "controller": _open_controller,
@@ -88,9 +97,12 @@ class DeviceSet:
         if role not in self.urls:
             have = ", ".join(sorted(self.roles())) or "none"
             raise ConfigError(f"the run needs a {role} device; the device set has {have}")
-        if role not in OPENERS:
-            raise ConfigError(f"no driver for device role {role!r} (known: {', '.join(sorted(OPENERS))})")
-        return OPENERS[role](self.urls[role], **{**self.options.get(role, {}), **options}), True
+        url = self.urls[role]
+        kind = parse_device_url(url).kind
+        if kind not in OPENERS:
+            raise ConfigError(f"{role}: no driver in this station opens {kind} URLs ({url}); "
+                              f"drivers exist for {', '.join(sorted(OPENERS))}")
+        return OPENERS[kind](url, **{**self.options.get(role, {}), **options}), True
 
 
 def configured_devices(cfg, roles: Mapping[str, str]) -> DeviceSet:
@@ -99,6 +111,7 @@ def configured_devices(cfg, roles: Mapping[str, str]) -> DeviceSet:
     for role, name in roles.items():
         dev = cfg.device(name)
         urls[role] = dev.url
+        options[role] = {"timeout_s": float(dev.timeout_s)}
         if getattr(dev, "register_map", None) is not None:
-            options[role] = {"register_map": dev.register_map}
+            options[role]["register_map"] = dev.register_map
     return DeviceSet(urls=urls, options=options, time_scale=1.0, armed=True)

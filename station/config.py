@@ -7,19 +7,10 @@ a value written in the wrong unit (``rp_limit_um``) is caught. Errors are
 :class:`~station.errors.ConfigError` naming the field path, e.g.
 ``robots.r1.limits.rp_limit_mm: Input should be greater than 0``.
 
-Device URLs (``scheme://host:port`` or ``scheme:///dev/tty?baud=N``):
-
-=============  ==========================================  =================
-scheme         device                                      default port/baud
-=============  ==========================================  =================
-emscon         laser tracker, Leica emScon TPI over TCP    700
-geocom         tracker/total station, GeoCOM over serial   115200 baud
-modbus+ftp     robot controller: FTP upload + Modbus TCP   21 / 502
-ur             UR-style cobot (RTDE, dashboard, script)    fixed by ur_rtde
-nmea           trailer odometry, NMEA 0183 over serial     57600 baud
-ply            3D scanner clouds from a directory          -
-fake           the station's own simulated device          -
-=============  ==========================================  =================
+Device URLs (``scheme://host:port`` or ``scheme:///dev/tty?baud=N``) follow the
+one table of schemes and defaults in :mod:`station.device_urls` (emscon,
+geocom, geocom+socket, modbus+ftp, ur, nmea, ply, fake); the drivers open them
+with the same parser.
 """
 
 from __future__ import annotations
@@ -29,92 +20,16 @@ import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
-from urllib.parse import parse_qs, urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from station.errors import ConfigError
 from station.programs.handshake import RegisterMap
 
-SCHEMES = {
-    "emscon": "laser tracker (Leica emScon TPI over TCP)",
-    "geocom": "tracker/total station (Leica GeoCOM over serial)",
-    "modbus+ftp": "robot controller (FTP upload + Modbus TCP)",
-    "ur": "UR-style cobot (ur_rtde)",
-    "nmea": "trailer odometry (NMEA 0183 over serial)",
-    "ply": "3D scanner point clouds (PLY files in a directory)",
-    "fake": "simulated device of the station's own fake set",
-}
+# the device-URL grammar is one table, shared with the drivers
+from station.device_urls import SCHEMES, DeviceURL, parse_device_url  # noqa: F401
 
-DEVICE_KINDS = {
-    "emscon": "tracker",
-    "geocom": "tracker",
-    "modbus+ftp": "controller",
-    "ur": "cobot",
-    "nmea": "odometry",
-    "ply": "scanner",
-}
-
-_SERIAL_SCHEMES = {"geocom", "nmea"}
-_TCP_SCHEMES = {"emscon", "modbus+ftp", "ur"}
-
-
-class DeviceURL(BaseModel):
-    """A parsed device URL."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    raw: str
-    scheme: str
-    host: str | None = None
-    port: int | None = None
-    path: str | None = None
-    options: dict[str, str] = Field(default_factory=dict)
-
-    @property
-    def kind(self) -> str:
-        return DEVICE_KINDS.get(self.scheme, self.path or "fake")
-
-    @property
-    def is_loopback(self) -> bool:
-        return self.host is not None and (self.host == "localhost" or self.host.startswith("127."))
-
-
-def parse_device_url(url: str) -> DeviceURL:
-    """Parse and check a device URL; ConfigError names what is wrong."""
-    if not isinstance(url, str) or "://" not in url:
-        raise ConfigError(f"device URL {url!r} must look like scheme://host:port or scheme:///dev/...")
-    parts = urlsplit(url)
-    scheme = parts.scheme.lower()
-    if scheme not in SCHEMES:
-        known = ", ".join(sorted(SCHEMES))
-        raise ConfigError(f"device URL {url!r}: unknown scheme {scheme!r} (known: {known})")
-    try:
-        port = parts.port
-    except ValueError as exc:
-        raise ConfigError(f"device URL {url!r}: bad port ({exc})") from exc
-    options = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-    host = parts.hostname
-    path = parts.path or None
-    if scheme in _TCP_SCHEMES and not host:
-        raise ConfigError(f"device URL {url!r}: {scheme} needs a host")
-    if scheme in _SERIAL_SCHEMES:
-        if host and not path:
-            raise ConfigError(f"device URL {url!r}: {scheme} needs a serial device path, e.g. {scheme}:///dev/ttyUSB0")
-        if not path:
-            raise ConfigError(f"device URL {url!r}: {scheme} needs a serial device path")
-        if "baud" in options:
-            try:
-                baud = int(options["baud"])
-            except ValueError as exc:
-                raise ConfigError(f"device URL {url!r}: baud must be an integer") from exc
-            if baud <= 0:
-                raise ConfigError(f"device URL {url!r}: baud must be > 0")
-    if scheme == "fake" and not (host or path):
-        raise ConfigError(f"device URL {url!r}: fake needs a device name, e.g. fake://tracker-emscon")
-    if scheme == "ply" and not path:
-        raise ConfigError(f"device URL {url!r}: ply needs a directory path")
-    return DeviceURL(raw=url, scheme=scheme, host=host, port=port, path=path, options=options)
+DEVICE_KINDS = {name: s.kind for name, s in SCHEMES.items() if s.kind != "fake"}
 
 
 class _Strict(BaseModel):

@@ -10,7 +10,7 @@ import tty
 
 import pytest
 
-from drivers.transport import (Deadline, LineReader, SerialTransport, TcpTransport, parse_device_url)
+from drivers.transport import Deadline, LineReader, SerialTransport, TcpTransport
 from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
 
 
@@ -68,17 +68,19 @@ def test_line_reader_bounds_lines_and_times_out():
         os.close(slave)
 
 
-def test_device_urls():
-    assert parse_device_url("emscon://10.0.0.5") == ("emscon", {"host": "10.0.0.5", "port": 700})
-    assert parse_device_url("emscon://127.0.0.1:7001") == ("emscon", {"host": "127.0.0.1", "port": 7001})
-    assert parse_device_url("geocom:///dev/ttyUSB0?baud=115200") == (
-        "geocom", {"serial": "/dev/ttyUSB0", "baudrate": 115200})
-    assert parse_device_url("geocom+socket://127.0.0.1:4001") == (
-        "geocom", {"serial": "socket://127.0.0.1:4001", "baudrate": 9600})
-    for bad, why in [("ftp://x", "unknown device URL scheme"), ("nothing", "scheme://"),
-                     ("geocom:///dev/x?baud=fast", "baud"), ("tcp://host", "needs a port")]:
+def test_tracker_urls_open_the_driver_their_scheme_names():
+    from drivers.emscon import EmsconTracker
+    from drivers.geocom import GeoComTracker
+    from drivers.tracker_url import tracker_class
+
+    assert tracker_class("emscon://10.0.0.5") is EmsconTracker
+    assert tracker_class("geocom:///dev/ttyUSB0?baud=115200") is GeoComTracker
+    assert tracker_class("geocom+socket://127.0.0.1:4001") is GeoComTracker
+    for bad, why in [("ftp://x", "unknown scheme 'ftp'"), ("nothing", "scheme://"),
+                     ("geocom:///dev/x?baud=fast", "baud"), ("geocom+socket://host", "needs a port"),
+                     ("nmea:///dev/ttyS0", "expected a emscon or geocom or geocom\\+socket URL")]:
         with pytest.raises(ConfigError, match=why):
-            parse_device_url(bad)
+            tracker_class(bad)
 
 
 def test_deadline():

@@ -223,10 +223,12 @@ def test_urls_and_configuration_are_validated(world, gate):
     from station.errors import ConfigError
 
     assert parse_ur_url("ur://127.0.0.5") == "127.0.0.5"
-    with pytest.raises(ConfigError, match="fixes the ports"):
+    with pytest.raises(ConfigError, match="fixes its ports"):
         parse_ur_url("ur://127.0.0.5:30004")
-    with pytest.raises(ConfigError, match="ur://HOST"):
+    with pytest.raises(ConfigError, match="unknown scheme 'tcp'"):
         parse_ur_url("tcp://127.0.0.5")
+    with pytest.raises(ConfigError, match="expected a ur URL"):
+        parse_ur_url("emscon://127.0.0.5")
     with pytest.raises(ConfigError, match="host"):
         URDriver("127.0.0.5; rm", world.robot, gate)
     with pytest.raises(ConfigError, match="rtde_frequency_hz"):

@@ -1,0 +1,151 @@
+"""The one grammar of device URLs: a table of schemes with their defaults.
+
+The config validation (:mod:`station.config`) and every driver's ``from_url``
+parse device URLs here, so a default documented in the table is the default
+used, and a URL the config accepts is one a driver opens.
+
+=================  ==========================================  =========================================
+scheme             device                                      address, defaults, options
+=================  ==========================================  =========================================
+``emscon``         laser tracker, Leica emScon TPI over TCP    ``emscon://HOST[:PORT]``, port 700
+``geocom``         tracker / total station, GeoCOM, serial     ``geocom:///dev/ttyX[?baud=N]``, 115200 baud
+``geocom+socket``  GeoCOM over a TCP serial bridge             ``geocom+socket://HOST:PORT`` (port required)
+``modbus+ftp``     robot controller: FTP upload + Modbus TCP   ``modbus+ftp://HOST[:FTP_PORT]``, FTP 21;
+                                                               ``modbus_port`` (502), ``user``
+                                                               (anonymous), ``password``, ``dir``
+``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST``; the ports are fixed by ur_rtde
+``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud
+``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
+``fake``           a device of the station's own fake set      ``fake://NAME``
+=================  ==========================================  =========================================
+
+Unknown schemes and unknown options are refused, naming them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from urllib.parse import parse_qs, unquote, urlsplit
+
+from station.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """One row of the table.
+
+    ``address`` is ``"host"`` (TCP host, optional port), ``"path"`` (a serial
+    device or folder) or ``"name"`` (a fake's name). ``options`` maps each
+    allowed query option to its default (None: no default, optional).
+    """
+
+    name: str
+    kind: str
+    description: str
+    address: str
+    default_port: int | None = None
+    port_required: bool = False
+    port_allowed: bool = True
+    options: dict[str, str | None] = field(default_factory=dict)
+    #: options that must be positive integers
+    int_options: tuple[str, ...] = ()
+    #: what the path of a ``"path"`` address is, and an example
+    path_what: str = "serial device path"
+    path_example: str = "/dev/ttyUSB0"
+
+
+SCHEMES: dict[str, Scheme] = {s.name: s for s in (
+    Scheme("emscon", "tracker", "laser tracker (Leica emScon TPI over TCP)", "host", default_port=700),
+    Scheme("geocom", "tracker", "tracker/total station (Leica GeoCOM over serial)", "path",
+           options={"baud": "115200"}, int_options=("baud",)),
+    Scheme("geocom+socket", "tracker", "tracker/total station (Leica GeoCOM over a TCP serial bridge)", "host",
+           port_required=True),
+    Scheme("modbus+ftp", "controller", "robot controller (FTP upload + Modbus TCP)", "host", default_port=21,
+           options={"modbus_port": "502", "user": "anonymous", "password": "", "dir": ""},
+           int_options=("modbus_port",)),
+    Scheme("ur", "cobot", "UR-style cobot (ur_rtde)", "host", port_allowed=False),
+    Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
+           options={"baud": "57600"}, int_options=("baud",)),
+    Scheme("ply", "scanner", "3D scanner point clouds (PLY files in a folder)", "path",
+           path_what="folder path", path_example="/data/scans"),
+    Scheme("fake", "fake", "simulated device of the station's own fake set", "name"),
+)}
+
+
+@dataclass(frozen=True)
+class DeviceURL:
+    """A parsed device URL with the table's defaults filled in."""
+
+    raw: str
+    scheme: str
+    host: str | None = None
+    port: int | None = None
+    path: str | None = None
+    options: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return SCHEMES[self.scheme].kind
+
+    @property
+    def is_loopback(self) -> bool:
+        return self.host is not None and (self.host == "localhost" or self.host.startswith("127."))
+
+    def int_option(self, name: str) -> int:
+        return int(self.options[name])
+
+
+def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -> DeviceURL:
+    """Parse and check a device URL against the table; ConfigError names what is wrong.
+
+    ``scheme`` restricts the accepted schemes (a driver passes the ones it speaks).
+    """
+    if not isinstance(url, str) or "://" not in url:
+        raise ConfigError(f"device URL {url!r} must look like scheme://host:port or scheme:///dev/...")
+    parts = urlsplit(url)
+    name = parts.scheme.lower()
+    if name not in SCHEMES:
+        raise ConfigError(f"device URL {url!r}: unknown scheme {name!r} (known: {', '.join(SCHEMES)})")
+    wanted = (scheme,) if isinstance(scheme, str) else scheme
+    if wanted is not None and name not in wanted:
+        raise ConfigError(f"device URL {url!r}: expected a {' or '.join(wanted)} URL, got {name!r}")
+    sch = SCHEMES[name]
+    try:
+        port = parts.port
+    except ValueError as exc:
+        raise ConfigError(f"device URL {url!r}: bad port ({exc})") from None
+    try:
+        query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
+    except ValueError:
+        raise ConfigError(f"device URL {url!r}: malformed query {parts.query!r}") from None
+    given = {k: unquote(v[-1]) for k, v in query.items()}
+    unknown = sorted(set(given) - set(sch.options))
+    if unknown:
+        allowed = ", ".join(sch.options) or "none"
+        raise ConfigError(f"device URL {url!r}: unknown option(s) {', '.join(unknown)} for {name} (allowed: {allowed})")
+    options = {k: v for k, v in sch.options.items() if v is not None}
+    options.update(given)
+    for key in sch.int_options:
+        value = options.get(key)
+        if value is not None and not (value.isdigit() and int(value) > 0):
+            raise ConfigError(f"device URL {url!r}: {key} must be a positive integer, got {value!r}")
+    host, path = parts.hostname, parts.path or None
+    if sch.address == "host":
+        if not host:
+            raise ConfigError(f"device URL {url!r}: {name} needs a host, e.g. {name}://10.0.0.5")
+        if port is not None and not sch.port_allowed:
+            raise ConfigError(f"device URL {url!r}: {name} takes no port (the protocol fixes its ports)")
+        if port is None and sch.port_required:
+            raise ConfigError(f"device URL {url!r}: {name} needs a port, e.g. {name}://{host}:4001")
+        port = port if port is not None else sch.default_port
+    elif sch.address == "path":
+        if not path or host:
+            raise ConfigError(f"device URL {url!r}: {name} needs a {sch.path_what} and no host, "
+                              f"e.g. {name}://{sch.path_example}")
+    else:  # name
+        if not (host or path):
+            raise ConfigError(f"device URL {url!r}: {name} needs a device name, e.g. {name}://tracker-emscon")
+    return DeviceURL(raw=url, scheme=name, host=host, port=port, path=path, options=options)
+
+
+__all__ = ["SCHEMES", "Scheme", "DeviceURL", "parse_device_url"]
