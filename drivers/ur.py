@@ -50,6 +50,8 @@ from typing import Collection
 import numpy as np
 
 from station.device_urls import parse_device_url
+from station.protocols.ur import (SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode, RuntimeState,
+                                  SafetyMode)
 from station.errors import (
     ConfigError,
     ConnectionLost,
@@ -63,11 +65,12 @@ from station.errors import (
 DASHBOARD_PORT = 29999
 SCRIPT_PORT = 30003
 
-ROBOT_MODE_POWER_OFF, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 5, 7
-SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED = 1, 2
-RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = 1, 2, 4
-_SAFETY_BIT_PROTECTIVE = 1 << 2
-_SAFETY_BITS_EMERGENCY = (1 << 5) | (1 << 6) | (1 << 7)
+# the protocol's mode numbers (shared with the fake)
+ROBOT_MODE_POWER_OFF, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = RobotMode.POWER_OFF, RobotMode.IDLE, RobotMode.RUNNING
+SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED = SafetyMode.NORMAL, SafetyMode.REDUCED
+RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = RuntimeState.STOPPED, RuntimeState.PLAYING, RuntimeState.PAUSED
+_SAFETY_BIT_PROTECTIVE = SAFETY_BIT_PROTECTIVE
+_SAFETY_BITS_EMERGENCY = SAFETY_BITS_EMERGENCY
 
 # sample row layout shipped by the sidecar
 _C_T = 0

@@ -85,9 +85,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fakes import rtde_protocol as rp
+from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitter, bind_arguments, parse_program
 from station.errors import ConfigError, DataError, ProtocolError
 from station.models import kinematics
+from station.protocols.ur import JointMode, RobotMode, RuntimeState, SafetyMode
 
+#: the robot a UR fake simulates unless told otherwise (`station fakes serve ur --robot ...`)
+DEFAULT_ROBOT = "ur5e"
 PORTS = {"rtde": 30004, "dashboard": 29999, "script": 30003}
 CONTROLLER_VERSION = (5, 11, 0, 108318)
 POLYSCOPE_VERSION = "URSoftware 5.11.0.108318 (Mar 08 2021)"
@@ -96,22 +100,14 @@ MAX_FREQUENCY_HZ = 500.0
 TICK_S = 0.002  # controller cycle (e-Series 500 Hz)
 UNLOCK_DELAY_S = 5.0  # protective stop may be unlocked 5 s after it occurred
 
-# robot_mode
-ROBOT_MODE = {
-    -1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
-    4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE",
-}
-MODE_POWER_OFF, MODE_IDLE, MODE_RUNNING = 3, 5, 7
-# safety_mode
-SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP = 1, 3
-SAFETY_MODE = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
-               6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT"}
-# runtime_state
-RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = 1, 2, 4
-# joint_mode
-JOINT_POWER_OFF, JOINT_IDLE, JOINT_RUNNING = 238, 255, 253
+# the protocol's mode numbers (shared with the driver)
+ROBOT_MODE = {m.value: m.name for m in RobotMode}
+SAFETY_MODE = {m.value: m.name for m in SafetyMode}
+MODE_POWER_OFF, MODE_IDLE, MODE_RUNNING = RobotMode.POWER_OFF, RobotMode.IDLE, RobotMode.RUNNING
+SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP = SafetyMode.NORMAL, SafetyMode.PROTECTIVE_STOP
+RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = RuntimeState.STOPPED, RuntimeState.PLAYING, RuntimeState.PAUSED
+JOINT_POWER_OFF, JOINT_IDLE, JOINT_RUNNING = JointMode.POWER_OFF, JointMode.IDLE, JointMode.RUNNING
 
-MAX_SCRIPT_BYTES = 1 << 20
 MAX_DASHBOARD_LINE = 4096
 FD_STEP_S = TICK_S  # backward difference for velocities
 MAX_BATCH = 256  # data packages packed per send
@@ -169,347 +165,6 @@ def _parse_number(faults: dict, key: str, kind, lo: float):
 
 
 # ====================================================================== URScript subset
-
-
-class ScriptError(ProtocolError):
-    """A URScript program the fake cannot compile or run."""
-
-
-@dataclass(frozen=True)
-class Pose:
-    """``p[x, y, z, rx, ry, rz]``: metres and an axis-angle rotation vector."""
-
-    values: tuple
-
-
-@dataclass(frozen=True)
-class Call:
-    """One statement: ``name(args, key=value)`` at ``line`` of its program."""
-
-    name: str
-    args: tuple
-    kwargs: dict
-    line: int
-
-
-@dataclass(frozen=True)
-class ScriptProgram:
-    name: str
-    statements: tuple
-    text: str
-
-
-_TOKEN = re.compile(
-    r"\s*(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
-    r"|(?P<name>[A-Za-z_][A-Za-z_0-9]*)"
-    r"|(?P<str>\"[^\"\\\n]*\")"
-    r"|(?P<op>[\[\]\(\),=+\-*/]))"
-)
-
-_CONSTANTS = {"pi": math.pi, "True": True, "False": False}
-
-
-def _tokenize(text: str, line: int) -> list[tuple[str, str]]:
-    tokens, pos = [], 0
-    text = text.rstrip()
-    while pos < len(text):
-        m = _TOKEN.match(text, pos)
-        if m is None or m.end() == pos:
-            raise ScriptError(f"line {line}: cannot read {text[pos:pos + 20]!r}")
-        kind = m.lastgroup
-        tokens.append((kind, m.group(kind)))
-        pos = m.end()
-    return tokens
-
-
-class _Parser:
-    """Recursive descent over one statement: ``name(arg, ..., key=value)``."""
-
-    def __init__(self, tokens, line):
-        self.t, self.i, self.line = tokens, 0, line
-
-    def peek(self):
-        return self.t[self.i] if self.i < len(self.t) else (None, None)
-
-    def take(self, value=None):
-        tok = self.peek()
-        if tok[0] is None or (value is not None and tok[1] != value):
-            want = f"{value!r}" if value else "more input"
-            raise ScriptError(f"line {self.line}: expected {want}, found {tok[1]!r}")
-        self.i += 1
-        return tok
-
-    def statement(self) -> Call:
-        kind, name = self.take()
-        if kind != "name":
-            raise ScriptError(f"line {self.line}: a statement must start with a function name, found {name!r}")
-        if self.peek()[1] != "(":
-            raise ScriptError(f"line {self.line}: unsupported statement {name!r} (only function calls)")
-        self.take("(")
-        args, kwargs = [], {}
-        if self.peek()[1] != ")":
-            while True:
-                if self.peek()[0] == "name" and self.i + 1 < len(self.t) and self.t[self.i + 1][1] == "=":
-                    key = self.take()[1]
-                    self.take("=")
-                    kwargs[key] = self.expr()
-                else:
-                    if kwargs:
-                        raise ScriptError(f"line {self.line}: positional argument after keyword in {name}()")
-                    args.append(self.expr())
-                if self.peek()[1] == ",":
-                    self.take(",")
-                    continue
-                break
-        self.take(")")
-        if self.peek()[0] is not None:
-            raise ScriptError(f"line {self.line}: unexpected {self.peek()[1]!r} after {name}(...)")
-        return Call(name, tuple(args), kwargs, self.line)
-
-    def expr(self):
-        val = self.term()
-        while self.peek()[1] in ("+", "-"):
-            op = self.take()[1]
-            rhs = self.term()
-            val = self._arith(val, rhs, op)
-        return val
-
-    def term(self):
-        val = self.unary()
-        while self.peek()[1] in ("*", "/"):
-            op = self.take()[1]
-            rhs = self.unary()
-            val = self._arith(val, rhs, op)
-        return val
-
-    def _arith(self, a, b, op):
-        if not (_is_number(a) and _is_number(b)):
-            raise ScriptError(f"line {self.line}: arithmetic {op!r} needs numbers")
-        if op == "/" and b == 0:
-            raise ScriptError(f"line {self.line}: division by zero")
-        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b if op == "/" else 0}[op]
-
-    def unary(self):
-        if self.peek()[1] in ("-", "+"):
-            op = self.take()[1]
-            v = self.unary()
-            if not _is_number(v):
-                raise ScriptError(f"line {self.line}: unary {op!r} needs a number")
-            return -v if op == "-" else v
-        return self.atom()
-
-    def atom(self):
-        kind, val = self.take()
-        if kind == "num":
-            return float(val)
-        if kind == "str":
-            return val[1:-1]
-        if val == "[":
-            return self._list()
-        if val == "(":
-            v = self.expr()
-            self.take(")")
-            return v
-        if kind == "name":
-            if val == "p" and self.peek()[1] == "[":
-                self.take("[")
-                items = self._list()
-                if len(items) != 6 or not all(_is_number(x) for x in items):
-                    raise ScriptError(f"line {self.line}: a pose p[...] needs 6 numbers")
-                return Pose(tuple(float(x) for x in items))
-            if val in _CONSTANTS:
-                return _CONSTANTS[val]
-            raise ScriptError(f"line {self.line}: unsupported name {val!r} in an expression")
-        raise ScriptError(f"line {self.line}: unexpected {val!r}")
-
-    def _list(self):
-        items = []
-        if self.peek()[1] == "]":
-            self.take("]")
-            return items
-        while True:
-            items.append(self.expr())
-            if self.peek()[1] == ",":
-                self.take(",")
-                continue
-            self.take("]")
-            return items
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-_DEF = re.compile(r"^def\s+([A-Za-z_][A-Za-z_0-9]*)\s*\(\s*\)\s*:\s*$")
-_BLOCK_OPENERS = re.compile(r"^(def|sec|if|elif|else|while|for|thread)\b")
-
-
-def _strip_comment(line: str) -> str:
-    out, quoted = [], False
-    for ch in line:
-        if ch == '"':
-            quoted = not quoted
-        if ch == "#" and not quoted:
-            break
-        out.append(ch)
-    return "".join(out).strip()
-
-
-#: statement name -> (positional parameter names, required count)
-_SIGNATURES = {
-    "movej": (("q", "a", "v", "t", "r"), 1),
-    "movel": (("pose", "a", "v", "t", "r"), 1),
-    "stopj": (("a",), 1),
-    "stopl": (("a",), 1),
-    "sleep": (("t",), 1),
-    "sync": ((), 0),
-    "textmsg": (("s1", "s2"), 1),
-    "write_output_integer_register": (("address", "value"), 2),
-    "write_output_float_register": (("address", "value"), 2),
-    "write_output_boolean_register": (("address", "value"), 2),
-}
-
-
-def _bind(call: Call) -> dict:
-    """Check a call against its signature; return ``{parameter: value}``."""
-    if call.name not in _SIGNATURES:
-        raise ScriptError(f"line {call.line}: unsupported function {call.name}()")
-    params, required = _SIGNATURES[call.name]
-    if len(call.args) > len(params):
-        raise ScriptError(f"line {call.line}: {call.name}() takes at most {len(params)} arguments")
-    bound = dict(zip(params, call.args))
-    for k, v in call.kwargs.items():
-        if k not in params:
-            raise ScriptError(f"line {call.line}: {call.name}() has no argument {k!r}")
-        if k in bound:
-            raise ScriptError(f"line {call.line}: {call.name}() got {k!r} twice")
-        bound[k] = v
-    missing = [p for p in params[:required] if p not in bound]
-    if missing:
-        raise ScriptError(f"line {call.line}: {call.name}() needs {', '.join(missing)}")
-    for k in ("a", "v", "t", "r"):
-        if k in bound and not (_is_number(bound[k]) and math.isfinite(bound[k]) and bound[k] >= 0):
-            raise ScriptError(f"line {call.line}: {call.name}() argument {k} must be a number >= 0")
-    if call.name in ("movej", "movel"):
-        target = bound["q" if call.name == "movej" else "pose"]
-        if isinstance(target, Pose):
-            pass
-        elif isinstance(target, list) and len(target) == 6 and all(_is_number(x) for x in target):
-            bound["q" if call.name == "movej" else "pose"] = [float(x) for x in target]
-        else:
-            raise ScriptError(f"line {call.line}: {call.name}() target must be 6 joint angles or a pose p[...]")
-        vals = target.values if isinstance(target, Pose) else target
-        if not all(math.isfinite(x) for x in vals):
-            raise ScriptError(f"line {call.line}: {call.name}() target is not finite")
-    if call.name == "sleep" and not (_is_number(bound["t"]) and bound["t"] >= 0 and math.isfinite(bound["t"])):
-        raise ScriptError(f"line {call.line}: sleep() needs a time >= 0")
-    if call.name.startswith("write_output_"):
-        addr = bound["address"]
-        if not (_is_number(addr) and float(addr).is_integer()):
-            raise ScriptError(f"line {call.line}: {call.name}() address must be an integer")
-        kind = call.name.split("_")[2]
-        lo, hi = (64, 127) if kind == "boolean" else (0, 47)
-        if not lo <= int(addr) <= hi:
-            raise ScriptError(f"line {call.line}: {call.name}() address {int(addr)} outside {lo}..{hi}")
-        val = bound["value"]
-        if kind == "integer" and not (_is_number(val) and float(val).is_integer() and -2**31 <= val < 2**31):
-            raise ScriptError(f"line {call.line}: {call.name}() value must be a 32-bit integer")
-        if kind == "float" and not _is_number(val):
-            raise ScriptError(f"line {call.line}: {call.name}() value must be a number")
-        if kind == "boolean" and not isinstance(val, bool):
-            raise ScriptError(f"line {call.line}: {call.name}() value must be True or False")
-    return bound
-
-
-def parse_program(text: str, default_name: str = "script") -> ScriptProgram:
-    """Compile one program (a ``def`` block or a single statement line).
-
-    Raises
-    ------
-    ScriptError
-        Naming the line and what is not supported.
-    """
-    lines = text.split("\n")
-    body = [(i + 1, _strip_comment(s)) for i, s in enumerate(lines)]
-    body = [(n, s) for n, s in body if s]
-    if not body:
-        raise ScriptError("empty program")
-    name = default_name
-    m = _DEF.match(body[0][1])
-    if m:
-        name = m.group(1)
-        if body[-1][1] != "end":
-            raise ScriptError(f"program {name}: missing 'end'")
-        body = body[1:-1]
-    elif body[0][1].startswith(("def ", "sec ")):
-        raise ScriptError(f"line {body[0][0]}: unsupported program header {body[0][1]!r} (only 'def name():')")
-    statements = []
-    for n, s in body:
-        if _BLOCK_OPENERS.match(s) or s == "end":
-            raise ScriptError(f"line {n}: unsupported block statement {s.split()[0]!r} (the fake runs straight-line programs)")
-        call = _Parser(_tokenize(s, n), n).statement()
-        _bind(call)
-        statements.append(call)
-    return ScriptProgram(name, tuple(statements), text)
-
-
-class ScriptSplitter:
-    """Splits the script port's byte stream into whole programs.
-
-    A ``def ...:`` line opens a block that the matching ``end`` closes (nested
-    openers are counted so the compiler can refuse them by line); any other
-    non-empty line outside a block is a program of its own.
-    """
-
-    def __init__(self, max_bytes: int = MAX_SCRIPT_BYTES) -> None:
-        self._buf = b""
-        self._block: list[str] | None = None
-        self._depth = 0
-        self._size = 0
-        self.max_bytes = max_bytes
-
-    def feed(self, data: bytes) -> list[str]:
-        """Add bytes; return the programs completed by them (as text)."""
-        self._buf += data
-        if len(self._buf) > self.max_bytes:
-            self._buf = b""
-            self.reset()
-            raise ScriptError(f"script line longer than {self.max_bytes} bytes")
-        done: list[str] = []
-        while b"\n" in self._buf:
-            raw, self._buf = self._buf.split(b"\n", 1)
-            line = raw.decode("utf-8", "replace").rstrip("\r")
-            stripped = _strip_comment(line)
-            if self._block is None:
-                if not stripped:
-                    continue
-                if stripped.startswith(("def ", "sec ")):
-                    self._block, self._depth, self._size = [line], 1, len(raw)
-                else:
-                    done.append(line)
-                continue
-            self._block.append(line)
-            self._size += len(raw) + 1
-            if self._size > self.max_bytes:
-                self.reset()
-                raise ScriptError(f"script program longer than {self.max_bytes} bytes")
-            if _BLOCK_OPENERS.match(stripped) and not stripped.startswith(("elif", "else")):
-                self._depth += 1
-            elif stripped == "end":
-                self._depth -= 1
-                if self._depth == 0:
-                    done.append("\n".join(self._block))
-                    self._block = None
-        return done
-
-    def pending(self) -> bool:
-        return self._block is not None
-
-    def reset(self) -> None:
-        self._block, self._depth, self._size = None, 0, 0
-
-
-# ====================================================================== state
 
 
 def _rotvec_to_matrix(rv) -> np.ndarray:
@@ -889,7 +544,7 @@ class _Interpreter:
             self._check()
             with self.ctl.lock:
                 self.ctl.script_line = call.line
-            b = _bind(call)
+            b = bind_arguments(call)
             name = call.name
             if name in ("movej", "movel"):
                 self._move(program, call, b)
@@ -1418,108 +1073,103 @@ class URFake:
 
     # ------------------------------------------------------------ dashboard
     def dashboard_reply(self, line: str) -> tuple[str, bool]:
-        """Reply to one dashboard command line; (reply, close connection)."""
-        ctl = self.ctl
+        """Reply to one dashboard command line; (reply, close connection).
+
+        Commands are looked up in :data:`DASHBOARD_COMMANDS` (whole line) or
+        :data:`DASHBOARD_PREFIXES` (first word), case-insensitively.
+        """
         low = line.lower()
         word = low.split(" ", 1)[0] if low else ""
         if word in self.plan.dashboard_refuse or low in self.plan.dashboard_refuse:
             return f"Failed to execute: {line}", False
-        with ctl.lock:
-            name = ctl.loaded_program
-            base = name.rsplit("/", 1)[-1] if name else "<unnamed>"
-            if low == "play":
-                if name is None or ctl.ready_to_move() is not None:
-                    return "Failed to execute: play", False
-                if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():
-                    return "Starting program", False
-                if ctl.runtime_state == RUNTIME_PLAYING:
-                    return "Failed to execute: play", False
-                program = parse_program(ctl.programs[name], base.rsplit(".", 1)[0])
-                self.interpreter.submit(program)
-                ctl.runtime_state = RUNTIME_PLAYING
-                return "Starting program", False
-            if low == "stop":
-                if ctl.runtime_state == RUNTIME_STOPPED and not self.interpreter.stoppable():
-                    return "Failed to execute: stop", False
-                self.interpreter.abort("stopped from the dashboard")
-                ctl.runtime_state = RUNTIME_STOPPED
-                return "Stopped", False
-            if low == "pause":
-                if ctl.runtime_state != RUNTIME_PLAYING or not self.interpreter.pause():
-                    return "Failed to execute: pause", False
-                _halt(ctl.arm)
-                return "Pausing program", False
-            if word == "load":
-                path = line[5:].strip()
-                full = path if path.startswith("/") else "/programs/" + path
-                if full not in ctl.programs:
-                    return f"File not found: {path}", False
-                if ctl.runtime_state != RUNTIME_STOPPED:
-                    return f"Error while loading program: {path}", False
-                ctl.loaded_program = full
-                return f"Loading program: {path}", False
-            if low == "running":
-                return f"Program running: {'true' if ctl.runtime_state == RUNTIME_PLAYING else 'false'}", False
-            if low == "programstate":
-                state = {RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED"}.get(ctl.runtime_state, "STOPPED")
-                return f"{state} {base}", False
-            if low == "get loaded program":
-                return (f"Loaded program: {name}" if name else "No program loaded"), False
-            if low == "isprogramsaved":
-                return f"true {base}", False
-            if low == "robotmode":
-                return f"Robotmode: {ROBOT_MODE[ctl.robot_mode]}", False
-            if low == "safetymode":
-                return f"Safetymode: {SAFETY_MODE[ctl.safety_mode()]}", False
-            if low == "safetystatus":
-                return f"Safetystatus: {SAFETY_MODE[ctl.safety_mode()]}", False
-            if low == "power on":
-                if ctl.robot_mode == MODE_POWER_OFF:
-                    ctl.robot_mode = MODE_IDLE
-                return "Powering on", False
-            if low == "power off":
-                self.interpreter.abort("robot powered off")
-                ctl.robot_mode = MODE_POWER_OFF
-                return "Powering off", False
-            if low == "brake release":
-                if ctl.robot_mode == MODE_IDLE:
-                    ctl.robot_mode = MODE_RUNNING
-                return "Brake releasing", False
-            if low == "unlock protective stop":
-                if ctl.safety_mode() == SAFETY_PROTECTIVE_STOP:
-                    since = ctl.clock.now() - (ctl.protective_stop_t if ctl.protective_stop_t is not None else -1e9)
-                    if since < UNLOCK_DELAY_S:
-                        return ("Cannot unlock protective stop until 5s after occurrence. "
-                                "Always inspect cause of protective stop before unlocking"), False
-                    if getattr(ctl.arm, "state", "") == "protective_stop":
-                        ctl.arm.reset()
-                    ctl.protective_stop_t = None
-                return "Protective stop releasing", False
-            if low == "close safety popup":
-                return "closing safety popup", False
-            if low == "restart safety":
-                return "Restarting safety", False
-            if low == "is in remote control":
-                return "true", False
-            if low == "polyscopeversion":
-                return POLYSCOPE_VERSION, False
-            if low == "get serial number":
-                return SERIAL_NUMBER, False
-            if low == "get robot model":
-                return ctl.robot.name.upper().rstrip("E") if ctl.robot.name.lower().startswith("ur") else "UR5", False
-            if word == "popup":
-                return "showing popup", False
-            if low == "close popup":
-                return "closing popup", False
-            if word == "addtolog":
-                return "Added log message", False
-            if low == "quit":
-                return "Disconnected", True
-            if low == "shutdown":
-                self.interpreter.abort("shutdown")
-                ctl.robot_mode = MODE_POWER_OFF
-                return "Shutting down", True
-        return f"could not understand: '{line}'", False
+        handler = DASHBOARD_COMMANDS.get(low) or DASHBOARD_PREFIXES.get(word)
+        if handler is None:
+            return f"could not understand: '{line}'", False
+        with self.ctl.lock:
+            reply = handler(self, self.ctl, line)
+        return reply if isinstance(reply, tuple) else (reply, False)
+
+    def _program_names(self) -> tuple[str | None, str]:
+        name = self.ctl.loaded_program
+        return name, (name.rsplit("/", 1)[-1] if name else "<unnamed>")
+
+    # the dashboard's commands: (fake, controller state, line) -> reply or (reply, close)
+    def _dash_play(self, ctl, line):
+        name, base = self._program_names()
+        if name is None or ctl.ready_to_move() is not None:
+            return "Failed to execute: play"
+        if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():
+            return "Starting program"
+        if ctl.runtime_state == RUNTIME_PLAYING:
+            return "Failed to execute: play"
+        self.interpreter.submit(parse_program(ctl.programs[name], base.rsplit(".", 1)[0]))
+        ctl.runtime_state = RUNTIME_PLAYING
+        return "Starting program"
+
+    def _dash_stop(self, ctl, line):
+        if ctl.runtime_state == RUNTIME_STOPPED and not self.interpreter.stoppable():
+            return "Failed to execute: stop"
+        self.interpreter.abort("stopped from the dashboard")
+        ctl.runtime_state = RUNTIME_STOPPED
+        return "Stopped"
+
+    def _dash_pause(self, ctl, line):
+        if ctl.runtime_state != RUNTIME_PLAYING or not self.interpreter.pause():
+            return "Failed to execute: pause"
+        _halt(ctl.arm)
+        return "Pausing program"
+
+    def _dash_load(self, ctl, line):
+        path = line[5:].strip()
+        full = path if path.startswith("/") else "/programs/" + path
+        if full not in ctl.programs:
+            return f"File not found: {path}"
+        if ctl.runtime_state != RUNTIME_STOPPED:
+            return f"Error while loading program: {path}"
+        ctl.loaded_program = full
+        return f"Loading program: {path}"
+
+    def _dash_program_state(self, ctl, line):
+        state = {RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED"}.get(ctl.runtime_state, "STOPPED")
+        return f"{state} {self._program_names()[1]}"
+
+    def _dash_loaded_program(self, ctl, line):
+        name = ctl.loaded_program
+        return f"Loaded program: {name}" if name else "No program loaded"
+
+    def _dash_power_on(self, ctl, line):
+        if ctl.robot_mode == MODE_POWER_OFF:
+            ctl.robot_mode = MODE_IDLE
+        return "Powering on"
+
+    def _dash_power_off(self, ctl, line):
+        self.interpreter.abort("robot powered off")
+        ctl.robot_mode = MODE_POWER_OFF
+        return "Powering off"
+
+    def _dash_brake_release(self, ctl, line):
+        if ctl.robot_mode == MODE_IDLE:
+            ctl.robot_mode = MODE_RUNNING
+        return "Brake releasing"
+
+    def _dash_unlock_protective_stop(self, ctl, line):
+        if ctl.safety_mode() == SAFETY_PROTECTIVE_STOP:
+            since = ctl.clock.now() - (ctl.protective_stop_t if ctl.protective_stop_t is not None else -1e9)
+            if since < UNLOCK_DELAY_S:
+                return ("Cannot unlock protective stop until 5s after occurrence. "
+                        "Always inspect cause of protective stop before unlocking")
+            if getattr(ctl.arm, "state", "") == "protective_stop":
+                ctl.arm.reset()
+            ctl.protective_stop_t = None
+        return "Protective stop releasing"
+
+    def _dash_robot_model(self, ctl, line):
+        return ctl.robot.name.upper().rstrip("E") if ctl.robot.name.lower().startswith("ur") else "UR5"
+
+    def _dash_shutdown(self, ctl, line):
+        self.interpreter.abort("shutdown")
+        ctl.robot_mode = MODE_POWER_OFF
+        return "Shutting down", True
 
     # ------------------------------------------------------------ lifetime
     def close(self, timeout_s: float = 5.0) -> None:
@@ -1582,3 +1232,42 @@ def start_fake(world, *, host: str | None = None, port: int | None = None, fault
             continue
         return URFake(world, candidate, plan, socks)
     raise ConfigError("no free loopback address 127.0.0.2..254 has the UR ports free")
+
+
+def _const(reply: str, close: bool = False):
+    return lambda fake, ctl, line: (reply, close)
+
+
+#: dashboard commands matched on the whole (lower-cased) line
+DASHBOARD_COMMANDS = {
+    "play": URFake._dash_play,
+    "stop": URFake._dash_stop,
+    "pause": URFake._dash_pause,
+    "running": lambda fake, ctl, line: f"Program running: {'true' if ctl.runtime_state == RUNTIME_PLAYING else 'false'}",
+    "programstate": URFake._dash_program_state,
+    "get loaded program": URFake._dash_loaded_program,
+    "isprogramsaved": lambda fake, ctl, line: f"true {fake._program_names()[1]}",
+    "robotmode": lambda fake, ctl, line: f"Robotmode: {ROBOT_MODE[ctl.robot_mode]}",
+    "safetymode": lambda fake, ctl, line: f"Safetymode: {SAFETY_MODE[ctl.safety_mode()]}",
+    "safetystatus": lambda fake, ctl, line: f"Safetystatus: {SAFETY_MODE[ctl.safety_mode()]}",
+    "power on": URFake._dash_power_on,
+    "power off": URFake._dash_power_off,
+    "brake release": URFake._dash_brake_release,
+    "unlock protective stop": URFake._dash_unlock_protective_stop,
+    "close safety popup": _const("closing safety popup"),
+    "restart safety": _const("Restarting safety"),
+    "is in remote control": _const("true"),
+    "polyscopeversion": _const(POLYSCOPE_VERSION),
+    "get serial number": _const(SERIAL_NUMBER),
+    "get robot model": URFake._dash_robot_model,
+    "close popup": _const("closing popup"),
+    "quit": _const("Disconnected", True),
+    "shutdown": URFake._dash_shutdown,
+}
+
+#: dashboard commands matched on the first word (they take an argument)
+DASHBOARD_PREFIXES = {
+    "load": URFake._dash_load,
+    "popup": _const("showing popup"),
+    "addtolog": _const("Added log message"),
+}

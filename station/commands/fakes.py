@@ -50,7 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--port", type=int, default=None, help="port (default: the fake's own or 0)")
     s.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second")
     s.add_argument("--seed", type=int, default=0, help="seed of the simulated world")
-    s.add_argument("--robot", default=None, help="robot model of the simulated arm")
+    s.add_argument("--robot", default=None,
+                   help="robot model of the simulated arm (default: the fake's own, ur5e for ur, else industrial-3100)")
     s.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                    help="fault injection, repeatable (see the fake's docs)")
     s.set_defaults(func=_serve)
@@ -62,8 +63,10 @@ def _serve(args: argparse.Namespace) -> int:
     faults = parse_faults(args.fault)
     module = importlib.import_module(FAKES[args.name])
     world_kwargs = {"seed": args.seed, "time_scale": args.time_scale}
-    if args.robot:
-        world_kwargs["robot"] = args.robot
+    # a fake simulates the robot its protocol belongs to unless told otherwise (a UR fake is a UR)
+    robot = args.robot or getattr(module, "DEFAULT_ROBOT", None)
+    if robot:
+        world_kwargs["robot"] = robot
     world = make_world(**world_kwargs)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

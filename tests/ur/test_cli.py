@@ -10,6 +10,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from tests.ur.conftest import ROOT, run_probe
 
 
@@ -44,3 +46,72 @@ def test_station_fakes_serve_ur_prints_endpoint_and_serves_ur_rtde():
                 p.kill()
                 p.wait()
     assert rc == 0
+
+
+def _serve(*extra):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([ROOT, env.get("PYTHONPATH", "")])
+    p = subprocess.Popen([sys.executable, "-m", "station.cli", "fakes", "serve", "ur", *extra],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    deadline = time.monotonic() + 30
+    line = ""
+    while not line and time.monotonic() < deadline:
+        r, _, _ = select.select([p.stdout], [], [], 0.2)
+        if r:
+            line = p.stdout.readline()
+        assert p.poll() is None, p.stderr.read()
+    return p, json.loads(line)
+
+
+def _stop(p):
+    p.send_signal(signal.SIGINT)
+    try:
+        return p.wait(15)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def test_the_ur_fake_with_no_options_is_a_ur_that_ur_rtde_moves():
+    """Default recipe at 500 Hz, then a ScriptClient movej to an ordinary UR joint target, read back."""
+    import numpy as np
+    import script_client
+
+    p, endpoint = _serve()
+    try:
+        host = endpoint["host"]
+        before = run_probe(host, 500.0, 0.3)
+        assert "error" not in before and before["robot_mode"] == 7 and before["runtime_state"] == 1
+        rows = np.array(before["rows"])
+        # a UR5e's TCP is within its 850 mm reach of the base (an industrial arm's is metres away)
+        assert np.linalg.norm(rows[-1, 7:10]) < 0.9
+        # 500 Hz: device time steps of 2 ms
+        assert np.median(np.diff(rows[:, 0])) == pytest.approx(0.002, abs=2e-4)
+        rng = np.random.default_rng()
+        home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+        target = home + rng.uniform(-0.3, 0.3, 6)
+        sc = script_client.ScriptClient(host, 5, 11)
+        sc.connect()
+        # a controller runs a script line when its line end arrives
+        sc.sendScriptCommand("movej([" + ",".join(f"{v:.6f}" for v in target) + "], a=1.4, v=1.05)\n")
+        deadline = time.monotonic() + 20
+        q = None
+        while time.monotonic() < deadline:
+            after = run_probe(host, 500.0, 0.1)
+            q = np.array(after["rows"][-1][1:7])
+            if np.max(np.abs(q - target)) < 1e-3 and after["runtime_state"] == 1:
+                break
+            time.sleep(0.3)
+        assert q is not None and np.max(np.abs(q - target)) < 1e-3, (q, target)
+        # a target outside a UR's joint limits (+-2 pi) is refused: the program stops, nothing moves
+        bad = target.copy()
+        bad[int(rng.integers(6))] = float(rng.choice([-1.0, 1.0])) * rng.uniform(6.4, 9.0)
+        sc.sendScriptCommand("movej([" + ",".join(f"{v:.6f}" for v in bad) + "], a=1.4, v=1.05)\n")
+        time.sleep(0.5)
+        after = run_probe(host, 500.0, 0.2)
+        assert after["runtime_state"] == 1 and after["safety_mode"] == 1
+        assert np.max(np.abs(np.array(after["rows"][-1][1:7]) - target)) < 1e-3  # still at the last target
+        sc.disconnect()
+    finally:
+        assert _stop(p) == 0

@@ -12,7 +12,7 @@ import pytest
 
 import script_client
 from fakes import rtde_protocol as rp
-from fakes.ur import Pose, parse_program
+from fakes.urscript import Pose, parse_program
 from station.errors import ConnectionLost, DeviceFault, DeviceNotReady, SafetyError
 from station.models import kinematics
 from tests.ur.conftest import box_gate, finish_probe, start_probe

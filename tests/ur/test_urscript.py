@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from fakes.ur import Pose, ScriptError, ScriptSplitter, parse_program
+from fakes.urscript import Pose, ScriptError, ScriptSplitter, parse_program
 
 
 def test_def_block_with_keywords_poses_and_comments():
