@@ -66,7 +66,7 @@ def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
         finally:
             world.close()
 
-    return FakeCell({"odometry": handle.endpoint["device"]}, float(fake["time_scale"]), close)
+    return FakeCell({"odometry": f"nmea://{handle.endpoint['device']}"}, float(fake["time_scale"]), close)
 
 
 def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float) -> dict:

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.analysis.iso9283 import analyze_iso9283
+from station.analysis.iso9283 import analyze_iso9283, conformance_text
 from station.analysis.iso_poses import cube_test_poses
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
 from station.errors import ConfigError, DeviceFault, InsufficientDataError, StationError
@@ -669,6 +669,12 @@ def summary(store, run_id: str) -> list[str]:
     verdict = "no limits configured" if not judged else ("PASS" if all(judged) else "FAIL")
     failed = [f"{r['pose']} {r['name']} {r['value']:.4g} > {r['limit']:g}" for r in rows if r["passed"] is False]
     lines.append(f"verdict: {verdict}" + (f" ({'; '.join(failed)})" if failed else ""))
+    try:
+        pose = store.result(run_id, "iso9283")["pose"]
+    except Exception:  # noqa: BLE001 - a run stored before the analysis kept its reasons
+        pose = None
+    if pose is not None and "iso_reasons" in pose:
+        lines.append(conformance_text(pose["iso_reasons"]))
     rep = [s.output["report"] for s in store.steps(run_id) if s.name == "report" and s.status == "done"]
     if rep:
         lines.append(f"report: {rep[0]}")

@@ -91,7 +91,7 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
             f"which absorbs part of the robot's error)"),
         "registration uncertainty at the test poses (jackknife, 1 sigma)": ", ".join(
             f"{k} {v:.3f} mm" for k, v in ctx.outputs["register base frame"].get("uncertainty_at_poses_mm", {}).items()),
-        "ISO conformant": "yes" if main.iso_conformant else "no (fewer than 30 cycles or missing stops)",
+        "ISO conformant": "yes" if main.iso_conformant else "no: " + "; ".join(main.iso_reasons),
     }
     figs: list[tuple[str, str]] = []
     f = _first_cycles_figure(t, xyz, main)

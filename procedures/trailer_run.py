@@ -139,7 +139,7 @@ def combine_estimates(method: str, parts: list) -> "tp.TrailerEstimate":
 
 def _estimate(ctx: StepContext) -> dict:
     """Step 5, with a resumed run's record split where the trailer stood still between sessions."""
-    from station.analysis.trailer_better import estimate_trailer
+    from station.analysis.trailer_estimate import estimate_trailer
 
     tc = _tc(ctx)
     data = tc.arrays()

@@ -33,6 +33,7 @@ import numpy as np
 
 from station.analysis.pose_extraction import (
     STATUS_ASSIGNED,
+    StopStatus,
     STATUS_NAMES,
     Extraction,
     extract_validated,
@@ -272,8 +273,10 @@ class Iso9283Result:
     limits: dict[str, float]
     warnings: tuple[str, ...]
     partial: bool
-    iso_conformant: bool  # every pose has >= 30 cycles, nothing missing
+    iso_conformant: bool  # every pose has >= 30 cycles, nothing missing, every limit decided
     stream_span_s: tuple[float, float] = field(default=(math.nan, math.nan))
+    #: why the run is not ISO conformant, one sentence each (empty when it is)
+    iso_reasons: tuple[str, ...] = ()
 
     @property
     def passed(self) -> bool | None:
@@ -727,20 +730,57 @@ def analyze_iso9283(
         raise DataError(f"orientation_rad must have shape (N, 3), got {ori.shape}")
     ex = extract_validated(t, xyz, rows_used, n_rows, commanded_mm, names=names, order=order,
                            **(extraction or {}))
-    names = ex.names
-    P = len(names)
-    cmd = ex.commanded_mm
+    P = len(ex.names)
     cori = None
     if commanded_orientation_rad is not None:
         cori = np.asarray(commanded_orientation_rad, dtype=float)
         if cori.shape != (P, 3) or not np.all(np.isfinite(cori)):
             raise DataError(f"commanded_orientation_rad must be finite with shape ({P}, 3), got {cori.shape}")
-    st = ex.stops
-    warnings = list(ex.warnings)
-    partial = False
-    cos_tol = math.cos(math.radians(direction_tol_deg))
+    run = _Stages(t, xyz, ex)
+    bands = _limit_bands(band_mm, ex.names)
+    pose_info = _stage_accuracy_repeatability(run, math.cos(math.radians(direction_tol_deg)))
+    settle = _stage_settling(run, pose_info, bands)
+    poses = _stage_pose_results(run, pose_info, settle, ori, cori, drift_block)
+    dists = _stage_distances(run, pose_info, distance_pairs)
+    k0, k1 = _consecutive_stops(run)
+    mts = _stage_posing_times(run, settle, k0, k1, mpt_repeats)
+    paths = _stage_paths(run, k0, k1, linear_paths, n_planes)
+    _stage_extraction_problems(run)
+    verdicts = _verdicts(lim, poses, dists, mts, paths)
+    if any(v.passed is None for v in verdicts):
+        run.partial = True
+    reasons = iso_conformance_reasons(poses, ex, verdicts, lim)
+    return Iso9283Result(
+        poses=poses, distances=tuple(dists), posing_times=tuple(mts), paths=tuple(paths), extraction=ex,
+        verdicts=tuple(verdicts), limits=lim, warnings=tuple(run.warnings), partial=bool(run.partial),
+        iso_conformant=not reasons, stream_span_s=(float(t[0]), float(t[-1])), iso_reasons=tuple(reasons),
+    )
 
-    # bands per pose
+
+# --------------------------------------------------------------------------
+# the stages of the analysis
+# --------------------------------------------------------------------------
+
+
+class _Stages:
+    """What every stage reads (the stream and its extraction) and adds to (warnings, partial)."""
+
+    def __init__(self, t: np.ndarray, xyz: np.ndarray, ex: Extraction) -> None:
+        self.t, self.xyz, self.ex, self.st = t, xyz, ex, ex.stops
+        self.names = ex.names
+        self.cmd = ex.commanded_mm
+        self.P = len(ex.names)
+        self.warnings: list[str] = list(ex.warnings)
+        self.partial = False
+        self.breaks = _break_indices(ex)
+
+    def warn(self, message: str, *, partial: bool = False) -> None:
+        self.warnings.append(message)
+        self.partial = self.partial or partial
+
+
+def _limit_bands(band_mm, names) -> dict:
+    """The POS/PST limit band per pose given as a limit (``{}``: every pose uses its own RP)."""
     if band_mm is None or isinstance(band_mm, dict):
         bdict = dict(band_mm or {})
         unknown = set(bdict) - set(names)
@@ -749,16 +789,19 @@ def analyze_iso9283(
         for k, v in bdict.items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"band_mm[{k!r}] must be finite and > 0, got {v!r}")
-    else:
-        bv = float(band_mm)
-        if not (math.isfinite(bv) and bv > 0):
-            raise ConfigError(f"band_mm must be finite and > 0, got {band_mm!r}")
-        bdict = {n: bv for n in names}
+        return bdict
+    bv = float(band_mm)
+    if not (math.isfinite(bv) and bv > 0):
+        raise ConfigError(f"band_mm must be finite and > 0, got {band_mm!r}")
+    return {n: bv for n in names}
 
-    # --- per pose: direction groups, AP, RP
+
+def _stage_accuracy_repeatability(run: _Stages, cos_tol: float) -> dict:
+    """Per pose: approach-direction groups, and AP (eq. (1)), RP (eq. (2)) of the main group."""
+    st, cmd = run.st, run.cmd
     pose_info = {}
-    for p, name in enumerate(names):  # loop over poses
-        k_all = ex.assigned(p)
+    for p, name in enumerate(run.names):  # loop over poses
+        k_all = run.ex.assigned(p)
         lab, ng = _group_directions(st.approach_unit[k_all], ~st.gap_in_approach[k_all], cos_tol)
         groups = []
         for g in range(ng):
@@ -778,20 +821,22 @@ def analyze_iso9283(
         if kp.size >= 1:
             acc = position_accuracy(a, cmd[p], rows)
         else:
-            warnings.append(f"{name}: no attained pose, AP and RP not computed")
-            partial = True
+            run.warn(f"{name}: no attained pose, AP and RP not computed", partial=True)
         if kp.size >= 2:
             rep = position_repeatability(a, rows)
         elif kp.size == 1:
-            warnings.append(f"{name}: RP needs at least 2 attained poses, got 1")
-            partial = True
+            run.warn(f"{name}: RP needs at least 2 attained poses, got 1", partial=True)
         if 0 < kp.size < ISO_CYCLES:
-            warnings.append(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
+            run.warn(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
         pose_info[name] = dict(p=p, k_all=k_all, lab=lab, groups=groups, gp=gp, kp=kp, acc=acc, rep=rep)
+    return pose_info
 
-    # --- POS / PST: every assigned stop gets its band (needed for MPT too)
+
+def _stage_settling(run: _Stages, pose_info: dict, bdict: dict) -> dict:
+    """Every assigned stop gets its limit band, its overshoot and settling (POS/PST, needed for MPT too)."""
+    st, t, xyz = run.st, run.t, run.xyz
     ka = np.flatnonzero(st.status == STATUS_ASSIGNED)
-    band_of_pose = np.full(P, np.nan)
+    band_of_pose = np.full(run.P, np.nan)
     band_src = {}
     for name, info in pose_info.items():
         if name in bdict:
@@ -807,11 +852,19 @@ def analyze_iso9283(
     band_k[kb] = band_of_pose[st.pose[kb]]
     reg = _BandRegion(t, xyz, st.i_phase_start, t.size - 1, st.position_mm, band_k) if st.n else None
     os_ = reg.approach(kb, st.i_phase_start[kb], st.i_center[kb]) if st.n else None
-    brk_i = _break_indices(ex)
+    brk_i = run.breaks
     inc = (np.searchsorted(brk_i, st.i_center[kb]) - np.searchsorted(brk_i, st.i_phase_start[kb])) > 0
     settled_i = np.full(st.n, -1, np.int64)
     if st.n:
         settled_i[kb] = np.where(inc, -1, os_["i_settled"])
+    return dict(band_of_pose=band_of_pose, band_src=band_src, kb=kb, os=os_, inc=inc, settled_i=settled_i,
+                region=reg)
+
+
+def _stage_pose_results(run: _Stages, pose_info: dict, settle: dict, ori, cori, drift_block: int) -> dict:
+    """Per pose: POS/PST (eqs. (4)-(5)), vAP (eq. (3)), orientation, drift."""
+    st, cmd, ex = run.st, run.cmd, run.ex
+    kb, os_, inc, band_of_pose = settle["kb"], settle["os"], settle["inc"], settle["band_of_pose"]
     poses: dict[str, PoseResult] = {}
     for name, info in pose_info.items():
         p, kp = info["p"], info["kp"]
@@ -822,16 +875,15 @@ def analyze_iso9283(
             POS = float(np.max(os_["POS_mm"][sel][good])) if good.any() else None
             PST = float(np.mean(os_["PST_s"][sel][good])) if good.any() else None
             if (~good).any():
-                warnings.append(f"{name}: {int((~good).sum())} approach(es) with a beam break left out of POS/PST")
+                run.warn(f"{name}: {int((~good).sum())} approach(es) with a beam break left out of POS/PST")
             ovs = OvershootSettling(
-                POS, PST, float(band_of_pose[p]), band_src[name], os_["POS_mm"][sel], os_["PST_s"][sel],
+                POS, PST, float(band_of_pose[p]), settle["band_src"][name], os_["POS_mm"][sel], os_["PST_s"][sel],
                 ex.to_rows(os_["i_entry"][sel]), ex.to_rows(os_["i_settled"][sel]),
                 np.where(os_["i_max"][sel] >= 0, ex.to_rows(np.maximum(os_["i_max"][sel], 0)), -1),
                 st.row[kb[sel]], inc[sel], int(good.sum()),
             )
         elif kp.size:
-            warnings.append(f"{name}: no limit band (own RP not available), POS/PST not computed")
-            partial = True
+            run.warn(f"{name}: no limit band (own RP not available), POS/PST not computed", partial=True)
         # vAP
         gl = []
         for kg, u in info["groups"]:
@@ -871,8 +923,12 @@ def analyze_iso9283(
             name, cmd[p].copy(), st.position_mm[kp], st.t_s[kp], st.row[kp], st.cycle[kp],
             info["acc"], info["rep"], ovs, md, oar, dr,
         )
+    return poses
 
-    # --- distance accuracy / repeatability
+
+def _stage_distances(run: _Stages, pose_info: dict, distance_pairs) -> list:
+    """AD and RD (eqs. (8)-(9)) between the pose pairs, over the cycles where both were attained."""
+    st, cmd, names = run.st, run.cmd, run.names
     dists = []
     if distance_pairs == "auto":
         distance_pairs = [("P2", "P4")] if {"P2", "P4"} <= set(names) else []
@@ -886,116 +942,158 @@ def analyze_iso9283(
         common, ja, jb = np.intersect1d(ca, cb, return_indices=True)
         Dc = float(np.linalg.norm(cmd[ia] - cmd[ib]))
         if common.size < 1:
-            warnings.append(f"AD/RD {pa}-{pb}: no cycle with both poses attained")
-            partial = True
+            run.warn(f"AD/RD {pa}-{pb}: no cycle with both poses attained", partial=True)
             continue
         D = np.linalg.norm(st.position_mm[ka_[ja]] - st.position_mm[kb_[jb]], axis=1)
         AD, RD = distance_accuracy(D, Dc)
         if RD is None:
-            warnings.append(f"RD {pa}-{pb}: needs at least 2 cycles with both poses, got 1")
-            partial = True
+            run.warn(f"RD {pa}-{pb}: needs at least 2 cycles with both poses, got 1", partial=True)
         dists.append(DistanceAR(pa, pb, Dc, AD, RD, D, common, st.row[ka_[ja]], st.row[kb_[jb]], int(D.size)))
+    return dists
 
-    # --- posing times and paths: consecutive assigned stops
-    # consecutive in the order and in time (no other stop between)
+
+def _consecutive_stops(run: _Stages) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of assigned stops consecutive in the commanded order and in time, no beam break between."""
+    st = run.st
+    ka = np.flatnonzero(st.status == STATUS_ASSIGNED)
     kseq = ka[np.argsort(st.seq[ka], kind="stable")]
     consec = np.flatnonzero((np.diff(st.seq[kseq]) == 1) & (np.diff(kseq) == 1))
     k0, k1 = kseq[consec], kseq[consec + 1]
-    nobrk = (np.searchsorted(brk_i, st.i_center[k1]) - np.searchsorted(brk_i, st.i_center[k0])) == 0
-    k0, k1 = k0[nobrk], k1[nobrk]
+    nobrk = (np.searchsorted(run.breaks, st.i_center[k1]) - np.searchsorted(run.breaks, st.i_center[k0])) == 0
+    return k0[nobrk], k1[nobrk]
+
+
+def _stage_posing_times(run: _Stages, settle: dict, k0, k1, mpt_repeats: int) -> list:
+    """Minimum posing time per move (eq. (10)): leaving the band of one pose to settling at the next."""
+    st, t, ex, P, names = run.st, run.t, run.ex, run.P, run.names
+    settled_i, band_of_pose = settle["settled_i"], settle["band_of_pose"]
     mts = []
-    if k0.size:
-        bprev = band_of_pose[st.pose[k0]]
-        okb = np.isfinite(bprev) & (settled_i[k1] >= 0)
-        k0b, k1b = k0[okb], k1[okb]
-        leave = reg.leave(st.i_center[k0b], st.i_phase_start[k1b] - 1)
-        okl = leave >= 0
-        k0b, k1b, leave = k0b[okl], k1b[okl], leave[okl]
-        times = t[settled_i[k1b]] - t[leave]
-        pairs = st.pose[k0b] * P + st.pose[k1b]
-        for pr in np.unique(pairs):  # loop over moves
-            sel = np.flatnonzero(pairs == pr)
-            fa, fb = names[pr // P], names[pr % P]
-            mpt = float(np.mean(times[sel[:mpt_repeats]])) if sel.size >= mpt_repeats else None
-            if mpt is None:
-                warnings.append(f"MPT {fa}->{fb}: needs {mpt_repeats} posing times, got {sel.size}")
-            mts.append(PosingTime(fa, fb, mpt, times[sel], ex.to_rows(leave[sel]),
-                                  ex.to_rows(settled_i[k1b[sel]]), min(sel.size, mpt_repeats), int(sel.size)))
+    if not k0.size:
+        return mts
+    bprev = band_of_pose[st.pose[k0]]
+    okb = np.isfinite(bprev) & (settled_i[k1] >= 0)
+    k0b, k1b = k0[okb], k1[okb]
+    leave = settle["region"].leave(st.i_center[k0b], st.i_phase_start[k1b] - 1)
+    okl = leave >= 0
+    k0b, k1b, leave = k0b[okl], k1b[okl], leave[okl]
+    times = t[settled_i[k1b]] - t[leave]
+    pairs = st.pose[k0b] * P + st.pose[k1b]
+    for pr in np.unique(pairs):  # loop over moves
+        sel = np.flatnonzero(pairs == pr)
+        fa, fb = names[pr // P], names[pr % P]
+        mpt = float(np.mean(times[sel[:mpt_repeats]])) if sel.size >= mpt_repeats else None
+        if mpt is None:
+            run.warn(f"MPT {fa}->{fb}: needs {mpt_repeats} posing times, got {sel.size}")
+        mts.append(PosingTime(fa, fb, mpt, times[sel], ex.to_rows(leave[sel]),
+                              ex.to_rows(settled_i[k1b[sel]]), min(sel.size, mpt_repeats), int(sel.size)))
+    return mts
 
-    del reg
+
+def _stage_paths(run: _Stages, k0, k1, linear_paths, n_planes: int) -> list:
+    """Path accuracy and repeatability AT/RT of the moves commanded as straight lines."""
+    st, cmd, xyz, P, names = run.st, run.cmd, run.xyz, run.P, run.names
     paths = []
-    if linear_paths:
-        if linear_paths is True:
-            want = None
+    if not linear_paths:
+        return paths
+    if linear_paths is True:
+        want = None
+    else:
+        want = set()
+        for fa, fb in linear_paths:
+            for q in (fa, fb):
+                if q not in names:
+                    raise ConfigError(f"linear path names unknown pose {q!r}")
+            want.add(names.index(fa) * P + names.index(fb))
+    if not k0.size:
+        return paths
+    pairs = st.pose[k0] * P + st.pose[k1]
+    ok = np.ones(k0.size, bool) if want is None else np.isin(pairs, list(want))
+    upairs = np.unique(pairs[ok])
+    A = cmd[st.pose[k0[ok]]]
+    B = cmd[st.pose[k1[ok]]]
+    L = np.linalg.norm(B - A, axis=1)
+    unit = (B - A) / np.maximum(L, 1e-12)[:, None]
+    frac = np.arange(1, n_planes + 1) / (n_planes + 1)
+    s_pl_all = L[:, None] * frac[None, :]
+    # the traversals: from the start of the move to the attained end pose
+    kk1 = k1[ok]
+    cross = path_crossings(xyz, st.i_move_start[kk1], st.i_center[kk1], A, unit, s_pl_all)
+    for pr in upairs:  # loop over moves
+        m = np.flatnonzero(pairs[ok] == pr)
+        s_pl = s_pl_all[m[0]]
+        good = ~np.isnan(cross[m]).any(axis=(1, 2))
+        fa, fb = names[pr // P], names[pr % P]
+        if good.sum() < 1:
+            run.warn(f"AT/RT {fa}->{fb}: no traversal crosses every plane", partial=True)
+            continue
+        cm = cross[m][good]
+        bary = cm.mean(axis=0)  # (m, 3)
+        cpt = A[m[0]][None, :] + s_pl[:, None] * unit[m[0]][None, :]
+        at_i = np.linalg.norm(bary - cpt, axis=1)
+        if cm.shape[0] >= 2:
+            l = np.linalg.norm(cm - bary[None], axis=2)  # (n, m)
+            rt_i = l.mean(axis=0) + 3 * l.std(axis=0, ddof=1)
+            RT = float(rt_i.max())
         else:
-            want = set()
-            for fa, fb in linear_paths:
-                for q in (fa, fb):
-                    if q not in names:
-                        raise ConfigError(f"linear path names unknown pose {q!r}")
-                want.add(names.index(fa) * P + names.index(fb))
-        if k0.size:
-            pairs = st.pose[k0] * P + st.pose[k1]
-            ok = np.ones(k0.size, bool) if want is None else np.isin(pairs, list(want))
-            upairs = np.unique(pairs[ok])
-            A = cmd[st.pose[k0[ok]]]
-            B = cmd[st.pose[k1[ok]]]
-            L = np.linalg.norm(B - A, axis=1)
-            unit = (B - A) / np.maximum(L, 1e-12)[:, None]
-            frac = np.arange(1, n_planes + 1) / (n_planes + 1)
-            s_pl_all = L[:, None] * frac[None, :]
-            # the traversals: from the start of the move to the attained end pose
-            kk1 = k1[ok]
-            cross = path_crossings(xyz, st.i_move_start[kk1], st.i_center[kk1], A, unit, s_pl_all)
-            for pr in upairs:  # loop over moves
-                m = np.flatnonzero(pairs[ok] == pr)
-                s_pl = s_pl_all[m[0]]
-                good = ~np.isnan(cross[m]).any(axis=(1, 2))
-                fa, fb = names[pr // P], names[pr % P]
-                if good.sum() < 1:
-                    warnings.append(f"AT/RT {fa}->{fb}: no traversal crosses every plane")
-                    partial = True
-                    continue
-                cm = cross[m][good]
-                bary = cm.mean(axis=0)  # (m, 3)
-                cpt = A[m[0]][None, :] + s_pl[:, None] * unit[m[0]][None, :]
-                at_i = np.linalg.norm(bary - cpt, axis=1)
-                if cm.shape[0] >= 2:
-                    l = np.linalg.norm(cm - bary[None], axis=2)  # (n, m)
-                    rt_i = l.mean(axis=0) + 3 * l.std(axis=0, ddof=1)
-                    RT = float(rt_i.max())
-                else:
-                    rt_i = np.full(n_planes, np.nan)
-                    RT = None
-                    warnings.append(f"RT {fa}->{fb}: needs 2 traversals, got 1")
-                    partial = True
-                paths.append(PathAR(fa, fb, float(at_i.max()), RT, s_pl, at_i, rt_i, int(cm.shape[0]),
-                                    st.row[k0[ok][m][good]], st.row[k1[ok][m][good]]))
+            rt_i = np.full(n_planes, np.nan)
+            RT = None
+            run.warn(f"RT {fa}->{fb}: needs 2 traversals, got 1", partial=True)
+        paths.append(PathAR(fa, fb, float(at_i.max()), RT, s_pl, at_i, rt_i, int(cm.shape[0]),
+                            st.row[k0[ok][m][good]], st.row[k1[ok][m][good]]))
+    return paths
 
-    # --- extraction problems make the result partial
+
+def _stage_extraction_problems(run: _Stages) -> None:
+    """Missing stops, failed phases and out-of-order stops make the result partial."""
+    ex, st = run.ex, run.st
     if ex.missing:
-        partial = True
-        warnings.append(f"{len(ex.missing)} commanded stop(s) missing (see extraction.missing)")
+        run.warn(f"{len(ex.missing)} commanded stop(s) missing (see extraction.missing)", partial=True)
     if ex.failed_phases:
-        partial = True
-        warnings.append(f"{len(ex.failed_phases)} deceleration phase(s) gave no attained pose")
-    n_oos = int(np.count_nonzero(st.status == 2))
+        run.warn(f"{len(ex.failed_phases)} deceleration phase(s) gave no attained pose", partial=True)
+    n_oos = int(np.count_nonzero(st.status == StopStatus.OUT_OF_SEQUENCE))
     if n_oos:
-        partial = True
-        warnings.append(f"{n_oos} stop(s) near a pose but out of the commanded order (left out)")
-    n_gaps = ex.gaps.n
-    if n_gaps:
-        warnings.append(f"{n_gaps} gap(s) in the stream, {int(ex.gaps.splits.sum())} beam break(s)")
+        run.warn(f"{n_oos} stop(s) near a pose but out of the commanded order (left out)", partial=True)
+    if ex.gaps.n:
+        run.warn(f"{ex.gaps.n} gap(s) in the stream, {int(ex.gaps.splits.sum())} beam break(s)")
 
-    verdicts = _verdicts(lim, poses, dists, mts, paths)
-    if any(v.passed is None for v in verdicts):
-        partial = True
-    iso_ok = (not partial) and all(pr.n_cycles >= ISO_CYCLES for pr in poses.values())
-    return Iso9283Result(
-        poses=poses, distances=tuple(dists), posing_times=tuple(mts), paths=tuple(paths), extraction=ex,
-        verdicts=tuple(verdicts), limits=lim, warnings=tuple(warnings), partial=bool(partial),
-        iso_conformant=bool(iso_ok), stream_span_s=(float(t[0]), float(t[-1])),
-    )
+
+def conformance_text(reasons) -> str:
+    """``ISO 9283 conformant: yes``, or ``... no: `` and every reason."""
+    return "ISO 9283 conformant: " + ("yes" if not reasons else "no: " + "; ".join(reasons))
+
+
+def iso_conformance_reasons(poses: dict, ex: Extraction, verdicts, limits: dict | None = None) -> list[str]:
+    """Why a run is not ISO 9283 conformant, one sentence each (empty: it is).
+
+    Conformant means: every pose attained in at least :data:`ISO_CYCLES`
+    cycles, no commanded stop missing, no stop out of the commanded order,
+    and every asked limit decided (a limit of a characteristic that was not
+    computed at all, e.g. AT without a linear path, is named too).
+    """
+    reasons = []
+    short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
+    if short:
+        reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
+    if ex.missing:
+        by_pose: dict[str, list[int]] = {}
+        for m in ex.missing:
+            by_pose.setdefault(m.pose, []).append(m.cycle)
+        reasons.append("missing stops: " + "; ".join(
+            f"{pose} in cycle(s) {', '.join(str(c) for c in cycles)}" for pose, cycles in sorted(by_pose.items()))
+            + " (cycles counted from 0, as in the stop table)")
+    n_oos = int(np.count_nonzero(ex.stops.status == StopStatus.OUT_OF_SEQUENCE))
+    if n_oos:
+        reasons.append(f"{n_oos} stop(s) out of the commanded order")
+    if ex.failed_phases:
+        reasons.append(f"{len(ex.failed_phases)} deceleration phase(s) gave no attained pose")
+    undecided = [f"{v.characteristic} {v.subject}" + (f" ({v.note})" if v.note else "")
+                 for v in verdicts if v.passed is None]
+    if undecided:
+        reasons.append("limit(s) not decided: " + "; ".join(undecided))
+    unevaluated = sorted(set(limits or {}) - {v.characteristic for v in verdicts})
+    if unevaluated:
+        reasons.append("limit(s) given for characteristics this analysis did not compute: " + ", ".join(unevaluated))
+    return reasons
 
 
 def _break_indices(ex: Extraction) -> np.ndarray:
@@ -1159,6 +1257,7 @@ def _result_to_dict(r: Iso9283Result) -> dict:
         "passed": r.passed,
         "partial": r.partial,
         "iso_conformant": r.iso_conformant,
+        "iso_reasons": list(r.iso_reasons),
         "warnings": list(r.warnings),
         "stream": {
             "n_rows": ex.n_rows, "n_used": ex.n_used, "n_invalid": ex.n_rows - ex.n_used,

@@ -51,6 +51,8 @@ the results are rows of the stream as given (0-based, header excluded).
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,11 +60,20 @@ import numpy as np
 from station.errors import DataError, InsufficientDataError
 
 #: stop status codes (``Stops.status``)
-STATUS_ASSIGNED = 0
-STATUS_UNASSIGNED = 1  # farther than assign_tol_mm from every commanded pose
-STATUS_OUT_OF_SEQUENCE = 2  # near a pose, but not where the commanded order allows
-STATUS_NOT_IN_ORDER = 3  # near a pose that the commanded order never visits
-STATUS_NAMES = ("assigned", "unassigned", "out_of_sequence", "not_in_order")
+class StopStatus(IntEnum):
+    """What became of a detected stop."""
+
+    ASSIGNED = 0
+    UNASSIGNED = 1  # farther than assign_tol_mm from every commanded pose
+    OUT_OF_SEQUENCE = 2  # near a pose, but not where the commanded order allows
+    NOT_IN_ORDER = 3  # near a pose that the commanded order never visits
+
+
+STATUS_ASSIGNED = StopStatus.ASSIGNED
+STATUS_UNASSIGNED = StopStatus.UNASSIGNED
+STATUS_OUT_OF_SEQUENCE = StopStatus.OUT_OF_SEQUENCE
+STATUS_NOT_IN_ORDER = StopStatus.NOT_IN_ORDER
+STATUS_NAMES = tuple(s.name.lower() for s in StopStatus)
 
 #: accepted sampling rates, Hz (with a little slack for clock jitter)
 RATE_RANGE_HZ = (10.0, 3000.0)

@@ -306,6 +306,8 @@ def _n(x, fmt="{:.3f}"):
 
 def format_table(res, stream_name="stream") -> str:
     """Human-readable summary of an :class:`Iso9283Result`."""
+    from station.analysis.iso9283 import conformance_text
+
     ex = res.extraction
     st = ex.stops
     lines = [
@@ -357,6 +359,7 @@ def format_table(res, stream_name="stream") -> str:
         lines.append(f"warning: {w}")
     if res.partial:
         lines.append("PARTIAL RESULT: some characteristics or stops are missing (see warnings)")
+    lines.append(conformance_text(res.iso_reasons))
     return "\n".join(lines)
 
 

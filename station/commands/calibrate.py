@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.analysis.trailer_better import estimate_trailer
+from station.analysis.trailer_estimate import estimate_trailer
 from station.errors import ConfigError, DataError
 
 TRAILER_COLUMNS = ("t", "kappa", "psi")

@@ -242,3 +242,25 @@ def test_json_keys_verdicts_and_partial_results(rng):
     assert all(v.passed is None and v.value is None for v in r1.verdicts)
     with pytest.raises(ConfigError, match="unknown limit 'RPP_mm'"):
         analyze_iso9283(s.t, s.xyz, CMD, limits={"RPP_mm": 1})
+
+
+def test_the_reasons_a_run_is_not_iso_conformant_are_named(rng):
+    """Fewer cycles, a skipped stop and an undecidable limit each give their own reason; a clean 30-cycle run none."""
+    from station.analysis.iso9283 import conformance_text
+
+    n = int(rng.integers(4, 9))
+    cyc, p = int(rng.integers(1, n - 1)), int(rng.integers(1, 5))  # a stop in the middle of the run
+    s = iso_stream(rng, n_cycles=n, rate_hz=RATE, skip=((cyc, p),), **SERVO)
+    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, limits={"RP_mm": 10.0, "vAP_mm": 1.0, "AT_mm": 1.0})
+    assert not res.iso_conformant and len(res.iso_reasons) == 4, res.iso_reasons
+    short, missing, undecided, not_computed = res.iso_reasons
+    counts = {name: res.poses[name].n_cycles for name in NAMES5}
+    assert short == "fewer than 30 cycles at " + ", ".join(f"{k} {v}" for k, v in counts.items())
+    assert missing.startswith(f"missing stops: {NAMES5[p]} in cycle(s) {cyc} ")
+    assert undecided.startswith("limit(s) not decided: vAP_mm P1 (1 approach direction(s), 3 needed)")
+    assert not_computed == "limit(s) given for characteristics this analysis did not compute: AT_mm"
+    assert conformance_text(res.iso_reasons).startswith("ISO 9283 conformant: no: fewer than 30 cycles")
+    assert res.to_dict()["iso_reasons"] == list(res.iso_reasons)
+    full = iso_stream(rng, n_cycles=30, rate_hz=RATE, **SERVO)
+    ok = analyze_iso9283(full.t, full.xyz, CMD, names=NAMES5, limits={"RP_mm": 10.0})
+    assert ok.iso_conformant and ok.iso_reasons == () and conformance_text(ok.iso_reasons) == "ISO 9283 conformant: yes"

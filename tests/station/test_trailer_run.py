@@ -66,7 +66,7 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
     params = {"plan": plan_params(plan), "report_dir": str(tmp_path / "r")}
     try:
         control = RunControl()
-        session = TrailerSession(DeviceSet(urls={"odometry": fake.endpoint["device"]}))
+        session = TrailerSession(DeviceSet(urls={"odometry": f"nmea://{fake.endpoint['device']}"}))
         runner = Runner(store, build_procedure(plan), control=control, session=session)
         done = threading.Event()
 
@@ -92,7 +92,7 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
         assert out.status == "aborted"
         kept = store.sample_count("a1", "odometry")
         assert kept > store.sample_count("a1", "odometry", finished_only=True)  # the aborted attempt's samples stay
-        session = TrailerSession(DeviceSet(urls={"odometry": fake.endpoint["device"]}))
+        session = TrailerSession(DeviceSet(urls={"odometry": f"nmea://{fake.endpoint['device']}"}))
         out = Runner(store, build_procedure(plan), session=session).resume("a1")
         session.close()
         assert out.status == "done", out.error

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from fakes.sim.trailer import record_commands
-from station.analysis.trailer_better import (
+from station.analysis.trailer_estimate import (
     estimate_dynamic, estimate_odr, estimate_trailer, fit_dynamic, fit_dynamic_instrumented, fit_odr,
 )
 from station.analysis.trailer_ls import (
