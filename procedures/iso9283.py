@@ -493,7 +493,9 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None):
     """Both analyses of the procedure's data (pure: arrays in, results out)."""
     names = list(plan.poses_mm)
     commanded = np.array([plan.poses_mm[n] for n in names])
-    main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=plan.limits,
+    # vAP is judged on the multi-directional cycles (below), not on the single-direction pose cycles
+    main_limits = {k: v for k, v in plan.limits.items() if k != "vAP_mm"}
+    main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=main_limits,
                            band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles))
     vap = None
     if vap_t is not None and len(vap_t):

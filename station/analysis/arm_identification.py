@@ -1,0 +1,407 @@
+"""Kinematic identification of an arm (seed 002 section 3): which parameters, and their values.
+
+Two formulations, both solved by Levenberg-Marquardt on the analytic
+parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8)):
+
+``distance``
+    Seed 002 eq. (9)-(16): the distance between two measured tool points
+    equals the distance between the modelled ones, whatever the unknown
+    transform between robot and instrument. The seed linearises the squared
+    distance, eq. (13)-(14), and solves the normal equations, eq. (16), with
+    the first pose as the only partner. Here the residual is the distance
+    itself, ``r = ||P_k - P_j||_measured - ||P_k(x) - P_j(x)||``, with the
+    exact Jacobian ``u^T (J_k - J_j)`` (``u`` the unit vector from ``P_j`` to
+    ``P_k``), iterated to convergence, and every pair of training poses
+    contributes (not only pairs with the first pose): ``K(K-1)/2`` distances
+    instead of ``K - 1`` for ``K`` training poses, which is what makes the
+    identified model generalise to poses it never saw.
+
+``absolute``
+    The measured points are the modelled ones in the instrument frame,
+    ``P_meas = R P(x) + t``; the base transform ``(R, t)`` (6 parameters, a
+    rotation vector and a translation) is identified with the kinematics.
+
+Identifiability is decided before iterating, explicitly:
+
+* parallel consecutive axes (``alpha`` of 0 or +-180 deg) take the Hayati
+  ``beta`` in place of ``d`` (seed 002 eq. (3)); elsewhere ``beta`` is fixed;
+* the remaining columns of the column-scaled identification Jacobian are
+  taken in a preferred order and a column is kept only if it is not (to a
+  relative 1e-6) a combination of the ones kept before it; what is dropped
+  (zero columns, and redundancies such as seed 002 Table 3's bold entries) is
+  fixed at its starting value and named with the reason;
+* the SVD of the scaled Jacobian of what is kept gives the rank, the
+  condition number and the observability indices, and the residuals give
+  the parameters' 1-sigma uncertainties (``s^2 (J^T J)^-1``).
+
+Units: mm and rad inside (``dh`` rows ``[a, alpha, d, theta, beta]``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from station.errors import DataError, InsufficientDataError
+from station.models import kinematics as kin
+
+__all__ = [
+    "BASE_NAMES", "Identifiability", "IdentificationResult", "analyse_identifiability", "identify",
+    "distance_pairs", "rigid_fit", "model_positions",
+]
+
+#: names of the base-transform parameters of the absolute formulation
+BASE_NAMES = ("base_rx", "base_ry", "base_rz", "base_tx", "base_ty", "base_tz")
+#: a column is redundant when less than this fraction of it lies outside the span of the kept ones
+REDUNDANCY_TOL = 1e-6
+#: consecutive axes closer than this to parallel use beta in place of d
+PARALLEL_TOL_RAD = math.radians(5.0)
+_ANGLE = np.array([False, True, False, True, True])  # alpha, theta, beta are angles
+
+
+def _is_angle(index: int) -> bool:
+    return bool(_ANGLE[index % 5]) if index < kin.N_PARAMS else index - kin.N_PARAMS < 3
+
+
+def _name(index: int) -> str:
+    return kin.PARAM_NAMES[index] if index < kin.N_PARAMS else BASE_NAMES[index - kin.N_PARAMS]
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Which parameters are identified, which are fixed and why, and how well the data see them.
+
+    Attributes
+    ----------
+    free : ndarray of int
+        Indices of the identified parameters (0..34 kinematic, 35..40 base).
+    fixed : dict
+        ``name -> reason`` of every parameter kept at its starting value.
+    singular_values : ndarray
+        Of the column-scaled Jacobian of the free parameters (descending).
+    condition_number : float
+    observability : dict
+        ``O1`` (geometric mean of the singular values over sqrt(m), Borm-Menq),
+        ``O3`` (smallest singular value), ``O4`` (noise amplification index
+        ``s_min^2 / s_max``).
+    """
+
+    free: np.ndarray
+    fixed: dict
+    singular_values: np.ndarray
+    condition_number: float
+    observability: dict
+
+    @property
+    def names(self) -> list[str]:
+        return [_name(i) for i in self.free]
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Outcome of :func:`identify` (not converging is a status, not an exception)."""
+
+    dh: np.ndarray                 # (7, 5) identified model
+    base_T: np.ndarray | None      # (4, 4) instrument <- robot base (absolute method)
+    identifiability: Identifiability
+    sigma: dict                    # name -> 1-sigma, in file units (mm, deg)
+    rmse_per_iteration: list       # training residual RMS, mm (first: the starting model)
+    iterations: int
+    converged: bool
+    message: str
+    residual_rms_mm: float
+    elapsed_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def model_positions(dh, q_rad) -> np.ndarray:
+    return kin.tool_position(dh, q_rad)
+
+
+def rigid_fit(src_mm: np.ndarray, dst_mm: np.ndarray) -> np.ndarray:
+    """The rigid transform ``T`` (4, 4) with ``dst ~ R src + t`` in the least-squares sense (Kabsch)."""
+    a, b = np.asarray(src_mm, float), np.asarray(dst_mm, float)
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    H = (a - ca).T @ (b - cb)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = cb - R @ ca
+    return T
+
+
+def distance_pairs(n: int, *, max_partners: int = 60, seed: int = 0) -> np.ndarray:
+    """Pairs ``(j, k)`` of training poses for the distance formulation, shape (M, 2).
+
+    Every pair for up to ``max_partners + 1`` poses; beyond that each pose is
+    paired with ``max_partners`` others drawn without repetition (so the
+    problem grows linearly with the number of poses).
+    """
+    if n < 2:
+        return np.zeros((0, 2), np.int64)
+    if n <= max_partners + 1:
+        j, k = np.triu_indices(n, 1)
+        return np.column_stack([j, k])
+    rng = np.random.default_rng(seed)
+    j = np.repeat(np.arange(n), max_partners)
+    k = (j + 1 + np.concatenate([rng.choice(n - 1, max_partners, replace=False) for _ in range(n)])) % n
+    pairs = np.sort(np.column_stack([j, k]), axis=1)
+    return np.unique(pairs, axis=0)
+
+
+# --------------------------------------------------------------------------
+# residuals and Jacobians of the two formulations
+# --------------------------------------------------------------------------
+def _distance_problem(dh, q, meas, pairs):
+    T, J = kin.fk_and_param_jacobian(dh, q)
+    p = T[:, :3, 3]
+    d_model = p[pairs[:, 1]] - p[pairs[:, 0]]
+    L_model = np.linalg.norm(d_model, axis=1)
+    L_meas = np.linalg.norm(meas[pairs[:, 1]] - meas[pairs[:, 0]], axis=1)
+    u = d_model / np.maximum(L_model, 1e-12)[:, None]
+    Jd = np.einsum("mi,mij->mj", u, J[pairs[:, 1]] - J[pairs[:, 0]])
+    return L_meas - L_model, Jd
+
+
+def _base_T(x_base: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(x_base[:3]).as_matrix()
+    T[:3, 3] = x_base[3:]
+    return T
+
+
+def _absolute_problem(dh, x_base, q, meas):
+    T, J = kin.fk_and_param_jacobian(dh, q)
+    p = T[:, :3, 3]
+    B = _base_T(x_base)
+    R = B[:3, :3]
+    pw = p @ R.T + B[:3, 3]
+    r = (meas - pw).reshape(-1)
+    n = q.shape[0]
+    Jk = np.einsum("ab,nbj->naj", R, J)  # (n, 3, 35)
+    Jb = np.zeros((n, 3, 6))
+    # a small rotation w applied on the left: d(R p) = w x (R p)
+    Rp = p @ R.T
+    Jb[:, 0, 1], Jb[:, 0, 2] = Rp[:, 2], -Rp[:, 1]
+    Jb[:, 1, 0], Jb[:, 1, 2] = -Rp[:, 2], Rp[:, 0]
+    Jb[:, 2, 0], Jb[:, 2, 1] = Rp[:, 1], -Rp[:, 0]
+    Jb[:, :, 3:] = np.eye(3)
+    Jfull = np.concatenate([Jk, Jb], axis=2).reshape(3 * n, -1)
+    return r, Jfull
+
+
+def _update_base(x_base: np.ndarray, step: np.ndarray) -> np.ndarray:
+    R = Rotation.from_rotvec(step[:3]) * Rotation.from_rotvec(x_base[:3])
+    out = np.empty(6)
+    out[:3] = R.as_rotvec()
+    out[3:] = x_base[3:] + step[3:]
+    return out
+
+
+# --------------------------------------------------------------------------
+# identifiability
+# --------------------------------------------------------------------------
+def _structural(dh: np.ndarray) -> dict:
+    """Parameters fixed by the model's structure (Hayati's beta only where axes are parallel)."""
+    fixed = {}
+    for i in range(kin.N_JOINTS - 1):  # rows whose twist is between two joint axes
+        alpha = float(dh[i, 1])
+        parallel = abs(math.sin(alpha)) < math.sin(PARALLEL_TOL_RAD)
+        if parallel:
+            fixed[kin.PARAM_NAMES[5 * i + 2]] = f"axes {i + 1} and {i + 2} parallel: beta replaces d (eq. (3))"
+        else:
+            fixed[kin.PARAM_NAMES[5 * i + 4]] = "axes not parallel: beta is used only for parallel axes"
+    fixed[kin.PARAM_NAMES[5 * 5 + 4]] = "flange row: beta is used only between parallel joint axes"
+    fixed[kin.PARAM_NAMES[5 * 6 + 4]] = "tool row: beta does not move the tool point"
+    return fixed
+
+
+def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params: int,
+                            order: list[int] | None = None) -> Identifiability:
+    """Decide the identified parameters from the Jacobian ``J`` (m, n_params) at the start.
+
+    ``n_kin_start_fixed`` names parameters fixed beforehand (structure).
+    Columns are scaled to unit norm and taken in ``order``; a column is kept
+    when more than :data:`REDUNDANCY_TOL` of it lies outside the span of the
+    kept ones.
+    """
+    m = J.shape[0]
+    norms = np.linalg.norm(J, axis=0)
+    # a column this much smaller than the largest is numerically zero (e.g. theta1 in the distances)
+    norms = np.where(norms < 1e-9 * max(float(norms.max()), 1e-300), 0.0, norms)
+    fixed = dict(n_kin_start_fixed)
+    order = list(range(n_params)) if order is None else order
+    kept: list[int] = []
+    Q = np.zeros((m, 0))
+    for j in order:
+        name = _name(j)
+        if name in fixed:
+            continue
+        if norms[j] == 0.0 or not np.isfinite(norms[j]):
+            fixed[name] = "no effect on the measurements (zero column)"
+            continue
+        c = J[:, j] / norms[j]
+        r = c - Q @ (Q.T @ c)
+        r = r - Q @ (Q.T @ r)  # re-orthogonalise
+        rn = float(np.linalg.norm(r))
+        if rn < REDUNDANCY_TOL:
+            # name the kept parameters it is a combination of (largest coefficients)
+            coef = np.linalg.lstsq(J[:, kept] / norms[kept], c, rcond=None)[0] if kept else np.zeros(0)
+            big = [_name(kept[i]) for i in np.argsort(-np.abs(coef))[:3] if abs(coef[i]) > 1e-3]
+            fixed[name] = "redundant with " + (", ".join(big) if big else "the other parameters")
+            continue
+        kept.append(j)
+        Q = np.column_stack([Q, r / rn])
+    free = np.array(sorted(kept), dtype=np.int64)
+    if free.size == 0:
+        raise InsufficientDataError("no parameter is identifiable from these poses")
+    Js = J[:, free] / norms[free]
+    s = np.linalg.svd(Js, compute_uv=False)
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    obs = {"O1": float(np.prod(s ** (1.0 / s.size)) / math.sqrt(m)), "O3": float(s[-1]),
+           "O4": float(s[-1] ** 2 / s[0])}
+    return Identifiability(free, fixed, s, cond, obs)
+
+
+def _kin_order() -> list[int]:
+    """Preferred order of the kinematic parameters: joint rows in order, per row theta, alpha, a, d, beta."""
+    per_row = (3, 1, 0, 2, 4)
+    return [5 * r + c for r in range(kin.N_ROWS) for c in per_row]
+
+
+# --------------------------------------------------------------------------
+# identification
+# --------------------------------------------------------------------------
+def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=None, base_T_start=None,
+             max_iter: int = 50, tol: float = 1e-9, fixed_extra: dict | None = None) -> IdentificationResult:
+    """Identify the kinematic parameters (and the base transform) from measured tool points.
+
+    Parameters
+    ----------
+    dh_start : array_like, shape (7, 5)
+        Starting model (nominal), mm and rad.
+    q_rad : array_like, shape (N, 6)
+        Joint angles of the measured poses.
+    measured_mm : array_like, shape (N, 3)
+        Measured tool points in the instrument frame.
+    method : ``"distance"`` or ``"absolute"``
+    pairs : array_like of int, shape (M, 2), optional
+        Distance pairs (default :func:`distance_pairs` over all poses).
+    base_T_start : array_like, shape (4, 4), optional
+        Starting instrument <- base transform (absolute; default a rigid fit
+        of the nominal points to the measured ones).
+    max_iter, tol
+        Iteration limit and relative cost change at which it has converged.
+    fixed_extra : dict, optional
+        ``name -> reason`` of further parameters to hold fixed.
+
+    Returns
+    -------
+    IdentificationResult
+    """
+    t0 = time.perf_counter()
+    if method not in ("distance", "absolute"):
+        raise DataError(f"`method` must be 'distance' or 'absolute', got {method!r}")
+    dh = kin.validate_dh(dh_start).copy()
+    if dh.shape != (kin.N_ROWS, 5):
+        raise DataError(f"`dh_start` must have shape (7, 5), got {dh.shape}")
+    q = np.asarray(q_rad, dtype=float)
+    meas = np.asarray(measured_mm, dtype=float)
+    if q.ndim != 2 or q.shape[1] != kin.N_JOINTS:
+        raise DataError(f"`q_rad` must have shape (N, 6), got {q.shape}")
+    if meas.shape != (q.shape[0], 3):
+        raise DataError(f"`measured_mm` must have shape ({q.shape[0]}, 3), got {meas.shape}")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(meas))):
+        raise DataError("joint angles and measured points must be finite")
+    n = q.shape[0]
+    if method == "distance":
+        pairs = distance_pairs(n) if pairs is None else np.asarray(pairs, dtype=np.int64)
+        if pairs.ndim != 2 or pairs.shape[1] != 2 or pairs.size == 0 or pairs.min() < 0 or pairs.max() >= n:
+            raise DataError(f"`pairs` must be (M, 2) pose indices in 0..{n - 1}")
+        n_p = kin.N_PARAMS
+        x_base = None
+        r, J = _distance_problem(dh, q, meas, pairs)
+        order = _kin_order()
+    else:
+        n_p = kin.N_PARAMS + 6
+        B0 = rigid_fit(model_positions(dh, q), meas) if base_T_start is None else np.asarray(base_T_start, float)
+        x_base = np.concatenate([Rotation.from_matrix(B0[:3, :3]).as_rotvec(), B0[:3, 3]])
+        r, J = _absolute_problem(dh, x_base, q, meas)
+        order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
+    fixed0 = _structural(dh)
+    fixed0.update(fixed_extra or {})
+    ident = analyse_identifiability(J, fixed0, n_params=n_p, order=order)
+    free = ident.free
+    m = r.size
+    if m < free.size + 1:
+        raise InsufficientDataError(
+            f"{m} residuals for {free.size} parameters: give more poses ({method} needs more measurements "
+            f"than identified parameters)")
+
+    def evaluate(dh_, xb_):
+        return _distance_problem(dh_, q, meas, pairs) if method == "distance" else _absolute_problem(dh_, xb_, q, meas)
+
+    def apply(dh_, xb_, step_free):
+        full = np.zeros(n_p)
+        full[free] = step_free
+        dh_new = dh_ + full[:kin.N_PARAMS].reshape(kin.N_ROWS, 5)
+        xb_new = _update_base(xb_, full[kin.N_PARAMS:]) if xb_ is not None else None
+        return dh_new, xb_new
+
+    cost = float(r @ r)
+    rmse = [math.sqrt(cost / m)]
+    lam = 1e-3
+    converged = False
+    message = "iteration limit reached"
+    it = 0
+    for it in range(1, max_iter + 1):
+        Jf = J[:, free]
+        scale = np.linalg.norm(Jf, axis=0)
+        scale[scale == 0] = 1.0
+        Js = Jf / scale
+        A = Js.T @ Js
+        g = Js.T @ r
+        improved = False
+        for _ in range(12):
+            step_s = np.linalg.solve(A + lam * np.diag(np.diag(A)), g)
+            dh_try, xb_try = apply(dh, x_base, step_s / scale)
+            r_try, J_try = evaluate(dh_try, xb_try)
+            c_try = float(r_try @ r_try)
+            if np.isfinite(c_try) and c_try <= cost:
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            converged = True
+            message = "converged: no step lowers the cost further"
+            break
+        rel = (cost - c_try) / max(cost, 1e-300)
+        dh, x_base, r, J, cost = dh_try, xb_try, r_try, J_try, c_try
+        rmse.append(math.sqrt(cost / m))
+        lam = max(lam / 10.0, 1e-12)
+        if rel < tol:
+            converged = True
+            message = f"converged: relative cost change {rel:.1e} < {tol:g}"
+            break
+    # uncertainties from the residuals at the solution
+    Jf = J[:, free]
+    dof = max(m - free.size, 1)
+    s2 = cost / dof
+    try:
+        cov = s2 * np.linalg.pinv(Jf.T @ Jf)
+        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        sd = np.full(free.size, np.nan)
+    sigma = {}
+    for k, i in enumerate(free):
+        v = float(sd[k])
+        sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
+    base_T = _base_T(x_base) if x_base is not None else None
+    return IdentificationResult(dh, base_T, ident, sigma, rmse, it, converged, message, math.sqrt(cost / m),
+                                time.perf_counter() - t0, {"n_residuals": m, "method": method})
