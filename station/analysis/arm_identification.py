@@ -207,8 +207,15 @@ def _update_base(x_base: np.ndarray, step: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------
 # identifiability
 # --------------------------------------------------------------------------
-def _structural(dh: np.ndarray) -> dict:
-    """Parameters fixed by the model's structure (Hayati's beta only where axes are parallel)."""
+def _structural(dh: np.ndarray, use_beta: bool = True) -> dict:
+    """Parameters fixed by the model's structure (Hayati's beta only where axes are parallel).
+
+    ``use_beta=False`` keeps the plain DH model (every beta fixed), as a UR
+    controller's calibration deltas need; redundant ``d`` of parallel axes
+    are then left to the redundancy analysis.
+    """
+    if not use_beta:
+        return {kin.PARAM_NAMES[5 * i + 4]: "plain DH model asked (no beta)" for i in range(kin.N_ROWS)}
     fixed = {}
     for i in range(kin.N_JOINTS - 1):  # rows whose twist is between two joint axes
         alpha = float(dh[i, 1])
@@ -279,7 +286,8 @@ def _kin_order() -> list[int]:
 # identification
 # --------------------------------------------------------------------------
 def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=None, base_T_start=None,
-             max_iter: int = 50, tol: float = 1e-9, fixed_extra: dict | None = None) -> IdentificationResult:
+             max_iter: int = 50, tol: float = 1e-9, fixed_extra: dict | None = None,
+             use_beta: bool = True) -> IdentificationResult:
     """Identify the kinematic parameters (and the base transform) from measured tool points.
 
     Parameters
@@ -300,6 +308,9 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         Iteration limit and relative cost change at which it has converged.
     fixed_extra : dict, optional
         ``name -> reason`` of further parameters to hold fixed.
+    use_beta : bool
+        Hayati's beta for parallel joint axes (default); False for a plain DH
+        model (UR calibration deltas).
 
     Returns
     -------
@@ -334,7 +345,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         x_base = np.concatenate([Rotation.from_matrix(B0[:3, :3]).as_rotvec(), B0[:3, 3]])
         r, J = _absolute_problem(dh, x_base, q, meas)
         order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
-    fixed0 = _structural(dh)
+    fixed0 = _structural(dh, use_beta)
     fixed0.update(fixed_extra or {})
     ident = analyse_identifiability(J, fixed0, n_params=n_p, order=order)
     free = ident.free
@@ -356,6 +367,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
 
     cost = float(r @ r)
     rmse = [math.sqrt(cost / m)]
+    history = [(dh.copy(), None if x_base is None else x_base.copy())]
     lam = 1e-3
     converged = False
     message = "iteration limit reached"
@@ -384,6 +396,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         rel = (cost - c_try) / max(cost, 1e-300)
         dh, x_base, r, J, cost = dh_try, xb_try, r_try, J_try, c_try
         rmse.append(math.sqrt(cost / m))
+        history.append((dh.copy(), None if x_base is None else x_base.copy()))
         lam = max(lam / 10.0, 1e-12)
         if rel < tol:
             converged = True
@@ -404,4 +417,6 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, rmse, it, converged, message, math.sqrt(cost / m),
-                                time.perf_counter() - t0, {"n_residuals": m, "method": method})
+                                time.perf_counter() - t0,
+                                {"n_residuals": m, "method": method,
+                                 "history": [(h, None if xb is None else _base_T(xb)) for h, xb in history]})

@@ -140,6 +140,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ignore a kappa_cmd column (method dynamic uses it as an instrument)")
     t.add_argument("--json", metavar="OUT", help="write the result as JSON")
     t.set_defaults(func=_trailer)
+    from station.commands.calibrate_arm import add_parser as add_arm
+
+    add_arm(csub)
 
 
 def _trailer(args: argparse.Namespace) -> int:

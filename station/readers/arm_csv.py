@@ -1,0 +1,122 @@
+"""The arm measurement CSV: ``q1..q6`` (deg), ``x,y,z`` (mm, instrument frame), optional
+``t`` (s), ``temperature`` (degC), ``load`` (kg); one row per measured pose, in measurement order.
+
+Read line by line with an explicit encoding and bounded lines and fields;
+anything it cannot read is refused with the file, line and column, and
+nothing is returned half-read.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import DataError
+
+REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
+OPTIONAL = ("t", "temperature", "load")
+#: longest line accepted (a row of a dozen numbers is far shorter)
+MAX_LINE_CHARS = 4096
+MAX_ROWS = 10_000_000
+
+
+@dataclass(frozen=True)
+class ArmData:
+    """Measured poses: ``q_deg`` (N, 6), ``xyz_mm`` (N, 3) and the optional columns (N,) or None."""
+
+    q_deg: np.ndarray
+    xyz_mm: np.ndarray
+    t_s: np.ndarray | None = None
+    temperature_c: np.ndarray | None = None
+    load_kg: np.ndarray | None = None
+    source: str = ""
+
+    @property
+    def n(self) -> int:
+        return int(self.q_deg.shape[0])
+
+
+def read_arm_csv(path) -> ArmData:
+    """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
+    p = Path(path)
+    try:
+        fh = open(p, encoding="utf-8", newline="")
+    except OSError as exc:
+        raise DataError(f"{p}: cannot open ({exc.strerror})") from None
+    with fh:
+        try:
+            header_line = fh.readline(MAX_LINE_CHARS + 1)
+        except UnicodeDecodeError as exc:
+            raise DataError(f"{p}:1: not UTF-8 text ({exc.reason})") from None
+        if len(header_line) > MAX_LINE_CHARS:
+            raise DataError(f"{p}:1: header longer than {MAX_LINE_CHARS} characters")
+        header = [h.strip() for h in header_line.strip().split(",")]
+        if header != [h for h in header if h]:
+            raise DataError(f"{p}:1: empty column name in the header")
+        unknown = [h for h in header if h not in REQUIRED + OPTIONAL]
+        if unknown:
+            raise DataError(f"{p}:1: unknown column(s) {', '.join(unknown)} "
+                            f"(expected {','.join(REQUIRED)} and optionally {','.join(OPTIONAL)})")
+        missing = [h for h in REQUIRED if h not in header]
+        if missing:
+            raise DataError(f"{p}:1: missing column(s) {', '.join(missing)}")
+        if len(set(header)) != len(header):
+            raise DataError(f"{p}:1: a column appears twice")
+        ncol = len(header)
+        rows: list[list[float]] = []
+        lineno = 1
+        while True:
+            lineno += 1
+            try:
+                line = fh.readline(MAX_LINE_CHARS + 1)
+            except UnicodeDecodeError as exc:
+                raise DataError(f"{p}:{lineno}: not UTF-8 text ({exc.reason})") from None
+            if not line:
+                break
+            if len(line) > MAX_LINE_CHARS:
+                raise DataError(f"{p}:{lineno}: line longer than {MAX_LINE_CHARS} characters")
+            if not line.strip():
+                continue
+            cells = line.rstrip("\r\n").split(",")
+            if len(cells) != ncol:
+                raise DataError(f"{p}:{lineno}: {len(cells)} fields, the header has {ncol}")
+            vals = []
+            for col, (name, cell) in enumerate(zip(header, cells), 1):
+                try:
+                    v = float(cell.strip())
+                except ValueError:
+                    raise DataError(f"{p}:{lineno}:{col} ({name}): not a number: {cell.strip()[:40]!r}") from None
+                if not math.isfinite(v):
+                    raise DataError(f"{p}:{lineno}:{col} ({name}): {cell.strip()} is not a finite number")
+                vals.append(v)
+            rows.append(vals)
+            if len(rows) > MAX_ROWS:
+                raise DataError(f"{p}: more than {MAX_ROWS} rows")
+    if not rows:
+        raise DataError(f"{p}: no data rows")
+    a = np.array(rows, dtype=float)
+    col = {h: a[:, i] for i, h in enumerate(header)}
+    return ArmData(q_deg=np.column_stack([col[f"q{k}"] for k in range(1, 7)]),
+                   xyz_mm=np.column_stack([col["x"], col["y"], col["z"]]),
+                   t_s=col.get("t"), temperature_c=col.get("temperature"), load_kg=col.get("load"), source=str(p))
+
+
+def write_arm_csv(path, q_deg, xyz_mm, **optional) -> None:
+    """Write an arm measurement CSV (``optional``: ``t``, ``temperature``, ``load`` arrays)."""
+    q = np.asarray(q_deg, dtype=float)
+    x = np.asarray(xyz_mm, dtype=float)
+    cols = [f"q{k}" for k in range(1, 7)] + ["x", "y", "z"]
+    data = [q[:, k] for k in range(6)] + [x[:, k] for k in range(3)]
+    for name in OPTIONAL:
+        if optional.get(name) is not None:
+            cols.append(name)
+            data.append(np.asarray(optional[name], dtype=float))
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for row in np.column_stack(data):
+            w.writerow([repr(float(v)) for v in row])
