@@ -276,6 +276,20 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     return Identifiability(free, fixed, s, cond, obs)
 
 
+def _unseen_by_poses(dh, ident: Identifiability, method: str, fixed0: dict, n_p: int, order) -> list[str]:
+    """Parameters the given poses leave unidentified that 200 poses spread over the joint space would see."""
+    rng = np.random.default_rng(0)
+    q_ref = rng.uniform(-2.6, 2.6, (200, kin.N_JOINTS))
+    p_ref = model_positions(dh, q_ref)
+    if method == "distance":
+        _, J_ref = _distance_problem(dh, q_ref, p_ref, distance_pairs(200, max_partners=20))
+    else:
+        _, J_ref = _absolute_problem(dh, np.zeros(6), q_ref, p_ref)
+    ref = analyse_identifiability(J_ref, fixed0, n_params=n_p, order=order)
+    seen = set(ident.names)
+    return [name for name in ref.names if name not in seen]
+
+
 def _kin_order() -> list[int]:
     """Preferred order of the kinematic parameters: joint rows in order, per row theta, alpha, a, d, beta."""
     per_row = (3, 1, 0, 2, 4)
@@ -287,7 +301,7 @@ def _kin_order() -> list[int]:
 # --------------------------------------------------------------------------
 def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=None, base_T_start=None,
              max_iter: int = 50, tol: float = 1e-9, fixed_extra: dict | None = None,
-             use_beta: bool = True) -> IdentificationResult:
+             use_beta: bool = True, allow_rank_deficient: bool = False) -> IdentificationResult:
     """Identify the kinematic parameters (and the base transform) from measured tool points.
 
     Parameters
@@ -311,6 +325,10 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     use_beta : bool
         Hayati's beta for parallel joint axes (default); False for a plain DH
         model (UR calibration deltas).
+    allow_rank_deficient : bool
+        By default, poses that cannot see a parameter which well-spread poses
+        of this arm would see are refused (InsufficientDataError naming them);
+        True fixes such parameters instead.
 
     Returns
     -------
@@ -348,12 +366,21 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     fixed0 = _structural(dh, use_beta)
     fixed0.update(fixed_extra or {})
     ident = analyse_identifiability(J, fixed0, n_params=n_p, order=order)
+    unseen = [] if allow_rank_deficient else _unseen_by_poses(dh, ident, method, fixed0, n_p, order)
+    # independent numbers in the data: K points carry 3K coordinates, and distances lose the 6 of a rigid motion
+    info = 3 * n - (6 if method == "distance" else 0)
+    n_wanted = ident.free.size + len(unseen)
+    if info <= n_wanted:
+        need = (n_wanted + (6 if method == "distance" else 0)) // 3 + 1
+        raise InsufficientDataError(
+            f"{n} poses give {info} independent numbers for {n_wanted} parameters: "
+            f"the {method} method needs at least {need} poses here")
+    if unseen:
+        raise InsufficientDataError(
+            "these poses cannot see " + ", ".join(f"{k} ({ident.fixed[k]})" for k in unseen)
+            + ": measure poses that move every joint (or pass allow_rank_deficient to fix them)")
     free = ident.free
     m = r.size
-    if m < free.size + 1:
-        raise InsufficientDataError(
-            f"{m} residuals for {free.size} parameters: give more poses ({method} needs more measurements "
-            f"than identified parameters)")
 
     def evaluate(dh_, xb_):
         return _distance_problem(dh_, q, meas, pairs) if method == "distance" else _absolute_problem(dh_, xb_, q, meas)
@@ -404,8 +431,8 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
             break
     # uncertainties from the residuals at the solution
     Jf = J[:, free]
-    dof = max(m - free.size, 1)
-    s2 = cost / dof
+    # the residuals' variance per independent number (the pairs of a distance fit are not independent)
+    s2 = cost / m * info / max(info - free.size, 1)
     try:
         cov = s2 * np.linalg.pinv(Jf.T @ Jf)
         sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
