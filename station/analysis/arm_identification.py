@@ -39,6 +39,7 @@ Units: mm and rad inside (``dh`` rows ``[a, alpha, d, theta, beta]``).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -60,6 +61,8 @@ BASE_NAMES = ("base_rx", "base_ry", "base_rz", "base_tx", "base_ty", "base_tz")
 REDUNDANCY_TOL = 1e-6
 #: consecutive axes closer than this to parallel use beta in place of d
 PARALLEL_TOL_RAD = math.radians(5.0)
+#: a Gauss-Newton step shorter than this many standard deviations is not taken
+STEP_TOL_SIGMA = 0.01
 _ANGLE = np.array([False, True, False, True, True])  # alpha, theta, beta are angles
 
 
@@ -239,13 +242,16 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     kept ones.
     """
     m = J.shape[0]
+    if m > J.shape[1]:
+        # every decision below depends on J only through J^T J = R^T R: work on the small R
+        J = np.linalg.qr(J, mode="r")
     norms = np.linalg.norm(J, axis=0)
     # a column this much smaller than the largest is numerically zero (e.g. theta1 in the distances)
     norms = np.where(norms < 1e-9 * max(float(norms.max()), 1e-300), 0.0, norms)
     fixed = dict(n_kin_start_fixed)
     order = list(range(n_params)) if order is None else order
     kept: list[int] = []
-    Q = np.zeros((m, 0))
+    Q = np.zeros((J.shape[0], 0))
     for j in order:
         name = _name(j)
         if name in fixed:
@@ -278,6 +284,15 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
 
 def _unseen_by_poses(dh, ident: Identifiability, method: str, fixed0: dict, n_p: int, order) -> list[str]:
     """Parameters the given poses leave unidentified that 200 poses spread over the joint space would see."""
+    seen = set(ident.names)
+    ref = _reference_names(np.ascontiguousarray(dh).tobytes(), method, tuple(sorted(fixed0.items())), n_p, tuple(order))
+    return [name for name in ref if name not in seen]
+
+
+@functools.lru_cache(maxsize=32)
+def _reference_names(dh_bytes: bytes, method: str, fixed0: tuple, n_p: int, order: tuple) -> tuple[str, ...]:
+    """The parameters 200 well-spread poses identify (cached: the same start model is checked once)."""
+    dh = np.frombuffer(dh_bytes, dtype=float).reshape(kin.N_ROWS, 5)
     rng = np.random.default_rng(0)
     q_ref = rng.uniform(-2.6, 2.6, (200, kin.N_JOINTS))
     p_ref = model_positions(dh, q_ref)
@@ -285,15 +300,47 @@ def _unseen_by_poses(dh, ident: Identifiability, method: str, fixed0: dict, n_p:
         _, J_ref = _distance_problem(dh, q_ref, p_ref, distance_pairs(200, max_partners=20))
     else:
         _, J_ref = _absolute_problem(dh, np.zeros(6), q_ref, p_ref)
-    ref = analyse_identifiability(J_ref, fixed0, n_params=n_p, order=order)
-    seen = set(ident.names)
-    return [name for name in ref.names if name not in seen]
+    return tuple(analyse_identifiability(J_ref, dict(fixed0), n_params=n_p, order=list(order)).names)
 
 
 def _kin_order() -> list[int]:
     """Preferred order of the kinematic parameters: joint rows in order, per row theta, alpha, a, d, beta."""
     per_row = (3, 1, 0, 2, 4)
     return [5 * r + c for r in range(kin.N_ROWS) for c in per_row]
+
+
+def _parameter_sd(Jf: np.ndarray, cost: float, info: int, method: str, meas: np.ndarray, pairs) -> np.ndarray:
+    """1-sigma of the free parameters from the residuals at the solution.
+
+    The absolute residuals are the measured coordinates' noise itself. The
+    distance residuals are not independent: every pose enters many pairs, so
+    ``(J^T J)^-1 s^2`` would understate the uncertainty by about the square
+    root of the pairs per pose. Both are written as the noise ``e`` of the
+    measured points (isotropic, variance ``s_p^2``) mapped into the residuals,
+    ``r = D e``, and the covariance is the sandwich
+    ``H^-1 (s_p^2 J^T D D^T J) H^-1`` with ``H = J^T J``.
+    """
+    H = Jf.T @ Jf
+    try:
+        Hi = np.linalg.pinv(H)
+    except np.linalg.LinAlgError:
+        return np.full(Jf.shape[1], np.nan)
+    dof = max(info - Jf.shape[1], 1)
+    if method != "distance":
+        return np.sqrt(np.clip(np.diag(Hi) * cost / dof, 0.0, None))
+    m = Jf.shape[0]
+    # r_jk = |m_k - m_j| - |p_k - p_j|: the noise enters as u_jk . (e_k - e_j)
+    dm = meas[pairs[:, 1]] - meas[pairs[:, 0]]
+    u = dm / np.maximum(np.linalg.norm(dm, axis=1), 1e-12)[:, None]
+    G = np.zeros((meas.shape[0], 3, Jf.shape[1]))
+    uJ = u[:, :, None] * Jf[:, None, :]
+    np.add.at(G, pairs[:, 1], uJ)
+    np.add.at(G, pairs[:, 0], -uJ)
+    G = G.reshape(-1, Jf.shape[1])
+    # E[r^T r] = s_p^2 trace(D D^T) (dof / info), and trace(D D^T) = 2 m
+    s2_point = cost / (2.0 * m) * info / dof
+    cov = Hi @ (s2_point * (G.T @ G)) @ Hi
+    return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
 # --------------------------------------------------------------------------
@@ -320,6 +367,10 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         of the nominal points to the measured ones).
     max_iter, tol
         Iteration limit and relative cost change at which it has converged.
+        It has also converged when the next Gauss-Newton step would move
+        the parameters by less than :data:`STEP_TOL_SIGMA` of their standard
+        deviation (Mahalanobis length of the step), which saves the
+        evaluation of a step that cannot matter.
     fixed_extra : dict, optional
         ``name -> reason`` of further parameters to hold fixed.
     use_beta : bool
@@ -406,6 +457,16 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         Js = Jf / scale
         A = Js.T @ Js
         g = Js.T @ r
+        # the full Gauss-Newton step's decrease of the cost is its Mahalanobis length times s^2
+        try:
+            decrease = float(g @ np.linalg.solve(A, g))
+        except np.linalg.LinAlgError:
+            decrease = math.inf
+        if decrease < STEP_TOL_SIGMA ** 2 * cost / max(m - free.size, 1):
+            converged = True
+            message = f"converged: the next step is under {STEP_TOL_SIGMA:g} standard deviations"
+            it -= 1
+            break
         improved = False
         for _ in range(12):
             step_s = np.linalg.solve(A + lam * np.diag(np.diag(A)), g)
@@ -430,14 +491,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
             message = f"converged: relative cost change {rel:.1e} < {tol:g}"
             break
     # uncertainties from the residuals at the solution
-    Jf = J[:, free]
-    # the residuals' variance per independent number (the pairs of a distance fit are not independent)
-    s2 = cost / m * info / max(info - free.size, 1)
-    try:
-        cov = s2 * np.linalg.pinv(Jf.T @ Jf)
-        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    except np.linalg.LinAlgError:
-        sd = np.full(free.size, np.nan)
+    sd = _parameter_sd(J[:, free], cost, info, method, meas, pairs)
     sigma = {}
     for k, i in enumerate(free):
         v = float(sd[k])

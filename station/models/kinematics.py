@@ -328,35 +328,39 @@ def tool_position(dh, q_rad) -> np.ndarray:
 # --------------------------------------------------------------------------
 # Jacobians
 # --------------------------------------------------------------------------
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis (3), without np.cross's axis handling."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def _param_jacobian_from_frames(dh: np.ndarray, q: np.ndarray, F: np.ndarray) -> np.ndarray:
     n = q.shape[0]
-    p = F[:, -1, :3, 3]  # (N, 3) tool position
-    J = np.empty((n, 3, N_PARAMS))
+    p = F[:, -1, None, :3, 3]  # (N, 1, 3) tool position
     th = dh[..., 3] + np.concatenate([q, np.zeros((n, 1))], axis=1)
-    ct_all, st_all = np.cos(th), np.sin(th)
+    ct, st = np.cos(th)[..., None], np.sin(th)[..., None]                 # (N, 7, 1)
     al = np.broadcast_to(dh[..., 1], (n, N_ROWS))
-    ca_all, sa_all = np.cos(al), np.sin(al)
-    for i in range(N_ROWS):
-        R_prev = F[:, i, :3, :3]
-        o_prev = F[:, i, :3, 3]
-        o_i = F[:, i + 1, :3, 3]
-        x_prev, y_prev, z_prev = R_prev[:, :, 0], R_prev[:, :, 1], R_prev[:, :, 2]
-        ct, st = ct_all[:, i, None], st_all[:, i, None]
-        ca, sa = ca_all[:, i, None], sa_all[:, i, None]
-        # frame after Rz(theta): its x axis carries a, its y axis (after
-        # Rx(alpha)) is the Hayati beta axis; alpha and beta rotate about o_i.
-        x_m = ct * x_prev + st * y_prev
-        y_m = -st * x_prev + ct * y_prev
-        y_b = ca * y_m + sa * z_prev
-        r_prev = p - o_prev
-        r_i = p - o_i
-        c = 5 * i
-        J[:, :, c + 0] = x_m                          # d p / d a_i
-        J[:, :, c + 1] = np.cross(x_m, r_i)           # d p / d alpha_i
-        J[:, :, c + 2] = z_prev                       # d p / d d_i
-        J[:, :, c + 3] = np.cross(z_prev, r_prev)     # d p / d theta_i
-        J[:, :, c + 4] = np.cross(y_b, r_i)           # d p / d beta_i
-    return J
+    ca, sa = np.cos(al)[..., None], np.sin(al)[..., None]
+    R_prev = F[:, :N_ROWS, :3, :3]                                        # (N, 7, 3, 3)
+    x_prev, y_prev, z_prev = R_prev[..., 0], R_prev[..., 1], R_prev[..., 2]
+    # frame after Rz(theta): its x axis carries a, its y axis (after
+    # Rx(alpha)) is the Hayati beta axis; alpha and beta rotate about o_i.
+    x_m = ct * x_prev + st * y_prev
+    y_m = -st * x_prev + ct * y_prev
+    y_b = ca * y_m + sa * z_prev
+    r_prev = p - F[:, :N_ROWS, :3, 3]
+    r_i = p - F[:, 1:, :3, 3]
+    J = np.empty((n, N_ROWS, 5, 3))
+    J[:, :, 0] = x_m                        # d p / d a_i
+    J[:, :, 1] = _cross(x_m, r_i)           # d p / d alpha_i
+    J[:, :, 2] = z_prev                     # d p / d d_i
+    J[:, :, 3] = _cross(z_prev, r_prev)     # d p / d theta_i
+    J[:, :, 4] = _cross(y_b, r_i)           # d p / d beta_i
+    # column 5*i + k of the result is row i, parameter k
+    return np.ascontiguousarray(J.reshape(n, N_PARAMS, 3).transpose(0, 2, 1))
 
 
 def param_jacobian(dh, q_rad) -> np.ndarray:
