@@ -42,14 +42,14 @@ import numpy as np
 from station.analysis.iso9283 import analyze_iso9283, conformance_text
 from station.analysis.iso_poses import cube_test_poses
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
-from station.errors import ConfigError, DeviceFault, InsufficientDataError, StationError
+from station.errors import ConfigError, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2, vap_program
 from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Program, quat_from_matrix
-from station.programs.handshake import Fault, State, describe
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
+from procedures.cell import connect_cell, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
@@ -293,25 +293,7 @@ def _prompt(message: str):
 
 def step_connect(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    session: IsoSession = ctx.session
-    tracker = session.tracker = session.device("tracker")
-    info = tracker.connect()
-    tracker.set_units("mm")
-    controller = session.controller = session.device("controller", gate=session.gate or plan.gate())
-    controller.connect()
-    status = controller.status()
-    took_over = ""
-    if status.state == State.RUNNING:
-        # a program of an earlier session (killed station process) is still running: stop it first
-        status = controller.stop()
-        took_over = "stopped a program left running by an earlier session"
-    elif status.state == State.FAULT:
-        if status.fault != Fault.COMM_WATCHDOG:
-            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
-        # the watchdog stopped the program when the earlier session died: that is ours to clear
-        status = controller.reset()
-        took_over = "cleared the comm-watchdog fault of an earlier session"
-    return {"tracker": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+    return connect_cell(ctx.session, ctx.session.gate or plan.gate())
 
 
 def _move_targets(rendered) -> list[str]:
@@ -585,21 +567,7 @@ def step_report(ctx: StepContext) -> dict:
 
 def safe_state(session: IsoSession) -> None:
     """Stop the program and the stream; keep the connections for a resume to reopen."""
-    errors = []
-    controller = session.controller
-    if controller is not None:
-        try:
-            controller.stop()
-        except Exception as exc:  # report, keep going: the stream must stop too
-            errors.append(f"controller stop: {exc}")
-    tracker = session.tracker
-    if tracker is not None and getattr(tracker, "streaming", False):
-        try:
-            tracker.stop_stream()
-        except Exception as exc:
-            errors.append(f"tracker stop: {exc}")
-    if errors:
-        raise StationError("; ".join(errors))
+    stop_cell(session)
 
 
 def build_procedure(plan: IsoPlan) -> Procedure:

@@ -23,6 +23,7 @@ from station.errors import ConfigError
 REGISTRY: dict[str, str] = {
     "iso9283": "procedures.iso9283",
     "trailer": "procedures.trailer_run",
+    "arm-calibration": "procedures.arm_calibration",
 }
 
 

@@ -149,6 +149,28 @@ class ISOProcedureConfig(_Strict):
         return v
 
 
+class ArmCalibrationConfig(_Strict):
+    """The tracker-based arm calibration of seed 002 (poses chosen for observability)."""
+
+    #: distance errors (seed eq. (9)-(16)) or absolute positions (also identifies the tracker <- base transform)
+    method: Literal["distance", "absolute"] = "absolute"
+    #: training poses, the first of them the reference (seed: 1 + 50), and test poses drawn apart (seed: 13)
+    train_poses: int = Field(51, ge=8, le=2000)
+    test_poses: int = Field(13, ge=0, le=2000)
+    #: D-optimal choice from the candidates, or random ones
+    selection: Literal["d-optimal", "random"] = "d-optimal"
+    candidates: int = Field(1500, ge=50, le=20000)
+    #: tool tilt from the base orientation of the ISO programs (tool down), deg
+    tilt_deg: float = Field(35.0, ge=0, le=90)
+    #: where the tracker stands, robot base frame (mm): with it, poses whose reflector faces away are not chosen
+    instrument_mm: tuple[float, float, float] | None = None
+    reflector_half_angle_deg: float = Field(30.0, gt=0, le=90)
+    dwell_s: float = Field(0.3, gt=0, le=60)
+    measure_s: float = Field(0.2, gt=0, le=60)
+    speed_percent: float = Field(20.0, gt=0, le=100)
+    poses_per_step: int = Field(8, ge=1, le=200)
+
+
 class TrailerConfig(_Strict):
     """The trailer calibration of seed 003 (lengths m, curvature 1/m, speed m/s)."""
 
@@ -195,6 +217,7 @@ class StationConfig(_Strict):
     devices: dict[str, DeviceConfig]
     robots: dict[str, RobotConfig] = Field(default_factory=dict)
     iso9283: ISOProcedureConfig = ISOProcedureConfig()
+    arm_calibration: ArmCalibrationConfig = ArmCalibrationConfig()
     trailer: TrailerConfig | None = None
 
     @model_validator(mode="after")

@@ -106,6 +106,16 @@ def split_poses(n: int, test_fraction: float | None = None) -> Split:
     return Split(0, np.arange(n_train), np.arange(n_train, n))
 
 
+def _check_split(split: Split, n: int) -> None:
+    both = np.concatenate([split.train, split.test])
+    if both.size and (both.min() < 0 or both.max() >= n):
+        raise DataError(f"split indices must be in 0..{n - 1}")
+    if np.intersect1d(split.train, split.test).size:
+        raise DataError("a pose is both a training and a test pose")
+    if split.reference not in set(split.train.tolist()):
+        raise DataError("the reference pose must be a training pose")
+
+
 def distance_errors(dh, q_rad, measured_mm, ref: int, idx) -> np.ndarray:
     """``| ||P_k - P_ref||_measured - ||P_k - P_ref||_model |`` for the poses ``idx``, mm (seed eq. (11))."""
     idx = np.asarray(idx, dtype=np.int64)
@@ -135,7 +145,8 @@ def check_joint_limits(q_rad: np.ndarray, limits_rad: np.ndarray) -> None:
 
 
 def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", test_fraction: float | None = None,
-                  joint_limits_rad=None, max_iter: int = 50, use_beta: bool = True) -> ArmCalibration:
+                  joint_limits_rad=None, max_iter: int = 50, use_beta: bool = True,
+                  split: Split | None = None) -> ArmCalibration:
     """Identify on the training poses and report seed 002's figures on both parts.
 
     Parameters
@@ -152,6 +163,10 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
         Poses outside are refused.
     use_beta : bool
         Hayati's beta for parallel axes (False: plain DH, for UR deltas).
+    split : Split, optional
+        Explicit reference, training and test poses (a procedure that chose
+        its training poses and drew its test poses apart); overrides
+        ``test_fraction``.
     """
     dh0 = kin.validate_dh(dh_nominal)
     q = np.asarray(q_rad, dtype=float)
@@ -162,7 +177,10 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
         raise DataError("joint angles and measured points must be finite")
     if joint_limits_rad is not None:
         check_joint_limits(q, np.asarray(joint_limits_rad, dtype=float))
-    split = split_poses(q.shape[0], test_fraction)
+    if split is None:
+        split = split_poses(q.shape[0], test_fraction)
+    else:
+        _check_split(split, q.shape[0])
     tr = split.train
     res = identify(dh0, q[tr], meas[tr], method=method, max_iter=max_iter, use_beta=use_beta)
     if method == "distance":

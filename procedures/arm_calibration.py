@@ -1,0 +1,490 @@
+"""Tracker-based kinematic calibration of an arm (seed 002 sec. 3), as a readable list of steps.
+
+1. ``check programs`` - the measurement poses (chosen when the run was
+   planned, stored with it) are each a program (ABB RAPID) that the safety
+   gate passes, path from the previous pose included, before anything
+   connects;
+2. ``mount reflector`` / ``clear the cell`` - operator prompts;
+3. ``connect devices`` - tracker and controller (taking over from a
+   session that died);
+4. ``measure k/M`` - a batch of poses per step: each approached with every
+   joint moving in + for its last degrees (one side of the backlash, as the
+   seed's hand-taught poses are), a dwell, and a stationary tracker
+   measurement committed to the store at once; a killed run resumes at the
+   batch it was in and keeps every measured pose;
+5. ``identify`` - seed 002's identification on the training poses
+   (:func:`station.analysis.arm_calibration.calibrate_arm`), validated on
+   test poses drawn apart from them; the identified model is written as a
+   JSON model file beside the report and stored with the run under the
+   robot's serial;
+6. ``report`` - the seed's figures (errors before and after per pose, RMSE
+   per iteration, the parameter changes with their uncertainties).
+
+How the poses are chosen (:func:`plan_from_config`): candidate tool poses
+spread over the robot's workspace box with the tool tilted up to
+``tilt_deg`` from the ISO programs' tool-down orientation, solved by the
+nominal model's inverse kinematics near the home configuration, kept when
+the gate's box and joint limits allow them (and, with ``instrument_mm``,
+when the reflector faces the tracker); the training poses are the
+D-optimal choice of :func:`station.analysis.pose_selection.select_poses`,
+the test poses a random draw from the remaining candidates, and the
+sequence is ordered nearest-first in joint space with every joint path
+checked by the gate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import secrets
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from procedures.cell import connect_cell, stop_cell
+from procedures.preflight import report_dir_problems
+from procedures.registry import ProcedureSpec, Subject
+from procedures.session import Session
+from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
+from station.analysis.pose_selection import admissible, select_poses
+from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
+from station.models import kinematics as kin
+from station.models.robots import RobotSpec, get_robot
+from station.programs.builders import TOOL_DOWN, rated_tcp_accel_mm_s2
+from station.programs.model import Dwell, JointTarget, Move, Program
+from station.programs.rapid import render_rapid
+from station.runner import Procedure, Step, StepContext
+from station.safety import SafetyGate, SafetyLimits
+
+NAME = "arm-calibration"
+STREAM = "points"
+RESULT_KEY = "arm_calibration"
+#: every pose is approached with each joint moving in + for its last degrees
+PRE_DEG = 2.0
+
+
+@dataclass(frozen=True)
+class ArmCalPlan:
+    """The stored plan of a calibration run (JSON-able via :meth:`params`)."""
+
+    robot: RobotSpec
+    workspace_min_mm: tuple[float, float, float]
+    workspace_max_mm: tuple[float, float, float]
+    max_tcp_speed_mm_s: float
+    max_speed_frac: float
+    max_accel_frac: float
+    #: the measurement sequence (deg), in the order measured
+    q_deg: tuple[tuple[float, ...], ...]
+    #: role of each pose: "reference", "train" or "test"
+    roles: tuple[str, ...]
+    method: str = "absolute"
+    dwell_s: float = 0.3
+    measure_s: float = 0.2
+    speed_frac: float = 0.2
+    poses_per_step: int = 8
+    report_dir: str = "reports"
+    selection: dict | None = None
+
+    def gate(self) -> SafetyGate:
+        return SafetyGate(self.robot, SafetyLimits(
+            workspace_min_mm=self.workspace_min_mm, workspace_max_mm=self.workspace_max_mm,
+            max_tcp_speed_mm_s=self.max_tcp_speed_mm_s, max_speed_frac=self.max_speed_frac,
+            max_accel_frac=self.max_accel_frac))
+
+    @property
+    def n_batches(self) -> int:
+        return math.ceil(len(self.q_deg) / self.poses_per_step)
+
+    def batch(self, k: int) -> range:
+        """Pose indices of batch ``k`` (1-based)."""
+        return range((k - 1) * self.poses_per_step, min(k * self.poses_per_step, len(self.q_deg)))
+
+    def split(self) -> Split:
+        roles = np.array(self.roles)
+        train = np.flatnonzero((roles == "reference") | (roles == "train"))
+        return Split(int(np.flatnonzero(roles == "reference")[0]), train, np.flatnonzero(roles == "test"))
+
+    def params(self) -> dict:
+        return {
+            "robot": self.robot.name, "workspace_min_mm": list(self.workspace_min_mm),
+            "workspace_max_mm": list(self.workspace_max_mm), "max_tcp_speed_mm_s": self.max_tcp_speed_mm_s,
+            "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
+            "q_deg": [list(q) for q in self.q_deg], "roles": list(self.roles), "method": self.method,
+            "dwell_s": self.dwell_s, "measure_s": self.measure_s, "speed_frac": self.speed_frac,
+            "poses_per_step": self.poses_per_step, "report_dir": self.report_dir, "selection": self.selection,
+        }
+
+    @classmethod
+    def from_params(cls, p: Mapping) -> "ArmCalPlan":
+        return cls(
+            robot=get_robot(p["robot"]), workspace_min_mm=tuple(p["workspace_min_mm"]),
+            workspace_max_mm=tuple(p["workspace_max_mm"]), max_tcp_speed_mm_s=float(p["max_tcp_speed_mm_s"]),
+            max_speed_frac=float(p["max_speed_frac"]), max_accel_frac=float(p["max_accel_frac"]),
+            q_deg=tuple(tuple(float(v) for v in q) for q in p["q_deg"]), roles=tuple(p["roles"]),
+            method=str(p["method"]), dwell_s=float(p["dwell_s"]), measure_s=float(p["measure_s"]),
+            speed_frac=float(p["speed_frac"]), poses_per_step=int(p["poses_per_step"]),
+            report_dir=str(p["report_dir"]), selection=p.get("selection"),
+        )
+
+
+# --------------------------------------------------------------------------
+# planning: candidates, selection, order
+# --------------------------------------------------------------------------
+def candidate_poses(robot: RobotSpec, gate: SafetyGate, n: int, rng: np.random.Generator, *, tilt_deg: float,
+                    instrument_mm=None, half_angle_deg: float = 30.0) -> np.ndarray:
+    """Admissible candidate joint vectors (C, 6): tool points in the gate's box, tool tilted <= ``tilt_deg``."""
+    lo, hi = gate.box_min, gate.box_max
+    margin = 0.05 * (hi - lo)
+    p = rng.uniform(lo + margin, hi - margin, (n, 3))
+    # tilt about a random horizontal axis, any turn about the tool axis within +-90 deg
+    axis = rng.normal(size=(n, 3))
+    axis[:, 2] = 0.0
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    tilt = np.radians(tilt_deg) * np.sqrt(rng.uniform(0.0, 1.0, n))
+    yaw = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    R = (Rotation.from_rotvec(axis * tilt[:, None]) * Rotation.from_matrix(TOOL_DOWN)
+         * Rotation.from_rotvec(np.column_stack([np.zeros(n), np.zeros(n), yaw]))).as_matrix()
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    sol = kin.ik(robot.dh_nominal, T, q0=np.tile(robot.home_q_rad, (n, 1)), joint_limits_rad=gate.joint_limits_rad,
+                 n_restarts=4, seed=int(rng.integers(2**31)))
+    q = sol.q_rad[sol.success]
+    ok = admissible(robot.dh_nominal, q, joint_limits_rad=gate.joint_limits_rad, box_min_mm=lo, box_max_mm=hi,
+                    instrument_mm=instrument_mm, half_angle_deg=half_angle_deg)
+    return q[ok]
+
+
+def _path_ok(gate: SafetyGate, q_a: np.ndarray, q_b: np.ndarray) -> bool:
+    try:
+        gate.check_joint_path(q_a, q_b - np.radians(PRE_DEG), "path")
+        gate.check_joint_path(q_b - np.radians(PRE_DEG), q_b, "path")
+        gate.check_joint_target(q_b - np.radians(PRE_DEG), "pre-position")
+    except SafetyError:
+        return False
+    return True
+
+
+def order_poses(gate: SafetyGate, q_start: np.ndarray, q: np.ndarray) -> tuple[list[int], list[int]]:
+    """Nearest-first order in joint space with every path passed by the gate; (order, poses left out)."""
+    left = list(range(q.shape[0]))
+    order: list[int] = []
+    dropped: list[int] = []
+    cur = q_start
+    while left:
+        d = np.max(np.abs(q[left] - cur), axis=1)
+        for j in np.argsort(d):
+            k = left[int(j)]
+            if _path_ok(gate, cur, q[k]):
+                order.append(k)
+                left.remove(k)
+                cur = q[k]
+                break
+        else:
+            # no pose is reachable from here along a safe joint path: leave the nearest out
+            dropped.append(left.pop(int(np.argmin(d))))
+    return order, dropped
+
+
+def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
+    """Choose the poses of a new run (stored with it: a resume measures the same poses)."""
+    if robot_name not in cfg.robots:
+        raise ConfigError(f"robots.{robot_name}: no such robot (have {', '.join(sorted(cfg.robots))})")
+    rc = cfg.robots[robot_name]
+    ac = cfg.arm_calibration
+    seed = int(overrides.pop("selection_seed", secrets.randbits(32)))
+    robot = get_robot(rc.model)
+    base = dict(robot=robot, workspace_min_mm=tuple(rc.workspace.min_mm), workspace_max_mm=tuple(rc.workspace.max_mm),
+                max_tcp_speed_mm_s=rc.workspace.max_tcp_speed_mm_s,
+                max_speed_frac=rc.workspace.max_speed_percent / 100.0,
+                max_accel_frac=rc.workspace.max_accel_percent / 100.0)
+    method = overrides.pop("method", ac.method)
+    n_train = int(overrides.pop("train_poses", ac.train_poses))
+    n_test = int(overrides.pop("test_poses", ac.test_poses))
+    selection = overrides.pop("selection", ac.selection)
+    probe = ArmCalPlan(q_deg=(), roles=(), **base)
+    gate = probe.gate()
+    rng = np.random.default_rng(seed)
+    cand = candidate_poses(robot, gate, int(overrides.pop("candidates", ac.candidates)), rng, tilt_deg=ac.tilt_deg,
+                           instrument_mm=ac.instrument_mm, half_angle_deg=ac.reflector_half_angle_deg)
+    if cand.shape[0] < n_train + n_test:
+        raise InsufficientDataError(
+            f"only {cand.shape[0]} admissible candidate poses for {n_train} training and {n_test} test poses: "
+            f"widen the workspace box, the tilt or the candidates")
+    info: dict[str, Any] = {"seed": seed, "method": selection, "candidates": int(cand.shape[0])}
+    if selection == "d-optimal":
+        sel = select_poses(robot.dh_nominal, cand, n_train)
+        train = sel.indices
+        info.update(log_det=sel.log_det, o1=sel.o1, swaps=sel.swaps)
+    else:
+        train = rng.choice(cand.shape[0], n_train, replace=False)
+    rest = np.setdiff1d(np.arange(cand.shape[0]), train)
+    test = rng.choice(rest, n_test, replace=False) if n_test else np.zeros(0, np.int64)
+    chosen = np.r_[train, test]
+    roles_all = ["train"] * len(train) + ["test"] * len(test)
+    order, dropped = order_poses(gate, robot.home_q_rad, cand[chosen])
+    seq = [int(chosen[k]) for k in order]
+    roles = [roles_all[k] for k in order]
+    # a pose no safe joint path reaches is replaced by the nearest unused candidate the last pose reaches
+    unused = set(range(cand.shape[0])) - set(chosen.tolist())
+    for k in dropped:
+        near = sorted(unused, key=lambda c: float(np.max(np.abs(cand[c] - cand[seq[-1]]))))
+        for c in near:
+            if _path_ok(gate, cand[seq[-1]], cand[c]):
+                seq.append(c)
+                roles.append(roles_all[k])
+                unused.discard(c)
+                break
+    q_seq = cand[seq]
+    roles[roles.index("train")] = "reference"  # the first training pose measured is the distances' reference
+    info["replaced_after_path_checks"] = len(dropped)
+    kw = dict(base, q_deg=tuple(tuple(float(v) for v in np.degrees(q)) for q in q_seq), roles=tuple(roles),
+              method=method, dwell_s=ac.dwell_s, measure_s=ac.measure_s,
+              speed_frac=min(ac.speed_percent, rc.workspace.max_speed_percent) / 100.0,
+              poses_per_step=ac.poses_per_step, report_dir=cfg.station.report_dir, selection=info)
+    kw.update(overrides)
+    return ArmCalPlan(**kw)
+
+
+# --------------------------------------------------------------------------
+# programs
+# --------------------------------------------------------------------------
+def pose_program(plan: ArmCalPlan, k: int) -> Program:
+    """Pose ``k``: to a pre-position ``PRE_DEG`` below on every joint, then the pose, then a dwell."""
+    q = plan.q_deg[k]
+    name = f"C{k + 1}"
+    pre = JointTarget(f"{name}_pre", tuple(v - PRE_DEG for v in q), label=f"{name} pre-position")
+    target = JointTarget(name, tuple(q), label=name)
+    return Program(
+        name=f"ST_{name}", robot_name=plan.robot.name, rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
+        statements=(Move(pre, "joint", plan.speed_frac), Move(target, "joint", plan.speed_frac), Dwell(plan.dwell_s)),
+        accel_frac=0.5, title=f"station: calibration pose {name}",
+        rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot),
+    )
+
+
+def check_programs(plan: ArmCalPlan) -> list[str]:
+    """Every pose program through the gate, each from the pose before it (home first); the problems."""
+    gate = plan.gate()
+    problems = []
+    q_prev = plan.robot.home_q_rad
+    for k in range(len(plan.q_deg)):
+        try:
+            gate.check_program(pose_program(plan, k), q_start=q_prev)
+        except StationError as exc:
+            problems.append(f"pose C{k + 1}: {exc}")
+        q_prev = np.radians(plan.q_deg[k])
+    return problems
+
+
+# --------------------------------------------------------------------------
+# steps
+# --------------------------------------------------------------------------
+@dataclass
+class ArmCalSession(Session):
+    """What the calibration steps share within one session."""
+
+    plan: ArmCalPlan | None = None
+    gate: SafetyGate | None = None
+    tracker: Any = None
+    controller: Any = None
+
+
+def _plan(ctx: StepContext) -> ArmCalPlan:
+    if ctx.session.plan is None:
+        ctx.session.plan = ArmCalPlan.from_params(ctx.params)
+    return ctx.session.plan
+
+
+def step_check_programs(ctx: StepContext) -> dict:
+    plan = _plan(ctx)
+    problems = check_programs(plan)
+    if problems:
+        raise SafetyError("; ".join(problems))
+    ctx.session.gate = plan.gate()
+    roles = list(plan.roles)
+    return {"poses": len(plan.q_deg), "train": roles.count("train") + 1, "test": roles.count("test"),
+            "selection": plan.selection}
+
+
+def _prompt(message: str):
+    def run(ctx: StepContext) -> dict:
+        if not ctx.confirm(message):
+            raise StationError(f"operator declined: {message}")
+        return {"confirmed": message}
+    return run
+
+
+def step_connect(ctx: StepContext) -> dict:
+    return connect_cell(ctx.session, ctx.session.gate or _plan(ctx).gate())
+
+
+def _timeout(ctx: StepContext, sim_seconds: float) -> float:
+    return 30.0 + sim_seconds / (ctx.session.time_scale or 1.0) * 3.0
+
+
+def step_measure(k: int):
+    def run(ctx: StepContext) -> dict:
+        plan = _plan(ctx)
+        tracker, controller = ctx.session.tracker, ctx.session.controller
+        done = []
+        for i in plan.batch(k):
+            ctx.checkpoint()
+            ctx.progress(f"pose C{i + 1}")
+            rendered = render_rapid(pose_program(plan, i))
+            controller.run(rendered, timeout_s=_timeout(ctx, 60.0), on_status=lambda st: ctx.checkpoint())
+            m = tracker.measure_stationary(duration_s=plan.measure_s)
+            xyz = np.asarray(m.xyz_mm, dtype=float)
+            ctx.record(STREAM, {"pose": np.array([i], float), "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
+                                "t": np.array([np.nan if m.t_device_s is None else float(m.t_device_s)])})
+            done.append(i + 1)
+        return {"poses": done}
+    return run
+
+
+def measured_points(ctx: StepContext, plan: ArmCalPlan) -> np.ndarray:
+    """(N, 3) tracker points in plan order; the last measurement of a pose measured twice (a resumed batch)."""
+    steps = [f"measure {k}" for k in range(1, plan.n_batches + 1)]
+    s = ctx.samples(STREAM, steps=steps)
+    out = np.full((len(plan.q_deg), 3), np.nan)
+    if s:
+        idx = s["pose"].astype(int)
+        out[idx] = np.column_stack([s["x"], s["y"], s["z"]])
+    missing = np.flatnonzero(~np.isfinite(out).all(axis=1))
+    if missing.size:
+        raise InsufficientDataError(f"poses not measured: {', '.join(f'C{i + 1}' for i in missing[:10])}"
+                                    + (" ..." if missing.size > 10 else ""))
+    return out
+
+
+def _calibrate(plan: ArmCalPlan, points: np.ndarray):
+    return calibrate_arm(plan.robot.dh_nominal, np.radians(np.array(plan.q_deg)), points, method=plan.method,
+                         joint_limits_rad=plan.robot.joint_limits_rad, split=plan.split())
+
+
+def step_identify(ctx: StepContext) -> dict:
+    plan = _plan(ctx)
+    cal = _calibrate(plan, measured_points(ctx, plan))
+    doc = calibration_json(cal, name=f"{plan.robot.name} calibrated", joint_limits_rad=plan.robot.joint_limits_rad)
+    run = ctx.store.run(ctx.run_id)
+    doc["robot"] = {"model": plan.robot.name, "serial": run.serial, "overhaul_state": run.overhaul_state}
+    doc["selection"] = plan.selection
+    model_path = Path(plan.report_dir) / f"{ctx.run_id}-model.json"
+    model_path.parent.mkdir(parents=True, exist_ok=True)
+    model_path.write_text(json.dumps(doc["model"], indent=2), encoding="utf-8")
+    doc["model_file"] = str(model_path.resolve())
+    ctx.store.put_result(ctx.run_id, RESULT_KEY, doc)
+    return {"train_mean_after_mm": doc["train"]["mean_abs_after_mm"],
+            "test_mean_after_mm": doc["test"]["mean_abs_after_mm"] if doc["test"] else None,
+            "model_file": doc["model_file"], "converged": doc["converged"]}
+
+
+def step_report(ctx: StepContext) -> dict:
+    from procedures.arm_calibration_report import build_report
+    from station.report import write_report
+
+    plan = _plan(ctx)
+    cal = _calibrate(plan, measured_points(ctx, plan))
+    run = ctx.store.run(ctx.run_id)
+    report = build_report(cal, title=f"Kinematic calibration of {plan.robot.name} serial {run.serial}",
+                          facts={"run": ctx.run_id, "overhaul state": str(run.overhaul_state),
+                                 "pose selection": json.dumps(plan.selection)})
+    path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
+    return {"report": str(path.resolve())}
+
+
+def build_procedure(plan: ArmCalPlan) -> Procedure:
+    steps = [
+        Step("check programs", step_check_programs, every_session=True),
+        Step("mount reflector", _prompt("Mount the tracker reflector on the tool flange (SMR in its nest)")),
+        Step("clear the cell", _prompt("Clear the robot cell and close the safety fence"), every_session=True),
+        Step("connect devices", step_connect, every_session=True),
+    ]
+    steps += [Step(f"measure {k}", step_measure(k), label=f"{k}/{plan.n_batches}")
+              for k in range(1, plan.n_batches + 1)]
+    steps += [Step("identify", step_identify), Step("report", step_report)]
+    return Procedure(NAME, steps, safe_state=stop_cell)
+
+
+# --------------------------------------------------------------------------
+# the procedure's entry in the registry
+# --------------------------------------------------------------------------
+def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
+    return plan_from_config(cfg, robot, **{"report_dir": report_dir, **overrides}).params()
+
+
+def subject(cfg, robot: str) -> Subject:
+    rc = cfg.robots.get(robot)
+    if rc is None:
+        raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
+    return Subject(rc.model, rc.serial, rc.overhaul_state, f"{rc.model} serial {rc.serial}")
+
+
+def device_roles(cfg, robot: str) -> dict[str, str]:
+    subject(cfg, robot)
+    return {"tracker": "tracker", "controller": cfg.robots[robot].controller}
+
+
+def history(store, serial: str) -> list[dict]:
+    """Every finished calibration of robot ``serial`` in the store, oldest first."""
+    out = []
+    for rec in store.runs():
+        if rec.procedure != NAME or rec.serial != serial:
+            continue
+        try:
+            doc = store.result(rec.run_id, RESULT_KEY)
+        except Exception:  # noqa: BLE001 - a run that has not identified yet has no result
+            continue
+        out.append({"run_id": rec.run_id, "overhaul_state": rec.overhaul_state, "method": doc["method"],
+                    "test": doc["test"], "train": doc["train"], "model_file": doc.get("model_file")})
+    return out
+
+
+def summary(store, run_id: str) -> list[str]:
+    try:
+        doc = store.result(run_id, RESULT_KEY)
+    except Exception:  # noqa: BLE001
+        return []
+    lines = [f"method {doc['method']}: {len(doc['identified'])} parameters identified, {len(doc['fixed'])} fixed, "
+             f"condition number {doc['condition_number']:.1f}, {doc['iterations']} iterations"]
+    for label in ("train", "test"):
+        d = doc[label]
+        if d:
+            lines.append(f"{label:<6} mean |error| {d['mean_abs_before_mm']:.4f} -> {d['mean_abs_after_mm']:.4f} mm, "
+                         f"max {d['max_abs_before_mm']:.4f} -> {d['max_abs_after_mm']:.4f} mm "
+                         f"({d['n']} poses)")
+    lines.append(f"model: {doc.get('model_file')}")
+    serial = doc.get("robot", {}).get("serial")
+    if serial:
+        earlier = [h for h in history(store, serial) if h["run_id"] != run_id]
+        for h in earlier[-3:]:
+            t = h["test"] or h["train"]
+            lines.append(f"earlier {h['run_id']} ({h['overhaul_state']}): mean |error| after "
+                         f"{t['mean_abs_after_mm']:.4f} mm")
+    rep = [s.output["report"] for s in store.steps(run_id) if s.name == "report" and s.status == "done"]
+    if rep:
+        lines.append(f"report: {rep[0]}")
+    return lines
+
+
+def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
+    plan = ArmCalPlan.from_params(params)
+    return report_dir_problems(plan.report_dir) + check_programs(plan)
+
+
+SPEC = ProcedureSpec(
+    name=NAME,
+    new_params=new_params,
+    build=lambda params: build_procedure(ArmCalPlan.from_params(params)),
+    new_session=lambda devices: ArmCalSession(devices),
+    subject=subject,
+    device_roles=device_roles,
+    fake_cell="fakes.cells:iso9283_cell",
+    result_key=RESULT_KEY,
+    summary=summary,
+    preflight=preflight_problems,
+)

@@ -1,0 +1,53 @@
+"""Steps a robot-and-tracker cell shares across procedures (ISO 9283, arm calibration).
+
+:func:`connect_cell` opens the tracker and the controller of a session and
+takes over from an earlier session that died (a program left running, the
+comm-watchdog fault it caused); :func:`stop_cell` is the procedures' safe
+state.
+"""
+
+from __future__ import annotations
+
+from station.errors import DeviceFault, StationError
+from station.programs.handshake import Fault, State, describe
+
+
+def connect_cell(session, gate) -> dict:
+    """Open ``session.tracker`` (mm) and ``session.controller`` (behind ``gate``); say what was taken over."""
+    tracker = session.tracker = session.device("tracker")
+    info = tracker.connect()
+    tracker.set_units("mm")
+    controller = session.controller = session.device("controller", gate=gate)
+    controller.connect()
+    status = controller.status()
+    took_over = ""
+    if status.state == State.RUNNING:
+        # a program of an earlier session (killed station process) is still running: stop it first
+        status = controller.stop()
+        took_over = "stopped a program left running by an earlier session"
+    elif status.state == State.FAULT:
+        if status.fault != Fault.COMM_WATCHDOG:
+            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
+        # the watchdog stopped the program when the earlier session died: that is ours to clear
+        status = controller.reset()
+        took_over = "cleared the comm-watchdog fault of an earlier session"
+    return {"tracker": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+
+
+def stop_cell(session) -> None:
+    """Stop the program and the stream; keep the connections for a resume to reopen."""
+    errors = []
+    controller = getattr(session, "controller", None)
+    if controller is not None:
+        try:
+            controller.stop()
+        except Exception as exc:  # report, keep going: the stream must stop too
+            errors.append(f"controller stop: {exc}")
+    tracker = getattr(session, "tracker", None)
+    if tracker is not None and getattr(tracker, "streaming", False):
+        try:
+            tracker.stop_stream()
+        except Exception as exc:
+            errors.append(f"tracker stop: {exc}")
+    if errors:
+        raise StationError("; ".join(errors))

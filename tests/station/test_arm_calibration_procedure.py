@@ -1,0 +1,147 @@
+"""The tracker-based arm calibration procedure on the fake cell (emScon tracker, FTP/Modbus controller).
+
+The cell's arm is the simulated one with its drawn geometric and
+non-geometric errors; the seeds of the cell and of the pose selection are
+drawn each run. Checked: the run measures every planned pose through the
+real drivers, identifies, and the exported model, evaluated by the test's
+own forward kinematics, reproduces the reported test errors; an aborted run
+resumes at its batch and keeps every measured pose; a plan the gate refuses
+never reaches the robot.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from fakes.cells import demo_config
+from procedures.arm_calibration import ArmCalPlan, RESULT_KEY, history
+from station.assemble import run_procedure
+from station.config import StationConfig
+from station.errors import PreflightError
+from station.models import kinematics as kin
+from station.runner import RunControl
+from station.store import RunStore
+from tests.calibration.test_arm_calibration import independent_fk
+
+TIME_SCALE = 100.0
+
+
+def _cfg(tmp_path, **arm):
+    d = demo_config(tmp_path, cycles=3, vap_cycles=3, rate_hz=100)
+    d["arm_calibration"] = {"train_poses": 31, "test_poses": 9, **arm}
+    return StationConfig.model_validate(d)
+
+
+def _seeds(rng):
+    return int(rng.integers(0, 2**31)), int(rng.integers(0, 2**31))
+
+
+def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(tmp_path):
+    rng = np.random.default_rng()
+    cell_seed, sel_seed = _seeds(rng)
+    cfg = _cfg(tmp_path)
+    code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
+                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
+    assert code == 0
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        doc = store.result("c1", RESULT_KEY)
+        plan = ArmCalPlan.from_params(store.run("c1").params)
+        hist = history(store, "DEMO-0001")
+    assert [h["run_id"] for h in hist] == ["c1"]
+    # the fake arm's geometric errors are mm; what is left is the tracker's noise and the non-geometric effects
+    assert doc["test"]["mean_abs_before_mm"] > 0.3
+    assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
+    assert doc["train"]["n"] == 31 and doc["test"]["n"] == 9
+    # the exported model (with its tracker <- base transform) by an independent FK
+    model = json.loads(open(doc["model_file"]).read())
+    split = plan.split()
+    q_deg = np.array(plan.q_deg)
+    p = independent_fk(model, q_deg[split.test])
+    B = model["base"]
+    p_tracker = p @ np.array(B["rotation_matrix"]).T + np.array(B["translation_mm"])
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        s = store.samples("c1", "points")
+    meas = np.full((len(plan.q_deg), 3), np.nan)
+    meas[s["pose"].astype(int)] = np.column_stack([s["x"], s["y"], s["z"]])
+    err = np.linalg.norm(meas[split.test] - p_tracker, axis=1)
+    assert err.mean() == pytest.approx(doc["test"]["mean_abs_after_mm"], abs=1e-6)
+    assert (tmp_path / "reports" / "c1.html").exists()
+
+
+def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(tmp_path):
+    rng = np.random.default_rng()
+    cell_seed, sel_seed = _seeds(rng)
+    cfg = _cfg(tmp_path, poses_per_step=5)
+    db = cfg.station.store_file(tmp_path)
+    control = RunControl()
+    stop_after = int(rng.integers(1, 5))  # measured batches before the abort
+
+    def watch():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                with RunStore(db) as st:
+                    done = [x.name for x in st.steps("c2") if x.status == "done" and x.name.startswith("measure")]
+            except Exception:
+                done = []
+            if len(done) >= stop_after:
+                control.abort()
+                return
+            time.sleep(0.05)
+
+    th = threading.Thread(target=watch, daemon=True)
+    th.start()
+    code = run_procedure(cfg, "arm-calibration", run_id="c2", yes=True, quiet=True, time_scale=TIME_SCALE,
+                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
+                         control=control)
+    th.join()
+    assert code == 3
+    with RunStore(db) as store:
+        before = store.samples("c2", "points")
+        first_q = store.run("c2").params["q_deg"]
+    n_before = before["pose"].size
+    assert n_before >= 5 * stop_after
+    code = run_procedure(cfg, None, resume="c2", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
+    assert code == 0
+    with RunStore(db) as store:
+        after = store.samples("c2", "points")
+        assert store.run("c2").params["q_deg"] == first_q  # the same poses
+        doc = store.result("c2", RESULT_KEY)
+    # every point measured before the abort is still there, unchanged
+    for k in range(n_before):
+        i = np.flatnonzero(after["pose"] == before["pose"][k])
+        assert any(np.allclose([after[c][j] for c in "xyz"], [before[c][k] for c in "xyz"]) for j in i)
+    assert set(after["pose"].astype(int)) == set(range(40))
+    assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
+
+
+def test_a_pose_outside_the_workspace_is_refused_before_anything_moves(tmp_path):
+    cfg = _cfg(tmp_path)
+    rng = np.random.default_rng()
+    # a plan edited to reach below the box: preflight names the pose, nothing connects
+    from procedures.arm_calibration import plan_from_config
+
+    plan = plan_from_config(cfg, "r1", selection_seed=int(rng.integers(2**31)))
+    q = [list(v) for v in plan.q_deg]
+    bad = int(rng.integers(1, len(q)))
+    lo, hi = np.array(plan.workspace_min_mm), np.array(plan.workspace_max_mm)
+    for dq in (40.0, -40.0, 60.0, -60.0, 80.0, -80.0):  # the shoulder turned until the tool leaves the box
+        trial = np.array(q[bad])
+        trial[1] += dq
+        p = kin.tool_position(plan.robot.dh_nominal, np.radians(trial))
+        if np.any(p < lo) or np.any(p > hi):
+            q[bad] = trial.tolist()
+            break
+    else:
+        pytest.fail("no shoulder turn takes this pose out of the box")
+    with pytest.raises(PreflightError, match=f"C{bad + 1}"):
+        run_procedure(cfg, "arm-calibration", run_id="c3", yes=True, quiet=True, time_scale=TIME_SCALE,
+                      config_dir=tmp_path, plan_overrides={"q_deg": q, "roles": list(plan.roles),
+                                                           "selection_seed": 1})
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        assert "c3" not in [r.run_id for r in store.runs()]  # not even started
