@@ -38,7 +38,10 @@ from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, Strea
 from drivers.transport import Deadline, check_positive, tcp_factory, transport_or_factory
 from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
-                            DeviceTimeout, StationError)
+                            DeviceTimeout, ProtocolError, StationError)
+
+#: no laser tracker measures farther (emScon trackers: up to 160 m with the longest-range targets)
+MAX_RANGE_MM = 200_000.0
 
 _COMMAND_NAMES = {int(c): c.name for c in ec.Command}
 
@@ -169,9 +172,15 @@ class EmsconTracker(Tracker):
                 raise BeamBroken(f"stationary measurement failed: status {ec.status_name(result.status)} "
                                  f"(no target: beam broken)")
             raise self._status_error(result.command, result.status)
+        if result.status != 0:
+            raise self._status_error(ec.Command.START_MEASUREMENT, result.status)
+        xyz = np.asarray(result.xyz, dtype=float)
+        if not np.all(np.isfinite(xyz)) or np.any(np.abs(xyz) * self._mm_per_unit > MAX_RANGE_MM):
+            raise ProtocolError(f"stationary result {xyz.tolist()} is not a measurable position "
+                                f"(finite, within {MAX_RANGE_MM / 1000:g} m)")
         k = self._mm_per_unit
         return StationaryMeasurement(
-            xyz_mm=np.asarray(result.xyz, dtype=float) * k, std_mm=np.asarray(result.std_xyz, dtype=float) * k,
+            xyz_mm=xyz * k, std_mm=np.asarray(result.std_xyz, dtype=float) * k,
             t_device_s=None, host_time_s=time.monotonic(), temperature_c=result.temperature,
             pressure_mbar=result.pressure, humidity_pct=result.humidity)
 
@@ -351,7 +360,10 @@ class EmsconTracker(Tracker):
                 if not self._reconnect():
                     break
             except Exception as exc:  # a bug must not kill the stream silently
-                self._fail(DeviceError(f"emScon reader failed: {exc!r}"))
+                err = DeviceError(f"emScon reader failed: {type(exc).__name__}: {exc}")
+                if self._stream is not None:
+                    self._stream.event(EventKind.DEVICE_ERROR, str(err))
+                self._fail(err)
                 break
 
     def _pump(self, timeout_s: float) -> None:

@@ -466,6 +466,7 @@ _FIXED_SIZES = {
     DataType.SYSTEM_STATUS_CHANGE: 12,
     DataType.SINGLE_MEAS_RESULT2: 204,
 }
+_FIXED_SIZES_INT = tuple((int(k), int(v)) for k, v in _FIXED_SIZES.items())
 _MULTI2_ITEM = 92
 
 
@@ -495,49 +496,58 @@ def _header_problem(size: int, ptype: int, from_server: bool, max_bytes: int) ->
     return None
 
 
+#: plain ints of the packet types (the header scan compares whole arrays; enum lookups cost more than the scan)
+_T_COMMAND, _T_ERROR = int(DataType.COMMAND), int(DataType.ERROR)
+_T_MULTI_MEAS_RESULT, _T_MULTI_MEAS_RESULT2 = int(DataType.MULTI_MEAS_RESULT), int(DataType.MULTI_MEAS_RESULT2)
+_T_SINGLE_MEAS_RESULT, _T_MAX = int(DataType.SINGLE_MEAS_RESULT), int(max(DataType))
+
+
 def _plausible_mask(words: np.ndarray, from_server: bool, max_bytes: int) -> np.ndarray:
     """For each word offset j (but the last), could a packet start there?
+
+    ``words`` is (..., n): every row is scanned alike (the four byte
+    alignments of a window at once).
 
     Checks the header pair (size, type) and, where those words are present,
     the fields right after it: command ids within range, a multi result's
     count matching its size, measMode and bIsTryMode within their domains.
     """
-    n = len(words)
+    n = words.shape[-1]
     if n < 2:
-        return np.zeros(0, dtype=bool)
+        return np.zeros(words.shape[:-1] + (0,), dtype=bool)
     w = words.astype(np.int64)
-    size, typ = w[:-1], w[1:]
+    size, typ = w[..., :-1], w[..., 1:]
     idx = np.arange(n - 1)
 
     def field(k):  # word j + k of each candidate, and whether it has arrived
-        vals = np.zeros(n - 1, dtype=np.int64)
-        vals[: max(0, n - k)] = w[k:]
+        vals = np.zeros(w.shape[:-1] + (n - 1,), dtype=np.int64)
+        vals[..., : max(0, n - k)] = w[..., k:]
         return vals, idx < n - k
 
     ok = (size >= MIN_PACKET_BYTES) & (size <= max_bytes) & (size % 4 == 0)
     w2, a2 = field(2)
     cmd_ok = ~a2 | ((w2 >= 0) & (w2 <= MAX_COMMAND_ID))
     if not from_server:
-        return ok & (typ == DataType.COMMAND) & cmd_ok
-    ok &= (typ >= 0) & (typ <= max(DataType))
-    for ptype, fixed in _FIXED_SIZES.items():
+        return ok & (typ == _T_COMMAND) & cmd_ok
+    ok &= (typ >= 0) & (typ <= _T_MAX)
+    for ptype, fixed in _FIXED_SIZES_INT:
         ok &= (typ != ptype) | (size == fixed)
     w3, a3 = field(3)
     status_ok = ~a3 | ((w3 >= 0) & (w3 <= _STATUS_MAX))
     reply_max = np.where(a2 & cmd_ok, _REPLY_MAX[np.clip(w2, 0, MAX_COMMAND_ID)], 16 + MAX_OTHER_REPLY_BYTES)
-    ok &= (typ != DataType.COMMAND) | ((size >= 16) & (size <= reply_max) & cmd_ok & status_ok)
-    ok &= (typ != DataType.ERROR) | (cmd_ok & status_ok & (~a3 | (w3 != 0)))
+    ok &= (typ != _T_COMMAND) | ((size >= 16) & (size <= reply_max) & cmd_ok & status_ok)
+    ok &= (typ != _T_ERROR) | (cmd_ok & status_ok & (~a3 | (w3 != 0)))
     w4, a4 = field(4)
     w5, a5 = field(5)
     body = size - MULTI_HEADER_BYTES
     multi_ok = ((body >= 0) & (body % MEAS_VALUE_DTYPE.itemsize == 0)
                 & (~a3 | (w3 == body // MEAS_VALUE_DTYPE.itemsize))
                 & (~a4 | ((w4 >= 0) & (w4 <= MEAS_MODE_MAX))) & (~a5 | ((w5 == 0) | (w5 == 1))))
-    ok &= (typ != DataType.MULTI_MEAS_RESULT) | multi_ok
+    ok &= (typ != _T_MULTI_MEAS_RESULT) | multi_ok
     multi2_ok = (body >= 0) & (body % _MULTI2_ITEM == 0) & (~a3 | (w3 == body // _MULTI2_ITEM))
-    ok &= (typ != DataType.MULTI_MEAS_RESULT2) | multi2_ok
+    ok &= (typ != _T_MULTI_MEAS_RESULT2) | multi2_ok
     single_ok = (~a3 | ((w3 >= 0) & (w3 <= MEAS_MODE_MAX))) & (~a4 | ((w4 == 0) | (w4 == 1)))
-    ok &= (typ != DataType.SINGLE_MEAS_RESULT) | single_ok
+    ok &= (typ != _T_SINGLE_MEAS_RESULT) | single_ok
     return ok
 
 
@@ -561,20 +571,55 @@ def _next_candidate(buf, start: int, from_server: bool, max_bytes: int, *,
     header fields and samples so far check out.
     """
     n = len(buf)
-    hits_all = []
-    for r in range(4):
-        first = start + ((r - start) % 4)
-        count = (n - first) // 4
-        if count < 2:
-            continue
-        words = np.frombuffer(buf, dtype="<i4", count=count, offset=first)
-        hits = np.flatnonzero(_plausible_mask(words, from_server, max_bytes))
-        hits_all.append(first + 4 * hits)
-    if not hits_all:
-        return None
+    # scan windows that double in size: the work is linear in the distance to the next packet, so a
+    # link that interleaves packets with junk costs linear, not quadratic, time
+    lo = start
+    width = 256
+    while lo < n:
+        hi = n if stop is None else min(n, stop + HEADER_BYTES)
+        hi = min(hi, lo + width)
+        found = _candidate_in(buf, lo, hi, n, from_server, max_bytes, stop, confirm)
+        if found is not None:
+            return found
+        if hi >= n or (stop is not None and hi >= stop):
+            return None
+        lo = hi - (HEADER_BYTES - 1)  # a header may straddle the window's end
+        lo = max(lo, start)
+        width *= 2
+    return None
+
+
+#: bytes past a scan window that the header checks of :func:`_plausible_mask` may read
+_LOOKAHEAD_BYTES = 64
+
+
+def _candidate_in(buf, lo: int, hi: int, n: int, from_server: bool, max_bytes: int, stop, confirm) -> int | None:
+    """The first plausible packet start in ``[lo, hi)``; the words checked reach past ``hi`` so a start near
+    the window's end is judged on the same fields as anywhere else."""
+    end = min(hi + _LOOKAHEAD_BYTES, n)
+    if end < n:
+        # the four byte alignments as rows of one array: word j of row r starts at byte lo + r + 4 j
+        count = (end - lo - 3) // 4
+        rows = np.lib.stride_tricks.as_strided(np.frombuffer(buf, dtype=np.uint8, count=4 * count + 3, offset=lo),
+                                               shape=(4, 4 * count), strides=(1, 1))
+        words = np.ascontiguousarray(rows).view("<i4")  # (4, count)
+        r_hit, j_hit = np.nonzero(_plausible_mask(words, from_server, max_bytes))
+        hits_all = [lo + r_hit + 4 * j_hit]
+    else:
+        # the buffer's tail: each alignment as far as its bytes go (what has not arrived is not judged)
+        hits_all = []
+        for r in range(4):
+            first = lo + ((r - lo) % 4)
+            cnt = (n - first) // 4
+            if cnt < 2:
+                continue
+            words = np.frombuffer(buf, dtype="<i4", count=cnt, offset=first)
+            hits_all.append(first + 4 * np.flatnonzero(_plausible_mask(words, from_server, max_bytes)))
+        if not hits_all:
+            return None
     for pos in np.sort(np.concatenate(hits_all)):  # loops over candidates, not bytes
         pos = int(pos)
-        if stop is not None and pos >= stop:
+        if pos >= hi or (stop is not None and pos >= stop):
             break
         size, ptype = HEADER.unpack_from(buf, pos)
         if ptype in (DataType.COMMAND, DataType.ERROR) and pos + 12 <= n \

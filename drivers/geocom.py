@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer, StreamRecord,
+from drivers.tracker import (BeamBroken, EventKind, guarded, StationaryMeasurement, StreamBuffer, StreamRecord,
                              Tracker, TrackerInfo)
 from drivers.transport import (Deadline, LineReader, check_positive, serial_factory,
                                transport_or_factory)
@@ -191,11 +191,20 @@ def parse_float(rpc: int, text: str) -> float:
     return value
 
 
+#: GeoCOM integers are 32-bit (signed or unsigned)
+INT_MIN, INT_MAX = -(2**31), 2**32 - 1
+
+
 def parse_int(rpc: int, text: str) -> int:
+    if len(text) > 12:  # more digits than any 32-bit value has (and no 4,300-digit conversion)
+        raise ProtocolError(f"reply to rpc {rpc}: {text[:16]!r}... ({len(text)} characters) is not a 32-bit integer")
     try:
-        return int(text)
+        value = int(text)
     except ValueError:
         raise ProtocolError(f"reply to rpc {rpc}: {text!r} is not an integer") from None
+    if not INT_MIN <= value <= INT_MAX:
+        raise ProtocolError(f"reply to rpc {rpc}: {text!r} is outside the 32-bit range")
+    return value
 
 
 # ----------------------------------------------------------------------------- driver
@@ -304,7 +313,8 @@ class GeoComTracker(Tracker):
         self._stream = StreamBuffer(self.protocol, rate_hz, grid=False)
         self._stream_active = True
         self._stop.clear()
-        self._poller = threading.Thread(target=self._poll_main, args=(1.0 / rate_hz,),
+        self._poller = threading.Thread(target=guarded(lambda: self._stream, "GeoCOM poller", self._poll_main),
+                                        args=(1.0 / rate_hz,),
                                         name="geocom-poller", daemon=True)
         self._poller.start()
 

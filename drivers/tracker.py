@@ -153,6 +153,8 @@ class StreamRecord:
     t_last_s: float | None
     gaps: tuple = ()
     events: tuple = ()
+    #: why the stream stopped early (a dead link, a failure inside the driver's thread), or None
+    error: str | None = None
 
     @property
     def grid_points(self) -> int:
@@ -254,7 +256,7 @@ class StreamBuffer:
             self.not_measured += int(n)
 
     def fail(self, exc: BaseException) -> None:
-        """The stream cannot continue; :meth:`take` raises ``exc`` once drained."""
+        """The stream cannot continue; :meth:`take` raises ``exc`` once drained, the record keeps why."""
         with self._cond:
             self._failure = exc
             self._cond.notify_all()
@@ -373,7 +375,25 @@ class StreamBuffer:
                 duplicates=self.duplicates, rejected_frames=self.rejected_frames,
                 garbage_bytes=self.garbage_bytes, reconnects=self.reconnects,
                 t_first_s=self._first_t, t_last_s=self._last_t, gaps=tuple(self._gaps),
-                events=tuple(self._all_events))
+                events=tuple(self._all_events), error=None if self._failure is None else str(self._failure))
+
+
+def guarded(buf_of, name: str, target):
+    """``target`` wrapped for a device thread: an exception it raises fails the stream (an event and an
+    error the procedure sees when it reads or stops the stream) instead of ending the thread silently.
+    ``buf_of()`` gives the stream buffer at the time of the failure."""
+    def run(*args, **kwargs):
+        try:
+            target(*args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - whatever it is, the reader of the stream must learn of it
+            from station.errors import DeviceError
+
+            buf = buf_of()
+            if buf is not None:
+                err = DeviceError(f"{name} failed: {type(exc).__name__}: {exc}")
+                buf.event(EventKind.DEVICE_ERROR, str(err))
+                buf.fail(err)
+    return run
 
 
 class Tracker(abc.ABC):

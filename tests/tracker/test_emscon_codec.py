@@ -267,3 +267,37 @@ def test_device_time_split_and_join():
     np.testing.assert_allclose(ec.join_time_s(s, us), t_us / 1e6, rtol=0, atol=1e-12)
     with pytest.raises(ProtocolError):
         ec.split_time_us([-1])
+
+
+def _decode_view(data: bytes):
+    view, off, frames = memoryview(data), 0, []
+    while True:
+        c, f = ec.decode(view[off:], from_server=True, require_successor=True)
+        if c == 0:
+            return frames, off
+        off += c
+        frames.append(f)
+
+
+def test_resynchronisation_work_is_linear_in_the_bytes(monkeypatch):
+    """Status changes each followed by 4 junk bytes (issue reproducer): every packet kept, and the header scan
+    reads a bounded number of words per byte (it used to rescan the rest of the buffer at every skip)."""
+    scanned = [0]
+    real = ec._plausible_mask
+
+    def counting(words, *a, **k):
+        scanned[0] += words.size
+        return real(words, *a, **k)
+
+    monkeypatch.setattr(ec, "_plausible_mask", counting)
+    pkt = bytes.fromhex("0c000000080000001b000000eeeeeeee")
+    per_byte = []
+    for reps in (256, 2048):
+        scanned[0] = 0
+        frames, used = _decode_view(pkt * reps)
+        events = [f for f in frames if isinstance(f, ec.StatusChangePacket)]
+        junk = [f for f in frames if isinstance(f, ec.Garbage)]
+        assert len(events) == reps
+        assert sum(g.nbytes for g in junk) == 4 * (reps - 1)
+        per_byte.append(scanned[0] / (16 * reps))
+    assert per_byte[1] < 1.2 * per_byte[0] + 1.0

@@ -160,3 +160,55 @@ def test_bad_unit_name():
         tracker.set_units("furlong")
     tracker.close()
     transport.assert_done()
+
+
+def _single(status: int, xyz) -> bytes:
+    return struct.pack("<ii", 156, 2) + struct.pack("<iii", status, 0, 0) + struct.pack(
+        "<17d", *xyz, 0.01, 0.02, 0.03, 0.04, 0, 0, 0, 0, 0, 0, 0, 21.5, 1001.0, 40.0)
+
+
+@pytest.mark.parametrize("status, xyz, match", [
+    (0, (float("nan"), 1.0, 2.0), "not a measurable position"),
+    (0, (1.0, float("inf"), 2.0), "not a measurable position"),
+    (0, (1e12, 1.0, 2.0), "not a measurable position"),
+    (10004, (1.0, 2.0, 3.0), "status"),
+])
+def test_stationary_result_that_is_no_measurement_is_refused(status, xyz, match):
+    pairs = [
+        (hx("10000000 00000000 18000000 00000000"), hx("10000000 00000000 18000000 00000000")),
+        (hx("14000000 00000000 1c000000 fa000000 00000000"), hx("10000000 00000000 1c000000 00000000")),
+        (hx("0c000000 00000000 31000000"), hx("10000000 00000000 31000000 00000000") + _single(status, xyz)),
+    ]
+    transport, tracker = _connected(pairs)
+    try:
+        with pytest.raises(DeviceError, match=match):
+            tracker.measure_stationary(duration_s=0.25)
+    finally:
+        tracker.close()
+
+
+def test_an_exception_in_the_reader_thread_is_an_event_and_an_error_never_a_silent_death():
+    samples = ec.MultiMeasResult.from_arrays(np.array([10_000, 11_000]), [[1.0, 2.0, 3.0], [1.1, 2.1, 3.1]])
+    pairs = [
+        (hx("10000000 00000000 18000000 01000000"), hx("10000000 00000000 18000000 00000000")),
+        (hx("1c000000 00000000 1e000000 01000000 00000000 00000000 00000000"),
+         hx("10000000 00000000 1e000000 00000000")),
+        (hx("0c000000 00000000 31000000"), hx("10000000 00000000 31000000 00000000") + samples.encode()),
+    ]
+    transport, tracker = _connected(pairs)
+    real = tracker._handle
+
+    def broken(frame):
+        if isinstance(frame, ec.MultiMeasResult):
+            raise RuntimeError("injected fault in the reader")
+        return real(frame)
+
+    tracker._handle = broken
+    tracker.start_stream(1000.0)
+    with pytest.raises(DeviceError, match="injected fault"):
+        for _ in range(50):
+            tracker.read_samples(0.1)
+    record = tracker._stream.record()
+    assert record.error is not None and "RuntimeError" in record.error
+    assert any(e.kind is EventKind.DEVICE_ERROR and "injected" in e.detail for e in record.events)
+    tracker.close()

@@ -222,3 +222,32 @@ def test_geocompy_measures_through_the_fake(world):
             assert float(hz) == pytest.approx(np.arctan2(truth_m[0], truth_m[1]) % (2 * np.pi), abs=1e-12)
             assert tps.request(9999).error == GeoComCode.NOT_IMPL
         assert fake.stats["malformed"] == 0
+
+
+def test_a_time_field_of_hundreds_of_digits_is_a_protocol_error():
+    """Issue reproducer: a 309-digit time raised OverflowError, which killed the polling thread."""
+    with pytest.raises(ProtocolError, match="32-bit"):
+        GeoComTracker._coordinate(("0.1", "0.2", "0.3", "9" * 309, "0", "0", "0", "0"))
+    with pytest.raises(ProtocolError, match="32-bit"):
+        GeoComTracker._coordinate(("0.1", "0.2", "0.3", str(2**40)))
+
+
+def test_an_exception_in_the_polling_thread_is_an_event_and_an_error(rig):
+    world, fake, tracker = rig()
+    calls = [0]
+    real = GeoComTracker._coordinate
+
+    def broken(values):
+        calls[0] += 1
+        if calls[0] > 3:
+            raise RuntimeError("injected fault in the poller")
+        return real(values)
+
+    tracker._coordinate = broken
+    tracker.start_stream(100.0)
+    with pytest.raises(DeviceError, match="injected fault"):
+        for _ in range(100):
+            tracker.read_samples(0.1)
+    record = tracker.stop_stream()
+    assert record.received >= 3 and record.error is not None and "RuntimeError" in record.error
+    assert any(e.kind is EventKind.DEVICE_ERROR for e in record.events)
