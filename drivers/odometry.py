@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import math
+import re
 from dataclasses import dataclass
 
 from drivers.transport import Deadline, SerialTransport, Transport
@@ -126,9 +127,18 @@ def encode_speed_command(v_m_s: float) -> bytes:
     return encode_sentence([f"P{MANUFACTURER}V", _fmt(v_m_s)])
 
 
+#: a field's number as NMEA writes it: optional sign, digits, optional fraction, optional exponent (Python's
+#: float() also takes '1_0', ' 8', 'inf', 'nan', which no sentence holds)
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+_HEX2 = re.compile(rb"[0-9A-Fa-f]{2}")
+
+
 def _floats(fields: list[str], n: int, what: str) -> list[float]:
     if len(fields) != n:
         raise ValueError(f"{what} needs {n} fields, got {len(fields)}")
+    for f in fields:
+        if not _NUMBER.fullmatch(f):
+            raise ValueError(f"{what}: {f[:20]!r} is not a decimal number")
     out = [float(f) for f in fields]
     if not all(math.isfinite(x) for x in out):
         raise ValueError(f"{what} has a non-finite field")
@@ -230,6 +240,8 @@ class NmeaDecoder:
             return None
         body, hh = line[1:star], line[star + 1:]
         try:
+            if not _HEX2.fullmatch(hh):
+                raise ValueError("checksum must be two hex digits")
             expected = int(hh.decode("ascii"), 16)
             text = body.decode("ascii")
         except (ValueError, UnicodeDecodeError):

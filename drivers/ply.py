@@ -102,6 +102,23 @@ def _header(data: bytes, source: str):
     return fmt, elements, body_start
 
 
+def _check_representable(values: np.ndarray, dtype: np.dtype, axis: str, source: str) -> None:
+    """DataError naming the first vertex whose ``axis`` value the declared type cannot hold exactly."""
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(values) | (values != np.round(values)) | (values < info.min) | (values > info.max)
+        kind = f"an integer in [{info.min}, {info.max}]"
+    else:
+        with np.errstate(over="ignore"):
+            bad = ~np.isfinite(values) | ~np.isfinite(values.astype(dtype))
+        kind = f"a finite {dtype.name}"
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise DataError(f"{source}: vertex {k}: {axis} = {float(values[k]):.10g} is not {kind} (the declared type "
+                        f"{dtype.name})")
+
+
 def parse_ply(data: bytes, source: str = "<bytes>") -> np.ndarray:
     """Parse PLY bytes into vertex coordinates.
 
@@ -149,7 +166,9 @@ def parse_ply(data: bytes, source: str = "<bytes>") -> np.ndarray:
         block = rows[skip : skip + n]
         width = len(pnames)
         try:
-            table = np.loadtxt(io.StringIO("\n".join(block)), dtype=float, ndmin=2) if n else np.zeros((0, width))
+            # no comment character: '1 2 3#junk' is a malformed line, not a line with a comment
+            table = (np.loadtxt(io.StringIO("\n".join(block)), dtype=float, ndmin=2, comments=None) if n
+                     else np.zeros((0, width)))
         except ValueError as exc:
             if "column" in str(exc) and "convert" not in str(exc):
                 raise DataError(f"{source}: vertex lines must have {width} values each ({exc})") from exc
@@ -157,8 +176,11 @@ def parse_ply(data: bytes, source: str = "<bytes>") -> np.ndarray:
         if table.shape != (n, width):
             raise DataError(f"{source}: vertex lines must have {width} values each; got shape {table.shape}")
         pts = table[:, cols]
-        # values take the declared type (a 'float' column holds float32 values)
+        # values take the declared type (a 'float' column holds float32 values); a value the type
+        # cannot hold is refused, never cast (uchar 300 is not 44, int 1.7 is not 1)
         types = [vert["props"][c][1] for c in cols]
+        for i, t in enumerate(types):
+            _check_representable(pts[:, i], np.dtype(t), "xyz"[i], source)
         pts = np.column_stack([pts[:, i].astype(types[i]).astype(float) for i in range(3)]) if n else np.zeros((0, 3))
     else:
         endian = _FORMATS[fmt]

@@ -70,7 +70,7 @@ GOOD_HEAD = "ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty fl
         (GOOD_HEAD.replace("binary_little_endian", "ascii").encode() + b"1 2 3\n4 five 6\n", "non-numeric"),
         (GOOD_HEAD.replace("binary_little_endian", "ascii").encode() + b"1 2 3\n", "only 1 data lines"),
         (GOOD_HEAD.replace("binary_little_endian", "ascii").encode() + b"1 2 3 4\n5 6\n", "3 values each"),
-        (GOOD_HEAD.replace("binary_little_endian", "ascii").encode() + b"1 2 3\nnan 5 6\n", "vertex 1 has a non-finite"),
+        (GOOD_HEAD.replace("binary_little_endian", "ascii").encode() + b"1 2 3\nnan 5 6\n", "vertex 1: x = nan is not a finite"),
         (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar float x\nproperty float y\nproperty float z\nend_header\n",
          "list property"),
         (b"ply\nformat ascii 1.0\nbogus line\nend_header\n", "unexpected keyword 'bogus'"),
@@ -98,3 +98,25 @@ def test_file_name_in_errors(tmp_path):
     p.write_bytes(b"garbage")
     with pytest.raises(DataError, match="broken.ply"):
         read_ply(p)
+
+
+def _ascii(ptype: str, rows) -> bytes:
+    head = f"ply\nformat ascii 1.0\nelement vertex {len(rows)}\n" + "".join(
+        f"property {ptype} {a}\n" for a in "xyz") + "end_header\n"
+    return (head + "\n".join(rows) + "\n").encode()
+
+
+@pytest.mark.parametrize("ptype, row, match", [
+    ("uchar", "300 1 2", "x = 300 is not an integer in \\[0, 255\\]"),
+    ("int", "1 1.7 2", "y = 1.7 is not an integer"),
+    ("int", "1 2 inf", "z = inf is not an integer"),
+    ("int", "nan 2 3", "x = nan is not an integer"),
+    ("float", "1 2 3#junk", "non-numeric"),
+    ("float", "1e39 2 3", "not a finite float32"),
+])
+def test_ascii_values_the_declared_type_cannot_hold_are_refused_not_cast(ptype, row, match):
+    """Issue reproducers: uchar 300 was read as 44, int 1.7 as 1, int inf as -2147483648, '3#junk' as 3."""
+    with pytest.raises(DataError, match=match):
+        parse_ply(_ascii(ptype, ["0 0 0", row]))
+    # the same type holds representable values exactly
+    assert parse_ply(_ascii(ptype, ["0 0 0", "1 2 3"])).tolist() == [[0, 0, 0], [1, 2, 3]]

@@ -260,3 +260,25 @@ def test_fakes_serve_odometry_command_line():
             proc.kill()
             proc.wait()
     assert proc.returncode == 0
+
+
+@pytest.mark.parametrize("mangle", ["checksum+", "checksum space before", "checksum space after", "1_0", " 1", "nan"])
+def test_lenient_number_forms_are_refused(mangle):
+    """Issue reproducers: checksums '+8', ' 8', '8 ' and numbers like '1_0' (read as 10) were accepted."""
+    fields = ["PODO", "12.345", "0.51", "0.020", "0.085"]
+    if mangle in ("1_0", " 1", "nan"):
+        fields[2] = mangle
+        body = ",".join(fields).encode()
+        frame = b"$" + body + b"*%02X\r\n" % checksum(body)
+    else:
+        body = ",".join(fields).encode()
+        hh = b"%X" % checksum(body)
+        hh = {"checksum+": b"+" + hh[-1:], "checksum space before": b" " + hh[-1:],
+              "checksum space after": hh[-1:] + b" "}[mangle]
+        frame = b"$" + body + b"*" + hh + b"\r\n"
+    dec = NmeaDecoder()
+    assert dec.feed(frame) == []
+    assert dec.stats.samples == 0
+    assert dec.stats.malformed + dec.stats.partial_lines + dec.stats.checksum_errors == 1
+    good = encode_sentence(["PODO", "12.345", "0.51", "0.020", "0.085"])
+    assert len(dec.feed(good)) == 1  # and the decoder goes on
