@@ -29,7 +29,7 @@ from procedures.devices import DeviceSet, configured_devices
 from procedures.execute import execute, prepare, preflight
 from station.errors import ConfigError, SafetyError
 from station.runner import InteractiveOperator, ProgressLine, RunControl, ScriptedOperator
-from station.store import RunStore
+from station.store import RunStore, StoreError
 
 
 def operator_for(yes: bool, quiet: bool):
@@ -58,7 +58,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     base = config_dir or Path.cwd()
     operator = operator or operator_for(yes, quiet)
     with ExitStack() as stack:
-        store = stack.enter_context(RunStore(cfg.station.store_file(base)))
+        store = stack.enter_context(open_store(cfg.station.store_file(base)))
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
                                                           **(fake_options or {})}
         prepared = prepare(cfg, store, procedure, robot=robot, resume=resume, run_id=run_id,
@@ -122,8 +122,22 @@ def _write_json(store, run_id, outcome, json_out, result_key: str) -> None:
 
 
 def stored_procedure(cfg, run_id: str, base: Path) -> str:
-    with RunStore(cfg.station.store_file(base)) as store:
+    with open_store(cfg.station.store_file(base)) as store:
         return store.run(run_id).procedure
 
 
-__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "ConfigError"]
+def open_store(path: Path) -> RunStore:
+    """The run store at ``path``; a path no store can live at is a StoreError naming it (not a traceback)."""
+    import sqlite3
+
+    try:
+        return RunStore(path)
+    except (OSError, sqlite3.Error, ValueError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        blocking = next((p for p in Path(path).parents if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            why = f"{blocking} is a file, not a folder"
+        raise StoreError(f"store {str(path)!r}: cannot open it here ({why})") from None
+
+
+__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "open_store", "ConfigError"]

@@ -33,8 +33,11 @@ DEVICE_KINDS = {name: s.kind for name, s in SCHEMES.items() if s.kind != "fake"}
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN or inf anywhere
 
+
+#: the slowest speed a generated program may ask for, percent of rated (controllers refuse a zero speed)
+MIN_SPEED_PERCENT = 0.5
 
 PositiveMM = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -82,7 +85,7 @@ class WorkspaceConfig(_Strict):
     min_mm: tuple[float, float, float]
     max_mm: tuple[float, float, float]
     max_tcp_speed_mm_s: PositiveMM = 2000.0
-    max_speed_percent: float = Field(100.0, gt=0, le=100)
+    max_speed_percent: float = Field(100.0, ge=MIN_SPEED_PERCENT, le=100)
     max_accel_percent: float = Field(100.0, gt=0, le=100)
 
     @model_validator(mode="after")
@@ -97,7 +100,7 @@ class RobotConfig(_Strict):
     model: str
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
     overhaul_state: Literal["before", "after", "new", "in-service"] = "in-service"
-    payload_kg: float = Field(0.0, ge=0, allow_inf_nan=False)
+    payload_kg: float = Field(0.0, ge=0, le=10_000, allow_inf_nan=False)
     controller: str
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()
@@ -118,13 +121,13 @@ class ISOProcedureConfig(_Strict):
     """Parameters of the ISO 9283 procedure (seed 000 sec. 2-3)."""
 
     cube_corners_mm: list[tuple[float, float, float]] | None = None
-    inset_mm: float = Field(100.0, gt=0)
+    inset_mm: float = Field(100.0, gt=0, le=1000)
     cycles: int = Field(30, ge=2, le=1000)
     dwell_s: float = Field(0.5, gt=0, le=60)
-    speed_percent: float = Field(100.0, gt=0, le=100)
+    speed_percent: float = Field(100.0, ge=MIN_SPEED_PERCENT, le=100)
     tracker_rate_hz: float = Field(100.0, ge=10, le=3000)
     vap_cycles: int = Field(30, ge=2, le=1000)
-    vap_offset_mm: float = Field(100.0, gt=0)
+    vap_offset_mm: float = Field(100.0, gt=0, le=1000)
     distance_cycles: int = Field(10, ge=2, le=1000)
     mpt_repeats: int = Field(3, ge=1, le=100)
     #: how the tracker is tied to the robot base: circles of joints 1 and 2 (ISO/TR 13309 practice) or a
@@ -167,7 +170,7 @@ class ArmCalibrationConfig(_Strict):
     reflector_half_angle_deg: float = Field(30.0, gt=0, le=90)
     dwell_s: float = Field(0.3, gt=0, le=60)
     measure_s: float = Field(0.2, gt=0, le=60)
-    speed_percent: float = Field(20.0, gt=0, le=100)
+    speed_percent: float = Field(20.0, ge=MIN_SPEED_PERCENT, le=100)
     poses_per_step: int = Field(8, ge=1, le=200)
 
 
@@ -184,6 +187,15 @@ class TrailerConfig(_Strict):
     duration_s: float = Field(63.0, gt=0, le=1e4)
     method: str = "dynamic"
 
+    @field_validator("method")
+    @classmethod
+    def _method(cls, v):
+        from station.analysis.trailer_estimate import ESTIMATORS
+
+        if v not in ESTIMATORS:
+            raise ValueError(f"unknown trailer method {v!r}; one of {', '.join(ESTIMATORS)}")
+        return v
+
     @model_validator(mode="after")
     def _links(self) -> "TrailerConfig":
         if self.nominal_L2_m <= self.nominal_L1_m:
@@ -195,8 +207,16 @@ class TrailerConfig(_Strict):
 
 class StationSection(_Strict):
     name: str = Field(min_length=1)
-    store_path: str = "station.sqlite"
-    report_dir: str = "reports"
+    store_path: str = Field("station.sqlite", min_length=1, max_length=4096)
+    report_dir: str = Field("reports", min_length=1, max_length=4096)
+
+    @field_validator("store_path", "report_dir")
+    @classmethod
+    def _plain_path(cls, v):
+        bad = [c for c in v if ord(c) < 32 or ord(c) == 127]
+        if bad:
+            raise ValueError(f"a path cannot hold control characters (found {bad[0]!r})")
+        return v
 
     def store_file(self, base: Path) -> Path:
         """The store's path; a relative one is relative to ``base`` (the config's folder)."""
@@ -268,13 +288,40 @@ def load_config(path: str | Path) -> StationConfig:
         text = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from exc
+    kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: {len(text)} bytes is not a station config (at most {MAX_CONFIG_BYTES})")
     try:
-        if path.suffix.lower() == ".json":
+        if kind == "JSON":
             data = json.loads(text)
         else:
             data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {exc}") from exc
+        raise ConfigError(f"{path}: not valid {kind}: {exc}") from exc
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a station config") from None
+    except ValueError as exc:  # e.g. an integer of thousands of digits
+        why = "an integer of more than 4300 digits" if "digits" in str(exc) else str(exc)[:120]
+        raise ConfigError(f"{path}: not a valid {kind} value: {why}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: top level must be a table")
+    depth = _depth(data)
+    if depth > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{path}: nested {depth} levels deep; a station config has at most {MAX_CONFIG_DEPTH}")
     return config_from_dict(data, str(path))
+
+
+#: bounds on what a config file can be (a real one is a few KiB and 4-5 levels deep)
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_DEPTH = 12
+
+
+def _depth(value, level: int = 0) -> int:
+    """Nesting depth of tables and arrays (stops counting past the limit)."""
+    if level > MAX_CONFIG_DEPTH:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, level + 1) for v in value), default=level + 1)
+    return level

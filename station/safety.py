@@ -83,7 +83,7 @@ class SafetyLimits(BaseModel):
         Spacing of the points checked along a path.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     workspace_min_mm: tuple[float, float, float]
     workspace_max_mm: tuple[float, float, float]

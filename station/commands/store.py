@@ -46,7 +46,9 @@ def _open(config: str):
     from station.store import RunStore
 
     cfg = load_config(config)
-    return RunStore(cfg.station.store_file(Path(config).resolve().parent))
+    from station.assemble import open_store
+
+    return open_store(cfg.station.store_file(Path(config).resolve().parent))
 
 
 def _ts(t: float | None) -> str:

@@ -38,6 +38,7 @@ import numpy as np
 
 from station.errors import ConfigError
 from station.programs.model import (
+    check_unique_identifiers,
     CartesianTarget,
     CycleMark,
     Dwell,
@@ -104,6 +105,10 @@ def render_krl(program: Program) -> RenderedProgram:
         raise ConfigError(f"program {program.name}: KRL linear moves need rated_tcp_accel_mm_s2 for $ACC.CP")
     has_loop = any(isinstance(s, Loop) for s in program.statements)
 
+    check_unique_identifiers(program.name, [
+        (program.name, "the program"), (LOOP_COUNTER, "the loop counter"), (CYCLE_SIGNAL, "the cycle signal"),
+        *[(("p_" if isinstance(t, CartesianTarget) else "j_") + t.name, f"target {t.name}")
+          for t in program.targets().values()]])
     src: list[str] = []
     stmt_lines: list[int] = []
 

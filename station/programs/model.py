@@ -504,3 +504,21 @@ def with_lines(program: Program, lines: list[int]) -> Program:
         else:
             new.append(replace(s, source_line=next(it)))
     return replace(program, statements=tuple(new))
+
+
+def check_unique_identifiers(program_name: str, declared: list[tuple[str, str]]) -> None:
+    """ConfigError when two of ``declared`` (identifier, what it is) are the same name.
+
+    RAPID and KRL identifiers are case-insensitive, so ``V_1`` and ``v_1``
+    clash; a controller refuses a module that declares a name twice (a
+    program named ``v_1`` beside the generated speed ``v_1``, or ``n_cycle``
+    beside the loop counter).
+    """
+    seen: dict[str, str] = {}
+    for ident, what in declared:
+        key = ident.lower()
+        if key in seen:
+            raise ConfigError(f"program {program_name}: {seen[key]} and {ident!r} ({what}) are the same "
+                              f"identifier to the controller; choose another name")
+        seen[key] = f"{ident!r} ({what})"
+

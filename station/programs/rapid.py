@@ -48,6 +48,7 @@ from __future__ import annotations
 
 from station.errors import ConfigError
 from station.programs.model import (
+    check_unique_identifiers,
     CartesianTarget,
     CycleMark,
     Dwell,
@@ -135,6 +136,13 @@ def render_rapid(program: Program) -> RenderedProgram:
         raise ConfigError(
             f"program {program.name}: accel_frac {program.accel_frac:g} is below RAPID's AccSet minimum of 20 %"
         )
+    speeds = program.speed_fracs()
+    check_unique_identifiers(program.name, [
+        (program.name, "the module"), ("main", "the main routine"), (LOOP_COUNTER, "the loop counter"),
+        (CYCLE_SIGNAL, "the cycle signal"),
+        *[((robtarget_name(t) if isinstance(t, CartesianTarget) else jointtarget_name(t)), f"target {t.name}")
+          for t in program.targets().values()],
+        *[(_speed_name(i), "a speed") for i in range(len(speeds))]])
     lines: list[str] = []
     stmt_lines: list[int] = []
 
@@ -151,7 +159,6 @@ def render_rapid(program: Program) -> RenderedProgram:
         if t.label:
             emit(rapid_comment(f"{t.name}: {t.label}"), 1)
         emit(_robtarget(t) if isinstance(t, CartesianTarget) else _jointtarget(t), 1)
-    speeds = program.speed_fracs()
     for i, frac in enumerate(speeds):
         v_tcp = frac * program.rated_tcp_speed_mm_s
         emit(

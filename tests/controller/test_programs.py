@@ -292,3 +292,30 @@ def test_parser_reads_rapid_strings_exactly():
     m = parse_rapid('MODULE M\n PROC main()\n  TPWrite "a""b\\\\c\\41";\n ENDPROC\nENDMODULE\n')
     ins = m.procs["main"][0]
     assert ins.args[0].args[0] == 'a"b\\cA'
+
+
+@pytest.mark.parametrize("render", ["rapid", "krl"])
+@pytest.mark.parametrize("name", ["v_1", "V_1", "n_cycle", "N_CYCLE", "CYCLE_COUNT", "go_cycle_count", "main",
+                                  "p_P1", "j_J1"])
+def test_a_name_that_clashes_with_a_generated_identifier_is_refused(render, name):
+    """Issue reproducer: program names like v_1 or n_cycle declared an identifier twice (controllers refuse)."""
+    from station.programs.krl import CYCLE_SIGNAL as KRL_SIGNAL
+    from station.programs.krl import render_krl
+    from station.programs.model import CartesianTarget, JointTarget, Loop, Move, Program
+    from station.programs.rapid import CYCLE_SIGNAL as RAPID_SIGNAL
+
+    clashes = {"rapid": {"v_1", "n_cycle", RAPID_SIGNAL.lower(), "main", "p_p1", "j_j1"},
+               "krl": {"n_cycle", KRL_SIGNAL.lower(), "p_p1", "j_j1"}}[render]
+    statements = (Loop(2, (Move(CartesianTarget("P1", (500.0, 0.0, 800.0), (0.0, 0.0, 1.0, 0.0)), "joint", 0.5),
+                           Move(JointTarget("J1", (0.0, -10.0, 10.0, 0.0, 20.0, 0.0)), "joint", 0.5))),)
+    do = render_rapid if render == "rapid" else render_krl
+
+    def build_and_render():
+        return do(Program(name=name, robot_name="r", rated_tcp_speed_mm_s=1000.0, statements=statements,
+                          accel_frac=0.5, rated_tcp_accel_mm_s2=5000.0))
+
+    if name.lower() in clashes | {"main"}:  # 'main' is refused as a reserved word before rendering
+        with pytest.raises(ConfigError, match=f"{name!r}.*(same identifier|reserved word)"):
+            build_and_render()
+    else:
+        build_and_render()
