@@ -724,6 +724,41 @@ def estimate_trailer(data: dict, method: str, *, sampling: str = "interval",
     """
     if method not in ESTIMATORS:
         raise ConfigError(f"method must be one of M1..M24, odr, dynamic; got {method!r}")
+    screen_samples(data)
+    try:
+        est = _estimate(data, method, sampling, use_command)
+    except np.linalg.LinAlgError as exc:
+        raise DataError(f"{method}: the record does not determine the lengths ({exc})") from None
+    if not (abs(est.L1_m) > 1e-6 or abs(est.L2_m) > 1e-6):
+        raise DataError(f"{method}: degenerate estimate L1={est.L1_m:.3g} m, L2={est.L2_m:.3g} m; "
+                        f"the record does not determine the lengths")
+    return est
+
+
+#: no trailer turns tighter than 5 cm (|kappa| <= 20 1/m); a sample beyond is a corrupted record
+KAPPA_ABSURD_1_M = 20.0
+
+
+def screen_samples(data: dict) -> None:
+    """DataError naming the first row (1-based) whose curvature, angle or time no trailer can produce."""
+    checks = [("kappa", lambda x: np.abs(x) <= KAPPA_ABSURD_1_M, f"|kappa| <= {KAPPA_ABSURD_1_M:g} 1/m"),
+              ("psi", lambda x: np.abs(x) <= math.pi, "|psi| <= pi rad"),
+              ("t", lambda x: np.ones(x.shape, bool), "finite"),
+              ("v", lambda x: np.abs(x) <= 100.0, "|v| <= 100 m/s"),
+              ("kappa_cmd", lambda x: np.abs(x) <= KAPPA_ABSURD_1_M, f"|kappa_cmd| <= {KAPPA_ABSURD_1_M:g} 1/m")]
+    for name, ok, what in checks:
+        if data.get(name) is None:
+            continue
+        x = np.asarray(data[name], dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(x) | ~ok(x)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise DataError(f"data row {i + 1}: {name} = {float(x[i]):.6g} is not a trailer's ({what}); "
+                            f"{int(bad.sum())} such row(s)")
+
+
+def _estimate(data: dict, method: str, sampling: str, use_command: bool) -> TrailerEstimate:
     phase = data.get("phase")
     if method == "dynamic":
         sel = slice(None) if phase is None else np.asarray(phase) <= 1

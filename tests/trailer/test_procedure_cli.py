@@ -174,3 +174,19 @@ def test_calibrate_trailer_bad_files(tmp_path, capsys):
     assert main(["calibrate", "trailer", "--data", str(tmp_path / "absent.csv")]) == 2
     with pytest.raises(DataError, match="missing column"):
         read_trailer_csv(tmp_path / "missing.csv")
+
+
+@pytest.mark.parametrize("method", ["dynamic", "odr", "M17"])
+def test_one_absurd_sample_is_refused_with_its_row(trailer_csv, tmp_path, capsys, method):
+    """Issue reproducer: kappa = -1e9 in one row ended in LinAlgError tracebacks or L1 = L2 = -0.0000, exit 0."""
+    rec = read_trailer_csv(trailer_csv)
+    row = int(np.random.default_rng().integers(0, len(rec["t"])))
+    kappa = np.array(rec["kappa"], dtype=float)
+    kappa[row] = -1e9
+    path = tmp_path / "T.csv"
+    write_trailer_csv(path, rec["t"], kappa, rec["psi"], rec["v"])
+    out = tmp_path / "o.json"
+    assert main(["calibrate", "trailer", "--data", str(path), "--method", method, "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"data row {row + 1}: kappa = -1e+09" in err and "Traceback" not in err
+    assert not out.exists()
