@@ -102,7 +102,12 @@ def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -
     """
     if not isinstance(url, str) or "://" not in url:
         raise ConfigError(f"device URL {url!r} must look like scheme://host:port or scheme:///dev/...")
-    parts = urlsplit(url)
+    if len(url) > 2048 or any(ord(c) < 32 or ord(c) == 127 for c in url):
+        raise ConfigError(f"device URL {url[:60]!r}: control characters or over 2048 characters")
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # e.g. an unbalanced [ of an IPv6 host
+        raise ConfigError(f"device URL {url!r}: {exc}") from None
     name = parts.scheme.lower()
     if name not in SCHEMES:
         raise ConfigError(f"device URL {url!r}: unknown scheme {name!r} (known: {', '.join(SCHEMES)})")
@@ -127,7 +132,7 @@ def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -
     options.update(given)
     for key in sch.int_options:
         value = options.get(key)
-        if value is not None and not (value.isdigit() and int(value) > 0):
+        if value is not None and not (value.isascii() and value.isdigit() and len(value) <= 9 and int(value) > 0):
             raise ConfigError(f"device URL {url!r}: {key} must be a positive integer, got {value!r}")
     host, path = parts.hostname, parts.path or None
     if sch.address == "host":
