@@ -144,13 +144,19 @@ def joint_terms(dh_nominal, q_rad, last_dir, *, robot=None, load_kg=None) -> tup
         cols, names = [], []
         for g, name in basis:
             col = g[:, j]
-            if np.sqrt(np.mean(col ** 2)) > 1e-6:
-                cols.append(-col)
-                names.append(name.format(j=J))
+            if np.sqrt(np.mean(col ** 2)) <= 1e-6:
+                continue
+            if cols:  # a basis column that repeats the shape of one kept adds nothing but a parameter
+                K = np.column_stack(cols)
+                coef, *_ = np.linalg.lstsq(K, -col, rcond=None)
+                if np.linalg.norm(-col - K @ coef) < 1e-3 * np.linalg.norm(col):
+                    continue
+            cols.append(-col)
+            names.append(name.format(j=J))
         if const:
             untestable[f"joint_compliance[{J}]"] = why_const
         elif not cols:
-            untestable[f"joint_compliance[{J}]"] = f"gravity puts no torque on joint {J} (its axis is vertical)"
+            untestable[f"joint_compliance[{J}]"] = f"gravity puts no torque on joint {J} in these poses (a vertical axis, or the masses lie on it)"
         else:
             terms.append(Term("joint_compliance", J, "joint", tuple(names), np.column_stack(cols),
                               extra={"basis": basis_note}))
