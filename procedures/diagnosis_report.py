@@ -1,0 +1,72 @@
+"""The HTML report of an arm diagnosis: residual structure before and after each selected step."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.analysis.diagnose import ArmDiagnosis
+from station.models import kinematics as kin
+from station.report import Report, plot_xy
+
+_ARCMIN = np.degrees(1.0) * 60.0
+
+
+def _joint_error_arcmin(res: ArmDiagnosis, resid: np.ndarray, joint: int) -> np.ndarray:
+    """Residual seen as an error of joint ``joint``: its component along that joint's tool-point motion."""
+    q = res.variables["q_rad"]
+    Jp = kin.param_jacobian(res.state.dh_nominal, q)[:, :, 5 * (joint - 1) + 3] @ res.state.R.T
+    n2 = np.maximum(np.sum(Jp ** 2, axis=1), 1e-12)
+    return np.sum(resid * Jp, axis=1) / n2 * _ARCMIN
+
+
+def _variable(res: ArmDiagnosis, effect: str, joint):
+    v = res.variables
+    if effect == "encoder_eccentricity":
+        return np.degrees(v["q_rad"][:, joint - 1]), f"q{joint} [deg]"
+    if effect == "backlash":
+        return v["last_dir"][:, joint - 1] + np.linspace(-0.15, 0.15, v["q_rad"].shape[0]), \
+            f"direction of the last motion of joint {joint} (jittered)"
+    if effect == "joint_compliance":
+        return v["gravity_torque"][joint], f"gravity torque of joint {joint} [N m]"
+    if effect == "thermal_drift" and v["t_s"] is not None:
+        return np.asarray(v["t_s"]), "t [s]"
+    return np.arange(v["q_rad"].shape[0]), "row"
+
+
+def build_report(res: ArmDiagnosis, *, title: str, facts: dict | None = None) -> Report:
+    doc = res.to_json()
+    figs = []
+    for k, step in enumerate(res.steps, 1):
+        term = step.term
+        x, xlabel = _variable(res, term.effect, term.joint)
+        if term.joint is not None:
+            yb = _joint_error_arcmin(res, step.resid_before, term.joint)
+            ya = _joint_error_arcmin(res, step.resid_after, term.joint)
+            ylabel = f"residual as joint {term.joint} error [arcmin]"
+        else:
+            yb = np.linalg.norm(step.resid_before, axis=1)
+            ya = np.linalg.norm(step.resid_after, axis=1)
+            ylabel = "|residual| [mm]"
+        figs.append((f"Step {k}: {term.key}, residuals before (held-out RMS {step.heldout_rms_before:.4f} mm) "
+                     f"and after ({step.heldout_rms_after:.4f} mm)",
+                     plot_xy([("before", x, yb, "."), ("after", x, ya, ".")], xlabel=xlabel, ylabel=ylabel,
+                             title=term.key)))
+    rows = []
+    for k, s in enumerate(doc["steps"], 1):
+        for name, val in s["params"].items():
+            ci = s["ci"].get(name)
+            rows.append({"pose": f"{k}. {s['effect']}" + (f"[{s['joint']}]" if s["joint"] else ""), "name": name,
+                         "value": val, "unit": "" if ci is None else f"95 % CI [{ci[0]:.3g}, {ci[1]:.3g}]",
+                         "limit": None, "passed": None})
+    f = {"held-out RMS, simulation": f"{doc['simulation_heldout_rms']:.4f} mm",
+         "held-out RMS, extended model": f"{doc['final_heldout_rms']:.4f} mm ({doc['gain_percent']:.1f} % less)",
+         "noise floor": f"{doc['noise_floor']:.4f} mm",
+         "poses": f"{doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out"}
+    f.update(facts or {})
+    notes = []
+    for s in doc["steps"]:
+        for a in s["ambiguous_with"]:
+            notes.append(f"{s['effect']}[{s['joint']}] and {a['effect']}[{a['joint']}] explain the same residual "
+                         f"({100 * a['share_of_residual_explained']:.0f} % as much alone): the data cannot tell them apart")
+    notes += [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
+    return Report(title=title, facts=f, rows=rows, figures=figs, notes=notes)

@@ -1,0 +1,183 @@
+"""The extended arm model of the diagnosis: prediction, Jacobian and its Gauss-Newton fit.
+
+``P_meas = R p(dh', q + dq) + t`` where ``(R, t)`` is the instrument <- base
+transform, ``dh'`` the nominal table plus the geometric deviations (seed 002
+eq. (3)) scaled by the thermal term, and ``dq`` the sum of the joint terms
+(:mod:`.terms`). The Jacobian is analytic: kinematic columns from seed 002
+eq. (7)-(8) (:func:`station.models.kinematics.fk_and_param_jacobian`), joint
+columns from the theta columns (a joint angle and its zero offset move the
+tool point alike), base columns ``e_k x (R p)`` and ``e_k``.
+
+Uncertainties are cluster-robust by pose (the sandwich
+``(A'A)^-1 (sum_k A_k' r_k r_k' A_k) (A'A)^-1`` with the small-sample factor
+``n / (n - p/3)``): the three coordinates of a pose share its stopping error,
+so they are neither independent nor equally noisy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from station.analysis.arm_identification import rigid_fit
+from station.models import kinematics as kin
+
+from .terms import Term
+
+__all__ = ["ModelState", "predict", "jacobian", "fit", "robust_cov"]
+
+_THETA_COLS = np.arange(6) * 5 + 3
+_LEN_COLS = np.array([5 * r + c for r in range(7) for c in (0, 2)])
+
+
+@dataclass
+class ModelState:
+    """Nominal table, base transform and the selected terms with their parameters."""
+
+    dh_nominal: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    terms: list = field(default_factory=list)
+    theta: list = field(default_factory=list)
+
+    def copy(self) -> "ModelState":
+        return ModelState(self.dh_nominal, self.R.copy(), self.t.copy(), list(self.terms),
+                          [th.copy() for th in self.theta])
+
+    def with_term(self, term: Term) -> "ModelState":
+        s = self.copy()
+        s.terms.append(term)
+        s.theta.append(np.zeros(term.k))
+        return s
+
+    @property
+    def n_params(self) -> int:
+        return 6 + sum(term.k for term in self.terms)
+
+    def dh_static(self) -> np.ndarray:
+        dh = np.array(self.dh_nominal, dtype=float)
+        for term, th in zip(self.terms, self.theta):
+            if term.kind == "geometric":
+                flat = dh.reshape(-1)
+                flat[term.index] += th
+        return dh
+
+
+def _evaluate(state: ModelState, q: np.ndarray, rows: np.ndarray):
+    dh0 = state.dh_static()
+    dq = np.zeros((rows.size, 6))
+    scale = None
+    for term, th in zip(state.terms, state.theta):
+        if term.kind == "joint":
+            dq[:, term.joint - 1] += term.features[rows] @ th
+        elif term.kind == "scale":
+            s = term.features[rows] @ th
+            scale = s if scale is None else scale + s
+    if scale is None:
+        dh = dh0
+    else:
+        dh = np.repeat(dh0[None], rows.size, axis=0)
+        dh[:, :, [0, 2]] *= (1.0 + scale)[:, None, None]
+    return dh0, dh, q[rows] + dq
+
+
+def predict(state: ModelState, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Predicted instrument-frame points (len(rows), 3), mm."""
+    _, dh, qe = _evaluate(state, q, rows)
+    p = kin.tool_position(dh, qe)
+    return p @ state.R.T + state.t
+
+
+def term_columns(term: Term, Jp: np.ndarray, dh0: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Base-frame Jacobian columns (n, 3, k) of one term at the current model."""
+    if term.kind == "geometric":
+        return Jp[:, :, term.index]
+    if term.kind == "joint":
+        return Jp[:, :, _THETA_COLS[term.joint - 1]][:, :, None] * term.features[rows][:, None, :]
+    lengths = dh0.reshape(-1)[_LEN_COLS]
+    dp_ds = np.einsum("nij,j->ni", Jp[:, :, _LEN_COLS], lengths)
+    return dp_ds[:, :, None] * term.features[rows][:, None, :]
+
+
+def jacobian(state: ModelState, q: np.ndarray, rows: np.ndarray, extra_terms=()):
+    """``(pred (n, 3), A (n, 3, p), [(term, A_term (n, 3, k)), ...])`` in the instrument frame.
+
+    ``A`` columns: base rotation (3), base translation (3), then the state's terms in order.
+    """
+    dh0, dh, qe = _evaluate(state, q, rows)
+    T, Jp = kin.fk_and_param_jacobian(dh, qe)
+    p = T[:, :3, 3]
+    Rp = p @ state.R.T
+    n = rows.size
+    cols = [np.cross(np.eye(3)[None, :, :], Rp[:, None, :]).transpose(0, 2, 1),
+            np.broadcast_to(np.eye(3), (n, 3, 3))]
+    for term in state.terms:
+        cols.append(np.einsum("ij,njk->nik", state.R, term_columns(term, Jp, dh0, rows)))
+    A = np.concatenate(cols, axis=2)
+    extra = [(term, np.einsum("ij,njk->nik", state.R, term_columns(term, Jp, dh0, rows))) for term in extra_terms]
+    return Rp + state.t, A, extra
+
+
+def _apply_step(state: ModelState, step: np.ndarray) -> ModelState:
+    s = state.copy()
+    s.R = Rotation.from_rotvec(step[:3]).as_matrix() @ s.R
+    s.t = s.t + step[3:6]
+    off = 6
+    for i, term in enumerate(s.terms):
+        s.theta[i] = s.theta[i] + step[off:off + term.k]
+        off += term.k
+    return s
+
+
+def initial_state(dh_nominal, q: np.ndarray, meas: np.ndarray, rows: np.ndarray) -> ModelState:
+    """The station's simulation: nominal table, base transform by a rigid fit on ``rows``."""
+    T = rigid_fit(kin.tool_position(dh_nominal, q[rows]), meas[rows])
+    state = ModelState(np.asarray(dh_nominal, dtype=float), T[:3, :3].copy(), T[:3, 3].copy())
+    return state
+
+
+def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 8,
+        rtol: float = 1e-10) -> tuple[ModelState, float]:
+    """Gauss-Newton on ``rows`` from ``state``; returns the fitted state and its RSS (mm^2)."""
+    cur = state
+    pred = predict(cur, q, rows)
+    rss = float(np.sum((meas[rows] - pred) ** 2))
+    for _ in range(max_iter):
+        pred, A, _ = jacobian(cur, q, rows)
+        r = (meas[rows] - pred).reshape(-1)
+        M = A.reshape(-1, A.shape[2])
+        scale = np.linalg.norm(M, axis=0)
+        scale[scale == 0] = 1.0
+        step, *_ = np.linalg.lstsq(M / scale, r, rcond=None)
+        cand = _apply_step(cur, step / scale)
+        rss_new = float(np.sum((meas[rows] - predict(cand, q, rows)) ** 2))
+        if rss_new > rss * (1 + 1e-12):
+            break
+        done = rss - rss_new <= rtol * max(rss, 1e-300)
+        cur, rss = cand, rss_new
+        if done:
+            break
+    return cur, rss
+
+
+def robust_cov(A: np.ndarray, resid: np.ndarray) -> np.ndarray:
+    """Cluster-robust (by pose) covariance of the least-squares parameters.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, 3, p)
+    resid : ndarray, shape (n, 3)
+    """
+    n, _, p = A.shape
+    M = A.reshape(-1, p)
+    scale = np.linalg.norm(M, axis=0)
+    scale[scale == 0] = 1.0
+    Ms = M / scale
+    bread = np.linalg.pinv(Ms.T @ Ms)
+    g = np.einsum("nip,ni->np", A / scale, resid)  # per-pose score
+    meat = g.T @ g
+    dof = max(n - p / 3.0, 1.0)
+    cov = bread @ meat @ bread * (n / dof)
+    return cov / np.outer(scale, scale)
