@@ -173,7 +173,8 @@ _RUN_JS = r"""
     document.getElementById('summary').innerHTML =
       `${esc(st.procedure || '')} ${esc(st.model || '')} ${esc(st.serial || '')} &mdash; ` +
       `<span id="status" class="${esc(st.status)}">${esc(st.status)}</span>${paused} ${cur}` +
-      ` &mdash; ${st.n_done}/${st.n_steps} steps, elapsed ${fmt(st.elapsed_s)}, remaining ~${fmt(st.remaining_s)}${verdict}`;
+      ` &mdash; ${st.n_done}/${st.n_steps} steps, elapsed ${fmt(st.elapsed_s)}` +
+      (st.status === 'running' ? `, remaining ~${fmt(st.remaining_s)}` : '') + verdict;
     document.getElementById('bar').style.width = (st.n_steps ? 100 * st.n_done / st.n_steps : 0) + '%';
     const p = document.getElementById('prompt');
     if (st.prompt) {
