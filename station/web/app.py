@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
+import time
 from collections.abc import AsyncIterator
 from urllib.parse import parse_qs
 
@@ -36,6 +38,8 @@ from station.web.state import report_path, run_state, station_state
 
 #: how often an event stream looks for changes, s (the page updates at up to 4 Hz)
 EVENT_PERIOD_S = 0.25
+#: snapshots younger than this are shared between watchers and requests, s
+SNAPSHOT_TTL_S = 0.2
 #: a comment line this often keeps proxies and browsers from closing a quiet stream, s
 KEEPALIVE_S = 15.0
 #: characteristics the robot page plots
@@ -89,8 +93,22 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
             return _refused(exc, 400 if isinstance(exc, ValueError) else 409)
         return RedirectResponse(f"/runs/{run_id}", status_code=303)
 
+    cache: dict[str, tuple[float, dict]] = {}
+    cache_lock = threading.Lock()
+
     def _state(run_id: str) -> dict:
-        return run_state(store, run_id, hub.live(run_id))
+        """The run's snapshot; watchers within SNAPSHOT_TTL_S of each other share one (one store read)."""
+        now = time.monotonic()
+        with cache_lock:
+            hit = cache.get(run_id)
+            if hit and now - hit[0] < SNAPSHOT_TTL_S:
+                return hit[1]
+        st = run_state(store, run_id, hub.live(run_id))
+        with cache_lock:
+            cache[run_id] = (now, st)
+            for key in [k for k, (t, _) in cache.items() if now - t > 10.0]:
+                del cache[key]
+        return st
 
     async def run(request: Request) -> Response:
         run_id = request.path_params["run_id"]
@@ -148,6 +166,9 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
                 return _refused(exc, 400)
             except (StationError, _BadState) as exc:
                 return _refused(exc, 409)
+            finally:
+                with cache_lock:  # the next snapshot shows the action's effect
+                    cache.pop(run_id, None)
             return RedirectResponse(f"/runs/{run_id}", status_code=303)
         return act
 

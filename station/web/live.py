@@ -72,6 +72,7 @@ class WebOperator:
             if self._prompt is None or self._prompt["id"] != prompt_id:
                 raise RunStateError(f"prompt {prompt_id} is not waiting for an answer (answered already?)")
             self._answer = bool(yes)
+            self._prompt = None  # answered: no page offers it again
             self._cond.notify_all()
 
 

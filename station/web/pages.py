@@ -86,6 +86,7 @@ def run_page(state: dict, csrf: str) -> str:
     body = (f"<p><a href='/'>&larr; station</a></p><h1>Run {rid}</h1>"
             f"<p id='summary'></p><div class='bar'><div id='bar' style='width:0%'></div></div>"
             "<div id='prompt' hidden></div><p id='controls'></p><p id='error' class='error'></p>"
+            "<h2>Tracker, last seconds</h2><div id='tracker'></div>"
             "<h2>Results</h2><div id='results'></div><h2>Steps</h2><div id='steps'></div><pre id='output' hidden></pre>"
             f"<script id='state' type='application/json'>{_json_for_script(state)}</script>"
             f"<script>{_RUN_JS}</script>")
@@ -213,7 +214,29 @@ _RUN_JS = r"""
            `<td>${x.attempts || ''}</td><td>${x.duration_s == null ? '' : x.duration_s.toFixed(1) + ' s'}</td><td>${esc(x.message || '')}</td></tr>`;
     }
     document.getElementById('steps').innerHTML = s + '</table>';
+    drawTracker(st.tracker);
     document.body.dataset.status = st.status;
+  }
+  function chart(id, xs, ys, label, color) {
+    const w = 520, h = 120, l = 50, b = 18;
+    if (!ys || !ys.length) return '';
+    const x0 = Math.min(...xs), x1 = Math.max(0, ...xs), top = Math.max(...ys) * 1.1 || 1;
+    const px = x => l + (w - l - 8) * (x - x0) / ((x1 - x0) || 1), py = y => h - b - (h - b - 6) * y / top;
+    const pts = xs.map((x, i) => px(x).toFixed(1) + ',' + py(ys[i]).toFixed(1)).join(' ');
+    return `<svg id="${id}" width="${w}" height="${h}" role="img"><text x="2" y="12" font-size="11">${top.toPrecision(3)}</text>` +
+      `<text x="2" y="${h - b}" font-size="11">0</text><text x="${l}" y="${h - 2}" font-size="11">${x0.toFixed(1)} s</text>` +
+      `<text x="${w - 40}" y="${h - 2}" font-size="11">now</text><text x="${l + 6}" y="12" font-size="11">${esc(label)}</text>` +
+      `<line x1="${l}" x2="${w - 8}" y1="${h - b}" y2="${h - b}" stroke="#888"/><line x1="${l}" x2="${l}" y1="4" y2="${h - b}" stroke="#888"/>` +
+      `<polyline fill="none" stroke="${color}" stroke-width="1.5" points="${pts}"/></svg>`;
+  }
+  function drawTracker(tr) {
+    const el = document.getElementById('tracker');
+    if (!tr) { el.innerHTML = '<p>not streaming</p>'; return; }
+    const rate = tr.rate_hz == null ? '?' : tr.rate_hz.toFixed(0);
+    el.innerHTML = `<p id="tracker-counters">${esc(tr.step)}: received <b id="received">${tr.received}</b> in the run, ` +
+      `${tr.n} in this step at ${rate} Hz; flagged ${tr.flagged}; gaps <b id="gaps">${tr.gaps}</b></p>` +
+      chart('plot-speed', tr.t, tr.speed_mm_s, 'speed, mm/s', '#0b57d0') +
+      (tr.dist_mm ? chart('plot-dist', tr.t, tr.dist_mm, 'distance to the nearest commanded pose, mm', '#b00020') : '');
   }
   const st0 = JSON.parse(document.getElementById('state').textContent);
   draw(st0);

@@ -12,6 +12,8 @@ import time
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 from station.store import RunStore, StepRecord
 from station.web.live import LiveRun, RunHub
 
@@ -64,7 +66,7 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
                 "live": not live.finished, "paused": False, "prompt": live.operator.prompt,
                 "error": live.error, "output": live.output, "steps": [], "current": None, "n_done": 0,
                 "n_steps": 0, "elapsed_s": now - live.started_at, "remaining_s": None, "results": [],
-                "verdict": None, "report": False, "serial": None, "model": None}
+                "verdict": None, "report": False, "serial": None, "model": None, "tracker": None}
     journal = store.steps(run_id)
     names = list(_step_names(rec.procedure, json.dumps(rec.params, sort_keys=True)))
     latest: dict[int, StepRecord] = {}
@@ -111,7 +113,28 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
         "elapsed_s": elapsed, "remaining_s": remaining,
         "results": store.characteristics(run_id) if finished or n_done == len(names) else [],
         "verdict": verdict(store, run_id, journal), "report": report_path(journal) is not None,
+        "tracker": _tracker(store, run_id, journal, current) if rec.status == "running" else None,
     }
+
+
+def _tracker(store: RunStore, run_id: str, journal: list[StepRecord], current: dict | None) -> dict | None:
+    """The live plot of the step going now, if it streams the tracker (``tracker`` samples)."""
+    from station.web.tracker_view import tracker_window
+
+    if current is None:
+        return None
+    s = store.samples(run_id, "tracker", finished_only=False, steps=[current["idx"]])
+    if not s:
+        return None
+    outputs = {j.name: j.output for j in journal if j.status == "done" and j.output}
+    reg = outputs.get("register base frame") or {}
+    poses = (outputs.get("check programs") or {}).get("poses_mm") or {}
+    view = tracker_window(s["t"], np.column_stack([s["x"], s["y"], s["z"]]), s["status"],
+                          poses_mm=np.array(list(poses.values()), dtype=float).reshape(-1, 3) if poses else None,
+                          R=reg.get("R"), t_mm=reg.get("t_mm"))
+    view["received"] = store.sample_count(run_id, "tracker")
+    view["step"] = current["name"]
+    return view
 
 
 def _last_error(journal: list[StepRecord], status: str) -> str | None:

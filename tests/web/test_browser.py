@@ -3,7 +3,8 @@
 Two browser pages watch one run of the small demo station (fake cell drawn at
 random): one starts it from the station page and answers the prompts with the
 page's buttons; both see the steps advance and the verdict; the run page is
-screenshotted into the test's artefacts directory (printed), then the report
+screenshotted live and done into the test's artefacts directory
+(``STATION_TEST_ARTEFACTS``, else the test's tmp dir; printed), then the report
 is opened from its link.
 """
 
@@ -52,6 +53,13 @@ def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
         page.click("#btn-yes")
     # the watcher sees the steps advance without reloading (server-sent events)
     expect(watcher.locator("#current")).to_contain_text("pose cycle", timeout=20_000)
+    expect(watcher.locator("#plot-speed polyline")).to_have_count(1, timeout=10_000)
+    first = int(watcher.locator("#received").inner_text())
+    expect(watcher.locator("#received")).not_to_have_text(str(first), timeout=10_000)  # the plot follows the stream
+    expect(watcher.locator("#plot-dist polyline")).to_have_count(1)
+    artefacts = Path(os.environ.get("STATION_TEST_ARTEFACTS", tmp_path))
+    artefacts.mkdir(parents=True, exist_ok=True)
+    watcher.screenshot(path=str(artefacts / "run_page_live.png"), full_page=True)
     expect(watcher.locator("#current")).to_contain_text("vAP cycle", timeout=20_000)
     expect(page.locator("#status")).to_have_text("done", timeout=40_000)
     with RunStore(served.store.path) as store:
@@ -62,10 +70,9 @@ def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
     expect(watcher.locator("#verdict")).to_have_text(verdict, timeout=5_000)
     expect(page.locator("#results-table tr")).to_have_count(len(chars) + 1)
     expect(page.locator("#steps-table tr[data-state=done]")).to_have_count(len(store_steps(served, run_id)))
-    shot = Path(os.environ.get("STATION_TEST_ARTEFACTS", tmp_path)) / "run_page.png"
-    shot.parent.mkdir(parents=True, exist_ok=True)
+    shot = artefacts / "run_page_done.png"
     page.screenshot(path=str(shot), full_page=True)
-    print(f"screenshot of the run page: {shot}")
+    print(f"screenshots of the run page: {artefacts}/run_page_live.png, {shot}")
     assert shot.stat().st_size > 10_000
     with page.expect_navigation():
         page.click("#report")

@@ -23,18 +23,28 @@ def test_a_run_started_from_the_page_goes_through_to_its_verdict(served, client,
     asked = client.answer_prompts(run_id, 2)
     assert "reflector" in asked[0].lower() and "clear" in asked[1].lower()
     # the steps advance one by one, each seen running then done, none skipped
-    seen_done, seen_current = [], set()
+    seen_done, seen_current, trackers = [], set(), []
     st = client.state(run_id)
     while st["status"] == "running":
         seen_done.append(st["n_done"])
         if st["current"]:
             seen_current.add(st["current"]["name"])
+        if st["tracker"] and st["tracker"]["dist_mm"]:
+            trackers.append(st["tracker"])
         time.sleep(0.05)
         st = client.state(run_id)
     assert st["status"] == "done", st["error"]
     assert seen_done == sorted(seen_done) and len(set(seen_done)) >= 5
     assert {"pose cycle 1", "vAP cycle 1"} <= seen_current
     assert st["n_steps"] == N_STEPS and st["n_done"] == N_STEPS
+    # the live plot followed the stream: the demo's 100 Hz, counts growing, the arm stopping at its poses
+    assert len(trackers) >= 5
+    assert all(abs(tr["rate_hz"] - 100.0) < 5.0 for tr in trackers if tr["n"] > 50)
+    received = [tr["received"] for tr in trackers]
+    assert received == sorted(received) and received[-1] > received[0]
+    assert min(min(tr["dist_mm"]) for tr in trackers) < 10.0  # close to a commanded pose (AP is mm)
+    assert max(max(tr["speed_mm_s"]) for tr in trackers) > 50.0  # and moving between them
+    assert st["tracker"] is None  # done: nothing streams
     assert [s["state"] for s in st["steps"]] == ["done"] * N_STEPS
     # the page's results are the store's, with the store's verdict
     with RunStore(served.store.path) as store:
