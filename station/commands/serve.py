@@ -36,6 +36,10 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from station.config import config_from_dict, load_config
     from station.web.server import WebServer
 
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port must be 0..65535, got {args.port}")
+    if not args.time_scale > 0:
+        raise ConfigError(f"--time-scale must be > 0, got {args.time_scale}")
     if args.demo:
         from fakes.cells import demo_config
 

@@ -39,7 +39,7 @@ from station.web.state import report_path, run_state, station_state
 #: how often an event stream looks for changes, s (the page updates at up to 4 Hz)
 EVENT_PERIOD_S = 0.25
 #: snapshots younger than this are shared between watchers and requests, s
-SNAPSHOT_TTL_S = 0.2
+SNAPSHOT_TTL_S = 0.24
 #: a comment line this often keeps proxies and browsers from closing a quiet stream, s
 KEEPALIVE_S = 15.0
 #: characteristics the robot page plots
@@ -95,20 +95,22 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
 
     cache: dict[str, tuple[float, dict]] = {}
     cache_lock = threading.Lock()
+    snapshot_lock = threading.Lock()
 
     def _state(run_id: str) -> dict:
         """The run's snapshot; watchers within SNAPSHOT_TTL_S of each other share one (one store read)."""
-        now = time.monotonic()
-        with cache_lock:
-            hit = cache.get(run_id)
-            if hit and now - hit[0] < SNAPSHOT_TTL_S:
-                return hit[1]
-        st = run_state(store, run_id, hub.live(run_id))
-        with cache_lock:
-            cache[run_id] = (now, st)
-            for key in [k for k, (t, _) in cache.items() if now - t > 10.0]:
-                del cache[key]
-        return st
+        with snapshot_lock:  # watchers waking together wait for one snapshot instead of each making one
+            now = time.monotonic()
+            with cache_lock:
+                hit = cache.get(run_id)
+                if hit and now - hit[0] < SNAPSHOT_TTL_S:
+                    return hit[1]
+            st = run_state(store, run_id, hub.live(run_id))
+            with cache_lock:
+                cache[run_id] = (now, st)
+                for key in [k for k, (t, _) in cache.items() if now - t > 10.0]:
+                    del cache[key]
+            return st
 
     async def run(request: Request) -> Response:
         run_id = request.path_params["run_id"]
@@ -224,7 +226,8 @@ def _stream(request: Request, event: str, snapshot, stop) -> StreamingResponse:
                 yield ": keepalive\n\n"
             if stop():
                 return
-            await asyncio.sleep(EVENT_PERIOD_S)
+            # on the period's ticks of the monotonic clock: every watcher wakes together and shares a snapshot
+            await asyncio.sleep(EVENT_PERIOD_S - time.monotonic() % EVENT_PERIOD_S)
             quiet += EVENT_PERIOD_S
 
     return StreamingResponse(gen(), media_type="text/event-stream",

@@ -71,3 +71,15 @@ def test_serve_refuses_a_bad_port(tmp_path):
 
     with pytest.raises(ConfigError, match="port"):
         WebServer(load_config(demo_station_config(tmp_path)), tmp_path, port=70000)
+
+
+def test_station_serve_refuses_bad_arguments_writing_nothing(tmp_path, capsys):
+    from station.cli import main
+
+    out = tmp_path / "demo"
+    assert main(["serve", "--demo", "--out", str(out), "--port", "70000"]) == 2
+    assert main(["serve", "--demo", "--out", str(out), "--time-scale", "0"]) == 2
+    assert main(["serve", "--demo", "--out", str(out), "--arm"]) == 2
+    err = capsys.readouterr().err
+    assert "--port must be" in err and "--time-scale must be" in err and "--arm" in err
+    assert not out.exists()
