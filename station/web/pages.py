@@ -1,0 +1,246 @@
+"""The HTML of the pages and their small script (no build step, no external files).
+
+Pages are rendered on the server with the current snapshot, so they are
+useful without the script; the script then follows the run's event stream
+and redraws the parts that change. Every action is a form POST carrying the
+CSRF token.
+"""
+
+from __future__ import annotations
+
+import json
+from html import escape
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;margin:1.5em;color:#222;max-width:1100px}
+h1{font-size:1.4em}h2{font-size:1.15em;margin-top:1.4em}
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}
+th{background:#f3f3f3}.pass,.done{color:#176b2c;font-weight:600}.fail,.failed{color:#b00020;font-weight:600}
+.aborted,.interrupted{color:#a15c00;font-weight:600}.running{color:#0b57d0;font-weight:600}
+.pending{color:#888}tr.current{background:#eef4ff}
+#prompt{border:3px solid #0b57d0;padding:1em;margin:1em 0;font-size:1.2em;background:#f5f9ff}
+#prompt button{font-size:1.1em;padding:.4em 1.4em;margin-right:1em}
+.bar{height:14px;background:#eee;width:100%;max-width:600px}.bar div{height:100%;background:#0b57d0}
+.error{color:#b00020;white-space:pre-wrap}pre{background:#f7f7f7;padding:.5em}
+form.inline{display:inline}button{cursor:pointer}
+"""
+
+
+def _page(title: str, body: str, csrf: str) -> str:
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(title)}</title>"
+            f"<meta name='csrf-token' content='{escape(csrf)}'><style>{_STYLE}</style></head>"
+            f"<body>{body}</body></html>")
+
+
+def _form(action: str, label: str, csrf: str, fields: dict | None = None, name: str = "") -> str:
+    hidden = "".join(f"<input type='hidden' name='{escape(k)}' value='{escape(str(v))}'>"
+                     for k, v in {"csrf": csrf, **(fields or {})}.items())
+    return (f"<form class='inline' method='post' action='{escape(action)}'>{hidden}"
+            f"<button type='submit' name='{escape(name)}' id='btn-{escape(label.lower())}'>{escape(label)}</button>"
+            "</form>")
+
+
+def station_page(state: dict, csrf: str, procedures: list[str]) -> str:
+    """Devices, robots, runs with verdicts, and the form that starts a run."""
+    armed = state["armed"]
+    rows_dev = "".join(f"<tr><td>{escape(d['name'])}</td><td>{escape(d['url'])}</td><td>{escape(d['state'])}</td></tr>"
+                       for d in state["devices"])
+    rows_rob = "".join(f"<tr><td>{escape(r['key'])}</td><td>{escape(str(r['model']))}</td>"
+                       f"<td><a href='/robots/{escape(str(r['serial']))}'>{escape(str(r['serial']))}</a></td>"
+                       f"<td>{escape(str(r['overhaul_state']))}</td></tr>" for r in state["robots"])
+    robot_opts = "".join(f"<option>{escape(r['key'])}</option>" for r in state["robots"])
+    proc_opts = "".join(f"<option>{escape(p)}</option>" for p in procedures)
+    mode = ("<p class='fail'>ARMED: runs use the configured devices; real hardware moves after you confirm "
+            "on the run page.</p>" if armed else
+            "<p>Dry runs: every run uses the procedure's fake cell (simulated devices on loopback).</p>")
+    if state["active"]:
+        start = (f"<p>Run <a href='/runs/{escape(state['active'])}'>{escape(state['active'])}</a> is going; "
+                 "one run at a time.</p>")
+    else:
+        seed = "" if armed else "<label> seed <input name='seed' value='0' size='6'></label>"
+        start = (f"<form method='post' action='/runs'><input type='hidden' name='csrf' value='{escape(csrf)}'>"
+                 f"<label>procedure <select name='procedure'>{proc_opts}</select></label> "
+                 f"<label>robot <select name='robot'>{robot_opts}</select></label> {seed} "
+                 "<button type='submit' id='btn-start'>Start run</button></form>")
+    body = (f"<h1>Station {escape(state['station'])}</h1>{mode}<h2>Start a run</h2>{start}"
+            f"<h2>Devices</h2><table><tr><th>device</th><th>URL</th><th>state</th></tr>{rows_dev}</table>"
+            f"<h2>Robots</h2><table><tr><th>key</th><th>model</th><th>serial (history)</th><th>overhaul</th></tr>"
+            f"{rows_rob}</table><h2>Runs</h2><div id='runs'>{runs_table(state['runs'])}</div>"
+            f"<script>{_STATION_JS}</script>")
+    return _page(f"station {state['station']}", body, csrf)
+
+
+def runs_table(runs: list[dict]) -> str:
+    rows = "".join(
+        f"<tr><td><a href='/runs/{escape(r['run_id'])}'>{escape(r['run_id'])}</a></td><td>{escape(r['procedure'])}</td>"
+        f"<td>{escape(str(r['serial']))}</td><td class='{escape(r['status'])}'>{escape(r['status'])}"
+        f"{' (live)' if r['live'] else ''}</td><td class='{escape(str(r['verdict']))}'>{escape(r['verdict'] or '')}</td></tr>"
+        for r in runs)
+    return (f"<table><tr><th>run</th><th>procedure</th><th>serial</th><th>status</th><th>verdict</th></tr>{rows}</table>"
+            if runs else "<p>No runs in the store yet.</p>")
+
+
+def run_page(state: dict, csrf: str) -> str:
+    """The run: its steps, the current one, the prompt, controls, results; redrawn from the event stream."""
+    rid = escape(state["run_id"])
+    body = (f"<p><a href='/'>&larr; station</a></p><h1>Run {rid}</h1>"
+            f"<p id='summary'></p><div class='bar'><div id='bar' style='width:0%'></div></div>"
+            "<div id='prompt' hidden></div><p id='controls'></p><p id='error' class='error'></p>"
+            "<h2>Tracker, last seconds</h2><div id='tracker'></div>"
+            "<h2>Results</h2><div id='results'></div><h2>Steps</h2><div id='steps'></div><pre id='output' hidden></pre>"
+            f"<script id='state' type='application/json'>{_json_for_script(state)}</script>"
+            f"<script>{_RUN_JS}</script>")
+    return _page(f"run {state['run_id']}", body, csrf)
+
+
+def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], csrf: str) -> str:
+    """One robot's characteristics across its finished runs, as small plots (inline SVG) and tables."""
+    parts = [f"<p><a href='/'>&larr; station</a></p><h1>Robot {escape(serial)}</h1>"]
+    if not any(history.values()):
+        parts.append("<p>No finished runs with results for this robot yet.</p>")
+    for name in names:
+        rows = history.get(name) or []
+        if not rows:
+            continue
+        parts.append(f"<h2>{escape(name)}</h2>{_svg_history(rows)}")
+    return _page(f"robot {serial}", "".join(parts), csrf)
+
+
+def _svg_history(rows: list[dict], w: int = 640, h: int = 180) -> str:
+    """Worst value over poses per run (dots) with the limit (dashed), runs in time order."""
+    runs: dict[str, dict] = {}
+    for r in rows:
+        if r["value"] is None:
+            continue
+        cur = runs.setdefault(r["run_id"], {"value": r["value"], "limit": r["limit"], "state": r["overhaul_state"]})
+        cur["value"] = max(cur["value"], r["value"])
+    if not runs:
+        return "<p>no values</p>"
+    vals = [v["value"] for v in runs.values()] + [v["limit"] for v in runs.values() if v["limit"] is not None]
+    top = max(vals) * 1.15 or 1.0
+    n = len(runs)
+    pts, labels = [], []
+    for k, (run_id, v) in enumerate(runs.items()):
+        x = 40 + (w - 60) * (k + 0.5) / n
+        y = h - 20 - (h - 40) * v["value"] / top
+        pts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='4' fill='#0b57d0'><title>{escape(run_id)}: "
+                   f"{v['value']:.4g} ({escape(str(v['state']))})</title></circle>")
+        if v["limit"] is not None:
+            yl = h - 20 - (h - 40) * v["limit"] / top
+            pts.append(f"<line x1='{x - 12:.1f}' x2='{x + 12:.1f}' y1='{yl:.1f}' y2='{yl:.1f}' stroke='#b00020' "
+                       "stroke-dasharray='3,2'/>")
+        limit = "" if v["limit"] is None else f"{v['limit']:.4g}"
+        labels.append(f"<tr><td>{escape(run_id)}</td><td>{escape(str(v['state']))}</td><td>{v['value']:.4g}</td>"
+                      f"<td>{limit}</td></tr>")
+    axis = (f"<line x1='40' x2='{w - 20}' y1='{h - 20}' y2='{h - 20}' stroke='#888'/>"
+            f"<line x1='40' x2='40' y1='20' y2='{h - 20}' stroke='#888'/>"
+            f"<text x='2' y='24' font-size='11'>{top:.3g}</text><text x='2' y='{h - 20}' font-size='11'>0</text>")
+    return (f"<svg width='{w}' height='{h}' role='img'>{axis}{''.join(pts)}</svg>"
+            f"<table><tr><th>run</th><th>overhaul</th><th>worst over poses</th><th>limit</th></tr>{''.join(labels)}</table>")
+
+
+def message_page(title: str, message: str, csrf: str = "") -> str:
+    return _page(title, f"<p><a href='/'>&larr; station</a></p><h1>{escape(title)}</h1>"
+                        f"<p class='error'>{escape(message)}</p>", csrf)
+
+
+def _json_for_script(state: dict) -> str:
+    return json.dumps(state, default=float).replace("</", "<\\/")
+
+
+_STATION_JS = r"""
+(function(){
+  const es = new EventSource('/events');
+  es.addEventListener('runs', ev => { document.getElementById('runs').innerHTML = ev.data; });
+})();
+"""
+
+_RUN_JS = r"""
+(function(){
+  const csrf = document.querySelector("meta[name=csrf-token]").content;
+  const esc = s => String(s ?? '').replace(/[&<>"']/g, c => ({'&':'&amp;','<':'&lt;','>':'&gt;','"':'&quot;',"'":'&#39;'}[c]));
+  const fmt = s => { if (s == null) return '?'; s = Math.max(0, Math.round(s));
+    return Math.floor(s/60) + ':' + String(s%60).padStart(2,'0'); };
+  const form = (action, label, fields) => {
+    let h = `<form class="inline" method="post" action="${action}"><input type="hidden" name="csrf" value="${esc(csrf)}">`;
+    for (const [k, v] of Object.entries(fields || {})) h += `<input type="hidden" name="${k}" value="${esc(v)}">`;
+    return h + `<button type="submit" id="btn-${label.toLowerCase()}">${esc(label)}</button></form> `;
+  };
+  function draw(st) {
+    const base = '/runs/' + encodeURIComponent(st.run_id);
+    const cur = st.current ? `step ${st.current.idx + 1}/${st.n_steps}: <b id="current">${esc(st.current.name)}</b>` : '';
+    const paused = st.paused ? ' <b class="aborted" id="paused">PAUSED</b>' : '';
+    const verdict = st.verdict ? ` verdict <b id="verdict" class="${esc(st.verdict)}">${esc(st.verdict)}</b>` : '';
+    document.getElementById('summary').innerHTML =
+      `${esc(st.procedure || '')} ${esc(st.model || '')} ${esc(st.serial || '')} &mdash; ` +
+      `<span id="status" class="${esc(st.status)}">${esc(st.status)}</span>${paused} ${cur}` +
+      ` &mdash; ${st.n_done}/${st.n_steps} steps, elapsed ${fmt(st.elapsed_s)}` +
+      (st.status === 'running' ? `, remaining ~${fmt(st.remaining_s)}` : '') + verdict;
+    document.getElementById('bar').style.width = (st.n_steps ? 100 * st.n_done / st.n_steps : 0) + '%';
+    const p = document.getElementById('prompt');
+    if (st.prompt) {
+      p.hidden = false;
+      p.innerHTML = `<p id="prompt-text">${esc(st.prompt.message)}</p>` +
+        form(base + '/answer', 'Yes', {prompt_id: st.prompt.id, answer: 'yes'}) +
+        form(base + '/answer', 'No', {prompt_id: st.prompt.id, answer: 'no'});
+    } else { p.hidden = true; p.innerHTML = ''; }
+    let c = '';
+    if (st.live) {
+      c += st.paused ? form(base + '/continue', 'Continue') : form(base + '/pause', 'Pause');
+      c += form(base + '/abort', 'Abort');
+    } else if (st.status === 'failed' || st.status === 'aborted') {
+      c += form(base + '/resume', 'Resume');
+    }
+    if (st.report) c += `<a id="report" href="${base}/report">HTML report</a>`;
+    document.getElementById('controls').innerHTML = c;
+    document.getElementById('error').textContent = st.error || '';
+    const out = document.getElementById('output');
+    out.hidden = !st.output; out.textContent = st.output || '';
+    let r = '';
+    if (st.results.length) {
+      r = '<table id="results-table"><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>';
+      for (const x of st.results) {
+        const v = x.passed == null ? '' : (x.passed ? 'pass' : 'fail');
+        r += `<tr><td>${esc(x.pose)}</td><td>${esc(x.name)}</td><td>${x.value == null ? '' : Number(x.value).toPrecision(4)}</td>` +
+             `<td>${esc(x.unit)}</td><td>${x.limit == null ? '' : esc(x.limit)}</td><td class="${v}">${v}</td></tr>`;
+      }
+      r += '</table>';
+    } else r = '<p>none yet</p>';
+    document.getElementById('results').innerHTML = r;
+    let s = '<table id="steps-table"><tr><th>#</th><th>step</th><th>state</th><th>attempts</th><th>time</th><th>message</th></tr>';
+    for (const x of st.steps) {
+      const cls = (st.current && st.current.idx === x.idx) ? ' class="current"' : '';
+      s += `<tr${cls} data-state="${esc(x.state)}"><td>${x.idx + 1}</td><td>${esc(x.name)}</td><td class="${esc(x.state)}">${esc(x.state)}</td>` +
+           `<td>${x.attempts || ''}</td><td>${x.duration_s == null ? '' : x.duration_s.toFixed(1) + ' s'}</td><td>${esc(x.message || '')}</td></tr>`;
+    }
+    document.getElementById('steps').innerHTML = s + '</table>';
+    drawTracker(st.tracker);
+    document.body.dataset.status = st.status;
+  }
+  function chart(id, xs, ys, label, color) {
+    const w = 520, h = 120, l = 50, b = 18;
+    if (!ys || !ys.length) return '';
+    const x0 = Math.min(...xs), x1 = Math.max(0, ...xs), top = Math.max(...ys) * 1.1 || 1;
+    const px = x => l + (w - l - 8) * (x - x0) / ((x1 - x0) || 1), py = y => h - b - (h - b - 6) * y / top;
+    const pts = xs.map((x, i) => px(x).toFixed(1) + ',' + py(ys[i]).toFixed(1)).join(' ');
+    return `<svg id="${id}" width="${w}" height="${h}" role="img"><text x="2" y="12" font-size="11">${top.toPrecision(3)}</text>` +
+      `<text x="2" y="${h - b}" font-size="11">0</text><text x="${l}" y="${h - 2}" font-size="11">${x0.toFixed(1)} s</text>` +
+      `<text x="${w - 40}" y="${h - 2}" font-size="11">now</text><text x="${l + 6}" y="12" font-size="11">${esc(label)}</text>` +
+      `<line x1="${l}" x2="${w - 8}" y1="${h - b}" y2="${h - b}" stroke="#888"/><line x1="${l}" x2="${l}" y1="4" y2="${h - b}" stroke="#888"/>` +
+      `<polyline fill="none" stroke="${color}" stroke-width="1.5" points="${pts}"/></svg>`;
+  }
+  function drawTracker(tr) {
+    const el = document.getElementById('tracker');
+    if (!tr) { el.innerHTML = '<p>not streaming</p>'; return; }
+    const rate = tr.rate_hz == null ? '?' : tr.rate_hz.toFixed(0);
+    el.innerHTML = `<p id="tracker-counters">${esc(tr.step)}: received <b id="received">${tr.received}</b> in the run, ` +
+      `${tr.n} in this step at ${rate} Hz; flagged ${tr.flagged}; gaps <b id="gaps">${tr.gaps}</b></p>` +
+      chart('plot-speed', tr.t, tr.speed_mm_s, 'speed, mm/s', '#0b57d0') +
+      (tr.dist_mm ? chart('plot-dist', tr.t, tr.dist_mm, 'distance to the nearest commanded pose, mm', '#b00020') : '');
+  }
+  const st0 = JSON.parse(document.getElementById('state').textContent);
+  draw(st0);
+  const es = new EventSource('/runs/' + encodeURIComponent(st0.run_id) + '/events');
+  es.addEventListener('state', ev => draw(JSON.parse(ev.data)));
+})();
+"""

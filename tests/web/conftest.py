@@ -1,0 +1,136 @@
+"""A real `station serve` (uvicorn on a loopback port) over a small demo station, and a plain HTTP client."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import time
+from pathlib import Path
+from urllib.parse import urlencode, urlsplit
+
+import numpy as np
+import pytest
+
+#: small runs: 2 pose + 2 vAP cycles at 40x real time finish in ~10 s
+CYCLES, VAP_CYCLES, TIME_SCALE = 2, 2, 40.0
+
+
+def demo_station_config(out: Path) -> Path:
+    from fakes.cells import demo_config
+
+    path = out / "station.json"
+    path.write_text(json.dumps(demo_config(out, cycles=CYCLES, vap_cycles=VAP_CYCLES, rate_hz=100.0)))
+    return path
+
+
+class Client:
+    """HTTP on the server's loopback port; POSTs carry the page's CSRF token unless told otherwise."""
+
+    def __init__(self, url: str) -> None:
+        parts = urlsplit(url)
+        self.host, self.port = parts.hostname, parts.port
+        self.csrf = None
+
+    def request(self, method: str, path: str, body: dict | None = None, headers: dict | None = None):
+        con = http.client.HTTPConnection(self.host, self.port, timeout=10)
+        try:
+            data = urlencode(body).encode() if body is not None else None
+            hdrs = {"Content-Type": "application/x-www-form-urlencoded"} if data is not None else {}
+            con.request(method, path, body=data, headers={**hdrs, **(headers or {})})
+            resp = con.getresponse()
+            return resp.status, dict(resp.getheaders()), resp.read().decode()
+        finally:
+            con.close()
+
+    def get(self, path: str):
+        return self.request("GET", path)
+
+    def page_csrf(self) -> str:
+        status, _, html = self.get("/")
+        assert status == 200
+        marker = "name='csrf-token' content='"
+        return html.split(marker, 1)[1].split("'", 1)[0]
+
+    def post(self, path: str, fields: dict | None = None, *, csrf: bool = True, headers: dict | None = None):
+        body = dict(fields or {})
+        if csrf:
+            self.csrf = self.csrf or self.page_csrf()
+            body["csrf"] = self.csrf
+        return self.request("POST", path, body, headers)
+
+    def state(self, run_id: str) -> dict:
+        status, _, text = self.get(f"/runs/{run_id}/state")
+        assert status == 200, text
+        return json.loads(text)
+
+    def start(self, seed: int) -> str:
+        status, headers, text = self.post("/runs", {"procedure": "iso9283", "robot": "r1", "seed": seed})
+        assert status == 303, text
+        return headers["location"].rsplit("/", 1)[1]
+
+    def wait(self, run_id: str, cond, timeout_s: float = 30.0, what: str = "") -> dict:
+        t_end = time.monotonic() + timeout_s
+        while True:
+            st = self.state(run_id)
+            if cond(st):
+                return st
+            if time.monotonic() > t_end:
+                raise AssertionError(f"timed out waiting for {what}: status {st['status']}, "
+                                     f"current {st['current']}, error {st['error']}")
+            time.sleep(0.05)
+
+    def answer_prompts(self, run_id: str, n: int, answer: str = "yes") -> list[str]:
+        asked = []
+        for _ in range(n):
+            st = self.wait(run_id, lambda s: s["prompt"] is not None, 20, "a prompt")
+            asked.append(st["prompt"]["message"])
+            status, _, text = self.post(f"/runs/{run_id}/answer", {"prompt_id": st["prompt"]["id"], "answer": answer})
+            assert status == 303, text
+        return asked
+
+    def first_event(self, path: str, timeout_s: float = 5.0) -> tuple[str, str]:
+        """The first server-sent event on ``path``: (event, data)."""
+        con = http.client.HTTPConnection(self.host, self.port, timeout=timeout_s)
+        try:
+            con.request("GET", path)
+            resp = con.getresponse()
+            assert resp.status == 200 and resp.getheader("content-type").startswith("text/event-stream")
+            event, data = "", []
+            while True:
+                line = resp.fp.readline().decode().rstrip("\n")
+                if line.startswith("event: "):
+                    event = line[7:]
+                elif line.startswith("data: "):
+                    data.append(line[6:])
+                elif line == "" and data:
+                    return event, "\n".join(data)
+        finally:
+            con.close()
+
+
+@pytest.fixture
+def seed() -> int:
+    """A fresh simulated cell every run (printed with a failing test's output)."""
+    s = int(np.random.default_rng().integers(2**31))
+    print(f"cell seed {s}")
+    return s
+
+
+@pytest.fixture
+def served(tmp_path):
+    """`station serve` on 127.0.0.1, any free port, over the small demo station in ``tmp_path``."""
+    from station.config import load_config
+    from station.web.server import WebServer
+
+    cfg_path = demo_station_config(tmp_path)
+    server = WebServer(load_config(cfg_path), tmp_path, host="127.0.0.1", port=0, time_scale=TIME_SCALE).start()
+    server.config_path = cfg_path
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+@pytest.fixture
+def client(served) -> Client:
+    return Client(served.url)

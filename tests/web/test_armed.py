@@ -1,0 +1,54 @@
+"""`station serve --arm`: the configured devices (here the fake station's URLs, standing in for hardware)
+move only after the operator confirms the armed run on the page."""
+
+import numpy as np
+import pytest
+
+from fakes.station import FakeStation
+from station.config import config_from_dict
+from station.web.server import WebServer
+from tests.web.conftest import Client
+
+
+@pytest.fixture
+def armed(tmp_path):
+    seed = int(np.random.default_rng().integers(2**31))
+    with FakeStation.start(seed=seed, time_scale=40.0) as cell:
+        cfg = config_from_dict(cell.config_dict(store_path=str(tmp_path / "s.sqlite"),
+                                                report_dir=str(tmp_path / "reports"),
+                                                iso9283={"cycles": 2, "vap_cycles": 2}))
+        server = WebServer(cfg, tmp_path, port=0, arm=True).start()
+        try:
+            yield server, cell
+        finally:
+            server.close()
+
+
+def test_an_armed_run_asks_first_and_a_no_moves_nothing(armed):
+    server, cell = armed
+    client = Client(server.url)
+    status, _, page = client.get("/")
+    assert "ARMED" in page and "name='seed'" not in page  # no fake-cell seed: real devices
+    run_id = client.start(seed=0)
+    st = client.wait(run_id, lambda s: s["prompt"] is not None, 10, "the armed confirmation")
+    assert st["prompt"]["message"].startswith("ARMED: real devices will move")
+    assert st["status"] == "starting" and server.store.runs() == []  # nothing stored before the answer
+    status, _, _ = client.post(f"/runs/{run_id}/answer", {"prompt_id": st["prompt"]["id"], "answer": "no"})
+    assert status == 303
+    st = client.wait(run_id, lambda s: not s["live"], 10, "the refusal")
+    assert st["status"] == "not started" and "SafetyError" in st["error"] and "nothing moved" in st["error"]
+    assert server.store.runs() == []
+
+
+def test_an_armed_run_confirmed_on_the_page_runs_on_the_configured_devices(armed):
+    server, cell = armed
+    client = Client(server.url)
+    run_id = client.start(seed=0)
+    asked = client.answer_prompts(run_id, 3)
+    assert asked[0].startswith("ARMED") and "reflector" in asked[1].lower()
+    st = client.wait(run_id, lambda s: s["n_done"] >= 7, 30, "the first pose cycle")
+    assert st["status"] == "running" and st["procedure"] == "iso9283"
+    rec = server.store.run(run_id)
+    assert "fake" not in rec.params  # the configured devices, not a fake cell of the page's own
+    client.post(f"/runs/{run_id}/abort")
+    assert client.wait(run_id, lambda s: not s["live"], 20, "the abort")["status"] == "aborted"

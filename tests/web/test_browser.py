@@ -1,0 +1,89 @@
+"""The operator's page in a real browser: Debian's headless chromium driven by Playwright.
+
+Two browser pages watch one run of the small demo station (fake cell drawn at
+random): one starts it from the station page and answers the prompts with the
+page's buttons; both see the steps advance and the verdict; the run page is
+screenshotted live and done into the test's artefacts directory
+(``STATION_TEST_ARTEFACTS``, else the test's tmp dir; printed), then the report
+is opened from its link.
+"""
+
+import os
+from pathlib import Path
+
+import pytest
+
+from station.store import RunStore
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--no-first-run", "--disable-sync"]
+
+pytestmark = pytest.mark.skipif(not os.access(CHROMIUM, os.X_OK) and not os.environ.get("CI"),
+                                reason="no /usr/bin/chromium (scripts/setup installs it as root)")
+
+
+@pytest.fixture
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
+    from playwright.sync_api import expect
+
+    page = browser.new_page(viewport={"width": 1200, "height": 1400})
+    page.goto(served.url)
+    expect(page.locator("h1")).to_contain_text("demo cell")
+    page.fill("input[name=seed]", str(seed))
+    page.click("#btn-start")
+    page.wait_for_url("**/runs/*")
+    run_id = page.url.rsplit("/", 1)[1]
+    watcher = browser.new_page()
+    watcher.goto(page.url)
+    for expected in ("reflector", "clear the robot cell"):
+        expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=20_000)
+        expect(watcher.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=5_000)
+        page.click("#btn-yes")
+    # the watcher sees the steps advance without reloading (server-sent events)
+    expect(watcher.locator("#current")).to_contain_text("pose cycle", timeout=20_000)
+    expect(watcher.locator("#plot-speed polyline")).to_have_count(1, timeout=10_000)
+    first = int(watcher.locator("#received").inner_text())
+    expect(watcher.locator("#received")).not_to_have_text(str(first), timeout=10_000)  # the plot follows the stream
+    expect(watcher.locator("#plot-dist polyline")).to_have_count(1)
+    artefacts = Path(os.environ.get("STATION_TEST_ARTEFACTS", tmp_path))
+    artefacts.mkdir(parents=True, exist_ok=True)
+    watcher.screenshot(path=str(artefacts / "run_page_live.png"), full_page=True)
+    expect(watcher.locator("#current")).to_contain_text("vAP cycle", timeout=20_000)
+    expect(page.locator("#status")).to_have_text("done", timeout=40_000)
+    with RunStore(served.store.path) as store:
+        chars = store.characteristics(run_id)
+    judged = [c["passed"] for c in chars if c["passed"] is not None]
+    verdict = "pass" if all(judged) else "fail"
+    expect(page.locator("#verdict")).to_have_text(verdict)
+    expect(watcher.locator("#verdict")).to_have_text(verdict, timeout=5_000)
+    expect(page.locator("#results-table tr")).to_have_count(len(chars) + 1)
+    expect(page.locator("#steps-table tr[data-state=done]")).to_have_count(len(store_steps(served, run_id)))
+    shot = artefacts / "run_page_done.png"
+    page.screenshot(path=str(shot), full_page=True)
+    print(f"screenshots of the run page: {artefacts}/run_page_live.png, {shot}")
+    assert shot.stat().st_size > 10_000
+    with page.expect_navigation():
+        page.click("#report")
+    assert page.url.endswith(f"/runs/{run_id}/report")
+    expect(page.locator("body")).to_contain_text(run_id)
+    # the station page lists the run with its verdict
+    page.goto(served.url)
+    expect(page.locator(f"a[href='/runs/{run_id}']")).to_be_visible()
+    expect(page.locator("#runs")).to_contain_text(verdict)
+
+
+def store_steps(served, run_id):
+    with RunStore(served.store.path) as store:
+        return {s.idx for s in store.steps(run_id) if s.status == "done"}
