@@ -48,12 +48,14 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
                   seed: int = 0, json_out: str | None = None, quiet: bool = False,
                   config_dir: Path | None = None, plan_overrides: dict | None = None,
                   fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
-                  control: RunControl | None = None, stdout=sys.stdout) -> int:
+                  control: RunControl | None = None, stdout=sys.stdout, progress: ProgressLine | None = None) -> int:
     """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
 
     ``devices`` overrides the choice of devices (a test injecting drivers);
     ``fake_options`` adds to the fake cell's stored parameters (e.g. a
-    trailer's ``true_lengths_m``).
+    trailer's ``true_lengths_m``). ``progress`` replaces the console's
+    progress line (the operator's page shows the step's detail, e.g. the
+    target pose).
     """
     base = config_dir or Path.cwd()
     operator = operator or operator_for(yes, quiet)
@@ -75,7 +77,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         if devices.armed and not yes and not operator.confirm(
                 f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
             raise SafetyError("armed run not confirmed by the operator; nothing moved")
-        outcome = _drive(store, prepared, cfg, devices, operator, control, quiet)
+        outcome = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
         print(f"run {prepared.run_id}: {outcome.status}" + (f" ({outcome.error})" if outcome.error else ""),
               file=stdout)
         if outcome.status != "done":
@@ -95,7 +97,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     return 3 if outcome.status == "aborted" else 1
 
 
-def _drive(store, prepared, cfg, devices, operator, control, quiet: bool):
+def _drive(store, prepared, cfg, devices, operator, control, quiet: bool, progress=None):
     control = control or RunControl()
     old = {}
     for sig, handler in ((signal.SIGINT, lambda *_: control.abort()), (signal.SIGUSR1, lambda *_: control.toggle_pause())):
@@ -105,7 +107,7 @@ def _drive(store, prepared, cfg, devices, operator, control, quiet: bool):
             pass
     try:
         return execute(store, prepared, cfg, devices, operator=operator, control=control,
-                       progress=ProgressLine(None if quiet else sys.stderr))
+                       progress=progress or ProgressLine(None if quiet else sys.stderr))
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)

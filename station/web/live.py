@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from station.errors import ConfigError, RunStateError, StationError
-from station.runner import RunAborted, RunControl
+from station.runner import ProgressLine, RunAborted, RunControl
 
 #: how often a waiting prompt looks at the abort request, s
 _POLL_S = 0.1
@@ -76,6 +76,18 @@ class WebOperator:
             self._cond.notify_all()
 
 
+class _PageProgress(ProgressLine):
+    """The runner's progress, kept for the page instead of printed."""
+
+    def __init__(self, live: "LiveRun") -> None:
+        super().__init__(None)
+        self._live = live
+
+    def update(self, idx: int, step, detail: str = "") -> None:
+        super().update(idx, step, detail)
+        self._live.detail = detail
+
+
 @dataclass
 class LiveRun:
     """A run driven by this server's thread."""
@@ -91,6 +103,8 @@ class LiveRun:
     error: str | None = None
     #: the console lines the front door printed (status, results)
     output: str = ""
+    #: what the current step is doing now (e.g. "-> P3", "pose C12"), from the runner's progress
+    detail: str = ""
 
     @property
     def finished(self) -> bool:
@@ -203,7 +217,8 @@ class RunHub:
         try:
             live.exit_code = run_procedure(
                 self.cfg, procedure, arm=self.arm, yes=False, time_scale=self.time_scale, quiet=True,
-                config_dir=self.config_dir, operator=live.operator, control=live.control, stdout=out, **kwargs)
+                config_dir=self.config_dir, operator=live.operator, control=live.control, stdout=out,
+                progress=_PageProgress(live), **kwargs)
         except StationError as exc:
             live.error = f"{type(exc).__name__}: {exc}"
             live.exit_code = 2

@@ -168,7 +168,8 @@ _RUN_JS = r"""
   };
   function draw(st) {
     const base = '/runs/' + encodeURIComponent(st.run_id);
-    const cur = st.current ? `step ${st.current.idx + 1}/${st.n_steps}: <b id="current">${esc(st.current.name)}</b>` : '';
+    const cur = st.current ? `step ${st.current.idx + 1}/${st.n_steps}: <b id="current">${esc(st.current.name)}</b>`
+      + (st.detail ? ` <span id="detail">${esc(st.detail)}</span>` : '') : '';
     const paused = st.paused ? ' <b class="aborted" id="paused">PAUSED</b>' : '';
     const verdict = st.verdict ? ` verdict <b id="verdict" class="${esc(st.verdict)}">${esc(st.verdict)}</b>` : '';
     document.getElementById('summary').innerHTML =

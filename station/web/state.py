@@ -110,6 +110,7 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
         "error": (live.error if live else None) or _last_error(journal, rec.status),
         "output": live.output if (live and live.finished) else "",
         "steps": steps, "current": current, "n_done": n_done, "n_steps": len(names),
+        "detail": live.detail if driven else "",
         "elapsed_s": elapsed, "remaining_s": remaining,
         "results": store.characteristics(run_id) if finished or n_done == len(names) else [],
         "verdict": verdict(store, run_id, journal), "report": report_path(journal) is not None,

@@ -23,12 +23,13 @@ def test_a_run_started_from_the_page_goes_through_to_its_verdict(served, client,
     asked = client.answer_prompts(run_id, 2)
     assert "reflector" in asked[0].lower() and "clear" in asked[1].lower()
     # the steps advance one by one, each seen running then done, none skipped
-    seen_done, seen_current, trackers = [], set(), []
+    seen_done, seen_current, trackers, details = [], set(), [], set()
     st = client.state(run_id)
     while st["status"] == "running":
         seen_done.append(st["n_done"])
         if st["current"]:
             seen_current.add(st["current"]["name"])
+            details.add(st.get("detail", ""))
         if st["tracker"] and st["tracker"]["dist_mm"]:
             trackers.append(st["tracker"])
         time.sleep(0.05)
@@ -36,6 +37,8 @@ def test_a_run_started_from_the_page_goes_through_to_its_verdict(served, client,
     assert st["status"] == "done", st["error"]
     assert seen_done == sorted(seen_done) and len(set(seen_done)) >= 5
     assert {"pose cycle 1", "vAP cycle 1"} <= seen_current
+    # the target pose of the moving step, from the runner's progress
+    assert {f"-> P{k}" for k in range(1, 6)} & details, details
     assert st["n_steps"] == N_STEPS and st["n_done"] == N_STEPS
     # the live plot followed the stream: the demo's 100 Hz, counts growing, the arm stopping at its poses
     assert len(trackers) >= 5
