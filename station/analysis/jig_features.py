@@ -14,7 +14,9 @@ Algorithm of :func:`feature_point`
    principal axes of its points (moment sums, one pass over the cloud). The
    median voxel thickness (RMS distance to the voxel plane) estimates the
    scanner noise; voxels thicker than ``3x`` that (edges, clutter, voxels hit
-   by outliers) are left out.
+   by outliers) are left out. If steps 1-3 do not find three faces (a face
+   seen at a grazing angle holds few points per voxel), they are tried once
+   more with voxels twice as large.
 2. **Plane segmentation.** Planes are taken out one after another: the
    hypothesis (one voxel's plane) that most voxel points agree with (normal
    within ``angle_tol_deg``, centroid near the plane) is refitted to the
@@ -174,8 +176,10 @@ class _Voxels:
 
 def _voxel_planes(Q: np.ndarray, voxel_mm: float, min_points: int) -> tuple[_Voxels, np.ndarray]:
     """Moment sums and principal planes of the occupied voxels (Q: points relative to their minimum)."""
+    dims = np.floor(Q.max(axis=0) / voxel_mm).astype(np.int64) + 1
+    if float(np.prod(dims.astype(float))) > 2.0**62:
+        raise DataError(f"the cloud spans {Q.max(axis=0).round(1).tolist()} mm: too many {voxel_mm:g} mm voxels to number")
     ijk = np.floor(Q / voxel_mm).astype(np.int64)
-    dims = ijk.max(axis=0) + 1
     key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
     _, inv = np.unique(key, return_inverse=True)
     nv = int(inv.max()) + 1
@@ -270,6 +274,28 @@ def _corner_triple(planes: list[_Plane], sin_tol: float, min_points: int, tol_de
             f"perpendicular within {tol_deg:g} deg: the jig's three faces are not all visible"
         )
     return best
+
+
+def _corner_faces(Q, voxel_mm, *, min_voxel_points, min_face_points, angle_tol_deg, perpendicular_tol_deg,
+                  max_planes) -> tuple[_Voxels, list[_Plane], float]:
+    """Steps 1-3: voxel planes, plane segmentation, the corner's three faces; and the noise estimate."""
+    vox, lam = _voxel_planes(Q, voxel_mm, min_voxel_points)
+    # noise: the median thickness of voxels spread like a surface patch
+    patch = np.sqrt(np.maximum(lam[:, 1], 0.0)) > voxel_mm / 8.0
+    if not patch.any():
+        raise InsufficientDataError(
+            f"no voxel of {voxel_mm:g} mm holds a surface patch of >= {min_voxel_points} points: "
+            "the cloud is too sparse for `voxel_mm` (make it larger)"
+        )
+    corr = np.sqrt(vox.n / np.maximum(vox.n - 3.0, 1.0))
+    noise = float(np.median((vox.thickness * corr)[patch]))
+    planar = np.flatnonzero(patch & (vox.thickness <= 3.0 * noise + 1e-9 * voxel_mm))
+    planes = _segment_planes(
+        vox, planar, noise=noise, voxel_mm=voxel_mm, cos_tol=math.cos(math.radians(angle_tol_deg)),
+        min_points=min_face_points, max_planes=max_planes,
+    )
+    tri = _corner_triple(planes, math.sin(math.radians(perpendicular_tol_deg)), min_face_points, perpendicular_tol_deg)
+    return vox, [planes[i] for i in tri], noise
 
 
 # ---------------------------------------------------------------- joint fit
@@ -379,7 +405,8 @@ def feature_point(
         The scan, mm, any frame. Must be finite.
     voxel_mm : float
         Voxel edge for plane segmentation, about a tenth of the jig's edge;
-        each face needs voxels with ``min_voxel_points`` points.
+        each face needs voxels with ``min_voxel_points`` points. If three
+        faces are not found, voxels twice as large are tried once.
     min_voxel_points : int
         Points for a voxel to get a plane (>= 4).
     min_face_points : int
@@ -434,23 +461,21 @@ def feature_point(
 
     origin = P.min(axis=0)
     Q = P - origin
-    vox, lam = _voxel_planes(Q, voxel_mm, min_voxel_points)
-    # noise: the median thickness of voxels spread like a surface patch
-    patch = np.sqrt(np.maximum(lam[:, 1], 0.0)) > voxel_mm / 8.0
-    if not patch.any():
-        raise InsufficientDataError(
-            f"no voxel of {voxel_mm:g} mm holds a surface patch of >= {min_voxel_points} points: "
-            "the cloud is too sparse for `voxel_mm` (make it larger)"
-        )
-    corr = np.sqrt(vox.n / np.maximum(vox.n - 3.0, 1.0))
-    noise = float(np.median((vox.thickness * corr)[patch]))
-    planar = np.flatnonzero(patch & (vox.thickness <= 3.0 * noise + 1e-9 * voxel_mm))
-    planes = _segment_planes(
-        vox, planar, noise=noise, voxel_mm=voxel_mm, cos_tol=math.cos(math.radians(angle_tol_deg)),
-        min_points=min_face_points, max_planes=max_planes,
-    )
-    tri = _corner_triple(planes, math.sin(math.radians(perpendicular_tol_deg)), min_face_points, perpendicular_tol_deg)
-    faces = [planes[i] for i in tri]
+    # a face seen at a grazing angle, or a noisy scan, may leave too few points per
+    # voxel: one retry with voxels twice as large before giving up
+    first_error = None
+    for size in (voxel_mm, 2.0 * voxel_mm):
+        try:
+            vox, faces, noise = _corner_faces(
+                Q, size, min_voxel_points=min_voxel_points, min_face_points=min_face_points,
+                angle_tol_deg=angle_tol_deg, perpendicular_tol_deg=perpendicular_tol_deg, max_planes=max_planes,
+            )
+            voxel_mm = size
+            break
+        except InsufficientDataError as exc:
+            first_error = first_error or exc
+    else:
+        raise InsufficientDataError(f"{first_error} (also with {2 * voxel_mm:g} mm voxels)") from first_error
     Nrm = np.array([f.normal for f in faces])
     corner = plane_intersection(Nrm, np.array([f.centroid for f in faces]))
     # outward normals: the other faces' points lie behind each face

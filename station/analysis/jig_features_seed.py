@@ -76,7 +76,7 @@ from itertools import combinations
 
 import numpy as np
 from station.analysis.jig_features import JigFeature, check_points
-from station.errors import ConfigError, InsufficientDataError
+from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import plane_intersection
 
 __all__ = ["seed_feature_point"]
@@ -97,8 +97,11 @@ def _positive(value, name: str) -> float:
 
 def _grid_cells(P: np.ndarray, side_mm: float, offset_mm: np.ndarray) -> np.ndarray:
     """Cell number (0..C-1) of every point in a grid of cubes of ``side_mm``."""
-    ijk = np.floor((P - P.min(axis=0) + offset_mm) / side_mm).astype(np.int64)
-    dims = ijk.max(axis=0) + 1
+    Q = P - P.min(axis=0) + offset_mm
+    dims = np.floor(Q.max(axis=0) / side_mm).astype(np.int64) + 1
+    if float(np.prod(dims.astype(float))) > 2.0**62:
+        raise DataError(f"the cloud spans {Q.max(axis=0).round(1).tolist()} mm: too many {side_mm:g} mm cells to number")
+    ijk = np.floor(Q / side_mm).astype(np.int64)
     key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
     return np.unique(key, return_inverse=True)[1].reshape(-1)
 
@@ -221,10 +224,10 @@ def seed_feature_point(
     points_mm,
     rng: np.random.Generator,
     *,
-    n_sets: int = 20000,
+    n_sets: int = 40000,
     sampling: str = "local",
     radius_range_mm=(1.5, 6.0),
-    normal_radius_mm: float = 1.5,
+    normal_radius_mm: float = 2.5,
     point_normal_tol_deg: float = 10.0,
     triangle_dot_min: float = 0.995,
     parallel_tol_deg: float = 5.0,
