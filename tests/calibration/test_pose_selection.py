@@ -31,7 +31,7 @@ def test_selected_poses_see_more_and_calibrate_better_than_random_ones(method, n
     rng = np.random.default_rng()
     nom = get_robot("rb5-850")
     errs = {"selected": [], "random": []}
-    for _ in range(6):
+    for _ in range(10):  # one draw can favour the random poses; ten rarely do (bench: 31-35 % less on average)
         true = perturbed(nom.dh_nominal, rng)
         cand = random_poses(nom.joint_limits_rad, 1000, rng)
         sel = select_poses(nom.dh_nominal, cand, n)
