@@ -53,7 +53,7 @@ import math
 import numpy as np
 
 __all__ = ["PARAM_NAMES", "EFFECT_PARAMS", "null_params", "predict", "lag_column", "columns", "loo_smooth",
-           "time_clusters", "cluster_cov"]
+           "segments", "hac_cov", "hac_bandwidth"]
 
 PARAM_NAMES = ("L1_m", "L2_m", "offset_rad", "gain", "relaxation_m")
 #: candidate effect -> indices of its parameters
@@ -178,33 +178,53 @@ def loo_smooth(t_s: np.ndarray, x: np.ndarray, half_window: int) -> tuple[np.nda
     return level, slope
 
 
-def time_clusters(t_s: np.ndarray, rows: np.ndarray, n_clusters: int) -> np.ndarray:
-    """Cluster label (0..G-1) of each of ``rows``: consecutive stretches of equal time span."""
-    tr = t_s[rows]
-    edges = np.linspace(tr[0], tr[-1], n_clusters + 1)
-    lab = np.clip(np.searchsorted(edges, tr, side="right") - 1, 0, n_clusters - 1)
-    # stretches split by a held-out block become separate clusters too
-    gap = np.concatenate([[False], np.diff(rows) > 1])
-    new = np.concatenate([[True], np.diff(lab) != 0]) | gap
-    return np.cumsum(new) - 1
+def segments(rows: np.ndarray) -> np.ndarray:
+    """Label (0..S-1) of the contiguous stretch each of ``rows`` (sorted indices) belongs to."""
+    return np.cumsum(np.concatenate([[True], np.diff(rows) > 1])) - 1
 
 
-def cluster_cov(X: np.ndarray, resid: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Cluster-robust covariance of least-squares coefficients of ``resid`` on ``X`` (N, p).
+def _lag_products(A: np.ndarray, B: np.ndarray, seg: np.ndarray, lag: int) -> np.ndarray:
+    """``sum_k A[k]' B[k - lag]`` over pairs inside one stretch."""
+    same = seg[lag:] == seg[:-lag]
+    return A[lag:][same].T @ B[:-lag][same]
 
-    ``(X'X)^-1 (sum_g s_g s_g') (X'X)^-1`` with the score ``s_g`` summed over
-    the cluster and the small-sample factor ``G / (G - 1)``: the residuals of
-    a trailer are correlated over the joint angle's relaxation time, the
-    clusters are stretches much longer than it.
+
+def hac_bandwidth(resid: np.ndarray, seg: np.ndarray, max_lag: int, tol: float = 0.05) -> int:
+    """Lags over which the residual is correlated: twice the first lag whose autocorrelation is below ``tol``.
+
+    At least 5 samples, at most ``max_lag``.
+    """
+    r = resid - resid.mean()
+    v = float(r @ r)
+    if v <= 0.0:
+        return 5
+    for lag in range(1, max_lag + 1):
+        rho = float(_lag_products(r[:, None], r[:, None], seg, lag)[0, 0]) / v
+        if rho < tol:
+            return int(min(max(5, 2 * lag), max_lag))
+    return int(max_lag)
+
+
+def hac_cov(X: np.ndarray, resid: np.ndarray, seg: np.ndarray, bandwidth: int) -> np.ndarray:
+    """Heteroscedasticity- and autocorrelation-robust covariance of least-squares coefficients (N, p).
+
+    ``(X'X)^-1 M (X'X)^-1`` with ``M = G_0 + sum_l (1 - l/(L+1)) (G_l + G_l')``,
+    ``G_l = sum_k s_k s_{k-l}'``, ``s_k = x_k r_k`` (Bartlett weights, lags
+    counted inside each contiguous stretch of the training record): the
+    residuals of a trailer are correlated over the joint angle's relaxation,
+    and their variance changes with the curvature.
     """
     scale = np.linalg.norm(X, axis=0)
     scale[scale == 0] = 1.0
     Xs = X / scale
     bread = np.linalg.pinv(Xs.T @ Xs)
-    G = int(labels.max()) + 1
-    score = np.zeros((G, X.shape[1]))
-    np.add.at(score, labels, Xs * resid[:, None])
-    cov = bread @ (score.T @ score) @ bread * (G / max(G - 1, 1))
+    S = Xs * resid[:, None]
+    meat = S.T @ S
+    for lag in range(1, bandwidth + 1):
+        g = _lag_products(S, S, seg, lag)
+        meat += (1.0 - lag / (bandwidth + 1.0)) * (g + g.T)
+    n = X.shape[0]
+    cov = bread @ meat @ bread * (n / max(n - X.shape[1], 1))
     return cov / np.outer(scale, scale)
 
 
