@@ -30,7 +30,10 @@
 4. Forward selection: of the significant candidates that also lower the
    held-out RMS (linearised refit), the one that lowers it most is added and
    the model refitted (nonlinear least squares) until nothing significant
-   is left. The refit is driven by the same leave-one-out curvature: driven
+   is left. When significant candidates are left but none lowers the
+   held-out RMS alone, one that does so together with a second candidate
+   (significant after it) is added, and its step says so: an offset and a
+   curvature gain of opposite effect can cancel on the held-out blocks. The refit is driven by the same leave-one-out curvature: driven
    by the measured one, a lag would be fitted long because filtering the
    curvature noise lowers the residual (errors in variables; +2 to 3 cm at
    a relaxation of a few cm). Held-out RMS values are always of the model
@@ -387,8 +390,35 @@ def _test_round(theta, active, remaining, ctx, alpha) -> list[TrailerTest]:
     return out
 
 
+def _refit(theta, ct: TrailerTest, new_active, ctx) -> np.ndarray:
+    start = theta.copy()
+    pidx = list(EFFECT_PARAMS[ct.effect])
+    start[pidx] += ct.start
+    if ct.effect == "hitch_dynamics":
+        start[4] = max(float(start[4]), _ELL_START)
+    return _fit(start, new_active, ctx["kappa_s"], ctx["dist"], ctx["psi"], ctx["train"])
+
+
+def _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now):
+    """A significant candidate that lowers the held-out RMS only together with a second one.
+
+    Tried in order of significance: fitted, the next round tested; accepted
+    when a candidate of that round is significant and the pair lowers the
+    held-out RMS. Returns ``(test, theta, partner)`` or None.
+    """
+    for ct in sorted((c for c in tests if c.significant), key=lambda c: -c.statistic / c.threshold):
+        trial_active = active + [ct.effect]
+        trial = _refit(theta, ct, trial_active, ctx)
+        rest = [e for e in remaining if e != ct.effect]
+        nxt = _test_round(trial, trial_active, rest, ctx, alpha) if rest else []
+        ok = [c for c in nxt if c.significant and c.heldout_rms_after < ho_now]
+        if ok:
+            return ct, trial, min(ok, key=lambda c: c.heldout_rms_after).effect
+    return None
+
+
 def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, kappa_cmd=None,
-                     heldout_fraction: float = 0.25, alpha: float = 0.05, n_blocks: int = 20,
+                     heldout_fraction: float = 0.25, alpha: float = 0.05, n_blocks: int = 40,
                      max_steps: int = 4) -> TrailerDiagnosis:
     """Diagnose the patent's static trailer model against a measured record.
 
@@ -476,23 +506,27 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
             break
         ho_now = rms((ps - predict(theta, kap, dist))[held])
         sig = [ct for ct in tests if ct.significant and ct.heldout_rms_after < ho_now]
-        if not sig:
-            break
-        best = min(sig, key=lambda ct: ct.heldout_rms_after)
-        start = theta.copy()
-        pidx = list(EFFECT_PARAMS[best.effect])
-        start[pidx] += best.start
-        if best.effect == "hitch_dynamics":
-            start[4] = max(float(start[4]), _ELL_START)
-        new_active = active + [best.effect]
-        new_theta = _fit(start, new_active, ks, dist, ps, train)
+        pair_note = None
+        if sig:
+            best = min(sig, key=lambda ct: ct.heldout_rms_after)
+            new_active = active + [best.effect]
+            new_theta = _refit(theta, best, new_active, ctx)
+        else:
+            # two effects whose residuals cancel on the held-out blocks: each alone lowers nothing there
+            found = _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now)
+            if found is None:
+                break
+            best, new_theta, partner = found
+            new_active = active + [best.effect]
+            pair_note = (f"alone it does not lower the held-out RMS; together with {partner}, significant after it, "
+                         "it does")
         r_before = ps - predict(theta, kap, dist)
         r_after = ps - predict(new_theta, kap, dist)
         params, ci = _params_ci(new_theta, new_active, best.effect, ks, dist, ps, ctx, speed_known)
-        details = {}
+        details = {"selected_as_pair": pair_note} if pair_note else {}
         if best.effect == "hitch_dynamics":
             half_interval = float(np.median(dist[1:])) / 2.0
-            details = {"relaxation_expected_m": float(new_theta[1]) - half_interval if speed_known else None,
+            details |= {"relaxation_expected_m": float(new_theta[1]) - half_interval if speed_known else None,
                        "note": ("eq. (D) relaxes over L2; with curvature averaged over each interval the fitted "
                                 "relaxation is about L2 - v dt / 2" if speed_known else
                                 "no v column: constant speed of 1 m/s assumed, the relaxation is a time constant")}
