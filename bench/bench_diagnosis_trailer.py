@@ -39,6 +39,10 @@ def timing() -> None:
     dt = time.perf_counter() - t0
     print(f"physical trailer, {t.size} samples ({t[-1] - t[0]:.0f} s at 20 Hz): {dt:.2f} s; "
           f"selected {res.selected}; held-out {res.simulation_heldout_rms:.4f} -> {res.final_heldout_rms:.4f} rad")
+    for s in res.steps:
+        if s.effect == "hitch_dynamics":
+            print(f"  relaxation {s.params['relaxation_m']:.4f} m, 95 % CI {s.ci['relaxation_m']}, "
+                  f"expected (L2 - v dt/2) {s.details['relaxation_expected_m']:.4f} m")
     rng = np.random.default_rng()
     d = make_trailer_case(["hitch_angle_offset", "link_lengths"], rng, duration_s=600.0, strength=(1.0, 1.0))
     t0 = time.perf_counter()
