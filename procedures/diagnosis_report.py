@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from station.analysis.diagnose import ArmDiagnosis
+from station.analysis.diagnose.trailer import TrailerDiagnosis
 from station.models import kinematics as kin
 from station.report import Report, plot_xy
 
@@ -68,5 +69,50 @@ def build_report(res: ArmDiagnosis, *, title: str, facts: dict | None = None) ->
         for a in s["ambiguous_with"]:
             notes.append(f"{s['effect']}[{s['joint']}] and {a['effect']}[{a['joint']}] explain the same residual "
                          f"({100 * a['share_of_residual_explained']:.0f} % as much alone): the data cannot tell them apart")
+    notes += [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
+    return Report(title=title, facts=f, rows=rows, figures=figs, notes=notes)
+
+
+_TRAILER_AXES = {"link_lengths": ("kappa", "curvature [1/m]"), "curvature_gain": ("kappa", "curvature [1/m]"),
+                 "hitch_angle_offset": ("t", "t [s]"),
+                 "hitch_dynamics": ("kappa_rate", "curvature rate [1/(m s)]")}
+
+
+def build_trailer_report(res: TrailerDiagnosis, *, title: str, facts: dict | None = None) -> Report:
+    """Residuals of the joint angle before and after each step against curvature, its rate or time."""
+    doc = res.to_json()
+    h = res.heldout
+    figs = []
+    for name, label in (("kappa", "curvature [1/m]"), ("kappa_rate", "curvature rate [1/(m s)]"), ("t", "t [s]")):
+        x = res.variables[name][h]
+        figs.append((f"Held-out residuals against {label.split(' [')[0]}: static model and extended model",
+                     plot_xy([("static model", x, res.resid_simulation[h], "."),
+                              ("extended", x, res.resid_final[h], ".")],
+                             xlabel=label, ylabel="psi residual [rad]", title=name)))
+    for k, step in enumerate(res.steps, 1):
+        var, label = _TRAILER_AXES[step.effect]
+        x = res.variables[var][h]
+        figs.append((f"Step {k}: {step.effect}, held-out residuals before (RMS {step.heldout_rms_before:.5f} rad) "
+                     f"and after ({step.heldout_rms_after:.5f} rad)",
+                     plot_xy([("before", x, step.resid_before[h], "."), ("after", x, step.resid_after[h], ".")],
+                             xlabel=label, ylabel="psi residual [rad]", title=step.effect)))
+    rows = []
+    for k, s in enumerate(doc["steps"], 1):
+        for name, val in s["params"].items():
+            ci = s["ci"].get(name)
+            rows.append({"pose": f"{k}. {s['effect']}", "name": name, "value": val,
+                         "unit": "" if ci is None else f"95 % CI [{ci[0]:.5g}, {ci[1]:.5g}]",
+                         "limit": None, "passed": None})
+    f = {"held-out RMS, static model (seed 003 eq. (23))": f"{doc['simulation_heldout_rms']:.5f} rad",
+         "held-out RMS, extended model": f"{doc['final_heldout_rms']:.5f} rad ({doc['gain_percent']:.1f} % less)",
+         "noise floor": f"{doc['noise_floor']:.5f} rad",
+         "samples": f"{doc['n_samples']['train']} training, {doc['n_samples']['heldout']} held-out"}
+    f.update(facts or {})
+    notes = []
+    for s in doc["steps"]:
+        for a in s["ambiguous_with"]:
+            notes.append(f"{s['effect']} and {a['effect']} explain the same residual "
+                         f"({100 * a['share_of_residual_explained']:.0f} % as much alone): the data cannot tell "
+                         "them apart")
     notes += [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
     return Report(title=title, facts=f, rows=rows, figures=figs, notes=notes)

@@ -13,6 +13,16 @@
     ``noise_floor`` (mm), ``remaining_structure``, ``not_testable``,
     ``extended_model`` (table and ``EffectSet`` parameters the simulated
     world can use). Nothing is written unless everything succeeded.
+
+``station diagnose trailer --l1 L1 --l2 L2 --data T.csv [--json OUT] [--report OUT.html]``
+    The trailer CSV (``t,kappa,psi``, optional ``v``, ``kappa_cmd``) is
+    predicted by the patent's static model (seed 003 eq. (23)) from the
+    nominal link lengths (m), split by time blocks spanning the record, and
+    ``link_lengths``, ``hitch_angle_offset``, ``curvature_gain`` and
+    ``hitch_dynamics`` are selected one by one while a test against the
+    noise finds structure (see :mod:`station.analysis.diagnose.trailer`).
+    Same JSON keys as the arm; RMS and ``noise_floor`` in rad of the joint
+    angle, ``extended_model`` the fitted lengths, offset, gain and relaxation.
 """
 
 from __future__ import annotations
@@ -35,6 +45,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--json", metavar="OUT", help="write the result as JSON")
     a.add_argument("--report", metavar="OUT.html", help="write the HTML report")
     a.set_defaults(func=_arm)
+    t = dsub.add_parser("trailer", help="the static trailer model (seed 003) against a measured record",
+                        description=__doc__.split("\n\n")[2])
+    t.add_argument("--l1", required=True, type=float, metavar="L1", help="nominal front link length, m")
+    t.add_argument("--l2", required=True, type=float, metavar="L2", help="nominal rear link length, m")
+    t.add_argument("--data", required=True, metavar="CSV", help="t,kappa,psi (s, 1/m, rad), optional v,kappa_cmd")
+    t.add_argument("--heldout-fraction", type=float, default=0.25, help="share of the record held out (default 0.25)")
+    t.add_argument("--alpha", type=float, default=0.05, help="false-discovery rate of each selection round")
+    t.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    t.add_argument("--report", metavar="OUT.html", help="write the HTML report")
+    t.set_defaults(func=_trailer)
 
 
 def _arm(args: argparse.Namespace) -> int:
@@ -65,6 +85,50 @@ def _arm(args: argparse.Namespace) -> int:
         write_report(report, args.report)
     _print(doc)
     return 0
+
+
+def _trailer(args: argparse.Namespace) -> int:
+    from procedures.diagnosis_report import build_trailer_report
+    from station.analysis.diagnose.trailer import diagnose_trailer
+    from station.commands.calibrate import read_trailer_csv
+    from station.report import write_report
+
+    data = read_trailer_csv(args.data)
+    res = diagnose_trailer(data["t"], data["kappa"], data["psi"], L1_m=args.l1, L2_m=args.l2,
+                           v_m_s=data.get("v"), kappa_cmd=data.get("kappa_cmd"),
+                           heldout_fraction=args.heldout_fraction, alpha=args.alpha)
+    doc = res.to_json()
+    doc["nominal"], doc["data"] = {"L1_m": args.l1, "L2_m": args.l2}, str(args.data)
+    report = build_trailer_report(res, title="Diagnosis of the trailer model",
+                                  facts={"data": str(args.data)}) if args.report else None
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    if report is not None:
+        write_report(report, args.report)
+    _print_trailer(doc)
+    return 0
+
+
+def _print_trailer(doc: dict) -> None:
+    n = doc["n_samples"]
+    print(f"static model (seed 003 eq. (23)) held-out RMS {doc['simulation_heldout_rms']:.5f} rad "
+          f"({n['train']} training, {n['heldout']} held-out samples)")
+    for k, s in enumerate(doc["steps"], 1):
+        par = ", ".join(f"{name} {val:.5g} [{s['ci'][name][0]:.5g}, {s['ci'][name][1]:.5g}]"
+                        for name, val in s["params"].items())
+        amb = "".join(f"; same residual as {a['effect']}" for a in s["ambiguous_with"])
+        print(f"{k:>2}. {s['effect']} ({par}): held-out {s['heldout_rms_before']:.5f} -> "
+              f"{s['heldout_rms_after']:.5f} rad ({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > "
+              f"{s['threshold']:.1f}{amb}")
+    if not doc["steps"]:
+        print("nothing significant: the static model explains the data to the noise")
+    print(f"extended model held-out RMS {doc['final_heldout_rms']:.5f} rad ({doc['gain_percent']:.1f} % less); "
+          f"noise floor {doc['noise_floor']:.5f} rad")
+    left = [c for c in doc["remaining_structure"] if c.get("significant")]
+    if left:
+        print("significant but not improving held-out data: " + ", ".join(c["candidate"] for c in left))
+    for key, why in doc["not_testable"].items():
+        print(f"not testable: {key}: {why}")
 
 
 def _print(doc: dict) -> None:
