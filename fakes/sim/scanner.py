@@ -19,6 +19,10 @@ origin) containing:
   0.02 mm accuracy, 700 mm working distance, 450 mm field).
 * **outliers**: a fraction ``outlier_fraction`` of the points, uniform in
   the jig's bounding box grown by 20 mm ("flying pixels").
+* **occluders** (optional, none by default): spheres fixed in the scanner
+  frame (a cable, a clamp, a gripper finger) that hide whatever lies behind
+  them and show their own front surface (at ``density_per_mm2`` times the
+  cosine of the viewing angle, labelled ``LABEL_OCCLUDER``).
 
 Everything outside the viewing frustum (``fov_mm`` wide at the working
 distance, depths ``depth_range_mm``) is clipped. Points are shuffled.
@@ -34,10 +38,11 @@ import numpy as np
 from station.errors import ConfigError, DataError
 from station.models.jig import BASE_FACE, CornerJig, sample_triangles, transform_points
 
-__all__ = ["SimScanner", "ScanResult", "look_at", "LABEL_BACKGROUND", "LABEL_OUTLIER"]
+__all__ = ["SimScanner", "ScanResult", "look_at", "LABEL_BACKGROUND", "LABEL_OUTLIER", "LABEL_OCCLUDER"]
 
 LABEL_BACKGROUND = -1
 LABEL_OUTLIER = -2
+LABEL_OCCLUDER = -3
 
 
 def look_at(eye_mm, target_mm, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -69,7 +74,8 @@ class ScanResult:
     points_mm : ndarray, shape (M, 3)
         Point cloud in the scanner frame.
     labels : ndarray of int, shape (M,)
-        Truth per point: jig face 0-2, ``LABEL_BACKGROUND`` or ``LABEL_OUTLIER``.
+        Truth per point: jig face 0-2, ``LABEL_BACKGROUND``, ``LABEL_OUTLIER``
+        or ``LABEL_OCCLUDER``.
     feature_point_mm : ndarray, shape (3,)
         True jig corner in the scanner frame.
     plane_normals : ndarray, shape (3, 3)
@@ -102,6 +108,27 @@ def _num(value, name: str, lo: float = 0.0, strict: bool = True, hi: float | Non
             bound += f" and <= {hi}"
         raise ConfigError(f"`{name}` must be finite and {bound}, got {value!r}")
     return v
+
+
+def _behind_spheres(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """True where the segment from the origin to a point passes through a sphere first.
+
+    A point on a sphere's front surface is not hidden by that sphere (the ray
+    enters the sphere at the point itself).
+    """
+    hidden = np.zeros(points.shape[0], dtype=bool)
+    if points.size == 0:
+        return hidden
+    pp = np.einsum("ij,ij->i", points, points)
+    for c, r in zip(centers, radii):
+        # |t p - c|^2 = r^2  ->  t^2 |p|^2 - 2 t (c . p) + |c|^2 - r^2 = 0
+        cp = points @ c
+        disc = cp * cp - pp * (c @ c - r * r)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        t_in = (cp - root) / pp
+        t_out = (cp + root) / pp
+        hidden |= (disc > 0) & (t_in < 1.0 - 1e-9) & (t_out > 0.0)
+    return hidden
 
 
 def _ray_hits_triangles(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -155,6 +182,9 @@ class SimScanner:
         Background plane distance behind the working distance.
     background_density_per_mm2 : float
         Points per mm^2 on the background.
+    occluders : sequence of (center_mm, radius_mm)
+        Spheres fixed in the scanner frame that hide what is behind them
+        (default none).
     """
 
     def __init__(
@@ -171,6 +201,7 @@ class SimScanner:
         background: bool = True,
         background_offset_mm: float = 250.0,
         background_density_per_mm2: float = 0.02,
+        occluders=(),
     ) -> None:
         T = np.array(base_T_scanner, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -196,6 +227,22 @@ class SimScanner:
         self.background_offset_mm = _num(background_offset_mm, "background_offset_mm")
         self.background_density_per_mm2 = _num(background_density_per_mm2, "background_density_per_mm2", strict=False)
         self.tan_half_fov = 0.5 * self.fov_mm / self.working_distance_mm
+        centers, radii = [], []
+        for i, occ in enumerate(occluders):
+            try:
+                c, r = occ
+                c = np.asarray(c, dtype=float)
+                r = float(r)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"`occluders[{i}]` must be (center_mm, radius_mm): {exc}") from exc
+            if c.shape != (3,) or not np.all(np.isfinite(c)) or not (math.isfinite(r) and r > 0):
+                raise ConfigError(f"`occluders[{i}]` must be 3 finite center coordinates and a radius > 0, got {occ!r}")
+            if np.linalg.norm(c) <= r:
+                raise ConfigError(f"`occluders[{i}]` contains the scanner's eye (the origin)")
+            centers.append(c)
+            radii.append(r)
+        self.occluder_centers_mm = np.array(centers, dtype=float).reshape(-1, 3)
+        self.occluder_radii_mm = np.array(radii, dtype=float)
 
     def in_frustum(self, points_mm: np.ndarray) -> np.ndarray:
         """True for scanner-frame points (N, 3) the scanner can measure."""
@@ -251,6 +298,8 @@ class SimScanner:
             labels.append(np.full(bg.shape[0], LABEL_BACKGROUND))
         P = np.concatenate(pts)
         L = np.concatenate(labels)
+        if self.occluder_radii_mm.size:
+            P, L = self._occlude(P, L, tri, rng)
         # noise: along the ray and a third of it across
         if self.noise_sigma_mm > 0 and P.size:
             ray = P / np.linalg.norm(P, axis=1, keepdims=True)
@@ -276,12 +325,29 @@ class SimScanner:
             scanner_T_tool=s_T_tool,
         )
 
+    def _occlude(self, P, L, tri, rng):
+        """Hide what the occluder spheres cover and add their visible surfaces."""
+        keep = ~_behind_spheres(P, self.occluder_centers_mm, self.occluder_radii_mm)
+        P, L = P[keep], L[keep]
+        surf = []
+        for c, r in zip(self.occluder_centers_mm, self.occluder_radii_mm):
+            n = rng.poisson(self.density_per_mm2 * 4.0 * math.pi * r * r)
+            u = rng.normal(size=(n, 3))
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            s = c + r * u
+            cosang = -np.einsum("ij,ij->i", u, s) / np.linalg.norm(s, axis=1)
+            surf.append(s[rng.random(n) < cosang])  # front side, density x cos
+        S = np.concatenate(surf)
+        S = S[~_behind_spheres(S, self.occluder_centers_mm, self.occluder_radii_mm)]
+        S = S[~_ray_hits_triangles(S, tri)]
+        return np.concatenate([P, S]), np.concatenate([L, np.full(S.shape[0], LABEL_OCCLUDER)])
+
     def to_base_frame(self, points_mm) -> np.ndarray:
         """Scanner-frame points (N, 3) in the robot base frame."""
         return transform_points(self.base_T_scanner, points_mm)
 
     def describe(self) -> dict:
-        return {
+        info = {
             "base_T_scanner": self.base_T_scanner.tolist(),
             "jig_edge_mm": self.jig.edge_mm,
             "working_distance_mm": self.working_distance_mm,
@@ -290,3 +356,6 @@ class SimScanner:
             "density_per_mm2": self.density_per_mm2,
             "outlier_fraction": self.outlier_fraction,
         }
+        if self.occluder_radii_mm.size:
+            info["occluders"] = [[c.tolist(), float(r)] for c, r in zip(self.occluder_centers_mm, self.occluder_radii_mm)]
+        return info
