@@ -48,7 +48,8 @@ def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:
     """The arm-calibration cell: with the tracker, the ISO cell; with the scanner (``params["instrument"]``), the
     simulated arm and controller with the world's scanner answering in a hot folder of its own (removed at close).
 
-    The world's scanner stands where :func:`scanner_calibration_config` says (its default pose).
+    The world's scanner stands where :func:`scanner_calibration_config` says (its default pose);
+    ``fake["scanner_faults"]`` schedules the fake scanner's faults (:mod:`fakes.scanner_folder`).
     """
     if params.get("instrument", "tracker") != "scanner":
         return iso9283_cell(params, fake)
@@ -61,7 +62,7 @@ def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), robot=params["robot"])
     folder = Path(tempfile.mkdtemp(prefix="fake-scanner-"))
     try:
-        scanner = start_fake(station.world, folder)
+        scanner = start_fake(station.world, folder, faults=fake.get("scanner_faults"))
     except BaseException:
         station.close()
         shutil.rmtree(folder, ignore_errors=True)

@@ -7,7 +7,10 @@ trigger and renames the cloud to ``NAME.ply``, as scanner software does.
 
 Test-only controls (``sim_``): :meth:`sim_corrupt_next` answers the next
 trigger with a broken PLY, :meth:`sim_ignore_next` leaves it unanswered,
-:meth:`sim_error_next` answers with ``NAME.error``.
+:meth:`sim_error_next` answers with ``NAME.error``, :meth:`sim_hide_jig_next`
+answers with the scan minus the jig's faces (background and flying pixels
+only: the jig out of view). ``faults`` at start schedules the same by the
+trigger's number in this session (1-based): ``{"hide_jig": [3], "corrupt": [5]}``.
 
 The PLY writer here is the fake's own (fakes never import drivers): binary
 little-endian, ``x y z`` as float.
@@ -35,12 +38,18 @@ def ply_bytes(points_mm: np.ndarray) -> bytes:
 class ScannerFolderFake:
     """The fake scanner's software watching ``folder`` (start with :func:`start_fake`)."""
 
-    def __init__(self, world, folder, *, poll_s: float = 0.005) -> None:
+    def __init__(self, world, folder, *, poll_s: float = 0.005, faults=None) -> None:
         self.world = world
         self.folder = Path(folder)
         self.poll_s = float(poll_s)
         self.answered: list[str] = []
         self._faults: list[str] = []
+        self._scheduled: dict[int, str] = {}
+        for kind, numbers in (faults or {}).items():
+            if kind not in ("corrupt", "ignore", "error", "hide_jig"):
+                raise ValueError(f"fake scanner: unknown fault {kind!r} (corrupt, ignore, error, hide_jig)")
+            self._scheduled.update({int(n): kind for n in numbers})
+        self._count = 0
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="fake-scanner-folder")
@@ -66,6 +75,11 @@ class ScannerFolderFake:
         with self._lock:
             self._faults.append("ignore")
 
+    def sim_hide_jig_next(self) -> None:
+        """The next trigger is answered with a cloud in which the jig is not seen."""
+        with self._lock:
+            self._faults.append("hide_jig")
+
     def sim_error_next(self) -> None:
         """The next trigger is answered with ``NAME.error``."""
         with self._lock:
@@ -85,7 +99,8 @@ class ScannerFolderFake:
     def _answer(self, trig: Path) -> None:
         name = trig.name[: -len(".trigger")]
         with self._lock:
-            fault = self._faults.pop(0) if self._faults else None
+            self._count += 1
+            fault = self._faults.pop(0) if self._faults else self._scheduled.get(self._count)
         if fault == "ignore":
             trig.unlink(missing_ok=True)
             return
@@ -93,7 +108,8 @@ class ScannerFolderFake:
             (self.folder / f"{name}.error").write_text("projector over temperature\n", encoding="utf-8")
             trig.unlink(missing_ok=True)
             return
-        data = ply_bytes(self.world.scan().points_mm)
+        scan = self.world.scan()
+        data = ply_bytes(scan.points_mm[scan.labels < 0] if fault == "hide_jig" else scan.points_mm)
         if fault == "corrupt":
             data = data[: len(data) - 7]  # truncated body: the vertex count no longer fits
         part = self.folder / f"{name}.ply.part"
@@ -114,6 +130,6 @@ class ScannerFolderFake:
         self.close()
 
 
-def start_fake(world, folder) -> ScannerFolderFake:
-    """Start the fake scanner software on ``folder`` (which must exist)."""
-    return ScannerFolderFake(world, folder).start()
+def start_fake(world, folder, *, faults=None) -> ScannerFolderFake:
+    """Start the fake scanner software on ``folder`` (which must exist); ``faults`` as in the module docstring."""
+    return ScannerFolderFake(world, folder, faults=faults).start()

@@ -1,4 +1,19 @@
-"""Tracker-based kinematic calibration of an arm (seed 002 sec. 3), as a readable list of steps.
+"""Kinematic calibration of an arm (seed 002 sec. 2-3) with a tracker or a 3D scanner, as a readable list of steps.
+
+The instrument is the config's ``arm_calibration.instrument``, stored with
+the plan: ``"tracker"`` (a reflector on the flange, described below) or
+``"scanner"`` (the corner jig on the tool, a fixed 3D scanner behind a hot
+folder, :mod:`drivers.scanner`). Both are one procedure: the same plan,
+gate-checked programs, resumable batches, identification, report and history
+per serial; the scanner changes the candidates, the mount prompt, the
+devices (scanner and controller) and the measure step (see
+:func:`step_measure_scanner`: capture, then the jig corner by
+:func:`station.analysis.jig_features.feature_point`, seed 002 eq. (2); a
+cloud without the jig is a failed pose, recorded with its reason and left
+out of the fit). The identification is the absolute one (scanner <- base,
+seed 002 sec. 3) or distances, on the poses where the jig was found.
+
+Tracker runs:
 
 1. ``check programs`` - the measurement poses (chosen when the run was
    planned, stored with it) are each a program (ABB RAPID) that the safety
@@ -29,13 +44,16 @@ when the reflector faces the tracker); the training poses are the
 D-optimal choice of :func:`station.analysis.pose_selection.select_poses`,
 the test poses a random draw from the remaining candidates, and the
 sequence is ordered nearest-first in joint space with every joint path
-checked by the gate.
+checked by the gate. Scanner runs draw their candidates with
+:func:`scanner_candidate_poses` instead: the jig corner (the TCP) inside the
+scanner's field, the tool z axis at the scanner within the jig's view cone.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import secrets
 from collections.abc import Mapping
@@ -53,6 +71,7 @@ from procedures.session import Session
 from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
 from station.analysis.jig_features import feature_point
 from station.analysis.pose_selection import admissible, select_poses
+from station.device_urls import parse_device_url
 from station.errors import ConfigError, DeviceFault, InsufficientDataError, SafetyError, StationError
 from station.models import kinematics as kin
 from station.models.robots import RobotSpec, get_robot
@@ -710,9 +729,29 @@ def summary(store, run_id: str) -> list[str]:
     return lines
 
 
+def scanner_folder_problems(devices) -> list[str]:
+    """Why the scanner's hot folder (its ``ply://`` URL) cannot be used; checked on the file system only."""
+    url = getattr(devices, "urls", {}).get("scanner")
+    if url is None:
+        return []
+    try:
+        u = parse_device_url(url)
+    except StationError as exc:
+        return [f"scanner URL: {exc}"]
+    if u.kind != "scanner":
+        return [f"scanner URL {url}: a {u.kind} device cannot scan (use ply:///path/to/hot/folder)"]
+    folder = Path(u.path or "")
+    if not folder.is_dir():
+        return [f"scanner folder {folder} does not exist or is not a folder"]
+    if not os.access(folder, os.R_OK | os.W_OK | os.X_OK):
+        return [f"scanner folder {folder}: the station may not read and write in it"]
+    return []
+
+
 def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = ArmCalPlan.from_params(params)
-    return report_dir_problems(plan.report_dir) + check_programs(plan)
+    extra = scanner_folder_problems(devices) if plan.instrument == "scanner" else []
+    return report_dir_problems(plan.report_dir) + extra + check_programs(plan)
 
 
 SPEC = ProcedureSpec(
