@@ -69,12 +69,13 @@ def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_er
     # the corner's own uncertainty: the fake scanner's 0.02 mm depth noise over ~10^4 points per cloud
     sig = np.column_stack([s["sigma_x"], s["sigma_y"], s["sigma_z"]])[found[s["pose"].astype(int)]]
     assert np.median(np.linalg.norm(sig, axis=1)) < 0.01
-    # the arm's geometric errors are mm; after: what the non-geometric effects leave (the tracker
-    # procedure meets the same arm; the scanner adds < 0.01 mm)
+    # before: the drawn arm's geometric errors over the scanner's field (0.27-2.3 mm over 35 cells);
+    # after: what the arm's non-geometric effects and its stop scatter leave (0.017-0.074 mm over the
+    # same cells), far above the corners' 1-sigma (~0.0013 mm), so the bound comes from those effects
     t = doc["test"]
-    assert t["mean_abs_before_mm"] > 0.3
-    assert t["mean_abs_after_mm"] < 0.2 * t["mean_abs_before_mm"]
-    assert t["mean_abs_after_mm"] < 0.15
+    assert t["mean_abs_before_mm"] > 0.15
+    assert t["mean_abs_after_mm"] < 0.35 * t["mean_abs_before_mm"]
+    assert t["mean_abs_after_mm"] < 0.12
     # the exported model (with its scanner <- base transform) by an independent FK
     model = json.loads(open(doc["model_file"]).read())
     test_idx = [i for i in plan.split().test if found[i]]
