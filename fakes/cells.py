@@ -44,6 +44,66 @@ def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
                     float(fake["time_scale"]), station.close)
 
 
+def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:
+    """The arm-calibration cell: with the tracker, the ISO cell; with the scanner (``params["instrument"]``), the
+    simulated arm and controller with the world's scanner answering in a hot folder of its own (removed at close).
+
+    The world's scanner stands where :func:`scanner_calibration_config` says (its default pose);
+    ``fake["scanner_faults"]`` schedules the fake scanner's faults (:mod:`fakes.scanner_folder`).
+    """
+    if params.get("instrument", "tracker") != "scanner":
+        return iso9283_cell(params, fake)
+    import shutil
+    import tempfile
+
+    from fakes.scanner_folder import start_fake
+    from fakes.station import FakeStation
+
+    station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), robot=params["robot"])
+    folder = Path(tempfile.mkdtemp(prefix="fake-scanner-"))
+    try:
+        scanner = start_fake(station.world, folder, faults=fake.get("scanner_faults"))
+    except BaseException:
+        station.close()
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+
+    def close() -> None:
+        try:
+            scanner.close()
+            station.close()
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+    return FakeCell({"scanner": scanner.url, "controller": station.controller_url}, float(fake["time_scale"]), close)
+
+
+def default_scanner_pose(robot: str, working_distance_mm: float = 700.0) -> tuple[list[float], list[float]]:
+    """(eye, look-at) of the fake world's default scanner, base frame mm: the home feature point and
+    ``working_distance_mm`` along the home tool z from it (as :func:`fakes.sim.world.make_world` places it)."""
+    import numpy as np
+
+    from station.models import kinematics as kin
+    from station.models.jig import CornerJig
+    from station.models.robots import get_robot
+
+    spec = get_robot(robot)
+    T = kin.fk(spec.dh_nominal, spec.home_q_rad)
+    fp = T[:3, :3] @ CornerJig().feature_point_tool_mm + T[:3, 3]
+    eye = fp + working_distance_mm * T[:3, 2]
+    return [float(v) for v in eye], [float(v) for v in fp]
+
+
+def scanner_calibration_config(out: Path, *, train_poses: int = 31, test_poses: int = 9) -> dict:
+    """A station config for the scanner-based arm calibration on the fake cell (URLs replaced at start)."""
+    d = demo_config(out, cycles=3, vap_cycles=3, rate_hz=100.0)
+    d["devices"] = {"scanner": {"url": "fake://scanner"}, "controller": {"url": "fake://controller"}}
+    eye, look_at = default_scanner_pose(d["robots"]["r1"]["model"])
+    d["arm_calibration"] = {"instrument": "scanner", "instrument_mm": eye, "instrument_look_at_mm": look_at,
+                            "train_poses": train_poses, "test_poses": test_poses}
+    return d
+
+
 def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
     """The simulated trailer with its NMEA odometry on a pty (``true_lengths_m`` picks its links)."""
     from fakes.odometry import start_fake

@@ -1,4 +1,19 @@
-"""Tracker-based kinematic calibration of an arm (seed 002 sec. 3), as a readable list of steps.
+"""Kinematic calibration of an arm (seed 002 sec. 2-3) with a tracker or a 3D scanner, as a readable list of steps.
+
+The instrument is the config's ``arm_calibration.instrument``, stored with
+the plan: ``"tracker"`` (a reflector on the flange, described below) or
+``"scanner"`` (the corner jig on the tool, a fixed 3D scanner behind a hot
+folder, :mod:`drivers.scanner`). Both are one procedure: the same plan,
+gate-checked programs, resumable batches, identification, report and history
+per serial; the scanner changes the candidates, the mount prompt, the
+devices (scanner and controller) and the measure step (see
+:func:`step_measure_scanner`: capture, then the jig corner by
+:func:`station.analysis.jig_features.feature_point`, seed 002 eq. (2); a
+cloud without the jig is a failed pose, recorded with its reason and left
+out of the fit). The identification is the absolute one (scanner <- base,
+seed 002 sec. 3) or distances, on the poses where the jig was found.
+
+Tracker runs:
 
 1. ``check programs`` - the measurement poses (chosen when the run was
    planned, stored with it) are each a program (ABB RAPID) that the safety
@@ -29,13 +44,17 @@ when the reflector faces the tracker); the training poses are the
 D-optimal choice of :func:`station.analysis.pose_selection.select_poses`,
 the test poses a random draw from the remaining candidates, and the
 sequence is ordered nearest-first in joint space with every joint path
-checked by the gate.
+checked by the gate. Scanner runs draw their candidates with
+:func:`scanner_candidate_poses` instead: the jig corner (the TCP) inside the
+scanner's field, the tool z axis at the scanner within the jig's view cone.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import re
 import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -50,11 +69,14 @@ from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
 from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
+from station.analysis.jig_features import feature_point
 from station.analysis.pose_selection import admissible, select_poses
-from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
+from station.device_urls import parse_device_url
+from station.errors import ConfigError, DeviceFault, InsufficientDataError, SafetyError, StationError
 from station.models import kinematics as kin
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, rated_tcp_accel_mm_s2
+from station.programs.handshake import Fault, State, describe
 from station.programs.model import Dwell, JointTarget, Move, Program
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
@@ -62,6 +84,8 @@ from station.safety import SafetyGate, SafetyLimits
 
 NAME = "arm-calibration"
 STREAM = "points"
+#: scanner runs: the jig corner found per pose (scanner frame, mm), its 1-sigma, the cloud's size, found 1/0
+SCAN_STREAM = "features"
 RESULT_KEY = "arm_calibration"
 #: every pose is approached with each joint moving in + for its last degrees
 PRE_DEG = 2.0
@@ -88,6 +112,10 @@ class ArmCalPlan:
     poses_per_step: int = 8
     report_dir: str = "reports"
     selection: dict | None = None
+    #: "tracker" (reflector on the flange) or "scanner" (corner jig on the tool, fixed 3D scanner)
+    instrument: str = "tracker"
+    #: scanner: how long one capture may take (s)
+    scan_timeout_s: float = 30.0
 
     def gate(self) -> SafetyGate:
         return SafetyGate(self.robot, SafetyLimits(
@@ -116,6 +144,7 @@ class ArmCalPlan:
             "q_deg": [list(q) for q in self.q_deg], "roles": list(self.roles), "method": self.method,
             "dwell_s": self.dwell_s, "measure_s": self.measure_s, "speed_frac": self.speed_frac,
             "poses_per_step": self.poses_per_step, "report_dir": self.report_dir, "selection": self.selection,
+            "instrument": self.instrument, "scan_timeout_s": self.scan_timeout_s,
         }
 
     @classmethod
@@ -128,6 +157,7 @@ class ArmCalPlan:
             method=str(p["method"]), dwell_s=float(p["dwell_s"]), measure_s=float(p["measure_s"]),
             speed_frac=float(p["speed_frac"]), poses_per_step=int(p["poses_per_step"]),
             report_dir=str(p["report_dir"]), selection=p.get("selection"),
+            instrument=str(p.get("instrument", "tracker")), scan_timeout_s=float(p.get("scan_timeout_s", 30.0)),
         )
 
 
@@ -156,6 +186,88 @@ def candidate_poses(robot: RobotSpec, gate: SafetyGate, n: int, rng: np.random.G
     q = sol.q_rad[sol.success]
     ok = admissible(robot.dh_nominal, q, joint_limits_rad=gate.joint_limits_rad, box_min_mm=lo, box_max_mm=hi,
                     instrument_mm=instrument_mm, half_angle_deg=half_angle_deg)
+    return q[ok]
+
+
+def scanner_frame(eye_mm, look_at_mm) -> np.ndarray:
+    """Approximate scanner pose (4, 4) in the base frame: eye at ``eye_mm``, optical axis ``+z`` at ``look_at_mm``."""
+    eye = np.asarray(eye_mm, float)
+    z = np.asarray(look_at_mm, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, eye
+    return T
+
+
+def in_scanner_field(T_scanner: np.ndarray, p_mm: np.ndarray, *, fov_mm: float, working_distance_mm: float,
+                     depth_range_mm, margin_mm: float) -> np.ndarray:
+    """(N,) bool: base-frame points ``margin_mm`` inside the scanner's viewing frustum."""
+    s = (np.asarray(p_mm, float) - T_scanner[:3, 3]) @ T_scanner[:3, :3]
+    tan_half = 0.5 * fov_mm / working_distance_mm
+    lim = tan_half * s[:, 2] - margin_mm
+    return ((s[:, 2] >= depth_range_mm[0] + margin_mm) & (s[:, 2] <= depth_range_mm[1] - margin_mm)
+            & (np.abs(s[:, 0]) <= lim) & (np.abs(s[:, 1]) <= lim))
+
+
+def scanner_candidate_poses(robot: RobotSpec, gate: SafetyGate, n: int, rng: np.random.Generator, *, eye_mm,
+                            look_at_mm, fov_mm: float = 450.0, working_distance_mm: float = 700.0,
+                            depth_range_mm=(450.0, 1100.0), half_angle_deg: float = 30.0,
+                            margin_mm: float = 60.0) -> np.ndarray:
+    """Admissible candidate joint vectors (C, 6) for the scanner: the jig corner (the TCP) in its field.
+
+    Tool points are drawn in the scanner's frustum (depths within 0.3 field
+    widths of the working distance, ``margin_mm`` inside every side: the jig
+    reaches that far behind its corner); the tool z axis (the jig's view
+    axis, :mod:`station.models.jig`) points at the scanner's eye within
+    0.8 ``half_angle_deg``, turned about itself by up to +-90 deg from the
+    home orientation. Solved by the nominal inverse kinematics near home and
+    kept when the gate's box and joint limits allow them and the corner faces
+    the eye within ``half_angle_deg``.
+    """
+    S = scanner_frame(eye_mm, look_at_mm)
+    eye = S[:3, 3]
+    tan_half = 0.5 * fov_mm / working_distance_mm
+    z_lo = max(depth_range_mm[0] + margin_mm, working_distance_mm - 0.3 * fov_mm)
+    z_hi = min(depth_range_mm[1] - margin_mm, working_distance_mm + 0.3 * fov_mm)
+    if z_hi <= z_lo:
+        raise ConfigError("arm_calibration: the scanner's depth range leaves no room for the jig "
+                          f"({depth_range_mm} with a {margin_mm:g} mm margin)")
+    zs = rng.uniform(z_lo, z_hi, n)
+    half = np.maximum(tan_half * zs - margin_mm, 0.0)
+    ps = np.column_stack([rng.uniform(-1, 1, n) * half, rng.uniform(-1, 1, n) * half, zs])
+    p = ps @ S[:3, :3].T + eye
+    # tool z at the eye: the home tool frame turned the shortest way, then rolled and tilted
+    u = eye - p
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    R_home = kin.fk(robot.dh_nominal, robot.home_q_rad)[:3, :3]
+    z_home = R_home[:, 2]
+    axis = np.cross(z_home, u)
+    s_ang = np.linalg.norm(axis, axis=1)
+    ang = np.arctan2(s_ang, u @ z_home)
+    rv = axis / np.maximum(s_ang, 1e-12)[:, None] * ang[:, None]
+    roll = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    tilt_axis = rng.normal(size=(n, 3))
+    tilt_axis -= np.einsum("ij,ij->i", tilt_axis, u)[:, None] * u
+    tilt_axis /= np.maximum(np.linalg.norm(tilt_axis, axis=1, keepdims=True), 1e-12)
+    tilt = np.radians(0.8 * half_angle_deg) * np.sqrt(rng.uniform(0.0, 1.0, n))
+    R = (Rotation.from_rotvec(tilt_axis * tilt[:, None]) * Rotation.from_rotvec(rv)
+         * Rotation.from_matrix(np.tile(R_home, (n, 1, 1)))
+         * Rotation.from_rotvec(np.column_stack([np.zeros(n), np.zeros(n), roll]))).as_matrix()
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    sol = kin.ik(robot.dh_nominal, T, q0=np.tile(robot.home_q_rad, (n, 1)), joint_limits_rad=gate.joint_limits_rad,
+                 n_restarts=4, seed=int(rng.integers(2**31)))
+    q = sol.q_rad[sol.success]
+    ok = admissible(robot.dh_nominal, q, joint_limits_rad=gate.joint_limits_rad, box_min_mm=gate.box_min,
+                    box_max_mm=gate.box_max, instrument_mm=eye, half_angle_deg=half_angle_deg)
+    ok &= in_scanner_field(S, kin.tool_position(robot.dh_nominal, q), fov_mm=fov_mm,
+                           working_distance_mm=working_distance_mm, depth_range_mm=depth_range_mm,
+                           margin_mm=0.5 * margin_mm)
     return q[ok]
 
 
@@ -209,12 +321,21 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
     probe = ArmCalPlan(q_deg=(), roles=(), **base)
     gate = probe.gate()
     rng = np.random.default_rng(seed)
-    cand = candidate_poses(robot, gate, int(overrides.pop("candidates", ac.candidates)), rng, tilt_deg=ac.tilt_deg,
-                           instrument_mm=ac.instrument_mm, half_angle_deg=ac.reflector_half_angle_deg)
+    n_cand = int(overrides.pop("candidates", ac.candidates))
+    if ac.instrument == "scanner":
+        cand = scanner_candidate_poses(
+            robot, gate, n_cand, rng, eye_mm=ac.instrument_mm, look_at_mm=ac.instrument_look_at_mm,
+            fov_mm=ac.scanner_fov_mm, working_distance_mm=ac.scanner_working_distance_mm,
+            depth_range_mm=ac.scanner_depth_range_mm, half_angle_deg=ac.jig_half_angle_deg)
+    else:
+        cand = candidate_poses(robot, gate, n_cand, rng, tilt_deg=ac.tilt_deg,
+                               instrument_mm=ac.instrument_mm, half_angle_deg=ac.reflector_half_angle_deg)
     if cand.shape[0] < n_train + n_test:
         raise InsufficientDataError(
             f"only {cand.shape[0]} admissible candidate poses for {n_train} training and {n_test} test poses: "
-            f"widen the workspace box, the tilt or the candidates")
+            + ("widen the workspace box, the tilt or the candidates" if ac.instrument == "tracker" else
+               "check instrument_mm / instrument_look_at_mm (the scanner's field must lie in the workspace box "
+               "where the arm reaches it with the tool facing the scanner) or add candidates"))
     info: dict[str, Any] = {"seed": seed, "method": selection, "candidates": int(cand.shape[0])}
     if selection == "d-optimal":
         sel = select_poses(robot.dh_nominal, cand, n_train)
@@ -245,7 +366,8 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
     kw = dict(base, q_deg=tuple(tuple(float(v) for v in np.degrees(q)) for q in q_seq), roles=tuple(roles),
               method=method, dwell_s=ac.dwell_s, measure_s=ac.measure_s,
               speed_frac=min(ac.speed_percent, rc.workspace.max_speed_percent) / 100.0,
-              poses_per_step=ac.poses_per_step, report_dir=cfg.station.report_dir, selection=info)
+              poses_per_step=ac.poses_per_step, report_dir=cfg.station.report_dir, selection=info,
+              instrument=ac.instrument, scan_timeout_s=ac.scan_timeout_s)
     kw.update(overrides)
     return ArmCalPlan(**kw)
 
@@ -292,6 +414,7 @@ class ArmCalSession(Session):
     gate: SafetyGate | None = None
     tracker: Any = None
     controller: Any = None
+    scanner: Any = None
 
 
 def _plan(ctx: StepContext) -> ArmCalPlan:
@@ -323,8 +446,66 @@ def step_connect(ctx: StepContext) -> dict:
     return connect_cell(ctx.session, ctx.session.gate or _plan(ctx).gate())
 
 
+def step_connect_scanner(ctx: StepContext) -> dict:
+    """Scanner (its hot folder) and controller; an earlier session's program or watchdog fault is taken over."""
+    session = ctx.session
+    scanner = session.scanner = session.device("scanner")
+    info = scanner.connect()
+    controller = session.controller = session.device("controller", gate=session.gate or _plan(ctx).gate())
+    controller.connect()
+    status = controller.status()
+    took_over = ""
+    # as procedures.cell.connect_cell does for the tracker cell
+    if status.state == State.RUNNING:
+        status = controller.stop()
+        took_over = "stopped a program left running by an earlier session"
+    elif status.state == State.FAULT:
+        if status.fault != Fault.COMM_WATCHDOG:
+            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
+        status = controller.reset()
+        took_over = "cleared the comm-watchdog fault of an earlier session"
+    return {"scanner": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+
+
 def _timeout(ctx: StepContext, sim_seconds: float) -> float:
     return 30.0 + sim_seconds / (ctx.session.time_scale or 1.0) * 3.0
+
+
+def _capture_name(run_id: str, i: int) -> str:
+    """A capture name of its own for every scan (a re-measured pose never meets an earlier answer)."""
+    return f"{re.sub(r'[^A-Za-z0-9._-]', '_', run_id)[:80]}-C{i + 1}-{secrets.token_hex(3)}"
+
+
+def step_measure_scanner(k: int):
+    """Batch ``k`` with the scanner: each pose programmed, captured, and its jig corner found (seed 002 eq. (2)).
+
+    A cloud in which the jig is not found is recorded as a failed pose (the
+    reason in the step's output) and the run goes on; a scanner that does not
+    answer or answers with a broken file stops the step (resumable).
+    """
+    def run(ctx: StepContext) -> dict:
+        plan = _plan(ctx)
+        scanner, controller = ctx.session.scanner, ctx.session.controller
+        done, failed = [], {}
+        for i in plan.batch(k):
+            ctx.checkpoint()
+            ctx.progress(f"pose C{i + 1}")
+            controller.run(render_rapid(pose_program(plan, i)), timeout_s=_timeout(ctx, 60.0),
+                           on_status=lambda st: ctx.checkpoint())
+            cloud = scanner.capture(_capture_name(ctx.run_id, i), timeout_s=plan.scan_timeout_s)
+            try:
+                f = feature_point(cloud)
+                xyz, sig, found = f.point_mm, f.sigma_mm, 1.0
+            except InsufficientDataError as exc:
+                xyz, sig, found = np.full(3, np.nan), np.full(3, np.nan), 0.0
+                failed[f"C{i + 1}"] = f"jig not found in {cloud.shape[0]} points: {exc}"
+            ctx.record(SCAN_STREAM, {
+                "pose": np.array([i], float), "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
+                "sigma_x": sig[:1], "sigma_y": sig[1:2], "sigma_z": sig[2:3],
+                "points": np.array([cloud.shape[0]], float), "found": np.array([found])})
+            done.append(i + 1)
+        return {"poses": done, "failed": failed}
+    return run
 
 
 def step_measure(k: int):
@@ -361,15 +542,78 @@ def measured_points(ctx: StepContext, plan: ArmCalPlan) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class ScannerPoints:
+    """The jig corners of a scanner run, plan order: NaN rows for the failed poses."""
+
+    point_mm: np.ndarray  # (N, 3), scanner frame
+    sigma_mm: np.ndarray  # (N, 3), 1 sigma from the corner fit
+    failed: dict  # "C5" -> reason
+
+
+def scanner_points(ctx: StepContext, plan: ArmCalPlan) -> ScannerPoints:
+    """The corners found per pose (the last capture of a pose measured twice) and why the others failed."""
+    names = [f"measure {k}" for k in range(1, plan.n_batches + 1)]
+    s = ctx.samples(SCAN_STREAM, steps=names)
+    n = len(plan.q_deg)
+    pt, sg, seen, found = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool), np.zeros(n, bool)
+    if s:
+        idx = s["pose"].astype(int)
+        pt[idx] = np.column_stack([s["x"], s["y"], s["z"]])
+        sg[idx] = np.column_stack([s["sigma_x"], s["sigma_y"], s["sigma_z"]])
+        seen[idx] = True
+        found[idx] = s["found"] > 0.5
+    missing = np.flatnonzero(~seen)
+    if missing.size:
+        raise InsufficientDataError(f"poses not measured: {', '.join(f'C{i + 1}' for i in missing[:10])}"
+                                    + (" ..." if missing.size > 10 else ""))
+    reasons: dict[str, str] = {}
+    for st in ctx.store.steps(ctx.run_id):
+        if st.name in names and st.status == "done" and st.output:
+            reasons.update(st.output.get("failed") or {})
+    failed = {f"C{i + 1}": reasons.get(f"C{i + 1}", "jig not found") for i in np.flatnonzero(~found)}
+    return ScannerPoints(pt, sg, failed)
+
+
+def _kept_split(plan: ArmCalPlan, keep: np.ndarray) -> Split:
+    """The plan's split over the poses kept (``keep`` (N,) bool); the reference moves to the first kept train pose."""
+    split = plan.split()
+    new = np.cumsum(keep) - 1
+    train = np.array([i for i in split.train if keep[i]], dtype=np.int64)
+    test = np.array([i for i in split.test if keep[i]], dtype=np.int64)
+    if train.size == 0:
+        raise InsufficientDataError("the jig was found in none of the training poses")
+    ref = split.reference if keep[split.reference] else int(train[0])
+    return Split(int(new[ref]), new[train], new[test])
+
+
 def _calibrate(plan: ArmCalPlan, points: np.ndarray):
-    return calibrate_arm(plan.robot.dh_nominal, np.radians(np.array(plan.q_deg)), points, method=plan.method,
-                         joint_limits_rad=plan.robot.joint_limits_rad, split=plan.split())
+    """Identify from the measured points (N, 3); rows with NaN (scanner poses without the jig) are left out."""
+    keep = np.isfinite(points).all(axis=1)
+    split = plan.split() if keep.all() else _kept_split(plan, keep)
+    return calibrate_arm(plan.robot.dh_nominal, np.radians(np.array(plan.q_deg))[keep], points[keep],
+                         method=plan.method, joint_limits_rad=plan.robot.joint_limits_rad, split=split)
+
+
+def _points(ctx: StepContext, plan: ArmCalPlan) -> tuple[np.ndarray, ScannerPoints | None]:
+    if plan.instrument == "scanner":
+        sp = scanner_points(ctx, plan)
+        return sp.point_mm, sp
+    return measured_points(ctx, plan), None
 
 
 def step_identify(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    cal = _calibrate(plan, measured_points(ctx, plan))
+    points, sp = _points(ctx, plan)
+    cal = _calibrate(plan, points)
     doc = calibration_json(cal, name=f"{plan.robot.name} calibrated", joint_limits_rad=plan.robot.joint_limits_rad)
+    doc["instrument"] = plan.instrument
+    if sp is not None:
+        ok = np.isfinite(sp.sigma_mm).all(axis=1)
+        doc["failed_poses"] = sp.failed
+        doc["feature_sigma_mm"] = {
+            "median": float(np.median(np.linalg.norm(sp.sigma_mm[ok], axis=1))) if ok.any() else None,
+            "max": float(np.max(np.linalg.norm(sp.sigma_mm[ok], axis=1))) if ok.any() else None}
     run = ctx.store.run(ctx.run_id)
     doc["robot"] = {"model": plan.robot.name, "serial": run.serial, "overhaul_state": run.overhaul_state}
     doc["selection"] = plan.selection
@@ -380,7 +624,8 @@ def step_identify(ctx: StepContext) -> dict:
     ctx.store.put_result(ctx.run_id, RESULT_KEY, doc)
     return {"train_mean_after_mm": doc["train"]["mean_abs_after_mm"],
             "test_mean_after_mm": doc["test"]["mean_abs_after_mm"] if doc["test"] else None,
-            "model_file": doc["model_file"], "converged": doc["converged"]}
+            "model_file": doc["model_file"], "converged": doc["converged"],
+            "failed_poses": sorted(doc.get("failed_poses", {}))}
 
 
 def step_report(ctx: StepContext) -> dict:
@@ -388,23 +633,31 @@ def step_report(ctx: StepContext) -> dict:
     from station.report import write_report
 
     plan = _plan(ctx)
-    cal = _calibrate(plan, measured_points(ctx, plan))
+    points, sp = _points(ctx, plan)
+    cal = _calibrate(plan, points)
     run = ctx.store.run(ctx.run_id)
+    facts = {"run": ctx.run_id, "overhaul state": str(run.overhaul_state), "instrument": plan.instrument,
+             "pose selection": json.dumps(plan.selection)}
+    if sp is not None:
+        facts["poses without the jig (left out)"] = "; ".join(f"{k}: {v}" for k, v in sp.failed.items()) or "none"
     report = build_report(cal, title=f"Kinematic calibration of {plan.robot.name} serial {run.serial}",
-                          facts={"run": ctx.run_id, "overhaul state": str(run.overhaul_state),
-                                 "pose selection": json.dumps(plan.selection)})
+                          facts=facts)
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     return {"report": str(path.resolve())}
 
 
 def build_procedure(plan: ArmCalPlan) -> Procedure:
+    scanner = plan.instrument == "scanner"
+    mount = (Step("mount jig", _prompt("Mount the corner jig on the tool flange (its corner at the TCP)")) if scanner
+             else Step("mount reflector", _prompt("Mount the tracker reflector on the tool flange (SMR in its nest)")))
     steps = [
         Step("check programs", step_check_programs, every_session=True),
-        Step("mount reflector", _prompt("Mount the tracker reflector on the tool flange (SMR in its nest)")),
+        mount,
         Step("clear the cell", _prompt("Clear the robot cell and close the safety fence"), every_session=True),
-        Step("connect devices", step_connect, every_session=True),
+        Step("connect devices", step_connect_scanner if scanner else step_connect, every_session=True),
     ]
-    steps += [Step(f"measure {k}", step_measure(k), label=f"{k}/{plan.n_batches}")
+    measure = step_measure_scanner if scanner else step_measure
+    steps += [Step(f"measure {k}", measure(k), label=f"{k}/{plan.n_batches}")
               for k in range(1, plan.n_batches + 1)]
     steps += [Step("identify", step_identify), Step("report", step_report)]
     return Procedure(NAME, steps, safe_state=stop_cell)
@@ -426,7 +679,8 @@ def subject(cfg, robot: str) -> Subject:
 
 def device_roles(cfg, robot: str) -> dict[str, str]:
     subject(cfg, robot)
-    return {"tracker": "tracker", "controller": cfg.robots[robot].controller}
+    instrument = "scanner" if cfg.arm_calibration.instrument == "scanner" else "tracker"
+    return {instrument: instrument, "controller": cfg.robots[robot].controller}
 
 
 def history(store, serial: str) -> list[dict]:
@@ -440,6 +694,7 @@ def history(store, serial: str) -> list[dict]:
         except Exception:  # noqa: BLE001 - a run that has not identified yet has no result
             continue
         out.append({"run_id": rec.run_id, "overhaul_state": rec.overhaul_state, "method": doc["method"],
+                    "instrument": doc.get("instrument", "tracker"),
                     "test": doc["test"], "train": doc["train"], "model_file": doc.get("model_file")})
     return out
 
@@ -449,7 +704,7 @@ def summary(store, run_id: str) -> list[str]:
         doc = store.result(run_id, RESULT_KEY)
     except Exception:  # noqa: BLE001
         return []
-    lines = [f"method {doc['method']}: {len(doc['identified'])} parameters identified, {len(doc['fixed'])} fixed, "
+    lines = [f"{doc.get('instrument', 'tracker')}, method {doc['method']}: {len(doc['identified'])} parameters identified, {len(doc['fixed'])} fixed, "
              f"condition number {doc['condition_number']:.1f}, {doc['iterations']} iterations"]
     for label in ("train", "test"):
         d = doc[label]
@@ -457,6 +712,9 @@ def summary(store, run_id: str) -> list[str]:
             lines.append(f"{label:<6} mean |error| {d['mean_abs_before_mm']:.4f} -> {d['mean_abs_after_mm']:.4f} mm, "
                          f"max {d['max_abs_before_mm']:.4f} -> {d['max_abs_after_mm']:.4f} mm "
                          f"({d['n']} poses)")
+    failed = doc.get("failed_poses") or {}
+    if failed:
+        lines.append(f"{len(failed)} poses without the jig, left out: " + ", ".join(sorted(failed)))
     lines.append(f"model: {doc.get('model_file')}")
     serial = doc.get("robot", {}).get("serial")
     if serial:
@@ -471,9 +729,29 @@ def summary(store, run_id: str) -> list[str]:
     return lines
 
 
+def scanner_folder_problems(devices) -> list[str]:
+    """Why the scanner's hot folder (its ``ply://`` URL) cannot be used; checked on the file system only."""
+    url = getattr(devices, "urls", {}).get("scanner")
+    if url is None:
+        return []
+    try:
+        u = parse_device_url(url)
+    except StationError as exc:
+        return [f"scanner URL: {exc}"]
+    if u.kind != "scanner":
+        return [f"scanner URL {url}: a {u.kind} device cannot scan (use ply:///path/to/hot/folder)"]
+    folder = Path(u.path or "")
+    if not folder.is_dir():
+        return [f"scanner folder {folder} does not exist or is not a folder"]
+    if not os.access(folder, os.R_OK | os.W_OK | os.X_OK):
+        return [f"scanner folder {folder}: the station may not read and write in it"]
+    return []
+
+
 def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = ArmCalPlan.from_params(params)
-    return report_dir_problems(plan.report_dir) + check_programs(plan)
+    extra = scanner_folder_problems(devices) if plan.instrument == "scanner" else []
+    return report_dir_problems(plan.report_dir) + extra + check_programs(plan)
 
 
 SPEC = ProcedureSpec(
@@ -483,7 +761,7 @@ SPEC = ProcedureSpec(
     new_session=lambda devices: ArmCalSession(devices),
     subject=subject,
     device_roles=device_roles,
-    fake_cell="fakes.cells:iso9283_cell",
+    fake_cell="fakes.cells:arm_calibration_cell",
     result_key=RESULT_KEY,
     summary=summary,
     preflight=preflight_problems,

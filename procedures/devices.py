@@ -48,6 +48,14 @@ def _open_odometry(url: str, *, timeout_s: float | None = None, **options):
     return OdometryDriver.open(url, **options)
 
 
+def _open_scanner(url: str, *, timeout_s: float | None = None, **options):
+    from drivers.scanner import ScannerDriver
+
+    if timeout_s is not None:
+        options["timeout_s"] = timeout_s
+    return ScannerDriver.from_url(url, **options)
+
+
 #: device kind (of the URL's scheme, :mod:`station.device_urls`) -> how it is opened (the driver
 #: module that speaks its protocol);
 #: ``timeout_s`` (the config's ``devices.*.timeout_s``) becomes the driver's reply timeout
@@ -55,6 +63,7 @@ OPENERS: dict[str, Callable[..., Any]] = {
     "tracker": _open_tracker,
     "controller": _open_controller,
     "odometry": _open_odometry,
+    "scanner": _open_scanner,
 }
 
 

@@ -153,7 +153,18 @@ class ISOProcedureConfig(_Strict):
 
 
 class ArmCalibrationConfig(_Strict):
-    """The tracker-based arm calibration of seed 002 (poses chosen for observability)."""
+    """The arm calibration of seed 002 (poses chosen for observability), with a tracker or a 3D scanner.
+
+    With ``instrument = "scanner"`` the arm carries the corner jig into the
+    field of a fixed 3D scanner (device role ``scanner``, a ``ply://`` hot
+    folder); ``instrument_mm`` is then the scanner's eye and
+    ``instrument_look_at_mm`` a point on its optical axis (both approximate,
+    robot base frame: they choose the poses, the identification finds the
+    exact scanner <- base transform).
+    """
+
+    #: what measures the tool: the tracker (reflector on the flange) or the scanner (corner jig on the tool)
+    instrument: Literal["tracker", "scanner"] = "tracker"
 
     #: distance errors (seed eq. (9)-(16)) or absolute positions (also identifies the tracker <- base transform)
     method: Literal["distance", "absolute"] = "absolute"
@@ -168,10 +179,34 @@ class ArmCalibrationConfig(_Strict):
     #: where the tracker stands, robot base frame (mm): with it, poses whose reflector faces away are not chosen
     instrument_mm: tuple[float, float, float] | None = None
     reflector_half_angle_deg: float = Field(30.0, gt=0, le=90)
+    #: scanner only: a point on its optical axis, robot base frame (mm)
+    instrument_look_at_mm: tuple[float, float, float] | None = None
+    #: scanner only: field width at the working distance, working distance, measurable depths (mm)
+    scanner_fov_mm: float = Field(450.0, gt=0, le=5000)
+    scanner_working_distance_mm: float = Field(700.0, gt=0, le=10000)
+    scanner_depth_range_mm: tuple[float, float] = (450.0, 1100.0)
+    #: scanner only: the jig corner is seen when the tool z axis points at the scanner within this (deg)
+    jig_half_angle_deg: float = Field(30.0, gt=0, le=60)
+    #: scanner only: how long a capture may take before the scanner counts as not answering (s)
+    scan_timeout_s: float = Field(30.0, gt=0, le=600)
     dwell_s: float = Field(0.3, gt=0, le=60)
     measure_s: float = Field(0.2, gt=0, le=60)
     speed_percent: float = Field(20.0, ge=MIN_SPEED_PERCENT, le=100)
     poses_per_step: int = Field(8, ge=1, le=200)
+
+    @model_validator(mode="after")
+    def _scanner(self) -> "ArmCalibrationConfig":
+        if self.instrument != "scanner":
+            return self
+        if self.instrument_mm is None or self.instrument_look_at_mm is None:
+            raise ValueError("instrument = 'scanner' needs instrument_mm (the scanner's eye) and "
+                             "instrument_look_at_mm (a point on its optical axis), robot base frame, mm")
+        if math.dist(self.instrument_mm, self.instrument_look_at_mm) < 1.0:
+            raise ValueError("instrument_look_at_mm must lie away from instrument_mm (it gives the optical axis)")
+        near, far = self.scanner_depth_range_mm
+        if not 0 < near < far:
+            raise ValueError(f"scanner_depth_range_mm must be (near, far) with 0 < near < far, got {(near, far)}")
+        return self
 
 
 class TrailerConfig(_Strict):
