@@ -661,6 +661,27 @@ def check_limits(limits) -> dict[str, float]:
     return out
 
 
+#: assignment tolerance without an AP limit, mm (a robot's uncompensated accuracy is a few mm)
+DEFAULT_ASSIGN_TOL_MM = 25.0
+
+
+def assignment_tolerance_mm(limits) -> float:
+    """Largest distance from a stop to the commanded pose it is assigned to, from the limits, mm.
+
+    With an AP limit (and an RP limit, 0 without): a robot within its limits
+    puts every stop within ``AP + RP`` of the commanded pose (the barycentre
+    lies within AP of it, eq. (1), and the stops within RP of the barycentre,
+    eq. (2)); twice that still assigns the stops of a robot that fails by up
+    to a factor of two, so that it is judged FAIL rather than left undecided.
+    Without an AP limit: :data:`DEFAULT_ASSIGN_TOL_MM`. The extraction keeps
+    at least 20 times the tracker's noise.
+    """
+    lim = check_limits(limits)
+    if "AP_mm" not in lim:
+        return DEFAULT_ASSIGN_TOL_MM
+    return max(2.0 * (lim["AP_mm"] + lim.get("RP_mm", 0.0)), 1e-3)
+
+
 # --------------------------------------------------------------------------
 # the whole analysis
 # --------------------------------------------------------------------------
@@ -842,6 +863,16 @@ def _stage_accuracy_repeatability(run: _Stages, cos_tol: float) -> dict:
         kp = groups[gp][0] if groups else np.zeros(0, np.int64)
         a = st.position_mm[kp]
         rows = st.row[kp]
+        moved = ~st.initial[kp]
+        if moved.sum() >= 2 and not moved.all():
+            # the rest's approach is unknown: say so when it does not look like the other stops
+            others = position_repeatability(a[moved])
+            d0 = float(np.linalg.norm(a[~moved][0] - a[moved].mean(axis=0)))
+            if d0 > others.RP_mm:
+                run.warn(f"{name}: the rest before the first move lies {d0:.3f} mm from the barycentre of the other "
+                         f"{int(moved.sum())} stops, outside their RP {others.RP_mm:.3f} mm: it may have been "
+                         "approached from another side (leave it out with initial_rest_stop=False, "
+                         "--initial-rest skip)")
         acc = rep = None
         if kp.size >= 1:
             acc = position_accuracy(a, cmd[p], rows)

@@ -79,6 +79,8 @@ STATUS_NAMES = tuple(s.name.lower() for s in StopStatus)
 
 #: accepted sampling rates, Hz (with a little slack for clock jitter)
 RATE_RANGE_HZ = (10.0, 3000.0)
+#: the assignment tolerance is at least this many times the tracker's noise
+ASSIGN_NOISE_FACTOR = 20.0
 
 
 @dataclass(frozen=True)
@@ -1032,6 +1034,7 @@ def extract_validated(
     gap_app[initial] = False
 
     # --- assignment to commanded poses
+    assign_tol_mm = max(float(assign_tol_mm), ASSIGN_NOISE_FACTOR * noise)
     d = np.linalg.norm(pos[:, None, :] - commanded[None, :, :], axis=2)  # (K, P)
     nearest = np.argmin(d, axis=1) if d.size else np.zeros(0, np.int64)
     dist = d[np.arange(d.shape[0]), nearest] if d.size else np.zeros(0)

@@ -1,6 +1,7 @@
 """Which reader a stream file needs, from its first lines (``--format`` overrides).
 
-* ``csv``: the project's stream CSV, a header line naming ``t``, ``x``, ``y``, ``z``
+* ``csv``: the project's stream CSV, a comma-separated header line naming
+  ``t``, ``x``, ``y``, ``z`` (or starting with ``t`` and naming a coordinate)
   (:mod:`station.readers.stream_csv`);
 * ``sa``: a SpatialAnalyzer point export, ``//`` comment lines naming
   SpatialAnalyzer or an ``AXES =`` line (:mod:`station.readers.spatial_analyzer`);
@@ -33,6 +34,10 @@ def sniff_format(path) -> str:
         return "sa"
     first = next(line for line in head if line.strip())
     names = [c.strip().lower() for c in first.split(",")]
+    # a comma-separated header naming the time and a coordinate: the project's CSV (perhaps lacking a column,
+    # which its reader names)
+    if names[0] == STREAM_REQUIRED[0] and any(c in names for c in STREAM_REQUIRED[1:]):
+        return "csv"
     if all(c in names for c in STREAM_REQUIRED):
         return "csv"
     return "points"

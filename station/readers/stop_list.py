@@ -5,7 +5,8 @@
 * ``reflector`` (optional): with several reflectors on the flange, one row per
   reflector and stop; every stop must carry the same set of reflectors;
 * ``approach`` (optional): a label of the direction the stop was approached
-  from (e.g. ``+x``), the same on every row of a stop.
+  from (e.g. ``+x``); a stop is one pose, cycle and approach (the
+  multi-directional test approaches each pose from three sides per cycle).
 
 The rows of one stop need not be adjacent. Stops keep the order of their first row.
 """
@@ -52,6 +53,10 @@ class StopList:
         return self.points_mm.mean(axis=1)
 
 
+def _stop_name(pose: str, cycle: int, approach: str | None) -> str:
+    return f"pose {pose} cycle {cycle}" + ("" if approach is None else f" approach {approach}")
+
+
 def read_stop_list(path) -> StopList:
     """Read a stop list CSV; DataError naming file, line and column for anything malformed."""
     p = Path(path)
@@ -93,23 +98,20 @@ def read_stop_list(path) -> StopList:
         raise DataError(f"{p}: line 1: empty file or missing header")
     if not rows:
         raise DataError(f"{p}: no stops after the header")
-    stops: dict[tuple[str, int], dict] = {}
+    stops: dict[tuple[str, int, str | None], dict] = {}
     for pose, cyc, refl, app, xyz, ln in rows:
-        s = stops.setdefault((pose, cyc), {"refl": {}, "approach": app, "line0": ln})
+        s = stops.setdefault((pose, cyc, app), {"refl": {}, "line0": ln})
         if refl in s["refl"]:
-            raise DataError(f"{p}: line {ln}: pose {pose} cycle {cyc}"
+            raise DataError(f"{p}: line {ln}: {_stop_name(pose, cyc, app)}"
                             + (f" reflector {refl}" if refl else "")
                             + f" appears twice (first on line {s['refl'][refl][1]})")
-        if app != s["approach"]:
-            raise DataError(f"{p}: line {ln}, column 'approach': {app!r}, but line {s['line0']} of the same stop "
-                            f"(pose {pose} cycle {cyc}) says {s['approach']!r}")
         s["refl"][refl] = (xyz, ln)
     all_refl = sorted({r for s in stops.values() for r in s["refl"]})
-    for (pose, cyc), s in stops.items():
+    for (pose, cyc, app), s in stops.items():
         lack = [r for r in all_refl if r not in s["refl"]]
         if lack:
             lines = ", ".join(str(v[1]) for v in s["refl"].values())
-            raise DataError(f"{p}: pose {pose} cycle {cyc} (line(s) {lines}) has no row for reflector(s) "
+            raise DataError(f"{p}: {_stop_name(pose, cyc, app)} (line(s) {lines}) has no row for reflector(s) "
                             f"{', '.join(lack)}; every stop must carry every reflector ({', '.join(all_refl)})")
     keys = list(stops)
     pts = np.array([[stops[k]["refl"][r][0] for r in all_refl] for k in keys], dtype=float)
@@ -117,5 +119,5 @@ def read_stop_list(path) -> StopList:
     has_app = "approach" in header
     return StopList(pose=tuple(k[0] for k in keys), cycle=np.array([k[1] for k in keys], dtype=np.int64),
                     points_mm=pts, reflectors=tuple(all_refl),
-                    approach=tuple(stops[k]["approach"] for k in keys) if has_app else None,
+                    approach=tuple(k[2] for k in keys) if has_app else None,
                     lines=lines, source=str(p))
