@@ -947,7 +947,8 @@ def _stage_pose_results(run: _Stages, pose_info: dict, settle: dict, ori, cori, 
         for kg, u in info["groups"]:
             if not kg.size:
                 continue
-            gl.append(ApproachGroup(_direction_label(u) if np.any(u) else "start", u, st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg]))
+            gl.append(ApproachGroup(_direction_label(u) if np.any(u) else "start", u,
+                                    st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg]))
         vap = vany = pair = None
         if len(gl) >= 2:
             vany, (h, k) = multidirectional_accuracy(np.array([g.mean_mm for g in gl]))

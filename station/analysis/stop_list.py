@@ -342,7 +342,8 @@ def analyze_stop_list(
         poses=poses, distances=tuple(dists), verdicts=tuple(verdicts), limits=lim, warnings=tuple(warnings),
         partial=bool(partial or far.any()), iso_conformant=not reasons, iso_reasons=tuple(reasons),
         left_out=tuple(left), stop_pose=pose, stop_cycle=cyc, stop_approach=approach, stop_position_mm=centroid,
-        stop_fit_rms_mm=fit_rms, stop_distance_mm=dist, stop_far=far, reflectors=refl, assign_tol_mm=float(assign_tol_mm),
+        stop_fit_rms_mm=fit_rms, stop_distance_mm=dist, stop_far=far, reflectors=refl,
+        assign_tol_mm=float(assign_tol_mm),
     )
 
 
