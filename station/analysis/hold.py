@@ -48,7 +48,7 @@ class HoldResult:
     RP_mm: float
     l_bar_mm: float
     S_l_mm: float
-    n_dropped: int  # samples of a last window shorter than half a window, left out of the RP figure
+    n_dropped: int  # samples of windows with less than half the fullest one's, left out of the RP figure
 
     def to_dict(self) -> dict:
         def fl(a):
@@ -112,10 +112,11 @@ def analyze_hold(t_s, xyz_mm, valid=None, *, window_s: float = 1.0, min_move_mm:
     resid = xyz - mean - np.outer(tc, slope)
     noise = np.sqrt((resid**2).sum(axis=0) / (n - 2))
     slope_sd = noise / np.sqrt(stt)
-    # windows of window_s from the first sample; a last window shorter than half is left out
+    # windows of window_s from the first sample; a window with less than half the fullest one's samples (the
+    # last, or one cut by a beam break) is left out
     w = np.floor((t - t[0]) / window_s).astype(np.int64)
     counts = np.bincount(w)
-    full = counts >= 0.5 * np.median(counts[counts > 0])
+    full = counts >= 0.5 * counts.max()
     keep_w = np.flatnonzero(full & (counts > 0))
     if keep_w.size < 2:
         raise InsufficientDataError(f"the hold lasts {dur:.3g} s: at least two windows of {window_s:g} s are needed")

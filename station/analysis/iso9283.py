@@ -671,15 +671,16 @@ def assignment_tolerance_mm(limits) -> float:
     With an AP limit (and an RP limit, 0 without): a robot within its limits
     puts every stop within ``AP + RP`` of the commanded pose (the barycentre
     lies within AP of it, eq. (1), and the stops within RP of the barycentre,
-    eq. (2)); twice that still assigns the stops of a robot that fails by up
-    to a factor of two, so that it is judged FAIL rather than left undecided.
-    Without an AP limit: :data:`DEFAULT_ASSIGN_TOL_MM`. The extraction keeps
-    at least 20 times the tracker's noise.
+    eq. (2)); four times that still assigns the stops of a robot that fails
+    by that much, so that it is judged FAIL rather than left undecided. Kept
+    between 5 mm and :data:`DEFAULT_ASSIGN_TOL_MM` (the default without an AP
+    limit): above it lie via points and pre-positions, which must not be taken
+    for the pose. The extraction keeps at least 20 times the tracker's noise.
     """
     lim = check_limits(limits)
     if "AP_mm" not in lim:
         return DEFAULT_ASSIGN_TOL_MM
-    return max(2.0 * (lim["AP_mm"] + lim.get("RP_mm", 0.0)), 1e-3)
+    return float(min(DEFAULT_ASSIGN_TOL_MM, max(5.0, 4.0 * (lim["AP_mm"] + lim.get("RP_mm", 0.0)))))
 
 
 # --------------------------------------------------------------------------

@@ -915,7 +915,7 @@ def extract_validated(
     if starts.size == 0:
         raise InsufficientDataError(
             f"no move found in the stream: the moving-average speed never exceeded "
-            f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm"
+            f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm (a held pose? `station analyze hold`)"
         )
     R = starts.size
     # speed peak of each move: the first sample of the run's largest moving-average speed

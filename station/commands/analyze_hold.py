@@ -49,7 +49,7 @@ def run_hold(args: argparse.Namespace) -> int:
         + f" mm/min;  3-D {res.drift_3d_mm_per_min:.4f} mm/min",
         f"windows     {res.l_mm.size} of {res.window_s:g} s: RP-style l_bar + 3 S_l = {res.RP_mm:.4f} mm "
         f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
-        + (f"; {res.n_dropped} samples of a short last window left out" if res.n_dropped else ""),
+        + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
     ]
     print("\n".join(lines))
     if args.json is not None:

@@ -77,8 +77,8 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
                    help="interval of the velocity of eq. (3), s (default 0.01, the seed's sampling; "
                         "0 = successive samples at any rate)")
     s.add_argument("--assign-tol-mm", type=float, default=None,
-                   help="largest distance from a stop to its commanded pose, mm (default 2 x (AP + RP limits) "
-                        "with an AP limit, else 25)")
+                   help="largest distance from a stop to its commanded pose, mm (default 4 x (AP + RP limits) "
+                        "within 5-25 with an AP limit, else 25)")
     s.add_argument("--initial-rest", choices=("count", "skip"), default="count",
                    help="the rest before the first move: a stop of the pose it stands at (count, default) or not")
     s.add_argument("--allow-other-stops", action="store_true",
