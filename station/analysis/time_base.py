@@ -9,7 +9,9 @@ samples, give wrong times silently. :func:`check_time_stamps` finds:
 * stamps that repeat: their resolution is coarser than the sample spacing;
 * stamps whose median step disagrees with the sample count: ``n`` samples
   (plus the samples lost in the gaps the stamps show) over the time span give
-  another spacing than the steps themselves.
+  another spacing than the steps themselves; or so many gaps (more than
+  :data:`MAX_GAP_FRACTION` of the steps) that the stamps come in bursts (a
+  logger stamping packets on receipt) rather than at the sample rate.
 
 The remedy is the sample rate (:func:`sample_index_time`): the sample index
 divided by the rate becomes the time base, and the figures say so.
@@ -27,6 +29,8 @@ from station.errors import DataError
 COUNT_TOLERANCE = 0.1
 #: a step longer than this many median steps is a gap with lost samples
 GAP_FACTOR = 1.5
+#: more gaps than this fraction of the steps is not a stream with a few beam breaks but stamps in bursts
+MAX_GAP_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,12 @@ def check_time_stamps(t_s) -> TimeStampCheck:
         big = pos[pos > GAP_FACTOR * med]
         lost = int(np.sum(np.maximum(np.rint(big / med) - 1, 0)))
         count_spacing = span / (n - 1 + lost)
-        if not rep.size and abs(count_spacing / med - 1.0) > COUNT_TOLERANCE:
+        if not rep.size and big.size > MAX_GAP_FRACTION * dt.size:
+            problems.append(TimeProblem(
+                None, f"{big.size} of {dt.size} steps are longer than {GAP_FACTOR:g} x the median step "
+                      f"{_g(med)} s: the stamps come in bursts, not at the sample rate (the sample count gives "
+                      f"{_g(span / (n - 1))} s per sample over {_g(span)} s)"))
+        elif not rep.size and abs(count_spacing / med - 1.0) > COUNT_TOLERANCE:
             problems.append(TimeProblem(
                 None, f"the stamps' median step {_g(med)} s disagrees with the sample count: {n} samples"
                       + (f" and {lost} lost in gaps" if lost else "") + f" over {_g(span)} s give "

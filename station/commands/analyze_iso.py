@@ -166,7 +166,7 @@ def _read_poses(args):
 
 def _run_stream(args, limits, band) -> int:
     from station.analysis.iso9283 import analyze_iso9283
-    from station.analysis.pose_extraction import STATUS_UNASSIGNED, estimate_noise_mm
+    from station.analysis.pose_extraction import STATUS_UNASSIGNED
 
     names, cmd, cori, order = _read_poses(args)
     extraction = dict(window_s=args.window_s, velocity_step_s=args.velocity_step_s,
@@ -181,7 +181,7 @@ def _run_stream(args, limits, band) -> int:
         xyz[~valid] = 0.0  # rows left out by valid; never used
         if ori is not None:
             ori[~valid] = 0.0
-    noise = estimate_noise_mm(xyz[valid], si.t_s[valid]) if valid.sum() >= 3 else 0.0
+    noise = _rest_noise_mm(si.t_s[valid], xyz[valid])
     reg, reg_js = read_frame(args.frame, args.register, noise_mm=noise, robot_error_mm=limits.get("AP_mm"),
                              max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
     if reg is not None:
@@ -255,6 +255,17 @@ def _run_stops(args, limits) -> int:
     d["time_base"] = None
     d["registration"] = reg_js
     return _finish(res, d, args, far)
+
+
+def _rest_noise_mm(t, xyz) -> float:
+    """The tracker's per-axis noise from the quietest fifth of the samples (the robot at rest), mm."""
+    from station.analysis.pose_extraction import estimate_noise_mm
+
+    if t.size < 50:
+        return estimate_noise_mm(xyz, t) if t.size >= 3 else 0.0
+    v = np.linalg.norm(xyz[2:] - xyz[:-2], axis=1) / (t[2:] - t[:-2])
+    quiet = np.flatnonzero(v <= np.quantile(v, 0.2)) + 1
+    return estimate_noise_mm(xyz, t, at=quiet)
 
 
 def _stop_scatter_mm(sl) -> float:
