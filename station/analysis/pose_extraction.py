@@ -716,7 +716,7 @@ def extract_attained_poses(
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
     approach_final_mm: float = 50.0,
-    initial_rest_stop: bool = True,
+    initial_rest_stop: bool = False,
 ) -> Extraction:
     """Attained poses of a continuous stream, assigned to commanded poses and cycles.
 
@@ -776,9 +776,13 @@ def extract_attained_poses(
     initial_rest_stop : bool
         The rest before the first move (at least ``min_dwell_s`` long) is a
         stop of the pose it stands at, when the commanded order puts that pose
-        right before the first moved stop (seed 3.1.3: the robot waits at P1
-        while the tracker starts, then runs P2, P3, P4, P5, P1): that pose
-        gets its first attained pose and the first move its posing time.
+        right before the first moved stop: that pose gets its first attained
+        pose and the first move its posing time (a lab program P1, P2, ..., P5
+        started at rest at P1). Default False, the seed's convention (3.1.3:
+        the waiting interval before the first move is not extracted); the
+        procedure keeps it so that a resumed run, which starts its stream at
+        rest at P1 after ``home``, counts the same stops as an uninterrupted
+        one. ``station analyze`` counts it unless ``--initial-rest skip``.
 
     Returns
     -------
@@ -824,7 +828,7 @@ def extract_validated(
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
     approach_final_mm: float = 50.0,
-    initial_rest_stop: bool = True,
+    initial_rest_stop: bool = False,
 ) -> Extraction:
     """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`.
 

@@ -31,10 +31,7 @@ def residue(res, s):
     st = res.extraction.stops
     a = st.status == 0
     real = (s.prog.dwell_s > 0) & (s.prog.pose >= 0)
-    tgt = s.prog.target_mm[real]
-    if st.initial[0] and a[0]:  # the rest before the first move stands at the start
-        tgt = np.vstack([s.start_mm, tgt])
-    return float(np.linalg.norm(s.clean[st.row[a]] - tgt, axis=1).max())
+    return float(np.linalg.norm(s.clean[st.row[a]] - s.prog.target_mm[real], axis=1).max())
 
 
 def test_ap_rp_known_offsets_and_scatter(rng):
@@ -47,16 +44,14 @@ def test_ap_rp_known_offsets_and_scatter(rng):
     sig = math.hypot(noise, scatter)
     for p, name in enumerate(NAMES5):
         pr = res.poses[name]
-        # P1 also stands still before the first move: one stop more, ending the cycle before the first
-        n_p = n + (p == 0)
-        assert pr.n_cycles == n_p and pr.attained_cycle.tolist() == list(range(-(p == 0), n))
+        assert pr.n_cycles == n and pr.attained_cycle.tolist() == list(range(n))
         acc, rep = pr.accuracy, pr.repeatability
         ap_vec = np.array([acc.APx_mm, acc.APy_mm, acc.APz_mm])
         assert np.linalg.norm(ap_vec - off[p]) < Q * sig / math.sqrt(n) + r0
         assert abs(acc.AP_mm - np.linalg.norm(off[p])) < Q * sig / math.sqrt(n) + r0
         assert abs(rep.RP_mm - rp_population(sig)) < 5 * rp_estimate_sd(sig, n) + 4 * r0
         # the numbers carry their provenance
-        assert acc.n == rep.n == n_p and np.array_equal(acc.rows, pr.attained_row)
+        assert acc.n == rep.n == n and np.array_equal(acc.rows, pr.attained_row)
         assert np.allclose(s.xyz[pr.attained_row], pr.attained_mm)
 
 
@@ -165,15 +160,14 @@ def test_orientation_accuracy_and_repeatability(rng):
     abc_off = rng.normal(0, 2e-3, (5, 3))
     prog = iso_cycle_programme(rng, n_cycles=n, scatter_mm=0.02, abc_commanded_rad=abc_cmd, abc_offset_rad=abc_off,
                                abc_scatter_rad=sa)
-    # the robot stands at P1 (with P1's orientation error) before the first move: a stop of P1
-    s = render(rng, prog, start_mm=CMD[0], start_abc_rad=abc_cmd[0] + abc_off[0], rate_hz=RATE, noise_mm=0.005,
+    s = render(rng, prog, start_mm=CMD[0], start_abc_rad=abc_cmd[0], rate_hz=RATE, noise_mm=0.005,
                abc_noise_rad=na, **SERVO)
     res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, orientation_rad=s.abc, commanded_orientation_rad=abc_cmd,
                           limits={"RPa_deg": 1.0})
     sig = math.hypot(sa, na)
     for p, name in enumerate(NAMES5):
         o = res.poses[name].orientation
-        assert o.n == n + (p == 0)
+        assert o.n == n
         assert np.all(np.abs(o.AP_rad - abc_off[p]) < 5 * sig / math.sqrt(n) + 1e-6)
         assert np.all(np.abs(o.RP_rad - 3 * sig) < 5 * 3 * sig / math.sqrt(2 * (n - 1)) + 3e-6)
     d = res.to_dict()["poses"]["P1"]["orientation"]
@@ -243,11 +237,9 @@ def test_json_keys_verdicts_and_partial_results(rng):
     one = s.t < s.t_depart[4]
     r1 = analyze_iso9283(s.t[one], s.xyz[one], CMD, names=NAMES5, limits={"RP_mm": 0.5})
     assert r1.partial and r1.passed is None
-    # (P1 has two: the rest before the first move and the end of the cycle)
-    assert all(p.repeatability is None and p.n_cycles == 1 for n, p in r1.poses.items() if n != "P1")
-    assert r1.poses["P1"].n_cycles == 2 and r1.poses["P1"].repeatability is not None
+    assert all(p.repeatability is None and p.n_cycles == 1 for p in r1.poses.values())
     assert any("RP needs at least 2" in w for w in r1.warnings)
-    assert all(v.passed is None and v.value is None for v in r1.verdicts if v.subject != "P1")
+    assert all(v.passed is None and v.value is None for v in r1.verdicts)
     with pytest.raises(ConfigError, match="unknown limit 'RPP_mm'"):
         analyze_iso9283(s.t, s.xyz, CMD, limits={"RPP_mm": 1})
 

@@ -15,7 +15,7 @@ from station.analysis.pose_extraction import (
 from station.errors import DataError, InsufficientDataError
 
 from .conftest import chi3_q
-from .synth import NAMES5, Programme, counted_stops, iso_cycle_programme, iso_stream, random_offsets, render
+from .synth import NAMES5, Programme, iso_cycle_programme, iso_stream, random_offsets, render
 
 CMD = np.array(TABLE2_POSES_MM)
 NOISE = 0.01
@@ -34,37 +34,33 @@ def servo_tau(s):
 
 
 def check_stops_match(ex, s, skip=(), unsettled_ok=()):
-    """Every programmed stop (except skipped ones) and the rest before the first move found, assigned,
-    in its cycle, near its target.
+    """Every programmed stop (except skipped ones) found, assigned, in its cycle, near its target.
 
-    ``skip``: (programme cycle, pose) pairs flown through; ``unsettled_ok``:
-    programme indices of stops whose dwell was cut short (a beam break), where
-    the quietest window may lie before the servo settled: there the attained
-    pose is checked against the true position at its sample.
+    ``unsettled_ok``: programme indices of stops whose dwell was cut short (a
+    beam break), where the quietest window may lie before the servo settled:
+    there the attained pose is checked against the true position at its sample.
     """
     st = ex.stops
     prog = s.prog
-    c = counted_stops(s)
-    keep = np.ones(c.pose.size, bool)
+    keep = np.ones(prog.pose.size, bool)
     for cy, p in skip:
-        keep[1:] &= ~((prog.cycle == cy) & (prog.pose == p))
+        keep &= ~((prog.cycle == cy) & (prog.pose == p))
     a = st.status == STATUS_ASSIGNED
     assert a.sum() == keep.sum()
-    assert st.initial[0] and a[0] and not st.initial[1:].any()
-    assert st.pose[a].tolist() == c.pose[keep].tolist()
-    assert st.cycle[a].tolist() == c.cycle[keep].tolist()
-    tgt = c.target_mm[keep]
+    assert st.pose[a].tolist() == prog.pose[keep].tolist()
+    assert st.cycle[a].tolist() == prog.cycle[keep].tolist()
+    tgt = prog.target_mm[keep]
     # the chosen sample is where the servo has settled: the truth is the target
     truth = s.clean[st.row[a]]
     resid = np.linalg.norm(truth - tgt, axis=1)
     settled = np.ones(resid.size, bool)
-    settled[[int(np.sum(keep[: k + 1])) for k in unsettled_ok]] = False
+    settled[[int(np.sum(keep[:k])) for k in unsettled_ok]] = False
     # the attained pose is a sample at rest: the smoothed speed is below v_rest
     # there, so the servo is within about v_rest * tau of its final position
     assert resid[settled].max() < 2.0 * ex.params.v_rest_mm_s * servo_tau(s) + 0.5 * NOISE
     err = np.linalg.norm(st.position_mm[a] - truth, axis=1)
     assert err.max() < chi3_q(1e-6) * NOISE
-    assert np.all(st.t_s[a] >= c.t_arrive[keep]) and np.all(st.t_s[a][:-1] <= c.t_depart[keep][:-1])
+    assert np.all(st.t_s[a] >= s.t_arrive[keep]) and np.all(st.t_s[a][:-1] <= s.t_depart[keep][:-1])
     return a
 
 
@@ -74,8 +70,8 @@ def test_stops_found_assigned_and_true_at_any_rate(rng, rate):
                    noise_mm=NOISE, jitter_frac=0.2 if rate < 2000 else 0.0, **servo_for(rate))
     ex = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5)
     assert not ex.missing and not ex.failed_phases and not ex.trailing_motion
-    assert ex.order == (1, 2, 3, 4, 0)  # rotated to the first moved stop: the seed's P2..P5, P1
-    assert ex.n_cycles == 6  # (the rest at P1 before the first move ends the cycle before: -1)
+    assert ex.order == (1, 2, 3, 4, 0)  # rotated to the first stop: the seed's P2..P5, P1
+    assert ex.n_cycles == 6
     assert abs(ex.params.rate_hz - rate) < 0.01 * rate
     if rate >= 100:  # at 10 Hz the settling servo is in the second differences too
         assert abs(ex.params.noise_mm - NOISE) < 0.3 * NOISE
@@ -158,7 +154,7 @@ def test_extra_and_out_of_sequence_stops(rng):
     s = render(rng, prog2, start_mm=CMD[0], rate_hz=rate, noise_mm=NOISE, wn_hz=8.0, zeta=0.8)
     ex = extract_attained_poses(s.t, s.xyz, CMD)
     st = ex.stops
-    assert st.n == prog2.pose.size + 1 and st.initial[0]  # + the rest before the first move
+    assert st.n == prog2.pose.size
     assert not ex.missing
     assert st.status.tolist().count(STATUS_UNASSIGNED) == 1
     assert st.status.tolist().count(STATUS_OUT_OF_SEQUENCE) == 1
@@ -167,8 +163,7 @@ def test_extra_and_out_of_sequence_stops(rng):
     ko = int(np.flatnonzero(st.status == STATUS_OUT_OF_SEQUENCE)[0])
     assert np.linalg.norm(st.position_mm[ko] - near) < 0.1
     a = st.status == STATUS_ASSIGNED
-    c = counted_stops(render(rng, prog, start_mm=CMD[0], rate_hz=rate, noise_mm=NOISE, end_rest_s=0.6))
-    assert st.pose[a].tolist() == c.pose.tolist() and st.cycle[a].tolist() == c.cycle.tolist()
+    assert st.pose[a].tolist() == prog.pose.tolist() and st.cycle[a].tolist() == prog.cycle.tolist()
 
 
 def test_stream_ending_in_motion(rng):
@@ -178,7 +173,7 @@ def test_stream_ending_in_motion(rng):
     ex = extract_attained_poses(s.t[cut], s.xyz[cut], CMD)
     assert ex.trailing_motion
     assert len(ex.failed_phases) == 1 and "ends before" in ex.failed_phases[0].reason
-    assert ex.stops.n == s.prog.pose.size and ex.stops.initial[0] and not ex.missing  # the last one lost
+    assert ex.stops.n == s.prog.pose.size - 1 and not ex.missing
 
 
 def test_bad_streams_are_refused(rng):
@@ -225,8 +220,7 @@ def test_equivalent_to_the_direct_transcription(rng, bench_module):
     s = iso_stream(rng, n_cycles=3, rate_hz=rate, offsets_mm=random_offsets(rng), noise_mm=NOISE,
                    beam_breaks=[(rng.uniform(3, 10), 0.3)], zeta=0.4)
     step = float(rng.choice([0.0, 0.01]))  # successive samples, or over the seed's 0.01 s
-    # the transcription has the seed's deceleration phases only, not the rest before the first move
-    ex = extract_attained_poses(s.t, s.xyz, CMD, velocity_step_s=step, initial_rest_stop=False)
+    ex = extract_attained_poses(s.t, s.xyz, CMD, velocity_step_s=step)
     p = ex.params
     assert p.lag == (1 if step == 0 else max(1, round(0.01 * rate)))
     centers = bench_module.seed_transcription(s.t, s.xyz, M=p.M, Mp=p.Mp, h=p.h, v_rest=p.v_rest_mm_s,

@@ -9,13 +9,17 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from station.analysis.iso9283 import analyze_iso9283
 from station.analysis.iso_poses import TABLE2_POSES_MM
 from station.cli import main
 
 from .labfiles import ap_ref, rp_ref, write_poses, write_stream_csv
-from .synth import NAMES5, Programme, iso_cycle_programme, render
+from station.analysis.pose_extraction import STATUS_ASSIGNED, extract_attained_poses
+
+from .conftest import chi3_q
+from .synth import NAMES5, Programme, counted_stops, iso_cycle_programme, iso_stream, random_offsets, render
 
 CMD = np.array(TABLE2_POSES_MM)
 SERVO = dict(wn_hz=10.0, zeta=0.8)
@@ -62,9 +66,10 @@ def test_a_rest_at_a_pose_the_order_does_not_put_first_is_listed_not_counted(rng
     s, _ = lab_stream(rng, 3)
     # order P2, P3, P4, P5, P1 with the stream's cycles starting at P1: the rest at P1 is followed by P2, and
     # P1 comes right before P2 in this order: counted (cycle -1); with P3 first it is not
-    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, order=["P2", "P3", "P4", "P5", "P1"])
+    count = dict(initial_rest_stop=True)
+    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, order=["P2", "P3", "P4", "P5", "P1"], extraction=count)
     assert res.extraction.stops.initial[0] and res.poses["P1"].attained_cycle[0] == -1
-    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, order=["P1", "P3", "P2", "P4", "P5"])
+    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, order=["P1", "P3", "P2", "P4", "P5"], extraction=count)
     st = res.extraction.stops
     assert st.initial[0] and st.status[0] == 4  # INITIAL_REST
     (lo,) = [x for x in res.left_out if x.statistics == "all" and x.row == st.row[0]]
@@ -94,3 +99,25 @@ def test_a_lead_in_from_another_side_is_listed_with_its_reason(tmp_path, rng, ca
     assert lo["cycle"] == int(prog.cycle[k]) and lo["statistics"].startswith("AP, RP, POS, PST")
     assert "approached from" in lo["reason"] and "main direction" in lo["reason"]
     assert f"left out: row {lo['row']} " in out and "approached from" in out
+
+
+@pytest.mark.parametrize("rate", [100.0, 1000.0])
+def test_the_seed_cycle_with_the_rest_counted_against_the_truth(rng, rate):
+    """Seed 3.1.3: rest at P1, then P2, P3, P4, P5, P1. Counted, the rest ends cycle -1; the library's
+    default (the seed's convention) leaves it out and the stops are those of the deceleration phases."""
+    noise = 0.005
+    s = iso_stream(rng, n_cycles=4, rate_hz=rate, offsets_mm=random_offsets(rng), scatter_mm=0.02, noise_mm=noise,
+                   wn_hz=8.0, zeta=0.8)
+    ex = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5, initial_rest_stop=True)
+    c = counted_stops(s)
+    st = ex.stops
+    a = st.status == STATUS_ASSIGNED
+    assert st.initial[0] and a.sum() == c.pose.size and ex.order == (1, 2, 3, 4, 0) and ex.n_cycles == 4
+    assert st.pose[a].tolist() == c.pose.tolist() and st.cycle[a].tolist() == c.cycle.tolist()
+    truth = s.clean[st.row[a]]
+    assert np.linalg.norm(truth - c.target_mm, axis=1).max() < 0.02
+    assert np.linalg.norm(st.position_mm[a] - truth, axis=1).max() < chi3_q(1e-6) * noise
+    assert np.all(st.t_s[a] >= c.t_arrive) and np.all(st.t_s[a][:-1] <= c.t_depart[:-1])
+    plain = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5)
+    assert not plain.stops.initial.any() and plain.stops.n == st.n - 1
+    assert np.array_equal(plain.stops.row, st.row[1:])

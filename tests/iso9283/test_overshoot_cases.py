@@ -81,15 +81,13 @@ def test_fig5_fig6_opposite_verdicts_on_the_same_data(rng, case):
                               limits={"POS_mm": 0.0})
         o = res.poses["P1"].overshoot
         pos, pst = expect[band]
-        # the rest at P1 before the first move has no approach: it is left out of POS/PST
-        assert o.n == n_cycles and o.band_source == "limit" and o.incomplete.tolist() == [True] + [False] * n_cycles
-        ok = ~o.incomplete
-        assert np.allclose(o.POS_j_mm[ok], pos * scale, atol=1e-5)
-        assert np.allclose(o.PST_j_s[ok], pst, atol=1e-9)
+        assert o.n == n_cycles and o.band_source == "limit"
+        assert np.allclose(o.POS_j_mm, pos * scale, atol=1e-5)
+        assert np.allclose(o.PST_j_s, pst, atol=1e-9)
         assert o.POS_mm == pytest.approx(pos * scale, abs=1e-5)
         assert o.PST_s == pytest.approx(pst, abs=1e-9)
         if pos > 0:  # the sample of the overshoot is the one written with it
-            for r, rm in zip(o.rows[ok], o.row_max[ok]):
+            for r, rm in zip(o.rows, o.row_max):
                 assert np.linalg.norm(xyz[rm] - xyz[r]) == pytest.approx(pos * scale, abs=1e-5)
         for other in ("P2", "P3", "P4", "P5"):  # the overdamped servo never overshoots
             assert res.poses[other].overshoot.POS_mm == 0.0
