@@ -93,7 +93,8 @@ class OvershootSettling:
     band, ``row_settled`` the entry after which the tool stays inside,
     ``row_max`` the sample of the largest excursion (-1 if none).
     ``incomplete`` marks stops whose approach has a beam break after the move's
-    speed peak; they are left out of POS and PST.
+    speed peak, and the rest before the first move (no approach in the
+    stream); they are left out of POS and PST.
     """
 
     POS_mm: float | None
@@ -229,6 +230,23 @@ class PathAR:
 
 
 @dataclass(frozen=True)
+class LeftOut:
+    """A stop left out of one or more statistics, and why.
+
+    ``row``/``t_s``: the stop's attained sample; ``pose``: its pose (the
+    nearest one when it has none); ``cycle`` -1 when it has none;
+    ``statistics``: what it is left out of (``"all"`` or e.g. ``"POS, PST"``).
+    """
+
+    row: int
+    t_s: float
+    pose: str
+    cycle: int
+    statistics: str
+    reason: str
+
+
+@dataclass(frozen=True)
 class Verdict:
     characteristic: str  # a LIMIT_KEYS key
     subject: str  # pose name, "P2-P4", "P1->P2"
@@ -277,18 +295,13 @@ class Iso9283Result:
     stream_span_s: tuple[float, float] = field(default=(math.nan, math.nan))
     #: why the run is not ISO conformant, one sentence each (empty when it is)
     iso_reasons: tuple[str, ...] = ()
+    #: every stop left out of a statistic, with the reason, in time order
+    left_out: tuple[LeftOut, ...] = ()
 
     @property
     def passed(self) -> bool | None:
         """All verdicts passed (None: no limits given, or one could not be evaluated)."""
-        if not self.verdicts:
-            return None
-        vals = [v.passed for v in self.verdicts]
-        if any(v is False for v in vals):
-            return False
-        if any(v is None for v in vals):
-            return None
-        return True
+        return overall_passed(self.verdicts)
 
     def to_dict(self) -> dict:
         """JSON-able dict with stable keys (units in the key names: mm, s, deg)."""
@@ -620,6 +633,7 @@ def _group_directions(units, clean, cos_tol):
     while todo.size:
         rep = units[todo[0]]
         member = units[todo] @ rep >= cos_tol
+        member[0] = True  # a zero vector still ends the loop
         lab[todo[member]] = len(reps)
         reps.append(rep)
         todo = todo[~member]
@@ -645,6 +659,28 @@ def check_limits(limits) -> dict[str, float]:
             raise ConfigError(f"limit {k} must be finite and >= 0, got {v!r}")
         out[k] = fv
     return out
+
+
+#: assignment tolerance without an AP limit, mm (a robot's uncompensated accuracy is a few mm)
+DEFAULT_ASSIGN_TOL_MM = 25.0
+
+
+def assignment_tolerance_mm(limits) -> float:
+    """Largest distance from a stop to the commanded pose it is assigned to, from the limits, mm.
+
+    With an AP limit (and an RP limit, 0 without): a robot within its limits
+    puts every stop within ``AP + RP`` of the commanded pose (the barycentre
+    lies within AP of it, eq. (1), and the stops within RP of the barycentre,
+    eq. (2)); four times that still assigns the stops of a robot that fails
+    by that much, so that it is judged FAIL rather than left undecided. Kept
+    between 5 mm and :data:`DEFAULT_ASSIGN_TOL_MM` (the default without an AP
+    limit): above it lie via points and pre-positions, which must not be taken
+    for the pose. The extraction keeps at least 20 times the tracker's noise.
+    """
+    lim = check_limits(limits)
+    if "AP_mm" not in lim:
+        return DEFAULT_ASSIGN_TOL_MM
+    return float(min(DEFAULT_ASSIGN_TOL_MM, max(5.0, 4.0 * (lim["AP_mm"] + lim.get("RP_mm", 0.0)))))
 
 
 # --------------------------------------------------------------------------
@@ -746,6 +782,7 @@ def analyze_iso9283(
     mts = _stage_posing_times(run, settle, k0, k1, mpt_repeats)
     paths = _stage_paths(run, k0, k1, linear_paths, n_planes)
     _stage_extraction_problems(run)
+    left_out = _stage_left_out(run, pose_info, settle, dists)
     verdicts = _verdicts(lim, poses, dists, mts, paths)
     if any(v.passed is None for v in verdicts):
         run.partial = True
@@ -754,6 +791,7 @@ def analyze_iso9283(
         poses=poses, distances=tuple(dists), posing_times=tuple(mts), paths=tuple(paths), extraction=ex,
         verdicts=tuple(verdicts), limits=lim, warnings=tuple(run.warnings), partial=bool(run.partial),
         iso_conformant=not reasons, stream_span_s=(float(t[0]), float(t[-1])), iso_reasons=tuple(reasons),
+        left_out=tuple(left_out),
     )
 
 
@@ -802,7 +840,9 @@ def _stage_accuracy_repeatability(run: _Stages, cos_tol: float) -> dict:
     pose_info = {}
     for p, name in enumerate(run.names):  # loop over poses
         k_all = run.ex.assigned(p)
-        lab, ng = _group_directions(st.approach_unit[k_all], ~st.gap_in_approach[k_all], cos_tol)
+        init = st.initial[k_all]
+        lab, ng = _group_directions(st.approach_unit[k_all], ~st.gap_in_approach[k_all] & ~init, cos_tol)
+        lab[init] = -1
         groups = []
         for g in range(ng):
             kg = k_all[lab == g]
@@ -812,11 +852,28 @@ def _stage_accuracy_repeatability(run: _Stages, cos_tol: float) -> dict:
         if groups:
             sizes = [kg.size for kg, _ in groups]
             gp = int(np.argmax(sizes))  # ties: the earliest group
-            kp = groups[gp][0]
+        elif init.any():
+            groups, gp = [(np.zeros(0, np.int64), np.zeros(3))], 0
         else:
-            gp, kp = -1, np.zeros(0, np.int64)
+            gp = -1
+        if init.any():
+            # the rest before the first move: no approach in the stream; it counts with the pose's main direction
+            kg, u = groups[gp]
+            groups[gp] = (np.sort(np.concatenate([k_all[init], kg])), u)
+            lab[init] = gp
+        kp = groups[gp][0] if groups else np.zeros(0, np.int64)
         a = st.position_mm[kp]
         rows = st.row[kp]
+        moved = ~st.initial[kp]
+        if moved.sum() >= 2 and not moved.all():
+            # the rest's approach is unknown: say so when it does not look like the other stops
+            others = position_repeatability(a[moved])
+            d0 = float(np.linalg.norm(a[~moved][0] - a[moved].mean(axis=0)))
+            if d0 > others.RP_mm:
+                run.warn(f"{name}: the rest before the first move lies {d0:.3f} mm from the barycentre of the other "
+                         f"{int(moved.sum())} stops, outside their RP {others.RP_mm:.3f} mm: it may have been "
+                         "approached from another side (leave it out with initial_rest_stop=False, "
+                         "--initial-rest skip)")
         acc = rep = None
         if kp.size >= 1:
             acc = position_accuracy(a, cmd[p], rows)
@@ -854,10 +911,12 @@ def _stage_settling(run: _Stages, pose_info: dict, bdict: dict) -> dict:
     os_ = reg.approach(kb, st.i_phase_start[kb], st.i_center[kb]) if st.n else None
     brk_i = run.breaks
     inc = (np.searchsorted(brk_i, st.i_center[kb]) - np.searchsorted(brk_i, st.i_phase_start[kb])) > 0
+    noapp = st.initial[kb]  # the rest before the first move: no approach to judge
     settled_i = np.full(st.n, -1, np.int64)
     if st.n:
-        settled_i[kb] = np.where(inc, -1, os_["i_settled"])
-    return dict(band_of_pose=band_of_pose, band_src=band_src, kb=kb, os=os_, inc=inc, settled_i=settled_i,
+        settled_i[kb] = np.where(inc | noapp, -1, os_["i_settled"])
+    return dict(band_of_pose=band_of_pose, band_src=band_src, kb=kb, os=os_, inc=inc, noapp=noapp,
+                settled_i=settled_i,
                 region=reg)
 
 
@@ -871,23 +930,26 @@ def _stage_pose_results(run: _Stages, pose_info: dict, settle: dict, ori, cori, 
         sel = np.flatnonzero(np.isin(kb, kp))
         ovs = None
         if sel.size:
-            good = ~inc[sel]
+            good = ~(inc[sel] | settle["noapp"][sel])
             POS = float(np.max(os_["POS_mm"][sel][good])) if good.any() else None
             PST = float(np.mean(os_["PST_s"][sel][good])) if good.any() else None
-            if (~good).any():
-                run.warn(f"{name}: {int((~good).sum())} approach(es) with a beam break left out of POS/PST")
+            if inc[sel].any():
+                run.warn(f"{name}: {int(inc[sel].sum())} approach(es) with a beam break left out of POS/PST")
             ovs = OvershootSettling(
                 POS, PST, float(band_of_pose[p]), settle["band_src"][name], os_["POS_mm"][sel], os_["PST_s"][sel],
                 ex.to_rows(os_["i_entry"][sel]), ex.to_rows(os_["i_settled"][sel]),
                 np.where(os_["i_max"][sel] >= 0, ex.to_rows(np.maximum(os_["i_max"][sel], 0)), -1),
-                st.row[kb[sel]], inc[sel], int(good.sum()),
+                st.row[kb[sel]], ~good, int(good.sum()),
             )
         elif kp.size:
             run.warn(f"{name}: no limit band (own RP not available), POS/PST not computed", partial=True)
         # vAP
         gl = []
         for kg, u in info["groups"]:
-            gl.append(ApproachGroup(_direction_label(u), u, st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg]))
+            if not kg.size:
+                continue
+            gl.append(ApproachGroup(_direction_label(u) if np.any(u) else "start", u,
+                                    st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg]))
         vap = vany = pair = None
         if len(gl) >= 2:
             vany, (h, k) = multidirectional_accuracy(np.array([g.mean_mm for g in gl]))
@@ -1043,6 +1105,60 @@ def _stage_paths(run: _Stages, k0, k1, linear_paths, n_planes: int) -> list:
     return paths
 
 
+def _stage_left_out(run: _Stages, pose_info: dict, settle: dict, dists) -> list[LeftOut]:
+    """Every stop that some statistic does not use, with the reason (item by item, time order)."""
+    st, ex, names = run.st, run.ex, run.names
+    tol = ex.params.assign_tol_mm
+    out: list[LeftOut] = []
+
+    def add(k, stats, reason):
+        out.append(LeftOut(int(st.row[k]), float(st.t_s[k]), names[int(st.nearest_pose[k])] if st.pose[k] < 0
+                           else names[int(st.pose[k])], int(st.cycle[k]), stats, reason))
+
+    in_order = set(ex.order)
+    first_moved = np.flatnonzero((st.status == STATUS_ASSIGNED) & ~st.initial)
+    for k in np.flatnonzero(st.status != STATUS_ASSIGNED):  # loop over the stops left out of everything
+        near, d = names[int(st.nearest_pose[k])], float(st.distance_to_pose_mm[k])
+        code = int(st.status[k])
+        if code == StopStatus.UNASSIGNED:
+            why = f"{d:.3f} mm from the nearest commanded pose {near}, farther than the assignment tolerance {tol:g} mm"
+        elif code == StopStatus.OUT_OF_SEQUENCE:
+            why = f"{d:.3f} mm from {near}, but not where the commanded order and the elapsed time allow"
+        elif code == StopStatus.NOT_IN_ORDER:
+            why = f"{d:.3f} mm from {near}, which the commanded order does not visit"
+        elif d <= tol and int(st.nearest_pose[k]) in in_order and first_moved.size:
+            nxt = names[int(st.pose[first_moved[0]])]
+            why = (f"the rest before the first move, at {near}: the commanded order does not put {near} right "
+                   f"before the first stop ({nxt})")
+        else:
+            why = f"the rest before the first move, {d:.3f} mm from the nearest commanded pose {near}"
+        add(k, "all", why)
+    kb, inc, noapp = settle["kb"], settle["inc"], settle["noapp"]
+    for name, info in pose_info.items():  # loop over poses
+        kp, groups, gp = info["kp"], info["groups"], info["gp"]
+        main = groups[gp][1] if gp >= 0 else None
+        main_label = _direction_label(main) if main is not None and np.any(main) else "-"
+        for g, (kg, u) in enumerate(groups):
+            if g == gp:
+                continue
+            for k in kg:
+                add(k, "AP, RP, POS, PST, AD, RD, drift, orientation",
+                    f"approached from {_direction_label(u)} ({kg.size} stop(s)); {name}'s main direction is "
+                    f"{main_label} ({kp.size} stops); vAP uses it")
+        sel = np.isin(kb, kp)
+        for k in kb[sel & inc]:
+            add(k, "POS, PST, MPT into it", "a beam break between the move's speed peak and the attained pose")
+        for k in kb[sel & noapp]:
+            add(k, "POS, PST", "the rest before the first move: its approach is not in the stream")
+    for d in dists:  # stops of a distance pair whose partner is missing in their cycle
+        for a, b in ((d.pose_a, d.pose_b), (d.pose_b, d.pose_a)):
+            kp = pose_info[a]["kp"]
+            for k in kp[~np.isin(st.cycle[kp], d.cycles)]:
+                add(k, f"AD, RD {d.pose_a}-{d.pose_b}", f"{b} has no attained pose in cycle {int(st.cycle[k])}")
+    out.sort(key=lambda x: (x.row, x.statistics))
+    return out
+
+
 def _stage_extraction_problems(run: _Stages) -> None:
     """Missing stops, failed phases and out-of-order stops make the result partial."""
     ex, st = run.ex, run.st
@@ -1176,69 +1292,95 @@ def _il(a):
     return [int(x) for x in np.asarray(a).ravel()]
 
 
+def pose_to_dict(pr: PoseResult) -> dict:
+    """The JSON of one pose's results (keys shared by the stream and the stop-list analyses)."""
+    acc, rep, ovs, md, o, dr = (pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional,
+                                pr.orientation, pr.drift)
+    return {
+        "commanded_mm": None if pr.commanded_mm is None else _fl(pr.commanded_mm),
+        "n_cycles": pr.n_cycles,
+        "AP_mm": _f(acc.AP_mm) if acc else None,
+        "APx_mm": _f(acc.APx_mm) if acc else None,
+        "APy_mm": _f(acc.APy_mm) if acc else None,
+        "APz_mm": _f(acc.APz_mm) if acc else None,
+        "mean_mm": _fl(acc.mean_mm) if acc else (None if rep is None else _fl(pr.attained_mm.mean(axis=0))),
+        "RP_mm": _f(rep.RP_mm) if rep else None,
+        "l_bar_mm": _f(rep.l_bar_mm) if rep else None,
+        "S_l_mm": _f(rep.S_l_mm) if rep else None,
+        "POS_mm": _f(ovs.POS_mm) if ovs else None,
+        "PST_s": _f(ovs.PST_s) if ovs else None,
+        "band_mm": _f(ovs.band_mm) if ovs else None,
+        "band_source": ovs.band_source if ovs else None,
+        "approach": ovs.approach if ovs else None,
+        "overshoot_per_cycle": None if ovs is None else {
+            "POS_mm": _fl(ovs.POS_j_mm), "PST_s": _fl(ovs.PST_j_s), "row_entry": _il(ovs.row_entry),
+            "row_settled": _il(ovs.row_settled), "row_max": _il(ovs.row_max), "row": _il(ovs.rows),
+            "incomplete": [bool(x) for x in ovs.incomplete], "n": ovs.n,
+        },
+        "vAP_mm": _f(md.vAP_mm),
+        "n_directions": md.n_directions,
+        "directions": [
+            {"label": g.label, "direction": _fl(g.direction, 4), "mean_mm": _fl(g.mean_mm), "n": g.n,
+             "rows": _il(g.rows)} for g in md.groups
+        ],
+        "attained": {
+            "x_mm": _fl(pr.attained_mm[:, 0]), "y_mm": _fl(pr.attained_mm[:, 1]),
+            "z_mm": _fl(pr.attained_mm[:, 2]), "t_s": _fl(pr.attained_t_s),
+            "row": _il(pr.attained_row), "cycle": _il(pr.attained_cycle),
+        },
+        "orientation": None if o is None else {
+            "APa_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[0])),
+            "APb_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[1])),
+            "APc_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[2])),
+            "RPa_deg": _f(math.degrees(o.RP_rad[0])), "RPb_deg": _f(math.degrees(o.RP_rad[1])),
+            "RPc_deg": _f(math.degrees(o.RP_rad[2])), "n": o.n,
+        },
+        "drift": None if dr is None else {
+            "dAP_mm": _f(dr.dAP_mm), "dRP_mm": _f(dr.dRP_mm), "shift_mm": _f(dr.shift_mm),
+            "block_t_s": _fl(dr.block_t_s), "AP_mm": _fl(dr.AP_mm), "RP_mm": _fl(dr.RP_mm),
+            "n_per_block": _il(dr.n_per_block),
+        },
+    }
+
+
+def distance_to_dict(d: DistanceAR) -> dict:
+    return {"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": _f(d.Dc_mm), "AD_mm": _f(d.AD_mm),
+            "RD_mm": _f(d.RD_mm), "n": d.n, "D_mm": _fl(d.D_mm), "cycle": _il(d.cycles),
+            "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)}
+
+
+def verdict_to_dict(v: Verdict) -> dict:
+    return {"characteristic": v.characteristic, "subject": v.subject, "value": _f(v.value), "limit": _f(v.limit),
+            "passed": v.passed, "note": v.note}
+
+
+def left_out_to_dict(x: LeftOut) -> dict:
+    return {"row": x.row, "t_s": _f(x.t_s), "pose": x.pose, "cycle": x.cycle, "statistics": x.statistics,
+            "reason": x.reason}
+
+
+def overall_passed(verdicts) -> bool | None:
+    """All verdicts passed (None: no verdict, or one could not be evaluated; False: one failed)."""
+    if not verdicts:
+        return None
+    vals = [v.passed for v in verdicts]
+    if any(v is False for v in vals):
+        return False
+    if any(v is None for v in vals):
+        return None
+    return True
+
+
 def _result_to_dict(r: Iso9283Result) -> dict:
     ex = r.extraction
     st = ex.stops
-    poses = {}
-    for name, pr in r.poses.items():
-        acc, rep, ovs, md, o, dr = (pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional,
-                                    pr.orientation, pr.drift)
-        d = {
-            "commanded_mm": _fl(pr.commanded_mm),
-            "n_cycles": pr.n_cycles,
-            "AP_mm": _f(acc.AP_mm) if acc else None,
-            "APx_mm": _f(acc.APx_mm) if acc else None,
-            "APy_mm": _f(acc.APy_mm) if acc else None,
-            "APz_mm": _f(acc.APz_mm) if acc else None,
-            "mean_mm": _fl(acc.mean_mm) if acc else None,
-            "RP_mm": _f(rep.RP_mm) if rep else None,
-            "l_bar_mm": _f(rep.l_bar_mm) if rep else None,
-            "S_l_mm": _f(rep.S_l_mm) if rep else None,
-            "POS_mm": _f(ovs.POS_mm) if ovs else None,
-            "PST_s": _f(ovs.PST_s) if ovs else None,
-            "band_mm": _f(ovs.band_mm) if ovs else None,
-            "band_source": ovs.band_source if ovs else None,
-            "approach": ovs.approach if ovs else None,
-            "overshoot_per_cycle": None if ovs is None else {
-                "POS_mm": _fl(ovs.POS_j_mm), "PST_s": _fl(ovs.PST_j_s), "row_entry": _il(ovs.row_entry),
-                "row_settled": _il(ovs.row_settled), "row_max": _il(ovs.row_max), "row": _il(ovs.rows),
-                "incomplete": [bool(x) for x in ovs.incomplete], "n": ovs.n,
-            },
-            "vAP_mm": _f(md.vAP_mm),
-            "n_directions": md.n_directions,
-            "directions": [
-                {"label": g.label, "direction": _fl(g.direction, 4), "mean_mm": _fl(g.mean_mm), "n": g.n,
-                 "rows": _il(g.rows)} for g in md.groups
-            ],
-            "attained": {
-                "x_mm": _fl(pr.attained_mm[:, 0]), "y_mm": _fl(pr.attained_mm[:, 1]),
-                "z_mm": _fl(pr.attained_mm[:, 2]), "t_s": _fl(pr.attained_t_s),
-                "row": _il(pr.attained_row), "cycle": _il(pr.attained_cycle),
-            },
-            "orientation": None if o is None else {
-                "APa_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[0])),
-                "APb_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[1])),
-                "APc_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[2])),
-                "RPa_deg": _f(math.degrees(o.RP_rad[0])), "RPb_deg": _f(math.degrees(o.RP_rad[1])),
-                "RPc_deg": _f(math.degrees(o.RP_rad[2])), "n": o.n,
-            },
-            "drift": None if dr is None else {
-                "dAP_mm": _f(dr.dAP_mm), "dRP_mm": _f(dr.dRP_mm), "shift_mm": _f(dr.shift_mm),
-                "block_t_s": _fl(dr.block_t_s), "AP_mm": _fl(dr.AP_mm), "RP_mm": _fl(dr.RP_mm),
-                "n_per_block": _il(dr.n_per_block),
-            },
-        }
-        poses[name] = d
+    poses = {name: pose_to_dict(pr) for name, pr in r.poses.items()}
     p = ex.params
     return {
         "schema": "station.iso9283/1",
         "units": {"position": "mm", "time": "s", "angle": "deg", "row": "0-based data row of the stream"},
         "poses": poses,
-        "distance": [
-            {"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": _f(d.Dc_mm), "AD_mm": _f(d.AD_mm),
-             "RD_mm": _f(d.RD_mm), "n": d.n, "D_mm": _fl(d.D_mm), "cycle": _il(d.cycles),
-             "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)} for d in r.distances
-        ],
+        "distance": [distance_to_dict(d) for d in r.distances],
         "MPT": [
             {"from": m.from_pose, "to": m.to_pose, "MPT_s": _f(m.MPT_s), "n": m.n, "n_available": m.n_available,
              "times_s": _fl(m.times_s), "row_leave": _il(m.row_leave), "row_settled": _il(m.row_settled)}
@@ -1249,15 +1391,13 @@ def _result_to_dict(r: Iso9283Result) -> dict:
              "plane_s_mm": _fl(pa.plane_s_mm), "AT_i_mm": _fl(pa.AT_i_mm), "RT_i_mm": _fl(pa.RT_i_mm)}
             for pa in r.paths
         ],
-        "verdicts": [
-            {"characteristic": v.characteristic, "subject": v.subject, "value": _f(v.value), "limit": _f(v.limit),
-             "passed": v.passed, "note": v.note} for v in r.verdicts
-        ],
+        "verdicts": [verdict_to_dict(v) for v in r.verdicts],
         "limits": {k: _f(v) for k, v in r.limits.items()},
         "passed": r.passed,
         "partial": r.partial,
         "iso_conformant": r.iso_conformant,
         "iso_reasons": list(r.iso_reasons),
+        "left_out": [left_out_to_dict(x) for x in r.left_out],
         "warnings": list(r.warnings),
         "stream": {
             "n_rows": ex.n_rows, "n_used": ex.n_used, "n_invalid": ex.n_rows - ex.n_used,
@@ -1289,5 +1429,9 @@ def _result_to_dict(r: Iso9283Result) -> dict:
                  "t_end_s": _f(f.t_end_s), "reason": f.reason} for f in ex.failed_phases
             ],
             "trailing_motion": ex.trailing_motion,
+            "initial_rest": None if ex.initial_rest_i is None else {
+                "row_start": int(ex.to_rows(ex.initial_rest_i[0])), "row_end": int(ex.to_rows(ex.initial_rest_i[1])),
+                "stop": bool(st.n and st.initial[0]),
+                "counted": bool(st.n and st.initial[0] and st.status[0] == STATUS_ASSIGNED)},
         },
     }

@@ -67,16 +67,20 @@ class StopStatus(IntEnum):
     UNASSIGNED = 1  # farther than assign_tol_mm from every commanded pose
     OUT_OF_SEQUENCE = 2  # near a pose, but not where the commanded order allows
     NOT_IN_ORDER = 3  # near a pose that the commanded order never visits
+    INITIAL_REST = 4  # the rest before the first move, not a stop of the commanded order
 
 
 STATUS_ASSIGNED = StopStatus.ASSIGNED
 STATUS_UNASSIGNED = StopStatus.UNASSIGNED
 STATUS_OUT_OF_SEQUENCE = StopStatus.OUT_OF_SEQUENCE
 STATUS_NOT_IN_ORDER = StopStatus.NOT_IN_ORDER
+STATUS_INITIAL_REST = StopStatus.INITIAL_REST
 STATUS_NAMES = tuple(s.name.lower() for s in StopStatus)
 
 #: accepted sampling rates, Hz (with a little slack for clock jitter)
 RATE_RANGE_HZ = (10.0, 3000.0)
+#: the assignment tolerance is at least this many times the tracker's noise
+ASSIGN_NOISE_FACTOR = 20.0
 
 
 @dataclass(frozen=True)
@@ -200,15 +204,24 @@ class Stops:
     pose : ndarray of int, (K,)
         Index of the commanded pose, -1 if none.
     cycle : ndarray of int, (K,)
-        Cycle number (0-based, counted from the first assigned stop), -1 if none.
+        Cycle number (0-based, counted from the first moved stop), -1 if none;
+        -1 also for the rest before the first move when it counts and the
+        first moved stop opens a cycle (the rest ends the cycle before).
     seq : ndarray of int, (K,)
-        Position in the unrolled commanded order (cycle * L + k), -1 if none.
+        Position in the unrolled commanded order (cycle * L + k), -1 if none
+        (and for the counted rest before a cycle's first stop).
     distance_to_pose_mm : ndarray, (K,)
         Distance to the nearest commanded pose, mm.
     nearest_pose : ndarray of int, (K,)
         Index of the nearest commanded pose (even when unassigned).
     status : ndarray of int, (K,)
         One of the ``STATUS_*`` codes.
+    initial : ndarray of bool, (K,)
+        The stop is the rest before the first move (only the first stop can
+        be): it has no move into it (``i_move_start`` = its phase start,
+        ``approach_unit`` zero). It counts as a stop of the pose it stands at
+        when the commanded order puts that pose right before the first moved
+        stop; otherwise its status is ``INITIAL_REST``.
     """
 
     row: np.ndarray
@@ -232,6 +245,7 @@ class Stops:
     distance_to_pose_mm: np.ndarray
     nearest_pose: np.ndarray
     status: np.ndarray
+    initial: np.ndarray
 
     @property
     def n(self) -> int:
@@ -288,7 +302,9 @@ class Extraction:
     moves_i : ndarray of int, (R, 3)
         Every move found: used-sample indices of start, speed peak, end.
     initial_rest_i : tuple of int or None
-        Rest before the first move (used-sample index range), not a stop.
+        Rest before the first move (used-sample index range); its
+        least-velocity horizon is the first stop when one fits
+        (``stops.initial``).
     trailing_motion : bool
         The stream ends while the tool moves (last move has no stop).
     n_cycles : int
@@ -385,13 +401,13 @@ def validate_stream(t_s, xyz_mm, valid=None, *, extra=None):
     bad = ~np.isfinite(t)
     if bad.any():
         i = int(np.argmax(bad))
-        raise DataError(f"t_s is not finite at row {row(i)} ({t[i]!r})")
+        raise DataError(f"t_s is not finite at row {row(i)} ({float(t[i])})")
     for k, name in enumerate("xyz"):
         bad = ~np.isfinite(xyz[:, k])
         if bad.any():
             i = int(np.argmax(bad))
             raise DataError(
-                f"xyz_mm column {name} is not finite at row {row(i)} ({xyz[i, k]!r}); "
+                f"xyz_mm column {name} is not finite at row {row(i)} ({float(xyz[i, k])}); "
                 f"flag such rows invalid (status) instead of writing NaN"
             )
     for key, v in extra.items():
@@ -404,10 +420,10 @@ def validate_stream(t_s, xyz_mm, valid=None, *, extra=None):
         dt = np.diff(t)
         i = int(np.argmax(nonpos))
         if dt[i] == 0:
-            raise DataError(f"t_s has duplicate timestamps at rows {row(i)} and {row(i + 1)} (t = {t[i]!r} s)")
+            raise DataError(f"t_s has duplicate timestamps at rows {row(i)} and {row(i + 1)} (t = {float(t[i])} s)")
         raise DataError(
-            f"t_s is not sorted: row {row(i + 1)} (t = {t[i + 1]!r} s) comes after row {row(i)} "
-            f"(t = {t[i]!r} s)"
+            f"t_s is not sorted: row {row(i + 1)} (t = {float(t[i + 1])} s) comes after row {row(i)} "
+            f"(t = {float(t[i])} s)"
         )
     return t, xyz, rows_used, extra
 
@@ -700,6 +716,7 @@ def extract_attained_poses(
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
     approach_final_mm: float = 50.0,
+    initial_rest_stop: bool = False,
 ) -> Extraction:
     """Attained poses of a continuous stream, assigned to commanded poses and cycles.
 
@@ -756,6 +773,16 @@ def extract_attained_poses(
     approach_final_mm : float
         Length of the final stretch of a move that gives its approach
         direction (``Stops.approach_unit``; vAP groups stops by it), mm.
+    initial_rest_stop : bool
+        The rest before the first move (at least ``min_dwell_s`` long) is a
+        stop of the pose it stands at, when the commanded order puts that pose
+        right before the first moved stop: that pose gets its first attained
+        pose and the first move its posing time (a lab program P1, P2, ..., P5
+        started at rest at P1). Default False, the seed's convention (3.1.3:
+        the waiting interval before the first move is not extracted); the
+        procedure keeps it so that a resumed run, which starts its stream at
+        rest at P1 after ``home``, counts the same stops as an uninterrupted
+        one. ``station analyze`` counts it unless ``--initial-rest skip``.
 
     Returns
     -------
@@ -775,7 +802,7 @@ def extract_attained_poses(
         velocity_step_s=velocity_step_s, M=M, Mp=Mp,
         smooth_s=smooth_s, v_rest_mm_s=v_rest_mm_s, min_move_mm=min_move_mm, min_dwell_s=min_dwell_s,
         gap_factor=gap_factor, break_factor=break_factor, assign_tol_mm=assign_tol_mm,
-        min_fallback_M=min_fallback_M, approach_final_mm=approach_final_mm,
+        min_fallback_M=min_fallback_M, approach_final_mm=approach_final_mm, initial_rest_stop=initial_rest_stop,
     )
 
 
@@ -801,6 +828,7 @@ def extract_validated(
     assign_tol_mm: float = 25.0,
     min_fallback_M: int = 1,
     approach_final_mm: float = 50.0,
+    initial_rest_stop: bool = False,
 ) -> Extraction:
     """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`.
 
@@ -812,7 +840,7 @@ def extract_validated(
                        ("break_factor", break_factor), ("assign_tol_mm", assign_tol_mm),
                        ("approach_final_mm", approach_final_mm)):
         if not (np.isfinite(val) and val > 0):
-            raise DataError(f"{pname} must be finite and > 0, got {val!r}")
+            raise DataError(f"{pname} must be finite and > 0, got {float(val)}")
     if gap_factor <= 1.0 or break_factor < gap_factor:
         raise DataError(f"need 1 < gap_factor <= break_factor, got {gap_factor}, {break_factor}")
     n = t.size
@@ -891,7 +919,7 @@ def extract_validated(
     if starts.size == 0:
         raise InsufficientDataError(
             f"no move found in the stream: the moving-average speed never exceeded "
-            f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm"
+            f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm (a held pose? `station analyze hold`)"
         )
     R = starts.size
     # speed peak of each move: the first sample of the run's largest moving-average speed
@@ -931,25 +959,30 @@ def extract_validated(
     wM = np.where(center >= 0, M, 0)
     fallback = np.zeros(R, bool)
     failed: list[FailedPhase] = []
+
+    def rest_horizon(rs: int, pe: int):
+        """(mean, centre, sum, M') of the best horizon at rest in samples rs..pe, split at beam breaks; or None."""
+        best = None
+        cuts = brk[(brk >= rs) & (brk < pe)]
+        for a, b in zip(np.concatenate([[rs], cuts + 1]), np.concatenate([cuts, [pe]])):  # pieces
+            a, b = int(a), int(b)
+            inv_local = invalid[(invalid >= a) & (invalid <= b)] - a
+            for m in range(min(M, (b - a) // 2), min_fallback_M - 1, -1):
+                mp = max(1, int(round(m * Mp / M)))
+                c1, s1 = least_velocity_windows(v[a : b + 1], m, mp, np.array([0]), np.array([b - a]),
+                                                inv_local, origin=a)
+                if c1[0] >= 0 and not u[c1[0] + a] > v_rest:
+                    mean = s1[0] / (2 * m + 1)
+                    if best is None or mean < best[0]:
+                        best = (mean, c1[0] + a, s1[0], m)
+                    break
+        return best
+
     for r in np.flatnonzero(special | (center < 0)):  # loop over the few special phases
         pe = int(phase_end[r])
         rs = int(max(phase_start[r], ends[r] + 1))  # the rest part of the phase
         center[r], wsum[r], wM[r] = -1, np.nan, 0
-        best = None
-        if special[r]:
-            cuts = brk[(brk >= rs) & (brk < pe)]
-            for a, b in zip(np.concatenate([[rs], cuts + 1]), np.concatenate([cuts, [pe]])):  # pieces
-                a, b = int(a), int(b)
-                inv_local = invalid[(invalid >= a) & (invalid <= b)] - a
-                for m in range(min(M, (b - a) // 2), min_fallback_M - 1, -1):
-                    mp = max(1, int(round(m * Mp / M)))
-                    c1, s1 = least_velocity_windows(v[a : b + 1], m, mp, np.array([0]), np.array([b - a]),
-                                                    inv_local, origin=a)
-                    if c1[0] >= 0 and not u[c1[0] + a] > v_rest:
-                        mean = s1[0] / (2 * m + 1)
-                        if best is None or mean < best[0]:
-                            best = (mean, c1[0] + a, s1[0], m)
-                        break
+        best = rest_horizon(rs, pe) if special[r] else None
         if best is not None:
             _, center[r], wsum[r], wM[r] = best
             fallback[r] = True
@@ -964,20 +997,48 @@ def extract_validated(
         else:
             reason = f"the rest ({max(pe - rest0 + 1, 0)} samples) holds no window of 3 samples"
         failed.append(FailedPhase(ps, pe, int(to_row(ps)), int(to_row(pe)), float(t[ps]), float(t[pe]), reason))
+    # the rest before the first move: a stop when it lasts a dwell and holds a horizon at rest
+    init = None  # (centre, sum, M', fallback)
+    if initial_rest_stop and initial_rest is not None and t[initial_rest[1]] - t[0] >= min_dwell:
+        b0 = initial_rest[1]
+        c0, s0 = least_velocity_windows(v, M, Mp, np.array([0]), np.array([b0]), invalid)
+        if c0[0] >= 0 and not u[c0[0]] > v_rest and not np.any((brk >= 0) & (brk < b0)):
+            init = (int(c0[0]), float(s0[0]), M, False)
+        else:
+            best = rest_horizon(0, b0)
+            if best is not None:
+                init = (int(best[1]), float(best[2]), int(best[3]), True)
     del v, u
     ok = center >= 0
     ci = center[ok]
-    pos = xyz[ci].copy()
     mstart = starts[ok]
+    ph_start, ph_end = phase_start[ok], phase_end[ok]
+    wsum_k, wM_k, fb_k = wsum[ok], wM[ok], fallback[ok]
+    if init is not None:
+        ci = np.concatenate([[init[0]], ci]).astype(np.int64)
+        mstart = np.concatenate([[0], mstart]).astype(np.int64)
+        ph_start = np.concatenate([[0], ph_start]).astype(np.int64)
+        ph_end = np.concatenate([[initial_rest[1]], ph_end]).astype(np.int64)
+        wsum_k = np.concatenate([[init[1]], wsum_k])
+        wM_k = np.concatenate([[init[2]], wM_k])
+        fb_k = np.concatenate([[init[3]], fb_k])
+    initial = np.zeros(ci.size, bool)
+    if init is not None:
+        initial[0] = True
+    pos = xyz[ci].copy()
     app_len = np.linalg.norm(pos - xyz[mstart], axis=1)
     app_from = final_approach_start(xyz, mstart, ci, approach_final_mm)
     app = pos - xyz[app_from]
     with np.errstate(invalid="ignore", divide="ignore"):
         n_app = np.linalg.norm(app, axis=1)
         app_unit = np.where(n_app[:, None] > 0, app / n_app[:, None], 0.0)
+    app_unit[initial] = 0.0
+    app_len[initial] = 0.0
     gap_app = (np.searchsorted(brk, ci, side="left") - np.searchsorted(brk, mstart, side="left")) > 0
+    gap_app[initial] = False
 
     # --- assignment to commanded poses
+    assign_tol_mm = max(float(assign_tol_mm), ASSIGN_NOISE_FACTOR * noise)
     d = np.linalg.norm(pos[:, None, :] - commanded[None, :, :], axis=2)  # (K, P)
     nearest = np.argmin(d, axis=1) if d.size else np.zeros(0, np.int64)
     dist = d[np.arange(d.shape[0]), nearest] if d.size else np.zeros(0)
@@ -986,16 +1047,33 @@ def extract_validated(
     in_order = np.zeros(commanded.shape[0], bool)
     in_order[list(order_idx)] = True
     status[(status == STATUS_ASSIGNED) & ~in_order[nearest]] = STATUS_NOT_IN_ORDER
+    if initial.any() and status[0] != STATUS_ASSIGNED:
+        status[0] = STATUS_INITIAL_REST  # standing away from the poses (e.g. at home): not a stop of the order
     pose = np.where(status == STATUS_ASSIGNED, nearest, -1)
     t_stop = t[ci]
-    if order is None and np.any(pose >= 0):
-        # default order: the poses as listed, one cycle starting at the first stop
-        first = int(pose[np.argmax(pose >= 0)])
-        k0 = order_idx.index(first)
+    moved = np.flatnonzero((pose >= 0) & ~initial)
+    if order is None and moved.size:
+        # default order: the poses as listed, one cycle starting at the first moved stop
+        k0 = order_idx.index(int(pose[moved[0]]))
         order_idx = order_idx[k0:] + order_idx[:k0]
-    seq, cycle, missing, st2 = _walk_order(
-        pose, t_stop, order_idx, names, brk, t, failed
-    )
+    count_initial = False
+    if initial.any() and pose[0] >= 0:
+        # the rest counts when the order puts its pose right before the first moved stop
+        q = order_idx.index(int(pose[moved[0]])) if moved.size else 1
+        count_initial = not moved.size or order_idx[(q - 1) % len(order_idx)] == pose[0]
+        if not count_initial:
+            status[0] = STATUS_INITIAL_REST
+        pose_walk = pose.copy()
+        pose_walk[0] = -1
+    else:
+        pose_walk = pose
+    seq, cycle, missing, st2 = _walk_order(pose_walk, t_stop, order_idx, names, brk, t, failed)
+    if count_initial:
+        # the position before the first moved stop's: in the cycle before the first (-1) when that
+        # stop opens a cycle, as the seed's rest at P1 before P2, P3, P4, P5, P1
+        k1 = int(moved[0]) if moved.size else -1
+        seq[0] = seq[k1] - 1 if k1 >= 0 and seq[k1] >= 0 else 0
+        cycle[0] = seq[0] // len(order_idx)
     status = np.where((status == STATUS_ASSIGNED) & (st2 == STATUS_OUT_OF_SEQUENCE), STATUS_OUT_OF_SEQUENCE, status)
     pose = np.where(status == STATUS_ASSIGNED, pose, -1)
     L = len(order_idx)
@@ -1004,16 +1082,16 @@ def extract_validated(
     stops = Stops(
         row=np.asarray(to_row(ci), dtype=np.int64),
         i_center=ci,
-        i_window_first=ci - wM[ok],
-        i_window_last=ci + wM[ok],
-        i_phase_start=phase_start[ok],
-        i_phase_end=phase_end[ok],
+        i_window_first=ci - wM_k,
+        i_window_last=ci + wM_k,
+        i_phase_start=ph_start,
+        i_phase_end=ph_end,
         i_move_start=mstart,
         t_s=t_stop,
         position_mm=pos,
-        window_sum_mm_s=wsum[ok],
-        window_M=wM[ok].astype(np.int64),
-        fallback=fallback[ok],
+        window_sum_mm_s=wsum_k,
+        window_M=wM_k.astype(np.int64),
+        fallback=fb_k,
         approach_unit=app_unit,
         approach_mm=app_len,
         gap_in_approach=gap_app,
@@ -1023,6 +1101,7 @@ def extract_validated(
         distance_to_pose_mm=dist,
         nearest_pose=nearest.astype(np.int64),
         status=status,
+        initial=initial,
     )
     warnings = []
     if K and np.any(stops.fallback):

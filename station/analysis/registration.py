@@ -105,6 +105,47 @@ def fit_rigid(p_base_mm, p_tracker_mm) -> Registration:
     return Registration(R=R, t_mm=t, residuals_mm=res, rms_mm=float(np.sqrt(np.mean(res**2))), n=int(a.shape[0]))
 
 
+#: a fit rms above this many times the points' 3-D noise (sqrt(3) x per-axis) means the pairs do not match
+RMS_NOISE_FACTOR = 10.0
+
+
+def registration_from_transform(R, t_mm) -> Registration:
+    """A :class:`Registration` from a given transform ``p_tracker = R @ p_base + t_mm`` (no fit, no residuals).
+
+    Raises DataError when ``R`` is not a proper rotation (orthonormal to 1e-6, determinant +1).
+    """
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t_mm, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise DataError(f"R must be a finite 3x3 array, got shape {R.shape}")
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise DataError(f"t_mm must be 3 finite numbers, got shape {t.shape}")
+    off = float(np.abs(R.T @ R - np.eye(3)).max())
+    if off > 1e-6:
+        raise DataError(f"R is not a rotation: R^T R differs from the identity by {off:.3g}")
+    if np.linalg.det(R) < 0:
+        raise DataError("R is a reflection (determinant -1), not a rotation")
+    return Registration(R=R, t_mm=t, residuals_mm=np.zeros(0), rms_mm=0.0, n=0)
+
+
+def rms_allowance_mm(noise_mm: float, robot_error_mm: float | None = None) -> float:
+    """Largest registration fit rms that matched point pairs explain, mm.
+
+    The residual of a right fit is the noise of its points: the tracker's
+    (``noise_mm`` per axis, so ``sqrt(3) noise_mm`` in 3-D) and, when the
+    base-frame points are positions the robot was commanded to, the robot's
+    own error there (``robot_error_mm``, e.g. its AP limit). A fit rms more
+    than :data:`RMS_NOISE_FACTOR` times the tracker's 3-D noise, and above the
+    robot's error, comes from mismatched pairs (order, units, frames).
+    """
+    if not (np.isfinite(noise_mm) and noise_mm >= 0):
+        raise DataError(f"noise_mm must be finite and >= 0, got {noise_mm!r}")
+    allow = RMS_NOISE_FACTOR * float(np.sqrt(3.0)) * float(noise_mm)
+    if robot_error_mm is not None:
+        allow = max(allow, float(robot_error_mm))
+    return allow
+
+
 @dataclass(frozen=True)
 class Circle3D:
     """A circle in space: ``centre_mm`` (3,), unit ``normal`` (3,), ``radius_mm``, ``rms_mm`` of the fit."""

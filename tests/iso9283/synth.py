@@ -235,3 +235,33 @@ def iso_stream(rng, *, n_cycles=30, rate_hz=200.0, offsets_mm=None, scatter_mm=0
 def random_offsets(rng, scale_mm=3.0, P=5):
     """Systematic attained-pose offsets per pose, like seed Table 3 (a few mm)."""
     return rng.normal(0.0, scale_mm, (P, 3))
+
+
+@dataclass
+class Counted:
+    """The stops the analysis counts in a seed-cycle stream: the rest before the first move, then the programme's.
+
+    The rest stands at the true start (P1, which the seed's cycle P2, P3, P4, P5, P1 puts right before
+    the first moved stop): it ends the cycle before the first, cycle -1. ``index`` maps each counted
+    stop to its programme stop (-1 for the rest).
+    """
+
+    target_mm: np.ndarray
+    pose: np.ndarray
+    cycle: np.ndarray
+    t_arrive: np.ndarray
+    t_depart: np.ndarray
+    index: np.ndarray
+
+
+def counted_stops(s: Stream, start_pose: int = 0) -> Counted:
+    prog = s.prog
+    j = np.arange(prog.pose.size)
+    return Counted(
+        target_mm=np.vstack([s.start_mm[None, :], prog.target_mm]),
+        pose=np.concatenate([[start_pose], prog.pose]),
+        cycle=np.concatenate([[-1], prog.cycle]),
+        t_arrive=np.concatenate([[s.t[0]], s.t_arrive]),
+        t_depart=np.concatenate([[s.t_move_start[0]], s.t_depart]),
+        index=np.concatenate([[-1], j]),
+    )

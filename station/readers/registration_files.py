@@ -1,0 +1,105 @@
+"""Files that tie the tracker frame to the robot base frame.
+
+* frame JSON (``--frame``): the transform as the ``register base frame`` step of
+  ``station run`` journals it, ``{"R": [[3x3]], "t_mm": [3], ...}`` with
+  ``p_tracker = R @ p_base + t_mm``; the object may also sit under a key
+  ``"register base frame"`` or ``"frame"``. Further keys (``rms_mm``,
+  ``method``, ...) are kept as information.
+* registration CSV (``--register``): point pairs measured in both frames,
+  ``name,base_x,base_y,base_z,tracker_x,tracker_y,tracker_z`` (mm), at least three.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import DataError
+from station.readers.text import numbered_lines, parse_number
+
+PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
+
+
+def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise DataError(f"{p}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{p}: not UTF-8 text") from None
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{p}: line {exc.lineno}: not JSON ({exc.msg})") from None
+    if isinstance(obj, dict):
+        for key in ("register base frame", "frame"):
+            if isinstance(obj.get(key), dict):
+                obj = obj[key]
+                break
+    if not isinstance(obj, dict) or "R" not in obj or "t_mm" not in obj:
+        raise DataError(f"{p}: expected an object with keys 'R' (3x3) and 't_mm' (3 numbers), "
+                        "p_tracker = R @ p_base + t_mm")
+    try:
+        R = np.array(obj["R"], dtype=float)
+    except (TypeError, ValueError):
+        raise DataError(f"{p}: key 'R': not a 3x3 array of numbers") from None
+    try:
+        t = np.array(obj["t_mm"], dtype=float)
+    except (TypeError, ValueError):
+        raise DataError(f"{p}: key 't_mm': not 3 numbers") from None
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise DataError(f"{p}: key 'R': need a finite 3x3 array, got shape {R.shape}")
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise DataError(f"{p}: key 't_mm': need 3 finite numbers, got shape {t.shape}")
+    return R, t, obj
+
+
+def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
+    p = Path(path)
+    header = None
+    names, base, trk = [], [], []
+    for ln, line in numbered_lines(p):
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        if header is None:
+            header = [c.lower() for c in cells]
+            missing = [c for c in PAIR_COLUMNS if c not in header]
+            if missing:
+                raise DataError(f"{p}: line {ln}: missing column(s) {', '.join(missing)} "
+                                f"(a registration file has {','.join(PAIR_COLUMNS)})")
+            continue
+        if len(cells) != len(header):
+            raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
+        c = dict(zip(header, cells))
+        if not c["name"]:
+            raise DataError(f"{p}: line {ln}, column 'name': empty")
+        if c["name"] in names:
+            raise DataError(f"{p}: line {ln}, column 'name': duplicate point {c['name']!r}")
+        names.append(c["name"])
+        base.append([parse_number(c[f"base_{a}"], p, ln, f"base_{a}") for a in "xyz"])
+        trk.append([parse_number(c[f"tracker_{a}"], p, ln, f"tracker_{a}") for a in "xyz"])
+    if header is None:
+        raise DataError(f"{p}: line 1: empty file or missing header")
+    if len(names) < 3:
+        raise DataError(f"{p}: a registration needs at least 3 point pairs (not on one line), got {len(names)}")
+    return names, np.array(base), np.array(trk)
+
+
+def frame_info_text(obj: dict) -> str:
+    """One line about a frame file's own figures (method, rms), when it has them."""
+    parts = []
+    if isinstance(obj.get("method"), str):
+        parts.append(f"method {obj['method']}")
+    rms = obj.get("rms_mm")
+    if isinstance(rms, (int, float)) and math.isfinite(rms):
+        parts.append(f"rms {float(rms):.3f} mm")
+    return ", ".join(parts)

@@ -1,0 +1,123 @@
+"""Stop lists: one averaged point per stop (and per reflector), ``pose,cycle,x,y,z[,reflector][,approach]``.
+
+* ``pose``: the commanded pose's name; ``cycle``: an integer;
+* ``x, y, z``: mm (in the tracker frame, or the base frame when no registration is given);
+* ``reflector`` (optional): with several reflectors on the flange, one row per
+  reflector and stop; every stop must carry the same set of reflectors;
+* ``approach`` (optional): a label of the direction the stop was approached
+  from (e.g. ``+x``); a stop is one pose, cycle and approach (the
+  multi-directional test approaches each pose from three sides per cycle).
+
+The rows of one stop need not be adjacent. Stops keep the order of their first row.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import DataError
+from station.readers.text import MAX_ROWS, numbered_lines, parse_number
+
+REQUIRED = ("pose", "cycle", "x", "y", "z")
+OPTIONAL = ("reflector", "approach")
+
+
+@dataclass(frozen=True)
+class StopList:
+    """Stops of a stop list, shape (K,) each; ``points_mm`` (K, R, 3) with R reflectors (1 without the column).
+
+    ``reflectors`` names the R reflectors (sorted; ``("",)`` without the column);
+    ``approach`` is None without the column; ``lines`` (K, R) are the file lines.
+    """
+
+    pose: tuple[str, ...]
+    cycle: np.ndarray
+    points_mm: np.ndarray
+    reflectors: tuple[str, ...]
+    approach: tuple[str, ...] | None
+    lines: np.ndarray
+    source: str
+
+    @property
+    def n(self) -> int:
+        return len(self.pose)
+
+    @property
+    def centroid_mm(self) -> np.ndarray:
+        """(K, 3): the reflectors' centroid of each stop (the stop's position)."""
+        return self.points_mm.mean(axis=1)
+
+
+def _stop_name(pose: str, cycle: int, approach: str | None) -> str:
+    return f"pose {pose} cycle {cycle}" + ("" if approach is None else f" approach {approach}")
+
+
+def read_stop_list(path) -> StopList:
+    """Read a stop list CSV; DataError naming file, line and column for anything malformed."""
+    p = Path(path)
+    header = None
+    rows = []
+    for ln, line in numbered_lines(p):
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        if header is None:
+            header = [c.lower() for c in cells]
+            missing = [c for c in REQUIRED if c not in header]
+            if missing:
+                raise DataError(f"{p}: line {ln}: missing column(s) {', '.join(missing)} "
+                                f"(a stop list has {','.join(REQUIRED)}[,reflector][,approach])")
+            unknown = [c for c in header if c not in REQUIRED + OPTIONAL]
+            if unknown:
+                raise DataError(f"{p}: line {ln}: unknown column(s) {', '.join(unknown)}")
+            if len(set(header)) != len(header):
+                raise DataError(f"{p}: line {ln}: a column appears twice")
+            continue
+        if len(cells) != len(header):
+            raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
+        c = dict(zip(header, cells))
+        if not c["pose"]:
+            raise DataError(f"{p}: line {ln}, column 'pose': empty")
+        try:
+            cyc = int(c["cycle"])
+        except ValueError:
+            raise DataError(f"{p}: line {ln}, column 'cycle': {c['cycle'][:40]!r} is not an integer") from None
+        xyz = [parse_number(c[k], p, ln, k) for k in ("x", "y", "z")]
+        for k in OPTIONAL:
+            if k in c and not c[k]:
+                raise DataError(f"{p}: line {ln}, column {k!r}: empty")
+        rows.append((c["pose"], cyc, c.get("reflector", ""), c.get("approach"), xyz, ln))
+        if len(rows) > MAX_ROWS:
+            raise DataError(f"{p}: more than {MAX_ROWS} rows")
+    if header is None:
+        raise DataError(f"{p}: line 1: empty file or missing header")
+    if not rows:
+        raise DataError(f"{p}: no stops after the header")
+    stops: dict[tuple[str, int, str | None], dict] = {}
+    for pose, cyc, refl, app, xyz, ln in rows:
+        s = stops.setdefault((pose, cyc, app), {"refl": {}, "line0": ln})
+        if refl in s["refl"]:
+            raise DataError(f"{p}: line {ln}: {_stop_name(pose, cyc, app)}"
+                            + (f" reflector {refl}" if refl else "")
+                            + f" appears twice (first on line {s['refl'][refl][1]})")
+        s["refl"][refl] = (xyz, ln)
+    all_refl = sorted({r for s in stops.values() for r in s["refl"]})
+    for (pose, cyc, app), s in stops.items():
+        lack = [r for r in all_refl if r not in s["refl"]]
+        if lack:
+            lines = ", ".join(str(v[1]) for v in s["refl"].values())
+            raise DataError(f"{p}: {_stop_name(pose, cyc, app)} (line(s) {lines}) has no row for reflector(s) "
+                            f"{', '.join(lack)}; every stop must carry every reflector ({', '.join(all_refl)})")
+    keys = list(stops)
+    pts = np.array([[stops[k]["refl"][r][0] for r in all_refl] for k in keys], dtype=float)
+    lines = np.array([[stops[k]["refl"][r][1] for r in all_refl] for k in keys], dtype=np.int64)
+    has_app = "approach" in header
+    return StopList(pose=tuple(k[0] for k in keys), cycle=np.array([k[1] for k in keys], dtype=np.int64),
+                    points_mm=pts, reflectors=tuple(all_refl),
+                    approach=tuple(k[2] for k in keys) if has_app else None,
+                    lines=lines, source=str(p))

@@ -1,0 +1,174 @@
+"""The project's tracker stream CSV ``t,x,y,z[,status][,a,b,c]`` and poses CSV ``name,x,y,z[,a,b,c]``.
+
+* stream: ``t`` (s), ``x, y, z`` (mm); rows whose ``status`` is not ``0``/``ok``/
+  ``valid`` are flagged invalid (e.g. a broken beam) and may hold empty or NaN
+  positions; optional ``a, b, c`` (deg, 6-DOF orientation).
+* poses: one commanded pose per row, ``name`` unique.
+
+The time column is read as it stands; whether it can serve as the time base
+(sorted, fine enough, consistent with the sample count) is decided by
+:mod:`station.analysis.time_base`.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import DataError
+from station.readers.stream import PointStream
+
+#: status values that mean "valid sample" (case-insensitive)
+OK_STATUS = ("0", "ok", "valid")
+STREAM_REQUIRED = ("t", "x", "y", "z")
+ORIENTATION = ("a", "b", "c")
+
+
+def _header(path: Path) -> list[str]:
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            first = f.readline()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: line 1: not UTF-8 text") from exc
+    if not first.strip():
+        raise DataError(f"{path}: line 1: empty file or missing header")
+    return [h.strip() for h in next(csv.reader([first]))]
+
+
+def _scan_for_error(path: Path, header: list[str], float_cols: list[str]) -> None:
+    """Find the first malformed line and raise a DataError naming it (slow path)."""
+    pos = {c: header.index(c) for c in float_cols}
+    with open(path, newline="", encoding="utf-8-sig", errors="strict") as f:
+        reader = csv.reader(f)
+        next(reader)
+        for row in reader:
+            ln = reader.line_num
+            if len(row) != len(header):
+                raise DataError(f"{path}: line {ln}: {len(row)} fields, the header has {len(header)}")
+            for c, k in pos.items():
+                cell = row[k].strip()
+                try:
+                    float(cell)
+                except ValueError:
+                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not a number") from None
+    raise DataError(f"{path}: could not be parsed as CSV")
+
+
+def _status_ok(value: str) -> bool:
+    """``0`` (any numeric zero), ``ok`` or ``valid`` mean a valid sample."""
+    v = value.strip().lower()
+    if v in OK_STATUS:
+        return True
+    try:
+        return float(v) == 0.0
+    except ValueError:
+        return False
+
+
+def read_stream_csv(path) -> PointStream:
+    """Read a tracker stream CSV; DataError naming file, line and column for anything malformed.
+
+    NaN or empty positions are accepted only in rows flagged invalid by ``status``.
+    """
+    path = Path(path)
+    header = _header(path)
+    missing = [c for c in STREAM_REQUIRED if c not in header]
+    if missing:
+        raise DataError(f"{path}: line 1: missing column(s) {', '.join(missing)} (need t,x,y,z)")
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise DataError(f"{path}: line 1: duplicate column(s) {', '.join(dup)}")
+    abc = [c for c in ORIENTATION if c in header]
+    if abc and len(abc) != 3:
+        raise DataError(f"{path}: line 1: orientation needs all of a,b,c, got {','.join(abc)}")
+    floats = list(STREAM_REQUIRED) + abc
+    has_status = "status" in header
+    import pyarrow as pa
+    from pyarrow import csv as pacsv
+
+    try:
+        types = {c: pa.float64() for c in floats}
+        if has_status:
+            types["status"] = pa.string()
+        table = pacsv.read_csv(
+            str(path),
+            parse_options=pacsv.ParseOptions(ignore_empty_lines=False),
+            convert_options=pacsv.ConvertOptions(column_types=types, include_columns=floats
+                                                 + (["status"] if has_status else []),
+                                                 strings_can_be_null=False),
+        )
+    except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError):
+        _scan_for_error(path, header, floats)
+        raise  # pragma: no cover  (_scan_for_error always raises)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from exc
+    out = {c: table.column(c).to_numpy(zero_copy_only=False).astype(float) for c in floats}
+    n = table.num_rows
+    if n == 0:
+        raise DataError(f"{path}: no data rows after the header")
+    if has_status:
+        uniq, inv = np.unique(np.asarray(table.column("status").to_pylist(), dtype=str), return_inverse=True)
+        valid = np.array([_status_ok(u) for u in uniq], dtype=bool)[inv.ravel()]
+    else:
+        valid = np.ones(n, bool)
+    for c in floats:
+        bad = ~np.isfinite(out[c]) if c == "t" else (~np.isfinite(out[c]) & valid)
+        if bad.any():
+            r = int(np.argmax(bad))
+            what = "empty or not a number" if np.isnan(out[c][r]) else f"{float(out[c][r])} is not finite"
+            hint = "" if c == "t" else " (flag such rows with a status instead)"
+            raise DataError(f"{path}: line {r + 2}, column {c!r}: {what}{hint}")
+    xyz = np.stack([out["x"], out["y"], out["z"]], axis=1)
+    abc_deg = np.stack([out["a"], out["b"], out["c"]], axis=1) if abc else None
+    return PointStream(xyz_mm=xyz, t_s=out["t"], valid=valid, line=np.arange(n, dtype=np.int64) + 2,
+                       abc_deg=abc_deg, fmt="csv", source=str(path))
+
+
+def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
+    """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None."""
+    path = Path(path)
+    header = _header(path)
+    need = ("name", "x", "y", "z")
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise DataError(f"{path}: line 1: missing column(s) {', '.join(missing)} (need name,x,y,z)")
+    abc = [c for c in ORIENTATION if c in header]
+    if abc and len(abc) != 3:
+        raise DataError(f"{path}: line 1: orientation needs all of a,b,c, got {','.join(abc)}")
+    cols = ["x", "y", "z"] + abc
+    names, rows = [], []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f)
+        next(reader)
+        for row in reader:
+            ln = reader.line_num
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise DataError(f"{path}: line {ln}: {len(row)} fields, the header has {len(header)}")
+            name = row[header.index("name")].strip()
+            if not name:
+                raise DataError(f"{path}: line {ln}, column 'name': empty")
+            if name in names:
+                raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name!r}")
+            vals = []
+            for c in cols:
+                cell = row[header.index(c)].strip()
+                try:
+                    v = float(cell)
+                except ValueError:
+                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not a number") from None
+                if not math.isfinite(v):
+                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not finite")
+                vals.append(v)
+            names.append(name)
+            rows.append(vals)
+    if not rows:
+        raise DataError(f"{path}: no poses after the header")
+    arr = np.array(rows)
+    return names, arr[:, :3], (arr[:, 3:] if abc else None)
