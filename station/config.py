@@ -196,7 +196,23 @@ class TrailerConfig(_Strict):
 class StationSection(_Strict):
     name: str = Field(min_length=1)
     store_path: str = "station.sqlite"
+    #: the plant's central store the station forwards its runs to (``postgresql://user@host:port/db``,
+    #: password by ``?password_env=VAR`` or ``?password_file=PATH``, never in the URL); None: local only
+    store_url: str | None = None
     report_dir: str = "reports"
+
+    @field_validator("store_url")
+    @classmethod
+    def _check_store_url(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        from station.store.url import parse_pg_url
+
+        try:
+            parse_pg_url(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("store_url: ")) from None
+        return v
 
     def store_file(self, base: Path) -> Path:
         """The store's path; a relative one is relative to ``base`` (the config's folder)."""
