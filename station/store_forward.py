@@ -284,6 +284,9 @@ class Forwarder:
         if self._thread is not None:
             self._thread.join(timeout_s)
 
+    def is_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
     def __enter__(self) -> "Forwarder":
         return self.start()
 
