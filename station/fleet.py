@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from station.errors import ConfigError
 from station.fleet_trend import benjamini_hochberg, trends
 from station.store import RunStore
 
@@ -119,9 +120,9 @@ def drifting(store: RunStore, name: str, *, model: str | None = None, q_max: flo
     Returns the drifting robots, largest slope first, with slope, p and q.
     """
     if not 0 < q_max < 1:
-        raise ValueError(f"q_max must be between 0 and 1, got {q_max}")
+        raise ConfigError(f"q_max must be between 0 and 1, got {q_max}")
     if min_runs < 3:
-        raise ValueError(f"min_runs must be at least 3 (a slope and its scatter), got {min_runs}")
+        raise ConfigError(f"min_runs must be at least 3 (a slope and its scatter), got {min_runs}")
     rows = [r for r in since_overhaul(store, name, model=model) if r["runs_since"] >= min_runs]
     out = []
     for m in sorted({r["model"] for r in rows}):

@@ -33,6 +33,7 @@ import zlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+from station.errors import ConfigError
 from station.store import RunStore, StoreError, StoreUnavailable
 
 FINAL = ("done", "failed", "aborted")
@@ -80,7 +81,7 @@ def push(local: RunStore, central: RunStore, *, station: str, run_ids: Iterable[
     in its :class:`RunPush` and the others go on.
     """
     if chunk_batches < 1:
-        raise ValueError(f"chunk_batches must be at least 1, got {chunk_batches}")
+        raise ConfigError(f"chunk_batches must be at least 1, got {chunk_batches}")
     wanted = list(run_ids) if run_ids is not None else _runs_to_push(local)
     report = PushReport()
     for run_id in wanted:
@@ -264,7 +265,7 @@ class Forwarder:
                  max_pause_s: float = 60.0, chunk_batches: int = 200, connect_timeout_s: float = 5.0,
                  on_pass: Callable[[PushReport | None, BaseException | None], None] | None = None) -> None:
         if interval_s <= 0:
-            raise ValueError(f"interval_s must be positive, got {interval_s}")
+            raise ConfigError(f"interval_s must be positive, got {interval_s}")
         self.local_target, self.central_target = local_target, central_target
         self.station, self.interval_s, self.max_pause_s = station, interval_s, max_pause_s
         self.chunk_batches, self.connect_timeout_s, self.on_pass = chunk_batches, connect_timeout_s, on_pass
