@@ -9,6 +9,8 @@ plant's server would run), writes a local SQLite store with one run of
 1 kHz), pushes it with :func:`station.store_forward.push` and checks that the
 centre holds every sample; then pushes again (nothing to send). Then loads a
 simulated fleet and times each fleet question on PostgreSQL and on SQLite.
+Last, makes one ISO run on the fake cell, archives it ``--copies`` times and
+re-analyses them in 1 and 2 processes (runs per minute per core).
 """
 
 from __future__ import annotations
@@ -94,6 +96,40 @@ def bench_fleet(store: RunStore, robots: int, runs: int, label: str) -> None:
           f"{len(hit - fleet.drifting)} false flags")
 
 
+def bench_reanalysis(tmp: Path, cycles: int, copies: int) -> None:
+    """One real ISO run on the fake cell (through the drivers), archived ``copies`` times, re-analysed."""
+    from fakes.station import FakeStation
+    from station.assemble import run_procedure
+    from station.config import config_from_dict
+    from station.reanalysis import reanalyze
+
+    db = tmp / "iso.sqlite"
+    t0 = time.perf_counter()
+    with FakeStation.start(seed=int(np.random.default_rng().integers(0, 2**31)), time_scale=20.0) as cell:
+        cfg = config_from_dict(cell.config_dict(store_path=str(db), report_dir=str(tmp / "reports"),
+                                                iso9283={"cycles": cycles, "vap_cycles": cycles}))
+        assert run_procedure(cfg, "iso9283", arm=True, yes=True, quiet=True, run_id="iso-0", config_dir=tmp) == 0
+    with RunStore(db) as store:
+        n = store.sample_count("iso-0")
+        for k in range(1, copies):
+            for table in ("runs", "steps", "sample_batches", "results", "characteristics"):
+                cols = [r[1] for r in store.backend.query(f"PRAGMA table_info({table})")]
+                sel = ", ".join(f"'iso-{k}'" if c == "run_id" else c for c in cols)
+                store.backend.execute(f"INSERT INTO {table} ({', '.join(cols)}) SELECT {sel} FROM {table}"
+                                      " WHERE run_id='iso-0'")
+    print(f"re-analysis: one ISO run of {cycles}+{cycles} cycles ({n:,} samples) made in "
+          f"{time.perf_counter() - t0:.0f} s, archived {copies} times")
+    ids = [f"iso-{k}" for k in range(copies)]
+    for jobs in (1, 2):
+        t0 = time.perf_counter()
+        done = reanalyze(db, ids, jobs=jobs, force=True)
+        wall = time.perf_counter() - t0
+        assert not any(d.error for d in done) and max(d.max_change for d in done) == 0.0
+        print(f"  {jobs} process(es): {copies} runs in {wall:.1f} s = {60 * copies / wall:.0f} runs/min "
+              f"({60 * copies / wall / jobs:.0f} runs/min/core; {np.mean([d.seconds for d in done]):.2f} s per run "
+              "inside a worker)")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=3_600_000)
@@ -101,6 +137,8 @@ def main(argv=None) -> None:
     ap.add_argument("--chunk", type=int, default=500)
     ap.add_argument("--robots", type=int, default=1000)
     ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--iso-cycles", type=int, default=30)
+    ap.add_argument("--copies", type=int, default=8)
     args = ap.parse_args(argv)
     server = PgServer(fsync=True)
     try:
@@ -110,6 +148,7 @@ def main(argv=None) -> None:
                 bench_fleet(pg, args.robots, args.runs, "fleet on PostgreSQL")
             with RunStore(Path(tmp) / "fleet.sqlite") as lite:
                 bench_fleet(lite, args.robots, args.runs, "fleet on SQLite")
+            bench_reanalysis(Path(tmp), args.iso_cycles, args.copies)
     finally:
         server.close()
 

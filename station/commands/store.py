@@ -6,6 +6,7 @@
     station store export RUN_ID --config C --out DIR [--format csv|parquet] [--central]
     station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
     station store status --config C                                  what of each run has reached the centre
+    station store reanalyze --config C [--central] [--run ID ...] [--jobs N] [--force]
     station store fleet history|since-overhaul|over-limits|drifting|page --config C ...
 
 ``--central`` asks the store named by ``[station] store_url`` instead of the
@@ -61,6 +62,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--config", required=True)
     t.add_argument("--json", action="store_true")
     t.set_defaults(func=_status)
+    r = s.add_parser("reanalyze", help="re-run the analysis of archived runs from their raw samples (results kept beside)")
+    _common(r)
+    r.add_argument("--run", action="append", dest="runs", metavar="RUN_ID", help="only these runs (repeatable)")
+    r.add_argument("--procedure", default=None, help="only runs of this procedure")
+    r.add_argument("--jobs", type=int, default=1, help="parallel processes")
+    r.add_argument("--force", action="store_true", help="again even when this analysis version has a result")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=_reanalyze)
     from station.commands import store_fleet
 
     store_fleet.register(s)
@@ -189,3 +198,32 @@ def _status(args) -> int:
         print(f"{run_id:<34} {f['status']:<8} centre: {f['in_centre']:<8} {f['batches_forwarded']}/{f['batches_local']}"
               f" batches, status there: {f['status_forwarded'] or '-'}" + (f"  ({f['last_error']})" if f['last_error'] else ""))
     return 0
+
+
+def _reanalyze(args) -> int:
+    from dataclasses import asdict
+
+    from station.reanalysis import reanalyze, runs_to_reanalyze
+
+    with open_store(args.config, args.central) as store:
+        target = store.name if not args.central else None
+        ids = runs_to_reanalyze(store, args.runs, args.procedure)
+    if args.central:
+        from station.config import load_config
+
+        target = load_config(args.config).station.store_url
+    t0 = time.perf_counter()
+    done = reanalyze(target, ids, jobs=args.jobs, force=args.force)
+    wall = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps([asdict(d) for d in done], indent=2))
+    else:
+        for d in done:
+            what = ("already done at this version" if d.skipped else f"ERROR {d.error}" if d.error else
+                    f"{d.n_values} values, largest change {d.max_change:.3g}, "
+                    f"{len(d.verdict_changes)} verdict changes" + "".join(f"\n    {v}" for v in d.verdict_changes))
+            print(f"{d.run_id:<34} {d.version}  {what}")
+        n = sum(1 for d in done if not d.skipped and not d.error)
+        if n:
+            print(f"{n} runs in {wall:.1f} s with {args.jobs} processes: {60 * n / wall / args.jobs:.1f} runs/min/process")
+    return 1 if any(d.error or d.verdict_changes for d in done) else 0

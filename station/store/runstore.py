@@ -431,6 +431,22 @@ class RunStore:
             for r in rows
         ]
 
+    # -- re-analyses ------------------------------------------------------
+    def put_reanalysis(self, run_id: str, key: str, analysis_version: str, value) -> None:
+        """Keep a re-analysis result beside the original (never replacing ``results``)."""
+        self._tx([("INSERT INTO reanalyses(run_id, key, analysis_version, value_json, created_at) VALUES (?,?,?,?,?)"
+                   " ON CONFLICT (run_id, key, analysis_version) DO UPDATE SET value_json=excluded.value_json,"
+                   " created_at=excluded.created_at", (run_id, key, analysis_version, _dumps(value), time.time()))])
+
+    def reanalyses(self, run_id: str) -> dict[str, dict]:
+        """``{analysis_version: {key: value}}`` of a run, oldest version first."""
+        out: dict[str, dict] = {}
+        for version, key, value in self._query(
+                "SELECT analysis_version, key, value_json FROM reanalyses WHERE run_id=? ORDER BY created_at, key",
+                (run_id,)):
+            out.setdefault(version, {})[key] = json.loads(value)
+        return out
+
     # -- history ----------------------------------------------------------
     def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
         """One robot's values of a characteristic across its finished runs, oldest first."""
