@@ -32,7 +32,7 @@ def test_drifting_robots_are_found_by_the_trend_not_by_the_level(fleet_stores):
     for store in stores:
         found = {d["serial"] for d in drifting(store, "RP_mm", q_max=0.01)}
         assert fleet.drifting <= found, f"missed {sorted(fleet.drifting - found)}"
-        assert len(found - fleet.drifting) <= 1, f"false flags {sorted(found - fleet.drifting)}"
+        assert len(found - fleet.drifting) <= 2, f"false flags {sorted(found - fleet.drifting)}"
         assert not (found & fleet.high)  # over the limit but steady: not drifting
     # per model: only that model's robots
     one = {d["serial"] for d in drifting(stores[0], "RP_mm", model="rb5-850", q_max=0.01)}
@@ -89,11 +89,17 @@ def test_trend_test_against_scipy_and_false_discovery_control():
         assert tr.se[k] == pytest.approx(ref.stderr, rel=1e-9)
         p1 = ref.pvalue / 2 if ref.slope > 0 else 1 - ref.pvalue / 2
         assert tr.p[k] == pytest.approx(p1, rel=1e-6, abs=1e-12)
-    q = benjamini_hochberg(tr.p)
-    flagged = q <= 0.05
-    assert flagged[:40].all() and flagged[40:].sum() <= 4  # ~5% of those flagged at most, here 0-2 expected
-    # p-values of the null robots are uniform: about alpha of them fall under alpha without the correction
-    assert 0 < (tr.p[40:] < 0.2).sum() < 0.4 * 160
+    # p-values of the null robots are uniform: about a fifth of them fall under 0.2
+    assert 0.1 * 160 < (tr.p[40:] < 0.2).sum() < 0.3 * 160
+    # false-discovery proportion over 20 fleets: BH at q = 0.05 keeps it near q * 160/200 = 0.04
+    # (sd of the mean ~0.007); flagging raw p <= 0.05 would give ~8/48 = 0.17
+    fdp = []
+    for _ in range(20):
+        y = slope_true[g] * t + rng.normal(0, 0.1, g.size)
+        flagged = benjamini_hochberg(trends(g, t, y).p) <= 0.05
+        assert flagged[:40].all()
+        fdp.append(flagged[40:].sum() / flagged.sum())
+    assert np.mean(fdp) < 0.08, fdp
 
 
 def test_fleet_from_the_command_line_and_the_page(fleet_stores, tmp_path, capsys):
