@@ -95,3 +95,20 @@ def test_reanalysis_in_parallel_processes_and_bad_input(iso_store, tmp_path, cap
     assert "no re-analysis for procedure 'trailer'" in capsys.readouterr().err
     assert main(["store", "reanalyze", "--config", cfg, "--run", "nope"]) == 2
     assert main(["store", "reanalyze", "--config", cfg, "--jobs", "0"]) == 2
+
+
+def test_reanalysis_on_the_central_store_after_a_push(iso_store, pg_url, capsys):
+    from station.store_forward import push
+
+    with RunStore(iso_store / "s.sqlite") as local, RunStore(pg_url) as central:
+        push(local, central, station="cell")
+        original = {(c["pose"], c["name"]): c["value"] for c in central.characteristics("iso-1")}
+    cfg = iso_store / "central.json"
+    cfg.write_text(json.dumps({"station": {"name": "cell", "store_path": "s.sqlite", "store_url": pg_url},
+                               "devices": {}}))
+    assert main(["store", "reanalyze", "--config", str(cfg), "--central", "--force"]) == 0
+    assert "largest change 0," in capsys.readouterr().out
+    with RunStore(pg_url) as central:
+        (value,) = central.reanalyses("iso-1").values()
+        again = {(r["pose"], r["name"]): r["value"] for r in value["iso9283"]["characteristics"]}
+    assert again == original and len(again) > 10
