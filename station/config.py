@@ -243,6 +243,9 @@ class TrailerConfig(_Strict):
 class StationSection(_Strict):
     name: str = Field(min_length=1)
     store_path: str = Field("station.sqlite", min_length=1, max_length=4096)
+    #: the plant's central store the station forwards its runs to (``postgresql://user@host:port/db``,
+    #: password by ``?password_env=VAR`` or ``?password_file=PATH``, never in the URL); None: local only
+    store_url: str | None = None
     report_dir: str = Field("reports", min_length=1, max_length=4096)
 
     @field_validator("store_path", "report_dir")
@@ -251,6 +254,19 @@ class StationSection(_Strict):
         bad = [c for c in v if ord(c) < 32 or ord(c) == 127]
         if bad:
             raise ValueError(f"a path cannot hold control characters (found {bad[0]!r})")
+        return v
+
+    @field_validator("store_url")
+    @classmethod
+    def _check_store_url(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        from station.store.url import parse_pg_url
+
+        try:
+            parse_pg_url(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("store_url: ")) from None
         return v
 
     def store_file(self, base: Path) -> Path:

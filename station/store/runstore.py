@@ -1,17 +1,23 @@
-"""Run store: one SQLite file per station (WAL), crash-safe.
+"""Run store: the station's journal, samples and results, in SQLite or PostgreSQL.
+
+One interface, two backends (:mod:`station.store.backends`): a SQLite file
+(WAL) is the station's own store; a ``postgresql://`` URL is the plant's
+central store that stations forward their runs to
+(:mod:`station.store_forward`). The logical schema, its version and the
+migrations are in :mod:`station.store.schema`.
 
 What it keeps
 -------------
 * ``robots``: identity (model, serial), so history across runs is a query.
 * ``runs``: one row per procedure run (robot, procedure, overhaul state,
-  config and parameters as JSON, status).
+  config and parameters as JSON, status, the station that made it).
 * ``steps``: the journal. Every attempt of every step gets a row when it
   starts and is updated when it ends (``done``, ``failed``, ``aborted``).
 * ``sample_batches``: raw samples, one row per committed batch, stored as a
   float64 array blob with its column names. A batch is *acknowledged* when
-  :meth:`RunStore.append_samples` returns: the transaction has committed with
-  ``synchronous=FULL`` in WAL mode, so a killed process (even ``kill -9``)
-  or a power cut after that keeps it.
+  :meth:`RunStore.append_samples` returns: the transaction has committed (in
+  SQLite with ``synchronous=FULL`` in WAL mode), so a killed process (even
+  ``kill -9``) or a power cut after that keeps it.
 * ``results`` (JSON per key) and ``characteristics`` (one row per number, with
   its unit, limit and verdict) for queries like "every robot whose RP exceeds
   its limit".
@@ -25,7 +31,6 @@ from __future__ import annotations
 
 import csv
 import json
-import sqlite3
 import threading
 import time
 from collections.abc import Iterable, Mapping
@@ -34,76 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import DataError, RunStateError, StationError
-
-SCHEMA_VERSION = 1
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS robots (
-    robot_id INTEGER PRIMARY KEY,
-    model TEXT NOT NULL,
-    serial TEXT NOT NULL,
-    UNIQUE (model, serial)
-);
-CREATE TABLE IF NOT EXISTS runs (
-    run_id TEXT PRIMARY KEY,
-    robot_id INTEGER REFERENCES robots(robot_id),
-    procedure TEXT NOT NULL,
-    overhaul_state TEXT,
-    config_json TEXT NOT NULL,
-    params_json TEXT NOT NULL,
-    status TEXT NOT NULL,
-    created_at REAL NOT NULL,
-    finished_at REAL
-);
-CREATE TABLE IF NOT EXISTS steps (
-    run_id TEXT NOT NULL REFERENCES runs(run_id),
-    idx INTEGER NOT NULL,
-    attempt INTEGER NOT NULL,
-    name TEXT NOT NULL,
-    status TEXT NOT NULL,
-    started_at REAL NOT NULL,
-    ended_at REAL,
-    output_json TEXT,
-    message TEXT,
-    PRIMARY KEY (run_id, idx, attempt)
-);
-CREATE TABLE IF NOT EXISTS sample_batches (
-    run_id TEXT NOT NULL,
-    stream TEXT NOT NULL,
-    step_idx INTEGER NOT NULL,
-    attempt INTEGER NOT NULL,
-    batch_no INTEGER NOT NULL,
-    n INTEGER NOT NULL,
-    columns TEXT NOT NULL,
-    data BLOB NOT NULL,
-    committed_at REAL NOT NULL,
-    PRIMARY KEY (run_id, stream, step_idx, attempt, batch_no)
-);
-CREATE TABLE IF NOT EXISTS results (
-    run_id TEXT NOT NULL REFERENCES runs(run_id),
-    key TEXT NOT NULL,
-    value_json TEXT NOT NULL,
-    PRIMARY KEY (run_id, key)
-);
-CREATE TABLE IF NOT EXISTS characteristics (
-    run_id TEXT NOT NULL REFERENCES runs(run_id),
-    pose TEXT NOT NULL,
-    name TEXT NOT NULL,
-    value REAL,
-    unit TEXT NOT NULL,
-    limit_value REAL,
-    passed INTEGER,
-    PRIMARY KEY (run_id, pose, name)
-);
-CREATE INDEX IF NOT EXISTS characteristics_by_name ON characteristics (name, pose);
-"""
-
-
-class StoreError(StationError):
-    """The run store refused an operation (unknown run, bad data, ...)."""
-
+from station.errors import DataError, RunStateError
+from station.store.backends import open_backend
+from station.store.errors import StoreError, StoreVersionError
+from station.store.schema import APPLICATION, BASE, SCHEMA_VERSION, migration, statements
 
 #: The run state machine, as data: the states a run may go to from each state.
 #: ``running -> running`` is a resume after the process that ran it died without
@@ -140,31 +79,94 @@ class RunRecord:
     status: str
     created_at: float
     finished_at: float | None
+    station: str | None = None
 
 
 class RunStore:
-    """The station's SQLite store. Thread-safe (one connection, one lock)."""
+    """A station store: a SQLite path (the default) or a ``postgresql://`` URL.
 
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self._db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.execute("PRAGMA foreign_keys=ON")
-            self._db.executescript(_SCHEMA)
-            self._db.execute(
-                "INSERT OR IGNORE INTO meta(key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
-            )
-        except sqlite3.DatabaseError as exc:
-            raise StoreError(f"{self.path}: not a usable station store ({exc})") from exc
+    Thread-safe (one connection, one lock). ``station`` names the station
+    whose runs this store creates (kept in ``runs.station``). Opening a store
+    written by an older station upgrades its schema in place; a store newer
+    than this code, or a database that is not a station store, is refused
+    (:class:`~station.store.errors.StoreVersionError`). An unreachable
+    server raises :class:`~station.store.errors.StoreUnavailable`.
+    """
+
+    def __init__(self, target: str | Path, *, station: str | None = None,
+                 connect_timeout_s: float | None = None) -> None:
+        self._b = open_backend(target, connect_timeout_s=connect_timeout_s)
+        self.path = self._b.path
+        self.name = self._b.name
+        self.dialect = self._b.dialect
+        self.station = station
         self._lock = threading.RLock()
+        try:
+            self._open_schema()
+        except BaseException:
+            self._b.close()
+            raise
+
+    # -- schema -----------------------------------------------------------
+    def _open_schema(self) -> None:
+        tables = self._b.table_names()
+        if tables:
+            self._check_is_station_store(tables)
+        with self._b.transaction() as cur:
+            self._b.lock_schema(cur)
+            for sql in statements(self.dialect, BASE):
+                cur.execute(sql)
+            cur.execute("INSERT INTO meta(key, value) VALUES ('schema_version', ?) ON CONFLICT DO NOTHING", ("1",))
+        while True:
+            with self._b.transaction() as cur:
+                self._b.lock_schema(cur)
+                version = self._version(cur)
+                if version >= SCHEMA_VERSION:
+                    break
+                for sql in migration(self.dialect, version + 1):
+                    cur.execute(sql)
+                cur.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(version + 1),))
+
+    def _version(self, cur) -> int:
+        row = cur.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        version = int(row[0])
+        if version > SCHEMA_VERSION:
+            raise StoreVersionError(
+                f"{self.name}: store schema version {version} is newer than this station's ({SCHEMA_VERSION}); "
+                "update the station software before using this store")
+        return version
+
+    def _check_is_station_store(self, tables: set[str]) -> None:
+        if "meta" not in tables:
+            raise StoreVersionError(f"{self.name}: not a station store (it has tables "
+                                    f"{', '.join(sorted(tables)[:5])} but no station meta table)")
+        meta = dict(self._b.query("SELECT key, value FROM meta"))
+        app = meta.get("application")
+        if "schema_version" not in meta or (app is not None and app != APPLICATION):
+            raise StoreVersionError(f"{self.name}: not a station store (its meta table says "
+                                    f"application={app!r}, schema_version={meta.get('schema_version')!r})")
+        try:
+            version = int(meta["schema_version"])
+        except ValueError:
+            raise StoreVersionError(f"{self.name}: not a station store (schema_version "
+                                    f"{meta['schema_version']!r})") from None
+        if version > SCHEMA_VERSION:
+            raise StoreVersionError(
+                f"{self.name}: store schema version {version} is newer than this station's ({SCHEMA_VERSION}); "
+                "update the station software before using this store")
+
+    def schema_version(self) -> int:
+        return int(self._b.query("SELECT value FROM meta WHERE key='schema_version'")[0][0])
 
     # -- plumbing ---------------------------------------------------------
+    @property
+    def backend(self):
+        """The connection (for :mod:`station.store_forward` and the fleet queries)."""
+        return self._b
+
     def close(self) -> None:
         with self._lock:
-            self._db.close()
+            self._b.close()
 
     def __enter__(self) -> "RunStore":
         return self
@@ -172,30 +174,21 @@ class RunStore:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _tx(self, statements: Iterable[tuple[str, tuple]]) -> None:
-        with self._lock:
-            cur = self._db.cursor()
-            cur.execute("BEGIN IMMEDIATE")
-            try:
-                for sql, args in statements:
-                    cur.execute(sql, args)
-            except BaseException:
-                cur.execute("ROLLBACK")
-                raise
-            cur.execute("COMMIT")
+    def _tx(self, stmts: Iterable[tuple[str, tuple]]) -> None:
+        with self._lock, self._b.transaction() as cur:
+            for sql, args in stmts:
+                cur.execute(sql, args)
 
     def _query(self, sql: str, args: tuple = ()) -> list[tuple]:
         with self._lock:
-            return self._db.execute(sql, args).fetchall()
+            return self._b.query(sql, args)
 
     # -- robots and runs --------------------------------------------------
     def robot_id(self, model: str, serial: str) -> int:
         """Id of the robot (model, serial), created on first use."""
         with self._lock:
-            self._db.execute("INSERT OR IGNORE INTO robots(model, serial) VALUES (?, ?)", (model, serial))
-            (rid,) = self._db.execute(
-                "SELECT robot_id FROM robots WHERE model=? AND serial=?", (model, serial)
-            ).fetchone()
+            self._b.execute("INSERT INTO robots(model, serial) VALUES (?, ?) ON CONFLICT DO NOTHING", (model, serial))
+            ((rid,),) = self._b.query("SELECT robot_id FROM robots WHERE model=? AND serial=?", (model, serial))
         return int(rid)
 
     def create_run(
@@ -208,6 +201,7 @@ class RunStore:
         overhaul_state: str | None,
         config: Mapping,
         params: Mapping,
+        station: str | None = None,
     ) -> None:
         rid = self.robot_id(model, serial) if model and serial else None
         try:
@@ -215,25 +209,26 @@ class RunStore:
                 [
                     (
                         "INSERT INTO runs(run_id, robot_id, procedure, overhaul_state, config_json, params_json,"
-                        " status, created_at) VALUES (?,?,?,?,?,?,?,?)",
-                        (run_id, rid, procedure, overhaul_state, _dumps(config), _dumps(params), "running", time.time()),
+                        " status, created_at, station) VALUES (?,?,?,?,?,?,?,?,?)",
+                        (run_id, rid, procedure, overhaul_state, _dumps(config), _dumps(params), "running",
+                         time.time(), station or self.station),
                     )
                 ]
             )
-        except sqlite3.IntegrityError as exc:
-            raise StoreError(f"run {run_id!r} already exists in {self.path}") from exc
+        except self._b.integrity_errors as exc:
+            raise StoreError(f"run {run_id!r} already exists in {self.name}") from exc
 
     def run(self, run_id: str) -> RunRecord:
         rows = self._query(
             "SELECT r.run_id, r.procedure, b.model, b.serial, r.overhaul_state, r.config_json, r.params_json,"
-            " r.status, r.created_at, r.finished_at FROM runs r LEFT JOIN robots b USING (robot_id)"
+            " r.status, r.created_at, r.finished_at, r.station FROM runs r LEFT JOIN robots b USING (robot_id)"
             " WHERE r.run_id=?",
             (run_id,),
         )
         if not rows:
-            raise StoreError(f"no run {run_id!r} in {self.path}")
+            raise StoreError(f"no run {run_id!r} in {self.name}")
         r = rows[0]
-        return RunRecord(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]), json.loads(r[6]), r[7], r[8], r[9])
+        return RunRecord(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]), json.loads(r[6]), r[7], r[8], r[9], r[10])
 
     def runs(self) -> list[RunRecord]:
         ids = [r[0] for r in self._query("SELECT run_id FROM runs ORDER BY created_at, run_id")]
@@ -244,10 +239,10 @@ class RunStore:
         if status not in RUN_TRANSITIONS:
             raise RunStateError(f"run {run_id}: unknown status {status!r} (one of {', '.join(RUN_TRANSITIONS)})")
         with self._lock:
-            row = self._db.execute("SELECT status FROM runs WHERE run_id=?", (run_id,)).fetchone()
-            if row is None:
-                raise StoreError(f"no run {run_id!r} in {self.path}")
-            current = row[0]
+            rows = self._b.query("SELECT status FROM runs WHERE run_id=?", (run_id,))
+            if not rows:
+                raise StoreError(f"no run {run_id!r} in {self.name}")
+            current = rows[0][0]
             if status not in RUN_TRANSITIONS.get(current, frozenset()):
                 allowed = ", ".join(sorted(RUN_TRANSITIONS.get(current, ()))) or "nothing: it is final"
                 raise RunStateError(f"run {run_id} is {current}; it cannot become {status} (allowed: {allowed})")
@@ -258,9 +253,9 @@ class RunStore:
     def step_started(self, run_id: str, idx: int, name: str) -> int:
         """Journal the start of step ``idx``; returns its attempt number (1, 2, ...)."""
         with self._lock:
-            (last,) = self._db.execute(
+            ((last,),) = self._b.query(
                 "SELECT COALESCE(MAX(attempt), 0) FROM steps WHERE run_id=? AND idx=?", (run_id, idx)
-            ).fetchone()
+            )
             attempt = int(last) + 1
             self._tx(
                 [
@@ -321,11 +316,11 @@ class RunStore:
             return 0
         block = np.ascontiguousarray(np.column_stack(arrays), dtype="<f8")
         with self._lock:
-            (last,) = self._db.execute(
+            ((last,),) = self._b.query(
                 "SELECT COALESCE(MAX(batch_no), -1) FROM sample_batches"
                 " WHERE run_id=? AND stream=? AND step_idx=? AND attempt=?",
                 (run_id, stream, step_idx, attempt),
-            ).fetchone()
+            )
             self._tx(
                 [
                     (
@@ -356,7 +351,7 @@ class RunStore:
             args.append(stream)
         if steps is not None:
             steps = [int(s) for s in steps]
-            where.append(f"b.step_idx IN ({','.join('?' * len(steps))})" if steps else "0")
+            where.append(f"b.step_idx IN ({','.join('?' * len(steps))})" if steps else "1=0")
             args.extend(steps)
         sql += " WHERE " + " AND ".join(where) + " ORDER BY b.stream, b.step_idx, b.attempt, b.batch_no"
         return self._query(sql, tuple(args))
@@ -391,7 +386,8 @@ class RunStore:
 
     # -- results ----------------------------------------------------------
     def put_result(self, run_id: str, key: str, value) -> None:
-        self._tx([("INSERT OR REPLACE INTO results(run_id, key, value_json) VALUES (?,?,?)", (run_id, key, _dumps(value)))])
+        self._tx([("INSERT INTO results(run_id, key, value_json) VALUES (?,?,?)"
+                   " ON CONFLICT (run_id, key) DO UPDATE SET value_json=excluded.value_json", (run_id, key, _dumps(value)))])
 
     def result(self, run_id: str, key: str):
         rows = self._query("SELECT value_json FROM results WHERE run_id=? AND key=?", (run_id, key))
@@ -409,8 +405,9 @@ class RunStore:
             passed = r.get("passed")
             stmts.append(
                 (
-                    "INSERT OR REPLACE INTO characteristics(run_id, pose, name, value, unit, limit_value, passed)"
-                    " VALUES (?,?,?,?,?,?,?)",
+                    "INSERT INTO characteristics(run_id, pose, name, value, unit, limit_value, passed)"
+                    " VALUES (?,?,?,?,?,?,?) ON CONFLICT (run_id, pose, name) DO UPDATE SET value=excluded.value,"
+                    " unit=excluded.unit, limit_value=excluded.limit_value, passed=excluded.passed",
                     (
                         run_id,
                         str(r["pose"]),
@@ -433,6 +430,22 @@ class RunStore:
             {"pose": r[0], "name": r[1], "value": r[2], "unit": r[3], "limit": r[4], "passed": None if r[5] is None else bool(r[5])}
             for r in rows
         ]
+
+    # -- re-analyses ------------------------------------------------------
+    def put_reanalysis(self, run_id: str, key: str, analysis_version: str, value) -> None:
+        """Keep a re-analysis result beside the original (never replacing ``results``)."""
+        self._tx([("INSERT INTO reanalyses(run_id, key, analysis_version, value_json, created_at) VALUES (?,?,?,?,?)"
+                   " ON CONFLICT (run_id, key, analysis_version) DO UPDATE SET value_json=excluded.value_json,"
+                   " created_at=excluded.created_at", (run_id, key, analysis_version, _dumps(value), time.time()))])
+
+    def reanalyses(self, run_id: str) -> dict[str, dict]:
+        """``{analysis_version: {key: value}}`` of a run, oldest version first."""
+        out: dict[str, dict] = {}
+        for version, key, value in self._query(
+                "SELECT analysis_version, key, value_json FROM reanalyses WHERE run_id=? ORDER BY created_at, key",
+                (run_id,)):
+            out.setdefault(version, {})[key] = json.loads(value)
+        return out
 
     # -- history ----------------------------------------------------------
     def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:

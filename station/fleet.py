@@ -1,0 +1,151 @@
+"""Fleet questions on a store (the central one, or any): across stations, robots and overhauls.
+
+* :func:`robot_history` — one robot's values of a characteristic across its
+  runs, stations and overhauls;
+* :func:`run_values` — one number per finished run: the worst pose's value
+  (the one a verdict turns on) and its limit;
+* :func:`since_overhaul` — per robot: the run after its last overhaul
+  (``overhaul_state`` ``after``, else ``new``), its latest run, the change
+  between them and the trend since;
+* :func:`over_limits_now` — robots whose latest finished run is over a limit;
+* :func:`drifting` — robots of a model whose characteristic grows with time
+  since their last overhaul, by the trend test of :mod:`station.fleet_trend`
+  with false-discovery control across the model's robots.
+
+Each is one SQL query and vectorised arithmetic, so a fleet of a thousand
+robots with fifty runs each answers in well under a second
+(``bench/bench_store.py``). Times are epoch seconds as stored; slopes are per
+year (365.25 days).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.errors import ConfigError
+from station.fleet_trend import benjamini_hochberg, trends
+from station.store import RunStore
+
+YEAR_S = 365.25 * 86400.0
+BASELINE_STATES = ("after", "new")
+
+
+def robot_history(store: RunStore, serial: str, name: str, pose: str | None = None) -> list[dict]:
+    """Every finished run's values of ``name`` for robot ``serial`` (any model, any station), oldest first."""
+    sql = ("SELECT r.run_id, r.station, b.model, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
+           " FROM characteristics c JOIN runs r ON r.run_id=c.run_id JOIN robots b ON b.robot_id=r.robot_id"
+           " WHERE b.serial=? AND c.name=? AND r.status='done'")
+    args: list = [serial, name]
+    if pose is not None:
+        sql += " AND c.pose=?"
+        args.append(pose)
+    sql += " ORDER BY r.created_at, r.run_id, c.pose"
+    keys = ("run_id", "station", "model", "created_at", "overhaul_state", "pose", "value", "limit", "passed")
+    out = []
+    for row in store.backend.query(sql, tuple(args)):
+        d = dict(zip(keys, row))
+        d["passed"] = None if d["passed"] is None else bool(d["passed"])
+        out.append(d)
+    return out
+
+
+def run_values(store: RunStore, name: str, *, model: str | None = None, serial: str | None = None) -> list[dict]:
+    """One row per finished run with ``name``: worst value over its poses, the tightest limit, over or not."""
+    sql = ("SELECT b.serial, b.model, r.station, r.run_id, r.created_at, r.overhaul_state, MAX(c.value),"
+           " MIN(c.limit_value), MAX(CASE WHEN c.limit_value IS NOT NULL AND c.value > c.limit_value THEN 1 ELSE 0 END)"
+           " FROM characteristics c JOIN runs r ON r.run_id=c.run_id JOIN robots b ON b.robot_id=r.robot_id"
+           " WHERE c.name=? AND r.status='done' AND c.value IS NOT NULL")
+    args: list = [name]
+    if model is not None:
+        sql += " AND b.model=?"
+        args.append(model)
+    if serial is not None:
+        sql += " AND b.serial=?"
+        args.append(serial)
+    sql += (" GROUP BY b.serial, b.model, r.station, r.run_id, r.created_at, r.overhaul_state"
+            " ORDER BY b.serial, r.created_at, r.run_id")
+    keys = ("serial", "model", "station", "run_id", "created_at", "overhaul_state", "value", "limit", "over")
+    out = []
+    for row in store.backend.query(sql, tuple(args)):
+        d = dict(zip(keys, row))
+        d["over"] = bool(d["over"])
+        out.append(d)
+    return out
+
+
+def _since_last_overhaul(rows: list[dict]) -> dict[str, list[dict]]:
+    """Per serial, its runs from the last baseline run (after overhaul, or new) on; all runs if none."""
+    by_serial: dict[str, list[dict]] = {}
+    for r in rows:
+        by_serial.setdefault(r["serial"], []).append(r)
+    out = {}
+    for serial, runs in by_serial.items():
+        base = [i for i, r in enumerate(runs) if r["overhaul_state"] in BASELINE_STATES]
+        out[serial] = runs[base[-1]:] if base else runs
+    return out
+
+
+def since_overhaul(store: RunStore, name: str, *, model: str | None = None) -> list[dict]:
+    """Per robot: baseline run (after its last overhaul), latest run, change and trend per year since."""
+    rows = run_values(store, name, model=model)
+    since = _since_last_overhaul(rows)
+    out = []
+    serials = sorted(since)
+    if not serials:
+        return out
+    g = np.concatenate([[s] * len(since[s]) for s in serials])
+    t = np.concatenate([[r["created_at"] for r in since[s]] for s in serials])
+    y = np.concatenate([[r["value"] for r in since[s]] for s in serials])
+    tr = trends(g, t / YEAR_S, y)
+    idx = {s: i for i, s in enumerate(tr.groups)}
+    for s in serials:
+        runs, i = since[s], idx[s]
+        first, last = runs[0], runs[-1]
+        out.append({"serial": s, "model": last["model"], "station": last["station"],
+                    "baseline_run": first["run_id"], "baseline_state": first["overhaul_state"],
+                    "baseline_value": first["value"], "latest_run": last["run_id"], "latest_value": last["value"],
+                    "change": last["value"] - first["value"], "runs_since": len(runs),
+                    "slope_per_year": None if np.isnan(tr.slope[i]) else float(tr.slope[i]),
+                    "p_increase": float(tr.p[i]), "limit": last["limit"], "over_now": last["over"]})
+    return out
+
+
+def drifting(store: RunStore, name: str, *, model: str | None = None, q_max: float = 0.05,
+             min_runs: int = 5) -> list[dict]:
+    """Robots (of ``model``, or every model) whose ``name`` grows since their last overhaul.
+
+    Per robot with at least ``min_runs`` runs since, the one-sided trend test
+    of :func:`station.fleet_trend.trends`; the p-values of a model's robots
+    become Benjamini-Hochberg q-values and a robot drifts when ``q <= q_max``.
+    Returns the drifting robots, largest slope first, with slope, p and q.
+    """
+    if not 0 < q_max < 1:
+        raise ConfigError(f"q_max must be between 0 and 1, got {q_max}")
+    if min_runs < 3:
+        raise ConfigError(f"min_runs must be at least 3 (a slope and its scatter), got {min_runs}")
+    rows = [r for r in since_overhaul(store, name, model=model) if r["runs_since"] >= min_runs]
+    out = []
+    for m in sorted({r["model"] for r in rows}):
+        group = [r for r in rows if r["model"] == m]
+        q = benjamini_hochberg(np.array([r["p_increase"] for r in group]))
+        for r, qi in zip(group, q):
+            if qi <= q_max:
+                out.append({**r, "q": float(qi)})
+    return sorted(out, key=lambda r: -(r["slope_per_year"] or 0.0))
+
+
+def over_limits_now(store: RunStore, name: str | None = None) -> list[dict]:
+    """Every value over its limit in each robot's latest finished run (with ``name``, or of any kind)."""
+    name_filter = " AND c2.name=?" if name else ""
+    sql = (
+        "WITH latest AS (SELECT r.robot_id, MAX(r.created_at) AS t FROM runs r WHERE r.status='done'"
+        " AND EXISTS (SELECT 1 FROM characteristics c2 WHERE c2.run_id=r.run_id" + name_filter + ")"
+        " GROUP BY r.robot_id)"
+        " SELECT b.model, b.serial, r.station, r.run_id, r.created_at, c.pose, c.name, c.value, c.unit, c.limit_value"
+        " FROM latest l JOIN runs r ON r.robot_id=l.robot_id AND r.created_at=l.t AND r.status='done'"
+        " JOIN robots b ON b.robot_id=r.robot_id JOIN characteristics c ON c.run_id=r.run_id"
+        " WHERE c.limit_value IS NOT NULL AND c.value > c.limit_value" + (" AND c.name=?" if name else "") +
+        " ORDER BY b.serial, c.name, c.pose")
+    args = (name, name) if name else ()
+    keys = ("model", "serial", "station", "run_id", "created_at", "pose", "name", "value", "unit", "limit")
+    return [dict(zip(keys, row)) for row in store.backend.query(sql, args)]
