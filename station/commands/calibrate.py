@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
 from pathlib import Path
@@ -44,10 +45,15 @@ def read_trailer_csv(path) -> dict[str, np.ndarray]:
     """
     path = Path(path)
     try:
-        fh = path.open(newline="")
+        raw = path.read_bytes()
     except OSError as exc:
         raise DataError(f"cannot read {path}: {exc.strerror or exc}") from exc
-    with fh:
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataError(f"{path}: line {line}: not UTF-8 text") from None
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:
             header = next(reader)
@@ -67,6 +73,8 @@ def read_trailer_csv(path) -> dict[str, np.ndarray]:
             for line_no, row in enumerate(reader, start=2):
                 if not row or all(not x.strip() for x in row):
                     continue
+                if len(row) > len(names):
+                    raise DataError(f"{path} line {line_no}: {len(row)} fields, the header has {len(names)}")
                 if len(cols["t"]) >= MAX_ROWS:
                     raise DataError(f"{path}: more than {MAX_ROWS} rows")
                 for c in wanted:

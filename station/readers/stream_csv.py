@@ -43,11 +43,19 @@ def _header(path: Path) -> list[str]:
 def _scan_for_error(path: Path, header: list[str], float_cols: list[str]) -> None:
     """Find the first malformed line and raise a DataError naming it (slow path)."""
     pos = {c: header.index(c) for c in float_cols}
-    with open(path, newline="", encoding="utf-8-sig", errors="strict") as f:
-        reader = csv.reader(f)
-        next(reader)
-        for row in reader:
-            ln = reader.line_num
+    with open(path, "rb") as f:
+        f.readline()
+        for ln, raw in enumerate(f, start=2):
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise DataError(f"{path}: line {ln}, byte {exc.start + 1}: not UTF-8 text") from None
+            if not text.strip():
+                continue
+            try:
+                row = next(csv.reader([text]))
+            except csv.Error as exc:
+                raise DataError(f"{path}: line {ln}: not CSV ({exc})") from None
             if len(row) != len(header):
                 raise DataError(f"{path}: line {ln}: {len(row)} fields, the header has {len(header)}")
             for c, k in pos.items():
@@ -55,7 +63,7 @@ def _scan_for_error(path: Path, header: list[str], float_cols: list[str]) -> Non
                 try:
                     float(cell)
                 except ValueError:
-                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not a number") from None
+                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell[:40]!r} is not a number") from None
     raise DataError(f"{path}: could not be parsed as CSV")
 
 
@@ -97,12 +105,14 @@ def read_stream_csv(path) -> PointStream:
             types["status"] = pa.string()
         table = pacsv.read_csv(
             str(path),
+            # the header as read above (names stripped: 't,x,y, z' names the column 'z')
+            read_options=pacsv.ReadOptions(column_names=header, skip_rows=1),
             parse_options=pacsv.ParseOptions(ignore_empty_lines=False),
             convert_options=pacsv.ConvertOptions(column_types=types, include_columns=floats
                                                  + (["status"] if has_status else []),
                                                  strings_can_be_null=False),
         )
-    except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError):
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowKeyError, UnicodeDecodeError):
         _scan_for_error(path, header, floats)
         raise  # pragma: no cover  (_scan_for_error always raises)
     except OSError as exc:
