@@ -77,7 +77,10 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         if devices.armed and not yes and not operator.confirm(
                 f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
             raise SafetyError("armed run not confirmed by the operator; nothing moved")
+        forwarder = _start_forwarding(cfg, base, stack)
         outcome = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
+        if forwarder is not None:
+            _last_push(cfg, base, forwarder, stdout)
         print(f"run {prepared.run_id}: {outcome.status}" + (f" ({outcome.error})" if outcome.error else ""),
               file=stdout)
         if outcome.status != "done":
@@ -95,6 +98,37 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     if outcome.status == "done":
         return 0
     return 3 if outcome.status == "aborted" else 1
+
+
+def _start_forwarding(cfg, base: Path, stack: ExitStack):
+    """With a central store configured, forward in the background while the run records (local first)."""
+    if not cfg.station.store_url:
+        return None
+    from station.store_forward import Forwarder
+
+    fwd = Forwarder(cfg.station.store_file(base), cfg.station.store_url, station=cfg.station.name,
+                    interval_s=FORWARD_INTERVAL_S).start()
+    stack.callback(fwd.stop)
+    return fwd
+
+
+#: how often a run's new batches are forwarded to the central store
+FORWARD_INTERVAL_S = 5.0
+
+
+def _last_push(cfg, base: Path, forwarder, stdout) -> None:
+    """After the run: stop the background pass and push what is left once; an absent centre is only said."""
+    from station.store_forward import push
+
+    forwarder.stop()
+    try:
+        with RunStore(cfg.station.store_file(base), station=cfg.station.name) as local, \
+                RunStore(cfg.station.store_url, station=cfg.station.name) as central:
+            report = push(local, central, station=cfg.station.name)
+        print(f"central store: {report.batches_sent} batch(es) forwarded", file=stdout)
+    except StoreError as exc:
+        print(f"central store not reached ({exc}); everything is kept here: `station store push` sends it later",
+              file=stdout)
 
 
 def _drive(store, prepared, cfg, devices, operator, control, quiet: bool, progress=None):
