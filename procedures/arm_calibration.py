@@ -628,6 +628,33 @@ def step_identify(ctx: StepContext) -> dict:
             "failed_poses": sorted(doc.get("failed_poses", {}))}
 
 
+DIAGNOSIS_KEY = "diagnosis"
+
+
+def step_diagnose(ctx: StepContext) -> dict:
+    """What the station's simulation of this arm gets wrong (issue: diagnose), on the poses just measured.
+
+    The poses are measured in order, each approached from below on every joint, so backlash shows as
+    not testable here (one direction only); the other named effects are tested and selected as by
+    ``station diagnose arm``. Too few poses for a candidate is reported, not a failure of the run.
+    """
+    from station.analysis.diagnose.arm import diagnose_arm
+
+    plan = _plan(ctx)
+    points, _ = _points(ctx, plan)
+    q = np.radians(np.array(plan.q_deg))
+    ok = np.isfinite(points).all(axis=1)
+    try:
+        diag = diagnose_arm(plan.robot.dh_nominal, q[ok], points[ok], robot=plan.robot)
+    except InsufficientDataError as exc:
+        ctx.store.put_result(ctx.run_id, DIAGNOSIS_KEY, {"skipped": str(exc)})
+        return {"skipped": str(exc)}
+    doc = diag.to_json()
+    ctx.store.put_result(ctx.run_id, DIAGNOSIS_KEY, doc)
+    return {"effects": [f"{s['effect']}" + (f" joint {s['joint']}" if s.get("joint") else "") for s in doc["steps"]],
+            "final_heldout_rms": doc["final_heldout_rms"], "noise_floor": doc["noise_floor"]}
+
+
 def step_report(ctx: StepContext) -> dict:
     from procedures.arm_calibration_report import build_report
     from station.report import write_report
@@ -659,7 +686,7 @@ def build_procedure(plan: ArmCalPlan) -> Procedure:
     measure = step_measure_scanner if scanner else step_measure
     steps += [Step(f"measure {k}", measure(k), label=f"{k}/{plan.n_batches}")
               for k in range(1, plan.n_batches + 1)]
-    steps += [Step("identify", step_identify), Step("report", step_report)]
+    steps += [Step("identify", step_identify), Step("diagnose", step_diagnose), Step("report", step_report)]
     return Procedure(NAME, steps, safe_state=stop_cell)
 
 
@@ -715,6 +742,17 @@ def summary(store, run_id: str) -> list[str]:
     failed = doc.get("failed_poses") or {}
     if failed:
         lines.append(f"{len(failed)} poses without the jig, left out: " + ", ".join(sorted(failed)))
+    try:
+        diag = store.result(run_id, DIAGNOSIS_KEY)
+    except Exception:  # noqa: BLE001 - a run stored before the diagnosis step has none
+        diag = None
+    if diag and "steps" in diag:
+        found = ", ".join(f"{st['effect']}" + (f" (joint {st['joint']})" if st.get("joint") else "")
+                          for st in diag["steps"]) or "nothing beyond the noise"
+        lines.append(f"diagnosis: {found}; held-out rms {diag['simulation_heldout_rms']:.4f} -> "
+                     f"{diag['final_heldout_rms']:.4f} mm (noise floor {diag['noise_floor']:.4f} mm)")
+    elif diag:
+        lines.append(f"diagnosis skipped: {diag.get('skipped')}")
     lines.append(f"model: {doc.get('model_file')}")
     serial = doc.get("robot", {}).get("serial")
     if serial:

@@ -53,6 +53,12 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(tmp
         plan = ArmCalPlan.from_params(store.run("c1").params)
         hist = history(store, "DEMO-0001")
     assert [h["run_id"] for h in hist] == ["c1"]
+    # the diagnosis step: the fake arm has geometric errors of mm, so the simulation is wrong by far more
+    # than the noise, and the selected extensions bring the held-out rms down towards the noise floor
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        diag = store.result("c1", "diagnosis")
+    assert "geometric" in [st["effect"] for st in diag["steps"]]
+    assert diag["final_heldout_rms"] < 0.3 * diag["simulation_heldout_rms"]
     # the fake arm's geometric errors are mm; what is left is the tracker's noise and the non-geometric effects
     assert doc["test"]["mean_abs_before_mm"] > 0.3
     assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
