@@ -24,7 +24,6 @@ import select
 import socket
 import time
 from typing import Callable, Protocol, runtime_checkable
-from urllib.parse import parse_qs, urlsplit
 
 from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
 

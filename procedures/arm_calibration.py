@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from procedures.cell import connect_cell, stop_cell
+from procedures.cell import connect_cell, connect_controller, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
@@ -72,11 +72,10 @@ from station.analysis.arm_calibration import Split, calibrate_arm, calibration_j
 from station.analysis.jig_features import feature_point
 from station.analysis.pose_selection import admissible, select_poses
 from station.device_urls import parse_device_url
-from station.errors import ConfigError, DeviceFault, InsufficientDataError, SafetyError, StationError
+from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
 from station.models import kinematics as kin
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, rated_tcp_accel_mm_s2
-from station.programs.handshake import Fault, State, describe
 from station.programs.model import Dwell, JointTarget, Move, Program
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
@@ -434,12 +433,7 @@ def step_check_programs(ctx: StepContext) -> dict:
             "selection": plan.selection}
 
 
-def _prompt(message: str):
-    def run(ctx: StepContext) -> dict:
-        if not ctx.confirm(message):
-            raise StationError(f"operator declined: {message}")
-        return {"confirmed": message}
-    return run
+_prompt = prompt_step
 
 
 def step_connect(ctx: StepContext) -> dict:
@@ -451,20 +445,8 @@ def step_connect_scanner(ctx: StepContext) -> dict:
     session = ctx.session
     scanner = session.scanner = session.device("scanner")
     info = scanner.connect()
-    controller = session.controller = session.device("controller", gate=session.gate or _plan(ctx).gate())
-    controller.connect()
-    status = controller.status()
-    took_over = ""
-    # as procedures.cell.connect_cell does for the tracker cell
-    if status.state == State.RUNNING:
-        status = controller.stop()
-        took_over = "stopped a program left running by an earlier session"
-    elif status.state == State.FAULT:
-        if status.fault != Fault.COMM_WATCHDOG:
-            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
-        status = controller.reset()
-        took_over = "cleared the comm-watchdog fault of an earlier session"
-    return {"scanner": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+    return {"scanner": str(getattr(info, "name", info)),
+            **connect_controller(session, session.gate or _plan(ctx).gate())}
 
 
 def _timeout(ctx: StepContext, sim_seconds: float) -> float:

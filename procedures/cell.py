@@ -12,11 +12,8 @@ from station.errors import DeviceFault, StationError
 from station.programs.handshake import Fault, State, describe
 
 
-def connect_cell(session, gate) -> dict:
-    """Open ``session.tracker`` (mm) and ``session.controller`` (behind ``gate``); say what was taken over."""
-    tracker = session.tracker = session.device("tracker")
-    info = tracker.connect()
-    tracker.set_units("mm")
+def connect_controller(session, gate) -> dict:
+    """Open ``session.controller`` behind ``gate``; stop or clear what an earlier session that died left."""
     controller = session.controller = session.device("controller", gate=gate)
     controller.connect()
     status = controller.status()
@@ -31,7 +28,24 @@ def connect_cell(session, gate) -> dict:
         # the watchdog stopped the program when the earlier session died: that is ours to clear
         status = controller.reset()
         took_over = "cleared the comm-watchdog fault of an earlier session"
-    return {"tracker": str(getattr(info, "name", info)), "controller_state": status.summary(), "took_over": took_over}
+    return {"controller_state": status.summary(), "took_over": took_over}
+
+
+def connect_cell(session, gate) -> dict:
+    """Open ``session.tracker`` (mm) and ``session.controller`` (behind ``gate``); say what was taken over."""
+    tracker = session.tracker = session.device("tracker")
+    info = tracker.connect()
+    tracker.set_units("mm")
+    return {"tracker": str(getattr(info, "name", info)), **connect_controller(session, gate)}
+
+
+def prompt_step(message: str):
+    """A step that asks the operator ``message`` and fails the run on a no."""
+    def run(ctx) -> dict:
+        if not ctx.confirm(message):
+            raise StationError(f"operator declined: {message}")
+        return {"confirmed": message}
+    return run
 
 
 def stop_cell(session) -> None:

@@ -49,7 +49,7 @@ from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Pr
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
-from procedures.cell import connect_cell, stop_cell
+from procedures.cell import connect_cell, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
@@ -283,12 +283,7 @@ def step_check_programs(ctx: StepContext) -> dict:
     return {"programs": checked, "poses_mm": {k: list(v) for k, v in plan.poses_mm.items()}}
 
 
-def _prompt(message: str):
-    def run(ctx: StepContext) -> dict:
-        if not ctx.confirm(message):
-            raise StationError(f"operator declined: {message}")
-        return {"confirmed": message}
-    return run
+_prompt = prompt_step
 
 
 def step_connect(ctx: StepContext) -> dict:
