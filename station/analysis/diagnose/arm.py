@@ -31,6 +31,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from scipy import stats
 
 from station.errors import DataError, InsufficientDataError
@@ -38,6 +39,7 @@ from station.models import kinematics as kin
 
 from .model import ModelState, fit, initial_state, jacobian, predict, robust_cov
 from .split import workspace_split
+from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
 
 __all__ = ["ArmDiagnosis", "Step", "CandidateTest", "diagnose_arm", "MIN_DOF_POSES"]
@@ -170,20 +172,8 @@ class ArmDiagnosis:
                 "notes": notes}
 
     def to_json(self) -> dict:
-        last = self.rounds[-1] if self.rounds else []
-        untestable = dict(self.not_testable)
-        for ct in last:
-            if not ct.testable:
-                untestable.setdefault(ct.key, ct.reason)
         return {
-            "steps": [s.to_json() for s in self.steps],
-            "simulation_heldout_rms": self.simulation_heldout_rms,
-            "final_heldout_rms": self.final_heldout_rms,
-            "gain": self.gain,
-            "gain_percent": 100.0 * self.gain,
-            "noise_floor": self.noise_floor,
-            "remaining_structure": [ct.to_json() for ct in last],
-            "not_testable": untestable,
+            **core_json(self, lambda ct: ct.key),
             "n_poses": {"train": int(self.train.size), "heldout": int(self.heldout.size)},
             "alpha": self.alpha,
             "extended_model": self.extended_effects(),

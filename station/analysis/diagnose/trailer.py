@@ -58,12 +58,14 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from scipy import stats
 from scipy.optimize import least_squares
 
 from station.errors import DataError, InsufficientDataError
 from station.models.trailer import check_lengths
 
+from .summary_json import core_json
 from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, columns, hac_bandwidth, hac_cov, loo_smooth, null_params,
                             predict, rms, segments)
 
@@ -188,21 +190,9 @@ class TrailerDiagnosis:
         return model
 
     def to_json(self) -> dict:
-        last = self.rounds[-1] if self.rounds else []
-        untestable = dict(self.not_testable)
-        for ct in last:
-            if not ct.testable:
-                untestable.setdefault(ct.effect, ct.reason)
         return {
-            "steps": [s.to_json() for s in self.steps],
-            "simulation_heldout_rms": self.simulation_heldout_rms,
-            "final_heldout_rms": self.final_heldout_rms,
-            "gain": self.gain,
-            "gain_percent": 100.0 * self.gain,
-            "noise_floor": self.noise_floor,
+            **core_json(self, lambda ct: ct.effect),
             "sensor_noise": self.sensor_noise,
-            "remaining_structure": [ct.to_json() for ct in last],
-            "not_testable": untestable,
             "structure": {"simulation": _structure(self, self.resid_simulation),
                           "extended": _structure(self, self.resid_final)},
             "n_samples": {"train": int(self.train.size), "heldout": int(self.heldout.size)},
