@@ -20,7 +20,7 @@ ALPHA = 0.01  # family-wise per round
 # strength of a hidden effect: its RMS on the joint angle / the noise RMS the static model sees. The bench
 # (bench/bench_diagnosis_trailer.py) finds the edge of detectability near 0.1 for 3 minutes at 20 Hz
 # (misses of 30 to 80 % at 0.05-0.1, under 8 % at 0.1-0.15, none in 100 draws per effect at 0.2-0.35).
-STRENGTH = (0.25, 0.4)
+STRENGTH = (0.35, 0.5)
 # the extended model's held-out RMS against the truth's: a weak effect's estimate leaves a little
 ORACLE_MARGIN = 1.03
 
