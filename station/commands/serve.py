@@ -40,6 +40,11 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         raise ConfigError(f"--port must be 0..65535, got {args.port}")
     if not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be > 0, got {args.time_scale}")
+    from station.web.security import listen_problem
+
+    problem = listen_problem(args.host)
+    if problem:
+        raise ConfigError(problem)
     if args.demo:
         from fakes.cells import demo_config
 

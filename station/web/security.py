@@ -28,6 +28,18 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def listen_problem(host: str) -> str | None:
+    """Why the page must not listen on ``host`` (None if it may): never on every interface at once."""
+    try:
+        wildcard = ipaddress.ip_address(host).is_unspecified
+    except ValueError:
+        wildcard = host in ("", "*")
+    if wildcard:
+        return (f"--host {host!r} would listen on every interface; give the one address the plant network "
+                f"reaches the station by (e.g. its LAN address)")
+    return None
+
+
 def _same(a: str | None, b: str | None) -> bool:
     return bool(a) and bool(b) and hmac.compare_digest(str(a).encode(), str(b).encode())
 

@@ -38,7 +38,7 @@ def test_off_loopback_every_request_needs_the_access_token(served):
 
 def test_guard_basics():
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
-    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.10")
+    assert not is_loopback("192.168.1.10") and not is_loopback("10.0.0.5")
     g = Guard("192.168.1.10", 8700)
     assert g.access_token and len(g.access_token) >= 24 and g.host_ok("anything:1")
     assert Guard("127.0.0.1").access_token is None
@@ -80,6 +80,9 @@ def test_station_serve_refuses_bad_arguments_writing_nothing(tmp_path, capsys):
     assert main(["serve", "--demo", "--out", str(out), "--port", "70000"]) == 2
     assert main(["serve", "--demo", "--out", str(out), "--time-scale", "0"]) == 2
     assert main(["serve", "--demo", "--out", str(out), "--arm"]) == 2
+    for wildcard in ("0.0.0.0", "::"):  # every interface at once: never; name the LAN address instead
+        assert main(["serve", "--demo", "--out", str(out), "--host", wildcard]) == 2
     err = capsys.readouterr().err
     assert "--port must be" in err and "--time-scale must be" in err and "--arm" in err
+    assert err.count("would listen on every interface") == 2
     assert not out.exists()
