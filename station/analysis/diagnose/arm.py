@@ -38,6 +38,7 @@ from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 
 from .model import ModelState, fit, initial_state, jacobian, predict, robust_cov
+from .block_test import model_basis, refit_step, wald_block
 from .split import workspace_split
 from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
@@ -47,7 +48,6 @@ __all__ = ["ArmDiagnosis", "Step", "CandidateTest", "diagnose_arm", "MIN_DOF_POS
 #: a candidate needs this many training poses beyond its parameters and the model's (per 3 coordinates)
 MIN_DOF_POSES = 10
 #: smallest relative size of the part of a candidate's columns the model cannot already produce
-COLLINEAR_TOL = 1e-6
 #: a second candidate "explains the same residual" when it alone took at least this share of the chosen one's
 AMBIGUITY_SHARE = 0.5
 
@@ -218,9 +218,7 @@ def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term]
     n = train.size
     p = A.shape[2]
     M = A.reshape(-1, p)
-    sc = np.linalg.norm(M, axis=0)
-    sc[sc == 0] = 1.0
-    Q, _ = np.linalg.qr(M / sc)
+    Q = model_basis(M)
     pred_h, A_h, extra_h = jacobian(state, q, heldout, variants)
     r_h = (meas[heldout] - pred_h).reshape(-1)
     Mh = A_h.reshape(-1, p)
@@ -234,36 +232,22 @@ def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term]
             out.append(ct)
             continue
         Bf = B.reshape(-1, term.k)
-        bn = np.linalg.norm(Bf, axis=0)
-        if np.any(bn <= 1e-12 * math.sqrt(Bf.shape[0])):
-            ct.testable, ct.reason = False, "it does not move the measured point in these poses"
+        factor = (n - term.k / 3.0) / dof_poses
+        bt = wald_block(Bf, r, Q, lambda X, res, k=term.k: robust_cov(X.reshape(n, 3, k), res.reshape(n, 3)) * factor)
+        if bt.why is not None:
+            ct.testable, ct.reason = False, (
+                "it does not move the measured point in these poses" if bt.why == "no effect" else
+                "indistinguishable in these poses from parameters already in the model "
+                f"({', '.join(t.key for t in state.terms) or 'base transform'})")
             out.append(ct)
             continue
-        Bp = Bf - Q @ (Q.T @ Bf)
-        sv = np.linalg.svd(Bp / bn, compute_uv=False)
-        if sv[-1] < COLLINEAR_TOL:
-            ct.testable, ct.reason = False, ("indistinguishable in these poses from parameters already in the model "
-                                             f"({', '.join(t.key for t in state.terms) or 'base transform'})")
-            out.append(ct)
-            continue
-        bs = np.linalg.norm(Bp, axis=0)
-        th, *_ = np.linalg.lstsq(Bp / bs, r, rcond=None)
-        r1 = r - (Bp / bs) @ th
-        ct.rss_reduction = float(r @ r - r1 @ r1)
-        cov = robust_cov((Bp / bs).reshape(n, 3, term.k), r1.reshape(n, 3)) * ((n - term.k / 3.0) / dof_poses)
-        try:
-            W = float(th @ np.linalg.solve(cov, th))
-        except np.linalg.LinAlgError:
-            W = math.nan
-        ct.statistic = W / term.k
+        ct.rss_reduction = bt.rss_reduction
+        ct.statistic = bt.wald / term.k
         m = m_candidates * (len(_tau_family(variants)) if term.fitted_dof else 1)
         ct.threshold = float(stats.f.isf(alpha / max(m, 1), term.k, dof_poses))
         # held-out: the linearised refit with the candidate
-        full = np.concatenate([M, Bf], axis=1)
-        fsc = np.linalg.norm(full, axis=0)
-        fsc[fsc == 0] = 1.0
-        step, *_ = np.linalg.lstsq(full / fsc, r, rcond=None)
-        rh1 = r_h - np.concatenate([Mh, Bh.reshape(-1, term.k)], axis=1) @ (step / fsc)
+        step = refit_step(M, Bf, r)
+        rh1 = r_h - np.concatenate([Mh, Bh.reshape(-1, term.k)], axis=1) @ step
         ct.heldout_rms_after = _rms(rh1.reshape(-1, 3))
         out.append(ct)
     # one entry per candidate key: the best variant (thermal drift's tau grid)

@@ -33,7 +33,6 @@ compliance basis (its TCP column) and a constant joint offset is part of
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -65,6 +65,7 @@ from scipy.optimize import least_squares
 from station.errors import DataError, InsufficientDataError
 from station.models.trailer import check_lengths
 
+from .block_test import model_basis, refit_step, wald_block
 from .summary_json import core_json
 from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, columns, hac_bandwidth, hac_cov, loo_smooth, null_params,
                             predict, rms, segments)
@@ -79,7 +80,6 @@ MAX_CORRELATION_S = 20.0
 #: fewest degrees of freedom of the robust covariance (training samples / bandwidth) for a test
 MIN_DOF = 10
 #: smallest relative size of the part of a candidate's columns the model cannot already produce
-COLLINEAR_TOL = 1e-6
 AMBIGUITY_SHARE = 0.5
 #: half-width of the curvature smoothing window, s
 SMOOTH_HALF_WINDOW_S = 0.25
@@ -324,12 +324,7 @@ def _test_round(theta, active, remaining, ctx, alpha) -> list[TrailerTest]:
     idx = _idx(active)
     M = columns(theta, ks, dist, idx, kappa_rate=ksr, v_m_s=v)
     Mt, Mh = M[train], M[held]
-    if Mt.shape[1]:
-        sc = np.linalg.norm(Mt, axis=0)
-        sc[sc == 0] = 1.0
-        Q, _ = np.linalg.qr(Mt / sc)
-    else:
-        Q = np.zeros((train.size, 0))
+    Q = model_basis(Mt)
     m = len(remaining)
     out = []
     for effect in remaining:
@@ -344,36 +339,20 @@ def _test_round(theta, active, remaining, ctx, alpha) -> list[TrailerTest]:
             continue
         Z = columns(theta, ks, dist, pidx, kappa_rate=ksr, v_m_s=v)
         Zt, Zh = Z[train], Z[held]
-        zn = np.linalg.norm(Zt, axis=0)
-        if np.any(zn <= 1e-12 * math.sqrt(train.size)):
-            why = ("the curvature never changes: there is no lag to see" if effect == "hitch_dynamics"
-                   else "it does not change the predicted joint angle in these data (no curvature)")
+        bt = wald_block(Zt, rt, Q, lambda X, res: hac_cov(X, res, seg, L))
+        if bt.why is not None:
+            if bt.why == "no effect":
+                why = ("the curvature never changes: there is no lag to see" if effect == "hitch_dynamics"
+                       else "it does not change the predicted joint angle in these data (no curvature)")
+            else:
+                why = f"indistinguishable in these data from parameters already in the model ({', '.join(active) or 'none'})"
             ct.testable, ct.reason = False, why
             out.append(ct)
             continue
-        Zp = Zt - Q @ (Q.T @ Zt)
-        sv = np.linalg.svd(Zp / zn, compute_uv=False)
-        if sv[-1] < COLLINEAR_TOL:
-            ct.testable, ct.reason = False, ("indistinguishable in these data from parameters already in the "
-                                             f"model ({', '.join(active) or 'none'})")
-            out.append(ct)
-            continue
-        ps = np.linalg.norm(Zp, axis=0)
-        b, *_ = np.linalg.lstsq(Zp / ps, rt, rcond=None)
-        r1 = rt - (Zp / ps) @ b
-        ct.rss_reduction = float(rt @ rt - r1 @ r1)
-        cov = hac_cov(Zp / ps, r1, seg, L)
-        try:
-            W = float(b @ np.linalg.solve(cov, b))
-        except np.linalg.LinAlgError:
-            W = math.nan
-        ct.statistic = W / k
+        ct.rss_reduction = bt.rss_reduction
+        ct.statistic = bt.wald / k
         ct.threshold = float(stats.f.isf(alpha / max(m, 1), k, dof))
-        full = np.concatenate([Mt, Zt], axis=1)
-        fsc = np.linalg.norm(full, axis=0)
-        fsc[fsc == 0] = 1.0
-        step, *_ = np.linalg.lstsq(full / fsc, rt, rcond=None)
-        step = step / fsc
+        step = refit_step(Mt, Zt, rt)
         ct.heldout_rms_after = rms(rh - np.concatenate([Mh, Zh], axis=1) @ step)
         ct.start = step[len(idx):]
         out.append(ct)
