@@ -75,7 +75,7 @@ import math
 from itertools import combinations
 
 import numpy as np
-from station.analysis.jig_features import JigFeature, check_points
+from station.analysis.jig_features import JigFeature, _positive, check_points
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import plane_intersection
 
@@ -83,16 +83,6 @@ __all__ = ["seed_feature_point"]
 
 #: the four triangles of a 4-point set (filter 3)
 _TRIANGLES = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
-
-
-def _positive(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"`{name}` must be a number, got {value!r}") from exc
-    if not math.isfinite(v) or v <= 0:
-        raise ConfigError(f"`{name}` must be finite and > 0, got {value!r}")
-    return v
 
 
 def _grid_cells(P: np.ndarray, side_mm: float, offset_mm: np.ndarray) -> np.ndarray:
