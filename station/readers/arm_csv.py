@@ -16,11 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.text import numbered_lines
 
 REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
 OPTIONAL = ("t", "temperature", "load")
-#: longest line accepted (a row of a dozen numbers is far shorter)
-MAX_LINE_CHARS = 4096
 MAX_ROWS = 10_000_000
 
 
@@ -43,59 +42,32 @@ class ArmData:
 def read_arm_csv(path) -> ArmData:
     """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
     p = Path(path)
-    try:
-        fh = open(p, encoding="utf-8", newline="")
-    except OSError as exc:
-        raise DataError(f"{p}: cannot open ({exc.strerror})") from None
-    with fh:
-        try:
-            header_line = fh.readline(MAX_LINE_CHARS + 1)
-        except UnicodeDecodeError as exc:
-            raise DataError(f"{p}:1: not UTF-8 text ({exc.reason})") from None
-        if len(header_line) > MAX_LINE_CHARS:
-            raise DataError(f"{p}:1: header longer than {MAX_LINE_CHARS} characters")
-        header = [h.strip() for h in header_line.strip().split(",")]
-        if header != [h for h in header if h]:
-            raise DataError(f"{p}:1: empty column name in the header")
-        unknown = [h for h in header if h not in REQUIRED + OPTIONAL]
-        if unknown:
-            raise DataError(f"{p}:1: unknown column(s) {', '.join(unknown)} "
-                            f"(expected {','.join(REQUIRED)} and optionally {','.join(OPTIONAL)})")
-        missing = [h for h in REQUIRED if h not in header]
-        if missing:
-            raise DataError(f"{p}:1: missing column(s) {', '.join(missing)}")
-        if len(set(header)) != len(header):
-            raise DataError(f"{p}:1: a column appears twice")
-        ncol = len(header)
-        rows: list[list[float]] = []
-        lineno = 1
-        while True:
-            lineno += 1
+    header: list[str] | None = None
+    rows: list[list[float]] = []
+    for lineno, line in numbered_lines(p):  # explicit encoding, bounded lines (station/readers/text.py)
+        if header is None:
+            header = _header(p, line)
+            ncol = len(header)
+            continue
+        if not line.strip():
+            continue
+        cells = line.split(",")
+        if len(cells) != ncol:
+            raise DataError(f"{p}:{lineno}: {len(cells)} fields, the header has {ncol}")
+        vals = []
+        for col, (name, cell) in enumerate(zip(header, cells), 1):
             try:
-                line = fh.readline(MAX_LINE_CHARS + 1)
-            except UnicodeDecodeError as exc:
-                raise DataError(f"{p}:{lineno}: not UTF-8 text ({exc.reason})") from None
-            if not line:
-                break
-            if len(line) > MAX_LINE_CHARS:
-                raise DataError(f"{p}:{lineno}: line longer than {MAX_LINE_CHARS} characters")
-            if not line.strip():
-                continue
-            cells = line.rstrip("\r\n").split(",")
-            if len(cells) != ncol:
-                raise DataError(f"{p}:{lineno}: {len(cells)} fields, the header has {ncol}")
-            vals = []
-            for col, (name, cell) in enumerate(zip(header, cells), 1):
-                try:
-                    v = float(cell.strip())
-                except ValueError:
-                    raise DataError(f"{p}:{lineno}:{col} ({name}): not a number: {cell.strip()[:40]!r}") from None
-                if not math.isfinite(v):
-                    raise DataError(f"{p}:{lineno}:{col} ({name}): {cell.strip()} is not a finite number")
-                vals.append(v)
-            rows.append(vals)
-            if len(rows) > MAX_ROWS:
-                raise DataError(f"{p}: more than {MAX_ROWS} rows")
+                v = float(cell.strip())
+            except ValueError:
+                raise DataError(f"{p}:{lineno}:{col} ({name}): not a number: {cell.strip()[:40]!r}") from None
+            if not math.isfinite(v):
+                raise DataError(f"{p}:{lineno}:{col} ({name}): {cell.strip()} is not a finite number")
+            vals.append(v)
+        rows.append(vals)
+        if len(rows) > MAX_ROWS:
+            raise DataError(f"{p}: more than {MAX_ROWS} rows")
+    if header is None:
+        raise DataError(f"{p}: empty file (expected a header {','.join(REQUIRED)})")
     if not rows:
         raise DataError(f"{p}: no data rows")
     a = np.array(rows, dtype=float)
@@ -103,6 +75,22 @@ def read_arm_csv(path) -> ArmData:
     return ArmData(q_deg=np.column_stack([col[f"q{k}"] for k in range(1, 7)]),
                    xyz_mm=np.column_stack([col["x"], col["y"], col["z"]]),
                    t_s=col.get("t"), temperature_c=col.get("temperature"), load_kg=col.get("load"), source=str(p))
+
+
+def _header(p: Path, header_line: str) -> list[str]:
+    header = [h.strip() for h in header_line.strip().split(",")]
+    if header != [h for h in header if h]:
+        raise DataError(f"{p}:1: empty column name in the header")
+    unknown = [h for h in header if h not in REQUIRED + OPTIONAL]
+    if unknown:
+        raise DataError(f"{p}:1: unknown column(s) {', '.join(unknown)} "
+                        f"(expected {','.join(REQUIRED)} and optionally {','.join(OPTIONAL)})")
+    missing = [h for h in REQUIRED if h not in header]
+    if missing:
+        raise DataError(f"{p}:1: missing column(s) {', '.join(missing)}")
+    if len(set(header)) != len(header):
+        raise DataError(f"{p}:1: a column appears twice")
+    return header
 
 
 def write_arm_csv(path, q_deg, xyz_mm, **optional) -> None:
