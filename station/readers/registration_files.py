@@ -11,8 +11,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 from pathlib import Path
@@ -20,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
-from station.readers.text import numbered_lines, parse_number
+from station.readers.text import csv_records, parse_number
 
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
@@ -64,22 +62,8 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)
-    header = None
     names, base, trk = [], [], []
-    for ln, line in numbered_lines(p):
-        if not line.strip():
-            continue
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
-        if header is None:
-            header = [c.lower() for c in cells]
-            missing = [c for c in PAIR_COLUMNS if c not in header]
-            if missing:
-                raise DataError(f"{p}: line {ln}: missing column(s) {', '.join(missing)} "
-                                f"(a registration file has {','.join(PAIR_COLUMNS)})")
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
-        c = dict(zip(header, cells))
+    for ln, c in csv_records(p, PAIR_COLUMNS, what="a registration file"):
         if not c["name"]:
             raise DataError(f"{p}: line {ln}, column 'name': empty")
         if c["name"] in names:
@@ -87,8 +71,6 @@ def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
         names.append(c["name"])
         base.append([parse_number(c[f"base_{a}"], p, ln, f"base_{a}") for a in "xyz"])
         trk.append([parse_number(c[f"tracker_{a}"], p, ln, f"tracker_{a}") for a in "xyz"])
-    if header is None:
-        raise DataError(f"{p}: line 1: empty file or missing header")
     if len(names) < 3:
         raise DataError(f"{p}: a registration needs at least 3 point pairs (not on one line), got {len(names)}")
     return names, np.array(base), np.array(trk)

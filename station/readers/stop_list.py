@@ -13,15 +13,13 @@ The rows of one stop need not be adjacent. Stops keep the order of their first r
 
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import DataError
-from station.readers.text import MAX_ROWS, numbered_lines, parse_number
+from station.readers.text import MAX_ROWS, csv_records, parse_number
 
 REQUIRED = ("pose", "cycle", "x", "y", "z")
 OPTIONAL = ("reflector", "approach")
@@ -60,27 +58,8 @@ def _stop_name(pose: str, cycle: int, approach: str | None) -> str:
 def read_stop_list(path) -> StopList:
     """Read a stop list CSV; DataError naming file, line and column for anything malformed."""
     p = Path(path)
-    header = None
     rows = []
-    for ln, line in numbered_lines(p):
-        if not line.strip():
-            continue
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
-        if header is None:
-            header = [c.lower() for c in cells]
-            missing = [c for c in REQUIRED if c not in header]
-            if missing:
-                raise DataError(f"{p}: line {ln}: missing column(s) {', '.join(missing)} "
-                                f"(a stop list has {','.join(REQUIRED)}[,reflector][,approach])")
-            unknown = [c for c in header if c not in REQUIRED + OPTIONAL]
-            if unknown:
-                raise DataError(f"{p}: line {ln}: unknown column(s) {', '.join(unknown)}")
-            if len(set(header)) != len(header):
-                raise DataError(f"{p}: line {ln}: a column appears twice")
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
-        c = dict(zip(header, cells))
+    for ln, c in csv_records(p, REQUIRED, what="a stop list", optional=OPTIONAL):
         if not c["pose"]:
             raise DataError(f"{p}: line {ln}, column 'pose': empty")
         try:
@@ -94,8 +73,6 @@ def read_stop_list(path) -> StopList:
         rows.append((c["pose"], cyc, c.get("reflector", ""), c.get("approach"), xyz, ln))
         if len(rows) > MAX_ROWS:
             raise DataError(f"{p}: more than {MAX_ROWS} rows")
-    if header is None:
-        raise DataError(f"{p}: line 1: empty file or missing header")
     if not rows:
         raise DataError(f"{p}: no stops after the header")
     stops: dict[tuple[str, int, str | None], dict] = {}
@@ -116,7 +93,7 @@ def read_stop_list(path) -> StopList:
     keys = list(stops)
     pts = np.array([[stops[k]["refl"][r][0] for r in all_refl] for k in keys], dtype=float)
     lines = np.array([[stops[k]["refl"][r][1] for r in all_refl] for k in keys], dtype=np.int64)
-    has_app = "approach" in header
+    has_app = rows[0][3] is not None  # the approach column is there (its cells are never empty)
     return StopList(pose=tuple(k[0] for k in keys), cycle=np.array([k[1] for k in keys], dtype=np.int64),
                     points_mm=pts, reflectors=tuple(all_refl),
                     approach=tuple(k[2] for k in keys) if has_app else None,

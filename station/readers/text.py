@@ -70,3 +70,41 @@ def is_number(cell: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def csv_records(path, required: tuple, *, what: str, optional: tuple | None = None) -> Iterator[tuple[int, dict]]:
+    """``(line number, {column: stripped cell})`` for every data row of a CSV with a header line.
+
+    The header (names lower-cased) must hold ``required``; with ``optional``
+    given, no other column is accepted; no column twice. A row with another
+    field count, or a file without a header, is a DataError naming the line.
+    ``what`` names the kind of file in the messages.
+    """
+    import csv
+    import io
+
+    p = Path(path)
+    header = None
+    for ln, line in numbered_lines(p):
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        if header is None:
+            header = [c.lower() for c in cells]
+            missing = [c for c in required if c not in header]
+            if missing:
+                extra = "" if optional is None else "".join(f"[,{c}]" for c in optional)
+                raise DataError(f"{p}: line {ln}: missing column(s) {', '.join(missing)} "
+                                f"({what} has {','.join(required)}{extra})")
+            unknown = [] if optional is None else [c for c in header if c not in required + optional]
+            if unknown:
+                raise DataError(f"{p}: line {ln}: unknown column(s) {', '.join(unknown)}")
+            if len(set(header)) != len(header):
+                raise DataError(f"{p}: line {ln}: a column appears twice")
+            continue
+        if len(cells) != len(header):
+            raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
+        yield ln, dict(zip(header, cells))
+    if header is None:
+        raise DataError(f"{p}: line 1: empty file or missing header")
+
