@@ -52,24 +52,13 @@ def build_report(res: ArmDiagnosis, *, title: str, facts: dict | None = None) ->
                      f"and after ({step.heldout_rms_after:.4f} mm)",
                      plot_xy([("before", x, yb, "."), ("after", x, ya, ".")], xlabel=xlabel, ylabel=ylabel,
                              title=term.key)))
-    rows = []
-    for k, s in enumerate(doc["steps"], 1):
-        for name, val in s["params"].items():
-            ci = s["ci"].get(name)
-            rows.append({"pose": f"{k}. {s['effect']}" + (f"[{s['joint']}]" if s["joint"] else ""), "name": name,
-                         "value": val, "unit": "" if ci is None else f"95 % CI [{ci[0]:.3g}, {ci[1]:.3g}]",
-                         "limit": None, "passed": None})
+    rows = _param_rows(doc, _arm_name, 3)
     f = {"held-out RMS, simulation": f"{doc['simulation_heldout_rms']:.4f} mm",
          "held-out RMS, extended model": f"{doc['final_heldout_rms']:.4f} mm ({doc['gain_percent']:.1f} % less)",
          "noise floor": f"{doc['noise_floor']:.4f} mm",
          "poses": f"{doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out"}
     f.update(facts or {})
-    notes = []
-    for s in doc["steps"]:
-        for a in s["ambiguous_with"]:
-            notes.append(f"{s['effect']}[{s['joint']}] and {a['effect']}[{a['joint']}] explain the same residual "
-                         f"({100 * a['share_of_residual_explained']:.0f} % as much alone): the data cannot tell them apart")
-    notes += [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
+    notes = _notes(doc, _arm_name)
     return Report(title=title, facts=f, rows=rows, figures=figs, notes=notes)
 
 
@@ -96,23 +85,40 @@ def build_trailer_report(res: TrailerDiagnosis, *, title: str, facts: dict | Non
                      f"and after ({step.heldout_rms_after:.5f} rad)",
                      plot_xy([("before", x, step.resid_before[h], "."), ("after", x, step.resid_after[h], ".")],
                              xlabel=label, ylabel="psi residual [rad]", title=step.effect)))
-    rows = []
-    for k, s in enumerate(doc["steps"], 1):
-        for name, val in s["params"].items():
-            ci = s["ci"].get(name)
-            rows.append({"pose": f"{k}. {s['effect']}", "name": name, "value": val,
-                         "unit": "" if ci is None else f"95 % CI [{ci[0]:.5g}, {ci[1]:.5g}]",
-                         "limit": None, "passed": None})
+    rows = _param_rows(doc, _effect_name, 5)
     f = {"held-out RMS, static model (seed 003 eq. (23))": f"{doc['simulation_heldout_rms']:.5f} rad",
          "held-out RMS, extended model": f"{doc['final_heldout_rms']:.5f} rad ({doc['gain_percent']:.1f} % less)",
          "noise floor": f"{doc['noise_floor']:.5f} rad",
          "samples": f"{doc['n_samples']['train']} training, {doc['n_samples']['heldout']} held-out"}
     f.update(facts or {})
-    notes = []
-    for s in doc["steps"]:
-        for a in s["ambiguous_with"]:
-            notes.append(f"{s['effect']} and {a['effect']} explain the same residual "
-                         f"({100 * a['share_of_residual_explained']:.0f} % as much alone): the data cannot tell "
-                         "them apart")
-    notes += [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
+    notes = _notes(doc, _effect_name)
     return Report(title=title, facts=f, rows=rows, figures=figs, notes=notes)
+
+
+def _arm_name(d: dict) -> str:
+    return f"{d['effect']}[{d['joint']}]"
+
+
+def _effect_name(d: dict) -> str:
+    return d["effect"]
+
+
+def _param_rows(doc: dict, name_of, digits: int) -> list[dict]:
+    """One report row per parameter of each selected step, with its 95 % interval."""
+    rows = []
+    for k, s in enumerate(doc["steps"], 1):
+        label = f"{k}. " + (name_of(s) if s.get("joint") else s["effect"])
+        for name, val in s["params"].items():
+            ci = s["ci"].get(name)
+            rows.append({"pose": label, "name": name, "value": val,
+                         "unit": "" if ci is None else f"95 % CI [{ci[0]:.{digits}g}, {ci[1]:.{digits}g}]",
+                         "limit": None, "passed": None})
+    return rows
+
+
+def _notes(doc: dict, name_of) -> list[str]:
+    """Ambiguous pairs and candidates that could not be tested, as report notes."""
+    notes = [f"{name_of(s)} and {name_of(a)} explain the same residual ({100 * a['share_of_residual_explained']:.0f} % "
+             f"as much alone): the data cannot tell them apart" for s in doc["steps"] for a in s["ambiguous_with"]]
+    return notes + [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
+
