@@ -64,10 +64,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from procedures.cell import connect_cell, connect_controller, prompt_step, stop_cell
+from procedures.cell import CellSession, connect_cell, connect_controller, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
-from procedures.session import Session
 from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
 from station.analysis.jig_features import feature_point
 from station.analysis.pose_selection import admissible, select_poses
@@ -406,13 +405,9 @@ def check_programs(plan: ArmCalPlan) -> list[str]:
 # steps
 # --------------------------------------------------------------------------
 @dataclass
-class ArmCalSession(Session):
-    """What the calibration steps share within one session."""
+class ArmCalSession(CellSession):
+    """What the calibration steps share within one session (the cell's, and the scanner)."""
 
-    plan: ArmCalPlan | None = None
-    gate: SafetyGate | None = None
-    tracker: Any = None
-    controller: Any = None
     scanner: Any = None
 
 

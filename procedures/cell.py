@@ -8,8 +8,23 @@ state.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+from procedures.session import Session
 from station.errors import DeviceFault, StationError
 from station.programs.handshake import Fault, State, describe
+
+
+@dataclass
+class CellSession(Session):
+    """What the steps of a robot-and-instrument cell share within one session: the plan (rebuilt from the
+    stored parameters once), the safety gate, the open tracker and controller."""
+
+    plan: Any = None
+    gate: Any = None
+    tracker: Any = None
+    controller: Any = None
 
 
 def connect_controller(session, gate) -> dict:

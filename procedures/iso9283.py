@@ -34,7 +34,6 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -49,10 +48,9 @@ from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Pr
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
-from procedures.cell import connect_cell, prompt_step, stop_cell
+from procedures.cell import CellSession, connect_cell, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec, Subject
-from procedures.session import Session
 
 #: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
 SEED_CUBE_MM = (
@@ -252,13 +250,9 @@ def programs(plan: IsoPlan) -> dict[str, object]:
 
 
 @dataclass
-class IsoSession(Session):
-    """What the ISO 9283 steps share within one session."""
+class IsoSession(CellSession):
+    """What the ISO 9283 steps share within one session (the cell's, and the analysis inputs)."""
 
-    plan: IsoPlan | None = None
-    gate: SafetyGate | None = None
-    tracker: Any = None
-    controller: Any = None
     #: ``{"pose": (t, xyz), "vap": (t, xyz)}`` in the base frame, read from the store once per session
     streams: dict | None = None
     #: ``(main, vap)`` analysis results
