@@ -12,8 +12,6 @@ never reaches the robot.
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -27,6 +25,7 @@ from station.models import kinematics as kin
 from station.runner import RunControl
 from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
+from tests.station.abort_at import AbortAtStep
 
 TIME_SCALE = 100.0
 
@@ -85,27 +84,11 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     cfg = _cfg(tmp_path, poses_per_step=5)
     db = cfg.station.store_file(tmp_path)
     control = RunControl()
-    stop_after = int(rng.integers(1, 5))  # measured batches before the abort
+    stop_after = int(rng.integers(1, 5))  # measured batches before the abort (it comes as the next one starts)
 
-    def watch():
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            try:
-                with RunStore(db) as st:
-                    done = [x.name for x in st.steps("c2") if x.status == "done" and x.name.startswith("measure")]
-            except Exception:
-                done = []
-            if len(done) >= stop_after:
-                control.abort()
-                return
-            time.sleep(0.05)
-
-    th = threading.Thread(target=watch, daemon=True)
-    th.start()
     code = run_procedure(cfg, "arm-calibration", run_id="c2", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
-                         control=control)
-    th.join()
+                         control=control, progress=AbortAtStep(control, f"measure {stop_after + 1}"))
     assert code == 3
     with RunStore(db) as store:
         before = store.samples("c2", "points")

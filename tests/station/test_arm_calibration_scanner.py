@@ -31,6 +31,7 @@ from station.config import StationConfig, config_from_dict
 from station.errors import ConfigError, DataError, DeviceFault, DeviceTimeout
 from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
+from tests.station.abort_at import AbortAtStep
 
 TIME_SCALE = 100.0
 
@@ -196,8 +197,6 @@ def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path):
 
 
 def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corner(tmp_path):
-    import threading
-    import time
 
     from station.runner import RunControl
 
@@ -205,27 +204,12 @@ def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corne
     cfg = _cfg(tmp_path, train_poses=15, test_poses=5, poses_per_step=5)
     db = cfg.station.store_file(tmp_path)
     control = RunControl()
-    stop_after = int(rng.integers(1, 4))  # measured batches before the abort
+    stop_after = int(rng.integers(1, 4))  # measured batches before the abort (it comes as the next one starts)
 
-    def watch():
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            try:
-                with RunStore(db) as st:
-                    done = [x.name for x in st.steps("s4") if x.status == "done" and x.name.startswith("measure")]
-            except Exception:
-                done = []
-            if len(done) >= stop_after:
-                control.abort()
-                return
-            time.sleep(0.02)
-
-    th = threading.Thread(target=watch)
-    th.start()
     code = run_procedure(cfg, "arm-calibration", run_id="s4", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=int(rng.integers(2**31)), config_dir=tmp_path, control=control,
+                         progress=AbortAtStep(control, f"measure {stop_after + 1}"),
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
-    th.join()
     assert code == 3
     with RunStore(db) as store:
         before = store.samples("s4", SCAN_STREAM)
