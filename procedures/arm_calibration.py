@@ -409,6 +409,10 @@ class ArmCalSession(CellSession):
     """What the calibration steps share within one session (the cell's, and the scanner)."""
 
     scanner: Any = None
+    #: the measured points and scanner details, read from the store once per session
+    measured: tuple | None = None
+    #: the calibration of those points (identify and report share it)
+    calibration: Any = None
 
 
 def _plan(ctx: StepContext) -> ArmCalPlan:
@@ -579,10 +583,22 @@ def _points(ctx: StepContext, plan: ArmCalPlan) -> tuple[np.ndarray, ScannerPoin
     return measured_points(ctx, plan), None
 
 
+def _measured(ctx: StepContext, plan: ArmCalPlan) -> tuple[np.ndarray, ScannerPoints | None]:
+    if ctx.session.measured is None:
+        ctx.session.measured = _points(ctx, plan)
+    return ctx.session.measured
+
+
+def _calibration(ctx: StepContext, plan: ArmCalPlan):
+    if ctx.session.calibration is None:
+        ctx.session.calibration = _calibrate(plan, _measured(ctx, plan)[0])
+    return ctx.session.calibration
+
+
 def step_identify(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    points, sp = _points(ctx, plan)
-    cal = _calibrate(plan, points)
+    _, sp = _measured(ctx, plan)
+    cal = _calibration(ctx, plan)
     doc = calibration_json(cal, name=f"{plan.robot.name} calibrated", joint_limits_rad=plan.robot.joint_limits_rad)
     doc["instrument"] = plan.instrument
     if sp is not None:
@@ -618,7 +634,7 @@ def step_diagnose(ctx: StepContext) -> dict:
     from station.analysis.diagnose.arm import diagnose_arm
 
     plan = _plan(ctx)
-    points, _ = _points(ctx, plan)
+    points, _ = _measured(ctx, plan)
     q = np.radians(np.array(plan.q_deg))
     ok = np.isfinite(points).all(axis=1)
     try:
@@ -637,8 +653,8 @@ def step_report(ctx: StepContext) -> dict:
     from station.report import write_report
 
     plan = _plan(ctx)
-    points, sp = _points(ctx, plan)
-    cal = _calibrate(plan, points)
+    _, sp = _measured(ctx, plan)
+    cal = _calibration(ctx, plan)
     run = ctx.store.run(ctx.run_id)
     facts = {"run": ctx.run_id, "overhaul state": str(run.overhaul_state), "instrument": plan.instrument,
              "pose selection": json.dumps(plan.selection)}

@@ -197,7 +197,6 @@ def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path):
 
 
 def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corner(tmp_path):
-
     from station.runner import RunControl
 
     rng = np.random.default_rng()
