@@ -386,8 +386,6 @@ def guarded(buf_of, name: str, target):
         try:
             target(*args, **kwargs)
         except Exception as exc:  # noqa: BLE001 - whatever it is, the reader of the stream must learn of it
-            from station.errors import DeviceError
-
             buf = buf_of()
             if buf is not None:
                 err = DeviceError(f"{name} failed: {type(exc).__name__}: {exc}")

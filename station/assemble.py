@@ -48,7 +48,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
                   seed: int = 0, json_out: str | None = None, quiet: bool = False,
                   config_dir: Path | None = None, plan_overrides: dict | None = None,
                   fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
-                  control: RunControl | None = None, stdout=sys.stdout, progress: ProgressLine | None = None) -> int:
+                  control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None) -> int:
     """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
 
     ``devices`` overrides the choice of devices (a test injecting drivers);
@@ -58,9 +58,10 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     target pose).
     """
     base = config_dir or Path.cwd()
+    stdout = stdout or sys.stdout
     operator = operator or operator_for(yes, quiet)
     with ExitStack() as stack:
-        store = stack.enter_context(open_store(cfg.station.store_file(base)))
+        store = stack.enter_context(RunStore(cfg.station.store_file(base)))
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
                                                           **(fake_options or {})}
         prepared = prepare(cfg, store, procedure, robot=robot, resume=resume, run_id=run_id,
@@ -158,22 +159,8 @@ def _write_json(store, run_id, outcome, json_out, result_key: str) -> None:
 
 
 def stored_procedure(cfg, run_id: str, base: Path) -> str:
-    with open_store(cfg.station.store_file(base)) as store:
+    with RunStore(cfg.station.store_file(base)) as store:
         return store.run(run_id).procedure
 
 
-def open_store(path: Path) -> RunStore:
-    """The run store at ``path``; a path no store can live at is a StoreError naming it (not a traceback)."""
-    import sqlite3
-
-    try:
-        return RunStore(path)
-    except (OSError, sqlite3.Error, ValueError) as exc:
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        blocking = next((p for p in Path(path).parents if p.exists() and not p.is_dir()), None)
-        if blocking is not None:
-            why = f"{blocking} is a file, not a folder"
-        raise StoreError(f"store {str(path)!r}: cannot open it here ({why})") from None
-
-
-__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "open_store", "ConfigError"]
+__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "ConfigError"]

@@ -29,16 +29,27 @@ from station.store.url import PgTarget, parse_pg_url
 MIN_SERVER_VERSION = 120000
 
 
+def _why_not_here(path: Path, exc: BaseException) -> str:
+    """Why no store file can live at ``path``: a parent that is a file, or what the system said."""
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        return f"{blocking} is a file, not a folder"
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+
+
 class SqliteBackend:
     dialect = "sqlite"
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.name = str(self.path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
         try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None, timeout=30.0)
+        except (OSError, ValueError, sqlite3.OperationalError) as exc:
+            raise StoreError(f"store {self.name!r}: cannot open it here ({_why_not_here(self.path, exc)})") from None
+        try:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
