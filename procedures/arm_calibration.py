@@ -64,9 +64,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from procedures.cell import CellSession, connect_cell, connect_controller, prompt_step, stop_cell
+from procedures.cell import CellSession, connect_cell, robot_subject, connect_controller, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems
-from procedures.registry import ProcedureSpec, Subject
+from procedures.registry import ProcedureSpec
 from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
 from station.analysis.jig_features import feature_point
 from station.analysis.pose_selection import admissible, select_poses
@@ -690,11 +690,7 @@ def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
     return plan_from_config(cfg, robot, **{"report_dir": report_dir, **overrides}).params()
 
 
-def subject(cfg, robot: str) -> Subject:
-    rc = cfg.robots.get(robot)
-    if rc is None:
-        raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
-    return Subject(rc.model, rc.serial, rc.overhaul_state, f"{rc.model} serial {rc.serial}")
+subject = robot_subject
 
 
 def device_roles(cfg, robot: str) -> dict[str, str]:

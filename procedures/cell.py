@@ -11,8 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from procedures.registry import Subject
 from procedures.session import Session
-from station.errors import DeviceFault, StationError
+from station.errors import ConfigError, DeviceFault, StationError
 from station.programs.handshake import Fault, State, describe
 
 
@@ -80,3 +81,12 @@ def stop_cell(session) -> None:
             errors.append(f"tracker stop: {exc}")
     if errors:
         raise StationError("; ".join(errors))
+
+
+def robot_subject(cfg, robot: str) -> Subject:
+    """The configured robot a cell procedure runs on (``robots.NAME`` of the config)."""
+    rc = cfg.robots.get(robot)
+    if rc is None:
+        raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
+    return Subject(rc.model, rc.serial, rc.overhaul_state, f"{rc.model} serial {rc.serial}")
+

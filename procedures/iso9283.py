@@ -48,9 +48,9 @@ from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Pr
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
-from procedures.cell import CellSession, connect_cell, prompt_step, stop_cell
+from procedures.cell import CellSession, connect_cell, robot_subject, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
-from procedures.registry import ProcedureSpec, Subject
+from procedures.registry import ProcedureSpec
 
 #: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
 SEED_CUBE_MM = (
@@ -586,11 +586,7 @@ def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
     return plan_from_config(cfg, robot, **{"report_dir": report_dir, **overrides}).params()
 
 
-def subject(cfg, robot: str) -> Subject:
-    rc = cfg.robots.get(robot)
-    if rc is None:
-        raise ConfigError(f"robots.{robot}: no such robot (have {', '.join(sorted(cfg.robots))})")
-    return Subject(rc.model, rc.serial, rc.overhaul_state, f"{rc.model} serial {rc.serial}")
+subject = robot_subject
 
 
 def device_roles(cfg, robot: str) -> dict[str, str]:
