@@ -16,6 +16,7 @@ re-analyses them in 1 and 2 processes (runs per minute per core).
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 import tempfile
 import time
@@ -26,6 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from station.fleet import drifting, over_limits_now, robot_history, since_overhaul  # noqa: E402
+from station.runner import InteractiveOperator  # noqa: E402
 from station.store import RunStore  # noqa: E402
 from station.store_forward import push  # noqa: E402
 from tests.store.fleetgen import load_fleet, make_fleet  # noqa: E402
@@ -108,7 +110,7 @@ def bench_reanalysis(tmp: Path, cycles: int, copies: int) -> None:
     with FakeStation.start(seed=int(np.random.default_rng().integers(0, 2**31)), time_scale=20.0) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(db), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": cycles, "vap_cycles": cycles}))
-        assert run_procedure(cfg, "iso9283", arm=True, yes=True, quiet=True, run_id="iso-0", config_dir=tmp) == 0
+        assert run_procedure(cfg, "iso9283", arm=True, operator=InteractiveOperator(io.StringIO("y\n" * 50), io.StringIO()), quiet=True, run_id="iso-0", config_dir=tmp) == 0
     with RunStore(db) as store:
         n = store.sample_count("iso-0")
         for k in range(1, copies):

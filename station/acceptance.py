@@ -167,25 +167,62 @@ class AcceptanceRun:
             raise AssertionError("outside the limits: " + "; ".join(self.failures))
 
 
+def make_operator(operator, arm: bool):
+    """The operator of a scripted run.
+
+    ``operator`` is an object with ``confirm(message) -> bool`` (and ``human``),
+    a callable ``message -> bool``, or the path of an answer file
+    (:class:`~station.runner.AnswerFileOperator`). Without one, a dry run on
+    the fakes answers yes to every prompt (logged) and an armed run asks on
+    the terminal. With ``arm`` the operator must be a person: a callable, an
+    answer file or any operator not marked ``human`` is refused
+    (:class:`~station.errors.SafetyError`) before anything is recorded or
+    moves, so no script answers the confirmations that guard real motion.
+    """
+    from station.assemble import require_human
+    from station.runner import AnswerFileOperator, CallableOperator, InteractiveOperator, ScriptedOperator
+
+    if operator is None:
+        operator = InteractiveOperator() if arm else ScriptedOperator(True)
+    elif isinstance(operator, (str, Path)):
+        operator = AnswerFileOperator(operator)
+    elif not hasattr(operator, "confirm"):
+        if not callable(operator):
+            raise ConfigError(f"operator must be an Operator, a callable or an answer file, got {operator!r}")
+        operator = CallableOperator(operator)
+    if arm:
+        require_human(operator)
+    return operator
+
+
 class Station:
-    """The station, for scripts: a config, devices (fakes unless ``arm``), a store."""
+    """The station, for scripts: a config, devices (fakes unless ``arm``), a store, an operator.
+
+    ``operator`` answers the runs' prompts (see :func:`make_operator`): on
+    the fakes a script may answer them (default: yes to each); with ``arm``
+    only a person may (default: the terminal; or the operator's page).
+    """
 
     def __init__(self, config: StationConfig, *, workdir: str | Path, arm: bool = False,
-                 time_scale: float = 20.0, seed: int = 0) -> None:
+                 time_scale: float = 20.0, seed: int = 0, operator=None) -> None:
         self.config = config
         self.workdir = Path(workdir)
         self.arm = arm
         self.time_scale = time_scale
         self.seed = seed
+        self.operator = make_operator(operator, arm)
         self._n = 0
 
     @classmethod
     def from_config(cls, path: str | Path, *, arm: bool = False, **kw) -> "Station":
+        """The station of a config file (TOML or JSON); relative paths in it are taken from its folder.
+        Keywords as for :class:`Station` (``time_scale``, ``seed``, ``operator``)."""
         return cls(load_config(path), workdir=Path(path).resolve().parent, arm=arm, **kw)
 
     @classmethod
     def fake(cls, workdir: str | Path, *, seed: int = 0, time_scale: float = 20.0,
-             limits: dict | None = None, serial: str = "SIM-0001", condition: str = "as-drawn") -> "Station":
+             limits: dict | None = None, serial: str = "SIM-0001", condition: str = "as-drawn",
+             operator=None) -> "Station":
         """A station whose devices are the fake cell (started for each run, same seed).
 
         ``condition`` chooses the simulated robot: ``"as-drawn"`` takes the
@@ -207,11 +244,11 @@ class Station:
             raise ConfigError(f"condition must be one of {', '.join(CONDITIONS)}, got {condition!r}")
         if condition != "as-drawn":
             seed = fake_robot_seed(config, seed, condition)
-        return cls(config, workdir=workdir, seed=seed, time_scale=time_scale)
+        return cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator)
 
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
                 run_id: str | None = None) -> AcceptanceRun:
-        """Run the ISO 9283 procedure (scripted: prompts answered yes) and return its results."""
+        """Run the ISO 9283 procedure and return its results; prompts go to :attr:`operator`."""
         from station.assemble import run_procedure
 
         overrides = {}
@@ -222,7 +259,8 @@ class Station:
         self._n += 1
         run_id = run_id or f"{self.config.robots[robot].serial}-accept-{self._n}"
         out = io.StringIO()
-        run_procedure(self.config, "iso9283", robot=robot, run_id=run_id, arm=self.arm, yes=True, quiet=True,
+        run_procedure(self.config, "iso9283", robot=robot, run_id=run_id, arm=self.arm, operator=self.operator,
+                      quiet=True,
                 time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=overrides,
                 stdout=out)
         store_path = self.config.station.store_file(self.workdir)
@@ -231,5 +269,7 @@ class Station:
                                  out.getvalue())
 
     def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
+        """Every stored value of characteristic ``name`` (e.g. ``"RP_mm"``) of the robot ``serial``, oldest
+        first, optionally of one ``pose``: rows as :meth:`station.store.RunStore.history` gives them."""
         with RunStore(self.config.station.store_file(self.workdir)) as store:
             return store.history(serial, name, pose)

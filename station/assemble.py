@@ -33,8 +33,17 @@ from station.store import RunStore, StoreError
 
 
 def operator_for(yes: bool, quiet: bool):
-    """``--yes``: every prompt answered yes (logged); otherwise asked on the terminal."""
+    """``--yes``: every prompt answered yes (logged; dry runs only); otherwise asked on the terminal."""
     return ScriptedOperator(True, stream=None if quiet else sys.stderr) if yes else InteractiveOperator()
+
+
+def require_human(operator) -> None:
+    """Refuse an operator that is not a person for a run on armed devices (real motion): scripted answers
+    (``--yes``, a script's callable, a file of answers) may only drive the fakes."""
+    if not getattr(operator, "human", False):
+        raise SafetyError("an armed run needs a person to answer its confirmations (the terminal or the "
+                          "operator's page); scripted answers (--yes, a script, an answer file) are for dry "
+                          "runs on the fakes only; nothing moved")
 
 
 def start_fake_cell(spec, params: dict, fake: dict):
@@ -51,6 +60,11 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
                   control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None) -> int:
     """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
 
+    With armed devices (``arm``: the configured URLs, real hardware) the
+    ``operator`` must be a person (:func:`require_human`): ``yes`` or a
+    scripted operator is refused with :class:`SafetyError` before anything
+    moves, and the armed-run confirmation is always asked.
+
     ``devices`` overrides the choice of devices (a test injecting drivers);
     ``fake_options`` adds to the fake cell's stored parameters (e.g. a
     trailer's ``true_lengths_m``). ``progress`` replaces the console's
@@ -60,6 +74,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     base = config_dir or Path.cwd()
     stdout = stdout or sys.stdout
     operator = operator or operator_for(yes, quiet)
+    if arm:  # refused before the run is even recorded
+        require_human(operator)
     with ExitStack() as stack:
         store = stack.enter_context(RunStore(cfg.station.store_file(base)))
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
@@ -75,9 +91,10 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             devices = DeviceSet(urls=dict(cell.urls), time_scale=cell.time_scale)
         # every reason the devices cannot run the plan, before anything moves
         preflight(prepared, cfg, devices)
-        if devices.armed and not yes and not operator.confirm(
-                f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
-            raise SafetyError("armed run not confirmed by the operator; nothing moved")
+        if devices.armed:
+            require_human(operator)
+            if not operator.confirm(f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
+                raise SafetyError("armed run not confirmed by the operator; nothing moved")
         forwarder = _start_forwarding(cfg, base, stack)
         outcome = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
         if forwarder is not None:
@@ -163,4 +180,4 @@ def stored_procedure(cfg, run_id: str, base: Path) -> str:
         return store.run(run_id).procedure
 
 
-__all__ = ["run_procedure", "operator_for", "start_fake_cell", "stored_procedure", "ConfigError"]
+__all__ = ["run_procedure", "operator_for", "require_human", "start_fake_cell", "stored_procedure", "ConfigError"]

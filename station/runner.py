@@ -33,6 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol, TextIO
 
 import numpy as np
@@ -47,11 +48,19 @@ class RunAborted(StationError):
 
 
 class Operator(Protocol):
+    """Who answers a run's prompts. ``human`` is True only where a person answers (the terminal, the
+    operator's page): a run on armed devices refuses any other operator, so no script can answer the
+    confirmations that guard real motion."""
+
+    human: bool
+
     def confirm(self, message: str) -> bool: ...
 
 
 class ScriptedOperator:
-    """Answers every prompt with ``answer`` (``--yes``) and logs it."""
+    """Answers every prompt with ``answer`` (``--yes``) and logs it: dry runs on the fakes only."""
+
+    human = False
 
     def __init__(self, answer: bool = True, stream: TextIO | None = None) -> None:
         self.answer = answer
@@ -65,8 +74,69 @@ class ScriptedOperator:
         return self.answer
 
 
+class CallableOperator:
+    """A script's own answers: ``answer(message) -> bool`` for each prompt, logged in ``asked``. Dry runs on
+    the fakes only (not ``human``)."""
+
+    human = False
+
+    def __init__(self, answer: Callable[[str], bool]) -> None:
+        self._answer = answer
+        self.asked: list[tuple[str, bool]] = []
+
+    def confirm(self, message: str) -> bool:
+        answer = bool(self._answer(message))
+        self.asked.append((message, answer))
+        return answer
+
+
+class AnswerFileOperator:
+    """Scripted answers from a file, for dry runs only (not ``human``): one answer per prompt in order,
+    each line ``yes`` or ``no``, optionally ``TEXT = yes|no`` where ``TEXT`` must occur in the prompt;
+    blank lines and ``#`` comments are skipped. A prompt with no answer left, or not matching its line,
+    is refused (:class:`~station.errors.ConfigError`) rather than guessed."""
+
+    human = False
+
+    def __init__(self, path: str | Path) -> None:
+        from station.errors import ConfigError
+
+        self.path = Path(path)
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"answer file {self.path}: cannot read it ({exc})") from None
+        self._answers: list[tuple[int, str, bool]] = []
+        for lineno, raw in enumerate(text.splitlines(), 1):
+            line = raw.split("#", 1)[0].strip()
+            if not line:
+                continue
+            expect, _, word = line.rpartition("=")
+            word = word.strip().lower()
+            if word not in ("yes", "no", "y", "n"):
+                raise ConfigError(f"answer file {self.path} line {lineno}: {raw.strip()!r} is not 'yes', 'no' "
+                                  "or 'TEXT = yes|no'")
+            self._answers.append((lineno, expect.strip(), word.startswith("y")))
+        self.asked: list[tuple[str, bool]] = []
+
+    def confirm(self, message: str) -> bool:
+        from station.errors import ConfigError
+
+        if len(self.asked) >= len(self._answers):
+            raise ConfigError(f"answer file {self.path}: no answer left for prompt {len(self.asked) + 1} "
+                              f"({message!r})")
+        lineno, expect, answer = self._answers[len(self.asked)]
+        if expect and expect.lower() not in message.lower():
+            raise ConfigError(f"answer file {self.path} line {lineno}: expected a prompt with {expect!r}, "
+                              f"the run asks {message!r}")
+        self.asked.append((message, answer))
+        return answer
+
+
 class InteractiveOperator:
-    """Asks on the terminal; anything but y/yes is a no."""
+    """Asks on the terminal; anything but y/yes is a no. A person answers: ``human``."""
+
+    human = True
 
     def __init__(self, stdin: TextIO = sys.stdin, stdout: TextIO = sys.stderr) -> None:
         self.stdin, self.stdout = stdin, stdout

@@ -4,8 +4,10 @@ Without ``--arm`` nothing real moves: the procedure's fake cell is started on
 loopback (simulated arm, emScon tracker and controller fakes; or the trailer
 with its odometry on a pty) and the run's devices point at it. With ``--arm``
 the configured device URLs are used as they are (real hardware, or fakes
-started with ``station fakes serve station``); the operator confirms that the
-cell is clear unless ``--yes``.
+started with ``station fakes serve station``) and a person answers every
+confirmation on the terminal: ``--yes`` (every prompt answered yes) and
+``--answers FILE`` (scripted answers) are for dry runs on the fakes only and
+are refused with ``--arm``.
 
 The run is assembled in :mod:`station.assemble` and executed by the
 application layer (:mod:`procedures.execute`); this module parses arguments.
@@ -32,7 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", metavar="RUN_ID", help="resume this run from its last finished step")
     p.add_argument("--run-id", help="id of a new run (default SERIAL-YYYYmmdd-HHMMSS)")
     p.add_argument("--arm", action="store_true", help="use the configured devices: real hardware moves")
-    p.add_argument("--yes", action="store_true", help="answer every operator prompt with yes (scripted run)")
+    p.add_argument("--yes", action="store_true",
+                   help="answer every operator prompt with yes (dry runs on the fakes only; refused with --arm)")
+    p.add_argument("--answers", metavar="FILE",
+                   help="scripted answers, one 'yes'/'no' (or 'TEXT = yes|no') per prompt in order "
+                        "(dry runs on the fakes only; refused with --arm)")
     p.add_argument("--time-scale", type=float, default=20.0, help="fake cell: simulated s per real s (default 20)")
     p.add_argument("--seed", type=int, default=0, help="fake cell: seed of the simulated world")
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
@@ -46,7 +52,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     if not args.resume and not args.procedure:
         raise ConfigError(f"name a procedure ({', '.join(procedure_names())}) or --resume RUN_ID")
+    from station.runner import AnswerFileOperator
+
     cfg = load_config(args.config)
+    if args.yes and args.answers:
+        raise ConfigError("give --yes or --answers, not both")
+    operator = AnswerFileOperator(args.answers) if args.answers else None
     return run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
-                         arm=args.arm, yes=args.yes, time_scale=args.time_scale, seed=args.seed,
+                         arm=args.arm, yes=args.yes, operator=operator, time_scale=args.time_scale, seed=args.seed,
                          json_out=args.json, quiet=args.quiet, config_dir=Path(args.config).resolve().parent)

@@ -31,8 +31,11 @@ class WebOperator:
 
     ``confirm`` blocks the run's thread until :meth:`answer` is called with the
     pending prompt's id; an abort request while waiting raises
-    :class:`~station.runner.RunAborted` (the run stops, resumable).
+    :class:`~station.runner.RunAborted` (the run stops, resumable). A person
+    answers on the page: ``human``.
     """
+
+    human = True
 
     def __init__(self, control: RunControl) -> None:
         self._control = control

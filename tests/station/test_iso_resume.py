@@ -27,6 +27,7 @@ import pytest
 
 from fakes.station import FakeStation
 from procedures.iso9283 import registration_of
+from tests.person import TYPED_YES
 from station.config import config_from_dict
 from station.store import RunStore
 
@@ -84,9 +85,11 @@ def test_killed_run_resumes_with_nothing_lost(tmp_path, trial):
     with FakeStation.start(seed=seed, time_scale=20.0) as cell:
         cfg = _config(cell, tmp_path, "killed")
         db = tmp_path / "killed.sqlite"
-        child = subprocess.Popen(_station("run", "iso9283", "--config", str(cfg), "--arm", "--yes", "--quiet",
+        child = subprocess.Popen(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
                                           "--run-id", "k1"), cwd=ROOT, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE)
+                                 stderr=subprocess.PIPE, stdin=subprocess.PIPE)
+        child.stdin.write(TYPED_YES.encode())  # the person at the terminal answers the armed run's prompts
+        child.stdin.close()
         deadline = time.monotonic() + 120
         while _done_steps(db) < kill_after and child.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -98,8 +101,8 @@ def test_killed_run_resumes_with_nothing_lost(tmp_path, trial):
         child.stderr.close()
         before = _batches(db)
         assert RunStore(db).run("k1").status in ("running", "done"), err
-        resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--yes", "--quiet"),
-                                 cwd=ROOT, capture_output=True, text=True, timeout=180)
+        resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
+                                 cwd=ROOT, capture_output=True, text=True, timeout=180, input=TYPED_YES)
         assert resumed.returncode in (0, 2), resumed.stderr
         store = RunStore(db)
         if store.run("k1").status != "done":
@@ -128,8 +131,9 @@ def test_killed_run_resumes_with_nothing_lost(tmp_path, trial):
     # an uninterrupted run on an identical cell
     with FakeStation.start(seed=seed, time_scale=20.0) as cell:
         cfg = _config(cell, tmp_path, "ref")
-        ref = subprocess.run(_station("run", "iso9283", "--config", str(cfg), "--arm", "--yes", "--quiet",
-                                      "--run-id", "r1"), cwd=ROOT, capture_output=True, text=True, timeout=180)
+        ref = subprocess.run(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
+                                      "--run-id", "r1"), cwd=ROOT, capture_output=True, text=True, timeout=180,
+                             input=TYPED_YES)
         assert ref.returncode == 0, ref.stderr
     ref_store = RunStore(tmp_path / "ref.sqlite")
     ref_res = _pose_table(ref_store, "r1")

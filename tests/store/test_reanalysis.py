@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fakes.station import FakeStation
+from tests.person import person_typing_yes
 from station.assemble import run_procedure
 from station.cli import main
 from station.config import config_from_dict
@@ -21,7 +22,7 @@ def iso_store(tmp_path_factory):
     with FakeStation.start(seed=int(np.random.default_rng().integers(0, 2**31)), time_scale=20.0) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(tmp / "s.sqlite"), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": 3, "vap_cycles": 2}))
-        code = run_procedure(cfg, "iso9283", arm=True, yes=True, quiet=True, run_id="iso-1", config_dir=tmp)
+        code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="iso-1", config_dir=tmp)
     assert code == 0
     (tmp / "c.json").write_text(json.dumps({"station": {"name": "cell", "store_path": "s.sqlite"}, "devices": {}}))
     return tmp
