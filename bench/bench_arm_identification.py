@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
-from station.analysis.arm_identification import identify
+from station.analysis.arm.identification import identify
 from station.models import kinematics as kin
 from station.models.robots import get_robot
 
@@ -78,7 +78,7 @@ def main() -> None:
           f"{res.iterations} iterations, rms {res.residual_rms_mm:.5f} mm ({res.message})")
 
     # scipy from the same start (the rigid fit identify starts from)
-    from station.analysis.arm_identification import rigid_fit
+    from station.analysis.arm.identification import rigid_fit
 
     base0 = rigid_fit(kin.tool_position(dh0, q), meas)
     for label, options in (("defaults", {}), ("x_scale='jac'", {"x_scale": "jac"})):

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
-from station.analysis.arm_identification import identify
+from station.analysis.arm.identification import identify
 from station.models import kinematics as kin
 from station.models.robots import get_robot
 

@@ -19,7 +19,7 @@ import numpy as np
 from drivers.controller import ControllerDriver
 from fakes.controller import start_fake
 from fakes.sim.world import make_world
-from station.analysis.iso_poses import TABLE2_POSES_MM
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
 from station.models.robots import get_robot
 from station.programs import iso_pose_program, render_rapid, vap_program
 from station.safety import SafetyGate, SafetyLimits

@@ -30,7 +30,7 @@ import numpy as np
 
 from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import predict_static, prediction_scatter
-from station.acceptance import Station, fake_cell_truth
+from app.acceptance import Station, fake_cell_truth
 from station.store import RunStore
 
 

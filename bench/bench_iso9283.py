@@ -37,15 +37,15 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from station.analysis.iso9283 import analyze_iso9283  # noqa: E402
-from station.analysis.iso_poses import TABLE1_CORNERS_MM, cube_test_poses  # noqa: E402
-from station.analysis.pose_extraction import extract_attained_poses  # noqa: E402
+from station.analysis.iso9283.characteristics import analyze_iso9283  # noqa: E402
+from station.analysis.iso9283.poses import TABLE1_CORNERS_MM, cube_test_poses  # noqa: E402
+from station.analysis.iso9283.extraction import extract_attained_poses  # noqa: E402
 
 
 def seed_transcription(t, xyz, *, M, Mp, h, v_rest, min_move, min_dwell, break_s, lag=1, timings=None):
     """Direct per-sample / per-window Python transcription of the seed's method.
 
-    Same definitions as :mod:`station.analysis.pose_extraction`, written as
+    Same definitions as :mod:`station.analysis.iso9283.extraction`, written as
     the plain loops the seed describes (and its Visual Basic program would
     run): eq. (3) velocity of each sample from its predecessor; the moving
     average of the velocity (vector, time-weighted) of each sample as a sum

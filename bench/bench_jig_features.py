@@ -29,8 +29,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fakes.sim.scanner import SimScanner, look_at
-from station.analysis.jig_features import feature_point
-from station.analysis.jig_features_seed import seed_feature_point
+from station.analysis.arm.jig_features import feature_point
+from station.analysis.arm.jig_features_seed import seed_feature_point
 from station.errors import InsufficientDataError
 from station.models.jig import CornerJig
 

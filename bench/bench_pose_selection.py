@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
-from station.analysis.arm_identification import identify, rigid_fit
-from station.analysis.pose_selection import select_poses
+from station.analysis.arm.identification import identify, rigid_fit
+from station.analysis.arm.pose_selection import select_poses
 from station.models import kinematics as kin
 from station.models.robots import get_robot
 

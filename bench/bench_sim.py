@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fakes.sim.clock import ManualClock  # noqa: E402
 from fakes.sim.world import make_world  # noqa: E402
-from station.analysis.iso_poses import TABLE2_POSES_MM  # noqa: E402
+from station.analysis.iso9283.poses import TABLE2_POSES_MM  # noqa: E402
 from fakes.sim.iso_run import CYCLE_ORDER, commanded_joints  # noqa: E402
 
 

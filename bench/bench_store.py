@@ -101,9 +101,9 @@ def bench_fleet(store: RunStore, robots: int, runs: int, label: str) -> None:
 def bench_reanalysis(tmp: Path, cycles: int, copies: int) -> None:
     """One real ISO run on the fake cell (through the drivers), archived ``copies`` times, re-analysed."""
     from fakes.station import FakeStation
-    from station.assemble import run_procedure
+    from app.assemble import run_procedure
     from station.config import config_from_dict
-    from station.reanalysis import reanalyze
+    from app.reanalysis import reanalyze
 
     db = tmp / "iso.sqlite"
     t0 = time.perf_counter()

@@ -33,8 +33,8 @@ import time
 import numpy as np
 
 from fakes.sim.trailer import record_commands
-from station.analysis.trailer_estimate import fit_dynamic, fit_dynamic_instrumented, fit_odr
-from station.analysis.trailer_ls import BEST_METHODS, combined_fit, noise_sigma
+from station.analysis.trailer.estimate import fit_dynamic, fit_dynamic_instrumented, fit_odr
+from station.analysis.trailer.least_squares import BEST_METHODS, combined_fit, noise_sigma
 from station.models.trailer import PATENT_NOISE_SIGMA, command_curvature, steady_state_psi
 
 

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fakes.cells import demo_config  # noqa: E402
 from station.config import config_from_dict  # noqa: E402
-from station.web.server import WebServer  # noqa: E402
+from app.web.server import WebServer  # noqa: E402
 
 TICK = os.sysconf("SC_CLK_TCK")
 

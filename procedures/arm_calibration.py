@@ -67,9 +67,9 @@ from scipy.spatial.transform import Rotation
 from procedures.cell import CellSession, connect_cell, robot_subject, connect_controller, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
-from station.analysis.arm_calibration import Split, calibrate_arm, calibration_json
-from station.analysis.jig_features import feature_point
-from station.analysis.pose_selection import admissible, select_poses
+from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
+from station.analysis.arm.jig_features import feature_point
+from station.analysis.arm.pose_selection import admissible, select_poses
 from station.device_urls import parse_device_url
 from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
 from station.models import kinematics as kin

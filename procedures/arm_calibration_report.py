@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from station.analysis.arm_calibration import ArmCalibration
+from station.analysis.arm.calibration import ArmCalibration
 from station.models import kinematics as kin
 from station.report import Report, plot_errors_before_after, plot_xy
 

@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from station.analysis.iso9283 import analyze_iso9283, conformance_text
-from station.analysis.iso_poses import cube_test_poses
+from station.analysis.iso9283.characteristics import analyze_iso9283, conformance_text
+from station.analysis.iso9283.poses import cube_test_poses
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
 from station.errors import ConfigError, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot

@@ -22,7 +22,7 @@ each, 250 poses) the measured AP differed from the prediction by 0.00 +/-
 (``bench/bench_fake_truth.py``).
 
 Used to draw simulated cells whose robot is inside or outside its
-manufacturer's limits on purpose (:mod:`station.testing`).
+manufacturer's limits on purpose (:mod:`app.testing`).
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from station.analysis.trailer_estimate import ESTIMATORS, estimate_trailer
+from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
 from station.errors import ConfigError, StationError
 from station.models.trailer import (
     COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,

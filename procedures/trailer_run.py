@@ -115,7 +115,7 @@ def continuous_pieces(t_s: np.ndarray, gap_factor: float = 5.0) -> list[slice]:
 
 def combine_estimates(method: str, parts: list) -> "tp.TrailerEstimate":
     """Inverse-covariance combination of independent estimates of (L1, L2)."""
-    from station.analysis.trailer_ls import TrailerEstimate
+    from station.analysis.trailer.least_squares import TrailerEstimate
 
     info = np.zeros((2, 2))
     acc = np.zeros(2)
@@ -139,7 +139,7 @@ def combine_estimates(method: str, parts: list) -> "tp.TrailerEstimate":
 
 def _estimate(ctx: StepContext) -> dict:
     """Step 5, with a resumed run's record split where the trailer stood still between sessions."""
-    from station.analysis.trailer_estimate import estimate_trailer
+    from station.analysis.trailer.estimate import estimate_trailer
 
     tc = _tc(ctx)
     data = tc.arrays()

@@ -225,7 +225,7 @@ class TrailerConfig(_Strict):
     @field_validator("method")
     @classmethod
     def _method(cls, v):
-        from station.analysis.trailer_estimate import ESTIMATORS
+        from station.analysis.trailer.estimate import ESTIMATORS
 
         if v not in ESTIMATORS:
             raise ValueError(f"unknown trailer method {v!r}; one of {', '.join(ESTIMATORS)}")

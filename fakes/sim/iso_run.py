@@ -126,7 +126,7 @@ def simulate_iso9283(
     _check(cycles, float(dwell_s), float(rate_hz), seed, float(wait_s), move, effects)
     from fakes.sim.clock import ManualClock
     from fakes.sim.world import make_world
-    from station.analysis.iso_poses import TABLE2_POSES_MM
+    from station.analysis.iso9283.poses import TABLE2_POSES_MM
 
     names = ("P1", "P2", "P3", "P4", "P5")
     positions = np.array(TABLE2_POSES_MM, dtype=float)

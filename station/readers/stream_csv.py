@@ -7,7 +7,7 @@
 
 The time column is read as it stands; whether it can serve as the time base
 (sorted, fine enough, consistent with the sample count) is decided by
-:mod:`station.analysis.time_base`.
+:mod:`station.analysis.iso9283.time_base`.
 """
 
 from __future__ import annotations

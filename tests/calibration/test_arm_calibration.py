@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
-from station.analysis.arm_calibration import calibrate_arm, distance_errors, position_errors
-from station.analysis.arm_identification import identify
-from station.cli import main
+from station.analysis.arm.calibration import calibrate_arm, distance_errors, position_errors
+from station.analysis.arm.identification import identify
+from app.cli import main
 from station.errors import ConfigError, InsufficientDataError
 from station.models import kinematics as kin
 from station.models.arm_model_file import model_from_json, read_ur_calibration, ur_deltas, write_ur_calibration

@@ -32,8 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from drivers.ply import read_ply, write_ply
 from fakes.sim.scanner import LABEL_OCCLUDER, SimScanner, look_at
-from station.analysis.jig_features import JigFeature, feature_point
-from station.analysis.jig_features_seed import seed_feature_point
+from station.analysis.arm.jig_features import JigFeature, feature_point
+from station.analysis.arm.jig_features_seed import seed_feature_point
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import CornerJig
 

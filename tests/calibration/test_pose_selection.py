@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
-from station.analysis.arm_identification import identify, rigid_fit
-from station.analysis.pose_selection import admissible, information_log_det, select_poses
+from station.analysis.arm.identification import identify, rigid_fit
+from station.analysis.arm.pose_selection import admissible, information_log_det, select_poses
 from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 from station.models.robots import get_robot

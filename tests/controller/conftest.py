@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.analysis.iso_poses import TABLE2_POSES_MM
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
 from station.models.robots import get_robot
 from station.safety import SafetyGate, SafetyLimits
 

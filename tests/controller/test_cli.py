@@ -38,7 +38,7 @@ def _readline(proc, timeout_s: float) -> str:
 def test_serve_controller_from_the_command_line():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "station.cli", "fakes", "serve", "controller", "--time-scale", "50", "--fault", "ftp_refuse=retr"],
+        [sys.executable, "-m", "app.cli", "fakes", "serve", "controller", "--time-scale", "50", "--fault", "ftp_refuse=retr"],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,

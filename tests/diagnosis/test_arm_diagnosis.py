@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from station.analysis.diagnose import diagnose_arm
-from station.cli import main
+from app.cli import main
 from station.models import kinematics as kin
 from station.models.effects import EffectSet
 from station.models.robots import get_robot

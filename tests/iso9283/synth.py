@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from station.analysis.iso_poses import TABLE2_POSES_MM
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
 
 NAMES5 = ("P1", "P2", "P3", "P4", "P5")
 

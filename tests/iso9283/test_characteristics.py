@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE2_POSES_MM
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
 from station.errors import ConfigError
 
 from .conftest import chi3_q, rp_estimate_sd, rp_population
@@ -246,7 +246,7 @@ def test_json_keys_verdicts_and_partial_results(rng):
 
 def test_the_reasons_a_run_is_not_iso_conformant_are_named(rng):
     """Fewer cycles, a skipped stop and an undecidable limit each give their own reason; a clean 30-cycle run none."""
-    from station.analysis.iso9283 import conformance_text
+    from station.analysis.iso9283.characteristics import conformance_text
 
     n = int(rng.integers(4, 9))
     cyc, p = int(rng.integers(1, n - 1)), int(rng.integers(1, 5))  # a stop in the middle of the run

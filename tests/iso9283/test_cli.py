@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.cli import main
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from app.cli import main
 
 from .synth import NAMES5, iso_stream, random_offsets
 
@@ -134,7 +134,7 @@ def test_console_script(tmp_path, stream):
     s = stream
     S = write_stream(tmp_path / "S.csv", s.t, s.xyz, np.where(s.valid, "ok", "beam"))
     P = write_poses(tmp_path / "P.csv")
-    r = subprocess.run([sys.executable, "-m", "station.cli", "analyze", "iso9283", "--stream", str(S), "--poses",
+    r = subprocess.run([sys.executable, "-m", "app.cli", "analyze", "iso9283", "--stream", str(S), "--poses",
                         str(P), "--json", str(tmp_path / "o.json")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "ISO 9283 analysis" in r.stdout and (tmp_path / "o.json").exists()

@@ -11,8 +11,8 @@ import json
 import numpy as np
 import pytest
 
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.cli import main
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from app.cli import main
 
 from .labfiles import write_poses, write_stream_csv
 from .synth import NAMES5, Programme, iso_cycle_programme, iso_stream, random_offsets, render

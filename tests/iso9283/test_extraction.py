@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.analysis.pose_extraction import (
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from station.analysis.iso9283.extraction import (
     STATUS_ASSIGNED,
     STATUS_OUT_OF_SEQUENCE,
     STATUS_UNASSIGNED,

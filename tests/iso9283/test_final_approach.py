@@ -8,8 +8,8 @@ merged move started.
 
 import numpy as np
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.pose_extraction import extract_attained_poses
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.extraction import extract_attained_poses
 
 
 def _leg(a, b, v_mm_s, rate_hz):

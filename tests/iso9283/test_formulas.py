@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import (
+from station.analysis.iso9283.characteristics import (
     distance_accuracy,
     minimum_posing_time,
     multidirectional_accuracy,

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from station.analysis.hold import analyze_hold
-from station.cli import main
+from station.analysis.iso9283.hold import analyze_hold
+from app.cli import main
 from station.errors import DataError
 
 from .labfiles import rp_ref, write_points, write_sa, write_stream_csv

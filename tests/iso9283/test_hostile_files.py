@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from station.cli import main
+from app.cli import main
 
 ROWS = "\n".join(f"{i * 0.01:.2f},{i},{i},{i}" for i in range(2000))
 

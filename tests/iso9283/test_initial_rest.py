@@ -11,12 +11,12 @@ import json
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.cli import main
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from app.cli import main
 
 from .labfiles import ap_ref, rp_ref, write_poses, write_stream_csv
-from station.analysis.pose_extraction import STATUS_ASSIGNED, extract_attained_poses
+from station.analysis.iso9283.extraction import STATUS_ASSIGNED, extract_attained_poses
 
 from .conftest import chi3_q
 from .synth import NAMES5, Programme, counted_stops, iso_cycle_programme, iso_stream, random_offsets, render

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.analysis.iso_poses import TABLE1_CORNERS_MM, TABLE2_POSES_MM, cube_test_poses
+from station.analysis.iso9283.poses import TABLE1_CORNERS_MM, TABLE2_POSES_MM, cube_test_poses
 from station.errors import ConfigError
 
 SIGNS = np.array([[1, 1, 1], [1, -1, 1], [-1, -1, 1], [-1, 1, 1], [1, 1, -1], [1, -1, -1], [-1, -1, -1], [-1, 1, -1]])

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE1_CORNERS_MM, TABLE2_POSES_MM
-from station.cli import main
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE1_CORNERS_MM, TABLE2_POSES_MM
+from app.cli import main
 
 from .labfiles import random_rotation, write_frame, write_poses, write_registration, write_stops, write_stream_csv
 from .synth import NAMES5, iso_stream, random_offsets

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.analysis.stop_list import analyze_stop_list, rotation_abc
-from station.cli import main
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from station.analysis.iso9283.stop_list import analyze_stop_list, rotation_abc
+from app.cli import main
 
 from .labfiles import ap_ref, rp_ref, write_poses, write_stops
 from .synth import NAMES5, random_offsets

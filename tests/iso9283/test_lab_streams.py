@@ -13,9 +13,9 @@ from datetime import timedelta
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE2_POSES_MM
-from station.cli import main
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
+from app.cli import main
 
 from .conftest import chi3_q
 from .labfiles import MM_PER, T0, ap_ref, rp_ref, write_points, write_poses, write_sa

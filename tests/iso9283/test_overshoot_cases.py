@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.analysis.iso9283 import analyze_iso9283
-from station.analysis.iso_poses import TABLE2_POSES_MM
+from station.analysis.iso9283.characteristics import analyze_iso9283
+from station.analysis.iso9283.poses import TABLE2_POSES_MM
 
 from .synth import NAMES5, iso_stream, random_offsets
 

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from station.cli import main
+from app.cli import main
 from fakes.sim.iso_run import simulate_iso9283
 
 from .conftest import chi3_q

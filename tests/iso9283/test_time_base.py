@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from station.analysis.time_base import check_time_stamps, sample_index_time
+from station.analysis.iso9283.time_base import check_time_stamps, sample_index_time
 from station.errors import DataError
 
 

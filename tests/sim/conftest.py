@@ -31,7 +31,7 @@ def rng(request):
 def iso_q(robot):
     """Nominal joint angles of seed 000 Table 2 (P1..P5) with P1's tool orientation."""
     from fakes.sim.iso_run import commanded_joints
-    from station.analysis.iso_poses import TABLE2_POSES_MM
+    from station.analysis.iso9283.poses import TABLE2_POSES_MM
 
     _, q = commanded_joints(robot, np.array(TABLE2_POSES_MM))
     return q

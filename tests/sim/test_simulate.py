@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from station.cli import main
+from app.cli import main
 from fakes.sim.iso_run import simulate_iso9283
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from fakes.cells import demo_config
 from procedures.arm_calibration import ArmCalPlan, RESULT_KEY, history
-from station.assemble import run_procedure
+from app.assemble import run_procedure
 from station.config import StationConfig
 from station.errors import PreflightError
 from station.models import kinematics as kin

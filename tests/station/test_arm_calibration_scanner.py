@@ -25,8 +25,8 @@ from fakes.scanner_folder import start_fake
 from fakes.sim.clock import ManualClock
 from fakes.sim.world import make_world
 from procedures.arm_calibration import SCAN_STREAM, ArmCalPlan, RESULT_KEY, history
-from station.assemble import run_procedure
-from station.analysis.jig_features import feature_point
+from app.assemble import run_procedure
+from station.analysis.arm.jig_features import feature_point
 from station.config import StationConfig, config_from_dict
 from station.errors import ConfigError, DataError, DeviceFault, DeviceTimeout
 from station.store import RunStore

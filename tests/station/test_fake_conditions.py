@@ -5,7 +5,7 @@ import pytest
 
 from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import predict_static, prediction_scatter
-from station.acceptance import SPEC_SIGMAS, Station, fake_cell_truth, fake_robot_seed
+from app.acceptance import SPEC_SIGMAS, Station, fake_cell_truth, fake_robot_seed
 from station.errors import ConfigError, InsufficientDataError
 
 

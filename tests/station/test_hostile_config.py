@@ -8,7 +8,7 @@ import json
 import pytest
 
 from fakes.cells import demo_config
-from station.cli import main
+from app.cli import main
 
 
 def _write(tmp_path, data, name="c.json") -> str:

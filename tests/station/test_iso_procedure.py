@@ -15,7 +15,7 @@ import pytest
 from procedures.iso9283 import plan_from_config, registration_of
 from procedures.iso9283_truth import predict_static, prediction_scatter
 from tests.person import person_typing_yes
-from station.assemble import run_procedure
+from app.assemble import run_procedure
 from station.errors import PreflightError
 from station.config import config_from_dict
 from station.errors import ConfigError
@@ -141,7 +141,7 @@ def test_a_rate_the_tracker_cannot_stream_is_refused_before_anything_moves(fake_
 
 
 def test_malformed_station_config_refused_before_start(tmp_path):
-    from station.cli import main
+    from app.cli import main
 
     bad = tmp_path / "c.toml"
     bad.write_text('[station]\nname = "x"\n[devices.tracker]\nurl = "laser://1.2.3.4"\n[robots]\n')

@@ -47,7 +47,7 @@ def _config(cell, tmp_path, name):
 
 
 def _station(*args):
-    return [sys.executable, "-m", "station.cli", *args]
+    return [sys.executable, "-m", "app.cli", *args]
 
 
 def _done_steps(db: Path) -> int:

@@ -12,8 +12,8 @@ import json
 
 import pytest
 
-from station.acceptance import Station
-from station.cli import main
+from app.acceptance import Station
+from app.cli import main
 from station.config import config_from_dict
 from station.errors import ConfigError, SafetyError
 from station.runner import AnswerFileOperator

@@ -1,6 +1,6 @@
 import json
 
-from station.cli import main
+from app.cli import main
 from station.store import RunStore
 
 

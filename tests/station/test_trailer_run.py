@@ -16,7 +16,7 @@ from fakes.sim.world import make_world
 from procedures import trailer as tp
 from procedures.devices import DeviceSet
 from procedures.trailer_run import TrailerSession, build_procedure, plan_params
-from station.assemble import run_procedure
+from app.assemble import run_procedure
 from station.errors import PreflightError
 from station.config import config_from_dict
 from station.runner import RunControl, Runner
@@ -122,7 +122,7 @@ def test_unsafe_trailer_plan_refused_before_anything_moves(tmp_path):
 
 def test_pieces_and_inverse_covariance_combination():
     from procedures.trailer_run import combine_estimates, continuous_pieces
-    from station.analysis.trailer_ls import TrailerEstimate
+    from station.analysis.trailer.least_squares import TrailerEstimate
 
     t = np.concatenate([np.arange(0, 10, 0.1), 50 + np.arange(0, 5, 0.1)])
     assert [(s.start, s.stop) for s in continuous_pieces(t)] == [(0, 100), (100, 150)]

@@ -52,7 +52,7 @@ def same_samples(local: RunStore, central: RunStore, run_id: str) -> None:
 
 
 def station_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "station.cli", *args]
+    return [sys.executable, "-m", "app.cli", *args]
 
 
 def popen(*args: str, **kw) -> subprocess.Popen:

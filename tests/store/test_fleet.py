@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from station.cli import main
+from app.cli import main
 from station.fleet import drifting, over_limits_now, robot_history, since_overhaul
 from station.fleet_page import write_fleet_page
 from station.fleet_trend import benjamini_hochberg, trends

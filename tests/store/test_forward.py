@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from station.cli import main
+from app.cli import main
 from station.store import RunStore
 from station.store_forward import Forwarder, forward_status, push
 from tests.store.helpers import add_run, central_batches, popen, same_samples, station_config

@@ -5,7 +5,7 @@ import io
 import numpy as np
 
 from fakes.cells import demo_config
-from station.assemble import run_procedure
+from app.assemble import run_procedure
 from station.config import StationConfig
 from station.store import RunStore
 from station.store_forward import forward_status

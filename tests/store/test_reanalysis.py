@@ -8,10 +8,10 @@ import pytest
 
 from fakes.station import FakeStation
 from tests.person import person_typing_yes
-from station.assemble import run_procedure
-from station.cli import main
+from app.assemble import run_procedure
+from app.cli import main
 from station.config import config_from_dict
-from station.reanalysis import analysis_version, reanalyze
+from app.reanalysis import analysis_version, reanalyze
 from station.store import RunStore
 
 
@@ -56,7 +56,7 @@ def test_a_changed_analysis_is_kept_under_its_own_version_and_its_verdict_change
     shutil.copytree(iso_store, tmp_path / "w")
     db = tmp_path / "w" / "s.sqlite"
     import procedures.iso9283 as iso
-    import station.reanalysis as rea
+    import app.reanalysis as rea
 
     real = iso.characteristic_rows
 

@@ -17,7 +17,7 @@ pytest.importorskip("fakes.sim.world")
 
 
 def _serve(*args):
-    proc = subprocess.Popen([sys.executable, "-m", "station.cli", "fakes", "serve", *args],
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "fakes", "serve", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     line = proc.stdout.readline()
@@ -55,6 +55,6 @@ def test_serve_prints_the_endpoint_and_serves(name, url):
 
 
 def test_serve_refuses_an_unknown_fault():
-    proc = subprocess.run([sys.executable, "-m", "station.cli", "fakes", "serve", "tracker-emscon",
+    proc = subprocess.run([sys.executable, "-m", "app.cli", "fakes", "serve", "tracker-emscon",
                            "--fault", "bogus=1"], capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0 and "unknown fault 'bogus'" in proc.stderr

@@ -24,10 +24,10 @@ import numpy as np
 import pytest
 
 from fakes.sim.trailer import record_commands
-from station.analysis.trailer_estimate import (
+from station.analysis.trailer.estimate import (
     estimate_dynamic, estimate_odr, estimate_trailer, fit_dynamic, fit_dynamic_instrumented, fit_odr,
 )
-from station.analysis.trailer_ls import (
+from station.analysis.trailer.least_squares import (
     BEST_METHODS, METHODS, combined_fit, estimate_combined, estimate_exact, fit_exact_model,
     fit_prediction_model, noise_sigma, ols, tls,
 )

@@ -241,7 +241,7 @@ def test_driver_survives_corrupted_lines(odometry):
 
 
 def test_fakes_serve_odometry_command_line():
-    proc = subprocess.Popen([sys.executable, "-m", "station.cli", "fakes", "serve", "odometry",
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "fakes", "serve", "odometry",
                              "--time-scale", "50", "--seed", "3"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))

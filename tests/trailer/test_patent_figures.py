@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from station.analysis.trailer_ls import (
+from station.analysis.trailer.least_squares import (
     METHODS, combined_fit, exact_condition_numbers, fit_exact_model, fit_prediction_model,
 )
 from station.models.trailer import PATENT_NOISE_SIGMA

@@ -11,8 +11,8 @@ from fakes.sim.trailer import record_commands
 from procedures.devices import DeviceSet
 from procedures.trailer import TrailerCalibrationContext, TrailerCalibrationPlan, check_plan
 from procedures.trailer_run import TrailerSession, build_procedure, plan_params, preflight_problems
-from station.cli import main
-from station.commands.calibrate import read_trailer_csv, write_trailer_csv
+from app.cli import main
+from app.commands.calibrate import read_trailer_csv, write_trailer_csv
 from station.errors import ConfigError, DataError, DeviceTimeout
 from station.models.trailer import JointAngleLimitError
 from station.runner import Runner

@@ -19,7 +19,7 @@ def test_station_fakes_serve_ur_prints_endpoint_and_serves_ur_rtde():
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([ROOT, env.get("PYTHONPATH", "")])
     p = subprocess.Popen(
-        [sys.executable, "-m", "station.cli", "fakes", "serve", "ur", "--robot", "ur5e", "--time-scale", "4",
+        [sys.executable, "-m", "app.cli", "fakes", "serve", "ur", "--robot", "ur5e", "--time-scale", "4",
          "--fault", "dashboard_refuse=shutdown"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
     )
@@ -51,7 +51,7 @@ def test_station_fakes_serve_ur_prints_endpoint_and_serves_ur_rtde():
 def _serve(*extra):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([ROOT, env.get("PYTHONPATH", "")])
-    p = subprocess.Popen([sys.executable, "-m", "station.cli", "fakes", "serve", "ur", *extra],
+    p = subprocess.Popen([sys.executable, "-m", "app.cli", "fakes", "serve", "ur", *extra],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     deadline = time.monotonic() + 30
     line = ""

@@ -120,7 +120,7 @@ def seed() -> int:
 def served(tmp_path):
     """`station serve` on 127.0.0.1, any free port, over the small demo station in ``tmp_path``."""
     from station.config import load_config
-    from station.web.server import WebServer
+    from app.web.server import WebServer
 
     cfg_path = demo_station_config(tmp_path)
     server = WebServer(load_config(cfg_path), tmp_path, host="127.0.0.1", port=0, time_scale=TIME_SCALE).start()

@@ -6,7 +6,7 @@ import pytest
 
 from fakes.station import FakeStation
 from station.config import config_from_dict
-from station.web.server import WebServer
+from app.web.server import WebServer
 from tests.web.conftest import Client
 
 

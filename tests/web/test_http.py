@@ -106,7 +106,7 @@ def test_pause_abort_then_resume_from_the_cli(served, client, seed):
     assert st["status"] == "aborted" and st["n_done"] < st["n_steps"]
     n_before = st["n_done"]
     # the same run, resumed by the CLI on the same store (the same fake cell: its stored seed)
-    proc = subprocess.run([sys.executable, "-m", "station.cli", "run", "--resume", run_id, "--config",
+    proc = subprocess.run([sys.executable, "-m", "app.cli", "run", "--resume", run_id, "--config",
                            str(served.config_path), "--yes", "--quiet"], cwd=ROOT, capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr

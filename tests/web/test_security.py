@@ -5,7 +5,7 @@ import ipaddress
 import pytest
 
 from station.errors import ConfigError
-from station.web.security import Guard, is_loopback
+from app.web.security import Guard, is_loopback
 from tests.web.conftest import Client
 
 
@@ -68,7 +68,7 @@ def test_bad_input_is_named(served, client):
 
 def test_serve_refuses_a_bad_port(tmp_path):
     from station.config import load_config
-    from station.web.server import WebServer
+    from app.web.server import WebServer
     from tests.web.conftest import demo_station_config
 
     with pytest.raises(ConfigError, match="port"):
@@ -76,7 +76,7 @@ def test_serve_refuses_a_bad_port(tmp_path):
 
 
 def test_station_serve_refuses_bad_arguments_writing_nothing(tmp_path, capsys):
-    from station.cli import main
+    from app.cli import main
 
     out = tmp_path / "demo"
     assert main(["serve", "--demo", "--out", str(out), "--port", "70000"]) == 2

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from station.web.tracker_view import MAX_POINTS, tracker_window
+from app.web.tracker_view import MAX_POINTS, tracker_window
 
 
 def test_speed_distance_and_counters_are_the_samples():

@@ -192,7 +192,7 @@ def _rms(resid: np.ndarray) -> float:
 
 def _geometric_term(dh, q, meas, train) -> tuple[Term | None, str | None]:
     """The geometric candidate: the parameters :func:`identify` finds identifiable on the training poses."""
-    from station.analysis.arm_identification import identify
+    from station.analysis.arm.identification import identify
 
     try:
         res = identify(dh, q[train], meas[train], method="absolute", max_iter=1)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.analysis.arm_identification import rigid_fit
+from station.analysis.arm.identification import rigid_fit
 from station.models import kinematics as kin
 
 from .terms import Term

@@ -431,7 +431,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
     dist = vv * np.concatenate([[float(np.median(dt))], dt])
     half = max(2, int(round(SMOOTH_HALF_WINDOW_S / float(np.median(dt)))))
     ks, ksr = loo_smooth(t, kap, half)
-    from station.analysis.trailer_ls import noise_sigma
+    from station.analysis.trailer.least_squares import noise_sigma
 
     sensor_noise = {"psi_sigma_rad": float(noise_sigma(ps)), "kappa_sigma_1_m": float(noise_sigma(kap))}
     ctx = {"kappa": kap, "kappa_s": ks, "kappa_rate": ksr, "dist": dist, "v": vv, "psi": ps, "train": train,

@@ -1,0 +1,56 @@
+"""`station` command line: dispatches to one module per command group.
+
+Each group lives in ``app/commands/<group>.py`` and exposes
+``register(subparsers)`` which adds its sub-parser and sets ``func`` (a callable
+taking the parsed namespace and returning an exit code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from station.errors import StationError
+
+#: command groups, in the order ``station --help`` lists them
+GROUPS = ("demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "fakes")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="station", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="group", metavar="COMMAND")
+    for name in GROUPS:
+        try:
+            module = importlib.import_module(f"app.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"app.commands.{name}":
+                continue  # group not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except StationError as exc:
+        print(f"station: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("station: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into `head` and the like: not an error of ours
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

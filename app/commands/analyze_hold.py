@@ -1,0 +1,66 @@
+"""``station analyze hold --stream S``: a held pose (:mod:`station.analysis.iso9283.hold`).
+
+The stream in any format ``analyze iso9283`` reads (sniffed, ``--format``,
+``--group``), with its time stamps or ``--rate-hz``. Prints noise, drift and
+the RP-style window figure; ``--json`` writes them. Exit 0, or 2 on bad input
+(a stream with a move in it included).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import numpy as np
+
+from app.commands.analyze_inputs import check_positive, load_stream
+
+
+def add_arguments(h: argparse.ArgumentParser) -> None:
+    h.add_argument("--stream", required=True, help="the held pose's stream (project CSV, SpatialAnalyzer export, "
+                                                   "plain point list)")
+    h.add_argument("--format", choices=("csv", "sa", "points"), default=None, help="format (default: sniffed)")
+    h.add_argument("--group", default=None, help="SpatialAnalyzer group holding the stream")
+    h.add_argument("--rate-hz", type=float, default=None, help="sample rate: the sample index / rate is the time base")
+    h.add_argument("--window-s", type=float, default=1.0, help="window of the RP-style figure, s (default 1)")
+    h.add_argument("--json", default=None, help="write the results JSON here")
+
+
+def run_hold(args: argparse.Namespace) -> int:
+    from station.analysis.iso9283.hold import analyze_hold
+
+    check_positive(args.window_s, "--window-s")
+    si = load_stream(args.stream, args.format, args.group, args.rate_hz)
+    ps = si.points
+    xyz = ps.xyz_mm.copy()
+    xyz[~ps.valid] = 0.0  # flagged rows: never used
+    res = analyze_hold(si.t_s, xyz, ps.valid, window_s=args.window_s)
+    ax = "xyz"
+    lines = [f"held pose in {args.stream}: {res.n} samples over {res.duration_s:.3f} s "
+             f"({int((~ps.valid).sum())} flagged invalid)", si.time_note]
+    lines += [f"note: {x}" for x in si.notes]
+    lines += [
+        "mean        " + "  ".join(f"{a} {v:.4f}" for a, v in zip(ax, res.mean_mm)) + " mm",
+        "noise       " + "  ".join(f"{a} {v:.4f}" for a, v in zip(ax, res.noise_mm))
+        + f" mm;  3-D {res.noise_3d_mm:.4f} mm (about the drift line)",
+        "drift       " + "  ".join(f"{a} {v:+.4f}+/-{s:.4f}" for a, v, s in
+                                   zip(ax, res.drift_mm_per_min, res.drift_sd_mm_per_min))
+        + f" mm/min;  3-D {res.drift_3d_mm_per_min:.4f} mm/min",
+        f"windows     {res.l_mm.size} of {res.window_s:g} s: RP-style l_bar + 3 S_l = {res.RP_mm:.4f} mm "
+        f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
+        + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
+    ]
+    print("\n".join(lines))
+    if args.json is not None:
+        d = res.to_dict()
+        d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "units": ps.units, "notes": si.notes,
+                      "n_invalid": int(np.count_nonzero(~ps.valid))}
+        d["time_base"] = si.time_base
+        tmp = f"{args.json}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(d, f, indent=1)
+            f.write("\n")
+        os.replace(tmp, args.json)
+        print(f"results written to {args.json}")
+    return 0

@@ -1,0 +1,281 @@
+"""``station analyze iso9283``: ISO 9283 pose characteristics of a stream or a stop list.
+
+Inputs (see ``README.md``, "Analysing files you already have"):
+
+* ``--stream S``: the project's CSV, a SpatialAnalyzer point export or a plain
+  point list, chosen by sniffing (``--format`` overrides, ``--group`` picks an
+  SA group); ``--rate-hz R`` makes the sample index the time base;
+* ``--stops S.csv``: a stop list ``pose,cycle,x,y,z[,reflector][,approach]``;
+* ``--poses P.csv``: commanded poses ``name,x,y,z`` (required with a stream);
+* ``--frame F.json`` or ``--register R.csv``: the poses are in the robot base
+  frame; the measurements are carried into it (the registration's rms and
+  residuals are printed).
+
+Prints a table, writes the results JSON (``--json``) and exits with a code a
+pipeline can trust (:mod:`app.commands.analyze_outcome`), the reasons on
+stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+
+import numpy as np
+
+from app.commands.analyze_inputs import (
+    check_positive,
+    load_stream,
+    parse_limits,
+    read_frame,
+    window_parameters,
+)
+from app.commands.analyze_outcome import decide
+from app.commands.analyze_table import format_stop_table, format_table
+from station.errors import ConfigError, DataError
+
+
+def add_arguments(s: argparse.ArgumentParser) -> None:
+    src = s.add_mutually_exclusive_group(required=True)
+    src.add_argument("--stream", type=str, help="tracker stream: project CSV t,x,y,z[,status][,a,b,c], "
+                                                "SpatialAnalyzer point export, or plain point list")
+    src.add_argument("--stops", type=str, help="stop list CSV pose,cycle,x,y,z[,reflector][,approach]")
+    s.add_argument("--poses", type=str, default=None,
+                   help="commanded poses CSV name,x,y,z[,a,b,c] (required with --stream)")
+    s.add_argument("--format", choices=("csv", "sa", "points"), default=None,
+                   help="format of --stream (default: sniffed from its first lines)")
+    s.add_argument("--group", default=None, help="SpatialAnalyzer group holding the stream")
+    frame = s.add_mutually_exclusive_group()
+    frame.add_argument("--frame", type=str, default=None,
+                       help="JSON {R, t_mm}: p_tracker = R p_base + t (as station run journals it); --poses are then "
+                            "in the robot base frame")
+    frame.add_argument("--register", type=str, default=None,
+                       help="CSV name,base_x,base_y,base_z,tracker_x,tracker_y,tracker_z (>= 3 pairs); --poses "
+                            "are then in the robot base frame")
+    s.add_argument("--register-max-rms-mm", type=float, default=None,
+                   help="largest registration fit rms, mm (default: 10 x sqrt(3) x the tracker's noise, or the AP "
+                        "limit when larger)")
+    s.add_argument("--rate-hz", type=float, default=None,
+                   help="sample rate, Hz: the sample index / rate is the time base (the file's stamps are not used)")
+    s.add_argument("--window-samples", type=int, default=None,
+                   help="with --rate-hz: horizon 2M+1 in samples (and every other sample count from it)")
+    s.add_argument("--limit-mm", type=float, default=None,
+                   help="manufacturer's position repeatability, mm: RP verdict and the POS/PST limit band")
+    s.add_argument("--band", choices=("limit", "own"), default=None,
+                   help="POS/PST limit band: the --limit-mm value (default when given) or each pose's own RP")
+    s.add_argument("--limit", action="append", default=[], metavar="KEY=VALUE",
+                   help="further limits, repeatable, e.g. AP_mm=5 PST_s=0.5 vAP_mm=1.5 MPT_s=6")
+    s.add_argument("--order", default=None, help="commanded order of one cycle, e.g. P2,P3,P4,P5,P1")
+    s.add_argument("--distance", action="append", default=None, metavar="A,B",
+                   help="pose pair for AD/RD (default P2,P4 when present); repeatable")
+    s.add_argument("--linear-paths", action="store_true", help="moves are linear: compute AT/RT")
+    s.add_argument("--window-s", type=float, default=0.1, help="moving horizon length 2M+1, s (default 0.1)")
+    s.add_argument("--velocity-step-s", type=float, default=0.01,
+                   help="interval of the velocity of eq. (3), s (default 0.01, the seed's sampling; "
+                        "0 = successive samples at any rate)")
+    s.add_argument("--assign-tol-mm", type=float, default=None,
+                   help="largest distance from a stop to its commanded pose, mm (default 4 x (AP + RP limits) "
+                        "within 5-25 with an AP limit, else 25)")
+    s.add_argument("--initial-rest", choices=("count", "skip"), default="count",
+                   help="the rest before the first move: a stop of the pose it stands at (count, default) or not")
+    s.add_argument("--allow-other-stops", action="store_true",
+                   help="stops far from every commanded pose are expected (via points): listed, not an error")
+    s.add_argument("--require-iso", action="store_true",
+                   help="exit 4 unless the run is ISO 9283 conformant (30 cycles, nothing missing, all decided)")
+    s.add_argument("--json", type=str, default=None, help="write the results JSON here")
+
+
+def _limits(args) -> tuple[dict, str]:
+    from station.analysis.iso9283.characteristics import check_limits
+
+    limits = parse_limits(args.limit)
+    if args.limit_mm is not None:
+        check_positive(args.limit_mm, "--limit-mm")
+        limits.setdefault("RP_mm", args.limit_mm)
+    limits = check_limits(limits)
+    band = args.band or ("limit" if args.limit_mm is not None else "own")
+    if band == "limit" and args.limit_mm is None:
+        raise ConfigError("--band limit needs --limit-mm")
+    return limits, band
+
+
+def _pairs(args):
+    if args.distance is None:
+        return "auto"
+    pairs = []
+    for item in args.distance:
+        ab = [s.strip() for s in item.split(",")]
+        if len(ab) != 2 or not all(ab):
+            raise ConfigError(f"--distance must be A,B, got {item!r}")
+        pairs.append(tuple(ab))
+    return pairs
+
+
+def _tolerance(args, limits) -> float:
+    from station.analysis.iso9283.characteristics import assignment_tolerance_mm
+
+    if args.assign_tol_mm is not None:
+        check_positive(args.assign_tol_mm, "--assign-tol-mm")
+        return float(args.assign_tol_mm)
+    return assignment_tolerance_mm(limits)
+
+
+def _write_json(path, d) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(d, f, indent=1)
+        f.write("\n")
+    os.replace(tmp, path)
+    print(f"results written to {path}")
+
+
+def _finish(res, d: dict, args, far: list[str]) -> int:
+    out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
+    d["exit"] = out.to_dict()
+    if args.json is not None:
+        _write_json(args.json, d)
+    for r in out.reasons:
+        print(f"station: exit {out.code}: {r}", file=sys.stderr)
+    return out.code
+
+
+def run_iso9283(args: argparse.Namespace) -> int:
+    limits, band = _limits(args)
+    if args.stops is not None:
+        return _run_stops(args, limits)
+    if args.poses is None:
+        raise ConfigError("--poses is required with --stream (commanded poses name,x,y,z)")
+    return _run_stream(args, limits, band)
+
+
+def _read_poses(args):
+    from station.readers.stream_csv import read_poses_csv
+
+    names, cmd, cori = read_poses_csv(args.poses)
+    order = None
+    if args.order:
+        order = [s.strip() for s in args.order.split(",") if s.strip()]
+        unknown = [s for s in order if s not in names]
+        if unknown:
+            raise ConfigError(f"--order names unknown pose(s) {', '.join(unknown)} (poses: {', '.join(names)})")
+    return names, cmd, cori, order
+
+
+def _run_stream(args, limits, band) -> int:
+    from station.analysis.iso9283.characteristics import analyze_iso9283
+    from station.analysis.iso9283.extraction import STATUS_UNASSIGNED
+
+    names, cmd, cori, order = _read_poses(args)
+    extraction = dict(window_s=args.window_s, velocity_step_s=args.velocity_step_s,
+                      assign_tol_mm=_tolerance(args, limits), initial_rest_stop=args.initial_rest == "count")
+    extraction.update(window_parameters(args.window_samples, args.rate_hz))
+    si = load_stream(args.stream, args.format, args.group, args.rate_hz)
+    ps = si.points
+    xyz = ps.xyz_mm.copy()
+    valid = ps.valid
+    ori = None if ps.abc_deg is None else np.radians(ps.abc_deg)
+    if not valid.all():
+        xyz[~valid] = 0.0  # rows left out by valid; never used
+        if ori is not None:
+            ori[~valid] = 0.0
+    noise = _rest_noise_mm(si.t_s[valid], xyz[valid])
+    reg, reg_js = read_frame(args.frame, args.register, noise_mm=noise, robot_error_mm=limits.get("AP_mm"),
+                             max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
+    if reg is not None:
+        if ori is not None:
+            raise DataError(f"{ps.source}: orientation a,b,c cannot be carried into the base frame here: drop the "
+                            "columns, or give the poses in the tracker frame without --frame/--register")
+        xyz = reg.to_base(xyz)
+    res = analyze_iso9283(
+        si.t_s, xyz, cmd, names=names, order=order, valid=valid,
+        orientation_rad=ori, commanded_orientation_rad=None if cori is None else np.radians(cori),
+        limits=limits, band_mm=args.limit_mm if band == "limit" else None, distance_pairs=_pairs(args),
+        linear_paths=bool(args.linear_paths), extraction=extraction,
+    )
+    print(format_table(res, args.stream, si.time_note, si.notes))
+    st = res.extraction.stops
+    far_k = np.flatnonzero(st.status == STATUS_UNASSIGNED)
+    far = []
+    if far_k.size:
+        near = [f"row {int(st.row[k])} {float(st.distance_to_pose_mm[k]):.1f} mm from "
+                f"{res.extraction.names[int(st.nearest_pose[k])]}" for k in far_k[:5]]
+        far.append(f"{far_k.size} stop(s) lie farther than {res.extraction.params.assign_tol_mm:g} mm from every "
+                   f"commanded pose ({'; '.join(near)}{', ...' if far_k.size > 5 else ''})"
+                   + ("; no stop is near a pose: are the poses in another frame? give --frame or --register"
+                      if not np.any(st.status == 0) else "")
+                   + " (via points: --allow-other-stops)")
+    d = res.to_dict()
+    d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "frame": ps.frame, "units": ps.units,
+                  "notes": si.notes}
+    d["time_base"] = si.time_base
+    d["registration"] = reg_js
+    return _finish(res, d, args, far)
+
+
+def _run_stops(args, limits) -> int:
+    from station.analysis.iso9283.stop_list import analyze_stop_list
+    from station.readers.stop_list import read_stop_list
+
+    for opt in ("format", "group", "rate_hz", "window_samples", "order", "linear_paths"):
+        if getattr(args, opt) not in (None, False):
+            raise ConfigError(f"--{opt.replace('_', '-')} applies to --stream, not to --stops")
+    sl = read_stop_list(args.stops)
+    names = cmd = None
+    if args.poses is not None:
+        names, cmd, _, _ = _read_poses(args)
+        for k, p in enumerate(sl.pose):
+            if p not in names:
+                raise DataError(f"{sl.source}: line {int(sl.lines[k].min())}, column 'pose': {p!r} is not in "
+                                f"{args.poses} (poses: {', '.join(names)})")
+    elif args.frame is not None or args.register is not None:
+        raise ConfigError("--frame/--register need --poses (the commanded poses in the robot base frame)")
+    pts = sl.points_mm
+    noise = _stop_scatter_mm(sl)
+    reg, reg_js = read_frame(args.frame, args.register, noise_mm=noise, robot_error_mm=limits.get("AP_mm"),
+                             max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
+    if reg is not None:
+        pts = reg.to_base(pts.reshape(-1, 3)).reshape(pts.shape)
+    res = analyze_stop_list(sl.pose, sl.cycle, pts, commanded_mm=cmd, names=names, approach=sl.approach,
+                            reflectors=sl.reflectors, limits=limits, distance_pairs=_pairs(args),
+                            assign_tol_mm=_tolerance(args, limits))
+    print(format_stop_table(res, args.stops))
+    far = []
+    if res.n_far:
+        kf = np.flatnonzero(res.stop_far)
+        far.append(f"{kf.size} stop(s) lie farther than {res.assign_tol_mm:g} mm from their commanded pose ("
+                   + "; ".join(f"line {int(sl.lines[k].min())} {sl.pose[k]} {res.stop_distance_mm[k]:.1f} mm"
+                               for k in kf[:5]) + (", ..." if kf.size > 5 else "") + ")"
+                   + ("; are the poses in another frame? give --frame or --register" if kf.size == sl.n else ""))
+    d = res.to_dict()
+    d["input"] = {"file": sl.source, "format": "stops", "reflectors": [r for r in sl.reflectors if r]}
+    d["stops"]["line"] = [int(x) for x in sl.lines.min(axis=1)]
+    d["time_base"] = None
+    d["registration"] = reg_js
+    return _finish(res, d, args, far)
+
+
+def _rest_noise_mm(t, xyz) -> float:
+    """The tracker's per-axis noise from the quietest fifth of the samples (the robot at rest), mm."""
+    from station.analysis.iso9283.extraction import estimate_noise_mm
+
+    if t.size < 50:
+        return estimate_noise_mm(xyz, t) if t.size >= 3 else 0.0
+    v = np.linalg.norm(xyz[2:] - xyz[:-2], axis=1) / (t[2:] - t[:-2])
+    quiet = np.flatnonzero(v <= np.quantile(v, 0.2)) + 1
+    return estimate_noise_mm(xyz, t, at=quiet)
+
+
+def _stop_scatter_mm(sl) -> float:
+    """Per-axis scatter of the stops about their pose's mean, pooled, mm (bounds the points' noise)."""
+    c = sl.centroid_mm
+    pose = np.array(sl.pose, dtype=object)
+    dev, dof = 0.0, 0
+    for p in set(sl.pose):
+        m = pose == p
+        if m.sum() >= 2:
+            dev += float(np.sum((c[m] - c[m].mean(axis=0)) ** 2))
+            dof += 3 * (int(m.sum()) - 1)
+    return math.sqrt(dev / dof) if dof else 0.0

@@ -1,0 +1,113 @@
+"""The console tables of ``station analyze iso9283``: stream results and stop-list results."""
+
+from __future__ import annotations
+
+import math
+
+#: lines of a list (missing, left out) shown before "... more (see the JSON)"
+SHOW = 20
+
+
+def _n(x, fmt="{:.3f}"):
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+
+
+def _pose_rows(res) -> list[str]:
+    lines = [f"{'pose':<6}{'n':>5}{'AP_mm':>9}{'RP_mm':>9}{'POS_mm':>9}{'PST_s':>8}{'band_mm':>9} {'src':<7}"
+             f"{'vAP_mm':>8}{'dirs':>5}"]
+    for name, pr in res.poses.items():
+        acc, rep, ovs, md = pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional
+        lines.append(
+            f"{name:<6}{pr.n_cycles:>5}{_n(acc.AP_mm if acc else None):>9}{_n(rep.RP_mm if rep else None):>9}"
+            f"{_n(ovs.POS_mm if ovs else None):>9}{_n(ovs.PST_s if ovs else None):>8}"
+            f"{_n(ovs.band_mm if ovs else None):>9} {(ovs.band_source if ovs else '-'):<7}"
+            f"{_n(md.vAP_mm):>8}{md.n_directions:>5}"
+        )
+    return lines
+
+
+def _tail(res) -> list[str]:
+    """Distances, orientation, verdicts, the overall line, left-out stops, warnings, conformance."""
+    from station.analysis.iso9283.characteristics import conformance_text
+
+    lines = []
+    for d in res.distances:
+        lines.append(f"distance {d.pose_a}-{d.pose_b}: Dc {_n(d.Dc_mm)} mm, AD {_n(d.AD_mm, '{:+.3f}')} mm, "
+                     f"RD +/-{_n(d.RD_mm)} mm (n={d.n})")
+    for m in getattr(res, "posing_times", ()):
+        lines.append(f"MPT {m.from_pose}->{m.to_pose}: {_n(m.MPT_s)} s (mean of {m.n} of {m.n_available})")
+    for pa in getattr(res, "paths", ()):
+        lines.append(f"path {pa.from_pose}->{pa.to_pose}: AT {pa.AT_mm:.3f} mm, RT {_n(pa.RT_mm)} mm (n={pa.n})")
+    for name, pr in res.poses.items():
+        if pr.orientation is not None:
+            o = pr.orientation
+            ap = "-" if o.AP_rad is None else ", ".join(f"{math.degrees(v):+.4f}" for v in o.AP_rad)
+            rp = ", ".join(f"{math.degrees(v):.4f}" for v in o.RP_rad)
+            lines.append(f"orientation {name}: AP(a,b,c) {ap} deg, RP(a,b,c) {rp} deg (n={o.n})")
+        if pr.drift is not None:
+            lines.append(f"drift {name}: dAP {pr.drift.dAP_mm:.4f} mm, dRP {pr.drift.dRP_mm:.4f} mm "
+                         f"over {pr.drift.AP_mm.size} blocks")
+    if res.verdicts:
+        lines.append("")
+        for v in res.verdicts:
+            mark = "PASS" if v.passed else ("FAIL" if v.passed is False else "N/A ")
+            lines.append(f"{mark} {v.characteristic:<8} {v.subject:<8} {_n(v.value, '{:.4f}'):>9} <= {v.limit:g}"
+                         + (f"  ({v.note})" if v.note else ""))
+        word = "PASS" if res.passed else ("FAIL" if res.passed is False else "not decided")
+        iso = "ISO 9283 conformant" if res.iso_conformant else "NOT ISO 9283 conformant (see below)"
+        lines.append(f"overall: {word} on the limits asked; {iso}")
+    for x in res.left_out[:SHOW]:
+        where = f"row {x.row}" + ("" if not math.isfinite(x.t_s) else f" ({x.t_s:.3f} s)")
+        cyc = f" cycle {x.cycle}" if x.cycle != -1 or x.statistics != "all" else ""
+        lines.append(f"left out: {where} {x.pose}{cyc} from {x.statistics}: {x.reason}")
+    if len(res.left_out) > SHOW:
+        lines.append(f"left out: ... {len(res.left_out) - SHOW} more (see the JSON)")
+    for w in res.warnings:
+        lines.append(f"warning: {w}")
+    if res.partial:
+        lines.append("PARTIAL RESULT: some characteristics or stops are missing (see warnings)")
+    lines.append(conformance_text(res.iso_reasons))
+    return lines
+
+
+def format_table(res, stream_name="stream", time_note: str | None = None, notes=()) -> str:
+    """Human-readable summary of an :class:`~station.analysis.iso9283.Iso9283Result`."""
+    ex = res.extraction
+    st = ex.stops
+    lines = [
+        f"ISO 9283 analysis of {stream_name}: {ex.n_rows} rows ({ex.n_rows - ex.n_used} flagged invalid) at "
+        f"{ex.params.rate_hz:.1f} Hz, {ex.n_cycles} cycles, {st.n} stops, {len(ex.missing)} missing, "
+        f"{ex.gaps.n} gaps ({int(ex.gaps.splits.sum())} beam breaks)",
+        f"window 2M+1 = {2 * ex.params.M + 1} samples, step Mp = {ex.params.Mp}; order "
+        f"{','.join(ex.names[k] for k in ex.order)}; assignment tolerance {ex.params.assign_tol_mm:g} mm",
+    ]
+    if time_note:
+        lines.append(time_note)
+    lines += [f"note: {n}" for n in notes]
+    lines.append("")
+    lines += _pose_rows(res)
+    tail = _tail(res)
+    k = next((i for i, line in enumerate(tail) if line.startswith(("left out:", "warning:", "PARTIAL", "ISO 9283"))),
+             len(tail))
+    miss = [f"missing: cycle {m.cycle} {m.pose}: {m.reason}" for m in ex.missing[:SHOW]]
+    if len(ex.missing) > SHOW:
+        miss.append(f"missing: ... {len(ex.missing) - SHOW} more (see the JSON)")
+    return "\n".join(lines + tail[:k] + miss + tail[k:])
+
+
+def format_stop_table(res, source="stop list", notes=()) -> str:
+    """Human-readable summary of a :class:`~station.analysis.stop_list.StopListResult`."""
+    n = len(res.stop_pose)
+    refl = [r for r in res.reflectors if r]
+    lines = [f"ISO 9283 analysis of the stop list {source}: {n} stops of {len(res.poses)} poses"
+             + (f", {len(refl)} reflectors ({', '.join(refl)}) per stop" if refl else "")
+             + f", assignment tolerance {res.assign_tol_mm:g} mm"]
+    lines += [f"note: {x}" for x in notes]
+    lines.append("")
+    lines += _pose_rows(res)
+    if refl and len(refl) >= 3 and n:
+        rms = res.stop_fit_rms_mm[~(res.stop_fit_rms_mm != res.stop_fit_rms_mm)]
+        if rms.size:
+            lines.append(f"reflector sets: rigid fit rms up to {float(rms.max()):.4f} mm")
+    lines += _tail(res)
+    return "\n".join(lines)

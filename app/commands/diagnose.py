@@ -1,0 +1,154 @@
+"""`station diagnose arm`: where the station's arm model disagrees with measured data, and why (issue 13).
+
+``station diagnose arm --robot NAME|FILE --data A.csv [--json OUT] [--report OUT.html]``
+    The arm CSV (``q1..q6`` deg, ``x,y,z`` mm in the instrument frame,
+    optional ``t``, ``temperature``, ``load``; rows in measurement order) is
+    predicted by the station's model, split into training and held-out
+    poses spanning the workspace, and the named effects are selected one by
+    one while a test against the noise finds structure (see
+    :mod:`station.analysis.diagnose.arm`). ``--json`` keys: ``steps`` (each
+    ``effect``, ``joint``, ``params``, ``ci``, ``heldout_rms_before``,
+    ``heldout_rms_after``, ``gain``, ``statistic``, ``threshold``,
+    ``ambiguous_with``), ``simulation_heldout_rms``, ``final_heldout_rms``,
+    ``noise_floor`` (mm), ``remaining_structure``, ``not_testable``,
+    ``extended_model`` (table and ``EffectSet`` parameters the simulated
+    world can use). Nothing is written unless everything succeeded.
+
+``station diagnose trailer --l1 L1 --l2 L2 --data T.csv [--json OUT] [--report OUT.html]``
+    The trailer CSV (``t,kappa,psi``, optional ``v``, ``kappa_cmd``) is
+    predicted by the patent's static model (seed 003 eq. (23)) from the
+    nominal link lengths (m), split by time blocks spanning the record, and
+    ``link_lengths``, ``hitch_angle_offset``, ``curvature_gain`` and
+    ``hitch_dynamics`` are selected one by one while a test against the
+    noise finds structure (see :mod:`station.analysis.diagnose.trailer`).
+    Same JSON keys as the arm; RMS and ``noise_floor`` in rad of the joint
+    angle, ``extended_model`` the fitted lengths, offset, gain and relaxation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="find, name and fix what the station's model gets wrong")
+    dsub = p.add_subparsers(dest="diagnose_cmd", metavar="WHAT")
+    a = dsub.add_parser("arm", help="arm model against measured tool points",
+                        description=__doc__.split("\n\n")[1])
+    a.add_argument("--robot", required=True, help="library model (industrial-3100, ur5e, ...) or a JSON model file")
+    a.add_argument("--data", required=True, metavar="CSV", help="q1..q6 (deg), x,y,z (mm), optional t,temperature,load")
+    a.add_argument("--heldout-fraction", type=float, default=0.25, help="share of poses held out (default 0.25)")
+    a.add_argument("--alpha", type=float, default=0.05, help="false-discovery rate of each selection round")
+    a.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    a.add_argument("--report", metavar="OUT.html", help="write the HTML report")
+    a.set_defaults(func=_arm)
+    t = dsub.add_parser("trailer", help="the static trailer model (seed 003) against a measured record",
+                        description=__doc__.split("\n\n")[2])
+    t.add_argument("--l1", required=True, type=float, metavar="L1", help="nominal front link length, m")
+    t.add_argument("--l2", required=True, type=float, metavar="L2", help="nominal rear link length, m")
+    t.add_argument("--data", required=True, metavar="CSV", help="t,kappa,psi (s, 1/m, rad), optional v,kappa_cmd")
+    t.add_argument("--heldout-fraction", type=float, default=0.25, help="share of the record held out (default 0.25)")
+    t.add_argument("--alpha", type=float, default=0.05, help="false-discovery rate of each selection round")
+    t.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    t.add_argument("--report", metavar="OUT.html", help="write the HTML report")
+    t.set_defaults(func=_trailer)
+
+
+def _arm(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from procedures.diagnosis_report import build_report
+    from station.analysis.diagnose import diagnose_arm
+    from station.errors import ConfigError
+    from station.models.arm_model_file import load_arm
+    from station.models.robots import get_robot
+    from station.readers.arm_csv import read_arm_csv
+    from station.report import write_report
+
+    name, dh0, limits, _ = load_arm(args.robot)
+    try:
+        robot = get_robot(args.robot)
+    except ConfigError:
+        robot = None  # a model file: no mass model, the compliance basis stands alone
+    data = read_arm_csv(args.data)
+    res = diagnose_arm(dh0, np.radians(data.q_deg), data.xyz_mm, t_s=data.t_s, temperature_c=data.temperature_c,
+                       load_kg=data.load_kg, robot=robot, heldout_fraction=args.heldout_fraction, alpha=args.alpha)
+    doc = res.to_json()
+    doc["robot"], doc["data"] = name, str(args.data)
+    report = build_report(res, title=f"Diagnosis of {name}", facts={"data": str(args.data)}) if args.report else None
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    if report is not None:
+        write_report(report, args.report)
+    _print(doc)
+    return 0
+
+
+def _trailer(args: argparse.Namespace) -> int:
+    from procedures.diagnosis_report import build_trailer_report
+    from station.analysis.diagnose.trailer import diagnose_trailer
+    from app.commands.calibrate import read_trailer_csv
+    from station.report import write_report
+
+    data = read_trailer_csv(args.data)
+    res = diagnose_trailer(data["t"], data["kappa"], data["psi"], L1_m=args.l1, L2_m=args.l2,
+                           v_m_s=data.get("v"), kappa_cmd=data.get("kappa_cmd"),
+                           heldout_fraction=args.heldout_fraction, alpha=args.alpha)
+    doc = res.to_json()
+    doc["nominal"], doc["data"] = {"L1_m": args.l1, "L2_m": args.l2}, str(args.data)
+    report = build_trailer_report(res, title="Diagnosis of the trailer model",
+                                  facts={"data": str(args.data)}) if args.report else None
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    if report is not None:
+        write_report(report, args.report)
+    _print_trailer(doc)
+    return 0
+
+
+def _print_trailer(doc: dict) -> None:
+    n = doc["n_samples"]
+    print(f"static model (seed 003 eq. (23)) held-out RMS {doc['simulation_heldout_rms']:.5f} rad "
+          f"({n['train']} training, {n['heldout']} held-out samples)")
+    for k, s in enumerate(doc["steps"], 1):
+        par = ", ".join(f"{name} {val:.5g} [{s['ci'][name][0]:.5g}, {s['ci'][name][1]:.5g}]"
+                        for name, val in s["params"].items())
+        amb = "".join(f"; same residual as {a['effect']}" for a in s["ambiguous_with"])
+        print(f"{k:>2}. {s['effect']} ({par}): held-out {s['heldout_rms_before']:.5f} -> "
+              f"{s['heldout_rms_after']:.5f} rad ({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > "
+              f"{s['threshold']:.1f}{amb}")
+    if not doc["steps"]:
+        print("nothing significant: the static model explains the data to the noise")
+    print(f"extended model held-out RMS {doc['final_heldout_rms']:.5f} rad ({doc['gain_percent']:.1f} % less); "
+          f"noise floor {doc['noise_floor']:.5f} rad")
+    left = [c for c in doc["remaining_structure"] if c.get("significant")]
+    if left:
+        print("significant but not improving held-out data: " + ", ".join(c["candidate"] for c in left))
+    for key, why in doc["not_testable"].items():
+        print(f"not testable: {key}: {why}")
+
+
+def _print(doc: dict) -> None:
+    print(f"simulation held-out RMS {doc['simulation_heldout_rms']:.4f} mm "
+          f"({doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out poses)")
+    for k, s in enumerate(doc["steps"], 1):
+        joint = f" joint {s['joint']}" if s["joint"] else ""
+        amb = "".join(f"; same residual as {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
+                      for a in s["ambiguous_with"])
+        print(f"{k:>2}. {s['effect']}{joint}: held-out {s['heldout_rms_before']:.4f} -> {s['heldout_rms_after']:.4f} mm "
+              f"({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > {s['threshold']:.1f}{amb}")
+    if not doc["steps"]:
+        print("nothing significant: the model explains the data to the noise")
+    g = doc["gain_percent"]
+    print(f"extended model held-out RMS {doc['final_heldout_rms']:.4f} mm ({g:.1f} % less); "
+          f"noise floor {doc['noise_floor']:.4f} mm")
+    left = [c for c in doc["remaining_structure"] if c.get("significant")]
+    if left:
+        print("significant but not improving held-out poses: " + ", ".join(c["candidate"] for c in left))
+    for key, why in doc["not_testable"].items():
+        print(f"not testable: {key}: {why}")
+    if not math.isfinite(doc["final_heldout_rms"]):
+        print("warning: non-finite held-out RMS")

@@ -1,0 +1,63 @@
+"""`station run PROCEDURE --config C` and `station run --resume RUN_ID --config C`.
+
+Without ``--arm`` nothing real moves: the procedure's fake cell is started on
+loopback (simulated arm, emScon tracker and controller fakes; or the trailer
+with its odometry on a pty) and the run's devices point at it. With ``--arm``
+the configured device URLs are used as they are (real hardware, or fakes
+started with ``station fakes serve station``) and a person answers every
+confirmation on the terminal: ``--yes`` (every prompt answered yes) and
+``--answers FILE`` (scripted answers) are for dry runs on the fakes only and
+are refused with ``--arm``.
+
+The run is assembled in :mod:`app.assemble` and executed by the
+application layer (:mod:`procedures.execute`); this module parses arguments.
+A run killed at any moment (Ctrl-C, ``kill -9``, a fault) is resumed with
+``--resume RUN_ID``: the robot is brought back to a known pose, then the run
+goes on from its last finished step; with fakes, the same simulated cell
+(same seed) is started again.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from procedures.registry import procedure_names
+from station.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run a procedure (fakes by default; --arm for real hardware)")
+    p.add_argument("procedure", nargs="?", choices=procedure_names())
+    p.add_argument("--config", required=True, help="station config (TOML or JSON)")
+    p.add_argument("--robot", default="r1", help="robot key in the config (default r1)")
+    p.add_argument("--resume", metavar="RUN_ID", help="resume this run from its last finished step")
+    p.add_argument("--run-id", help="id of a new run (default SERIAL-YYYYmmdd-HHMMSS)")
+    p.add_argument("--arm", action="store_true", help="use the configured devices: real hardware moves")
+    p.add_argument("--yes", action="store_true",
+                   help="answer every operator prompt with yes (dry runs on the fakes only; refused with --arm)")
+    p.add_argument("--answers", metavar="FILE",
+                   help="scripted answers, one 'yes'/'no' (or 'TEXT = yes|no') per prompt in order "
+                        "(dry runs on the fakes only; refused with --arm)")
+    p.add_argument("--time-scale", type=float, default=20.0, help="fake cell: simulated s per real s (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="fake cell: seed of the simulated world")
+    p.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.set_defaults(func=_cmd_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from app.assemble import run_procedure
+    from station.config import load_config
+
+    if not args.resume and not args.procedure:
+        raise ConfigError(f"name a procedure ({', '.join(procedure_names())}) or --resume RUN_ID")
+    from station.runner import AnswerFileOperator
+
+    cfg = load_config(args.config)
+    if args.yes and args.answers:
+        raise ConfigError("give --yes or --answers, not both")
+    operator = AnswerFileOperator(args.answers) if args.answers else None
+    return run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
+                         arm=args.arm, yes=args.yes, operator=operator, time_scale=args.time_scale, seed=args.seed,
+                         json_out=args.json, quiet=args.quiet, config_dir=Path(args.config).resolve().parent)

@@ -1,0 +1,229 @@
+"""`station store ...`: the run store from the command line.
+
+    station store runs --config C [--central]
+    station store history --config C --serial SN --name RP_mm [--pose P1] [--central]
+    station store exceeding --config C --name RP_mm [--all-runs] [--central]
+    station store export RUN_ID --config C --out DIR [--format csv|parquet] [--central]
+    station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
+    station store status --config C                                  what of each run has reached the centre
+    station store reanalyze --config C [--central] [--run ID ...] [--jobs N] [--force]
+    station store fleet history|since-overhaul|over-limits|drifting|page --config C ...
+
+``--central`` asks the store named by ``[station] store_url`` instead of the
+station's own file. Exit codes: 0 fine, 1 a finding (values over limits,
+drifting robots) or the central store unreachable (the runs stay local, push
+again later), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from app.commands.store_open import open_store
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("store", help="query, export and forward the run store")
+    s = p.add_subparsers(dest="store_cmd", metavar="ACTION")
+    a = s.add_parser("runs", help="list the runs (with what reached the central store)")
+    _common(a)
+    a.set_defaults(func=_runs)
+    h = s.add_parser("history", help="one robot's values of a characteristic across its runs")
+    _common(h)
+    h.add_argument("--serial", required=True)
+    h.add_argument("--name", required=True, help="characteristic, e.g. RP_mm, AP_mm, MPT_s")
+    h.add_argument("--pose", default=None)
+    h.add_argument("--json", action="store_true")
+    h.set_defaults(func=_history)
+    e = s.add_parser("exceeding", help="robots with a characteristic over its limit")
+    _common(e)
+    e.add_argument("--name", required=True)
+    e.add_argument("--all-runs", action="store_true", help="every finished run, not only each robot's latest")
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(func=_exceeding)
+    x = s.add_parser("export", help="write a run's samples, journal and results as CSV or Parquet")
+    x.add_argument("run_id")
+    _common(x)
+    x.add_argument("--out", required=True)
+    x.add_argument("--format", choices=("csv", "parquet"), default="csv")
+    x.set_defaults(func=_export)
+    u = s.add_parser("push", help="forward the local runs to the central store (store_url)")
+    u.add_argument("--config", required=True)
+    u.add_argument("--run", action="append", dest="runs", metavar="RUN_ID", help="only these runs (repeatable)")
+    u.add_argument("--watch", type=float, default=None, metavar="S",
+                   help="keep forwarding every S seconds until interrupted (retries when the centre is away)")
+    u.add_argument("--chunk-batches", type=int, default=200, help="sample batches per central transaction")
+    u.set_defaults(func=_push)
+    t = s.add_parser("status", help="what of each local run has reached the central store")
+    t.add_argument("--config", required=True)
+    t.add_argument("--json", action="store_true")
+    t.set_defaults(func=_status)
+    r = s.add_parser("reanalyze", help="re-run the analysis of archived runs from their raw samples (results kept beside)")
+    _common(r)
+    r.add_argument("--run", action="append", dest="runs", metavar="RUN_ID", help="only these runs (repeatable)")
+    r.add_argument("--procedure", default=None, help="only runs of this procedure")
+    r.add_argument("--jobs", type=int, default=1, help="parallel processes")
+    r.add_argument("--force", action="store_true", help="again even when this analysis version has a result")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=_reanalyze)
+    from app.commands import store_fleet
+
+    store_fleet.register(s)
+
+
+def _common(p) -> None:
+    p.add_argument("--config", required=True)
+    p.add_argument("--central", action="store_true", help="ask the central store (store_url), not the local file")
+
+
+def _ts(t: float | None) -> str:
+    return "-" if t is None else time.strftime("%Y-%m-%d %H:%M", time.localtime(t))
+
+
+def _runs(args) -> int:
+    from station.store_forward import forward_status
+
+    with open_store(args.config, args.central) as store:
+        fwd = {} if args.central else forward_status(store)
+        for r in store.runs():
+            f = fwd.get(r.run_id)
+            centre = "" if f is None else f"centre: {f['in_centre']} ({f['batches_forwarded']}/{f['batches_local']} batches)"
+            print(f"{r.run_id:<34} {r.procedure:<10} {r.serial or '-':<14} {r.overhaul_state or '-':<10} "
+                  f"{r.status:<8} {_ts(r.created_at)}  {r.station or '-':<10} {centre}")
+    return 0
+
+
+def _history(args) -> int:
+    with open_store(args.config, args.central) as store:
+        rows = store.history(args.serial, args.name, args.pose)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for r in rows:
+        verdict = "" if r["passed"] is None else ("pass" if r["passed"] else "FAIL")
+        print(f"{_ts(r['created_at'])}  {r['run_id']:<34} {r['overhaul_state'] or '-':<10} {r['pose']:<8} "
+              f"{args.name} = {r['value']:.4g}  {verdict}")
+    return 0
+
+
+def _exceeding(args) -> int:
+    with open_store(args.config, args.central) as store:
+        rows = store.robots_exceeding(args.name, latest_only=not args.all_runs)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for r in rows:
+        print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
+              f"{args.name} = {r['value']:.4g} > {r['limit']:g}")
+    return 1 if rows else 0
+
+
+def _export(args) -> int:
+    with open_store(args.config, args.central) as store:
+        paths = store.export(args.run_id, args.out, args.format)
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _push(args) -> int:
+    from station.config import load_config
+    from station.errors import ConfigError
+    from station.store import RunStore, StoreUnavailable, redacted
+    from station.store_forward import Forwarder, push
+
+    cfg = load_config(args.config)
+    if not cfg.station.store_url:
+        raise ConfigError(f"{args.config}: [station] store_url is not set: nowhere to push to")
+    if args.chunk_batches < 1:
+        raise ConfigError(f"--chunk-batches must be at least 1, got {args.chunk_batches}")
+    local_path = cfg.station.store_file(Path(args.config).resolve().parent)
+    if args.watch is not None:
+        if args.watch <= 0:
+            raise ConfigError(f"--watch must be a positive number of seconds, got {args.watch}")
+
+        def said(report, error):
+            if error is not None:
+                print(f"station: {error}; retrying", file=sys.stderr, flush=True)
+            elif report.batches_sent or report.errors:
+                _print_report(report)
+
+        fwd = Forwarder(local_path, cfg.station.store_url, station=cfg.station.name, interval_s=args.watch,
+                        chunk_batches=args.chunk_batches, on_pass=said).start()
+        try:
+            while fwd.is_alive():
+                time.sleep(0.5)
+        finally:
+            fwd.stop()
+        return 0
+    with RunStore(local_path, station=cfg.station.name) as local:
+        try:
+            central = RunStore(cfg.station.store_url, station=cfg.station.name)
+        except StoreUnavailable as exc:
+            print(f"station: {exc}. Nothing was lost: the runs stay in {local_path}; push again later.",
+                  file=sys.stderr)
+            return 1
+        with central:
+            try:
+                report = push(local, central, station=cfg.station.name, run_ids=args.runs,
+                              chunk_batches=args.chunk_batches)
+            except StoreUnavailable as exc:
+                print(f"station: {exc}. What reached {redacted(cfg.station.store_url)} is recorded; "
+                      "push again to send the rest.", file=sys.stderr)
+                return 1
+    _print_report(report)
+    return 1 if report.errors else 0
+
+
+def _print_report(report) -> None:
+    for r in report.runs:
+        extra = f"  ERROR: {r.error}" if r.error else ""
+        print(f"{r.run_id:<34} {r.status:<8} sent {r.batches_sent} batches ({r.samples_sent} samples), "
+              f"{r.batches_already_there} already there{extra}", flush=True)
+
+
+def _status(args) -> int:
+    from station.store_forward import forward_status
+
+    with open_store(args.config) as store:
+        rows = forward_status(store)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for run_id, f in rows.items():
+        print(f"{run_id:<34} {f['status']:<8} centre: {f['in_centre']:<8} {f['batches_forwarded']}/{f['batches_local']}"
+              f" batches, status there: {f['status_forwarded'] or '-'}" + (f"  ({f['last_error']})" if f['last_error'] else ""))
+    return 0
+
+
+def _reanalyze(args) -> int:
+    from dataclasses import asdict
+
+    from app.reanalysis import reanalyze, runs_to_reanalyze
+
+    with open_store(args.config, args.central) as store:
+        target = store.name if not args.central else None
+        ids = runs_to_reanalyze(store, args.runs, args.procedure)
+    if args.central:
+        from station.config import load_config
+
+        target = load_config(args.config).station.store_url
+    t0 = time.perf_counter()
+    done = reanalyze(target, ids, jobs=args.jobs, force=args.force)
+    wall = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps([asdict(d) for d in done], indent=2))
+    else:
+        for d in done:
+            what = ("already done at this version" if d.skipped else f"ERROR {d.error}" if d.error else
+                    f"{d.n_values} values, largest change {d.max_change:.3g}, "
+                    f"{len(d.verdict_changes)} verdict changes" + "".join(f"\n    {v}" for v in d.verdict_changes))
+            print(f"{d.run_id:<34} {d.version}  {what}")
+        n = sum(1 for d in done if not d.skipped and not d.error)
+        if n:
+            print(f"{n} runs in {wall:.1f} s with {args.jobs} processes: {60 * n / wall / args.jobs:.1f} runs/min/process")
+    return 1 if any(d.error or d.verdict_changes for d in done) else 0

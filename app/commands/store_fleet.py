@@ -1,0 +1,121 @@
+"""`station store fleet ...`: fleet questions on the central store (or, with --local, the station's own).
+
+    station store fleet history --config C --serial SN --name RP_mm [--pose P1]
+    station store fleet since-overhaul --config C --name RP_mm [--model M]
+    station store fleet over-limits --config C [--name RP_mm]
+    station store fleet drifting --config C --name RP_mm [--model M] [--q 0.05] [--min-runs 5]
+    station store fleet page --config C --name RP_mm --out fleet.html
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+
+def register(s) -> None:
+    f = s.add_parser("fleet", help="fleet questions across stations (central store)")
+    fs = f.add_subparsers(dest="fleet_cmd", metavar="QUESTION")
+    h = fs.add_parser("history", help="one robot's values across stations and overhauls")
+    _common(h)
+    h.add_argument("--serial", required=True)
+    h.add_argument("--name", required=True)
+    h.add_argument("--pose", default=None)
+    h.set_defaults(func=_history)
+    o = fs.add_parser("since-overhaul", help="per robot: change and trend since its last overhaul")
+    _common(o)
+    o.add_argument("--name", required=True)
+    o.add_argument("--model", default=None)
+    o.set_defaults(func=_since)
+    x = fs.add_parser("over-limits", help="robots whose latest run is over a limit")
+    _common(x)
+    x.add_argument("--name", default=None, help="one characteristic (default: any)")
+    x.set_defaults(func=_over)
+    d = fs.add_parser("drifting", help="robots whose characteristic grows since their last overhaul (trend test)")
+    _common(d)
+    d.add_argument("--name", required=True)
+    d.add_argument("--model", default=None)
+    d.add_argument("--q", type=float, default=0.05, help="false-discovery rate across a model's robots")
+    d.add_argument("--min-runs", type=int, default=5)
+    d.set_defaults(func=_drifting)
+    p = fs.add_parser("page", help="write the static HTML fleet page")
+    _common(p)
+    p.add_argument("--name", default="RP_mm")
+    p.add_argument("--out", required=True)
+    p.add_argument("--q", type=float, default=0.05)
+    p.set_defaults(func=_page)
+
+
+def _common(p) -> None:
+    p.add_argument("--config", required=True)
+    p.add_argument("--local", action="store_true", help="ask the station's own store, not the central one")
+    p.add_argument("--json", action="store_true")
+
+
+def _open(args):
+    from app.commands.store_open import open_store
+
+    return open_store(args.config, central=not args.local)
+
+
+def _ts(t) -> str:
+    return time.strftime("%Y-%m-%d %H:%M", time.localtime(t))
+
+
+def _emit(args, rows, line) -> None:
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        for r in rows:
+            print(line(r))
+
+
+def _history(args) -> int:
+    from station.fleet import robot_history
+
+    with _open(args) as store:
+        rows = robot_history(store, args.serial, args.name, args.pose)
+    _emit(args, rows, lambda r: f"{_ts(r['created_at'])}  {r['station'] or '-':<10} {r['run_id']:<34} "
+                                f"{r['overhaul_state'] or '-':<10} {r['pose']:<6} {r['value']:.4g}")
+    return 0
+
+
+def _since(args) -> int:
+    from station.fleet import since_overhaul
+
+    with _open(args) as store:
+        rows = since_overhaul(store, args.name, model=args.model)
+    _emit(args, rows, lambda r: (
+        f"{r['serial']:<14} {r['model']:<18} {r['baseline_value']:.4g} -> {r['latest_value']:.4g} "
+        f"(change {r['change']:+.3g}, {r['runs_since']} runs, "
+        + ("slope -" if r["slope_per_year"] is None else f"{r['slope_per_year']:+.3g}/year") + ")"))
+    return 0
+
+
+def _over(args) -> int:
+    from station.fleet import over_limits_now
+
+    with _open(args) as store:
+        rows = over_limits_now(store, args.name)
+    _emit(args, rows, lambda r: f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} "
+                                f"{r['pose']:<6} {r['name']} = {r['value']:.4g} > {r['limit']:g}")
+    return 1 if rows else 0
+
+
+def _drifting(args) -> int:
+    from station.fleet import drifting
+
+    with _open(args) as store:
+        rows = drifting(store, args.name, model=args.model, q_max=args.q, min_runs=args.min_runs)
+    _emit(args, rows, lambda r: f"{r['serial']:<14} {r['model']:<18} {r['slope_per_year']:+.3g}/year over "
+                                f"{r['runs_since']} runs since {r['baseline_run']} (q = {r['q']:.2g})")
+    return 1 if rows else 0
+
+
+def _page(args) -> int:
+    from station.fleet_page import write_fleet_page
+
+    with _open(args) as store:
+        path = write_fleet_page(store, args.out, args.name, q_max=args.q)
+    print(path)
+    return 0

@@ -1,0 +1,172 @@
+"""JSON snapshots of the station and of one run, as the pages show them.
+
+The store is the source of truth (a run started from the CLI looks the same
+as one started here); the live run adds what only its server knows: the
+pending prompt, paused, why it could not start. Snapshots are plain dicts,
+compared as JSON by the event stream to send only changes.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from station.store import RunStore, StepRecord
+from app.web.live import LiveRun, RunHub
+
+
+@lru_cache(maxsize=64)
+def _step_names(procedure: str, params_json: str) -> tuple[str, ...]:
+    """The names of a run's steps, rebuilt from its stored plan (cached: the plan never changes)."""
+    import json
+
+    from procedures.registry import get_procedure
+
+    try:
+        return tuple(s.name for s in get_procedure(procedure).build(json.loads(params_json)).steps)
+    except Exception:  # an unknown or old procedure: show the journaled steps only
+        return ()
+
+
+def verdict(store: RunStore, run_id: str, steps: list[StepRecord] | None = None) -> str | None:
+    """'pass', 'fail' or None (nothing judged): the report's verdict, else the characteristics' one."""
+    for s in reversed(steps if steps is not None else store.steps(run_id)):
+        if s.name == "report" and s.status == "done" and s.output and s.output.get("verdict"):
+            return str(s.output["verdict"]).lower()
+    judged = [c["passed"] for c in store.characteristics(run_id) if c["passed"] is not None]
+    if not judged:
+        return None
+    return "pass" if all(judged) else "fail"
+
+
+def report_path(steps: list[StepRecord]) -> Path | None:
+    """The HTML report a run's ``report`` step wrote, if it is there."""
+    for s in reversed(steps):
+        if s.name == "report" and s.status == "done" and s.output and s.output.get("report"):
+            p = Path(s.output["report"])
+            return p if p.is_file() else None
+    return None
+
+
+def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | None = None) -> dict:
+    """Everything the run page shows. StoreError if the run is unknown (unless it failed to start here)."""
+    import json
+
+    now = time.time() if now is None else now
+    try:
+        rec = store.run(run_id)
+    except Exception:
+        if live is None:
+            raise
+        # the front door refused before the run was created (preflight, config): show why
+        return {"run_id": run_id, "procedure": None, "status": "not started" if live.finished else "starting",
+                "live": not live.finished, "paused": False, "prompt": live.operator.prompt,
+                "error": live.error, "output": live.output, "steps": [], "current": None, "n_done": 0,
+                "n_steps": 0, "elapsed_s": now - live.started_at, "remaining_s": None, "results": [],
+                "verdict": None, "report": False, "serial": None, "model": None, "tracker": None}
+    journal = store.steps(run_id)
+    names = list(_step_names(rec.procedure, json.dumps(rec.params, sort_keys=True)))
+    latest: dict[int, StepRecord] = {}
+    attempts: dict[int, int] = {}
+    done_durations = []
+    for s in journal:
+        latest[s.idx] = s
+        attempts[s.idx] = attempts.get(s.idx, 0) + 1
+        if s.status == "done" and s.ended_at is not None:
+            done_durations.append(s.ended_at - s.started_at)
+        while len(names) <= s.idx:
+            names.append(f"step {len(names) + 1}")
+    ever_done = {s.idx for s in journal if s.status == "done"}
+    steps = []
+    current = None
+    driven = live is not None and not live.finished
+    for i, name in enumerate(names):
+        s = latest.get(i)
+        state = s.status if s else "pending"
+        if state == "running" and not (rec.status == "running"):
+            state = "interrupted"
+        row = {"idx": i, "name": name, "state": state, "attempts": attempts.get(i, 0),
+               "started_at": s.started_at if s else None, "ended_at": s.ended_at if s else None,
+               "duration_s": (s.ended_at - s.started_at) if s and s.ended_at else
+               (now - s.started_at if s and state == "running" else None),
+               "message": s.message if s else None}
+        steps.append(row)
+        if state == "running" and (current is None or row["started_at"] >= current["started_at"]):
+            current = row
+    n_done = len(ever_done)
+    pending = len(names) - n_done
+    last_t = max([s.ended_at or s.started_at for s in journal], default=rec.created_at)
+    elapsed = (now if rec.status == "running" else last_t) - rec.created_at
+    mean_step = sum(done_durations) / len(done_durations) if done_durations else None
+    remaining = mean_step * pending if (mean_step is not None and rec.status == "running") else None
+    finished = rec.status in ("done", "failed", "aborted")
+    return {
+        "run_id": run_id, "procedure": rec.procedure, "status": rec.status, "serial": rec.serial,
+        "model": rec.model, "live": driven, "paused": bool(driven and live.control.paused),
+        "prompt": live.operator.prompt if driven else None,
+        "error": (live.error if live else None) or _last_error(journal, rec.status),
+        "output": live.output if (live and live.finished) else "",
+        "steps": steps, "current": current, "n_done": n_done, "n_steps": len(names),
+        "detail": live.detail if driven else "",
+        "elapsed_s": elapsed, "remaining_s": remaining,
+        "results": store.characteristics(run_id) if finished or n_done == len(names) else [],
+        "verdict": verdict(store, run_id, journal), "report": report_path(journal) is not None,
+        "tracker": _tracker(store, run_id, journal, current) if rec.status == "running" else None,
+    }
+
+
+def _tracker(store: RunStore, run_id: str, journal: list[StepRecord], current: dict | None) -> dict | None:
+    """The live plot of the step going now, if it streams the tracker (``tracker`` samples)."""
+    from app.web.tracker_view import tracker_window
+
+    if current is None:
+        return None
+    s = store.samples(run_id, "tracker", finished_only=False, steps=[current["idx"]])
+    if not s:
+        return None
+    outputs = {j.name: j.output for j in journal if j.status == "done" and j.output}
+    reg = outputs.get("register base frame") or {}
+    poses = (outputs.get("check programs") or {}).get("poses_mm") or {}
+    view = tracker_window(s["t"], np.column_stack([s["x"], s["y"], s["z"]]), s["status"],
+                          poses_mm=np.array(list(poses.values()), dtype=float).reshape(-1, 3) if poses else None,
+                          R=reg.get("R"), t_mm=reg.get("t_mm"))
+    view["received"] = store.sample_count(run_id, "tracker")
+    view["step"] = current["name"]
+    return view
+
+
+def _last_error(journal: list[StepRecord], status: str) -> str | None:
+    if status not in ("failed", "aborted"):
+        return None
+    for s in reversed(journal):
+        if s.status in ("failed", "aborted") and s.message:
+            return s.message
+    return None
+
+
+def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
+    """Devices, robots, and the latest ``limit`` runs of the store with their verdicts."""
+    active = hub.active()
+    devices = [{"name": name, "url": _redact(dev.url),
+                "state": (f"in use by run {active.run_id}" if active else "idle") if hub.arm
+                else "not used (runs use the fake cell)"} for name, dev in cfg.devices.items()]
+    robots = [{"key": key, "model": r.model, "serial": r.serial, "overhaul_state": r.overhaul_state}
+              for key, r in cfg.robots.items()]
+    runs = []
+    for rec in reversed(store.runs()[-limit:]):
+        live = hub.live(rec.run_id)
+        runs.append({"run_id": rec.run_id, "procedure": rec.procedure, "serial": rec.serial,
+                     "status": rec.status, "created_at": rec.created_at,
+                     "live": bool(live and not live.finished), "verdict": verdict(store, rec.run_id)})
+    return {"station": cfg.station.name, "armed": hub.arm, "devices": devices, "robots": robots, "runs": runs,
+            "active": active.run_id if active else None}
+
+
+def _redact(url: str) -> str:
+    """A device URL without its password (``password=...`` in the query)."""
+    import re
+
+    return re.sub(r"(password=)[^&]*", r"\1***", str(url))

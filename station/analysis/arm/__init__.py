@@ -1,0 +1,1 @@
+"""Arm kinematic calibration: identification, its split and figures, pose choice, jig features."""

@@ -1,0 +1,403 @@
+"""ISO 9283 pose characteristics from a stop list: one averaged point per stop (and per reflector).
+
+Many tracker measurements are not a stream but one point per stop, averaged by
+the tracker software while the robot dwells. Each stop names its pose and
+cycle; with several reflectors on the flange (three SMRs, the usual way to
+get orientation) each stop carries one point per reflector.
+
+* A stop's position is the reflectors' centroid. Position accuracy AP, eq. (1),
+  needs the commanded pose; repeatability RP, eq. (2), does not.
+* AD and RD, eqs. (8)-(9), between two poses over the cycles where both were
+  attained (AD needs the commanded distance).
+* With an ``approach`` label per stop: the stops of the pose's most frequent
+  approach give AP and RP (ISO 9283: one approach direction), and vAP,
+  eq. (7), is the largest distance between the approach groups' barycentres
+  (three directions needed, as in the seed).
+* With three or more reflectors: the reflector set of each stop is fitted
+  rigidly (least squares, :func:`station.analysis.registration.fit_rigid`) to
+  the mean reflector set of its pose; the rotation of each stop, as angles
+  ``a, b, c`` about the frame's x, y, z (``R = Rz(c) Ry(b) Rx(a)``), gives the
+  orientation repeatability ``RPa, RPb, RPc = 3 S`` per angle. Orientation
+  accuracy needs the reflectors' nominal positions on the tool and is not
+  computed.
+
+POS, PST, MPT, drift and paths need a stream; limits for them are undecided.
+The result has the JSON keys of the stream analysis
+(:func:`station.analysis.iso9283.analyze_iso9283`); ``row`` numbers are
+stops of the list (0-based).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from station.analysis.iso9283.characteristics import (
+    ISO_CYCLES,
+    ApproachGroup,
+    DistanceAR,
+    LeftOut,
+    MultiDirectional,
+    OrientationAR,
+    PoseResult,
+    Verdict,
+    _verdicts,
+    check_limits,
+    distance_to_dict,
+    left_out_to_dict,
+    multidirectional_accuracy,
+    overall_passed,
+    pose_to_dict,
+    position_accuracy,
+    position_repeatability,
+    verdict_to_dict,
+)
+from station.analysis.registration import fit_rigid
+from station.errors import ConfigError, DataError, InsufficientDataError
+
+#: characteristics a stop list cannot give (they need the motion between stops)
+STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
+               "APa_deg", "APb_deg", "APc_deg")
+
+
+@dataclass(frozen=True)
+class StopListResult:
+    """Characteristics of a stop list; :meth:`to_dict` gives the JSON (keys of the stream analysis)."""
+
+    poses: dict[str, PoseResult]
+    distances: tuple[DistanceAR, ...]
+    verdicts: tuple[Verdict, ...]
+    limits: dict[str, float]
+    warnings: tuple[str, ...]
+    partial: bool
+    iso_conformant: bool
+    iso_reasons: tuple[str, ...]
+    left_out: tuple[LeftOut, ...]
+    #: per stop (K,): pose, cycle, approach label, centroid (K, 3), rms of the rigid fit of its reflectors (NaN
+    #: with fewer than 3), distance to its commanded pose (NaN without poses), far from its pose
+    stop_pose: tuple[str, ...] = ()
+    stop_cycle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stop_approach: tuple[str, ...] | None = None
+    stop_position_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    stop_fit_rms_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stop_distance_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stop_far: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    reflectors: tuple[str, ...] = ()
+    assign_tol_mm: float = math.nan
+
+    @property
+    def passed(self) -> bool | None:
+        return overall_passed(self.verdicts)
+
+    @property
+    def n_far(self) -> int:
+        return int(np.count_nonzero(self.stop_far))
+
+    def to_dict(self) -> dict:
+        from station.analysis.iso9283.characteristics import _f, _fl  # the JSON number helpers
+
+        return {
+            "schema": "station.iso9283/1",
+            "source": "stop list",
+            "units": {"position": "mm", "time": "s", "angle": "deg", "row": "0-based stop of the stop list"},
+            "poses": {name: pose_to_dict(pr) for name, pr in self.poses.items()},
+            "distance": [distance_to_dict(d) for d in self.distances],
+            "MPT": [],
+            "paths": [],
+            "verdicts": [verdict_to_dict(v) for v in self.verdicts],
+            "limits": {k: _f(v) for k, v in self.limits.items()},
+            "passed": self.passed,
+            "partial": self.partial,
+            "iso_conformant": self.iso_conformant,
+            "iso_reasons": list(self.iso_reasons),
+            "left_out": [left_out_to_dict(x) for x in self.left_out],
+            "warnings": list(self.warnings),
+            "stops": {
+                "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": _f(self.assign_tol_mm),
+                "pose": list(self.stop_pose), "cycle": [int(c) for c in self.stop_cycle],
+                "approach": None if self.stop_approach is None else list(self.stop_approach),
+                "x_mm": _fl(self.stop_position_mm[:, 0]), "y_mm": _fl(self.stop_position_mm[:, 1]),
+                "z_mm": _fl(self.stop_position_mm[:, 2]), "fit_rms_mm": _fl(self.stop_fit_rms_mm),
+                "distance_to_pose_mm": _fl(self.stop_distance_mm), "far": [bool(x) for x in self.stop_far],
+            },
+        }
+
+
+def rotation_abc(R) -> np.ndarray:
+    """Angles ``(a, b, c)``, rad, of ``R = Rz(c) Ry(b) Rx(a)`` (rotations about x, y, z of the frame)."""
+    R = np.asarray(R, dtype=float)
+    a = math.atan2(R[2, 1], R[2, 2])
+    b = math.asin(max(-1.0, min(1.0, -R[2, 0])))
+    c = math.atan2(R[1, 0], R[0, 0])
+    return np.array([a, b, c])
+
+
+def orientation_by_rigid_fit(points_mm) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation angles of each stop's reflector set against the mean set, and the fit rms.
+
+    Parameters
+    ----------
+    points_mm : array_like, shape (n, R, 3)
+        The R >= 3 reflectors of n stops.
+
+    Returns
+    -------
+    abc_rad : ndarray (n, 3)
+        ``(a, b, c)`` of the rotation taking the mean set onto each stop's set.
+    rms_mm : ndarray (n,)
+        Rms residual of each rigid fit (a reflector that moved on the flange shows here).
+    """
+    pts = np.asarray(points_mm, dtype=float)
+    if pts.ndim != 3 or pts.shape[1] < 3 or pts.shape[2] != 3:
+        raise DataError(f"points_mm must have shape (n, R >= 3, 3), got {pts.shape}")
+    ref = pts.mean(axis=0)
+    out = np.zeros((pts.shape[0], 3))
+    rms = np.zeros(pts.shape[0])
+    for k in range(pts.shape[0]):  # loop over stops (one 3x3 SVD each)
+        try:
+            reg = fit_rigid(ref, pts[k])
+        except InsufficientDataError:
+            raise DataError("the reflectors lie on one line: their set gives no orientation") from None
+        out[k] = rotation_abc(reg.R)
+        rms[k] = reg.rms_mm
+    return out, rms
+
+
+def _groups(k_pose: np.ndarray, approach) -> list[tuple[str, np.ndarray]]:
+    """(label, stops) per approach label, in order of first appearance."""
+    if approach is None:
+        return [("-", k_pose)] if k_pose.size else []
+    labels: dict[str, list[int]] = {}
+    for k in k_pose:
+        labels.setdefault(approach[k], []).append(int(k))
+    return [(lab, np.array(ks, dtype=np.int64)) for lab, ks in labels.items()]
+
+
+def analyze_stop_list(
+    pose,
+    cycle,
+    points_mm,
+    *,
+    commanded_mm=None,
+    names=None,
+    approach=None,
+    reflectors=None,
+    limits=None,
+    distance_pairs="auto",
+    assign_tol_mm: float = 25.0,
+) -> StopListResult:
+    """ISO 9283 pose characteristics of a stop list, with verdicts.
+
+    Parameters
+    ----------
+    pose : sequence of str, length K
+        Commanded pose of each stop.
+    cycle : array_like of int, shape (K,)
+    points_mm : array_like, shape (K, R, 3)
+        Each stop's R reflector positions (R = 1 without reflectors), mm, in the
+        frame of ``commanded_mm``.
+    commanded_mm : array_like, shape (P, 3), optional
+        Commanded positions of the poses ``names`` (AP and AD need them).
+    names : sequence of str, length P
+        Pose names of ``commanded_mm`` (required with it).
+    approach : sequence of str, length K, optional
+        Approach label of each stop (vAP; AP and RP take the most frequent).
+    reflectors : sequence of str, length R, optional
+    limits : dict, optional
+        ``{key: limit}`` as in :func:`station.analysis.iso9283.analyze_iso9283`.
+    distance_pairs : "auto", None or sequence of (name, name)
+    assign_tol_mm : float
+        A stop farther than this from its commanded pose is left out of every
+        statistic (a wrong frame or a wrong pose name).
+
+    Returns
+    -------
+    StopListResult
+    """
+    lim = check_limits(limits)
+    pts = np.asarray(points_mm, dtype=float)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 1:
+        raise DataError(f"points_mm must have shape (K, R, 3), got {pts.shape}")
+    K = pts.shape[0]
+    if K == 0:
+        raise InsufficientDataError("the stop list has no stops")
+    if not np.all(np.isfinite(pts)):
+        raise DataError("points_mm contains NaN or inf")
+    pose = tuple(str(p) for p in pose)
+    cyc = np.asarray(cycle, dtype=np.int64)
+    if len(pose) != K or cyc.shape != (K,):
+        raise DataError(f"pose and cycle need {K} entries like points_mm, got {len(pose)} and {cyc.shape}")
+    if approach is not None:
+        approach = tuple(str(a) for a in approach)
+        if len(approach) != K:
+            raise DataError(f"approach needs {K} entries, got {len(approach)}")
+    if not (math.isfinite(assign_tol_mm) and assign_tol_mm > 0):
+        raise ConfigError(f"assign_tol_mm must be finite and > 0, got {assign_tol_mm!r}")
+    cmd = None
+    if commanded_mm is not None:
+        cmd_arr = np.asarray(commanded_mm, dtype=float)
+        if names is None or cmd_arr.shape != (len(names), 3) or not np.all(np.isfinite(cmd_arr)):
+            raise DataError("commanded_mm must be finite with shape (P, 3) and come with P names")
+        cmd = {str(n): cmd_arr[i] for i, n in enumerate(names)}
+        unknown = sorted({p for p in pose if p not in cmd})
+        if unknown:
+            raise DataError(f"the stop list names pose(s) {', '.join(unknown)} that the commanded poses lack "
+                            f"(have {', '.join(cmd)})")
+    R = pts.shape[1]
+    refl = tuple(reflectors) if reflectors is not None else tuple(str(k) for k in range(R))
+    centroid = pts.mean(axis=1)
+    warnings: list[str] = []
+    partial = False
+    left: list[LeftOut] = []
+
+    def leave(k, stats, reason):
+        left.append(LeftOut(int(k), math.nan, pose[k], int(cyc[k]), stats, reason))
+
+    dist = np.full(K, np.nan)
+    far = np.zeros(K, bool)
+    if cmd is not None:
+        dist = np.linalg.norm(centroid - np.array([cmd[p] for p in pose]), axis=1)
+        far = dist > assign_tol_mm
+        for k in np.flatnonzero(far):
+            leave(k, "all", f"{dist[k]:.3f} mm from its commanded pose {pose[k]}, farther than the assignment "
+                            f"tolerance {assign_tol_mm:g} mm")
+    order = list(cmd) if cmd is not None else list(dict.fromkeys(pose))
+    pose_arr = np.array(pose, dtype=object)
+    fit_rms = np.full(K, np.nan)
+    poses: dict[str, PoseResult] = {}
+    primary: dict[str, np.ndarray] = {}
+    for name in order:  # loop over poses
+        k_pose = np.flatnonzero((pose_arr == name) & ~far)
+        k_pose = k_pose[np.argsort(cyc[k_pose], kind="stable")]
+        groups = _groups(k_pose, approach)
+        if groups:
+            gp = int(np.argmax([kg.size for _, kg in groups]))  # ties: the first to appear
+            kp = groups[gp][1]
+        else:
+            gp, kp = -1, np.zeros(0, np.int64)
+        primary[name] = kp
+        for g, (lab, kg) in enumerate(groups):
+            if g != gp:
+                for k in kg:
+                    leave(k, "AP, RP, AD, RD, orientation",
+                          f"approached from {lab} ({kg.size} stop(s)); {name}'s main direction is {groups[gp][0]} "
+                          f"({kp.size} stops); vAP uses it")
+        if kp.size and np.unique(cyc[kp]).size != kp.size:
+            raise DataError(f"pose {name}: a cycle appears twice among the stops of one approach")
+        a = centroid[kp]
+        acc = rep = None
+        if kp.size and cmd is not None:
+            acc = position_accuracy(a, cmd[name], kp)
+        elif cmd is None and kp.size:
+            pass  # AP needs the commanded pose
+        else:
+            warnings.append(f"{name}: no stop, AP and RP not computed")
+            partial = True
+        if kp.size >= 2:
+            rep = position_repeatability(a, kp)
+        elif kp.size == 1:
+            warnings.append(f"{name}: RP needs at least 2 stops, got 1")
+            partial = True
+        if 0 < kp.size < ISO_CYCLES:
+            warnings.append(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
+        gl = tuple(ApproachGroup(lab, np.zeros(3), centroid[kg].mean(axis=0), int(kg.size), kg) for lab, kg in groups)
+        vap = vany = pair = None
+        if len(gl) >= 2:
+            vany, (h, k2) = multidirectional_accuracy(np.array([g.mean_mm for g in gl]))
+            pair = (gl[h].label, gl[k2].label)
+            if len(gl) >= 3:
+                vap = vany
+        oar = None
+        if R >= 3 and kp.size >= 2:
+            try:
+                abc, rms = orientation_by_rigid_fit(pts[kp])
+            except DataError as exc:
+                raise DataError(f"pose {name}: {exc}") from None
+            fit_rms[kp] = rms
+            S = abc.std(axis=0, ddof=1)
+            oar = OrientationAR(None, 3.0 * S, abc.mean(axis=0), S, int(kp.size), kp)
+        poses[name] = PoseResult(
+            name, None if cmd is None else cmd[name].copy(), a, np.full(kp.size, np.nan), kp, cyc[kp],
+            acc, rep, None, MultiDirectional(vap, vany, gl, pair), oar, None,
+        )
+    dists = _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave)
+    if any(d.RD_mm is None for d in dists):
+        partial = True
+    verdicts = []
+    for v in _verdicts(lim, poses, dists, [], []):
+        if v.passed is None and v.characteristic in STREAM_ONLY:
+            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs a stream: a stop list has one "
+                        "point per stop" if not v.characteristic.startswith("AP") else
+                        "needs the reflectors' nominal positions on the tool")
+        elif v.passed is None and v.characteristic in ("AP_mm", "AD_mm") and cmd is None:
+            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs the commanded poses (--poses)")
+        verdicts.append(v)
+    if any(v.passed is None for v in verdicts):
+        partial = True
+    reasons = _conformance(poses, primary, cyc, far, verdicts, lim)
+    left.sort(key=lambda x: (x.row, x.statistics))
+    return StopListResult(
+        poses=poses, distances=tuple(dists), verdicts=tuple(verdicts), limits=lim, warnings=tuple(warnings),
+        partial=bool(partial or far.any()), iso_conformant=not reasons, iso_reasons=tuple(reasons),
+        left_out=tuple(left), stop_pose=pose, stop_cycle=cyc, stop_approach=approach, stop_position_mm=centroid,
+        stop_fit_rms_mm=fit_rms, stop_distance_mm=dist, stop_far=far, reflectors=refl,
+        assign_tol_mm=float(assign_tol_mm),
+    )
+
+
+def _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave) -> list[DistanceAR]:
+    """AD and RD, eqs. (8)-(9), over the cycles where both poses were attained (main approach)."""
+    names = list(poses)
+    if distance_pairs == "auto":
+        distance_pairs = [("P2", "P4")] if {"P2", "P4"} <= set(names) else []
+    out = []
+    for pa, pb in distance_pairs or []:
+        for q in (pa, pb):
+            if q not in names:
+                raise ConfigError(f"distance pair names unknown pose {q!r}")
+        ka, kb = primary[pa], primary[pb]
+        common, ja, jb = np.intersect1d(cyc[ka], cyc[kb], return_indices=True)
+        for k in np.concatenate([np.delete(ka, ja), np.delete(kb, jb)]):
+            other = pb if k in ka else pa
+            leave(k, f"AD, RD {pa}-{pb}", f"{other} has no stop in cycle {int(cyc[k])}")
+        if common.size < 1:
+            warnings.append(f"AD/RD {pa}-{pb}: no cycle with both poses")
+            continue
+        D = np.linalg.norm(centroid[ka[ja]] - centroid[kb[jb]], axis=1)
+        Dc = float(np.linalg.norm(cmd[pa] - cmd[pb])) if cmd is not None else None
+        AD = float(D.mean() - Dc) if Dc is not None else None
+        RD = float(3.0 * np.std(D, ddof=1)) if D.size >= 2 else None
+        if RD is None:
+            warnings.append(f"RD {pa}-{pb}: needs at least 2 cycles with both poses, got 1")
+        out.append(DistanceAR(pa, pb, Dc, AD, RD, D, common, ka[ja], kb[jb], int(D.size)))
+    return out
+
+
+def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
+    """Why the stop list is not ISO 9283 conformant, one sentence each (as for a stream)."""
+    reasons = []
+    short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
+    if short:
+        reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
+    all_cycles = set()
+    for kp in primary.values():
+        all_cycles |= {int(c) for c in cyc[kp]}
+    gaps = []
+    for n, kp in primary.items():
+        lack = sorted(all_cycles - {int(c) for c in cyc[kp]})
+        if lack:
+            gaps.append(f"{n} in cycle(s) {', '.join(str(c) for c in lack)}")
+    if gaps:
+        reasons.append("missing stops: " + "; ".join(gaps))
+    if far.any():
+        reasons.append(f"{int(far.sum())} stop(s) far from their commanded pose")
+    undecided = [f"{v.characteristic} {v.subject}" + (f" ({v.note})" if v.note else "")
+                 for v in verdicts if v.passed is None]
+    if undecided:
+        reasons.append("limit(s) not decided: " + "; ".join(undecided))
+    unevaluated = sorted(set(limits) - {v.characteristic for v in verdicts})
+    if unevaluated:
+        reasons.append("limit(s) given for characteristics this analysis did not compute: " + ", ".join(unevaluated))
+    return reasons
