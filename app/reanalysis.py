@@ -46,7 +46,9 @@ def analysis_version() -> str:
         pkg = version("robot-metrology-station")
     except PackageNotFoundError:
         pkg = "0"
-    root = Path(__file__).resolve().parent
+    import station
+
+    root = Path(station.__file__).resolve().parent
     files = sorted((root / "analysis").rglob("*.py")) + sorted((root / "models").rglob("*.py"))
     for module in PROCEDURE_MODULES.values():
         spec = importlib.util.find_spec(module)

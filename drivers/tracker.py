@@ -363,10 +363,6 @@ class StreamBuffer:
             self._pending_events.clear()
             return events
 
-    def buffered(self) -> int:
-        with self._cond:
-            return sum(len(c[0]) for c in self._chunks)
-
     def record(self) -> StreamRecord:
         with self._cond:
             return StreamRecord(

@@ -27,8 +27,6 @@ from typing import Callable, Protocol, runtime_checkable
 
 from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
 
-#: default TCP port of each protocol scheme
-
 
 class Deadline:
     """A point in monotonic time: ``time_left()`` and ``expired()``.

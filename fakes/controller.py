@@ -726,11 +726,6 @@ class ControllerFake:
             f"&user={FTP_USER}&password={FTP_PASSWORD}"
         )
 
-    def sim_messages(self) -> list[str]:
-        """``TPWrite`` texts of the loaded program (test inspection)."""
-        with self.core._lock:
-            return list(self.core.messages)
-
     def sim_last_error(self) -> str:
         """Why the last program was refused or faulted (test inspection)."""
         return self.core.last_error

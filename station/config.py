@@ -27,9 +27,7 @@ from station.errors import ConfigError
 from station.programs.handshake import RegisterMap
 
 # the device-URL grammar is one table, shared with the drivers
-from station.device_urls import SCHEMES, DeviceURL, parse_device_url  # noqa: F401
-
-DEVICE_KINDS = {name: s.kind for name, s in SCHEMES.items() if s.kind != "fake"}
+from station.device_urls import DeviceURL, parse_device_url
 
 
 class _Strict(BaseModel):

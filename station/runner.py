@@ -39,7 +39,7 @@ from typing import Any, Protocol, TextIO
 import numpy as np
 
 from station.errors import RunStateError, StationError
-from station.store import RUN_TRANSITIONS, RunStore  # noqa: F401  (the state table, re-exported)
+from station.store import RunStore
 
 
 

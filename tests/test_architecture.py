@@ -21,7 +21,7 @@ def _lint(cwd: Path, pythonpath: Path) -> subprocess.CompletedProcess:
 
 
 def _copy_code(dst: Path) -> None:
-    for pkg in ("station", "drivers", "fakes", "procedures"):
+    for pkg in ("app", "station", "drivers", "fakes", "procedures"):
         shutil.copytree(ROOT / pkg, dst / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", dst / "pyproject.toml")
 
@@ -39,16 +39,30 @@ def test_the_import_contracts_hold(lint):
     assert "0 broken" in res.stdout
 
 
+LAYERS = "Layers from the roof down"
+
+
 @pytest.mark.parametrize("importer, imported, contract", [
-    ("station/models/leak.py", "fakes.sim", "The core imports no drivers"),
-    ("station/analysis/leak.py", "procedures.execute", "The core imports no drivers"),
-    ("drivers/leak.py", "fakes.sim", "Drivers never import fakes"),
-    ("fakes/leak.py", "drivers.tracker", "Fakes never import drivers"),
+    ("station/models/leak.py", "fakes.sim", LAYERS),
+    ("station/analysis/leak.py", "procedures.execute", LAYERS),
+    # a core module that no contract names, in a package that did not exist before
+    ("station/newroom/leak.py", "procedures.execute", LAYERS),
+    ("station/readers/leak.py", "app.cli", LAYERS),
+    ("station/leak.py", "drivers.tracker", LAYERS),
+    ("drivers/leak.py", "fakes.sim", LAYERS),
+    ("drivers/leak.py", "procedures.execute", LAYERS),
+    ("fakes/leak.py", "drivers.tracker", LAYERS),
+    ("fakes/leak.py", "procedures.registry", LAYERS),
+    ("procedures/leak.py", "app.assemble", LAYERS),
     ("procedures/leak.py", "fakes.sim", "Procedures never import fakes"),
 ])
 def test_a_forbidden_import_breaks_the_contracts(lint, tmp_path, importer, imported, contract):
     """The same contracts on a copy of the code with one forbidden import added."""
     _copy_code(tmp_path)
+    folder = (tmp_path / importer).parent
+    folder.mkdir(exist_ok=True)
+    if not (folder / "__init__.py").exists():
+        (folder / "__init__.py").write_text("")
     (tmp_path / importer).write_text(f"import {imported}\n")
     res = lint(tmp_path, tmp_path)
     assert res.returncode != 0

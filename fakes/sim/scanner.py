@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import ConfigError, DataError
-from station.models.jig import BASE_FACE, CornerJig, sample_triangles, transform_points
+from station.models.jig import BASE_FACE, CornerJig, sample_triangles
 
 __all__ = ["SimScanner", "ScanResult", "look_at", "LABEL_BACKGROUND", "LABEL_OUTLIER", "LABEL_OCCLUDER"]
 
@@ -341,10 +341,6 @@ class SimScanner:
         S = S[~_behind_spheres(S, self.occluder_centers_mm, self.occluder_radii_mm)]
         S = S[~_ray_hits_triangles(S, tri)]
         return np.concatenate([P, S]), np.concatenate([L, np.full(S.shape[0], LABEL_OCCLUDER)])
-
-    def to_base_frame(self, points_mm) -> np.ndarray:
-        """Scanner-frame points (N, 3) in the robot base frame."""
-        return transform_points(self.base_T_scanner, points_mm)
 
     def describe(self) -> dict:
         info = {

@@ -150,10 +150,6 @@ class TrackerModel:
         R_m = np.asarray(distance_mm, dtype=float) * 1e-3
         return (self.mpe_a_um + self.mpe_b_um_per_m * R_m) * 1e-3 / 2.0
 
-    def mpe_mm(self, distance_mm) -> np.ndarray:
-        """The specified MPE ``a + b R`` in mm."""
-        return 2.0 * self.sigma_mm(distance_mm)
-
     # ------------------------------------------------------------------ time
     def device_time(self, t_sim) -> np.ndarray:
         """Device timestamps of world times: ``t_sim + clock_offset_s``."""

@@ -2,7 +2,8 @@ import json
 
 import pytest
 
-from station.config import config_from_dict, load_config, parse_device_url
+from station.config import config_from_dict, load_config
+from station.device_urls import parse_device_url
 from station.errors import ConfigError
 
 GOOD = """

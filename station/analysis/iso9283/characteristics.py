@@ -516,22 +516,6 @@ def overshoot_settling_stops(t, xyz, i_from, i_attained, band_mm):
     return reg.approach(np.arange(K), i_from, i_att)
 
 
-def leave_index(xyz, i_attained, i_until, band_mm):
-    """Last sample inside the band around each attained pose before the tool leaves it.
-
-    Searches ``i_attained[k] .. i_until[k]`` (ranges in time order, disjoint);
-    -1 where the tool never leaves.
-    """
-    i_att = np.asarray(i_attained, dtype=np.int64)
-    i_until = np.asarray(i_until, dtype=np.int64)
-    if i_att.size == 0:
-        return np.zeros(0, np.int64)
-    if np.any(i_until < i_att) or np.any(i_until[:-1] >= i_att[1:]):
-        raise DataError("leave_index: ranges must be in time order and disjoint")
-    reg = _BandRegion(np.zeros(xyz.shape[0]), xyz, i_att, int(i_until[-1]), xyz[i_att], band_mm)
-    return reg.leave(i_att, i_until)
-
-
 def path_crossings(xyz, i_from, i_to, start_mm, unit, s_planes):
     """Where each attained path first crosses the planes normal to its commanded line.
 
