@@ -34,6 +34,7 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.store import RunStore
+from station.numeric import json_default
 
 PROCEDURE_MODULES = {"iso9283": "procedures.iso9283"}
 
@@ -125,7 +126,7 @@ def reanalyze_run(target, run_id: str, version: str, force: bool = False) -> Rea
             out.error = f"{type(exc).__name__}: {exc}"
             out.seconds = time.perf_counter() - t0
             return out
-        value = json.loads(json.dumps({"result": result, "characteristics": rows}, default=_json_default))
+        value = json.loads(json.dumps({"result": result, "characteristics": rows}, default=json_default))
         store.put_reanalysis(run_id, key, version, value)
         before = {(c["pose"], c["name"]): c for c in store.characteristics(run_id)}
         changes, flips = [], []
@@ -178,9 +179,3 @@ def _finite(v) -> bool:
     return v is not None and isinstance(v, (int, float)) and math.isfinite(v)
 
 
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")

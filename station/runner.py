@@ -40,6 +40,7 @@ import numpy as np
 
 from station.errors import RunStateError, StationError
 from station.store import RunStore
+from station.numeric import json_default
 
 
 
@@ -409,7 +410,7 @@ class Runner:
         try:
             out = step.run(ctx)
             out = dict(out) if out is not None else {}
-            json.dumps(out, default=_json_default)  # refuse non-JSON output before marking done
+            json.dumps(out, default=json_default)  # refuse non-JSON output before marking done
         except RunAborted as exc:
             self.store.step_ended(run_id, idx, attempt, "aborted", message=str(exc))
             raise
@@ -432,9 +433,3 @@ class Runner:
             self.progress.log(f"warning: bringing devices to a safe state failed: {exc}")
 
 
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    raise TypeError(f"step output is not JSON-serialisable: {type(obj).__name__}")

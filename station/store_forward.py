@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 from station.errors import ConfigError
 from station.store import RunStore, StoreError, StoreUnavailable
+from station.numeric import dumps
 
 FINAL = ("done", "failed", "aborted")
 _KEY = ("stream", "step_idx", "attempt", "batch_no")
@@ -152,7 +153,7 @@ def _push_run(local, central, rec, station, item: RunPush, chunk: int, progress)
             cur.execute(
                 "INSERT INTO runs(run_id, robot_id, procedure, overhaul_state, config_json, params_json, status,"
                 " created_at, finished_at, station) VALUES (?,?,?,?,?,?,?,?,?,?)",
-                (rec.run_id, rid, rec.procedure, rec.overhaul_state, _dumps(rec.config), _dumps(rec.params),
+                (rec.run_id, rid, rec.procedure, rec.overhaul_state, dumps(rec.config), dumps(rec.params),
                  "running", rec.created_at, None, station))
     keys = local.backend.query(
         "SELECT b.stream, b.step_idx, b.attempt, b.batch_no FROM sample_batches b"
@@ -184,10 +185,10 @@ def _push_run(local, central, rec, station, item: RunPush, chunk: int, progress)
                 " VALUES (?,?,?,?,?,?,?,?,?) ON CONFLICT (run_id, idx, attempt) DO UPDATE SET status=excluded.status,"
                 " ended_at=excluded.ended_at, output_json=excluded.output_json, message=excluded.message",
                 (rec.run_id, s.idx, s.attempt, s.name, s.status, s.started_at, s.ended_at,
-                 None if s.output is None else _dumps(s.output), s.message))
+                 None if s.output is None else dumps(s.output), s.message))
         for key, value in results.items():
             cur.execute("INSERT INTO results(run_id, key, value_json) VALUES (?,?,?) ON CONFLICT (run_id, key)"
-                        " DO UPDATE SET value_json=excluded.value_json", (rec.run_id, key, _dumps(value)))
+                        " DO UPDATE SET value_json=excluded.value_json", (rec.run_id, key, dumps(value)))
         for c in chars:
             cur.execute(
                 "INSERT INTO characteristics(run_id, pose, name, value, unit, limit_value, passed)"
@@ -242,12 +243,6 @@ def _send_batches(central: RunStore, run_id: str, rows: list[tuple]) -> tuple[in
                 cur.execute("INSERT INTO sample_batches(run_id, stream, step_idx, attempt, batch_no, n, columns, data,"
                             " committed_at) VALUES (?,?,?,?,?,?,?,?,?)", r)
     return len(todo), there
-
-
-def _dumps(value) -> str:
-    from station.store.runstore import _dumps as dumps
-
-    return dumps(value)
 
 
 # -- in the background ---------------------------------------------------------

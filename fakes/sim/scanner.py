@@ -37,6 +37,7 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.models.jig import BASE_FACE, CornerJig, sample_triangles
+from station.numeric import finite_number
 
 __all__ = ["SimScanner", "ScanResult", "look_at", "LABEL_BACKGROUND", "LABEL_OUTLIER", "LABEL_OCCLUDER"]
 
@@ -95,19 +96,6 @@ class ScanResult:
     plane_offsets_mm: np.ndarray
     visible_faces: tuple
     scanner_T_tool: np.ndarray
-
-
-def _num(value, name: str, lo: float = 0.0, strict: bool = True, hi: float | None = None) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"`{name}` must be a number, got {value!r}") from exc
-    if not math.isfinite(v) or (v <= lo if strict else v < lo) or (hi is not None and v > hi):
-        bound = f"> {lo}" if strict else f">= {lo}"
-        if hi is not None:
-            bound += f" and <= {hi}"
-        raise ConfigError(f"`{name}` must be finite and {bound}, got {value!r}")
-    return v
 
 
 def _behind_spheres(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
@@ -211,8 +199,8 @@ class SimScanner:
         self.jig = jig if jig is not None else CornerJig()
         if not isinstance(self.jig, CornerJig):
             raise ConfigError(f"`jig` must be a CornerJig, got {type(self.jig).__name__}")
-        self.working_distance_mm = _num(working_distance_mm, "working_distance_mm")
-        self.fov_mm = _num(fov_mm, "fov_mm")
+        self.working_distance_mm = finite_number(working_distance_mm, "working_distance_mm", positive=True)
+        self.fov_mm = finite_number(fov_mm, "fov_mm", positive=True)
         try:
             z0, z1 = (float(x) for x in depth_range_mm)
         except (TypeError, ValueError) as exc:
@@ -220,12 +208,12 @@ class SimScanner:
         if not (math.isfinite(z0) and math.isfinite(z1) and 0 < z0 < z1):
             raise ConfigError(f"`depth_range_mm` must satisfy 0 < near < far, got {depth_range_mm!r}")
         self.depth_range_mm = (z0, z1)
-        self.noise_sigma_mm = _num(noise_sigma_mm, "noise_sigma_mm", strict=False)
-        self.density_per_mm2 = _num(density_per_mm2, "density_per_mm2")
-        self.outlier_fraction = _num(outlier_fraction, "outlier_fraction", strict=False, hi=0.5)
+        self.noise_sigma_mm = finite_number(noise_sigma_mm, "noise_sigma_mm", nonneg=True)
+        self.density_per_mm2 = finite_number(density_per_mm2, "density_per_mm2", positive=True)
+        self.outlier_fraction = finite_number(outlier_fraction, "outlier_fraction", nonneg=True, hi=0.5)
         self.background = bool(background)
-        self.background_offset_mm = _num(background_offset_mm, "background_offset_mm")
-        self.background_density_per_mm2 = _num(background_density_per_mm2, "background_density_per_mm2", strict=False)
+        self.background_offset_mm = finite_number(background_offset_mm, "background_offset_mm", positive=True)
+        self.background_density_per_mm2 = finite_number(background_density_per_mm2, "background_density_per_mm2", nonneg=True)
         self.tan_half_fov = 0.5 * self.fov_mm / self.working_distance_mm
         centers, radii = [], []
         for i, occ in enumerate(occluders):

@@ -37,6 +37,7 @@ from typing import Callable
 import numpy as np
 
 from station.errors import ConfigError, DataError
+from station.numeric import finite_number
 
 __all__ = ["TrackerModel", "RATE_RANGE_HZ"]
 
@@ -46,20 +47,6 @@ RATE_RANGE_HZ = (10.0, 3000.0)
 _NOISE_BLOCK = 65536  # grid samples per noise block
 _BREAK_BLOCK_S = 60.0  # seconds per random-break block
 _CACHE = 8
-
-
-def _finite(value, name: str, *, positive=False, nonneg=False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"`{name}` must be a number, got {value!r}") from exc
-    if not math.isfinite(v):
-        raise ConfigError(f"`{name}` must be finite, got {value!r}")
-    if positive and v <= 0:
-        raise ConfigError(f"`{name}` must be > 0, got {value!r}")
-    if nonneg and v < 0:
-        raise ConfigError(f"`{name}` must be >= 0, got {value!r}")
-    return v
 
 
 def _check_transform(T, name: str) -> np.ndarray:
@@ -118,15 +105,15 @@ class TrackerModel:
     ) -> None:
         self.base_T_tracker = _check_transform(base_T_tracker, "base_T_tracker")
         self.tracker_T_base = np.linalg.inv(self.base_T_tracker)
-        rate = _finite(rate_hz, "rate_hz", positive=True)
+        rate = finite_number(rate_hz, "rate_hz", positive=True)
         if not (RATE_RANGE_HZ[0] <= rate <= RATE_RANGE_HZ[1]):
             raise ConfigError(f"`rate_hz` must be within {RATE_RANGE_HZ[0]:g}-{RATE_RANGE_HZ[1]:g} Hz, got {rate_hz!r}")
         self.rate_hz = rate
-        self.mpe_a_um = _finite(mpe_a_um, "mpe_a_um", nonneg=True)
-        self.mpe_b_um_per_m = _finite(mpe_b_um_per_m, "mpe_b_um_per_m", nonneg=True)
-        self.latency_s = _finite(latency_s, "latency_s", nonneg=True)
-        self.clock_offset_s = _finite(clock_offset_s, "clock_offset_s")
-        self.random_breaks_per_hour = _finite(random_breaks_per_hour, "random_breaks_per_hour", nonneg=True)
+        self.mpe_a_um = finite_number(mpe_a_um, "mpe_a_um", nonneg=True)
+        self.mpe_b_um_per_m = finite_number(mpe_b_um_per_m, "mpe_b_um_per_m", nonneg=True)
+        self.latency_s = finite_number(latency_s, "latency_s", nonneg=True)
+        self.clock_offset_s = finite_number(clock_offset_s, "clock_offset_s")
+        self.random_breaks_per_hour = finite_number(random_breaks_per_hour, "random_breaks_per_hour", nonneg=True)
         try:
             lo, hi = (float(x) for x in random_break_duration_s)
         except (TypeError, ValueError) as exc:
@@ -160,8 +147,8 @@ class TrackerModel:
 
         Sample ``k`` is stamped ``k / rate_hz`` on the device clock.
         """
-        a = _finite(t_start, "t_start")
-        b = _finite(t_end, "t_end")
+        a = finite_number(t_start, "t_start")
+        b = finite_number(t_end, "t_end")
         if b <= a:
             return np.zeros(0)
         k0 = math.ceil((a + self.clock_offset_s) * self.rate_hz - 1e-9)
@@ -199,8 +186,8 @@ class TrackerModel:
     # ------------------------------------------------------------ beam breaks
     def add_beam_break(self, t_start: float, t_end: float) -> None:
         """Schedule a beam break over ``[t_start, t_end)`` (simulated time)."""
-        a = _finite(t_start, "t_start")
-        b = _finite(t_end, "t_end")
+        a = finite_number(t_start, "t_start")
+        b = finite_number(t_end, "t_end")
         if b <= a:
             raise ConfigError(f"a beam break must end after it starts, got ({t_start!r}, {t_end!r})")
         with self._lock:

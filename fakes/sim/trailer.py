@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import ConfigError, DataError
+from station.numeric import finite_number
 from station.models.trailer import (
     COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, PATENT_NOISE_SIGMA,
     PSI_LIMIT_RAD, SensorModel, check_curvature_command, check_lengths, command_curvature,
@@ -169,7 +170,7 @@ class SimTrailer:
         refused and the previous one stays) if it passes eq. (25) or drives
         the steady joint angle beyond the limit.
         """
-        k = self._finite("kappa_1_m", kappa_1_m)
+        k = finite_number(kappa_1_m, "kappa_1_m")
         check_curvature_command(np.array([k]), self._L1, self._L2, self._psi_limit)
         with self._lock:
             t = self._advance_locked(t_s)
@@ -281,15 +282,8 @@ class SimTrailer:
                 "kappa": np.asarray(km, dtype=float), "psi": np.asarray(pm, dtype=float)}
 
     # -- internals --------------------------------------------------------------------
-    @staticmethod
-    def _finite(name: str, value) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(value):
-            raise ConfigError(f"{name} must be a finite number, got {value!r}")
-        return float(value)
-
     def _check_speed(self, v_m_s) -> float:
-        v = self._finite("v_m_s", v_m_s)
+        v = finite_number(v_m_s, "v_m_s")
         if not 0.0 <= v <= MAX_SPEED_M_S:
             raise ConfigError(f"v_m_s must be in [0, {MAX_SPEED_M_S}] m/s (reverse motion of a "
                               f"trailer is unstable), got {v_m_s!r}")
@@ -299,7 +293,7 @@ class SimTrailer:
         return self._profile.at(t) if self._profile is not None else self._kappa_cmd
 
     def _advance_locked(self, t_s: float | None) -> float:
-        target = float(self.clock.now()) if t_s is None else self._finite("t_s", t_s)
+        target = float(self.clock.now()) if t_s is None else finite_number(t_s, "t_s")
         if target <= self._t:
             return self._t
         L1, L2, v, rate = self._L1, self._L2, self._v, self._rate

@@ -12,7 +12,6 @@ the controller fake moves ``world.arm``, the odometry fake drives
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +27,7 @@ from station.models.effects import EffectSet, realistic_effects, realistic_stop_
 from station.models.jig import CornerJig
 from station.models.motion import PROFILE_KINDS, ServoParams
 from station.models.robots import RobotSpec, get_robot
+from station.numeric import finite_number
 
 __all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM"]
 
@@ -167,22 +167,6 @@ def realistic_servo(rng: np.random.Generator) -> ServoParams:
     return ServoParams(2.0 * np.pi * rng.uniform(6.0, 12.0, 6), rng.uniform(0.6, 0.9, 6))
 
 
-def _num(value, name: str, *, positive=False, nonneg=False) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(f"`{name}` must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"`{name}` must be a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ConfigError(f"`{name}` must be finite, got {value!r}")
-    if positive and v <= 0:
-        raise ConfigError(f"`{name}` must be > 0, got {value!r}")
-    if nonneg and v < 0:
-        raise ConfigError(f"`{name}` must be >= 0, got {value!r}")
-    return v
-
-
 def _draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Tracker 2-4 m (horizontally) from ``centre``, levelled, random heading.
 
@@ -292,12 +276,12 @@ def make_world(
         raise ConfigError(f"`seed` must be a non-negative integer, got {seed!r}")
     seed = int(seed)
     if clock is None:
-        time_scale = _num(time_scale, "time_scale", positive=True)
+        time_scale = finite_number(time_scale, "time_scale", positive=True)
     elif not (hasattr(clock, "now") and hasattr(clock, "sleep_until")):
         raise ConfigError(f"`clock` must be a SimClock or ManualClock, got {type(clock).__name__}")
     if not (isinstance(effects, EffectSet) or effects is None or effects == "realistic"):
         raise ConfigError(f"`effects` must be 'realistic', an EffectSet or None, got {effects!r}")
-    tracker_rate_hz = _num(tracker_rate_hz, "tracker_rate_hz", positive=True)
+    tracker_rate_hz = finite_number(tracker_rate_hz, "tracker_rate_hz", positive=True)
     if not (10.0 <= tracker_rate_hz <= 3000.0):
         raise ConfigError(f"`tracker_rate_hz` must be within 10-3000 Hz, got {tracker_rate_hz!r}")
     if not (isinstance(servo, ServoParams) or servo is None or servo == "realistic"):
@@ -305,15 +289,15 @@ def make_world(
     if stop_sigma_mm in ("auto", "realistic") or stop_sigma_mm is None:
         pass
     else:
-        stop_sigma_mm = _num(stop_sigma_mm, "stop_sigma_mm", nonneg=True)
-    payload_kg = _num(payload_kg, "payload_kg", nonneg=True)
+        stop_sigma_mm = finite_number(stop_sigma_mm, "stop_sigma_mm", nonneg=True)
+    payload_kg = finite_number(payload_kg, "payload_kg", nonneg=True)
     if profile not in PROFILE_KINDS:
         raise ConfigError(f"`profile` must be one of {PROFILE_KINDS}, got {profile!r}")
-    history_s = _num(history_s, "history_s", positive=True)
+    history_s = finite_number(history_s, "history_s", positive=True)
     for name, val in (("tracker_mpe_a_um", tracker_mpe_a_um), ("tracker_mpe_b_um_per_m", tracker_mpe_b_um_per_m),
                       ("tracker_latency_s", tracker_latency_s), ("random_breaks_per_hour", random_breaks_per_hour)):
-        _num(val, name, nonneg=True)
-    _num(tracker_clock_offset_s, "tracker_clock_offset_s")
+        finite_number(val, name, nonneg=True)
+    finite_number(tracker_clock_offset_s, "tracker_clock_offset_s")
     try:
         breaks = [(float(a), float(b)) for a, b in beam_breaks]
     except (TypeError, ValueError) as exc:

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from station.errors import ConfigError, DataError
+from station.numeric import finite_number
 
 __all__ = [
     "N_JOINTS",
@@ -562,16 +563,6 @@ def _dls_step(J, e, q, lam, lo, hi):
     return _into_limits(q + dq, lo, hi)
 
 
-def _positive_float(name: str, val) -> float:
-    try:
-        out = float(val)
-    except (TypeError, ValueError):
-        raise ConfigError(f"`{name}` must be a positive finite number, got {val!r}") from None
-    if not (np.isfinite(out) and out > 0):
-        raise ConfigError(f"`{name}` must be a positive finite number, got {val!r}")
-    return out
-
-
 def _int_at_least(name: str, val, minimum: int) -> int:
     try:
         ok = int(val) == val
@@ -660,9 +651,9 @@ def ik(
         lim = np.tile([-2 * np.pi, 2 * np.pi], (N_JOINTS, 1))
     else:
         lim = validate_joint_limits(joint_limits_rad)
-    tol_mm = _positive_float("tol_mm", tol_mm)
-    tol_deg = _positive_float("tol_deg", tol_deg)
-    orientation_scale_mm = _positive_float("orientation_scale_mm", orientation_scale_mm)
+    tol_mm = finite_number(tol_mm, "tol_mm", positive=True)
+    tol_deg = finite_number(tol_deg, "tol_deg", positive=True)
+    orientation_scale_mm = finite_number(orientation_scale_mm, "orientation_scale_mm", positive=True)
     max_iter = _int_at_least("max_iter", max_iter, 1)
     n_restarts = _int_at_least("n_restarts", n_restarts, 0)
     lo, hi = lim[:, 0], lim[:, 1]

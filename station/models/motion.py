@@ -80,6 +80,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
 from station.errors import ConfigError, DataError
+from station.numeric import finite_number
 
 __all__ = [
     "PROFILE_KINDS",
@@ -116,18 +117,8 @@ class UnreachableTarget(DataError):
 # --------------------------------------------------------------------------
 # validation helpers
 # --------------------------------------------------------------------------
-def _positive(value, name: str, error=DataError) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise error(f"`{name}` must be a number, got {value!r}") from exc
-    if not (math.isfinite(v) and v > 0):
-        raise error(f"`{name}` must be a finite number > 0, got {value!r}")
-    return v
-
-
 def _fraction(value, name: str) -> float:
-    v = _positive(value, name)
+    v = finite_number(value, name, positive=True, error=DataError)
     if v > 1.0:
         raise DataError(f"`{name}` must be in (0, 1] (a fraction of the rated value), got {value!r}")
     return v
@@ -230,7 +221,7 @@ class Profile:
 
     def time_scaled(self, factor: float) -> "Profile":
         """The same path ``factor`` times slower (velocities / k, accelerations / k^2)."""
-        k = _positive(factor, "factor")
+        k = finite_number(factor, "factor", positive=True, error=DataError)
         return Profile(
             kind=self.kind,
             distance=self.distance,
@@ -297,8 +288,8 @@ def trapezoid_profile(distance: float, v_max: float, a_max: float) -> Profile:
     L = float(distance)
     if not (math.isfinite(L) and L >= 0):
         raise DataError(f"`distance` must be finite and >= 0, got {distance!r}")
-    v = _positive(v_max, "v_max")
-    a = _positive(a_max, "a_max")
+    v = finite_number(v_max, "v_max", positive=True, error=DataError)
+    a = finite_number(a_max, "a_max", positive=True, error=DataError)
     if L == 0:
         return _build_profile("trapezoid", 0.0, [], [], [])
     ta = v / a
@@ -331,9 +322,9 @@ def scurve_profile(distance: float, v_max: float, a_max: float, j_max: float) ->
     L = float(distance)
     if not (math.isfinite(L) and L >= 0):
         raise DataError(f"`distance` must be finite and >= 0, got {distance!r}")
-    v = _positive(v_max, "v_max")
-    a = _positive(a_max, "a_max")
-    j = _positive(j_max, "j_max")
+    v = finite_number(v_max, "v_max", positive=True, error=DataError)
+    a = finite_number(a_max, "a_max", positive=True, error=DataError)
+    j = finite_number(j_max, "j_max", positive=True, error=DataError)
     if L == 0:
         return _build_profile("scurve", 0.0, [], [], [])
     # acceleration phase reaching v_max
@@ -565,7 +556,7 @@ def plan_joint_move(
     a_lim = _axis_vector(joint_accel_limits_rad_s2, "joint_accel_limits_rad_s2", positive=True)
     fv = _fraction(speed_frac, "speed_frac")
     fa = _fraction(accel_frac, "accel_frac")
-    tj = _positive(jerk_time_s, "jerk_time_s")
+    tj = finite_number(jerk_time_s, "jerk_time_s", positive=True, error=DataError)
     if profile not in PROFILE_KINDS:
         raise DataError(f"`profile` must be one of {PROFILE_KINDS}, got {profile!r}")
     dq = np.abs(q1 - q0)
@@ -692,11 +683,11 @@ def plan_linear_move(
 
     dh = kin.validate_dh(dh)
     q0 = _axis_vector(q_start, "q_start")
-    v = _positive(speed_mm_s, "speed_mm_s")
-    a = _positive(accel_mm_s2, "accel_mm_s2")
-    tj = _positive(jerk_time_s, "jerk_time_s")
-    dt_ipo = _positive(ipo_period_s, "ipo_period_s")
-    r_rot = _positive(orientation_radius_mm, "orientation_radius_mm")
+    v = finite_number(speed_mm_s, "speed_mm_s", positive=True, error=DataError)
+    a = finite_number(accel_mm_s2, "accel_mm_s2", positive=True, error=DataError)
+    tj = finite_number(jerk_time_s, "jerk_time_s", positive=True, error=DataError)
+    dt_ipo = finite_number(ipo_period_s, "ipo_period_s", positive=True, error=DataError)
+    r_rot = finite_number(orientation_radius_mm, "orientation_radius_mm", positive=True, error=DataError)
     lim = kin.validate_joint_limits(joint_limits_rad)
     v_lim = _axis_vector(joint_speed_limits_rad_s, "joint_speed_limits_rad_s", positive=True)
     a_lim = _axis_vector(joint_accel_limits_rad_s2, "joint_accel_limits_rad_s2", positive=True)

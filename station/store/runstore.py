@@ -43,6 +43,7 @@ from station.errors import DataError, RunStateError
 from station.store.backends import open_backend
 from station.store.errors import StoreError, StoreVersionError
 from station.store.schema import APPLICATION, BASE, SCHEMA_VERSION, migration, statements
+from station.numeric import dumps
 
 #: The run state machine, as data: the states a run may go to from each state.
 #: ``running -> running`` is a resume after the process that ran it died without
@@ -210,7 +211,7 @@ class RunStore:
                     (
                         "INSERT INTO runs(run_id, robot_id, procedure, overhaul_state, config_json, params_json,"
                         " status, created_at, station) VALUES (?,?,?,?,?,?,?,?,?)",
-                        (run_id, rid, procedure, overhaul_state, _dumps(config), _dumps(params), "running",
+                        (run_id, rid, procedure, overhaul_state, dumps(config), dumps(params), "running",
                          time.time(), station or self.station),
                     )
                 ]
@@ -276,7 +277,7 @@ class RunStore:
             [
                 (
                     "UPDATE steps SET status=?, ended_at=?, output_json=?, message=? WHERE run_id=? AND idx=? AND attempt=?",
-                    (status, time.time(), _dumps(output) if output is not None else None, message, run_id, idx, attempt),
+                    (status, time.time(), dumps(output) if output is not None else None, message, run_id, idx, attempt),
                 )
             ]
         )
@@ -387,7 +388,7 @@ class RunStore:
     # -- results ----------------------------------------------------------
     def put_result(self, run_id: str, key: str, value) -> None:
         self._tx([("INSERT INTO results(run_id, key, value_json) VALUES (?,?,?)"
-                   " ON CONFLICT (run_id, key) DO UPDATE SET value_json=excluded.value_json", (run_id, key, _dumps(value)))])
+                   " ON CONFLICT (run_id, key) DO UPDATE SET value_json=excluded.value_json", (run_id, key, dumps(value)))])
 
     def result(self, run_id: str, key: str):
         rows = self._query("SELECT value_json FROM results WHERE run_id=? AND key=?", (run_id, key))
@@ -436,7 +437,7 @@ class RunStore:
         """Keep a re-analysis result beside the original (never replacing ``results``)."""
         self._tx([("INSERT INTO reanalyses(run_id, key, analysis_version, value_json, created_at) VALUES (?,?,?,?,?)"
                    " ON CONFLICT (run_id, key, analysis_version) DO UPDATE SET value_json=excluded.value_json,"
-                   " created_at=excluded.created_at", (run_id, key, analysis_version, _dumps(value), time.time()))])
+                   " created_at=excluded.created_at", (run_id, key, analysis_version, dumps(value), time.time()))])
 
     def reanalyses(self, run_id: str) -> dict[str, dict]:
         """``{analysis_version: {key: value}}`` of a run, oldest version first."""
@@ -530,15 +531,3 @@ def _write_csv(path: Path, cols: Mapping[str, Iterable]) -> None:
             w.writerow(["" if v is None else (repr(float(v)) if isinstance(v, (float, np.floating)) else v) for v in row])
 
 
-def _dumps(value) -> str:
-    return json.dumps(value, default=_json_default, sort_keys=True)
-
-
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")

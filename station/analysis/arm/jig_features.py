@@ -69,6 +69,7 @@ import numpy as np
 
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import plane_intersection
+from station.numeric import finite_number
 
 __all__ = ["JigFeature", "feature_point", "check_points"]
 
@@ -130,16 +131,6 @@ def check_points(points_mm) -> np.ndarray:
             "drop invalid pixels before looking for the jig"
         )
     return P
-
-
-def _positive(value, name: str, integer: bool = False) -> float:
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if ok and integer:
-        ok = float(value) == int(value)
-    if not ok or not math.isfinite(float(value)) or float(value) <= 0:
-        kind = "an integer" if integer else "a finite number"
-        raise ConfigError(f"`{name}` must be {kind} > 0, got {value!r}")
-    return int(value) if integer else float(value)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -439,20 +430,20 @@ def feature_point(
     ConfigError
         A parameter out of range (named).
     """
-    voxel_mm = _positive(voxel_mm, "voxel_mm")
-    min_voxel_points = _positive(min_voxel_points, "min_voxel_points", integer=True)
+    voxel_mm = finite_number(voxel_mm, "voxel_mm", positive=True)
+    min_voxel_points = finite_number(min_voxel_points, "min_voxel_points", positive=True, integer=True)
     if min_voxel_points < 4:
         raise ConfigError(f"`min_voxel_points` must be >= 4 (a plane through 3 points has no noise), got {min_voxel_points}")
-    min_face_points = _positive(min_face_points, "min_face_points", integer=True)
-    angle_tol_deg = _positive(angle_tol_deg, "angle_tol_deg")
-    perpendicular_tol_deg = _positive(perpendicular_tol_deg, "perpendicular_tol_deg")
+    min_face_points = finite_number(min_face_points, "min_face_points", positive=True, integer=True)
+    angle_tol_deg = finite_number(angle_tol_deg, "angle_tol_deg", positive=True)
+    perpendicular_tol_deg = finite_number(perpendicular_tol_deg, "perpendicular_tol_deg", positive=True)
     if angle_tol_deg >= 45 or perpendicular_tol_deg >= 45:
         raise ConfigError("`angle_tol_deg` and `perpendicular_tol_deg` must be < 45 deg")
-    max_planes = _positive(max_planes, "max_planes", integer=True)
-    gate_sigmas = _positive(gate_sigmas, "gate_sigmas")
+    max_planes = finite_number(max_planes, "max_planes", positive=True, integer=True)
+    gate_sigmas = finite_number(gate_sigmas, "gate_sigmas", positive=True)
     if gate_sigmas < 2:
         raise ConfigError(f"`gate_sigmas` must be >= 2 (fewer cuts the faces' own points), got {gate_sigmas}")
-    max_rounds = _positive(max_rounds, "max_rounds", integer=True)
+    max_rounds = finite_number(max_rounds, "max_rounds", positive=True, integer=True)
     P = check_points(points_mm)
     if P.shape[0] < 3 * min_face_points:
         raise InsufficientDataError(

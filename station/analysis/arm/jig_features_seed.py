@@ -75,7 +75,8 @@ import math
 from itertools import combinations
 
 import numpy as np
-from station.analysis.arm.jig_features import JigFeature, _positive, check_points
+from station.analysis.arm.jig_features import JigFeature, check_points
+from station.numeric import finite_number
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import plane_intersection
 
@@ -281,7 +282,7 @@ def seed_feature_point(
     for name, value in (("n_sets", n_sets), ("min_group_sets", min_group_sets)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
             raise ConfigError(f"`{name}` must be an integer >= 1, got {value!r}")
-    normal_radius_mm = _positive(normal_radius_mm, "normal_radius_mm")
+    normal_radius_mm = finite_number(normal_radius_mm, "normal_radius_mm", positive=True)
     try:
         r_min, r_max = (float(x) for x in radius_range_mm)
     except (TypeError, ValueError) as exc:
@@ -293,11 +294,11 @@ def seed_feature_point(
     tols = {}
     for name, value in (("point_normal_tol_deg", point_normal_tol_deg), ("parallel_tol_deg", parallel_tol_deg),
                         ("inplane_tol_deg", inplane_tol_deg), ("perpendicular_tol_deg", perpendicular_tol_deg)):
-        tols[name] = _positive(value, name)
+        tols[name] = finite_number(value, name, positive=True)
         if tols[name] >= 45:
             raise ConfigError(f"`{name}` must be < 45 deg, got {value!r}")
-    height_tol_mm = _positive(height_tol_mm, "height_tol_mm")
-    max_center_distance_mm = _positive(max_center_distance_mm, "max_center_distance_mm")
+    height_tol_mm = finite_number(height_tol_mm, "height_tol_mm", positive=True)
+    max_center_distance_mm = finite_number(max_center_distance_mm, "max_center_distance_mm", positive=True)
     P = check_points(points_mm)
     if P.shape[0] < 12:
         raise InsufficientDataError(f"{P.shape[0]} points cannot hold three faces of 4-point sample sets")

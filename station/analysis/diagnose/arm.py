@@ -36,6 +36,7 @@ from scipy import stats
 
 from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
+from station.numeric import finite_or_none
 
 from .model import ModelState, fit, initial_state, jacobian, predict, robust_cov
 from .block_test import model_basis, refit_step, wald_block
@@ -75,8 +76,8 @@ class CandidateTest:
     def to_json(self) -> dict:
         d = {"candidate": self.key, "effect": self.effect, "joint": self.joint, "testable": self.testable}
         if self.testable:
-            d.update(statistic=_f(self.statistic), threshold=_f(self.threshold), significant=self.significant,
-                     dof=self.k, heldout_rms_after_mm=_f(self.heldout_rms_after))
+            d.update(statistic=finite_or_none(self.statistic), threshold=finite_or_none(self.threshold), significant=self.significant,
+                     dof=self.k, heldout_rms_after_mm=finite_or_none(self.heldout_rms_after))
         else:
             d["reason"] = self.reason
         return d
@@ -180,10 +181,6 @@ class ArmDiagnosis:
             "units": "rms and noise_floor: mm (3-D position error); params: mm, rad, rad per N m, 1/K as named",
             "elapsed_s": self.elapsed_s,
         }
-
-
-def _f(x: float):
-    return None if x is None or not math.isfinite(x) else float(x)
 
 
 def _rms(resid: np.ndarray) -> float:

@@ -64,6 +64,7 @@ from scipy.optimize import least_squares
 
 from station.errors import DataError, InsufficientDataError
 from station.models.trailer import check_lengths
+from station.numeric import finite_or_none
 
 from .block_test import model_basis, refit_step, wald_block
 from .summary_json import core_json
@@ -109,8 +110,8 @@ class TrailerTest:
     def to_json(self) -> dict:
         d = {"candidate": self.effect, "effect": self.effect, "joint": None, "testable": self.testable}
         if self.testable:
-            d.update(statistic=_f(self.statistic), threshold=_f(self.threshold), significant=self.significant,
-                     dof=self.k, heldout_rms_after_rad=_f(self.heldout_rms_after))
+            d.update(statistic=finite_or_none(self.statistic), threshold=finite_or_none(self.threshold), significant=self.significant,
+                     dof=self.k, heldout_rms_after_rad=finite_or_none(self.heldout_rms_after))
         else:
             d["reason"] = self.reason
         return d
@@ -220,10 +221,6 @@ def _structure(res: TrailerDiagnosis, resid: np.ndarray, n_bins: int = 8) -> dic
                              "n": int(m.sum())})
         out[name] = bins
     return out
-
-
-def _f(x):
-    return None if x is None or not math.isfinite(x) else float(x)
 
 
 # ----------------------------------------------------------------------------- inputs

@@ -40,6 +40,7 @@ from station.analysis.iso9283.extraction import (
     validate_stream,
 )
 from station.errors import ConfigError, DataError, InsufficientDataError
+from station.numeric import finite_list, finite_or_none
 
 #: ISO 9283 prescribes 30 cycles for AP and RP
 ISO_CYCLES = 30
@@ -1261,17 +1262,6 @@ def _verdicts(lim, poses, dists, mts, paths):
 # --------------------------------------------------------------------------
 
 
-def _f(x, nd=6):
-    if x is None:
-        return None
-    x = float(x)
-    return round(x, nd) if math.isfinite(x) else None
-
-
-def _fl(a, nd=6):
-    return [_f(x, nd) for x in np.asarray(a, dtype=float).ravel()]
-
-
 def _il(a):
     return [int(x) for x in np.asarray(a).ravel()]
 
@@ -1281,65 +1271,65 @@ def pose_to_dict(pr: PoseResult) -> dict:
     acc, rep, ovs, md, o, dr = (pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional,
                                 pr.orientation, pr.drift)
     return {
-        "commanded_mm": None if pr.commanded_mm is None else _fl(pr.commanded_mm),
+        "commanded_mm": None if pr.commanded_mm is None else finite_list(pr.commanded_mm),
         "n_cycles": pr.n_cycles,
-        "AP_mm": _f(acc.AP_mm) if acc else None,
-        "APx_mm": _f(acc.APx_mm) if acc else None,
-        "APy_mm": _f(acc.APy_mm) if acc else None,
-        "APz_mm": _f(acc.APz_mm) if acc else None,
-        "mean_mm": _fl(acc.mean_mm) if acc else (None if rep is None else _fl(pr.attained_mm.mean(axis=0))),
-        "RP_mm": _f(rep.RP_mm) if rep else None,
-        "l_bar_mm": _f(rep.l_bar_mm) if rep else None,
-        "S_l_mm": _f(rep.S_l_mm) if rep else None,
-        "POS_mm": _f(ovs.POS_mm) if ovs else None,
-        "PST_s": _f(ovs.PST_s) if ovs else None,
-        "band_mm": _f(ovs.band_mm) if ovs else None,
+        "AP_mm": finite_or_none(acc.AP_mm, 6) if acc else None,
+        "APx_mm": finite_or_none(acc.APx_mm, 6) if acc else None,
+        "APy_mm": finite_or_none(acc.APy_mm, 6) if acc else None,
+        "APz_mm": finite_or_none(acc.APz_mm, 6) if acc else None,
+        "mean_mm": finite_list(acc.mean_mm) if acc else (None if rep is None else finite_list(pr.attained_mm.mean(axis=0))),
+        "RP_mm": finite_or_none(rep.RP_mm, 6) if rep else None,
+        "l_bar_mm": finite_or_none(rep.l_bar_mm, 6) if rep else None,
+        "S_l_mm": finite_or_none(rep.S_l_mm, 6) if rep else None,
+        "POS_mm": finite_or_none(ovs.POS_mm, 6) if ovs else None,
+        "PST_s": finite_or_none(ovs.PST_s, 6) if ovs else None,
+        "band_mm": finite_or_none(ovs.band_mm, 6) if ovs else None,
         "band_source": ovs.band_source if ovs else None,
         "approach": ovs.approach if ovs else None,
         "overshoot_per_cycle": None if ovs is None else {
-            "POS_mm": _fl(ovs.POS_j_mm), "PST_s": _fl(ovs.PST_j_s), "row_entry": _il(ovs.row_entry),
+            "POS_mm": finite_list(ovs.POS_j_mm), "PST_s": finite_list(ovs.PST_j_s), "row_entry": _il(ovs.row_entry),
             "row_settled": _il(ovs.row_settled), "row_max": _il(ovs.row_max), "row": _il(ovs.rows),
             "incomplete": [bool(x) for x in ovs.incomplete], "n": ovs.n,
         },
-        "vAP_mm": _f(md.vAP_mm),
+        "vAP_mm": finite_or_none(md.vAP_mm, 6),
         "n_directions": md.n_directions,
         "directions": [
-            {"label": g.label, "direction": _fl(g.direction, 4), "mean_mm": _fl(g.mean_mm), "n": g.n,
+            {"label": g.label, "direction": finite_list(g.direction, 4), "mean_mm": finite_list(g.mean_mm), "n": g.n,
              "rows": _il(g.rows)} for g in md.groups
         ],
         "attained": {
-            "x_mm": _fl(pr.attained_mm[:, 0]), "y_mm": _fl(pr.attained_mm[:, 1]),
-            "z_mm": _fl(pr.attained_mm[:, 2]), "t_s": _fl(pr.attained_t_s),
+            "x_mm": finite_list(pr.attained_mm[:, 0]), "y_mm": finite_list(pr.attained_mm[:, 1]),
+            "z_mm": finite_list(pr.attained_mm[:, 2]), "t_s": finite_list(pr.attained_t_s),
             "row": _il(pr.attained_row), "cycle": _il(pr.attained_cycle),
         },
         "orientation": None if o is None else {
-            "APa_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[0])),
-            "APb_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[1])),
-            "APc_deg": None if o.AP_rad is None else _f(math.degrees(o.AP_rad[2])),
-            "RPa_deg": _f(math.degrees(o.RP_rad[0])), "RPb_deg": _f(math.degrees(o.RP_rad[1])),
-            "RPc_deg": _f(math.degrees(o.RP_rad[2])), "n": o.n,
+            "APa_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[0]), 6),
+            "APb_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[1]), 6),
+            "APc_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[2]), 6),
+            "RPa_deg": finite_or_none(math.degrees(o.RP_rad[0]), 6), "RPb_deg": finite_or_none(math.degrees(o.RP_rad[1]), 6),
+            "RPc_deg": finite_or_none(math.degrees(o.RP_rad[2]), 6), "n": o.n,
         },
         "drift": None if dr is None else {
-            "dAP_mm": _f(dr.dAP_mm), "dRP_mm": _f(dr.dRP_mm), "shift_mm": _f(dr.shift_mm),
-            "block_t_s": _fl(dr.block_t_s), "AP_mm": _fl(dr.AP_mm), "RP_mm": _fl(dr.RP_mm),
+            "dAP_mm": finite_or_none(dr.dAP_mm, 6), "dRP_mm": finite_or_none(dr.dRP_mm, 6), "shift_mm": finite_or_none(dr.shift_mm, 6),
+            "block_t_s": finite_list(dr.block_t_s), "AP_mm": finite_list(dr.AP_mm), "RP_mm": finite_list(dr.RP_mm),
             "n_per_block": _il(dr.n_per_block),
         },
     }
 
 
 def distance_to_dict(d: DistanceAR) -> dict:
-    return {"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": _f(d.Dc_mm), "AD_mm": _f(d.AD_mm),
-            "RD_mm": _f(d.RD_mm), "n": d.n, "D_mm": _fl(d.D_mm), "cycle": _il(d.cycles),
+    return {"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": finite_or_none(d.Dc_mm, 6), "AD_mm": finite_or_none(d.AD_mm, 6),
+            "RD_mm": finite_or_none(d.RD_mm, 6), "n": d.n, "D_mm": finite_list(d.D_mm), "cycle": _il(d.cycles),
             "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)}
 
 
 def verdict_to_dict(v: Verdict) -> dict:
-    return {"characteristic": v.characteristic, "subject": v.subject, "value": _f(v.value), "limit": _f(v.limit),
+    return {"characteristic": v.characteristic, "subject": v.subject, "value": finite_or_none(v.value, 6), "limit": finite_or_none(v.limit, 6),
             "passed": v.passed, "note": v.note}
 
 
 def left_out_to_dict(x: LeftOut) -> dict:
-    return {"row": x.row, "t_s": _f(x.t_s), "pose": x.pose, "cycle": x.cycle, "statistics": x.statistics,
+    return {"row": x.row, "t_s": finite_or_none(x.t_s, 6), "pose": x.pose, "cycle": x.cycle, "statistics": x.statistics,
             "reason": x.reason}
 
 
@@ -1366,17 +1356,17 @@ def _result_to_dict(r: Iso9283Result) -> dict:
         "poses": poses,
         "distance": [distance_to_dict(d) for d in r.distances],
         "MPT": [
-            {"from": m.from_pose, "to": m.to_pose, "MPT_s": _f(m.MPT_s), "n": m.n, "n_available": m.n_available,
-             "times_s": _fl(m.times_s), "row_leave": _il(m.row_leave), "row_settled": _il(m.row_settled)}
+            {"from": m.from_pose, "to": m.to_pose, "MPT_s": finite_or_none(m.MPT_s, 6), "n": m.n, "n_available": m.n_available,
+             "times_s": finite_list(m.times_s), "row_leave": _il(m.row_leave), "row_settled": _il(m.row_settled)}
             for m in r.posing_times
         ],
         "paths": [
-            {"from": pa.from_pose, "to": pa.to_pose, "AT_mm": _f(pa.AT_mm), "RT_mm": _f(pa.RT_mm), "n": pa.n,
-             "plane_s_mm": _fl(pa.plane_s_mm), "AT_i_mm": _fl(pa.AT_i_mm), "RT_i_mm": _fl(pa.RT_i_mm)}
+            {"from": pa.from_pose, "to": pa.to_pose, "AT_mm": finite_or_none(pa.AT_mm, 6), "RT_mm": finite_or_none(pa.RT_mm, 6), "n": pa.n,
+             "plane_s_mm": finite_list(pa.plane_s_mm), "AT_i_mm": finite_list(pa.AT_i_mm), "RT_i_mm": finite_list(pa.RT_i_mm)}
             for pa in r.paths
         ],
         "verdicts": [verdict_to_dict(v) for v in r.verdicts],
-        "limits": {k: _f(v) for k, v in r.limits.items()},
+        "limits": {k: finite_or_none(v, 6) for k, v in r.limits.items()},
         "passed": r.passed,
         "partial": r.partial,
         "iso_conformant": r.iso_conformant,
@@ -1385,32 +1375,32 @@ def _result_to_dict(r: Iso9283Result) -> dict:
         "warnings": list(r.warnings),
         "stream": {
             "n_rows": ex.n_rows, "n_used": ex.n_used, "n_invalid": ex.n_rows - ex.n_used,
-            "rate_hz": _f(p.rate_hz, 3), "t_start_s": _f(r.stream_span_s[0]), "t_end_s": _f(r.stream_span_s[1]),
+            "rate_hz": finite_or_none(p.rate_hz, 3), "t_start_s": finite_or_none(r.stream_span_s[0], 6), "t_end_s": finite_or_none(r.stream_span_s[1], 6),
             "gaps": [
-                {"row_before": int(a), "row_after": int(b), "t_start_s": _f(c), "t_end_s": _f(d_),
+                {"row_before": int(a), "row_after": int(b), "t_start_s": finite_or_none(c, 6), "t_end_s": finite_or_none(d_, 6),
                  "lost_samples": int(e), "beam_break": bool(f)}
                 for a, b, c, d_, e, f in zip(ex.gaps.row_before, ex.gaps.row_after, ex.gaps.t_start_s,
                                              ex.gaps.t_end_s, ex.gaps.lost_samples, ex.gaps.splits)
             ],
         },
         "extraction": {
-            "M": p.M, "Mp": p.Mp, "h": p.h, "noise_mm": _f(p.noise_mm), "v_rest_mm_s": _f(p.v_rest_mm_s, 4),
-            "assign_tol_mm": _f(p.assign_tol_mm), "order": [ex.names[k] for k in ex.order],
+            "M": p.M, "Mp": p.Mp, "h": p.h, "noise_mm": finite_or_none(p.noise_mm, 6), "v_rest_mm_s": finite_or_none(p.v_rest_mm_s, 4),
+            "assign_tol_mm": finite_or_none(p.assign_tol_mm, 6), "order": [ex.names[k] for k in ex.order],
             "n_cycles": ex.n_cycles, "n_stops": st.n,
             "n_assigned": int(np.count_nonzero(st.status == STATUS_ASSIGNED)),
             "missing": [
-                {"cycle": m.cycle, "pose": m.pose, "reason": m.reason, "t_after_s": _f(m.t_after_s),
-                 "t_before_s": _f(m.t_before_s)} for m in ex.missing
+                {"cycle": m.cycle, "pose": m.pose, "reason": m.reason, "t_after_s": finite_or_none(m.t_after_s, 6),
+                 "t_before_s": finite_or_none(m.t_before_s, 6)} for m in ex.missing
             ],
             "other_stops": [
-                {"row": int(st.row[k]), "t_s": _f(st.t_s[k]), "position_mm": _fl(st.position_mm[k]),
+                {"row": int(st.row[k]), "t_s": finite_or_none(st.t_s[k], 6), "position_mm": finite_list(st.position_mm[k]),
                  "status": STATUS_NAMES[int(st.status[k])], "nearest_pose": ex.names[int(st.nearest_pose[k])],
-                 "distance_mm": _f(st.distance_to_pose_mm[k])}
+                 "distance_mm": finite_or_none(st.distance_to_pose_mm[k], 6)}
                 for k in np.flatnonzero(st.status != STATUS_ASSIGNED)
             ],
             "failed_phases": [
-                {"row_start": f.row_start, "row_end": f.row_end, "t_start_s": _f(f.t_start_s),
-                 "t_end_s": _f(f.t_end_s), "reason": f.reason} for f in ex.failed_phases
+                {"row_start": f.row_start, "row_end": f.row_end, "t_start_s": finite_or_none(f.t_start_s, 6),
+                 "t_end_s": finite_or_none(f.t_end_s, 6), "reason": f.reason} for f in ex.failed_phases
             ],
             "trailing_motion": ex.trailing_motion,
             "initial_rest": None if ex.initial_rest_i is None else {

@@ -56,6 +56,7 @@ from station.analysis.iso9283.characteristics import (
 )
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
+from station.numeric import finite_list, finite_or_none
 
 #: characteristics a stop list cannot give (they need the motion between stops)
 STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
@@ -96,7 +97,6 @@ class StopListResult:
         return int(np.count_nonzero(self.stop_far))
 
     def to_dict(self) -> dict:
-        from station.analysis.iso9283.characteristics import _f, _fl  # the JSON number helpers
 
         return {
             "schema": "station.iso9283/1",
@@ -107,7 +107,7 @@ class StopListResult:
             "MPT": [],
             "paths": [],
             "verdicts": [verdict_to_dict(v) for v in self.verdicts],
-            "limits": {k: _f(v) for k, v in self.limits.items()},
+            "limits": {k: finite_or_none(v, 6) for k, v in self.limits.items()},
             "passed": self.passed,
             "partial": self.partial,
             "iso_conformant": self.iso_conformant,
@@ -115,12 +115,12 @@ class StopListResult:
             "left_out": [left_out_to_dict(x) for x in self.left_out],
             "warnings": list(self.warnings),
             "stops": {
-                "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": _f(self.assign_tol_mm),
+                "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": finite_or_none(self.assign_tol_mm, 6),
                 "pose": list(self.stop_pose), "cycle": [int(c) for c in self.stop_cycle],
                 "approach": None if self.stop_approach is None else list(self.stop_approach),
-                "x_mm": _fl(self.stop_position_mm[:, 0]), "y_mm": _fl(self.stop_position_mm[:, 1]),
-                "z_mm": _fl(self.stop_position_mm[:, 2]), "fit_rms_mm": _fl(self.stop_fit_rms_mm),
-                "distance_to_pose_mm": _fl(self.stop_distance_mm), "far": [bool(x) for x in self.stop_far],
+                "x_mm": finite_list(self.stop_position_mm[:, 0]), "y_mm": finite_list(self.stop_position_mm[:, 1]),
+                "z_mm": finite_list(self.stop_position_mm[:, 2]), "fit_rms_mm": finite_list(self.stop_fit_rms_mm),
+                "distance_to_pose_mm": finite_list(self.stop_distance_mm), "far": [bool(x) for x in self.stop_far],
             },
         }
 

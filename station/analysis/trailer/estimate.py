@@ -72,6 +72,7 @@ from station.analysis.trailer.least_squares import (
 )
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.trailer import INPUT_SAMPLINGS, DegenerateCommandError, integrate_psi
+from station.numeric import finite_number
 
 
 @dataclass(frozen=True)
@@ -278,8 +279,8 @@ def estimate_odr(kappa, psi, *, sigma_kappa: float | None = None, sigma_psi: flo
         Also estimate a constant joint-angle sensor offset.
     """
     k, p, info = validate_samples(kappa, psi)
-    sk = info["kappa_noise"] if sigma_kappa is None else _positive("sigma_kappa", sigma_kappa)
-    sp = info["psi_noise"] if sigma_psi is None else _positive("sigma_psi", sigma_psi)
+    sk = info["kappa_noise"] if sigma_kappa is None else finite_number(sigma_kappa, "sigma_kappa", positive=True)
+    sp = info["psi_noise"] if sigma_psi is None else finite_number(sigma_psi, "sigma_psi", positive=True)
     floor = 1e-3 * max(sk, sp, 1e-9)
     sk, sp = max(sk, floor), max(sp, floor)
     theta0 = _start_lengths(k, p, L0_m)
@@ -775,12 +776,6 @@ def _estimate(data: dict, method: str, sampling: str, use_command: bool) -> Trai
 
 
 # ----------------------------------------------------------------------------- helpers
-def _positive(name: str, value) -> float:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
-    return float(value)
-
-
 def _lengths_arg(L0_m) -> tuple[float, float]:
     try:
         L1, L2 = (float(x) for x in L0_m)

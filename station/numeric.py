@@ -1,0 +1,74 @@
+"""Numbers in and out, in one place: parameter checks and JSON numbers.
+
+:func:`finite_number` checks a parameter (a real number, finite, optionally
+positive, non-negative, bounded above or integral) and names it in the error;
+:func:`finite_or_none` / :func:`finite_list` turn floats into JSON numbers
+(non-finite values become ``null``); :func:`json_default` and :func:`dumps`
+write numpy values and paths as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import ConfigError
+
+_REAL = (int, float, np.integer, np.floating)
+
+
+def finite_number(value, name: str, *, positive: bool = False, nonneg: bool = False, hi: float | None = None,
+                  integer: bool = False, error: type[Exception] = ConfigError):
+    """``value`` as a float (an int with ``integer``) after checking it; ``error`` naming ``name`` otherwise.
+
+    Only real numbers pass (not strings, not booleans); the value must be
+    finite, ``> 0`` with ``positive``, ``>= 0`` with ``nonneg``, ``<= hi``
+    when given, and whole with ``integer``.
+    """
+    kind = "an integer" if integer else "a finite number"
+    bound = " > 0" if positive else " >= 0" if nonneg else ""
+    if hi is not None:
+        bound += f"{' and' if bound else ''} <= {hi:g}"
+    ok = isinstance(value, _REAL) and not isinstance(value, (bool, np.bool_))
+    if ok:
+        v = float(value)
+        ok = math.isfinite(v) and not (positive and v <= 0) and not (nonneg and v < 0) \
+            and not (hi is not None and v > hi) and not (integer and v != int(v))
+    if not ok:
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+        raise error(f"`{name}` must be {kind}{bound}, got {shown}")
+    return int(value) if integer else float(value)
+
+
+def finite_or_none(x, nd: int | None = None):
+    """A JSON number: ``None`` for None, NaN or infinity; rounded to ``nd`` decimals when given."""
+    if x is None:
+        return None
+    x = float(x)
+    if not math.isfinite(x):
+        return None
+    return round(x, nd) if nd is not None else x
+
+
+def finite_list(a, nd: int | None = 6) -> list:
+    """An array as a flat list of JSON numbers (:func:`finite_or_none` of each)."""
+    return [finite_or_none(x, nd) for x in np.asarray(a, dtype=float).ravel()]
+
+
+def json_default(obj):
+    """``json.dumps(default=...)`` for numpy arrays and scalars and paths."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
+
+
+def dumps(value) -> str:
+    """Canonical JSON text (sorted keys) of ``value``, numpy values included."""
+    return json.dumps(value, default=json_default, sort_keys=True)
