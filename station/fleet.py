@@ -4,14 +4,16 @@
   runs, stations and overhauls;
 * :func:`run_values` — one number per finished run: the worst pose's value
   (the one a verdict turns on) and its limit;
-* :func:`since_overhaul` — per robot: the run after its last overhaul
-  (``overhaul_state`` ``after``, else ``new``), its latest run, the change
-  between them and the trend since;
+* :func:`since_overhaul` — per robot: the first run after its last recorded
+  overhaul (an event: :meth:`~station.store.RunStore.record_overhaul`; a
+  robot with none counts from its first run on record), its latest run, the
+  change between them and the trend since;
 * :func:`over_limits_now` — robots whose latest finished run is over a limit;
 * :func:`drifting` — robots of a model whose characteristic grows with time
   since their last overhaul, by the trend test of :mod:`station.fleet_trend`
   with false-discovery control across the model's robots.
 
+A robot is its model and serial, in every question here as in the store.
 Each is one SQL query and vectorised arithmetic, so a fleet of a thousand
 robots with fifty runs each answers in well under a second
 (``bench/bench_store.py``). Times are epoch seconds as stored; slopes are per
@@ -27,25 +29,41 @@ from station.fleet_trend import benjamini_hochberg, trends
 from station.store import RunStore
 
 YEAR_S = 365.25 * 86400.0
-BASELINE_STATES = ("after", "new")
 
 
-def robot_history(store: RunStore, serial: str, name: str, pose: str | None = None) -> list[dict]:
-    """Every finished run's values of ``name`` for robot ``serial`` (any model, any station), oldest first."""
+def robot_history(store: RunStore, serial: str, name: str, pose: str | None = None, *,
+                  model: str | None = None) -> list[dict]:
+    """Every finished run's values of ``name`` for robot (``model``, ``serial``), any station, oldest first.
+
+    ``model`` may be left out while one model has that serial. Each row also
+    says whether the run came after the robot's last recorded overhaul
+    (``since_overhaul``).
+    """
+    model, serial = store.resolve_robot(serial, model)
     sql = ("SELECT r.run_id, r.station, b.model, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
            " FROM characteristics c JOIN runs r ON r.run_id=c.run_id JOIN robots b ON b.robot_id=r.robot_id"
-           " WHERE b.serial=? AND c.name=? AND r.status='done'")
-    args: list = [serial, name]
+           " WHERE b.serial=? AND b.model=? AND c.name=? AND r.status='done'")
+    args: list = [serial, model, name]
     if pose is not None:
         sql += " AND c.pose=?"
         args.append(pose)
     sql += " ORDER BY r.created_at, r.run_id, c.pose"
     keys = ("run_id", "station", "model", "created_at", "overhaul_state", "pose", "value", "limit", "passed")
+    last = _last_overhauls(store).get((model, serial))
     out = []
     for row in store.backend.query(sql, tuple(args)):
         d = dict(zip(keys, row))
         d["passed"] = None if d["passed"] is None else bool(d["passed"])
+        d["since_overhaul"] = last is None or d["created_at"] >= last["at"]
         out.append(d)
+    return out
+
+
+def _last_overhauls(store: RunStore) -> dict[tuple[str, str], dict]:
+    """(model, serial) -> the robot's last recorded overhaul."""
+    out: dict[tuple[str, str], dict] = {}
+    for o in store.overhauls():  # oldest first: the last one wins
+        out[(o["model"], o["serial"])] = o
     return out
 
 
@@ -73,40 +91,52 @@ def run_values(store: RunStore, name: str, *, model: str | None = None, serial: 
     return out
 
 
-def _since_last_overhaul(rows: list[dict]) -> dict[str, list[dict]]:
-    """Per serial, its runs from the last baseline run (after overhaul, or new) on; all runs if none."""
-    by_serial: dict[str, list[dict]] = {}
+def _since_last_overhaul(rows: list[dict], last: dict[tuple[str, str], dict]) -> dict[tuple[str, str], list[dict]]:
+    """Per robot (model, serial), its runs done at or after its last recorded overhaul (all its runs when
+    none is recorded); a robot overhauled after its latest run has none."""
+    out: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
-        by_serial.setdefault(r["serial"], []).append(r)
-    out = {}
-    for serial, runs in by_serial.items():
-        base = [i for i, r in enumerate(runs) if r["overhaul_state"] in BASELINE_STATES]
-        out[serial] = runs[base[-1]:] if base else runs
-    return out
+        key = (r["model"], r["serial"])
+        o = last.get(key)
+        runs = out.setdefault(key, [])
+        if o is None or r["created_at"] >= o["at"]:
+            runs.append(r)
+    return {k: v for k, v in out.items() if v}
 
 
 def since_overhaul(store: RunStore, name: str, *, model: str | None = None) -> list[dict]:
-    """Per robot: baseline run (after its last overhaul), latest run, change and trend per year since."""
+    """Per robot: the first run after its last recorded overhaul (the baseline), its latest run, the change
+    between them and the trend per year since (one-sided test for an increase).
+
+    ``overhaul_at`` / ``overhaul_what`` / ``overhaul_ticket`` describe that
+    overhaul (None for a robot with none recorded: its first run on record
+    is the baseline). A robot overhauled after its latest run is left out
+    until it is measured again.
+    """
     rows = run_values(store, name, model=model)
-    since = _since_last_overhaul(rows)
+    last = _last_overhauls(store)
+    since = _since_last_overhaul(rows, last)
     out = []
-    serials = sorted(since)
-    if not serials:
+    keys = sorted(since)
+    if not keys:
         return out
-    g = np.concatenate([[s] * len(since[s]) for s in serials])
-    t = np.concatenate([[r["created_at"] for r in since[s]] for s in serials])
-    y = np.concatenate([[r["value"] for r in since[s]] for s in serials])
+    g = np.concatenate([[i] * len(since[k]) for i, k in enumerate(keys)])
+    t = np.concatenate([[r["created_at"] for r in since[k]] for k in keys])
+    y = np.concatenate([[r["value"] for r in since[k]] for k in keys])
     tr = trends(g, t / YEAR_S, y)
-    idx = {s: i for i, s in enumerate(tr.groups)}
-    for s in serials:
-        runs, i = since[s], idx[s]
-        first, last = runs[0], runs[-1]
-        out.append({"serial": s, "model": last["model"], "station": last["station"],
+    idx = {int(gi): i for i, gi in enumerate(tr.groups)}
+    for j, key in enumerate(keys):
+        runs, i = since[key], idx[j]
+        first, latest = runs[0], runs[-1]
+        o = last.get(key)
+        out.append({"serial": key[1], "model": key[0], "station": latest["station"],
+                    "overhaul_at": None if o is None else o["at"], "overhaul_what": None if o is None else o["what"],
+                    "overhaul_ticket": None if o is None else o["ticket"],
                     "baseline_run": first["run_id"], "baseline_state": first["overhaul_state"],
-                    "baseline_value": first["value"], "latest_run": last["run_id"], "latest_value": last["value"],
-                    "change": last["value"] - first["value"], "runs_since": len(runs),
+                    "baseline_value": first["value"], "latest_run": latest["run_id"], "latest_value": latest["value"],
+                    "change": latest["value"] - first["value"], "runs_since": len(runs),
                     "slope_per_year": None if np.isnan(tr.slope[i]) else float(tr.slope[i]),
-                    "p_increase": float(tr.p[i]), "limit": last["limit"], "over_now": last["over"]})
+                    "p_increase": float(tr.p[i]), "limit": latest["limit"], "over_now": latest["over"]})
     return out
 
 

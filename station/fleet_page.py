@@ -27,28 +27,40 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
         "store": store.name,
         "robots with a finished run": str(len(since)),
         "stations": ", ".join(sorted({r["station"] or "-" for r in runs})) or "-",
-        "robots over a limit now": str(len({r["serial"] for r in over})),
+        "robots over a limit now": str(len({(r["model"], r["serial"]) for r in over})),
         f"robots drifting (trend since last overhaul, false-discovery rate {q_max:g})": str(len(drift)),
     }
     for r in over:
         rep.rows.append({"pose": f"{r['serial']} ({r['model']}, {r['station'] or '-'}) {r['pose']}", "name": r["name"],
                          "value": r["value"], "unit": r["unit"], "limit": r["limit"], "passed": False})
+    # every other robot's latest run: its worst pose against its limit (the page's verdict is the fleet's)
+    over_robots = {(r["model"], r["serial"]) for r in over}
+    for r in since:
+        if (r["model"], r["serial"]) in over_robots:
+            continue
+        rep.rows.append({"pose": f"{r['serial']} ({r['model']}, {r['station'] or '-'}) worst pose",
+                         "name": name, "value": r["latest_value"], "unit": name.rpartition("_")[2] if "_" in name else "", "limit": r["limit"],
+                         "passed": None if r["limit"] is None else not r["over_now"]})
     e = html.escape
     for d in drift:
         rep.notes.append(
             f"drifting: {e(d['serial'])} ({e(d['model'])}) {name} {d['slope_per_year']:+.3g} per year since run "
             f"{e(d['baseline_run'])} ({d['runs_since']} runs, q = {d['q']:.2g}); latest {d['latest_value']:.4g}"
             + (f", limit {d['limit']:.4g}" if d["limit"] is not None else ""))
-    flagged = [d["serial"] for d in drift] + [r["serial"] for r in over]
-    shown: list[str] = []
-    for s in flagged:
-        if s not in shown:
-            shown.append(s)
-    by_serial: dict[str, list[dict]] = {}
+    flagged = [(d["model"], d["serial"]) for d in drift] + [(r["model"], r["serial"]) for r in over]
+    shown: list[tuple[str, str]] = []
+    for key in flagged:
+        if key not in shown:
+            shown.append(key)
+    by_robot: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
-        by_serial.setdefault(r["serial"], []).append(r)
-    for s in shown[:max_plots]:
-        rr = by_serial.get(s, [])
+        by_robot.setdefault((r["model"], r["serial"]), []).append(r)
+    events: dict[tuple[str, str], list[float]] = {}
+    for o in store.overhauls():
+        events.setdefault((o["model"], o["serial"]), []).append(o["at"])
+    for key in shown[:max_plots]:
+        s = key[1]
+        rr = by_robot.get(key, [])
         if not rr:
             continue
         t0 = rr[0]["created_at"]
@@ -58,9 +70,11 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
         lim = [r["limit"] for r in rr if r["limit"] is not None]
         if lim:
             series.append(("limit", days, np.full(days.size, min(lim)), "-"))
-        marks = [i for i, r in enumerate(rr) if r["overhaul_state"] in ("after", "new")]
+        # each recorded overhaul, marked on the first run after it
+        marks = sorted({int(np.searchsorted([r["created_at"] for r in rr], at)) for at in events.get(key, [])})
+        marks = [i for i in marks if i < len(rr)]
         if marks:
-            series.append(("after overhaul / new", days[marks], vals[marks], "."))
+            series.append(("first run after an overhaul", days[marks], vals[marks], "."))
         rep.figures.append((f"{s} ({rr[-1]['model']}): {name} per run since its first run on record",
                             plot_xy(series, xlabel="days since first run", ylabel=name, title=s)))
     if len(shown) > max_plots:

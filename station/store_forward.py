@@ -10,7 +10,12 @@ the central store lacks, run by run:
    ``forwarded_batches``;
 3. the journal, results, characteristics and the run's own status, in one
    transaction; then ``forward_state`` records the status that reached the
-   centre.
+   centre;
+
+and then, for every robot and run, what was added after a run had reached
+the centre: recorded overhauls (events in a robot's life, keyed by robot and
+time) and re-analyses (keyed by run, result and analysis version), each sent
+once.
 
 A push is idempotent by (run, stream, step, attempt, batch): a batch that
 reached the centre but was not yet recorded locally (the station killed
@@ -59,6 +64,9 @@ class RunPush:
 @dataclass
 class PushReport:
     runs: list[RunPush] = field(default_factory=list)
+    #: recorded overhauls and re-analysis results the centre did not have
+    overhauls_sent: int = 0
+    reanalyses_sent: int = 0
 
     @property
     def batches_sent(self) -> int:
@@ -94,7 +102,45 @@ def push(local: RunStore, central: RunStore, *, station: str, run_ids: Iterable[
         except PushConflict as exc:
             item.error = str(exc)
             _record_state(local, run_id, None, str(exc))
+    report.overhauls_sent = _push_overhauls(local, central)
+    report.reanalyses_sent = _push_reanalyses(local, central)
     return report
+
+
+def _push_overhauls(local: RunStore, central: RunStore) -> int:
+    """Send the recorded overhauls the centre lacks (by robot and time); returns how many."""
+    sent = 0
+    with central.backend.transaction() as cur:
+        for o in local.overhauls():
+            cur.execute("INSERT INTO robots(model, serial) VALUES (?, ?) ON CONFLICT DO NOTHING", (o["model"], o["serial"]))
+            rid = cur.execute("SELECT robot_id FROM robots WHERE model=? AND serial=?",
+                              (o["model"], o["serial"])).fetchone()[0]
+            if cur.execute("SELECT 1 FROM overhauls WHERE robot_id=? AND at=?", (rid, o["at"])).fetchone():
+                continue
+            cur.execute("INSERT INTO overhauls(robot_id, at, what, ticket, station, recorded_at) VALUES (?,?,?,?,?,?)",
+                        (rid, o["at"], o["what"], o["ticket"], o["station"], o["recorded_at"]))
+            sent += 1
+    return sent
+
+
+def _push_reanalyses(local: RunStore, central: RunStore) -> int:
+    """Send the re-analysis results of runs the centre holds that it lacks; returns how many."""
+    rows = local.backend.query("SELECT run_id, key, analysis_version, value_json, created_at FROM reanalyses"
+                               " ORDER BY run_id, created_at")
+    if not rows:
+        return 0
+    sent = 0
+    with central.backend.transaction() as cur:
+        for run_id, key, version, value, created_at in rows:
+            if not cur.execute("SELECT 1 FROM runs WHERE run_id=?", (run_id,)).fetchone():
+                continue  # the run itself has not reached the centre yet: its next push brings both
+            if cur.execute("SELECT 1 FROM reanalyses WHERE run_id=? AND key=? AND analysis_version=?",
+                           (run_id, key, version)).fetchone():
+                continue
+            cur.execute("INSERT INTO reanalyses(run_id, key, analysis_version, value_json, created_at)"
+                        " VALUES (?,?,?,?,?)", (run_id, key, version, value, created_at))
+            sent += 1
+    return sent
 
 
 def forward_status(local: RunStore) -> dict[str, dict]:

@@ -1,7 +1,9 @@
 """`station store ...`: the run store from the command line.
 
     station store runs --config C [--central]
-    station store history --config C --serial SN --name RP_mm [--pose P1] [--central]
+    station store history --config C --serial SN [--model M] --name RP_mm [--pose P1] [--central]
+    station store overhaul --config C --serial SN [--model M] --date 2026-11-02 --what "J2 gearbox replaced" [--ticket T]
+    station store overhauls --config C [--serial SN] [--central]
     station store exceeding --config C --name RP_mm [--all-runs] [--central]
     station store export RUN_ID --config C --out DIR [--format csv|parquet] [--central]
     station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
@@ -35,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     h = s.add_parser("history", help="one robot's values of a characteristic across its runs")
     _common(h)
     h.add_argument("--serial", required=True)
+    h.add_argument("--model", default=None, help="the robot's model (needed when robots of two models share the serial)")
     h.add_argument("--name", required=True, help="characteristic, e.g. RP_mm, AP_mm, MPT_s")
     h.add_argument("--pose", default=None)
     h.add_argument("--json", action="store_true")
@@ -45,6 +48,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--all-runs", action="store_true", help="every finished run, not only each robot's latest")
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=_exceeding)
+    o = s.add_parser("overhaul", help="record an overhaul of a robot (since-overhaul figures and drift count from it)")
+    _common(o)
+    o.add_argument("--serial", required=True)
+    o.add_argument("--model", default=None,
+                   help="the robot's model (default: the one model the store knows this serial of)")
+    o.add_argument("--date", required=True, metavar="WHEN",
+                   help="when the overhaul was finished: YYYY-MM-DD or YYYY-MM-DDTHH:MM (local time)")
+    o.add_argument("--what", required=True, help="what was done, e.g. 'J2 gearbox and J3 motor replaced'")
+    o.add_argument("--ticket", default=None, help="the work order or overhaul ticket")
+    o.set_defaults(func=_overhaul)
+    ol = s.add_parser("overhauls", help="list the recorded overhauls")
+    _common(ol)
+    ol.add_argument("--serial", default=None)
+    ol.add_argument("--json", action="store_true")
+    ol.set_defaults(func=_overhauls)
     x = s.add_parser("export", help="write a run's samples, journal and results as CSV or Parquet")
     x.add_argument("run_id")
     _common(x)
@@ -99,7 +117,7 @@ def _runs(args) -> int:
 
 def _history(args) -> int:
     with open_store(args.config, args.central) as store:
-        rows = store.history(args.serial, args.name, args.pose)
+        rows = store.history(args.serial, args.name, args.pose, model=args.model)
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
@@ -120,6 +138,50 @@ def _exceeding(args) -> int:
         print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
               f"{args.name} = {r['value']:.4g} > {r['limit']:g}")
     return 1 if rows else 0
+
+
+def parse_when(text: str) -> float:
+    """``YYYY-MM-DD`` or ``YYYY-MM-DDTHH:MM[:SS]`` (local time) as epoch seconds; ConfigError otherwise."""
+    from datetime import datetime
+
+    from station.errors import ConfigError
+
+    for fmt in ("%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M"):
+        try:
+            return datetime.strptime(text.strip(), fmt).timestamp()
+        except ValueError:
+            continue
+    raise ConfigError(f"--date {text!r} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
+
+
+def _overhaul(args) -> int:
+    from station.config import load_config
+
+    at = parse_when(args.date)
+    station = load_config(args.config).station.name
+    with open_store(args.config, args.central) as store:
+        if args.model is None:
+            model, serial = store.resolve_robot(args.serial)
+        else:
+            model, serial = args.model, args.serial
+        new = store.record_overhaul(model, serial, at, args.what, ticket=args.ticket, station=station)
+    print(f"{model} serial {serial}: overhaul of {_ts(at)} " + ("recorded" if new else "was already recorded")
+          + f" ({args.what}" + (f", ticket {args.ticket}" if args.ticket else "") + ")")
+    return 0
+
+
+def _overhauls(args) -> int:
+    with open_store(args.config, args.central) as store:
+        rows = store.overhauls(serial=args.serial)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    if not rows:
+        print("no overhaul recorded" + (f" for serial {args.serial}" if args.serial else ""))
+    for r in rows:
+        print(f"{_ts(r['at'])}  {r['model']:<18} {r['serial']:<14} {r['what']}"
+              + (f"  (ticket {r['ticket']})" if r["ticket"] else "") + f"  [{r['station'] or '-'}]")
+    return 0
 
 
 def _export(args) -> int:
@@ -184,6 +246,9 @@ def _print_report(report) -> None:
         extra = f"  ERROR: {r.error}" if r.error else ""
         print(f"{r.run_id:<34} {r.status:<8} sent {r.batches_sent} batches ({r.samples_sent} samples), "
               f"{r.batches_already_there} already there{extra}", flush=True)
+    if report.overhauls_sent or report.reanalyses_sent:
+        print(f"sent {report.overhauls_sent} recorded overhaul(s) and {report.reanalyses_sent} re-analysis "
+              "result(s)", flush=True)
 
 
 def _status(args) -> int:

@@ -19,6 +19,7 @@ def register(s) -> None:
     h = fs.add_parser("history", help="one robot's values across stations and overhauls")
     _common(h)
     h.add_argument("--serial", required=True)
+    h.add_argument("--model", default=None, help="the robot's model (needed when two models share the serial)")
     h.add_argument("--name", required=True)
     h.add_argument("--pose", default=None)
     h.set_defaults(func=_history)
@@ -74,7 +75,7 @@ def _history(args) -> int:
     from station.fleet import robot_history
 
     with _open(args) as store:
-        rows = robot_history(store, args.serial, args.name, args.pose)
+        rows = robot_history(store, args.serial, args.name, args.pose, model=args.model)
     _emit(args, rows, lambda r: f"{_ts(r['created_at'])}  {r['station'] or '-':<10} {r['run_id']:<34} "
                                 f"{r['overhaul_state'] or '-':<10} {r['pose']:<6} {r['value']:.4g}")
     return 0
@@ -86,8 +87,9 @@ def _since(args) -> int:
     with _open(args) as store:
         rows = since_overhaul(store, args.name, model=args.model)
     _emit(args, rows, lambda r: (
-        f"{r['serial']:<14} {r['model']:<18} {r['baseline_value']:.4g} -> {r['latest_value']:.4g} "
-        f"(change {r['change']:+.3g}, {r['runs_since']} runs, "
+        f"{r['serial']:<14} {r['model']:<18} "
+        + (f"since overhaul of {_ts(r['overhaul_at'])}: " if r["overhaul_at"] is not None else "no overhaul recorded: ")
+        + f"{r['baseline_value']:.4g} -> {r['latest_value']:.4g} (change {r['change']:+.3g}, {r['runs_since']} runs, "
         + ("slope -" if r["slope_per_year"] is None else f"{r['slope_per_year']:+.3g}/year") + ")"))
     return 0
 

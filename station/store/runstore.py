@@ -192,6 +192,65 @@ class RunStore:
             ((rid,),) = self._b.query("SELECT robot_id FROM robots WHERE model=? AND serial=?", (model, serial))
         return int(rid)
 
+    def robot_models(self, serial: str) -> list[str]:
+        """The models of the robots with this serial (a robot is its model and serial)."""
+        return [r[0] for r in self._query("SELECT model FROM robots WHERE serial=? ORDER BY model", (serial,))]
+
+    def resolve_robot(self, serial: str, model: str | None = None) -> tuple[str, str]:
+        """``(model, serial)`` of the one robot meant: a robot is keyed by model and serial everywhere; a
+        serial alone is enough while one model has it, else StoreError asks for the model."""
+        models = self.robot_models(serial)
+        if model is not None:
+            if model not in models:
+                raise StoreError(f"no robot {model} serial {serial!r} in {self.name}"
+                                 + (f" (that serial is a {', '.join(models)})" if models else ""))
+            return model, serial
+        if not models:
+            raise StoreError(f"no robot with serial {serial!r} in {self.name}")
+        if len(models) > 1:
+            raise StoreError(f"serial {serial!r} belongs to robots of {len(models)} models ({', '.join(models)}) "
+                             f"in {self.name}: name the model")
+        return models[0], serial
+
+    # -- overhauls --------------------------------------------------------
+    def record_overhaul(self, model: str, serial: str, at_s: float, what: str, *, ticket: str | None = None,
+                        station: str | None = None) -> bool:
+        """Record an overhaul of robot (``model``, ``serial``) done at ``at_s`` (epoch s): what was done and
+        its work ticket. An overhaul is an event in the robot's life; the since-overhaul figures and the
+        drift test count from the last one. Returns False when this robot already has one at ``at_s``."""
+        import math
+
+        what = (what or "").strip()
+        if not what:
+            raise StoreError("an overhaul needs a description of what was done")
+        if not (isinstance(at_s, (int, float)) and math.isfinite(at_s)) or at_s > time.time() + 86400.0:
+            raise StoreError(f"overhaul time {at_s!r} is not a time up to now")
+        rid = self.robot_id(model, serial)
+        with self._lock:
+            before = self._b.query("SELECT COUNT(*) FROM overhauls WHERE robot_id=? AND at=?", (rid, float(at_s)))
+            self._b.execute("INSERT INTO overhauls(robot_id, at, what, ticket, station, recorded_at)"
+                            " VALUES (?,?,?,?,?,?) ON CONFLICT DO NOTHING",
+                            (rid, float(at_s), what, ticket, station or self.station, time.time()))
+        return before[0][0] == 0
+
+    def overhauls(self, model: str | None = None, serial: str | None = None) -> list[dict]:
+        """Recorded overhauls (of one robot, or all), oldest first: model, serial, at, what, ticket,
+        station, recorded_at (times in epoch s)."""
+        sql = ("SELECT b.model, b.serial, o.at, o.what, o.ticket, o.station, o.recorded_at"
+               " FROM overhauls o JOIN robots b ON b.robot_id=o.robot_id")
+        where, args = [], []
+        if model is not None:
+            where.append("b.model=?")
+            args.append(model)
+        if serial is not None:
+            where.append("b.serial=?")
+            args.append(serial)
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        sql += " ORDER BY b.model, b.serial, o.at"
+        keys = ("model", "serial", "at", "what", "ticket", "station", "recorded_at")
+        return [dict(zip(keys, r)) for r in self._query(sql, tuple(args))]
+
     def create_run(
         self,
         run_id: str,
@@ -449,14 +508,21 @@ class RunStore:
         return out
 
     # -- history ----------------------------------------------------------
-    def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
-        """One robot's values of a characteristic across its finished runs, oldest first."""
+    def history(self, serial: str, name: str, pose: str | None = None, *, model: str | None = None) -> list[dict]:
+        """One robot's values of characteristic ``name`` across its finished runs, oldest first.
+
+        The robot is (``model``, ``serial``); the model may be left out while
+        one model has that serial (:meth:`resolve_robot`). Rows: ``run_id``,
+        ``created_at`` (epoch s), ``overhaul_state`` (the run's label),
+        ``pose``, ``value``, ``limit``, ``passed`` (None without a limit).
+        """
+        model, serial = self.resolve_robot(serial, model)
         sql = (
             "SELECT r.run_id, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
             " FROM characteristics c JOIN runs r USING (run_id) JOIN robots b USING (robot_id)"
-            " WHERE b.serial=? AND c.name=? AND r.status='done'"
+            " WHERE b.serial=? AND b.model=? AND c.name=? AND r.status='done'"
         )
-        args: list = [serial, name]
+        args: list = [serial, model, name]
         if pose is not None:
             sql += " AND c.pose=?"
             args.append(pose)

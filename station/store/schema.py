@@ -19,11 +19,17 @@ Version 2 adds:
   kept beside the originals under the analysis version;
 * ``runs_by_robot``: index for the fleet queries;
 * ``meta.application``: what marks a database as a station store.
+
+Version 3 adds ``overhauls``: an overhaul is an event in a robot's life
+(when, what was done, the work ticket, where it was recorded), not a
+property of each run; since-overhaul figures and drift are computed from
+these events (:mod:`station.fleet`). Runs keep their ``overhaul_state``
+label as it was configured.
 """
 
 from __future__ import annotations
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 APPLICATION = "robot-metrology-station"
 
 DIALECTS = {
@@ -127,6 +133,19 @@ MIGRATIONS: dict[int, dict[str, list[str]]] = {
         ],
         # raw float samples do not compress: store them out of line, uncompressed
         "postgresql": ["ALTER TABLE sample_batches ALTER COLUMN data SET STORAGE EXTERNAL"],
+    },
+    3: {
+        "common": [
+            """CREATE TABLE IF NOT EXISTS overhauls (
+    robot_id INTEGER NOT NULL REFERENCES robots(robot_id),
+    at {REAL} NOT NULL,
+    what TEXT NOT NULL,
+    ticket TEXT,
+    station TEXT,
+    recorded_at {REAL} NOT NULL,
+    PRIMARY KEY (robot_id, at)
+)""",
+        ],
     },
 }
 

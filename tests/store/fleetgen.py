@@ -2,7 +2,10 @@
 
 Each robot has a level drawn at random; before its overhaul it is worn
 (level + ``wear_mm``); from the run after the overhaul on, a drifting robot's
-RP grows by ``slope_mm_per_year``. Runs are a couple of weeks apart, made at
+RP grows by ``slope_mm_per_year``. The overhaul is recorded as an event
+(between the last worn run and the first run after it); each run's
+``overhaul_state`` label is the one its station's config gave, which says
+nothing reliable about when the overhaul was. Runs are a couple of weeks apart, made at
 stations drawn at random. Five poses per run, each level + N(0, noise_mm).
 """
 
@@ -23,6 +26,8 @@ class Fleet:
     runs: list[dict] = field(default_factory=list)
     drifting: set[str] = field(default_factory=set)
     high: set[str] = field(default_factory=set)
+    #: recorded overhauls: model, serial, at (epoch s), what
+    overhauls: list[dict] = field(default_factory=list)
 
 
 def make_fleet(rng, n_robots: int, runs_per_robot: int, *, models=("industrial-3100", "rb5-850"),
@@ -43,11 +48,14 @@ def make_fleet(rng, n_robots: int, runs_per_robot: int, *, models=("industrial-3
             fleet.high.add(serial)
         overhaul = int(rng.integers(1, max(2, runs_per_robot // 3)))  # index of the first run after overhaul
         t = t0 + np.cumsum(rng.uniform(10, 18, runs_per_robot)) * 86400.0
+        fleet.overhauls.append({"model": model, "serial": serial, "at": float(t[overhaul - 1] + t[overhaul]) / 2,
+                                "what": "gearboxes J2, J3 replaced"})
         for k in range(runs_per_robot):
+            # the label as the README's config gives it: the same on every run
+            state = "after"
             if k < overhaul:
-                state, base = ("before" if k == overhaul - 1 else "in-service"), level + wear_mm
+                base = level + wear_mm
             else:
-                state = "after" if k == overhaul else "in-service"
                 base = level + slope * (t[k] - t[overhaul]) / YEAR_S
             values = base + rng.normal(0, noise_mm, len(POSES))
             fleet.runs.append({"run_id": f"{serial}-{k:03d}", "serial": serial, "model": model,
@@ -60,14 +68,16 @@ def load_fleet(store, fleet: Fleet) -> None:
     """Bulk-load the fleet's finished runs and RP characteristics (COPY on PostgreSQL)."""
     robot_ids = {}
     for r in fleet.runs:
-        if r["serial"] not in robot_ids:
-            robot_ids[r["serial"]] = store.robot_id(r["model"], r["serial"])
-    runs = [(r["run_id"], robot_ids[r["serial"]], "iso9283", r["overhaul_state"], "{}", "{}", "done", r["created_at"],
+        if (r["model"], r["serial"]) not in robot_ids:
+            robot_ids[(r["model"], r["serial"])] = store.robot_id(r["model"], r["serial"])
+    runs = [(r["run_id"], robot_ids[(r["model"], r["serial"])], "iso9283", r["overhaul_state"], "{}", "{}", "done", r["created_at"],
              r["created_at"] + 3600.0, r["station"]) for r in fleet.runs]
     chars = [(r["run_id"], p, "RP_mm", float(v), "mm", LIMIT_MM, int(v <= LIMIT_MM))
              for r in fleet.runs for p, v in zip(POSES, r["values"])]
     run_cols = "run_id, robot_id, procedure, overhaul_state, config_json, params_json, status, created_at, finished_at, station"
     char_cols = "run_id, pose, name, value, unit, limit_value, passed"
+    for o in fleet.overhauls:
+        store.record_overhaul(o["model"], o["serial"], o["at"], o["what"])
     with store.backend.transaction() as cur:
         if store.dialect == "postgresql":
             for table, cols, rows in (("runs", run_cols, runs), ("characteristics", char_cols, chars)):

@@ -101,7 +101,7 @@ def test_a_store_of_the_previous_schema_upgrades_in_place(tmp_path):
     db.commit()
     db.close()
     store = RunStore(path, station="cell-7")
-    assert store.schema_version() == SCHEMA_VERSION == 2
+    assert store.schema_version() == SCHEMA_VERSION == 3
     assert store.run("old-1").station is None and store.run("old-1").serial == "SN-OLD"
     np.testing.assert_array_equal(store.samples("old-1", "tracker")["x"], data[:, 1])
     assert [o["value"] for o in store.robots_exceeding("RP_mm")] == [value]
@@ -109,7 +109,7 @@ def test_a_store_of_the_previous_schema_upgrades_in_place(tmp_path):
                      config={}, params={})
     assert store.run("new-1").station == "cell-7"
     store.close()
-    assert RunStore(path).schema_version() == 2  # opening again changes nothing
+    assert RunStore(path).schema_version() == SCHEMA_VERSION  # opening again changes nothing
 
 
 def _set_version(path, version):

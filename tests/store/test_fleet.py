@@ -44,12 +44,13 @@ def test_change_since_overhaul_and_over_limits_now_match_the_fleet(fleet_stores)
     by_serial = {}
     for r in fleet.runs:
         by_serial.setdefault(r["serial"], []).append(r)
+    overhaul_at = {o["serial"]: o["at"] for o in fleet.overhauls}
     expect_over = {s for s, rr in by_serial.items() if worst(rr[-1]) > LIMIT_MM}
     answers = []
     for store in stores:
         rows = {r["serial"]: r for r in since_overhaul(store, "RP_mm")}
         for s, rr in by_serial.items():
-            base = [r for r in rr if r["overhaul_state"] == "after"][-1]
+            base = [r for r in rr if r["created_at"] >= overhaul_at[s]][0]
             assert rows[s]["baseline_run"] == base["run_id"]
             assert rows[s]["change"] == pytest.approx(worst(rr[-1]) - worst(base), abs=1e-12)
             assert rows[s]["runs_since"] == len(rr) - rr.index(base)
