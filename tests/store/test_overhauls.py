@@ -135,6 +135,12 @@ def test_an_overhaul_from_the_command_line_reaches_the_fleet_and_the_centre(tmp_
             assert report.overhauls_sent == len(recorded)
             assert push(local, central, station="cell-7").overhauls_sent == 0  # once
             assert {d["serial"] for d in drifting(central, "RP_mm", q_max=Q)} == {truth["drifter"]}
+            # a re-analysis made after its run reached the centre follows it there, once
+            run_id = fleet.runs[0]["run_id"]
+            local.put_reanalysis(run_id, "iso9283", "0.1.0+test", {"RP_mm": 0.123})
+            assert push(local, central, station="cell-7").reanalyses_sent == 1
+            assert push(local, central, station="cell-7").reanalyses_sent == 0
+            assert central.reanalyses(run_id) == {"0.1.0+test": {"iso9283": {"RP_mm": 0.123}}}
     # dates must be dates
     assert main(["store", "overhaul", "--config", str(cfg), "--serial", "R-0", "--date", "yesterday",
                  "--what", "x"]) == 2
