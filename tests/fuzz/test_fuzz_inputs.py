@@ -9,11 +9,9 @@ run with its figures is ``bench/bench_fuzz.py``.
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -14,7 +14,6 @@ import pytest
 
 from station.acceptance import Station
 from station.cli import main
-from station.config import config_from_dict
 from station.errors import ConfigError, SafetyError
 from station.runner import AnswerFileOperator
 from station.store import RunStore
