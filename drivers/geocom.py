@@ -92,6 +92,17 @@ RC_NOT_READY = frozenset({10, 13, 1293})
 RC_FAULT = frozenset({4, 8, 12, 14, 1290})
 
 
+def idempotent(rpc: int, params=()) -> bool:
+    """Whether sending ``rpc`` twice does what sending it once does (so a lost reply may be retried).
+
+    Every query is; of ``TMC_DoMeasure`` the programs that set a state (stop, track, clear) are, a
+    distance measurement (a new measurement each time) is not.
+    """
+    if rpc == Rpc.DO_MEASURE:
+        return bool(params) and params[0] in (MeasureProgram.STOP, MeasureProgram.TRACK, MeasureProgram.CLEAR)
+    return rpc in REPLY_VALUES
+
+
 def rc_name(rc: int) -> str:
     name = RC_NAMES.get(rc)
     return f"{rc} ({name})" if name else str(rc)
@@ -248,6 +259,8 @@ class GeoComTracker(Tracker):
         self._beam_ok = True
         self._ready = True
         self.info: TrackerInfo | None = None
+        #: idempotent requests sent again after a lost or damaged reply
+        self.retries = 0
 
     @classmethod
     def from_url(cls, url: str, **options) -> "GeoComTracker":
@@ -348,52 +361,90 @@ class GeoComTracker(Tracker):
     def _sink(self) -> StreamBuffer:
         return self._stream if (self._stream is not None and self._stream_active) else self._idle
 
-    def request(self, rpc: int, params=(), *, timeout_s: float | None = None) -> tuple:
-        """Send one rpc and return its values (strings); raise on a non-OK rc."""
+    def request(self, rpc: int, params=(), *, timeout_s: float | None = None, retry: bool | None = None) -> tuple:
+        """Send one rpc and return its values (strings); raise on a non-OK rc.
+
+        An idempotent request (:func:`idempotent`; ``retry`` overrides) whose
+        reply is lost or arrives damaged is sent again, with a new
+        transaction id, while ``timeout_s`` lasts: each attempt waits at most
+        ``reply_timeout_s``, a damaged reply is answered at once. A request
+        that is not idempotent is sent once and waits the whole ``timeout_s``.
+        """
         timeout_s = self.reply_timeout_s if timeout_s is None else timeout_s
         if self._transport is None or self._lines is None:
             raise ConnectionLost("GeoCOM tracker is not connected")
+        if retry is None:
+            retry = idempotent(rpc, params)
         deadline = Deadline(timeout_s)
         if not self._lock.acquire(timeout=max(deadline.time_left(), 0)):
             raise DeviceTimeout(f"rpc {rpc}: the line is busy with another request")
+        attempts, damage = 0, None
         try:
-            trid = self._trid
-            self._trid = (self._trid + 1) % 2**15
-            self._transport.write(encode_request(rpc, trid, params), max(deadline.time_left(), 1e-3))
             while True:
-                try:
-                    line = self._lines.read_line(deadline.time_left())
-                except DeviceTimeout:
-                    raise DeviceTimeout(f"no reply to GeoCOM rpc {rpc} within {timeout_s:g} s") from None
-                except ProtocolError:
-                    self._sink().count_garbage(0)
-                    continue
-                start = line.rfind(b"%R1P,")
-                if start < 0:
-                    if line:
-                        self._sink().count_garbage(len(line))
-                    continue
-                if start > 0:
-                    self._sink().count_garbage(start)
-                    line = line[start:]
-                try:
-                    reply = parse_reply(line)
-                except ProtocolError:
-                    self._sink().count_garbage(len(line))
-                    continue
-                if reply.trid != trid:
-                    continue  # stale reply to a request that timed out
-                break
+                trid = self._trid
+                self._trid = (self._trid + 1) % 2**15
+                self._transport.write(encode_request(rpc, trid, params), max(deadline.time_left(), 1e-3))
+                attempts += 1
+                attempt = Deadline(min(self.reply_timeout_s, deadline.time_left())) if retry else deadline
+                reply = self._await_reply(trid, attempt, damaged_ends=retry)
+                if reply is not None:
+                    damage = self._shape_problem(rpc, reply) if retry else None
+                    if damage is None:
+                        break
+                if not retry or deadline.expired():
+                    if damage is not None:
+                        raise damage
+                    more = f" ({attempts} attempts)" if attempts > 1 else ""
+                    raise DeviceTimeout(f"no reply to GeoCOM rpc {rpc} within {timeout_s:g} s{more}")
+                self.retries += 1
         finally:
             self._lock.release()
         if reply.com_rc != 0:
             raise ProtocolError(f"GeoCOM rpc {rpc}: communication error {rc_name(reply.com_rc)}")
         if reply.rc != 0 and reply.rc not in RC_WARNINGS:
             raise geocom_error(rpc, reply.rc)
-        want = REPLY_VALUES.get(rpc)
-        if want is not None and len(reply.values) != want:
-            raise ProtocolError(f"reply to GeoCOM rpc {rpc} carries {len(reply.values)} values, expected {want}")
+        problem = self._shape_problem(rpc, reply)
+        if problem is not None:
+            raise problem
         return reply.values
+
+    @staticmethod
+    def _shape_problem(rpc: int, reply: GeoComReply) -> ProtocolError | None:
+        """A reply of ours whose value count is wrong (a damaged tail), as the error to raise."""
+        want = REPLY_VALUES.get(rpc)
+        if reply.com_rc == 0 and reply.rc in (0, *RC_WARNINGS) and want is not None and len(reply.values) != want:
+            return ProtocolError(f"reply to GeoCOM rpc {rpc} carries {len(reply.values)} values, expected {want}")
+        return None
+
+    def _await_reply(self, trid: int, deadline: Deadline, *, damaged_ends: bool) -> GeoComReply | None:
+        """The reply with ``trid``; None when ``deadline`` passes first or, with ``damaged_ends``,
+        as soon as a damaged reply shows the answer was lost. Stale replies and garbage are skipped."""
+        while True:
+            try:
+                line = self._lines.read_line(deadline.time_left())
+            except DeviceTimeout:
+                return None
+            except ProtocolError:
+                self._sink().count_garbage(0)
+                continue
+            start = line.rfind(b"%R1P,")
+            if start < 0:
+                if line:
+                    self._sink().count_garbage(len(line))
+                continue
+            if start > 0:
+                self._sink().count_garbage(start)
+                line = line[start:]
+            try:
+                reply = parse_reply(line)
+            except ProtocolError:
+                self._sink().count_garbage(len(line))
+                if damaged_ends:
+                    return None
+                continue
+            if reply.trid != trid:
+                continue  # stale reply to a request that timed out
+            return reply
 
     def _optional(self, rpc: int):
         try:
@@ -414,7 +465,8 @@ class GeoComTracker(Tracker):
         next_t = time.monotonic()
         while not self._stop.is_set():
             try:
-                values = self.request(Rpc.GET_COORDINATE, (0, INCLINATION_AUTO))
+                # a poll is not retried: a lost answer is a lost sample, the next poll asks anew
+                values = self.request(Rpc.GET_COORDINATE, (0, INCLINATION_AUTO), retry=False)
             except DeviceTimeout:
                 buf.count_lost(1)
                 silent += 1
@@ -498,4 +550,4 @@ class GeoComTracker(Tracker):
 
 
 __all__ = ["GeoComTracker", "encode_request", "parse_reply", "GeoComReply", "geocom_error", "Rpc",
-           "REPLY_VALUES", "RC_NAMES"]
+           "REPLY_VALUES", "RC_NAMES", "idempotent"]

@@ -68,8 +68,7 @@ def _case(rng, robot: str, truth=None, n=None, noise=None):
 @pytest.mark.parametrize("robot, truth", [("rb5-850", "rb5-850-as-built"), ("rb5-850", None), ("ur5e", None),
                                           ("industrial-3100", None)])
 @pytest.mark.parametrize("method", ["distance", "absolute"])
-def test_calibration_reaches_what_the_true_model_reaches(robot, truth, method):
-    rng = np.random.default_rng()
+def test_calibration_reaches_what_the_true_model_reaches(rng, robot, truth, method):
     nom, true_dh, q, B, meas, noise = _case(rng, robot, get_robot(truth).dh_nominal if truth else None)
     cal = calibrate_arm(nom.dh_nominal, q, meas, method=method)
     assert cal.identification.converged
@@ -91,9 +90,8 @@ def test_calibration_reaches_what_the_true_model_reaches(robot, truth, method):
     assert cal.train.mean_reduction > 0.93 and cal.test.mean_reduction > 0.90
 
 
-def test_seed_table_3_bold_parameters_are_the_ones_fixed():
+def test_seed_table_3_bold_parameters_are_the_ones_fixed(rng):
     """RB5-850 with Table 3 as the truth: what the distance method cannot see is fixed, and named."""
-    rng = np.random.default_rng()
     nom, true_dh, q, B, meas, noise = _case(rng, "rb5-850", get_robot("rb5-850-as-built").dh_nominal)
     res = identify(nom.dh_nominal, q, meas, method="distance")
     fixed = res.identifiability.fixed
@@ -111,8 +109,7 @@ def test_seed_table_3_bold_parameters_are_the_ones_fixed():
     assert res.identifiability.condition_number < 100
 
 
-def test_cli_json_model_reproduces_the_reported_test_errors_by_an_independent_fk(tmp_path):
-    rng = np.random.default_rng()
+def test_cli_json_model_reproduces_the_reported_test_errors_by_an_independent_fk(rng, tmp_path):
     nom, true_dh, q, B, meas, noise = _case(rng, "rb5-850")
     write_arm_csv(tmp_path / "A.csv", np.degrees(q), meas)
     out = tmp_path / "out.json"
@@ -137,8 +134,7 @@ def test_cli_json_model_reproduces_the_reported_test_errors_by_an_independent_fk
         doc["train"]["mean_abs_after_mm"], rel=1e-6)
 
 
-def test_ur_deltas_round_trip(tmp_path):
-    rng = np.random.default_rng()
+def test_ur_deltas_round_trip(rng, tmp_path):
     nom = get_robot("ur5e")
     true_dh = nom.dh_nominal.copy()
     true_dh[:6, [0, 2]] += rng.normal(0, 0.3, (6, 2))
@@ -162,8 +158,7 @@ def _write(tmp_path, q_deg, xyz, name="A.csv"):
     return str(path)
 
 
-def test_bad_input_is_refused_with_exit_2_and_nothing_written(tmp_path, capsys):
-    rng = np.random.default_rng()
+def test_bad_input_is_refused_with_exit_2_and_nothing_written(rng, tmp_path, capsys):
     nom, true_dh, q, B, meas, noise = _case(rng, "rb5-850", n=64)
     out = tmp_path / "out.json"
 
@@ -196,8 +191,7 @@ def test_bad_input_is_refused_with_exit_2_and_nothing_written(tmp_path, capsys):
     refused(["--robot", "rb5-850", "--data", good, "--test-fraction", "1.5"], "--test-fraction")
 
 
-def test_rank_deficient_poses_name_what_cannot_be_seen():
-    rng = np.random.default_rng()
+def test_rank_deficient_poses_name_what_cannot_be_seen(rng):
     nom = get_robot("rb5-850")
     q = random_poses(nom.joint_limits_rad, 60, rng)
     q[:, 4] = 0.3  # joint 5 never moves: its offset cannot be told from the others

@@ -23,8 +23,6 @@ already breaks.
 from __future__ import annotations
 
 import math
-import os
-import secrets
 
 import numpy as np
 import pytest
@@ -36,13 +34,6 @@ from station.analysis.arm.jig_features import JigFeature, feature_point
 from station.analysis.arm.jig_features_seed import seed_feature_point
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.models.jig import CornerJig
-
-
-@pytest.fixture
-def rng(request):
-    seed = int(os.environ.get("JIG_TEST_SEED", secrets.randbits(32)))
-    print(f"{request.node.name}: JIG_TEST_SEED={seed}")
-    return np.random.default_rng(seed)
 
 
 def _pose(rng):

@@ -27,8 +27,7 @@ def _test_error_mm(dh_true, dh_id, q_test) -> float:
 
 
 @pytest.mark.parametrize("method, n", [("absolute", 12), ("distance", 14)])
-def test_selected_poses_see_more_and_calibrate_better_than_random_ones(method, n):
-    rng = np.random.default_rng()
+def test_selected_poses_see_more_and_calibrate_better_than_random_ones(rng, method, n):
     nom = get_robot("rb5-850")
     errs = {"selected": [], "random": []}
     for _ in range(10):  # one draw can favour the random poses; ten rarely do (bench: 31-35 % less on average)
@@ -53,9 +52,8 @@ def test_selected_poses_see_more_and_calibrate_better_than_random_ones(method, n
     assert np.mean(errs["selected"]) < np.mean(errs["random"]), errs
 
 
-def test_greedy_choice_is_not_beaten_by_swapping_one_pose():
+def test_greedy_choice_is_not_beaten_by_swapping_one_pose(rng):
     """After the exchange pass no single swap raises log det (checked on a small set by brute force)."""
-    rng = np.random.default_rng()
     nom = get_robot("ur5e")
     cand = random_poses(nom.joint_limits_rad, 60, rng)
     sel = select_poses(nom.dh_nominal, cand, 12)
@@ -70,8 +68,7 @@ def test_greedy_choice_is_not_beaten_by_swapping_one_pose():
             assert information_log_det(nom.dh_nominal, cand[trial], reference_q_rad=cand) <= best + 1e-6
 
 
-def test_admissible_keeps_poses_inside_the_box_and_facing_the_instrument():
-    rng = np.random.default_rng()
+def test_admissible_keeps_poses_inside_the_box_and_facing_the_instrument(rng):
     nom = get_robot("rb5-850")
     q = random_poses(nom.joint_limits_rad, 2000, rng)
     inst = np.array([float(rng.uniform(1500, 2500)), float(rng.uniform(-500, 500)), 300.0])
@@ -86,9 +83,9 @@ def test_admissible_keeps_poses_inside_the_box_and_facing_the_instrument():
     assert 0 < ok.sum() < ok.size
 
 
-def test_bad_requests_are_refused_with_the_cause():
+def test_bad_requests_are_refused_with_the_cause(rng):
     nom = get_robot("rb5-850")
-    cand = random_poses(nom.joint_limits_rad, 50, np.random.default_rng())
+    cand = random_poses(nom.joint_limits_rad, 50, rng)
     with pytest.raises(InsufficientDataError, match="at least"):
         select_poses(nom.dh_nominal, cand, 3)
     with pytest.raises(InsufficientDataError, match="admissible candidates"):

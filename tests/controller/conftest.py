@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from station.analysis.iso9283.poses import TABLE2_POSES_MM
@@ -40,10 +39,10 @@ def iso_poses():
 
 
 @pytest.fixture
-def world():
+def world(test_seed):
     from fakes.sim.world import make_world
 
-    w = make_world("industrial-3100", seed=int(np.random.default_rng().integers(0, 2**31)), time_scale=TIME_SCALE, effects=None)
+    w = make_world("industrial-3100", seed=test_seed, time_scale=TIME_SCALE, effects=None)
     yield w
     w.close()
 

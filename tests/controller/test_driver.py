@@ -23,10 +23,9 @@ def _dwell_positions(world, t0):
     return t, world.arm.tool_position_mm(t)
 
 
-def test_iso_cycle_end_to_end(start_controller, make_driver, world, robot, iso_poses):
+def test_iso_cycle_end_to_end(rng, start_controller, make_driver, world, robot, iso_poses):
     fake = start_controller()
     drv = make_driver(fake)
-    rng = np.random.default_rng()
     cycles = int(rng.integers(2, 5))
     speed = float(rng.uniform(0.3, 0.5))  # slow enough that no joint limit slows the P2 -> P3 line
     r = render_rapid(iso_pose_program(robot, iso_poses, cycles=cycles, speed_frac=speed))

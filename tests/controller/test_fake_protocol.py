@@ -72,9 +72,8 @@ def wait_state(c, states, timeout_s: float = 20.0) -> dict:
     raise AssertionError(f"state never reached {states}: {st}")
 
 
-def test_ftp_with_plain_ftplib(start_controller):
+def test_ftp_with_plain_ftplib(rng, start_controller):
     fake = start_controller()
-    rng = np.random.default_rng()
     data = bytes(rng.integers(32, 127, size=int(rng.integers(100, 5000)), dtype=np.uint8))
     ftp = ftp_login(fake)
     try:
@@ -134,10 +133,9 @@ def test_modbus_registers_with_pymodbus(start_controller, world):
         c.close()
 
 
-def test_program_uploaded_by_ftplib_runs_via_pymodbus(start_controller, world, robot, iso_poses):
+def test_program_uploaded_by_ftplib_runs_via_pymodbus(rng, start_controller, world, robot, iso_poses):
     """Generate -> plain FTP upload -> pymodbus select/start -> the arm runs the cycles."""
     fake = start_controller()
-    rng = np.random.default_rng()
     cycles = int(rng.integers(2, 4))
     r = render_rapid(iso_pose_program(robot, iso_poses, cycles=cycles, dwell_s=0.5))
     data = r.text.encode()

@@ -128,8 +128,7 @@ def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, 
 
 
 @pytest.mark.parametrize("key, fault", [("protective_stop_move", Fault.PROTECTIVE_STOP), ("emergency_stop_move", Fault.EMERGENCY_STOP)])
-def test_stop_in_the_middle_of_a_move(start_controller, make_driver, world, robot, iso_poses, key, fault):
-    rng = np.random.default_rng()
+def test_stop_in_the_middle_of_a_move(rng, start_controller, make_driver, world, robot, iso_poses, key, fault):
     n = int(rng.integers(2, 12))
     world.clock.set_time_scale(20.0)  # the fault must land inside a move of ~1.5 s: leave the fake time
     fake = start_controller({key: str(n)})

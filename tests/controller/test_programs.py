@@ -27,12 +27,7 @@ from station.programs.krl import abc_deg_from_quat
 from station.programs.model import matrix_from_quat, quat_from_matrix
 
 
-def _rng():
-    return np.random.default_rng()
-
-
-def test_iso_cycle_rapid_structure(robot, iso_poses):
-    rng = _rng()
+def test_iso_cycle_rapid_structure(rng, robot, iso_poses):
     cycles = int(rng.integers(2, 40))
     frac = float(rng.uniform(0.1, 1.0))
     dwell = float(rng.uniform(0.2, 2.0))
@@ -68,9 +63,8 @@ def test_iso_cycle_rapid_structure(robot, iso_poses):
                 assert line.strip().startswith("WaitTime")
 
 
-def test_generated_rapid_compiles_back_to_the_same_program(robot, iso_poses):
+def test_generated_rapid_compiles_back_to_the_same_program(rng, robot, iso_poses):
     """The fake's own RAPID parser reads the generator's text as the same motions."""
-    rng = _rng()
     names = list(iso_poses)
     sub = {n: iso_poses[n] for n in rng.choice(names, size=3, replace=False)}
     prog = vap_program(robot, sub, cycles=int(rng.integers(2, 9)), speed_frac=float(rng.uniform(0.2, 1.0)))
@@ -104,8 +98,7 @@ def _key(ins):
     return (type(ins).__name__, ins.source_line)
 
 
-def test_expected_stops_and_vap_directions(robot, iso_poses):
-    rng = _rng()
+def test_expected_stops_and_vap_directions(rng, robot, iso_poses):
     cycles = int(rng.integers(2, 6))
     dist = float(rng.uniform(20, 150))
     dirs = tuple(rng.choice(["+", "-"]) + a for a in ("x", "y", "z"))
@@ -131,8 +124,7 @@ def test_expected_stops_and_vap_directions(robot, iso_poses):
     assert [s.target.name for s in iso[:6]] == ["P1", "P2", "P3", "P4", "P5", "P1"]
 
 
-def test_calibration_program_rapid_and_krl(robot):
-    rng = _rng()
+def test_calibration_program_rapid_and_krl(rng, robot):
     n = int(rng.integers(3, 30))
     lo, hi = np.degrees(robot.joint_limits_rad).T
     q = rng.uniform(lo * 0.5, hi * 0.5, size=(n, 6))
@@ -151,8 +143,7 @@ def test_calibration_program_rapid_and_krl(robot):
     assert krl.files["CALIB.src"].count("PTP j_Q") == n
 
 
-def test_krl_iso_cycle_and_abc_angles(robot, iso_poses):
-    rng = _rng()
+def test_krl_iso_cycle_and_abc_angles(rng, robot, iso_poses):
     frac = float(rng.uniform(0.1, 1.0))
     prog = iso_pose_program(robot, iso_poses, cycles=3, speed_frac=frac)
     k = render_krl(prog)

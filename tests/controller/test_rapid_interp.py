@@ -89,8 +89,7 @@ def test_non_ascii_and_structure_errors(robot):
         compile_rapid(module("    WaitTime 1;\n"), robot)
 
 
-def test_unsafe_programs_are_refused_with_their_line(robot, gate):
-    rng = np.random.default_rng()
+def test_unsafe_programs_are_refused_with_their_line(rng, robot, gate):
     x_out = float(gate.box_max[0] + rng.uniform(10, 300))
     decls = robtarget("pA", (0, 1700, 1400)) + robtarget("pOut", (x_out, 1700, 1400))
     body = "    MoveJ pA, v200, fine, tool0;\n    FOR i FROM 1 TO 2 DO\n      WaitTime 0.5;\n      MoveL pOut, v200, fine, tool0;\n    ENDFOR\n"

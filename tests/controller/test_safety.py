@@ -47,8 +47,7 @@ def test_iso_and_vap_programs_pass_and_reach_their_targets(gate, robot, iso_pose
     gate.check_program(render_rapid(vap_program(robot, sub, cycles=2)))
 
 
-def test_target_outside_the_box_is_refused_naming_line_and_target(gate, robot, iso_poses):
-    rng = np.random.default_rng()
+def test_target_outside_the_box_is_refused_naming_line_and_target(rng, gate, robot, iso_poses):
     poses = dict(iso_poses)
     name = str(rng.choice(["P2", "P3", "P4", "P5"]))
     axis = int(rng.integers(0, 3))
@@ -74,8 +73,7 @@ def test_unreachable_target_is_refused(robot, iso_poses):
     assert "p_P4," in _line_of(r.text, _refusal_line(ei.value))
 
 
-def test_tighter_joint_limits_are_enforced(robot):
-    rng = np.random.default_rng()
+def test_tighter_joint_limits_are_enforced(rng, robot):
     j = int(rng.integers(0, 6))
     lim_deg = np.degrees(robot.joint_limits_rad).copy()
     tight = lim_deg * 0.5
@@ -100,8 +98,7 @@ def test_tighter_joint_limits_are_enforced(robot):
         SafetyGate(robot, limits.model_copy(update={"joint_limits_deg": tuple(map(tuple, wide))}))
 
 
-def test_speed_and_acceleration_caps(robot, iso_poses, limits):
-    rng = np.random.default_rng()
+def test_speed_and_acceleration_caps(rng, robot, iso_poses, limits):
     cap = float(rng.uniform(0.3, 0.9))
     gate = SafetyGate(robot, limits.model_copy(update={"max_speed_frac": cap}))
     ok = iso_pose_program(robot, iso_poses, cycles=2, speed_frac=cap * 0.99)
@@ -130,11 +127,10 @@ def test_fast_joint_move_is_refused_by_its_peak_tcp_speed(gate, robot, iso_poses
     assert float(re.search(r"speed at most ([0-9.]+) % here", str(ei.value)).group(1)) < 100.0
 
 
-def test_peak_tcp_speed_estimate_matches_the_planned_joint_move(gate, robot, iso_poses):
+def test_peak_tcp_speed_estimate_matches_the_planned_joint_move(rng, gate, robot, iso_poses):
     """The estimate is the cruise TCP speed of the synchronised profile the arm plans."""
     from station.models.motion import plan_joint_move
 
-    rng = np.random.default_rng()
     a, b = rng.choice(list(iso_poses), size=2, replace=False)
     qa = gate.check_cartesian_target(np.array(iso_poses[a]), "a")
     qb = gate.check_cartesian_target(np.array(iso_poses[b]), "b", q_seed=qa)
@@ -198,8 +194,7 @@ def test_program_for_another_robot_is_refused(gate, iso_poses):
         gate.check_program(p)
 
 
-def test_single_target_checks(gate, robot):
-    rng = np.random.default_rng()
+def test_single_target_checks(rng, gate, robot):
     q = gate.check_cartesian_target(np.array([0.0, 1700.0, 1400.0]), "probe")
     assert np.allclose(kinematics.tool_position(robot.dh_nominal, q), [0.0, 1700.0, 1400.0], atol=gate.limits.ik_tol_mm)
     with pytest.raises(SafetyError, match="probe: position .* outside"):
@@ -232,9 +227,8 @@ def test_bad_limits_are_refused(kwargs):
         SafetyLimits(**kwargs)
 
 
-def test_single_motion_checks_for_drivers_without_programs(gate, robot, iso_poses):
+def test_single_motion_checks_for_drivers_without_programs(rng, gate, robot, iso_poses):
     """The UR driver gates each URScript move with these."""
-    rng = np.random.default_rng()
     q0 = gate.check_cartesian_target(np.array(iso_poses["P1"]), "p1")
     q1 = gate.check_linear_motion(q0, np.array(iso_poses["P3"]), "movel", speed_mm_s=500.0)
     assert np.allclose(kinematics.tool_position(robot.dh_nominal, q1), iso_poses["P3"], atol=gate.limits.ik_tol_mm)

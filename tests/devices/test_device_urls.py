@@ -108,16 +108,16 @@ class _TcpToPty:
 
 
 @pytest.fixture
-def world():
+def world(test_seed):
     from fakes.sim.world import make_world
 
-    w = make_world("industrial-3100", seed=int(np.random.default_rng().integers(2**31)), time_scale=20.0,
+    w = make_world("industrial-3100", seed=test_seed, time_scale=20.0,
                    effects=None)
     yield w
     w.close()
 
 
-def test_each_scheme_opens_against_its_fake_with_the_configured_timeout(world, tmp_path):
+def test_each_scheme_opens_against_its_fake_with_the_configured_timeout(rng, world, tmp_path):
     from fakes import controller as controller_fake
     from fakes import emscon as emscon_fake
     from fakes import geocom as geocom_fake
@@ -125,7 +125,6 @@ def test_each_scheme_opens_against_its_fake_with_the_configured_timeout(world, t
     from station.models.robots import get_robot
     from station.safety import SafetyGate, SafetyLimits
 
-    rng = np.random.default_rng()
     timeouts = {k: float(np.round(rng.uniform(1.0, 9.0), 3)) for k in ("em", "gc", "gs", "ctrl", "odo")}
     em = emscon_fake.start_fake(world)
     gc = geocom_fake.start_fake(world)

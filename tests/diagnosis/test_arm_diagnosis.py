@@ -37,8 +37,7 @@ def _joint(effect, rng):
 
 
 @pytest.mark.parametrize("effect", ["backlash", "encoder_eccentricity", "joint_compliance", "thermal_drift"])
-def test_hidden_effect_is_named_with_its_joint(effect):
-    rng = np.random.default_rng()
+def test_hidden_effect_is_named_with_its_joint(rng, effect):
     joint = _joint(effect, rng)
     d = make_case(ROBOT, [(effect, joint)], rng, strength=(0.8, 1.2))
     res = _diagnose(d)
@@ -53,8 +52,7 @@ def test_hidden_effect_is_named_with_its_joint(effect):
     assert lo_hi[0] < lo_hi[1]
 
 
-def test_two_hidden_effects_are_both_named():
-    rng = np.random.default_rng()
+def test_two_hidden_effects_are_both_named(rng):
     e1, e2 = rng.choice(["backlash", "encoder_eccentricity", "joint_compliance"], 2, replace=False)
     j1, j2 = _joint(str(e1), rng), _joint(str(e2), rng)
     d = make_case(ROBOT, [(str(e1), j1), (str(e2), j2)], rng, strength=(1.0, 1.5))
@@ -63,8 +61,7 @@ def test_two_hidden_effects_are_both_named():
     assert res.final_heldout_rms < 1.2 * _oracle_rms(d, res)
 
 
-def test_geometric_errors_only_give_the_geometric_step_only():
-    rng = np.random.default_rng()
+def test_geometric_errors_only_give_the_geometric_step_only(rng):
     d = make_case(ROBOT, [], rng)
     res = _diagnose(d)
     assert res.selected[0] == ("geometric", None)
@@ -74,16 +71,14 @@ def test_geometric_errors_only_give_the_geometric_step_only():
     assert 0.7 < res.noise_floor / _oracle_rms(d, res) < 1.35  # 40 held-out poses: their RMS scatters ~10 %
 
 
-def test_nominal_arm_gives_nothing():
-    rng = np.random.default_rng()
+def test_nominal_arm_gives_nothing(rng):
     d = simulate_arm_data(ROBOT, EffectSet.none(), rng, n=120)
     res = _diagnose(d)
     assert res.steps == []
     assert res.final_heldout_rms == res.simulation_heldout_rms
 
 
-def test_not_testable_candidates_are_named_with_the_reason():
-    rng = np.random.default_rng()
+def test_not_testable_candidates_are_named_with_the_reason(rng):
     d = make_case(ROBOT, [], rng, n=40)
     q = d.q_rad.copy()
     q[:, 5] = 0.3  # joint 6 never moves
@@ -95,9 +90,8 @@ def test_not_testable_candidates_are_named_with_the_reason():
     assert "too few" in nt["geometric"]
 
 
-def test_other_generator_anisotropic_noise_backlash_found():
+def test_other_generator_anisotropic_noise_backlash_found(rng):
     """Data made without the station's effects code: backlash by hand, tracker noise larger along the line of sight."""
-    rng = np.random.default_rng()
     n = 160
     lim = ROBOT.joint_limits_rad
     q = rng.uniform(np.maximum(lim[:, 0], -2.5), np.minimum(lim[:, 1], 2.5), (n, 6))
@@ -119,8 +113,7 @@ def test_other_generator_anisotropic_noise_backlash_found():
     assert len(res.selected) <= 3
 
 
-def test_cli_json_keys_and_bad_input(tmp_path, capsys):
-    rng = np.random.default_rng()
+def test_cli_json_keys_and_bad_input(rng, tmp_path, capsys):
     d = make_case(ROBOT, [("backlash", int(rng.integers(1, 7)))], rng, n=100, strength=(1.5, 2.0))
     csv_path = tmp_path / "a.csv"
     write_arm_csv(csv_path, np.degrees(d.q_rad), d.xyz_mm, t=d.t_s)

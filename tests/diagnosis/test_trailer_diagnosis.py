@@ -52,8 +52,7 @@ _TRUE_PARAM = {"hitch_angle_offset": ("offset_rad", "offset_rad"), "curvature_ga
 
 
 @pytest.mark.parametrize("effect", EFFECTS)
-def test_hidden_effect_is_named(effect):
-    rng = np.random.default_rng()
+def test_hidden_effect_is_named(rng, effect):
     d = make_trailer_case([effect], rng, strength=STRENGTH)
     res = _diagnose(d, alpha=ALPHA)
     assert _named(res, effect), (effect, d["truth"], res.selected)
@@ -77,8 +76,7 @@ def test_hidden_effect_is_named(effect):
             assert lo < d["truth"][name] + 3 * (hi - lo) and d["truth"][name] - 3 * (hi - lo) < hi
 
 
-def test_two_hidden_effects_are_both_named():
-    rng = np.random.default_rng()
+def test_two_hidden_effects_are_both_named(rng):
     e1, e2 = (str(e) for e in rng.choice(["hitch_angle_offset", "curvature_gain", "hitch_dynamics"], 2,
                                           replace=False))
     d = make_trailer_case([e1, e2], rng, strength=(0.3, 0.5))
@@ -87,8 +85,7 @@ def test_two_hidden_effects_are_both_named():
     assert res.final_heldout_rms < ORACLE_MARGIN * _oracle_rms(d, res)
 
 
-def test_null_case_finds_nothing():
-    rng = np.random.default_rng()
+def test_null_case_finds_nothing(rng):
     d = make_trailer_case([], rng)
     # alpha 0.002: a false discovery in at most 1 run of 500 (the bench measures the rate at 0.05)
     res = _diagnose(d, alpha=0.002)
@@ -98,9 +95,8 @@ def test_null_case_finds_nothing():
     assert 0.9 * d["noise_rms"] < res.noise_floor < 1.1 * d["noise_rms"]
 
 
-def test_physical_trailer_from_the_offline_simulator_has_hitch_dynamics():
+def test_physical_trailer_from_the_offline_simulator_has_hitch_dynamics(rng):
     """A record of the station's other trailer simulator (interval-averaged odometry, eq. (D) relaxing over L2)."""
-    rng = np.random.default_rng()
     rec = record_commands([("H", 0.2), ("C", -0.2)], rate_hz=10.0, settle_s=10.0, duration_s=63.0,
                           noise=float(rng.uniform(0.002, 0.004)), rng=rng)
     res = diagnose_trailer(rec["t"], rec["kappa"], rec["psi"], L1_m=L1, L2_m=L2, v_m_s=rec["v"], alpha=ALPHA)
@@ -113,8 +109,7 @@ def test_physical_trailer_from_the_offline_simulator_has_hitch_dynamics():
     assert step.details["relaxation_expected_m"] == pytest.approx(expected, abs=1e-9)
 
 
-def test_without_speed_the_lag_is_a_time_constant():
-    rng = np.random.default_rng()
+def test_without_speed_the_lag_is_a_time_constant(rng):
     d = make_trailer_case(["hitch_dynamics"], rng, strength=(0.5, 0.7), v_m_s=1.0)
     d["v"] = None
     res = _diagnose(d, alpha=ALPHA)
@@ -123,8 +118,7 @@ def test_without_speed_the_lag_is_a_time_constant():
     assert "relaxation_tau_s" in res.to_json()["extended_model"]
 
 
-def test_straight_run_names_what_it_cannot_test():
-    rng = np.random.default_rng()
+def test_straight_run_names_what_it_cannot_test(rng):
     d = make_trailer_case([], rng, duration_s=60.0)
     d["kappa"] = np.zeros_like(d["kappa"])  # odometry reports a straight line exactly
     d["psi"] = 0.003 + rng.normal(0.0, 0.003, d["psi"].size)
@@ -135,8 +129,7 @@ def test_straight_run_names_what_it_cannot_test():
     assert res.selected == ["hitch_angle_offset"]
 
 
-def test_json_keys_and_units():
-    rng = np.random.default_rng()
+def test_json_keys_and_units(rng):
     d = make_trailer_case(["hitch_angle_offset"], rng, strength=(0.5, 0.6), duration_s=60.0)
     doc = json.loads(json.dumps(_diagnose(d, alpha=ALPHA).to_json()))
     for key in ("steps", "final_heldout_rms", "noise_floor", "simulation_heldout_rms", "not_testable",
@@ -150,8 +143,7 @@ def test_json_keys_and_units():
     assert set(doc["structure"]["simulation"]) == {"kappa", "kappa_rate", "t"}
 
 
-def test_bad_input_is_refused():
-    rng = np.random.default_rng()
+def test_bad_input_is_refused(rng):
     d = make_trailer_case([], rng, duration_s=30.0)
     with pytest.raises(InsufficientDataError, match="at least"):
         diagnose_trailer(d["t"][:50], d["kappa"][:50], d["psi"][:50], L1_m=L1, L2_m=L2)
@@ -165,8 +157,7 @@ def test_bad_input_is_refused():
         diagnose_trailer(d["t"], d["kappa"], d["psi"], L1_m=L1, L2_m=L2, v_m_s=-d["v"])
 
 
-def test_cli_writes_json_and_report_and_refuses_bad_lengths(tmp_path, capsys):
-    rng = np.random.default_rng()
+def test_cli_writes_json_and_report_and_refuses_bad_lengths(rng, tmp_path, capsys):
     d = make_trailer_case(["curvature_gain"], rng, strength=(0.5, 0.6), duration_s=90.0)
     csv = tmp_path / "T.csv"
     write_trailer_csv(csv, d["t"], d["kappa"], d["psi"], d["v"])

@@ -9,7 +9,6 @@ run with its figures is ``bench/bench_fuzz.py``.
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -86,10 +85,35 @@ def test_geocom_reply_parser_refuses_cleanly(line):
         assert isinstance(r.values, tuple)
 
 
+_plain_value = st.text(alphabet=st.characters(blacklist_characters=',"\r\n', blacklist_categories=("Cs",)),
+                      max_size=12)
+_quoted_value = st.text(alphabet=st.characters(blacklist_characters='"\r\n', blacklist_categories=("Cs",)),
+                        max_size=12).map(lambda t: f'"{t}"')
+_values = st.lists(st.one_of(_plain_value, _quoted_value, st.integers(-2**31, 2**31 - 1).map(str),
+                             st.floats(allow_nan=False, allow_infinity=False).map(repr)), min_size=1, max_size=8)
+
+
+@FUZZ
+@given(st.integers(0, 70000), st.integers(0, 2**15 - 1), st.integers(0, 70000),
+       st.lists(st.one_of(st.integers(-2**31, 2**31 - 1).map(str), st.floats(allow_nan=False).map(repr),
+                          st.text(alphabet="ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789 .,-_", max_size=12)
+                          .map(lambda t: f'"{t}"')), max_size=8))
+def test_geocom_reply_parser_accepts_every_valid_reply_exactly(com_rc, trid, rc, values):
+    line = f"%R1P,{com_rc},{trid}:{rc}" + "".join("," + v for v in values)
+    reply = parse_reply(line.encode("latin-1"))
+    assert (reply.com_rc, reply.trid, reply.rc, reply.values) == (com_rc, trid, rc, tuple(values))
+
+
 @FUZZ
 @given(st.text(max_size=60))
 def test_geocom_value_splitter_refuses_cleanly(text):
     _ours(split_values, text)
+
+
+@FUZZ
+@given(_values)
+def test_geocom_value_splitter_gives_back_every_value_of_a_valid_list(values):
+    assert split_values(",".join(values)) == tuple(values)
 
 
 # -- NMEA ---------------------------------------------------------------------------------
@@ -121,6 +145,34 @@ def test_device_url_parser_refuses_cleanly(url):
     _ours(parse_device_url, url)
 
 
+_host = st.one_of(st.builds(lambda a, b, c: f"127.{a}.{b}.{c}", *[st.integers(0, 255)] * 3),
+                  st.from_regex(r"[a-z][a-z0-9-]{0,14}[a-z0-9]", fullmatch=True))
+_path = st.lists(st.from_regex(r"[A-Za-z0-9_.-]{1,10}", fullmatch=True).filter(lambda p: p not in (".", "..")),
+                 min_size=1, max_size=4).map(lambda parts: "/" + "/".join(parts))
+
+
+@FUZZ
+@given(st.sampled_from(["emscon", "geocom+socket", "modbus+ftp", "ur"]), _host, st.integers(1, 65535),
+       st.integers(1, 10**9 - 1))
+def test_device_url_parser_accepts_every_valid_host_url(scheme, host, port, n):
+    with_port = scheme != "ur"
+    url = f"{scheme}://{host}" + (f":{port}" if with_port else "") + ("?modbus_port=%d" % n if scheme == "modbus+ftp" else "")
+    u = parse_device_url(url)
+    assert (u.scheme, u.host, u.port, u.path) == (scheme, host, port if with_port else None, None)
+    if scheme == "modbus+ftp":
+        assert u.int_option("modbus_port") == n
+
+
+@FUZZ
+@given(st.sampled_from(["geocom", "nmea", "ply"]), _path, st.integers(1, 10**9 - 1))
+def test_device_url_parser_accepts_every_valid_path_url(scheme, path, baud):
+    query = f"?baud={baud}" if scheme != "ply" else ""
+    u = parse_device_url(f"{scheme}://{path}{query}")
+    assert (u.scheme, u.host, u.path) == (scheme, None, path)
+    if scheme != "ply":
+        assert u.int_option("baud") == baud
+
+
 _json = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
                                st.text(max_size=10)),
                      lambda inner: st.one_of(st.lists(inner, max_size=4),
@@ -133,6 +185,25 @@ _json = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10*
                                         "other"]), _json, max_size=5))
 def test_config_loader_refuses_cleanly(data):
     _ours(config_from_dict, data)
+
+
+@FUZZ
+@given(st.integers(2, 1000), st.integers(2, 1000), st.floats(10.0, 3000.0), st.floats(0.001, 10.0),
+       st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789-", min_size=1, max_size=20),
+       st.floats(-500.0, 500.0), st.floats(1.0, 500.0))
+def test_config_loader_accepts_every_valid_config(cycles, vap_cycles, rate_hz, rp_limit, serial, x0, size):
+    from pathlib import Path
+
+    from fakes.cells import demo_config
+
+    data = demo_config(Path("/tmp/station-fuzz"), cycles=cycles, vap_cycles=vap_cycles, rate_hz=rate_hz)
+    robot = data["robots"]["r1"]
+    robot["serial"] = serial
+    robot["limits"]["rp_limit_mm"] = rp_limit
+    robot["workspace"]["min_mm"][0], robot["workspace"]["max_mm"][0] = x0, x0 + size
+    cfg = config_from_dict(data)
+    assert (cfg.iso9283.cycles, cfg.iso9283.vap_cycles, cfg.iso9283.tracker_rate_hz) == (cycles, vap_cycles, rate_hz)
+    assert cfg.robots["r1"].serial == serial and cfg.robots["r1"].limits.rp_limit_mm == rp_limit
 
 
 # -- PLY ----------------------------------------------------------------------------------
@@ -175,3 +246,8 @@ def test_program_generator_refuses_or_renders_what_parses_back(name, points, spe
         module = parse_rapid(rendered.files[rendered.main_file])
         assert module is not None
         assert math.isfinite(speed) and speed > 0
+    elif name[0].isalpha() and 0.0 < speed <= 1.0:
+        # a valid name, targets and speed: refusing it is a bug (only names that clash with what the
+        # generator declares itself may be refused)
+        with pytest.raises(StationError, match="clash|reserved|generated"):
+            build()

@@ -1,30 +1,20 @@
 """Fixtures for the ISO 9283 analysis tests.
 
-Every test that hides an effect in data draws it at random each run; the
-seed is printed (pytest shows it on failure) so a failing draw can be replayed
-with ``ISO_TEST_SEED=<seed>``.  Thresholds come from the noise model and n.
+Every test that hides an effect in data draws it at random each run from the
+``rng`` fixture of tests/seeding.py (a failing test prints the seed and the
+command that replays it).  Thresholds come from the noise model and n.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import math
-import os
-import secrets
 from pathlib import Path
 
-import numpy as np
 import pytest
 from scipy import stats
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture
-def rng(request):
-    seed = int(os.environ.get("ISO_TEST_SEED", secrets.randbits(32)))
-    print(f"{request.node.name}: ISO_TEST_SEED={seed}")
-    return np.random.default_rng(seed)
 
 
 @pytest.fixture(scope="session")

@@ -39,8 +39,7 @@ def _stream(poses, dirs, cycles, rng, rate_hz=100.0, sigma=0.01, scatter=0.02):
     return t, xyz, np.array(truth)
 
 
-def test_merged_pre_point_moves_give_the_final_approach_direction():
-    rng = np.random.default_rng()
+def test_merged_pre_point_moves_give_the_final_approach_direction(rng):
     poses = np.array([[0.0, 1700, 1400], [-500, 2200, 1900], [500, 1200, 900]])
     dirs = np.eye(3) * np.array([1.0, 1.0, -1.0])[:, None]  # +x, +y, -z
     cycles = 4

@@ -1,26 +1,17 @@
-"""Fixtures for the kinematics tests: a fresh random generator per test.
+"""Fixtures for the kinematics tests.
 
-Random draws differ on every run (the point is to catch what one lucky seed
-would hide); the seed is printed in the test id's captured output and can be
-forced with ``KIN_TEST_SEED=<int>`` to replay a failure.
+Random draws come from the ``rng`` fixture of tests/seeding.py: they differ on
+every run (the point is to catch what one lucky seed would hide); a failing
+test prints the seed and the command that replays it.
 """
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
 
 from station.models.robots import ROBOT_NAMES, get_robot
-
-
-@pytest.fixture
-def rng():
-    env = os.environ.get("KIN_TEST_SEED")
-    seed = int(env) if env else int(np.random.SeedSequence().entropy % (2**32))
-    print(f"KIN_TEST_SEED={seed}")
-    return np.random.default_rng(seed)
 
 
 @pytest.fixture(params=ROBOT_NAMES)

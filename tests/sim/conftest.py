@@ -20,13 +20,6 @@ def clock():
     return ManualClock()
 
 
-@pytest.fixture()
-def rng(request):
-    """A generator seeded from the test's name: different per test, stable per run."""
-    seed = sum(ord(c) for c in request.node.name)
-    return np.random.default_rng(seed)
-
-
 @pytest.fixture(scope="session")
 def iso_q(robot):
     """Nominal joint angles of seed 000 Table 2 (P1..P5) with P1's tool orientation."""

@@ -1,12 +1,12 @@
-import numpy as np
 import pytest
 
 from fakes.station import FakeStation
 
 
 @pytest.fixture
-def world_seed():
-    return int(np.random.default_rng().integers(0, 2**31))
+def world_seed(test_seed):
+    """The test's seed (tests/seeding.py): a fresh world every run, replayed with --seed."""
+    return test_seed
 
 
 @pytest.fixture

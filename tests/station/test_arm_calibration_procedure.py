@@ -40,8 +40,7 @@ def _seeds(rng):
     return int(rng.integers(0, 2**31)), int(rng.integers(0, 2**31))
 
 
-def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(tmp_path):
-    rng = np.random.default_rng()
+def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng, tmp_path):
     cell_seed, sel_seed = _seeds(rng)
     cfg = _cfg(tmp_path)
     code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
@@ -78,8 +77,7 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(tmp
     assert (tmp_path / "reports" / "c1.html").exists()
 
 
-def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(tmp_path):
-    rng = np.random.default_rng()
+def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(rng, tmp_path):
     cell_seed, sel_seed = _seeds(rng)
     cfg = _cfg(tmp_path, poses_per_step=5)
     db = cfg.station.store_file(tmp_path)
@@ -109,9 +107,8 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
 
 
-def test_a_pose_outside_the_workspace_is_refused_before_anything_moves(tmp_path):
+def test_a_pose_outside_the_workspace_is_refused_before_anything_moves(rng, tmp_path):
     cfg = _cfg(tmp_path)
-    rng = np.random.default_rng()
     # a plan edited to reach below the box: preflight names the pose, nothing connects
     from procedures.arm_calibration import plan_from_config
 

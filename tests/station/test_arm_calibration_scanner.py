@@ -42,8 +42,7 @@ def _cfg(tmp_path, **arm):
     return StationConfig.model_validate(d)
 
 
-def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_errors(tmp_path):
-    rng = np.random.default_rng()
+def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng, tmp_path):
     cell_seed, sel_seed = int(rng.integers(0, 2**31)), int(rng.integers(0, 2**31))
     cfg = _cfg(tmp_path)
     hidden = int(rng.integers(1, 41))  # the scan of this pose (1-based, the reference too) misses the jig
@@ -96,8 +95,7 @@ def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_er
     assert (tmp_path / "reports" / "s1.html").exists()
 
 
-def test_a_broken_scanner_answer_stops_the_run_cleanly(tmp_path):
-    rng = np.random.default_rng()
+def test_a_broken_scanner_answer_stops_the_run_cleanly(rng, tmp_path):
     cfg = _cfg(tmp_path, train_poses=10, test_poses=2, poses_per_step=4)
     bad = int(rng.integers(1, 13))
     code = run_procedure(cfg, "arm-calibration", run_id="s2", yes=True, quiet=True, time_scale=TIME_SCALE,
@@ -118,11 +116,11 @@ def test_a_broken_scanner_answer_stops_the_run_cleanly(tmp_path):
 
 
 @pytest.fixture
-def folder_scanner(tmp_path):
+def folder_scanner(tmp_path, test_seed):
     """The fake scanner software on a folder of its own, the world at rest at home (ManualClock)."""
     folder = tmp_path / "hot"
     folder.mkdir()
-    world = make_world("industrial-3100", seed=int(np.random.default_rng().integers(2**31)), clock=ManualClock())
+    world = make_world("industrial-3100", seed=test_seed, clock=ManualClock())
     fake = start_fake(world, folder)
     drv = ScannerDriver.from_url(f"ply://{folder}", timeout_s=5.0)
     drv.connect()
@@ -182,7 +180,7 @@ def test_a_scanner_config_without_the_scanner_position_is_refused(tmp_path):
         config_from_dict(d)
 
 
-def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path):
+def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path, rng):
     from procedures.devices import DeviceSet
     from station.errors import PreflightError
 
@@ -191,15 +189,14 @@ def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path):
                               "controller": "modbus+ftp://127.0.0.1:9"})
     with pytest.raises(PreflightError, match="no-such-folder"):
         run_procedure(cfg, "arm-calibration", run_id="s3", yes=True, quiet=True, config_dir=tmp_path,
-                      devices=devices, plan_overrides={"selection_seed": int(np.random.default_rng().integers(2**31))})
+                      devices=devices, plan_overrides={"selection_seed": int(rng.integers(2**31))})
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         assert "s3" not in [r.run_id for r in store.runs()]
 
 
-def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corner(tmp_path):
+def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corner(rng, tmp_path):
     from station.runner import RunControl
 
-    rng = np.random.default_rng()
     cfg = _cfg(tmp_path, train_poses=15, test_poses=5, poses_per_step=5)
     db = cfg.station.store_file(tmp_path)
     control = RunControl()

@@ -128,9 +128,8 @@ def test_unsafe_plan_is_refused_before_anything_moves(fake_cell, tmp_path):
     np.testing.assert_allclose(_arm_q(fake_cell.world), q0, atol=1e-9)
 
 
-def test_a_rate_the_tracker_cannot_stream_is_refused_before_anything_moves(fake_cell, tmp_path):
+def test_a_rate_the_tracker_cannot_stream_is_refused_before_anything_moves(rng, fake_cell, tmp_path):
     """emScon spaces points by whole milliseconds: a rate that is not 1000/k Hz is refused up front."""
-    rng = np.random.default_rng()
     rate = float(rng.choice([3000.0, 2000.0, 300.0, 700.0, 1000.0 / 2.5]))
     q0 = _arm_q(fake_cell.world)
     with pytest.raises(PreflightError, match="tracker_rate_hz: emScon continuous time mode") as err:

@@ -77,8 +77,7 @@ def _pose_table(store, run_id):
 
 
 @pytest.mark.parametrize("trial", range(2))
-def test_killed_run_resumes_with_nothing_lost(tmp_path, trial):
-    rng = np.random.default_rng()
+def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
     seed = int(rng.integers(0, 2**31))
     total_steps = 6 + CYCLES + VAP + 3
     kill_after = int(rng.integers(5, total_steps - 1))  # somewhere from registration to analysis

@@ -14,7 +14,6 @@ import pytest
 
 from app.acceptance import Station
 from app.cli import main
-from station.config import config_from_dict
 from station.errors import ConfigError, SafetyError
 from station.runner import AnswerFileOperator
 from station.store import RunStore

@@ -6,8 +6,7 @@ from station.analysis.registration import fit_rigid
 from station.errors import DataError, InsufficientDataError
 
 
-def test_recovers_random_transform_within_noise():
-    rng = np.random.default_rng()
+def test_recovers_random_transform_within_noise(rng):
     R = Rotation.random(random_state=rng).as_matrix()
     t = rng.uniform(-3000, 3000, 3)
     n, sigma = 8, 0.01
@@ -38,13 +37,12 @@ def test_refuses_bad_input():
         fit_rigid(np.eye(4)[:, :3], bad)
 
 
-def test_axis_registration_recovers_the_base_frame_and_keeps_link_errors_out_of_it():
+def test_axis_registration_recovers_the_base_frame_and_keeps_link_errors_out_of_it(rng):
     """Joint-1 and joint-2 circles give the base frame; errors of links 3..6 stay out of it."""
     from station.analysis.registration import fit_circle, register_by_axes
     from station.models import kinematics as K
     from station.models.robots import get_robot
 
-    rng = np.random.default_rng()
     robot = get_robot("industrial-3100")
     dh = robot.dh_nominal
     true = dh.copy()

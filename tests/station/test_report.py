@@ -6,8 +6,7 @@ from station.report import (Report, plot_approach, plot_bars, plot_clusters, plo
                             plot_velocity_windows, render_html, write_report)
 
 
-def test_report_is_self_contained_and_shows_verdicts(tmp_path):
-    rng = np.random.default_rng()
+def test_report_is_self_contained_and_shows_verdicts(rng, tmp_path):
     t = np.linspace(0, 10, 2001)
     speed = np.abs(np.sin(t)) * 500
     rows = [

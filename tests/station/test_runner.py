@@ -52,8 +52,7 @@ def _kill_child_after(tmp_path, n_acks, run_id):
 
 
 @pytest.mark.parametrize("trial", range(3))
-def test_kill_9_at_random_point_then_resume_loses_nothing(tmp_path, trial):
-    rng = np.random.default_rng()
+def test_kill_9_at_random_point_then_resume_loses_nothing(rng, tmp_path, trial):
     n_acks = int(rng.integers(1, toy.N_MEASURE * toy.BATCHES - 1))
     db, acked = _kill_child_after(tmp_path, n_acks, "r1")
     assert len(acked) >= n_acks

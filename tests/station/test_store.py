@@ -33,10 +33,9 @@ def test_history_before_and_after_overhaul_and_exceeding_query(tmp_path):
     assert {(o["serial"], o["run_id"]) for o in over_all} == {("SN-A", "a1"), ("SN-B", "b1")}
 
 
-def test_samples_round_trip_and_bad_batches_refused(tmp_path):
+def test_samples_round_trip_and_bad_batches_refused(rng, tmp_path):
     store = RunStore(tmp_path / "s.sqlite")
     store.create_run("r", "p", model=None, serial=None, overhaul_state=None, config={}, params={})
-    rng = np.random.default_rng()
     t = np.sort(rng.uniform(0, 10, 257))
     xyz = rng.normal(size=(257, 3)) * 1000
     att = store.step_started("r", 0, "s")

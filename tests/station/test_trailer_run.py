@@ -30,8 +30,7 @@ def _truth(rng):
     return float(rng.uniform(1.20, 1.30)), float(rng.uniform(2.40, 2.55))
 
 
-def test_trailer_calibration_end_to_end_recovers_the_true_lengths(tmp_path):
-    rng = np.random.default_rng()
+def test_trailer_calibration_end_to_end_recovers_the_true_lengths(rng, tmp_path):
     L1, L2 = _truth(rng)
     cfg = config_from_dict({
         "station": {"name": "yard", "store_path": str(tmp_path / "s.sqlite"), "report_dir": str(tmp_path / "r")},
@@ -55,8 +54,7 @@ def test_trailer_calibration_end_to_end_recovers_the_true_lengths(tmp_path):
     assert open(report).read().count("<svg") == 1
 
 
-def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(tmp_path):
-    rng = np.random.default_rng()
+def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(rng, tmp_path):
     L1, L2 = _truth(rng)
     world = make_world(seed=int(rng.integers(2**31)), time_scale=20.0, effects=None)
     world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
@@ -120,13 +118,12 @@ def test_unsafe_trailer_plan_refused_before_anything_moves(tmp_path):
     assert RunStore(tmp_path / "s.sqlite").runs() == []
 
 
-def test_pieces_and_inverse_covariance_combination():
+def test_pieces_and_inverse_covariance_combination(rng):
     from procedures.trailer_run import combine_estimates, continuous_pieces
     from station.analysis.trailer.least_squares import TrailerEstimate
 
     t = np.concatenate([np.arange(0, 10, 0.1), 50 + np.arange(0, 5, 0.1)])
     assert [(s.start, s.stop) for s in continuous_pieces(t)] == [(0, 100), (100, 150)]
-    rng = np.random.default_rng()
     a = TrailerEstimate("dynamic", 1.2, 2.5, 0.01, 0.02, 0.0, 3.0, 100)
     b = TrailerEstimate("dynamic", 1.3, 2.4, 0.02, 0.01, 0.0, 4.0, 50)
     c = combine_estimates("dynamic", [a, b])

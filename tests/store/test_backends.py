@@ -65,8 +65,8 @@ def answers(store: RunStore) -> dict:
     return out
 
 
-def test_both_backends_give_the_same_answers_on_the_same_data(tmp_path, pg_url):
-    seed = np.random.SeedSequence().entropy
+def test_both_backends_give_the_same_answers_on_the_same_data(rng, tmp_path, pg_url):
+    seed = int(rng.integers(2**63))
     lite, pg = RunStore(tmp_path / "s.sqlite"), RunStore(pg_url)
     written = fill(lite, np.random.default_rng(seed))
     fill(pg, np.random.default_rng(seed))
@@ -85,11 +85,10 @@ def test_both_backends_give_the_same_answers_on_the_same_data(tmp_path, pg_url):
     lite.close(), pg.close()
 
 
-def test_a_store_of_the_previous_schema_upgrades_in_place(tmp_path):
+def test_a_store_of_the_previous_schema_upgrades_in_place(rng, tmp_path):
     path = tmp_path / "old.sqlite"
     db = sqlite3.connect(path)
     db.executescript(V1_SCHEMA)
-    rng = np.random.default_rng()
     data = rng.normal(size=(30, 2))
     db.execute("INSERT INTO robots VALUES (1, 'rb5-850', 'SN-OLD')")
     db.execute("INSERT INTO runs VALUES ('old-1', 1, 'iso9283', 'after', '{}', '{}', 'done', 1.0e9, 1.0e9)")

@@ -7,7 +7,6 @@ import pytest
 
 from app.cli import main
 from station.fleet import drifting, over_limits_now, robot_history, since_overhaul
-from station.fleet_page import write_fleet_page
 from station.fleet_trend import benjamini_hochberg, trends
 from station.store import RunStore
 from tests.store.fleetgen import LIMIT_MM, load_fleet, make_fleet, worst
@@ -15,8 +14,7 @@ from tests.store.helpers import station_config
 
 
 @pytest.fixture
-def fleet_stores(tmp_path, pg_url):
-    rng = np.random.default_rng()
+def fleet_stores(rng, tmp_path, pg_url):
     fleet = make_fleet(rng, n_robots=60, runs_per_robot=14)
     stores = [RunStore(tmp_path / "fleet.sqlite"), RunStore(pg_url)]
     for s in stores:
@@ -75,10 +73,9 @@ def test_history_of_one_robot_across_stations_and_overhauls(fleet_stores):
         np.testing.assert_allclose([x["value"] for x in h], [r["values"][2] for r in mine])
 
 
-def test_trend_test_against_scipy_and_false_discovery_control():
+def test_trend_test_against_scipy_and_false_discovery_control(rng):
     from scipy import stats
 
-    rng = np.random.default_rng()
     g = np.repeat(np.arange(200), 12)
     t = np.tile(np.linspace(0, 2, 12), 200) + rng.uniform(-0.05, 0.05, g.size)
     slope_true = np.where(np.arange(200) < 40, 0.5, 0.0)  # 1 noise sigma per 0.2 time units: t-statistic ~ 20

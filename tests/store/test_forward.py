@@ -4,8 +4,6 @@ import os
 import signal
 import time
 
-import numpy as np
-import pytest
 
 from app.cli import main
 from station.store import RunStore
@@ -22,8 +20,7 @@ def _wait(pred, timeout_s, what):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def test_push_sends_what_the_centre_lacks_and_nothing_twice(tmp_path, pg_url):
-    rng = np.random.default_rng()
+def test_push_sends_what_the_centre_lacks_and_nothing_twice(rng, tmp_path, pg_url):
     local, central = RunStore(tmp_path / "a.sqlite", station="cell-a"), RunStore(pg_url)
     n1, n2 = rng.integers(5, 30, size=2)
     add_run(local, "SN-1-r1", "SN-1", rng, batches=n1)
@@ -54,8 +51,7 @@ def test_push_sends_what_the_centre_lacks_and_nothing_twice(tmp_path, pg_url):
     local.close(), central.close()
 
 
-def test_kill_9_mid_push_then_resume_loses_and_duplicates_nothing(tmp_path, pg_url):
-    rng = np.random.default_rng()
+def test_kill_9_mid_push_then_resume_loses_and_duplicates_nothing(rng, tmp_path, pg_url):
     cfg = station_config(tmp_path, "cell-k", pg_url)
     local = RunStore(tmp_path / "cell-k.sqlite", station="cell-k")
     total = int(rng.integers(250, 350))
@@ -81,9 +77,8 @@ def test_kill_9_mid_push_then_resume_loses_and_duplicates_nothing(tmp_path, pg_u
     local.close(), central.close()
 
 
-def test_server_stopped_mid_push_and_restarted_while_the_station_goes_on(tmp_path, pg_server):
+def test_server_stopped_mid_push_and_restarted_while_the_station_goes_on(rng, tmp_path, pg_server):
     url = pg_server.create_db()
-    rng = np.random.default_rng()
     local = RunStore(tmp_path / "s.sqlite", station="cell-s")
     total = int(rng.integers(300, 400))
     add_run(local, "SN-S-r1", "SN-S", rng, batches=total, per_batch=50)
@@ -112,8 +107,7 @@ def test_server_stopped_mid_push_and_restarted_while_the_station_goes_on(tmp_pat
     local.close(), central.close()
 
 
-def test_several_stations_pushing_at_once(tmp_path, pg_url):
-    rng = np.random.default_rng()
+def test_several_stations_pushing_at_once(rng, tmp_path, pg_url):
     expected = {}
     cfgs = []
     for s, name in enumerate(("cell-a", "cell-b", "cell-c")):
@@ -144,8 +138,7 @@ def test_several_stations_pushing_at_once(tmp_path, pg_url):
     central.close()
 
 
-def test_a_run_id_of_another_station_is_refused_not_merged(tmp_path, pg_url, capsys):
-    rng = np.random.default_rng()
+def test_a_run_id_of_another_station_is_refused_not_merged(rng, tmp_path, pg_url, capsys):
     for name in ("cell-a", "cell-b"):
         with RunStore(tmp_path / f"{name}.sqlite", station=name) as local:
             add_run(local, "SN-X-1", "SN-X", rng, batches=3)
@@ -157,8 +150,7 @@ def test_a_run_id_of_another_station_is_refused_not_merged(tmp_path, pg_url, cap
         same_samples(a, central, "SN-X-1")
 
 
-def test_unreachable_centre_keeps_everything_local_and_no_secret_is_written(tmp_path, pg_server, capsys):
-    rng = np.random.default_rng()
+def test_unreachable_centre_keeps_everything_local_and_no_secret_is_written(rng, tmp_path, pg_server, capsys):
     with RunStore(tmp_path / "cell-u.sqlite", station="cell-u") as local:
         add_run(local, "SN-U-1", "SN-U", rng, batches=4)
     import socket

@@ -19,8 +19,7 @@ def _cfg(tmp_path, url):
     return StationConfig.model_validate(d)
 
 
-def test_a_run_reaches_the_central_store_by_itself(tmp_path, pg_url):
-    rng = np.random.default_rng()
+def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
     cfg = _cfg(tmp_path, pg_url)
     out = io.StringIO()
     code = run_procedure(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=100.0,
@@ -38,8 +37,7 @@ def test_a_run_reaches_the_central_store_by_itself(tmp_path, pg_url):
         assert forward_status(local)["f1"]["in_centre"] == "complete"
 
 
-def test_an_unreachable_centre_costs_the_run_nothing(tmp_path):
-    rng = np.random.default_rng()
+def test_an_unreachable_centre_costs_the_run_nothing(rng, tmp_path):
     cfg = _cfg(tmp_path, "postgresql://station@127.0.0.1:1/plant")
     buf = io.StringIO()
     code = run_procedure(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=100.0,

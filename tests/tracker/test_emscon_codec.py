@@ -166,8 +166,7 @@ def test_stream_decodes_in_any_chunking(chunk):
     assert len(got) == len(frames) and all(_same(a, b) for a, b in zip(frames, got))
 
 
-def test_garbage_between_packets_is_skipped_and_counted_exactly():
-    rng = np.random.default_rng()
+def test_garbage_between_packets_is_skipped_and_counted_exactly(rng):
     frames = _stream_frames(rng, 60)
     data, injected = bytearray(), 0
     for f in frames:
@@ -182,13 +181,12 @@ def test_garbage_between_packets_is_skipped_and_counted_exactly():
     assert len(got) == len(frames) and all(_same(a, b) for a, b in zip(frames, got))
 
 
-def test_truncated_packet_loses_only_itself():
+def test_truncated_packet_loses_only_itself(rng):
     """A packet cut short anywhere is rejected; the packets around it survive.
 
     The one cut no framing without a checksum can see - the missing tail is
     exactly as long as the next packet, which then fills it - is not drawn.
     """
-    rng = np.random.default_rng()
     for _ in range(40):
         frames = [f for f in _stream_frames(rng, 30) if isinstance(f, ec.MultiMeasResult)]
         victim = int(rng.integers(0, len(frames) - 1))

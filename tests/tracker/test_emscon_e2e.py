@@ -140,8 +140,8 @@ def test_dropped_connection_reconnects_with_backoff_and_counts_the_loss(rig):
     check_stream_invariants(t, xyz, record, world.source.truth, RATE)
 
 
-def test_garbage_bytes_are_skipped_and_counted_exactly(rig):
-    world, fake, tracker = rig(faults={"garbage": "2", "seed": str(np.random.default_rng().integers(1 << 30))})
+def test_garbage_bytes_are_skipped_and_counted_exactly(rig, rng):
+    world, fake, tracker = rig(faults={"garbage": "2", "seed": str(rng.integers(1 << 30))})
     tracker.start_stream(RATE)
     t, xyz, status, events, record = finish(tracker, collect(tracker, 2.0, world.clock))
     assert fake.stats["garbage_bytes"] > 0
@@ -150,8 +150,8 @@ def test_garbage_bytes_are_skipped_and_counted_exactly(rig):
     check_stream_invariants(t, xyz, record, world.source.truth, RATE)
 
 
-def test_truncated_packets_are_rejected_and_their_samples_counted_lost(rig):
-    world, fake, tracker = rig(faults={"truncate": "3", "seed": str(np.random.default_rng().integers(1 << 30))})
+def test_truncated_packets_are_rejected_and_their_samples_counted_lost(rig, rng):
+    world, fake, tracker = rig(faults={"truncate": "3", "seed": str(rng.integers(1 << 30))})
     tracker.start_stream(RATE)
     t, xyz, status, events, record = finish(tracker, collect(tracker, 2.0, world.clock))
     assert fake.stats["truncated_packets"] >= 4

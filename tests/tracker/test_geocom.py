@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.geocom import (GeoComReply, GeoComTracker, encode_request, geocom_error, parse_reply,
+from drivers.geocom import (GeoComReply, MeasureProgram, GeoComTracker, encode_request, geocom_error, parse_reply,
                             split_values)
 from drivers.tracker import BeamBroken, EventKind
 from drivers.tracker_url import open_tracker
@@ -136,6 +136,30 @@ def test_truncated_replies_are_rejected_or_lost_never_wrong(rig):
     assert record.rejected + record.lost >= 1
     assert record.rejected + record.lost <= fake.stats["truncated"]
     np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+def test_an_idempotent_request_whose_reply_is_lost_is_sent_again_within_its_deadline(rig):
+    """Every 2nd reply loses its tail: queries and the state-setting measure programs still get their answer."""
+    world, fake, tracker = rig(faults={"truncate": "2", "seed": "7"}, reply_timeout_s=0.2)
+    before, replies, retries = fake.stats["truncated"], fake.stats["replies"], tracker.retries
+    for _ in range(6):
+        assert tracker.request(5004) == ('"AT960"',)
+        assert tracker.request(2008, (MeasureProgram.TRACK, 1), timeout_s=2.0) == ()
+        assert tracker.request(2008, (MeasureProgram.STOP, 1), timeout_s=2.0) == ()
+    lost = fake.stats["truncated"] - before
+    # each cut reply cost one more request (a reply later than 0.2 s on a loaded machine costs one too)
+    assert lost >= 6 and tracker.retries - retries >= lost
+    assert fake.stats["replies"] - replies == 18 + tracker.retries - retries
+
+
+def test_a_request_that_is_not_idempotent_is_sent_once(rig):
+    world, fake, tracker = rig(faults={"truncate": "2", "seed": "7"}, reply_timeout_s=0.05)
+    if fake.stats["replies"] % 2 == 0:  # the next reply is whole: use it up
+        tracker.request(0, retry=False)
+    replies, retries = fake.stats["replies"], tracker.retries
+    with pytest.raises(DeviceTimeout, match=r"rpc 2008 within 0.3 s$"):
+        tracker.request(2008, (MeasureProgram.DISTANCE, 1), timeout_s=0.3)  # its reply is cut: not asked again
+    assert fake.stats["replies"] - replies == 1 and fake.stats["truncated"] >= 1 and tracker.retries == retries
 
 
 def test_slow_reply_times_out_then_stale_reply_is_skipped(rig):

@@ -16,8 +16,7 @@ def _feed(buf, k, rate=1000.0, status=0):
     buf.add(k / rate, np.column_stack([k, -k, 2 * k]), np.full(len(k), status))
 
 
-def test_random_holes_are_lost_and_add_up():
-    rng = np.random.default_rng()
+def test_random_holes_are_lost_and_add_up(rng):
     buf = StreamBuffer("x", 1000.0)
     k = np.arange(5000, 25000)
     keep = rng.random(k.size) > rng.uniform(0.01, 0.2)

@@ -21,8 +21,7 @@ world_mod = pytest.importorskip("fakes.sim.world")
 
 
 @pytest.fixture
-def sim_world():
-    rng = np.random.default_rng()
+def sim_world(rng):
     offset = float(rng.uniform(-0.4, 0.4))
     world = world_mod.make_world(seed=int(rng.integers(1 << 20)), time_scale=20.0,
                                  tracker_clock_offset_s=offset)

@@ -9,7 +9,6 @@ import os
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from fakes.sim.world import make_world
@@ -21,14 +20,6 @@ PROBE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "rtde_probe.py"
 
 #: simulated seconds per real second in these tests
 TIME_SCALE = 8.0
-
-
-@pytest.fixture
-def rng():
-    """A random generator whose seed is printed when a test fails."""
-    seed = int.from_bytes(os.urandom(4), "little")
-    print(f"rng seed {seed}")
-    return np.random.default_rng(seed)
 
 
 @pytest.fixture

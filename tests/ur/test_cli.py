@@ -73,7 +73,7 @@ def _stop(p):
             p.wait()
 
 
-def test_the_ur_fake_with_no_options_is_a_ur_that_ur_rtde_moves():
+def test_the_ur_fake_with_no_options_is_a_ur_that_ur_rtde_moves(rng):
     """Default recipe at 500 Hz, then a ScriptClient movej to an ordinary UR joint target, read back."""
     import numpy as np
     import script_client
@@ -88,7 +88,6 @@ def test_the_ur_fake_with_no_options_is_a_ur_that_ur_rtde_moves():
         assert np.linalg.norm(rows[-1, 7:10]) < 0.9
         # 500 Hz: device time steps of 2 ms
         assert np.median(np.diff(rows[:, 0])) == pytest.approx(0.002, abs=2e-4)
-        rng = np.random.default_rng()
         home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
         target = home + rng.uniform(-0.3, 0.3, 6)
         sc = script_client.ScriptClient(host, 5, 11)

@@ -1,7 +1,6 @@
 """`station serve --arm`: the configured devices (here the fake station's URLs, standing in for hardware)
 move only after the operator confirms the armed run on the page."""
 
-import numpy as np
 import pytest
 
 from fakes.station import FakeStation
@@ -11,8 +10,8 @@ from tests.web.conftest import Client
 
 
 @pytest.fixture
-def armed(tmp_path):
-    seed = int(np.random.default_rng().integers(2**31))
+def armed(tmp_path, test_seed):
+    seed = test_seed
     with FakeStation.start(seed=seed, time_scale=40.0) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(tmp_path / "s.sqlite"),
                                                 report_dir=str(tmp_path / "reports"),

@@ -14,8 +14,7 @@ def _stored_run(store, run_id, serial, state, rp_by_pose, limit=0.5, status="don
         store.set_run_status(run_id, status)
 
 
-def test_robot_history_shows_the_worst_pose_of_each_finished_run(served, client):
-    rng = np.random.default_rng()
+def test_robot_history_shows_the_worst_pose_of_each_finished_run(rng, served, client):
     worst = []
     for k in range(4):
         rp = {f"P{i}": float(rng.uniform(0.01, 0.8)) for i in range(1, 6)}

@@ -6,8 +6,7 @@ import pytest
 from app.web.tracker_view import MAX_POINTS, tracker_window
 
 
-def test_speed_distance_and_counters_are_the_samples():
-    rng = np.random.default_rng()
+def test_speed_distance_and_counters_are_the_samples(rng):
     rate = float(rng.uniform(200, 1000))
     v = float(rng.uniform(50, 500))  # mm/s along a random direction
     n = int(rate * 8)
