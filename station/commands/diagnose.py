@@ -90,7 +90,7 @@ def _arm(args: argparse.Namespace) -> int:
 def _trailer(args: argparse.Namespace) -> int:
     from procedures.diagnosis_report import build_trailer_report
     from station.analysis.diagnose.trailer import diagnose_trailer
-    from station.commands.calibrate import read_trailer_csv
+    from station.readers.trailer_csv import read_trailer_csv
     from station.report import write_report
 
     data = read_trailer_csv(args.data)

@@ -12,7 +12,7 @@ from procedures.devices import DeviceSet
 from procedures.trailer import TrailerCalibrationContext, TrailerCalibrationPlan, check_plan
 from procedures.trailer_run import TrailerSession, build_procedure, plan_params, preflight_problems
 from station.cli import main
-from station.commands.calibrate import read_trailer_csv, write_trailer_csv
+from station.readers.trailer_csv import read_trailer_csv, write_trailer_csv
 from station.errors import ConfigError, DataError, DeviceTimeout
 from station.models.trailer import JointAngleLimitError
 from station.runner import Runner
