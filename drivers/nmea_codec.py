@@ -109,7 +109,12 @@ _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _HEX2 = re.compile(rb"[0-9A-Fa-f]{2}")
 
 
-def _floats(fields: list[str], n: int, what: str) -> list[float]:
+#: largest value the unit reports per field (s, m/s, 1/m, rad): the year 2286 in seconds, 100 m/s, a curvature of
+#: 1 mm radius, a hitch angle of a full turn; a sentence beyond is malformed, never a sample
+LIMITS = {"t": 1.0e10, "v": 100.0, "kappa": 1.0e3, "psi": 2.0 * math.pi}
+
+
+def _floats(fields: list[str], n: int, what: str, limits: tuple = ()) -> list[float]:
     if len(fields) != n:
         raise ValueError(f"{what} needs {n} fields, got {len(fields)}")
     for f in fields:
@@ -118,6 +123,9 @@ def _floats(fields: list[str], n: int, what: str) -> list[float]:
     out = [float(f) for f in fields]
     if not all(math.isfinite(x) for x in out):
         raise ValueError(f"{what} has a non-finite field")
+    for x, key in zip(out, limits):
+        if abs(x) > LIMITS[key]:
+            raise ValueError(f"{what}: {key} = {x:.6g} is beyond {LIMITS[key]:g}")
     return out
 
 
@@ -134,12 +142,12 @@ def parse_body(body: str):
         return None
     kind = head[1 + len(MANUFACTURER):]
     if kind == "":
-        t, v, k, p = _floats(fields[1:], 4, "$PODO")
+        t, v, k, p = _floats(fields[1:], 4, "$PODO", ("t", "v", "kappa", "psi"))
         return OdometrySample(t, v, k, p)
     if kind == "A":
         if len(fields) != 4 or fields[1] not in ("C", "V"):
             raise ValueError("$PODOA needs cmd,t,value")
-        t, val = _floats(fields[2:], 2, "$PODOA")
+        t, val = _floats(fields[2:], 2, "$PODOA", ("t", "kappa" if fields[1] == "C" else "v"))
         return CommandAck(fields[1], t, val)
     if kind == "N":
         if len(fields) != 3:
@@ -188,18 +196,21 @@ class NmeaDecoder:
                 self._junk(bytes(buf[:start]))
                 del buf[:start]
             self._discarding = False
-            end = buf.find(b"\n")
-            nxt = buf.find(b"$", 1)
-            if nxt >= 0 and (end < 0 or nxt < end):
+            # search no further than a sentence can reach: linear however the bytes arrive
+            reach = MAX_SENTENCE_BYTES + 2
+            end = buf.find(b"\n", 0, reach)
+            nxt = buf.find(b"$", 1, end if end >= 0 else reach)
+            if nxt >= 0:
                 # a new sentence starts before this one ended: characters were lost
                 self._junk(bytes(buf[:nxt]))
                 del buf[:nxt]
                 continue
             if end < 0:
-                if len(buf) > MAX_SENTENCE_BYTES:
-                    self._junk(bytes(buf))
+                if len(buf) > MAX_SENTENCE_BYTES:  # overlong: its first bytes go, the rest is read on
+                    self._junk(bytes(buf[:reach]))
                     self._discarding = True
-                    buf.clear()
+                    del buf[:reach]
+                    continue
                 break
             line = bytes(buf[:end]).rstrip(b"\r")
             del buf[:end + 1]

@@ -8,13 +8,13 @@ the commanded curvature in force.
 from __future__ import annotations
 
 import csv
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import DataError
+from station.readers.text import MAX_ABS_S, csv_records, parse_number
 
 TRAILER_COLUMNS = ("t", "kappa", "psi")
 #: optional columns: speed (m/s), commanded curvature (1/m, the set points in force)
@@ -23,65 +23,39 @@ OPTIONAL_COLUMNS = ("v", "kappa_cmd")
 MAX_ROWS = 30_000_000
 
 
-def read_trailer_csv(path) -> dict[str, np.ndarray]:
-    """Read a trailer CSV (``t,kappa,psi`` [+ ``v``, ``kappa_cmd``]); DataError names the bad row/column.
+#: largest value a trailer's instruments give, per column (s, 1/m, rad, m/s, 1/m): a curvature of 1 mm radius,
+#: a hitch angle of a full turn, 100 m/s; a value beyond is a unit or export error, refused
+LIMITS = {"t": MAX_ABS_S, "kappa": 1.0e3, "psi": 2.0 * math.pi, "v": 100.0, "kappa_cmd": 1.0e3}
 
-    Extra columns are ignored. Rows must be in strictly increasing time.
+
+def read_trailer_csv(path) -> dict[str, np.ndarray]:
+    """Read a trailer CSV (``t,kappa,psi`` [+ ``v``, ``kappa_cmd``]); DataError names the file, line and column.
+
+    Extra columns are ignored; no column twice. Every line bounded, every
+    value finite and within :data:`LIMITS`. Rows must be in strictly
+    increasing time.
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise DataError(f"cannot read {path}: {exc.strerror or exc}") from exc
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataError(f"{path}: line {line}: not UTF-8 text") from None
-    with io.StringIO(text, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = next(reader)
-        except StopIteration as exc:
-            raise DataError(f"{path} is empty (expected a header t,kappa,psi[,v])") from exc
-        except csv.Error as exc:
-            raise DataError(f"{path}: {exc}") from exc
-        names = [h.strip() for h in header]
-        missing = [c for c in TRAILER_COLUMNS if c not in names]
-        if missing:
-            raise DataError(f"{path}: missing column(s) {missing}; the header is {names} "
-                            "(expected t,kappa,psi and optionally v)")
-        wanted = list(TRAILER_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in names]
-        idx = {c: names.index(c) for c in wanted}
-        cols = {c: [] for c in wanted}
-        try:
-            for line_no, row in enumerate(reader, start=2):
-                if not row or all(not x.strip() for x in row):
-                    continue
-                if len(row) > len(names):
-                    raise DataError(f"{path} line {line_no}: {len(row)} fields, the header has {len(names)}")
-                if len(cols["t"]) >= MAX_ROWS:
-                    raise DataError(f"{path}: more than {MAX_ROWS} rows")
-                for c in wanted:
-                    try:
-                        value = float(row[idx[c]])
-                    except IndexError as exc:
-                        raise DataError(f"{path} line {line_no}: {len(row)} fields, no column {c!r}") from exc
-                    except ValueError as exc:
-                        raise DataError(f"{path} line {line_no}, column {c!r}: "
-                                        f"{row[idx[c]]!r} is not a number") from exc
-                    if not math.isfinite(value):
-                        raise DataError(f"{path} line {line_no}, column {c!r}: {value} is not finite")
-                    cols[c].append(value)
-        except csv.Error as exc:
-            raise DataError(f"{path}: {exc}") from exc
+    cols: dict[str, list] | None = None
+    lines: list[int] = []
+    for line_no, row in csv_records(path, TRAILER_COLUMNS, what="a trailer CSV"):
+        if len(lines) >= MAX_ROWS:
+            raise DataError(f"{path}: line {line_no}: more than {MAX_ROWS} rows")
+        if cols is None:
+            cols = {c: [] for c in TRAILER_COLUMNS + tuple(c for c in OPTIONAL_COLUMNS if c in row)}
+        for c, out in cols.items():
+            out.append(parse_number(row[c], path, line_no, c, LIMITS[c]))
+        lines.append(line_no)
+    if cols is None:
+        cols = {c: [] for c in TRAILER_COLUMNS}
     data = {c: np.asarray(v, dtype=float) for c, v in cols.items()}
     t = data["t"]
     if t.size >= 2:
         bad = np.flatnonzero(np.diff(t) <= 0)
         if bad.size:
-            raise DataError(f"{path}: t must increase strictly; row {int(bad[0]) + 3} (t={t[bad[0] + 1]}) "
-                            f"does not follow row {int(bad[0]) + 2} (t={t[bad[0]]})")
+            k = int(bad[0])
+            raise DataError(f"{path}: line {lines[k + 1]}, column 't': t must increase strictly; "
+                            f"{t[k + 1]:.9g} does not follow {t[k]:.9g} (line {lines[k]})")
     return data
 
 

@@ -188,5 +188,6 @@ def test_one_absurd_sample_is_refused_with_its_row(trailer_csv, tmp_path, capsys
     out = tmp_path / "o.json"
     assert main(["calibrate", "trailer", "--data", str(path), "--method", method, "--json", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"data row {row + 1}: kappa = -1e+09" in err and "Traceback" not in err
+    # the reader refuses it, naming file, line (header = line 1) and column
+    assert f"{path}: line {row + 2}, column 'kappa': -1e+09 is beyond" in err and "Traceback" not in err
     assert not out.exists()
