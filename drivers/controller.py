@@ -1,6 +1,7 @@
 """Robot controller driver: program upload by FTP, control by Modbus TCP.
 
-Device URL: ``modbus+ftp://HOST[:FTP_PORT]?modbus_port=502&user=U&password=P&dir=D``
+Device URL: ``modbus+ftp://HOST[:FTP_PORT]?modbus_port=502&user=U&password_env=VAR&dir=D`` (or
+``password_file=PATH``; a password in the URL is refused)
 (FTP port 21 and Modbus port 502 by default).
 
 What the driver does, in order, and what it refuses:
@@ -280,7 +281,7 @@ class ControllerDriver:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_url(cls, url: str, *, gate, **kwargs) -> "ControllerDriver":
-        """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password=..&dir=..``
+        """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password_env=..&dir=..``
         (defaults from :mod:`station.device_urls`: FTP 21, Modbus 502, user anonymous)."""
         u = parse_device_url(url, scheme="modbus+ftp")
         return cls(
@@ -289,7 +290,7 @@ class ControllerDriver:
             ftp_port=u.port,
             modbus_port=u.int_option("modbus_port"),
             ftp_user=u.options["user"],
-            ftp_password=u.options["password"],
+            ftp_password=u.password(),  # from password_env / password_file, never the URL
             remote_dir=u.options["dir"],
             **kwargs,
         )

@@ -4,8 +4,8 @@
 (default ``127.0.0.1``, never a non-loopback address):
 
 * an FTP server (pyftpdlib) on an ephemeral port whose root is the
-  controller's program directory (user ``station``, password ``station``;
-  anonymous logins are refused);
+  controller's program directory (user ``station``, a password drawn anew
+  for each fake; anonymous logins are refused);
 * a Modbus TCP server (pymodbus) on ``port`` (default ephemeral) serving the
   handshake registers of :class:`~station.programs.handshake.RegisterMap`;
 * a controller thread that processes the handshake commands, compiles the
@@ -15,7 +15,7 @@
   register) and runs it on ``world.arm`` (:class:`fakes.rapid_interp.RapidRun`).
 
 The returned handle has ``endpoint`` = ``{"host": "127.0.0.1", "ftp_port": N,
-"modbus_port": M, "ftp_user": "station", "ftp_password": "station",
+"modbus_port": M, "ftp_user": "station", "ftp_password": "<drawn>",
 "device_id": 1}`` and ``close()``, which stops the program and the servers
 and joins every thread.
 
@@ -56,7 +56,9 @@ import asyncio
 import ipaddress
 import logging
 import queue
+import os
 import re
+import secrets
 import shutil
 import tempfile
 import threading
@@ -64,6 +66,7 @@ import time
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
@@ -83,7 +86,6 @@ from station.safety import SafetyGate, SafetyLimits, default_limits
 _log = logging.getLogger(__name__)
 
 FTP_USER = "station"
-FTP_PASSWORD = "station"
 
 _WHEN = {"select", "start", "stop", "reset", "status", "any"}
 _FILE_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}\.(mod|src|dat)", re.ASCII)
@@ -610,7 +612,7 @@ class _ModbusServer:
 class _FtpServer:
     """pyftpdlib server in its own thread, rooted at the program directory."""
 
-    def __init__(self, root: Path, host: str, faults: FaultPlan) -> None:
+    def __init__(self, root: Path, host: str, faults: FaultPlan, password: str) -> None:
         from pyftpdlib.authorizers import AuthenticationFailed, DummyAuthorizer
         from pyftpdlib.handlers import FTPHandler
         from pyftpdlib.servers import FTPServer
@@ -625,7 +627,7 @@ class _FtpServer:
                 return super().validate_authentication(username, password, handler)
 
         auth = _Authorizer()
-        auth.add_user(FTP_USER, FTP_PASSWORD, str(root), perm="elradfmw")
+        auth.add_user(FTP_USER, password, str(root), perm="elradfmw")
 
         class _Handler(FTPHandler):
             authorizer = auth
@@ -701,10 +703,17 @@ class ControllerFake:
         self.gate = SafetyGate(world.robot, limits or default_limits(world.robot))
         self._tmp = tempfile.mkdtemp(prefix="controller-fake-")
         self.program_dir = Path(self._tmp)
+        # the FTP password: drawn anew, handed to the station as a file (its URL names the file, never the secret)
+        self.ftp_password = secrets.token_hex(12)
+        self._secret_dir = tempfile.mkdtemp(prefix="controller-fake-secret-")
+        self.password_file = Path(self._secret_dir) / "ftp.pass"
+        fd = os.open(self.password_file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(self.ftp_password + "\n")
         self.core = ControllerCore(world, self.program_dir, self.gate, plan, self.register_map)
         self._ftp = self._modbus = None
         try:
-            self._ftp = _FtpServer(self.program_dir, host, plan)
+            self._ftp = _FtpServer(self.program_dir, host, plan, self.ftp_password)
             self._modbus = _ModbusServer(self.core, host, port or 0, plan)
         except BaseException:
             self.close()
@@ -714,7 +723,7 @@ class ControllerFake:
             "ftp_port": self._ftp.port,
             "modbus_port": self._modbus.port,
             "ftp_user": FTP_USER,
-            "ftp_password": FTP_PASSWORD,
+            "ftp_password": self.ftp_password,
             "device_id": self.register_map.device_id,
         }
 
@@ -723,7 +732,7 @@ class ControllerFake:
         e = self.endpoint
         return (
             f"modbus+ftp://{e['host']}:{e['ftp_port']}?modbus_port={e['modbus_port']}"
-            f"&user={FTP_USER}&password={FTP_PASSWORD}"
+            f"&user={FTP_USER}&password_file={quote(str(self.password_file), safe='/')}"
         )
 
     def sim_last_error(self) -> str:
@@ -741,6 +750,8 @@ class ControllerFake:
             self.core.close()
             self.core = None
         shutil.rmtree(self._tmp, ignore_errors=True)
+        if getattr(self, "_secret_dir", None):
+            shutil.rmtree(self._secret_dir, ignore_errors=True)
 
 
 def start_fake(world, *, host=None, port=None, faults=None, register_map=None, limits: SafetyLimits | None = None) -> ControllerFake:

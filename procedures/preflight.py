@@ -11,6 +11,7 @@ checks (``rate_problem`` of a tracker driver class) and from the file system.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 from procedures.devices import DeviceSet
@@ -18,7 +19,13 @@ from station.errors import StationError
 
 
 def report_dir_problems(report_dir) -> list[str]:
-    """Why reports could not be written to ``report_dir`` (created when the run writes its report)."""
+    """Why reports could not be written to ``report_dir`` (created when the run writes its report).
+
+    Tried for real, not judged by permission bits (root passes every
+    ``os.access`` check, and ``/proc`` or a read-only mount refuses anyway):
+    the missing folders are made, a probe file is written and removed, and
+    the folders made are removed again.
+    """
     d = Path(report_dir)
     probe = d
     while not probe.exists() and probe.parent != probe:
@@ -27,6 +34,23 @@ def report_dir_problems(report_dir) -> list[str]:
         return [f"report_dir {d}: {probe} is a file, not a folder"]
     if not os.access(probe, os.W_OK | os.X_OK):
         return [f"report_dir {d}: {probe} is not writable"]
+    made: list[Path] = []
+    try:
+        for part in reversed([d, *d.parents]):
+            if not part.exists():
+                part.mkdir()
+                made.append(part)
+        fd, name = tempfile.mkstemp(prefix=".preflight-", dir=d)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        return [f"report_dir {d}: cannot write a file there ({exc.strerror or exc})"]
+    finally:
+        for part in reversed(made):
+            try:
+                part.rmdir()
+            except OSError:
+                pass
     return []
 
 

@@ -12,7 +12,8 @@ scheme             device                                      address, defaults
 ``geocom+socket``  GeoCOM over a TCP serial bridge             ``geocom+socket://HOST:PORT`` (port required)
 ``modbus+ftp``     robot controller: FTP upload + Modbus TCP   ``modbus+ftp://HOST[:FTP_PORT]``, FTP 21;
                                                                ``modbus_port`` (502), ``user``
-                                                               (anonymous), ``password``, ``dir``
+                                                               (anonymous), ``password_env`` or
+                                                               ``password_file``, ``dir``
 ``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST``; the ports are fixed by ur_rtde
 ``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud
 ``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
@@ -20,11 +21,20 @@ scheme             device                                      address, defaults
 =================  ==========================================  =========================================
 
 Unknown schemes and unknown options are refused, naming them.
+
+Secrets: a device URL never carries a password (it would be stored with the
+run's configuration, pushed to the central store, shown on the page). As for
+the store (:mod:`station.store.url`), ``password_env=VAR`` names an
+environment variable and ``password_file=PATH`` a file (first line) that
+holds it; :meth:`DeviceURL.password` reads it when the driver connects. A
+``password=`` option (however spelt) and a ``user:secret@`` part are refused.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from station.errors import ConfigError
@@ -61,7 +71,8 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
     Scheme("geocom+socket", "tracker", "tracker/total station (Leica GeoCOM over a TCP serial bridge)", "host",
            port_required=True),
     Scheme("modbus+ftp", "controller", "robot controller (FTP upload + Modbus TCP)", "host", default_port=21,
-           options={"modbus_port": "502", "user": "anonymous", "password": "", "dir": ""},
+           options={"modbus_port": "502", "user": "anonymous", "password_env": None, "password_file": None,
+                    "dir": ""},
            int_options=("modbus_port",)),
     Scheme("ur", "cobot", "UR-style cobot (ur_rtde)", "host", port_allowed=False),
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
@@ -94,6 +105,23 @@ class DeviceURL:
     def int_option(self, name: str) -> int:
         return int(self.options[name])
 
+    def password(self) -> str:
+        """The password named by ``password_env`` or ``password_file``, read now ("" when neither is given)."""
+        env, path = self.options.get("password_env"), self.options.get("password_file")
+        if env:
+            value = os.environ.get(env)
+            if value is None:
+                raise ConfigError(f"device URL {self.scheme}://{self.host}: password_env names {env!r}, "
+                                  "which is not set")
+            return value
+        if path:
+            try:
+                return Path(path).read_text(encoding="utf-8").splitlines()[0].strip()
+            except (OSError, UnicodeDecodeError, IndexError):
+                raise ConfigError(f"device URL {self.scheme}://{self.host}: cannot read password_file "
+                                  f"{path!r}") from None
+        return ""
+
 
 def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -> DeviceURL:
     """Parse and check a device URL against the table; ConfigError names what is wrong.
@@ -124,6 +152,13 @@ def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -
     except ValueError:
         raise ConfigError(f"device URL {url!r}: malformed query {parts.query!r}") from None
     given = {k: unquote(v[-1]) for k, v in query.items()}
+    if parts.password is not None or any(k.strip().lower() in ("password", "pass", "passwd", "pwd") for k in given):
+        raise ConfigError(f"device URL of {name}://{parts.hostname or ''}: a password in the URL is refused (it "
+                          "would be stored with every run and shown on the page); name it with "
+                          "?password_env=VAR or ?password_file=PATH")
+    if given.get("password_env") and given.get("password_file"):
+        raise ConfigError(f"device URL of {name}://{parts.hostname or ''}: give password_env or password_file, "
+                          "not both")
     unknown = sorted(set(given) - set(sch.options))
     if unknown:
         allowed = ", ".join(sch.options) or "none"

@@ -59,7 +59,7 @@ def run_hold(args: argparse.Namespace) -> int:
         d["time_base"] = si.time_base
         tmp = f"{args.json}.tmp"
         with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(d, f, indent=1)
+            json.dump(d, f, indent=1, allow_nan=False)  # never NaN/Infinity in a JSON file
             f.write("\n")
         os.replace(tmp, args.json)
         print(f"results written to {args.json}")

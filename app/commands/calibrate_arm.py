@@ -44,6 +44,12 @@ def _arm(args: argparse.Namespace) -> int:
     if args.ur_calibration:
         dh0 = read_ur_calibration(args.ur_calibration, dh0)
     data = read_arm_csv(args.data)
+    from station.analysis.arm.calibration import check_joint_limits
+    from station.analysis.arm.screen import screen_arm_poses
+
+    if limits is not None:
+        check_joint_limits(np.radians(data.q_deg), np.asarray(limits, dtype=float))
+    screen_arm_poses(dh0, np.radians(data.q_deg), data.xyz_mm, source=data.source, lines=data.lines)
     cal = calibrate_arm(dh0, np.radians(data.q_deg), data.xyz_mm, method=args.method,
                         test_fraction=args.test_fraction, joint_limits_rad=limits,
                         use_beta=not args.ur_deltas)

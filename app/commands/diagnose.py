@@ -74,6 +74,9 @@ def _arm(args: argparse.Namespace) -> int:
     except ConfigError:
         robot = None  # a model file: no mass model, the compliance basis stands alone
     data = read_arm_csv(args.data)
+    from station.analysis.arm.screen import screen_arm_poses
+
+    screen_arm_poses(dh0, np.radians(data.q_deg), data.xyz_mm, source=data.source, lines=data.lines)
     res = diagnose_arm(dh0, np.radians(data.q_deg), data.xyz_mm, t_s=data.t_s, temperature_c=data.temperature_c,
                        load_kg=data.load_kg, robot=robot, heldout_fraction=args.heldout_fraction, alpha=args.alpha)
     doc = res.to_json()
@@ -90,7 +93,7 @@ def _arm(args: argparse.Namespace) -> int:
 def _trailer(args: argparse.Namespace) -> int:
     from procedures.diagnosis_report import build_trailer_report
     from station.analysis.diagnose.trailer import diagnose_trailer
-    from app.commands.calibrate import read_trailer_csv
+    from station.readers.trailer_csv import read_trailer_csv
     from station.report import write_report
 
     data = read_trailer_csv(args.data)

@@ -1,7 +1,9 @@
 """`station serve --config C`: the operator's page for one station (issue 16).
 
-Serves on loopback by default. Any other ``--host`` makes every request need
-the access token printed at start (the printed URL carries it). Without
+Serves on loopback by default; never on every interface (decided by the
+address the socket binds). Every request needs the access token printed at
+start, on loopback too (the printed URL carries it; the browser keeps it in
+a cookie). Without
 ``--arm`` every run uses the procedure's fake cell, as ``station run`` does;
 with ``--arm`` the configured devices, after the operator confirms on the
 page. ``--demo`` serves the demo station (the config of ``station demo``,
@@ -21,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--config", help="station config (TOML or JSON)")
     src.add_argument("--demo", action="store_true", help="serve the demo station (fake cell, as `station demo`)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; others need the token)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; never every interface)")
     p.add_argument("--port", type=int, default=8700, help="port (default 8700; 0: any free port)")
     p.add_argument("--arm", action="store_true", help="runs use the configured devices: real hardware moves")
     p.add_argument("--time-scale", type=float, default=20.0, help="fake cell: simulated s per real s (default 20)")
@@ -62,8 +64,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     mode = "ARMED: configured devices, real hardware moves" if args.arm else "dry runs on the fake cell"
     print(f"station {cfg.station.name!r} ({mode}); store {cfg.station.store_file(base)}")
     print(f"open {server.url}", flush=True)
-    if server.guard.access_token:
-        print("not loopback: every request needs the access token in that URL (keep it to yourself)")
+    print("every request needs the access token in that URL (keep it to yourself; the browser keeps it in a "
+          "cookie)")
     try:
         server.serve_forever()
     except KeyboardInterrupt:

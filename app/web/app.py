@@ -33,7 +33,7 @@ from station.errors import StationError
 from station.store import RunStore, StoreError
 from app.web import pages
 from app.web.live import RunHub
-from app.web.security import ACCESS_COOKIE, Guard
+from app.web.security import Guard
 from app.web.state import report_path, run_state, station_state
 
 #: how often an event stream looks for changes, s (the page updates at up to 4 Hz)
@@ -42,6 +42,12 @@ EVENT_PERIOD_S = 0.25
 SNAPSHOT_TTL_S = 0.24
 #: a comment line this often keeps proxies and browsers from closing a quiet stream, s
 KEEPALIVE_S = 15.0
+#: largest POST body read, bytes (the page's forms hold a few short fields)
+MAX_BODY_BYTES = 16 * 1024
+#: most fields of a form
+MAX_FORM_FIELDS = 20
+#: a POST body must arrive within this many seconds
+BODY_TIMEOUT_S = 10.0
 #: characteristics the robot page plots
 HISTORY_NAMES = ("AP_mm", "RP_mm", "vAP_mm", "AD_mm", "RD_mm", "overshoot_mm", "settling_time_s")
 
@@ -54,12 +60,42 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         return HTMLResponse(body, status_code=status, headers={"Cache-Control": "no-store",
                                                                "X-Frame-Options": "DENY"})
 
-    async def _form(request: Request) -> dict[str, str]:
-        raw = (await request.body()).decode("utf-8", "replace")
-        return {k: v[-1] for k, v in parse_qs(raw, keep_blank_values=True).items()}
+    async def _form(request: Request) -> dict[str, str] | Response:
+        """The form of a POST, read only up to MAX_BODY_BYTES and MAX_FORM_FIELDS within BODY_TIMEOUT_S."""
+        length = request.headers.get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
+            return _html(pages.message_page("Refused", f"a form of at most {MAX_BODY_BYTES} bytes"), 413)
+        chunks, size = [], 0
+
+        async def read() -> bool:
+            nonlocal size
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > MAX_BODY_BYTES:
+                    return False
+                chunks.append(chunk)
+            return True
+
+        try:
+            if not await asyncio.wait_for(read(), BODY_TIMEOUT_S):
+                return _html(pages.message_page("Refused", f"a form of at most {MAX_BODY_BYTES} bytes"), 413)
+        except asyncio.TimeoutError:
+            return _html(pages.message_page("Refused", f"the form did not arrive within {BODY_TIMEOUT_S:g} s"), 408)
+        raw = b"".join(chunks).decode("utf-8", "replace")
+        try:
+            fields = parse_qs(raw, keep_blank_values=True, max_num_fields=MAX_FORM_FIELDS)
+        except ValueError:
+            return _html(pages.message_page("Refused", f"a form of at most {MAX_FORM_FIELDS} fields"), 400)
+        return {k: v[-1] for k, v in fields.items()}
 
     async def _checked_post(request: Request) -> tuple[dict[str, str], Response | None]:
+        # the headers first (Origin): nothing of a refused request's body is read
+        problem = guard.origin_problem(request.headers.get("host"), request.headers.get("origin"))
+        if problem:
+            return {}, _html(pages.message_page("Refused", problem), 403)
         form = await _form(request)
+        if isinstance(form, Response):
+            return {}, form
         token = form.get("csrf") or request.headers.get("x-csrf-token")
         problem = guard.post_problem(request.headers.get("host"), request.headers.get("origin"), token)
         if problem:
@@ -67,7 +103,12 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         return form, None
 
     def _refused(exc: Exception, status: int = 409) -> Response:
-        return _html(pages.message_page("Refused", str(exc), guard.csrf_token), status)
+        return _html(pages.message_page("Refused", _public(exc), guard.csrf_token), status)
+
+    def _public(exc: Exception) -> str:
+        """What the page may say of an error: never where the store lives."""
+        text = str(exc)
+        return text.replace(f" in {store.name}", "").replace(str(store.name), "the store")
 
     async def station(request: Request) -> Response:
         st = station_state(hub.cfg, store, hub)
@@ -124,7 +165,7 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         try:
             return JSONResponse(json.loads(json.dumps(_state(request.path_params["run_id"]), default=float)))
         except StoreError as exc:
-            return JSONResponse({"error": str(exc)}, status_code=404)
+            return JSONResponse({"error": _public(exc)}, status_code=404)
 
     async def run_events(request: Request) -> Response:
         run_id = request.path_params["run_id"]
@@ -247,11 +288,11 @@ class _Gate:
         request = Request(scope)
         if not self.guard.host_ok(request.headers.get("host")):
             return await HTMLResponse("unknown Host header", status_code=421)(scope, receive, send)
-        if not self.guard.access_ok(request.cookies.get(ACCESS_COOKIE)):
+        if not self.guard.access_ok(request.cookies.get(self.guard.cookie_name)):
             token = request.query_params.get("token")
             if self.guard.access_from_query(token) and request.method == "GET":
                 resp = RedirectResponse(request.url.path, status_code=303)
-                resp.set_cookie(ACCESS_COOKIE, token, httponly=True, samesite="strict")
+                resp.set_cookie(self.guard.cookie_name, token, httponly=True, samesite="strict")
                 return await resp(scope, receive, send)
             msg = "this station needs the access token printed by `station serve` (open the URL it printed)"
             return await HTMLResponse(msg, status_code=401)(scope, receive, send)

@@ -166,7 +166,12 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
 
 
 def _redact(url: str) -> str:
-    """A device URL without its password (``password=...`` in the query)."""
+    """A device URL without any secret: a ``user:secret@`` part, a ``password=`` option however spelt
+    (percent-escapes decoded first). The config refuses both (:mod:`station.device_urls`); this is the
+    page's own guard."""
     import re
+    from urllib.parse import unquote
 
-    return re.sub(r"(password=)[^&]*", r"\1***", str(url))
+    text = unquote(str(url))
+    text = re.sub(r"(://[^/@?#]*?):[^/@?#]*@", r"\1:***@", text)
+    return re.sub(r"(?i)((?:^|[?&;])\s*(?:password|pass|passwd|pwd)\s*=)[^&;#]*", r"\1***", text)

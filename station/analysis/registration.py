@@ -22,6 +22,10 @@ import numpy as np
 
 from station.errors import DataError, InsufficientDataError
 
+#: largest coordinate a fit takes, mm (as :data:`station.readers.text.MAX_ABS_MM`: 1 km; beyond, its sums overflow
+#: long before and no instrument measures there)
+MAX_ABS_MM = 1.0e6
+
 
 @dataclass(frozen=True)
 class Registration:
@@ -88,16 +92,23 @@ def fit_rigid(p_base_mm, p_tracker_mm) -> Registration:
             raise DataError(f"{name} must have shape (N, 3), got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise DataError(f"{name} contains NaN or infinite values")
+        if arr.size and np.abs(arr).max() > MAX_ABS_MM:
+            k = int(np.argmax(np.abs(arr).max(axis=1)))
+            raise DataError(f"{name} point {k + 1}: {float(np.abs(arr[k]).max()):.6g} mm is beyond {MAX_ABS_MM:g} mm, "
+                            "more than any instrument measures")
     if a.shape != b.shape:
         raise DataError(f"p_base_mm {a.shape} and p_tracker_mm {b.shape} must have the same shape")
     if a.shape[0] < 3:
         raise InsufficientDataError(f"registration needs at least 3 points, got {a.shape[0]}")
     ca, cb = a.mean(axis=0), b.mean(axis=0)
     A, B = a - ca, b - cb
-    s = np.linalg.svd(A, compute_uv=False)
-    if s[1] < 1e-6 * max(s[0], 1e-12):
-        raise InsufficientDataError("registration points are collinear: the rotation is not determined")
-    U, _, Vt = np.linalg.svd(A.T @ B)
+    try:
+        s = np.linalg.svd(A, compute_uv=False)
+        if s[1] < 1e-6 * max(s[0], 1e-12):
+            raise InsufficientDataError("registration points are collinear: the rotation is not determined")
+        U, _, Vt = np.linalg.svd(A.T @ B)
+    except np.linalg.LinAlgError:
+        raise InsufficientDataError("registration points give no rotation (the SVD did not converge)") from None
     d = np.sign(np.linalg.det(Vt.T @ U.T))
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
     t = cb - R @ ca

@@ -16,11 +16,17 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
-from station.readers.text import numbered_lines
+from station.readers.text import MAX_ABS_MM, MAX_ABS_S, numbered_lines
 
 REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
 OPTIONAL = ("t", "temperature", "load")
-MAX_ROWS = 10_000_000
+#: most poses of one file: a calibration measures tens to a few thousand stops (each some seconds); 20,000 is
+#: more than a day of stops at 5 s each, and more than the identification and the diagnosis handle in minutes
+MAX_ROWS = 20_000
+#: largest value per column a robot and its instruments give (deg, mm, s, degC, kg); beyond is a unit or export
+#: error: ten turns of a joint, 1 km, the year 2286 in Unix time, 1000 degC, 100 t
+LIMITS = {**{f"q{k}": 3600.0 for k in range(1, 7)}, "x": MAX_ABS_MM, "y": MAX_ABS_MM, "z": MAX_ABS_MM,
+          "t": MAX_ABS_S, "temperature": 1000.0, "load": 1.0e5}
 
 
 @dataclass(frozen=True)
@@ -33,6 +39,7 @@ class ArmData:
     temperature_c: np.ndarray | None = None
     load_kg: np.ndarray | None = None
     source: str = ""
+    lines: np.ndarray | None = None  # (N,) file line of each pose, for messages
 
     @property
     def n(self) -> int:
@@ -44,6 +51,7 @@ def read_arm_csv(path) -> ArmData:
     p = Path(path)
     header: list[str] | None = None
     rows: list[list[float]] = []
+    lines: list[int] = []
     for lineno, line in numbered_lines(p):  # explicit encoding, bounded lines (station/readers/text.py)
         if header is None:
             header = _header(p, line)
@@ -61,11 +69,16 @@ def read_arm_csv(path) -> ArmData:
             except ValueError:
                 raise DataError(f"{p}:{lineno}:{col} ({name}): not a number: {cell.strip()[:40]!r}") from None
             if not math.isfinite(v):
-                raise DataError(f"{p}:{lineno}:{col} ({name}): {cell.strip()} is not a finite number")
+                raise DataError(f"{p}:{lineno}:{col} ({name}): {cell.strip()[:40]} is not a finite number")
+            if abs(v) > LIMITS[name]:
+                raise DataError(f"{p}:{lineno}:{col} ({name}): {v:.6g} is beyond {LIMITS[name]:g}, "
+                                "more than any robot or instrument gives (units? export error?)")
             vals.append(v)
+        if len(rows) >= MAX_ROWS:
+            raise DataError(f"{p}:{lineno}: more than {MAX_ROWS} poses; a calibration measures a few thousand "
+                            "at most (split the file)")
         rows.append(vals)
-        if len(rows) > MAX_ROWS:
-            raise DataError(f"{p}: more than {MAX_ROWS} rows")
+        lines.append(lineno)
     if header is None:
         raise DataError(f"{p}: empty file (expected a header {','.join(REQUIRED)})")
     if not rows:
@@ -74,7 +87,8 @@ def read_arm_csv(path) -> ArmData:
     col = {h: a[:, i] for i, h in enumerate(header)}
     return ArmData(q_deg=np.column_stack([col[f"q{k}"] for k in range(1, 7)]),
                    xyz_mm=np.column_stack([col["x"], col["y"], col["z"]]),
-                   t_s=col.get("t"), temperature_c=col.get("temperature"), load_kg=col.get("load"), source=str(p))
+                   t_s=col.get("t"), temperature_c=col.get("temperature"), load_kg=col.get("load"), source=str(p),
+                   lines=np.array(lines, dtype=np.int64))
 
 
 def _header(p: Path, header_line: str) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np
 
 from station.errors import DataError
 from station.readers.stream import PointStream
-from station.readers.text import MAX_ROWS, is_number, numbered_lines, parse_number
+from station.readers.text import MAX_ABS_S, MAX_ROWS, is_number, numbered_lines, parse_number
 
 ID_NAMES = ("id", "name", "point", "label")
 TIME_NAMES = ("t", "time", "t_s")
@@ -84,7 +84,7 @@ def read_point_list(path) -> PointStream:
                             + (" (comma separated)" if comma else " (whitespace separated)"))
         row = [parse_number(cells[cols[c]], p, ln, c) for c in ("x", "y", "z")]
         if "t" in cols:
-            row.append(parse_number(cells[cols["t"]], p, ln, "t"))
+            row.append(parse_number(cells[cols["t"]], p, ln, "t", MAX_ABS_S))
         vals.append(tuple(row))
         ids.append(cells[cols["id"]] if "id" in cols else str(len(ids) + 1))
         lines.append(ln)

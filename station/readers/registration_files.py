@@ -18,8 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
-from station.readers.text import csv_records, parse_number
+from station.readers.text import MAX_ABS_MM, csv_records, parse_number
 
+#: largest frame file read, bytes (the step's JSON with its figures is a few hundred)
+MAX_FRAME_BYTES = 1 << 20
+#: most brackets in a frame file (deep nesting is refused before the parser recurses)
+MAX_FRAME_BRACKETS = 10_000
+#: most point pairs of a registration (a few dozen in practice)
+MAX_PAIRS = 10_000
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
 
@@ -27,15 +33,26 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_FRAME_BYTES + 1)
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise DataError(f"{p}: not UTF-8 text") from None
+    if len(raw) > MAX_FRAME_BYTES:
+        raise DataError(f"{p}: larger than {MAX_FRAME_BYTES} bytes; a frame file holds a 3x3 matrix and 3 numbers")
     try:
-        obj = json.loads(text)
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataError(f"{p}: line {line}: not UTF-8 text") from None
+    if text.count("[") + text.count("{") > MAX_FRAME_BRACKETS:
+        raise DataError(f"{p}: more than {MAX_FRAME_BRACKETS} brackets; a frame file nests a few levels deep")
+    try:
+        # integers read as floats: a 400-digit integer is a number too large (refused below), not an overflow
+        obj = json.loads(text, parse_int=float)
     except json.JSONDecodeError as exc:
         raise DataError(f"{p}: line {exc.lineno}: not JSON ({exc.msg})") from None
+    except (ValueError, RecursionError) as exc:
+        raise DataError(f"{p}: not JSON ({str(exc)[:80]})") from None
     if isinstance(obj, dict):
         for key in ("register base frame", "frame"):
             if isinstance(obj.get(key), dict):
@@ -46,29 +63,35 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
                         "p_tracker = R @ p_base + t_mm")
     try:
         R = np.array(obj["R"], dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DataError(f"{p}: key 'R': not a 3x3 array of numbers") from None
     try:
         t = np.array(obj["t_mm"], dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DataError(f"{p}: key 't_mm': not 3 numbers") from None
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
         raise DataError(f"{p}: key 'R': need a finite 3x3 array, got shape {R.shape}")
     if t.shape != (3,) or not np.all(np.isfinite(t)):
         raise DataError(f"{p}: key 't_mm': need 3 finite numbers, got shape {t.shape}")
+    if np.abs(t).max() > MAX_ABS_MM:
+        raise DataError(f"{p}: key 't_mm': {float(np.abs(t).max()):.6g} mm is beyond {MAX_ABS_MM:g} mm, "
+                        "more than any instrument measures")
     return R, t, obj
 
 
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)
-    names, base, trk = [], [], []
+    names, base, trk, seen = [], [], [], set()
     for ln, c in csv_records(p, PAIR_COLUMNS, what="a registration file"):
         if not c["name"]:
             raise DataError(f"{p}: line {ln}, column 'name': empty")
-        if c["name"] in names:
-            raise DataError(f"{p}: line {ln}, column 'name': duplicate point {c['name']!r}")
+        if c["name"] in seen:
+            raise DataError(f"{p}: line {ln}, column 'name': duplicate point {c['name'][:40]!r}")
+        if len(names) >= MAX_PAIRS:
+            raise DataError(f"{p}: line {ln}: more than {MAX_PAIRS} point pairs")
         names.append(c["name"])
+        seen.add(c["name"])
         base.append([parse_number(c[f"base_{a}"], p, ln, f"base_{a}") for a in "xyz"])
         trk.append([parse_number(c[f"tracker_{a}"], p, ln, f"tracker_{a}") for a in "xyz"])
     if len(names) < 3:

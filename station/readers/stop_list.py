@@ -23,6 +23,8 @@ from station.readers.text import MAX_ROWS, csv_records, parse_number
 
 REQUIRED = ("pose", "cycle", "x", "y", "z")
 OPTIONAL = ("reflector", "approach")
+#: largest cycle number (ISO 9283 runs 30 cycles; a long-term test some thousands)
+MAX_CYCLE = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -63,9 +65,11 @@ def read_stop_list(path) -> StopList:
         if not c["pose"]:
             raise DataError(f"{p}: line {ln}, column 'pose': empty")
         try:
-            cyc = int(c["cycle"])
+            cyc = int(c["cycle"][:40])
         except ValueError:
             raise DataError(f"{p}: line {ln}, column 'cycle': {c['cycle'][:40]!r} is not an integer") from None
+        if not 0 <= cyc <= MAX_CYCLE:
+            raise DataError(f"{p}: line {ln}, column 'cycle': {cyc} is not a cycle number (0 to {MAX_CYCLE})")
         xyz = [parse_number(c[k], p, ln, k) for k in ("x", "y", "z")]
         for k in OPTIONAL:
             if k in c and not c[k]:

@@ -13,13 +13,15 @@ The time column is read as it stands; whether it can serve as the time base
 from __future__ import annotations
 
 import csv
-import math
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import DataError
 from station.readers.stream import PointStream
+from station.readers.text import (
+    MAX_ABS_MM, MAX_ABS_S, MAX_LINE_CHARS, MAX_ROWS, csv_records, max_line_bytes, numbered_lines, parse_number,
+)
 
 #: status values that mean "valid sample" (case-insensitive)
 OK_STATUS = ("0", "ok", "valid")
@@ -28,16 +30,14 @@ ORIENTATION = ("a", "b", "c")
 
 
 def _header(path: Path) -> list[str]:
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            first = f.readline()
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read ({exc.strerror})") from exc
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{path}: line 1: not UTF-8 text") from exc
-    if not first.strip():
-        raise DataError(f"{path}: line 1: empty file or missing header")
-    return [h.strip() for h in next(csv.reader([first]))]
+    for ln, line in numbered_lines(path):
+        if not line.strip():
+            raise DataError(f"{path}: line {ln}: empty file or missing header")
+        try:
+            return [h.strip() for h in next(csv.reader([line]))]
+        except csv.Error as exc:
+            raise DataError(f"{path}: line {ln}: not CSV ({exc})") from None
+    raise DataError(f"{path}: line 1: empty file or missing header")
 
 
 def _scan_for_error(path: Path, header: list[str], float_cols: list[str]) -> None:
@@ -96,6 +96,10 @@ def read_stream_csv(path) -> PointStream:
         raise DataError(f"{path}: line 1: orientation needs all of a,b,c, got {','.join(abc)}")
     floats = list(STREAM_REQUIRED) + abc
     has_status = "status" in header
+    # every line bounded, not only the header: pyarrow below reads the whole file at once
+    long = max_line_bytes(path)
+    if long is not None:
+        raise DataError(f"{path}: line {long[0]}: longer than {MAX_LINE_CHARS} characters")
     import pyarrow as pa
     from pyarrow import csv as pacsv
 
@@ -122,8 +126,10 @@ def read_stream_csv(path) -> PointStream:
     if n == 0:
         raise DataError(f"{path}: no data rows after the header")
     if has_status:
-        uniq, inv = np.unique(np.asarray(table.column("status").to_pylist(), dtype=str), return_inverse=True)
-        valid = np.array([_status_ok(u) for u in uniq], dtype=bool)[inv.ravel()]
+        # the distinct status values once each (never a fixed-width array as wide as the longest cell)
+        enc = table.column("status").combine_chunks().dictionary_encode()
+        ok = np.array([_status_ok(u) for u in enc.dictionary.to_pylist()], dtype=bool)
+        valid = ok[enc.indices.to_numpy(zero_copy_only=False).astype(np.int64)] if ok.size else np.ones(n, bool)
     else:
         valid = np.ones(n, bool)
     for c in floats:
@@ -133,6 +139,12 @@ def read_stream_csv(path) -> PointStream:
             what = "empty or not a number" if np.isnan(out[c][r]) else f"{float(out[c][r])} is not finite"
             hint = "" if c == "t" else " (flag such rows with a status instead)"
             raise DataError(f"{path}: line {r + 2}, column {c!r}: {what}{hint}")
+        limit = MAX_ABS_S if c == "t" else (MAX_ABS_MM if c in "xyz" else 3600.0)
+        big = (np.abs(out[c]) > limit) & (valid if c != "t" else True)
+        if big.any():
+            r = int(np.argmax(big))
+            raise DataError(f"{path}: line {r + 2}, column {c!r}: {float(out[c][r]):.6g} is beyond {limit:g}, "
+                            "more than any instrument measures (units? export error?)")
     xyz = np.stack([out["x"], out["y"], out["z"]], axis=1)
     abc_deg = np.stack([out["a"], out["b"], out["c"]], axis=1) if abc else None
     return PointStream(xyz_mm=xyz, t_s=out["t"], valid=valid, line=np.arange(n, dtype=np.int64) + 2,
@@ -140,45 +152,31 @@ def read_stream_csv(path) -> PointStream:
 
 
 def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
-    """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None."""
+    """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None.
+
+    Every line bounded and decoded on its own (:func:`~station.readers.text.numbered_lines`).
+    """
     path = Path(path)
-    header = _header(path)
     need = ("name", "x", "y", "z")
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise DataError(f"{path}: line 1: missing column(s) {', '.join(missing)} (need name,x,y,z)")
-    abc = [c for c in ORIENTATION if c in header]
-    if abc and len(abc) != 3:
-        raise DataError(f"{path}: line 1: orientation needs all of a,b,c, got {','.join(abc)}")
-    cols = ["x", "y", "z"] + abc
-    names, rows = [], []
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f)
-        next(reader)
-        for row in reader:
-            ln = reader.line_num
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise DataError(f"{path}: line {ln}: {len(row)} fields, the header has {len(header)}")
-            name = row[header.index("name")].strip()
-            if not name:
-                raise DataError(f"{path}: line {ln}, column 'name': empty")
-            if name in names:
-                raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name!r}")
-            vals = []
-            for c in cols:
-                cell = row[header.index(c)].strip()
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not a number") from None
-                if not math.isfinite(v):
-                    raise DataError(f"{path}: line {ln}, column {c!r}: {cell!r} is not finite")
-                vals.append(v)
-            names.append(name)
-            rows.append(vals)
+    names, rows, seen = [], [], set()
+    cols = None
+    for ln, c in csv_records(path, need, what="a poses file"):
+        if cols is None:
+            abc = [k for k in ORIENTATION if k in c]
+            if abc and len(abc) != 3:
+                raise DataError(f"{path}: orientation needs all of a,b,c, got {','.join(abc)}")
+            cols = ["x", "y", "z"] + abc
+        name = c["name"]
+        if not name:
+            raise DataError(f"{path}: line {ln}, column 'name': empty")
+        if name in seen:
+            raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name[:40]!r}")
+        seen.add(name)
+        names.append(name)
+        rows.append([parse_number(c[k], path, ln, k, MAX_ABS_MM if k in "xyz" else 3600.0) for k in cols])
+        if len(rows) > MAX_ROWS:
+            raise DataError(f"{path}: more than {MAX_ROWS} poses")
     if not rows:
         raise DataError(f"{path}: no poses after the header")
     arr = np.array(rows)
-    return names, arr[:, :3], (arr[:, 3:] if abc else None)
+    return names, arr[:, :3], (arr[:, 3:] if len(cols) > 3 else None)

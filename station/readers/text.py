@@ -13,17 +13,26 @@ from pathlib import Path
 
 from station.errors import DataError
 
-#: longest line accepted (a row of a dozen numbers and a time stamp is far shorter)
+#: longest line accepted (a row of a dozen numbers and a time stamp is far shorter); every line of every file
 MAX_LINE_CHARS = 4096
 #: most data rows accepted from one file
 MAX_ROWS = 20_000_000
+#: largest coordinate accepted, mm: 1 km (a laser tracker reaches some 80 m, a total station a few km in the
+#: field, never a robot cell); a value beyond is no measurement but a unit or export error
+MAX_ABS_MM = 1.0e6
+#: largest time stamp accepted, s: the year 2286 in Unix time (stamps relative to a start are far smaller)
+MAX_ABS_S = 1.0e10
 
 
 def numbered_lines(path) -> Iterator[tuple[int, str]]:
-    """``(line number from 1, text without the line end)`` for every line of a UTF-8 file (BOM allowed)."""
+    """``(line number from 1, text without the line end)`` for every line of a UTF-8 file (BOM allowed).
+
+    Every line is bounded (:data:`MAX_LINE_CHARS`) and decoded on its own, so
+    a bad byte is named on its own line and byte.
+    """
     p = Path(path)
     try:
-        fh = open(p, encoding="utf-8-sig", newline="")
+        fh = open(p, "rb")
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
     with fh:
@@ -31,14 +40,59 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
         while True:
             ln += 1
             try:
-                line = fh.readline(MAX_LINE_CHARS + 1)
-            except UnicodeDecodeError as exc:
-                raise DataError(f"{p}: line {ln}: not UTF-8 text ({exc.reason})") from None
-            if not line:
+                raw = fh.readline(4 * MAX_LINE_CHARS + 1)
+            except OSError as exc:
+                raise DataError(f"{p}: line {ln}: cannot read ({exc.strerror})") from None
+            if not raw:
                 return
-            if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
+            if ln == 1 and raw.startswith(b"\xef\xbb\xbf"):
+                raw = raw[3:]
+            ended = raw.endswith(b"\n")
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                if ended or len(raw) <= 4 * MAX_LINE_CHARS or exc.start < len(raw) - 3:
+                    raise DataError(f"{p}: line {ln}, byte {exc.start + 1}: not UTF-8 text ({exc.reason})") from None
+                line = raw.decode("utf-8", "replace")  # cut inside a character: overlong anyway
+            if len(line.rstrip("\r\n")) > MAX_LINE_CHARS or (not ended and len(raw) > 4 * MAX_LINE_CHARS):
                 raise DataError(f"{p}: line {ln}: longer than {MAX_LINE_CHARS} characters")
             yield ln, line.rstrip("\r\n")
+
+
+def max_line_bytes(path, limit: int = 4 * MAX_LINE_CHARS) -> tuple[int, int] | None:
+    """``(line number, length in bytes)`` of the first line longer than ``limit`` bytes, or None (one pass).
+
+    For readers that hand a whole file to a fast parser: every line is still
+    bounded, not only the first ones.
+    """
+    import numpy as np
+
+    p = Path(path)
+    try:
+        fh = open(p, "rb")
+    except OSError as exc:
+        raise DataError(f"{p}: cannot read ({exc.strerror})") from None
+    with fh:
+        ln, run = 1, 0  # line number of the current line, bytes of it seen so far
+        while True:
+            chunk = fh.read(1 << 22)
+            if not chunk:
+                return (ln, run) if run > limit else None
+            nl = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+            if nl.size == 0:
+                run += len(chunk)
+                if run > limit:
+                    return ln, run
+                continue
+            lengths = np.diff(nl, prepend=-1)  # bytes of each completed line, its newline counted
+            lengths[0] += run
+            over = np.flatnonzero(lengths > limit + 1)
+            if over.size:
+                return ln + int(over[0]), int(lengths[over[0]]) - 1
+            ln += nl.size
+            run = len(chunk) - int(nl[-1]) - 1
+            if run > limit:
+                return ln, run
 
 
 def head_lines(path, n: int = 40) -> list[str]:
@@ -51,8 +105,11 @@ def head_lines(path, n: int = 40) -> list[str]:
     return out
 
 
-def parse_number(cell: str, path, ln: int, column: str) -> float:
-    """A finite float from a cell, or a DataError naming file, line and column."""
+def parse_number(cell: str, path, ln: int, column: str, max_abs: float = MAX_ABS_MM) -> float:
+    """A finite float of at most ``max_abs`` in size from a cell, or a DataError naming file, line and column.
+
+    ``max_abs`` defaults to :data:`MAX_ABS_MM` (coordinates); give :data:`MAX_ABS_S` for time stamps.
+    """
     text = cell.strip()
     try:
         v = float(text)
@@ -60,7 +117,10 @@ def parse_number(cell: str, path, ln: int, column: str) -> float:
         what = "empty" if not text else f"{text[:40]!r} is not a number"
         raise DataError(f"{path}: line {ln}, column {column!r}: {what}") from None
     if not math.isfinite(v):
-        raise DataError(f"{path}: line {ln}, column {column!r}: {text} is not a finite number")
+        raise DataError(f"{path}: line {ln}, column {column!r}: {text[:40]} is not a finite number")
+    if abs(v) > max_abs:
+        raise DataError(f"{path}: line {ln}, column {column!r}: {v:.6g} is beyond {max_abs:g}, "
+                        "more than any instrument measures (units? export error?)")
     return v
 
 
@@ -85,10 +145,14 @@ def csv_records(path, required: tuple, *, what: str, optional: tuple | None = No
 
     p = Path(path)
     header = None
+    rows = 0
     for ln, line in numbered_lines(p):
         if not line.strip():
             continue
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        try:
+            cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        except csv.Error as exc:
+            raise DataError(f"{p}: line {ln}: not CSV ({exc})") from None
         if header is None:
             header = [c.lower() for c in cells]
             missing = [c for c in required if c not in header]
@@ -104,6 +168,9 @@ def csv_records(path, required: tuple, *, what: str, optional: tuple | None = No
             continue
         if len(cells) != len(header):
             raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
+        rows += 1
+        if rows > MAX_ROWS:
+            raise DataError(f"{p}: line {ln}: more than {MAX_ROWS} rows")
         yield ln, dict(zip(header, cells))
     if header is None:
         raise DataError(f"{p}: line 1: empty file or missing header")

@@ -10,6 +10,7 @@ messages, run records and logs.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import parse_qsl, urlsplit
@@ -19,6 +20,8 @@ from station.errors import ConfigError
 PG_SCHEMES = ("postgresql", "postgres")
 #: query parameters a store URL may carry (ours, then libpq's that are safe to pass on)
 _OURS = ("password_env", "password_file")
+#: a user or database name as the store accepts it
+_NAME = re.compile(r"[A-Za-z0-9_.\-]{1,63}")
 _LIBPQ = ("connect_timeout", "sslmode", "application_name", "sslrootcert", "target_session_attrs")
 
 
@@ -78,9 +81,17 @@ def parse_pg_url(url: str) -> PgTarget:
                           "name it with ?password_env=VAR or ?password_file=PATH")
     if not parts.hostname:
         raise ConfigError("store_url: no host (postgresql://user@host:port/db)")
+    # a user or database name is a plain identifier: a percent-escape or a colon hides a secret
+    # (``station%3Asecret@``, ``/db%3Asecret``) that would be stored and shown with the URL
+    if parts.username is not None and not _NAME.fullmatch(parts.username):
+        raise ConfigError("store_url: the user name must be letters, digits, '_', '.' or '-' (no escapes, no "
+                          "':'; a password goes in ?password_env=VAR or ?password_file=PATH)")
     dbname = parts.path.lstrip("/")
     if not dbname or "/" in dbname:
-        raise ConfigError(f"store_url: the path must name one database, got {parts.path!r}")
+        raise ConfigError("store_url: the path must name one database (postgresql://user@host:port/db)")
+    if not _NAME.fullmatch(dbname):
+        raise ConfigError("store_url: the database name must be letters, digits, '_', '.' or '-' (no escapes, "
+                          "no ':')")
     try:
         port = parts.port or 5432
     except ValueError as exc:
@@ -92,7 +103,7 @@ def parse_pg_url(url: str) -> PgTarget:
             ours[key] = value
         elif key in _LIBPQ:
             options.append((key, value))
-        elif key == "password":
+        elif key.strip().lower() in ("password", "pass", "passwd", "pwd"):
             raise ConfigError("store_url: a password in the URL is refused; use ?password_env=VAR or ?password_file=PATH")
         else:
             raise ConfigError(f"store_url: unknown parameter {key!r} (allowed: {', '.join(_OURS + _LIBPQ)})")
@@ -109,5 +120,6 @@ def redacted(target) -> str:
             return parse_pg_url(target).redacted()
         except ConfigError:
             parts = urlsplit(target)
-            return f"postgresql://{parts.hostname or '?'}/{parts.path.lstrip('/')}"
+            db = parts.path.lstrip("/")
+            return f"postgresql://{parts.hostname or '?'}/" + (db if _NAME.fullmatch(db) else "***")
     return str(target)

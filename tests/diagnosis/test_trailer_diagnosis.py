@@ -12,7 +12,7 @@ from fakes.sim.trailer_diagnosis_data import make_trailer_case
 from station.analysis.diagnose.trailer import EFFECTS, diagnose_trailer
 from station.analysis.diagnose.trailer_model import predict, rms
 from app.cli import main
-from app.commands.calibrate import write_trailer_csv
+from station.readers.trailer_csv import write_trailer_csv
 from station.errors import DataError, InsufficientDataError
 
 L1, L2 = 1.25, 2.48

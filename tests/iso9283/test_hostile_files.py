@@ -43,9 +43,9 @@ def test_a_header_with_spaces_names_its_columns(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("content, match", [
-    (b"t,kappa,psi\n0,0.1,0.2\n\xff,0.1,0.2\n", "line 3: not UTF-8"),
+    (b"t,kappa,psi\n0,0.1,0.2\n\xff,0.1,0.2\n", "line 3, byte 1: not UTF-8"),
     ("t,kappa,psi\n" + "\n".join(f"{i * 0.05:.2f},0.1,0.2,9,9" for i in range(50)) + "\n", "5 fields, the header has 3"),
-    ("t,kappa,psi\n0," + "1" * 140_000 + ",0.2\n", "field larger than field limit"),
+    ("t,kappa,psi\n0," + "1" * 140_000 + ",0.2\n", "line 2: longer than 4096 characters"),
 ])
 def test_hostile_trailer_files_are_refused_cleanly(tmp_path, capsys, content, match):
     f = tmp_path / "T.csv"

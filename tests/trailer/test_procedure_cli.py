@@ -12,7 +12,7 @@ from procedures.devices import DeviceSet
 from procedures.trailer import TrailerCalibrationContext, TrailerCalibrationPlan, check_plan
 from procedures.trailer_run import TrailerSession, build_procedure, plan_params, preflight_problems
 from app.cli import main
-from app.commands.calibrate import read_trailer_csv, write_trailer_csv
+from station.readers.trailer_csv import read_trailer_csv, write_trailer_csv
 from station.errors import ConfigError, DataError, DeviceTimeout
 from station.models.trailer import JointAngleLimitError
 from station.runner import Runner
@@ -188,5 +188,6 @@ def test_one_absurd_sample_is_refused_with_its_row(trailer_csv, tmp_path, capsys
     out = tmp_path / "o.json"
     assert main(["calibrate", "trailer", "--data", str(path), "--method", method, "--json", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"data row {row + 1}: kappa = -1e+09" in err and "Traceback" not in err
+    # the reader refuses it, naming file, line (header = line 1) and column
+    assert f"{path}: line {row + 2}, column 'kappa': -1e+09 is beyond" in err and "Traceback" not in err
     assert not out.exists()

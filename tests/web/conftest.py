@@ -6,7 +6,7 @@ import http.client
 import json
 import time
 from pathlib import Path
-from urllib.parse import urlencode, urlsplit
+from urllib.parse import parse_qs, urlencode, urlsplit
 
 import pytest
 
@@ -23,18 +23,25 @@ def demo_station_config(out: Path) -> Path:
 
 
 class Client:
-    """HTTP on the server's loopback port; POSTs carry the page's CSRF token unless told otherwise."""
+    """HTTP on the server's loopback port; POSTs carry the page's CSRF token unless told otherwise.
 
-    def __init__(self, url: str) -> None:
+    Every request carries the access token of the printed URL as the page's cookie (``access=False``: none).
+    """
+
+    def __init__(self, url: str, *, access: bool = True) -> None:
         parts = urlsplit(url)
         self.host, self.port = parts.hostname, parts.port
         self.csrf = None
+        token = parse_qs(parts.query).get("token", [None])[0]
+        self.cookie = f"station_access_{self.port}={token}" if (token and access) else None
 
     def request(self, method: str, path: str, body: dict | None = None, headers: dict | None = None):
         con = http.client.HTTPConnection(self.host, self.port, timeout=10)
         try:
             data = urlencode(body).encode() if body is not None else None
             hdrs = {"Content-Type": "application/x-www-form-urlencoded"} if data is not None else {}
+            if self.cookie:
+                hdrs["Cookie"] = self.cookie
             con.request(method, path, body=data, headers={**hdrs, **(headers or {})})
             resp = con.getresponse()
             return resp.status, dict(resp.getheaders()), resp.read().decode()
@@ -91,7 +98,7 @@ class Client:
         """The first server-sent event on ``path``: (event, data)."""
         con = http.client.HTTPConnection(self.host, self.port, timeout=timeout_s)
         try:
-            con.request("GET", path)
+            con.request("GET", path, headers={"Cookie": self.cookie} if self.cookie else {})
             resp = con.getresponse()
             assert resp.status == 200 and resp.getheader("content-type").startswith("text/event-stream")
             event, data = "", []

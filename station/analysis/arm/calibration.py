@@ -139,7 +139,9 @@ def check_joint_limits(q_rad: np.ndarray, limits_rad: np.ndarray) -> None:
     bad = (q_rad < lo - 1e-9) | (q_rad > hi + 1e-9)
     if bad.any():
         k, j = map(int, np.argwhere(bad)[0])
-        raise DataError(f"pose {k + 1}: q{j + 1} = {math.degrees(q_rad[k, j]):.3f} deg is outside the model's "
+        deg = math.degrees(q_rad[k, j])
+        text = f"{deg:.3f}" if abs(deg) < 1e6 else f"{deg:.6g}"  # never 309 digits
+        raise DataError(f"pose {k + 1}: q{j + 1} = {text} deg is outside the model's "
                         f"limits [{math.degrees(lo[j]):.1f}, {math.degrees(hi[j]):.1f}] deg "
                         f"({int(bad.any(axis=1).sum())} pose(s) in all)")
 
@@ -175,6 +177,10 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
         raise DataError(f"need q (N, 6) and x,y,z (N, 3) with the same N, got {q.shape} and {meas.shape}")
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(meas))):
         raise DataError("joint angles and measured points must be finite")
+    if meas.size and np.abs(meas).max() > 1.0e6:
+        k = int(np.argmax(np.abs(meas).max(axis=1)))
+        raise DataError(f"pose {k + 1}: a measured coordinate of {float(np.abs(meas[k]).max()):.6g} mm is beyond "
+                        "1 km, more than any instrument measures")
     if joint_limits_rad is not None:
         check_joint_limits(q, np.asarray(joint_limits_rad, dtype=float))
     if split is None:

@@ -34,6 +34,7 @@ import numpy as np
 
 from scipy import stats
 
+from station.analysis.arm.screen import screen_arm_poses
 from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 from station.numeric import finite_or_none
@@ -43,6 +44,11 @@ from .block_test import model_basis, refit_step, wald_block
 from .split import workspace_split
 from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
+
+#: most poses a diagnosis takes (the reader's limit, station.readers.arm_csv.MAX_ROWS)
+MAX_POSES = 20_000
+#: largest joint angle taken, rad (ten turns)
+MAX_ABS_Q_RAD = 20.0 * math.pi
 
 __all__ = ["ArmDiagnosis", "Step", "CandidateTest", "diagnose_arm", "MIN_DOF_POSES"]
 
@@ -288,6 +294,15 @@ def _check_inputs(dh, q, meas, optional: dict) -> None:
     for name, v in optional.items():
         if v is not None and (np.shape(v) != (q.shape[0],) or not np.all(np.isfinite(v))):
             raise DataError(f"`{name}` must be {q.shape[0]} finite values, got shape {np.shape(v)}")
+    if q.shape[0] > MAX_POSES:
+        raise DataError(f"{q.shape[0]} poses: a diagnosis takes at most {MAX_POSES} (a calibration measures a few "
+                        "thousand at most)")
+    big = np.abs(q) > MAX_ABS_Q_RAD
+    if big.any():
+        k, j = map(int, np.argwhere(big)[0])
+        raise DataError(f"pose {k + 1}: q{j + 1} = {np.degrees(q[k, j]):.6g} deg is beyond ten turns: no joint "
+                        "gives it (degrees read as radians? an export error?)")
+    screen_arm_poses(dh, q, meas)
 
 
 def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, load_kg=None, robot=None,

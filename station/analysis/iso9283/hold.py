@@ -28,6 +28,10 @@ from station.analysis.iso9283.extraction import estimate_noise_mm, moving_speed,
 from station.errors import DataError, InsufficientDataError
 
 
+#: fewest samples a window of the RP-style figure must be able to hold (at the stream's median step)
+MIN_WINDOW_SAMPLES = 2
+
+
 @dataclass(frozen=True)
 class HoldResult:
     """Figures of a held pose (mm, s, mm/min); arrays per axis x, y, z."""
@@ -91,6 +95,9 @@ def analyze_hold(t_s, xyz_mm, valid=None, *, window_s: float = 1.0, min_move_mm:
     dur = float(t[-1] - t[0])
     # a move? the extraction's test: moving-average speed above the rest threshold over min_move_mm
     dt = float(np.median(np.diff(t)))
+    if not window_s >= MIN_WINDOW_SAMPLES * dt:
+        raise DataError(f"window_s = {window_s:.6g} s holds less than {MIN_WINDOW_SAMPLES} samples of this stream "
+                        f"(one every {dt:.6g} s): give a window of at least {MIN_WINDOW_SAMPLES * dt:.6g} s")
     h = max(1, int(round(0.025 / dt)))
     noise_sd = estimate_noise_mm(xyz, t)
     v_rest = max(2.0, 6.0 * np.sqrt(2.0) * noise_sd / (2 * h * dt))
@@ -114,7 +121,10 @@ def analyze_hold(t_s, xyz_mm, valid=None, *, window_s: float = 1.0, min_move_mm:
     slope_sd = noise / np.sqrt(stt)
     # windows of window_s from the first sample; a window with less than half the fullest one's samples (the
     # last, or one cut by a beam break) is left out
-    w = np.floor((t - t[0]) / window_s).astype(np.int64)
+    # the windows the samples fall in, numbered 0.. in order (a gap in time makes no empty windows: memory and
+    # time grow with the samples, never with duration / window_s)
+    _, w = np.unique(np.floor((t - t[0]) / window_s), return_inverse=True)
+    w = w.ravel()
     counts = np.bincount(w)
     full = counts >= 0.5 * counts.max()
     keep_w = np.flatnonzero(full & (counts > 0))
