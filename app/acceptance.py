@@ -14,8 +14,8 @@ pytest plugin :mod:`app.testing` provides the ``fake_station`` fixture.
 
 from __future__ import annotations
 
-import io
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +23,16 @@ import numpy as np
 from station.config import StationConfig, config_from_dict, load_config
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.store import RunStore
+from station.verdict import Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
-CONDITIONS = ("as-drawn", "in-spec", "out-of-spec")
+CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "one-pose-out", "marginal", "rp-out")
+#: a "marginal" robot's worst predicted AP lies within this fraction of the AP limit below it
+MARGINAL_FRACTION = 0.25
+#: an "rp-out" robot's expected RP, in units of the RP limit
+RP_OUT_FACTOR = 2.0
+#: RP = l_bar + 3 S_l of 3-D Gaussian stop scatter of sigma s per coordinate: l_bar = 1.596 s, S_l = 0.673 s
+_RP_PER_SIGMA = 1.596 + 3 * 0.673
 #: how far, in rms lengths of the run-to-prediction scatter, a fake robot drawn in or out of spec
 #: clears its limits. Over 250 poses of 50 fake cells |AP measured - predicted| was at most 1.7
 #: of that rms (bench/bench_fake_truth.py); an error vector 4 rms long is a 1e-9 event.
@@ -47,12 +54,14 @@ class CellTruth:
     tracker_sigma_mm: float
 
 
-def fake_cell_truth(plan, seed: int) -> CellTruth:
-    """The true error effects, stop scatter and tracker noise of the fake cell ``seed`` for ``plan``."""
+def fake_cell_truth(plan, seed: int, world_kwargs: dict | None = None) -> CellTruth:
+    """The true error effects, stop scatter and tracker noise of the fake cell ``seed`` for ``plan``
+    (``world_kwargs``: the fake cell's extra world parameters, e.g. ``stop_sigma_mm``)."""
     from fakes.sim.clock import ManualClock
     from fakes.sim.world import make_world
 
-    world = make_world(robot=plan.robot.name, seed=int(seed), clock=ManualClock(), payload_kg=plan.payload_kg)
+    world = make_world(robot=plan.robot.name, seed=int(seed), clock=ManualClock(), payload_kg=plan.payload_kg,
+                       **dict(world_kwargs or {}))
     try:
         tracker_at = world.tracker.base_T_tracker[:3, 3]
         reach = np.linalg.norm(np.array(list(plan.poses_mm.values())) - tracker_at, axis=1).max()
@@ -64,15 +73,23 @@ def fake_cell_truth(plan, seed: int) -> CellTruth:
 
 def _meets(condition, ap_lo, ap_hi, ad_hi, ap_margin, ad_margin, ap_lim, ad_lim) -> bool:
     """In spec: every AP and |AD| plus its margin within its limit (no limit, no bound); out of spec:
-    some pose's AP minus its margin at or over the AP limit."""
+    some pose's AP minus its margin at or over the AP limit; one pose out: exactly one pose so, every
+    other pose's AP plus its margin within the limit; marginal: in spec, and the worst pose's AP within
+    :data:`MARGINAL_FRACTION` of the AP limit."""
+    out = ap_lo - ap_margin >= ap_lim if ap_lim is not None else None
+    inside = ap_hi + ap_margin <= ap_lim if ap_lim is not None else None
     if condition == "out-of-spec":
-        return bool(np.any(ap_lo - ap_margin >= ap_lim))
-    return (ap_lim is None or bool(np.all(ap_hi + ap_margin <= ap_lim))) and (
-        ad_lim is None or ad_hi + ad_margin <= ad_lim)
+        return bool(np.any(out))
+    if condition == "one-pose-out":
+        return bool(np.count_nonzero(out) == 1 and np.count_nonzero(inside) == len(inside) - 1)
+    in_spec = (ap_lim is None or bool(np.all(inside))) and (ad_lim is None or ad_hi + ad_margin <= ad_lim)
+    if condition == "marginal":
+        return in_spec and bool(np.max(ap_lo) >= (1.0 - MARGINAL_FRACTION) * ap_lim)
+    return in_spec
 
 
 def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str = "r1", *,
-                    sigmas: float = SPEC_SIGMAS, max_tries: int = 5000) -> int:
+                    sigmas: float = SPEC_SIGMAS, max_tries: int = 5000, world_kwargs: dict | None = None) -> int:
     """The first fake-cell seed from ``seed`` on whose robot is in or out of spec.
 
     The cell's true error effects are drawn exactly as the fake station draws
@@ -98,17 +115,18 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     from procedures.iso9283 import plan_from_config
     from procedures.iso9283_truth import RunGeometry, predict_static, prediction_scatter
 
-    if condition not in ("in-spec", "out-of-spec"):
-        raise ConfigError(f"condition must be 'in-spec' or 'out-of-spec', got {condition!r}")
+    drawn = ("in-spec", "out-of-spec", "one-pose-out", "marginal")
+    if condition not in drawn:
+        raise ConfigError(f"condition must be one of {', '.join(drawn)}, got {condition!r}")
     plan = plan_from_config(config, robot)
     ap_lim = plan.limits.get("AP_mm")
     ad_lim = plan.limits.get("AD_mm")
-    if condition == "out-of-spec" and ap_lim is None:
-        raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot out of spec")
+    if condition != "in-spec" and ap_lim is None:
+        raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot {condition}")
     names = list(plan.poses_mm)
     geo = RunGeometry.of(plan)
     for s in range(int(seed), int(seed) + max_tries):
-        cell = fake_cell_truth(plan, s)
+        cell = fake_cell_truth(plan, s, world_kwargs)
         cold, warm = (predict_static(plan, cell.effects, warmup_s=w, geometry=geo) for w in (0.0, _WARM_S))
         ap = np.array([[p.AP_mm[n] for n in names] for p in (cold, warm)])
         ap_lo, ap_hi = ap.min(axis=0), ap.max(axis=0)
@@ -128,13 +146,59 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
 
 @dataclass
 class AcceptanceRun:
-    """The stored outcome of one run."""
+    """The stored outcome of one run, with its one verdict.
+
+    ``verdict`` is :class:`station.verdict.Outcome` (PASS, FAIL, NOT DECIDED,
+    ABORTED) as :func:`procedures.decision.decide` gives it, the same as
+    ``station run`` prints, ``--json`` and the report show; ``reasons`` says
+    why (value, unit and limit of each failed or undecided limit, cycles
+    found against asked, conformance). ``characteristics`` are the store's
+    rows (keys ``pose``, ``name``, ``value``, ``unit``, ``limit``, ``passed``:
+    True, False, or None when the row has no limit or was not decided).
+    """
 
     run_id: str
     status: str
     store_path: Path
     characteristics: list[dict]
     output: str
+    verdict: Outcome = Outcome.ABORTED
+    reasons: list[str] = field(default_factory=list)
+    #: ISO 9283 conformance of the run (None where the procedure has none)
+    conformant: bool | None = None
+    #: the command's exit code for this outcome (0 PASS, 1 FAIL, 3 NOT DECIDED, 4 not conformant, 5 ABORTED)
+    exit_code: int = 5
+    #: the fake cell's seed (None on armed devices)
+    seed: int | None = None
+    #: the HTML report, when the run wrote one
+    report: str | None = None
+    #: when the run was created and finished, s since the epoch (finished None while not finished)
+    started_at: float | None = None
+    finished_at: float | None = None
+    procedure: str = "iso9283"
+    #: the test record's who and what (operator, work order, overhaul ticket, ...), stored with the run
+    record: dict = field(default_factory=dict)
+    #: the plant's measurements as judged (:func:`station.measurements.evaluate` rows)
+    measurements: list[dict] = field(default_factory=list)
+    #: the robot and station of the run (model, serial, overhaul_state, station)
+    subject: dict = field(default_factory=dict)
+
+    @property
+    def marginal(self) -> list[str]:
+        """The plant measurements that passed within their marginal band: ``"P1 RP_plant"``."""
+        return [f"{m['pose']} {m['name']}" for m in self.measurements if m.get("marginal")]
+
+    def test_record(self) -> dict:
+        """This run's test record (:func:`station.test_record.build`)."""
+        from station.test_record import build
+
+        return build(self)
+
+    def write_record(self, out_dir: str | Path) -> tuple[Path, Path]:
+        """Write the test record as ``RUN.record.json`` and ``RUN.junit.xml`` into ``out_dir``; their paths."""
+        from station.test_record import write
+
+        return write(self.test_record(), out_dir)
 
     def value(self, pose: str, name: str) -> float:
         """A characteristic's value, e.g. ``value("P1", "RP_mm")``; DataError if absent."""
@@ -152,19 +216,25 @@ class AcceptanceRun:
 
     @property
     def failures(self) -> list[str]:
-        return [f"{c['pose']} {c['name']} = {c['value']:.4g} > limit {c['limit']:g}"
-                for c in self.characteristics if c["passed"] is False]
+        """One sentence per failed limit, with units: ``"P1 AP_mm = 6.1 mm > limit 5 mm"``."""
+        from procedures.decision import row_reason
+
+        return [row_reason(c, Outcome.FAIL) for c in self.characteristics if c["passed"] is False]
 
     @property
-    def passed(self) -> bool | None:
-        judged = [c["passed"] for c in self.characteristics if c["passed"] is not None]
-        return (all(judged) if judged else None) if self.status == "done" else False
+    def passed(self) -> bool:
+        """True only for a PASS: every limit decided and kept, every cycle asked measured, conformant when
+        required. A FAIL, NOT DECIDED or ABORTED run is False (see :attr:`verdict` for which)."""
+        return self.verdict is Outcome.PASS
 
     def assert_within_limits(self) -> None:
-        if self.status != "done":
-            raise AssertionError(f"run {self.run_id} did not finish ({self.status}):\n{self.output}")
-        if self.failures:
-            raise AssertionError("outside the limits: " + "; ".join(self.failures))
+        """AssertionError unless the verdict is PASS; the message gives the verdict and every reason."""
+        if self.verdict is not Outcome.PASS:
+            head = f"run {self.run_id}: {self.verdict}"
+            if self.verdict is Outcome.FAIL:
+                head += ", outside the limits"
+            raise AssertionError(head + ": " + "; ".join(self.reasons)
+                                 + (f"\n{self.output}" if self.status != "done" else ""))
 
 
 def make_operator(operator, arm: bool):
@@ -201,75 +271,175 @@ class Station:
     ``operator`` answers the runs' prompts (see :func:`make_operator`): on
     the fakes a script may answer them (default: yes to each); with ``arm``
     only a person may (default: the terminal; or the operator's page).
+    ``store`` points the runs at another store than the config's (a path or
+    a ``postgresql://`` URL: e.g. the plant's persistent store, so history
+    spans test sessions). ``record`` is the test record's who and what
+    (``operator``, ``work_order``, ``overhaul_ticket``, any other text
+    fields), stored with every run and written by :meth:`AcceptanceRun.write_record`.
     """
 
     def __init__(self, config: StationConfig, *, workdir: str | Path, arm: bool = False,
-                 time_scale: float = 20.0, seed: int = 0, operator=None) -> None:
+                 time_scale: float = 20.0, seed: int = 0, operator=None, store: str | Path | None = None,
+                 record: dict | None = None) -> None:
+        if not (isinstance(time_scale, (int, float)) and time_scale > 0):
+            raise ConfigError(f"time_scale must be > 0, got {time_scale!r}")
+        if store is not None:
+            config = config.model_copy(update={"station": config.station.model_copy(update={"store_path": str(store)})})
         self.config = config
         self.workdir = Path(workdir)
         self.arm = arm
         self.time_scale = time_scale
         self.seed = seed
         self.operator = make_operator(operator, arm)
+        self.record = dict(record or {})
         self._n = 0
 
     @classmethod
     def from_config(cls, path: str | Path, *, arm: bool = False, **kw) -> "Station":
         """The station of a config file (TOML or JSON); relative paths in it are taken from its folder.
-        Keywords as for :class:`Station` (``time_scale``, ``seed``, ``operator``)."""
+
+        Keywords as for :class:`Station`: ``time_scale`` and ``seed`` (the fake
+        cell's, without ``arm``), ``operator``, ``store``, ``record``. With
+        ``arm=True`` the configured devices are used (real hardware) and only
+        a person answers the confirmations (:func:`make_operator`).
+        ConfigError names the file, the field and what is wrong.
+        """
         return cls(load_config(path), workdir=Path(path).resolve().parent, arm=arm, **kw)
 
     @classmethod
     def fake(cls, workdir: str | Path, *, seed: int = 0, time_scale: float = 20.0,
-             limits: dict | None = None, serial: str = "SIM-0001", condition: str = "as-drawn",
-             operator=None) -> "Station":
+             limits: dict | None = None, serial: str = "SIM-0001", model: str = "industrial-3100",
+             payload_kg: float = 0.0, cycles: int = 30, vap_cycles: int = 30, condition: str = "as-drawn",
+             operator=None, store: str | Path | None = None, record: dict | None = None,
+             measurements: dict | None = None) -> "Station":
         """A station whose devices are the fake cell (started for each run, same seed).
 
-        ``condition`` chooses the simulated robot: ``"as-drawn"`` takes the
-        cell of ``seed`` whatever its errors (an uncalibrated arm after
-        overhaul: AP of about 1-6 mm); ``"in-spec"`` and ``"out-of-spec"``
-        take the first cell from ``seed`` on whose robot is inside, or
-        outside, the configured limits by a clear margin
-        (:func:`fake_robot_seed`). ``self.seed`` is the cell used.
+        ``limits`` are merged into the fake robot's (``{"rp_limit_mm": 0.3}``
+        keeps its AP, vAP and AD limits; a key set to None removes that
+        limit). ``cycles``/``vap_cycles`` are the ISO plan's defaults,
+        ``payload_kg`` the mass at the TCP, ``measurements`` the plant's
+        own per procedure (``{"iso9283": [Measurement or table, ...]}``).
+
+        ``condition`` chooses the simulated robot (:data:`CONDITIONS`):
+        ``"as-drawn"`` takes the cell of ``seed`` whatever its errors (an
+        uncalibrated arm after overhaul: AP of about 1-6 mm); ``"in-spec"``,
+        ``"out-of-spec"`` (AP over its limit at some pose), ``"one-pose-out"``
+        (AP over its limit at exactly one pose, every other pose inside) and
+        ``"marginal"`` (inside, but the worst pose's AP within
+        :data:`MARGINAL_FRACTION` of its limit) take the first cell from
+        ``seed`` on that meets it by a clear margin (:func:`fake_robot_seed`);
+        ``"rp-out"`` is an in-spec cell whose stops scatter so that the
+        expected RP is twice ``rp_limit_mm`` (:data:`RP_OUT_FACTOR`).
+        ``self.seed`` is the cell used.
         """
         from fakes.cells import demo_config
 
         workdir = Path(workdir)
-        cfg = demo_config(workdir.resolve(), cycles=30, vap_cycles=30, rate_hz=100.0)
-        cfg["robots"]["r1"]["serial"] = serial
-        if limits is not None:
-            cfg["robots"]["r1"]["limits"] = dict(limits)
-        config = config_from_dict(cfg, "fake station")
         if condition not in CONDITIONS:
             raise ConfigError(f"condition must be one of {', '.join(CONDITIONS)}, got {condition!r}")
+        cfg = demo_config(workdir.resolve(), cycles=int(cycles), vap_cycles=int(vap_cycles), rate_hz=100.0)
+        r1 = cfg["robots"]["r1"]
+        r1.update(serial=serial, model=model, payload_kg=float(payload_kg))
+        merged = {**r1["limits"], **dict(limits or {})}
+        r1["limits"] = {k: v for k, v in merged.items() if v is not None}
+        if measurements:
+            cfg["measurements"] = {proc: [m.to_dict() if hasattr(m, "to_dict") else dict(m) for m in ms]
+                                   for proc, ms in measurements.items()}
+        config = config_from_dict(cfg, "fake station")
+        fake_options = None
+        if condition == "rp-out":
+            rp = config.robots["r1"].limits.rp_limit_mm
+            if rp is None:
+                raise ConfigError("condition 'rp-out' needs an RP limit (limits={'rp_limit_mm': ...})")
+            fake_options = {"stop_sigma_mm": rp * RP_OUT_FACTOR / _RP_PER_SIGMA}
         if condition != "as-drawn":
-            seed = fake_robot_seed(config, seed, condition)
-        return cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator)
+            seed = fake_robot_seed(config, seed, "in-spec" if condition == "rp-out" else condition,
+                                   world_kwargs=fake_options)
+        station = cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator, store=store,
+                      record=record)
+        station.condition, station.fake_options = condition, fake_options
+        return station
+
+    condition: str | None = None
+    #: extra parameters of the fake cell (e.g. the stop scatter of an "rp-out" robot)
+    fake_options: dict | None = None
+
+    def run(self, procedure: str, robot: str = "r1", *, run_id: str | None = None,
+            plan_overrides: dict | None = None, require_conformance: bool = False,
+            measurements: list | None = None, record: dict | None = None) -> AcceptanceRun:
+        """Run procedure ``procedure`` (``"iso9283"``, ``"arm-calibration"``, ``"trailer"``) and return
+        its :class:`AcceptanceRun`; prompts go to :attr:`operator`.
+
+        ``measurements`` (:class:`station.measurements.Measurement` or tables)
+        are judged with the run, after the config's; ``record`` adds to the
+        station's test-record fields for this run; ``require_conformance``
+        makes a run that is not conformant to its standard NOT DECIDED.
+        """
+        from app.assemble import run_procedure
+        from station.measurements import parse
+
+        self._n += 1
+        subject = self.config.robots[robot].serial if robot in self.config.robots else procedure
+        run_id = run_id or f"{subject}-accept-{self._n}-{int(time.time())}"
+        acceptance = {"record": {**self.record, **dict(record or {})}}
+        if require_conformance:
+            acceptance["require_conformance"] = True
+        if measurements:
+            acceptance["measurements"] = [m.to_dict() for m in parse(list(measurements), "measurements")]
+        outcome = run_procedure(self.config, procedure, robot=robot, run_id=run_id, arm=self.arm,
+                                operator=self.operator, quiet=True, time_scale=self.time_scale, seed=self.seed,
+                                config_dir=self.workdir, plan_overrides=plan_overrides, acceptance=acceptance,
+                                fake_options=self.fake_options)
+        return self._read(outcome)
 
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
-                run_id: str | None = None) -> AcceptanceRun:
-        """Run the ISO 9283 procedure and return its results; prompts go to :attr:`operator`."""
-        from app.assemble import run_procedure
+                run_id: str | None = None, require_iso: bool = False, measurements: list | None = None,
+                record: dict | None = None) -> AcceptanceRun:
+        """Run the ISO 9283 procedure and return its results; prompts go to :attr:`operator`.
 
+        Fewer cycles found than ``cycles`` is NOT DECIDED; with
+        ``require_iso`` so is a run that is not ISO 9283 conformant.
+        """
         overrides = {}
         if cycles is not None:
             overrides["cycles"] = int(cycles)
         if vap_cycles is not None:
             overrides["vap_cycles"] = int(vap_cycles)
-        self._n += 1
-        run_id = run_id or f"{self.config.robots[robot].serial}-accept-{self._n}"
-        out = io.StringIO()
-        run_procedure(self.config, "iso9283", robot=robot, run_id=run_id, arm=self.arm, operator=self.operator,
-                      quiet=True,
-                time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=overrides,
-                stdout=out)
+        return self.run("iso9283", robot, run_id=run_id, plan_overrides=overrides, require_conformance=require_iso,
+                        measurements=measurements, record=record)
+
+    def resume(self, run_id: str) -> AcceptanceRun:
+        """Resume stored run ``run_id`` (aborted, or stopped by a fault) from its last finished step, on the
+        same fake cell (its stored seed) or the armed devices; returns its :class:`AcceptanceRun`."""
+        from app.assemble import run_procedure
+
+        outcome = run_procedure(self.config, None, resume=run_id, arm=self.arm, operator=self.operator, quiet=True,
+                                time_scale=self.time_scale, config_dir=self.workdir)
+        return self._read(outcome)
+
+    def _read(self, outcome) -> AcceptanceRun:
         store_path = self.config.station.store_file(self.workdir)
         with RunStore(store_path) as store:
-            return AcceptanceRun(run_id, store.run(run_id).status, store_path, store.characteristics(run_id),
-                                 out.getvalue())
+            rec = store.run(outcome.run_id)
+            return AcceptanceRun(
+                outcome.run_id, outcome.status, store_path, store.characteristics(outcome.run_id),
+                "\n".join(outcome.lines()), verdict=outcome.verdict, reasons=list(outcome.reasons),
+                conformant=outcome.conformant, exit_code=outcome.exit_code,
+                seed=None if outcome.fake is None else outcome.fake.get("seed"), report=outcome.report,
+                started_at=rec.created_at, finished_at=rec.finished_at, procedure=outcome.procedure,
+                record=(rec.params.get("acceptance") or {}).get("record", {}),
+                measurements=store.results(outcome.run_id).get("measurements", []),
+                subject={"model": rec.model, "serial": rec.serial, "overhaul_state": rec.overhaul_state,
+                         "station": rec.station or self.config.station.name})
 
     def history(self, serial: str, name: str, pose: str | None = None) -> list[dict]:
-        """Every stored value of characteristic ``name`` (e.g. ``"RP_mm"``) of the robot ``serial``, oldest
-        first, optionally of one ``pose``: rows as :meth:`station.store.RunStore.history` gives them."""
+        """Every stored value of characteristic (or plant measurement) ``name`` of the robot ``serial``,
+        oldest first, optionally of one ``pose``.
+
+        Each row is a dict with ``run_id``, ``created_at`` (s since the epoch),
+        ``overhaul_state``, ``model``, ``pose``, ``value``, ``unit``, ``limit``
+        (None without one) and ``passed`` (True, False, None): as
+        :meth:`station.store.RunStore.history` gives them.
+        """
         with RunStore(self.config.station.store_file(self.workdir)) as store:
             return store.history(serial, name, pose)

@@ -11,7 +11,9 @@ pytest fixtures) comes through :func:`run_procedure`. It
   entry, started here, the same cell again on a resume);
 * runs the preflight checks before anything moves, then the procedure with
   Ctrl-C = abort (resumable) and SIGUSR1 = pause/continue;
-* prints the results and writes ``--json``.
+* decides the run's verdict (:func:`procedures.decision.decide`), stores it,
+  writes ``--json`` and returns a :class:`ProcedureOutcome` that each front
+  door presents (the command prints its lines, the page shows it).
 
 This is a front door, not the core: it may import procedures and fakes.
 """
@@ -23,6 +25,7 @@ import json
 import signal
 import sys
 from contextlib import ExitStack
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from procedures.devices import DeviceSet, configured_devices
@@ -30,6 +33,7 @@ from procedures.execute import execute, prepare, preflight
 from station.errors import ConfigError, SafetyError
 from station.runner import InteractiveOperator, ProgressLine, RunControl, ScriptedOperator
 from station.store import RunStore, StoreError
+from station.verdict import Outcome
 
 
 def operator_for(yes: bool, quiet: bool):
@@ -52,13 +56,75 @@ def start_fake_cell(spec, params: dict, fake: dict):
     return getattr(importlib.import_module(module), func)(params, fake)
 
 
+@dataclass
+class ProcedureOutcome:
+    """What one run through :func:`run_procedure` came to; the command and the page each present it.
+
+    ``verdict`` and ``reasons`` are :func:`procedures.decision.decide`'s (the
+    same the report, ``--json`` and the page show); ``exit_code`` follows
+    ``station analyze``'s table (0 PASS, 1 FAIL, 3 NOT DECIDED, 4 not
+    conformant with conformance required) plus 5 for a run that did not
+    finish (ABORTED: resumable).
+    """
+
+    run_id: str
+    procedure: str
+    #: the runner's status: done, aborted or failed
+    status: str
+    verdict: Outcome
+    reasons: list[str]
+    exit_code: int
+    #: the standard's conformance (ISO 9283), None where the procedure has none
+    conformant: bool | None = None
+    error: str | None = None
+    #: the procedure's results as console lines (table, conformance, report)
+    summary: list[str] = field(default_factory=list)
+    #: the HTML report, when the run wrote one
+    report: str | None = None
+    #: the fake cell's seed and time scale; None on armed devices
+    fake: dict | None = None
+    #: what the central store holds of the run (one sentence), None without a central store
+    forwarding: str | None = None
+    #: the plant's measurements as judged (station.measurements.evaluate rows)
+    measurements: list[dict] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """The console's presentation: the verdict first, then why, then the results."""
+        head = f"{self.verdict}: run {self.run_id} ({self.procedure}) {self.status}"
+        out = [head + (f" ({self.error})" if self.error and self.status != "done" else "")]
+        out += [f"  {r}" for r in self.reasons]
+        if self.status != "done":
+            out.append(f"resume with: station run --resume {self.run_id} --config <config>")
+        out += self.summary
+        for m in self.measurements:
+            val = "not computed" if m["value"] is None else f"{m['value']:.4g} {m['unit']}"
+            lim = ", ".join(f"{k} {m[k]:g} {m['unit']}" for k in ("low", "high") if m[k] is not None)
+            out.append(f"measurement {m['pose']} {m['name']} = {val} ({lim}): {m['outcome']}"
+                       + (" marginal" if m["marginal"] else ""))
+        if self.forwarding:
+            out.append(self.forwarding)
+        return out
+
+    def to_dict(self) -> dict:
+        return {"run_id": self.run_id, "procedure": self.procedure, "status": self.status,
+                "verdict": str(self.verdict), "reasons": list(self.reasons), "exit_code": self.exit_code,
+                "conformant": self.conformant, "error": self.error, "report": self.report, "fake": self.fake,
+                "forwarding": self.forwarding, "measurements": list(self.measurements)}
+
+
 def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", resume: str | None = None,
                   run_id: str | None = None, arm: bool = False, yes: bool = False, time_scale: float = 20.0,
                   seed: int = 0, json_out: str | None = None, quiet: bool = False,
                   config_dir: Path | None = None, plan_overrides: dict | None = None,
                   fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
-                  control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None) -> int:
-    """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
+                  control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None,
+                  acceptance: dict | None = None) -> ProcedureOutcome:
+    """Run or resume a procedure; returns its :class:`ProcedureOutcome` (verdict, reasons, exit code).
+
+    Nothing is printed but the progress line (stderr, unless ``quiet``) and
+    the prompts; ``stdout``, when given, receives the outcome's console lines
+    (:meth:`ProcedureOutcome.lines`). The verdict is also stored with the run
+    (result ``"verdict"``) and written at the top level of ``json_out``.
 
     With armed devices (``arm``: the configured URLs, real hardware) the
     ``operator`` must be a person (:func:`require_human`): ``yes`` or a
@@ -69,10 +135,21 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     ``fake_options`` adds to the fake cell's stored parameters (e.g. a
     trailer's ``true_lengths_m``). ``progress`` replaces the console's
     progress line (the operator's page shows the step's detail, e.g. the
-    target pose).
+    target pose). ``acceptance`` is stored with a new run's plan and read by
+    its verdict: ``require_conformance`` (bool; ``--require-iso``),
+    ``measurements`` (a plant's own, :mod:`station.measurements`) and
+    ``record`` (who and what: operator, work order, overhaul ticket).
     """
+    from procedures.decision import decide, record_measurements
+    from station.measurements import parse as parse_measurements
+
     base = config_dir or Path.cwd()
-    stdout = stdout or sys.stdout
+    if procedure is not None and not resume:  # the plant's measurements of the config, then the script's
+        declared = cfg.measurements_for(procedure, robot) + list((acceptance or {}).get("measurements") or [])
+        acceptance = dict(acceptance or {})
+        acceptance.pop("measurements", None)
+        if declared:  # refused here, naming the entry, before anything is recorded
+            acceptance["measurements"] = [m.to_dict() for m in parse_measurements(declared, "measurements")]
     operator = operator or operator_for(yes, quiet)
     if arm:  # refused before the run is even recorded
         require_human(operator)
@@ -81,7 +158,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
                                                           **(fake_options or {})}
         prepared = prepare(cfg, store, procedure, robot=robot, resume=resume, run_id=run_id,
-                           report_dir=cfg.station.report_folder(base), plan_overrides=plan_overrides, fake=fake)
+                           report_dir=cfg.station.report_folder(base), plan_overrides=plan_overrides, fake=fake,
+                           acceptance=acceptance)
         spec = prepared.spec
         if devices is None and prepared.fake is None:
             devices = configured_devices(cfg, spec.device_roles(cfg, robot))
@@ -96,26 +174,39 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             if not operator.confirm(f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
                 raise SafetyError("armed run not confirmed by the operator; nothing moved")
         forwarder = _start_forwarding(cfg, base, stack)
-        outcome = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
-        if forwarder is not None:
-            _last_push(cfg, base, forwarder, stdout)
-        print(f"run {prepared.run_id}: {outcome.status}" + (f" ({outcome.error})" if outcome.error else ""),
-              file=stdout)
-        if outcome.status != "done":
-            print(f"resume with: station run --resume {prepared.run_id} --config <config>", file=stdout)
+        ran = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
+        measured = record_measurements(store, prepared.run_id) if ran.status == "done" else []
+        decision = decide(spec, store, prepared.run_id)
+        if ran.status == "done":
+            store.put_result(prepared.run_id, VERDICT_KEY, decision.to_dict())
         lines = []
         try:
             lines = spec.summary(store, prepared.run_id)
         except Exception:  # a failed run may have no results to show
-            if outcome.status == "done":
+            if ran.status == "done":
                 raise
-        for line in lines:
-            print(line, file=stdout)
+        outcome = ProcedureOutcome(
+            prepared.run_id, spec.name, ran.status, decision.outcome, list(decision.reasons), decision.exit_code,
+            decision.conformant, ran.error, lines, _report_path(store, prepared.run_id), prepared.fake,
+            measurements=measured)
+        if forwarder is not None:  # after the verdict is stored: the centre gets it too
+            outcome.forwarding = _last_push(cfg, base, forwarder, prepared.run_id)
         if json_out:
-            _write_json(store, prepared.run_id, outcome, json_out, spec.result_key)
-    if outcome.status == "done":
-        return 0
-    return 3 if outcome.status == "aborted" else 1
+            _write_json(store, outcome, json_out, spec.result_key)
+    if stdout is not None:
+        for line in outcome.lines():
+            print(line, file=stdout)
+    return outcome
+
+
+#: the result entry a finished run's verdict is stored under
+VERDICT_KEY = "verdict"
+
+
+def _report_path(store, run_id: str) -> str | None:
+    rep = [s.output["report"] for s in store.steps(run_id)
+           if s.name == "report" and s.status == "done" and s.output and s.output.get("report")]
+    return rep[-1] if rep else None
 
 
 def _start_forwarding(cfg, base: Path, stack: ExitStack):
@@ -134,19 +225,27 @@ def _start_forwarding(cfg, base: Path, stack: ExitStack):
 FORWARD_INTERVAL_S = 5.0
 
 
-def _last_push(cfg, base: Path, forwarder, stdout) -> None:
-    """After the run: stop the background pass and push what is left once; an absent centre is only said."""
-    from station.store_forward import push
+def _last_push(cfg, base: Path, forwarder, run_id: str) -> str:
+    """After the run: stop the background pass and push what is left once; says what the centre holds
+    of the run (an absent centre is only said)."""
+    from station.store_forward import forward_status, push
 
     forwarder.stop()
     try:
         with RunStore(cfg.station.store_file(base), station=cfg.station.name) as local, \
                 RunStore(cfg.station.store_url, station=cfg.station.name) as central:
-            report = push(local, central, station=cfg.station.name)
-        print(f"central store: {report.batches_sent} batch(es) forwarded", file=stdout)
+            push(local, central, station=cfg.station.name)
+            # once more by name: its verdict, stored after the background pass may have sent it as done
+            push(local, central, station=cfg.station.name, run_ids=[run_id])
+            st = forward_status(local).get(run_id, {})
     except StoreError as exc:
-        print(f"central store not reached ({exc}); everything is kept here: `station store push` sends it later",
-              file=stdout)
+        return (f"central store not reached ({exc}); everything is kept here: `station store push` sends it "
+                "later")
+    n_local, n_fwd = st.get("batches_local", 0), st.get("batches_forwarded", 0)
+    if st.get("in_centre") == "complete":
+        return f"central store: holds run {run_id} complete ({n_fwd} of {n_local} batch(es), status {st['status']})"
+    return (f"central store: holds {n_fwd} of {n_local} batch(es) of run {run_id} (status there "
+            f"{st.get('status_forwarded') or 'none'}); `station store push` sends the rest")
 
 
 def _drive(store, prepared, cfg, devices, operator, control, quiet: bool, progress=None):
@@ -165,11 +264,11 @@ def _drive(store, prepared, cfg, devices, operator, control, quiet: bool, progre
             signal.signal(sig, h)
 
 
-def _write_json(store, run_id, outcome, json_out, result_key: str) -> None:
-    payload = {"run_id": run_id, "status": outcome.status, "error": outcome.error,
-               "characteristics": store.characteristics(run_id)}
+def _write_json(store, outcome: ProcedureOutcome, json_out, result_key: str) -> None:
+    """The verdict at the top level, then the characteristics and the procedure's results."""
+    payload = {**outcome.to_dict(), "characteristics": store.characteristics(outcome.run_id)}
     try:
-        payload["results"] = store.result(run_id, result_key)
+        payload["results"] = store.result(outcome.run_id, result_key)
     except Exception:
         payload["results"] = None
     Path(json_out).write_text(json.dumps(payload, indent=2, default=float))
@@ -180,4 +279,4 @@ def stored_procedure(cfg, run_id: str, base: Path) -> str:
         return store.run(run_id).procedure
 
 
-__all__ = ["run_procedure", "operator_for", "require_human", "start_fake_cell", "stored_procedure", "ConfigError"]
+__all__ = ["run_procedure", "ProcedureOutcome", "VERDICT_KEY", "operator_for", "require_human", "start_fake_cell", "stored_procedure", "ConfigError"]

@@ -34,12 +34,19 @@ class FakeCell:
         self.close()
 
 
+#: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
+#: more (``stop_sigma_mm``, mm per coordinate at home)
+WORLD_OPTIONS = ("stop_sigma_mm",)
+
+
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
-    """The simulated arm of the plan's model with its controller and emScon tracker on loopback."""
+    """The simulated arm of the plan's model with its controller and emScon tracker on loopback
+    (``fake``: seed, time scale and any of :data:`WORLD_OPTIONS`)."""
     from fakes.station import FakeStation
 
+    world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
-                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)))
+                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)), **world)
     return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
                     float(fake["time_scale"]), station.close)
 

@@ -51,11 +51,13 @@ class PreparedRun:
 
 def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = "r1", resume: str | None = None,
             run_id: str | None = None, report_dir: str | Path = "reports", plan_overrides: Mapping | None = None,
-            fake: Mapping | None = None) -> PreparedRun:
+            fake: Mapping | None = None, acceptance: Mapping | None = None) -> PreparedRun:
     """Plan a new run, or load the stored plan of run ``resume``.
 
     ``fake`` (the fake cell's seed and time scale) is stored with a new run so a
     resume starts the same simulated cell; a resumed run keeps what it stored.
+    ``acceptance`` (required conformance, a plant's measurements, the test
+    record's who and what) is stored with a new run's plan the same way.
     """
     if resume:
         rec = store.run(resume)
@@ -72,6 +74,8 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
     params = spec.new_params(cfg, robot, str(report_dir), dict(plan_overrides or {}))
     if fake is not None:
         params["fake"] = dict(fake)
+    if acceptance:  # what the run's verdict asks beyond the procedure (procedures.decision)
+        params["acceptance"] = dict(acceptance)
     run_id = run_id or f"{subject.serial}-{time.strftime('%Y%m%d-%H%M%S')}"
     return PreparedRun(spec, run_id, params, False, robot, subject, params.get("fake"))
 

@@ -48,6 +48,7 @@ from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Pr
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
+from procedures.decision import Checks, decide, record_measurements
 from procedures.cell import CellSession, connect_cell, robot_subject, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
@@ -546,10 +547,15 @@ def step_report(ctx: StepContext) -> dict:
         streams = measured_streams(ctx, plan)
         ctx.session.analysis = analyse(plan, *streams["pose"], *streams["vap"])
     main, vap = ctx.session.analysis
+    marginal = [f"{m['pose']} {m['name']} = {m['value']:.4g} {m['unit']}: marginal (passes, within its "
+                f"marginal band of a limit)" for m in record_measurements(ctx.store, ctx.run_id) if m["marginal"]]
     rows = ctx.store.characteristics(ctx.run_id)
     run = ctx.store.run(ctx.run_id)
     report = build_report(ctx, plan, run, rows, main, vap, streams=measured_streams(ctx, plan),
                           reg=registration_of(ctx.outputs), vap_poses=VAP_POSES)
+    decision = decide(SPEC, ctx.store, ctx.run_id, finished=True)
+    report.outcome, report.reasons = str(decision.outcome), list(decision.reasons)
+    report.notes += marginal
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     return {"report": str(path.resolve()), "verdict": report.verdict}
 
@@ -620,10 +626,8 @@ def summary(store, run_id: str) -> list[str]:
         for key in ("AD_mm", "RD_mm", "MPT_s"):
             if key in d:
                 lines.append(f"{key:<7} {pose:<8} {_fmt(d[key]):>10}")
-    judged = [r["passed"] for r in rows if r["passed"] is not None]
-    verdict = "no limits configured" if not judged else ("PASS" if all(judged) else "FAIL")
-    failed = [f"{r['pose']} {r['name']} {r['value']:.4g} > {r['limit']:g}" for r in rows if r["passed"] is False]
-    lines.append(f"verdict: {verdict}" + (f" ({'; '.join(failed)})" if failed else ""))
+    if not any(r["limit"] is not None for r in rows):
+        lines.append("no limits configured")
     try:
         pose = store.result(run_id, "iso9283")["pose"]
     except Exception:  # noqa: BLE001 - a run stored before the analysis kept its reasons
@@ -634,6 +638,31 @@ def summary(store, run_id: str) -> list[str]:
     if rep:
         lines.append(f"report: {rep[0]}")
     return lines
+
+
+def run_checks(store, run_id: str, params: Mapping) -> Checks:
+    """A finished run beyond its stored limits: a configured limit the analysis did not compute, fewer
+    pose cycles found at a pose than the plan asked, vAP stops missing (NOT DECIDED); ISO conformance."""
+    rows = store.characteristics(run_id)
+    undecided = []
+    judged = {r["name"] for r in rows if r["limit"] is not None}
+    for name, lim in sorted((params.get("limits") or {}).items()):
+        if name not in judged:
+            undecided.append(f"limit {name} <= {lim:g} configured, but {name} was not computed")
+    asked = int(params.get("cycles", 0))
+    for r in rows:
+        if r["name"] == "n_cycles" and (r["value"] or 0) < asked:
+            undecided.append(f"{r['pose']}: {0 if r['value'] is None else int(r['value'])} of {asked} pose cycles found")
+    try:
+        res = store.result(run_id, "iso9283")
+    except Exception:  # noqa: BLE001 - no analysis stored: nothing of it can be decided
+        return Checks(tuple(undecided + ["no ISO 9283 analysis stored"]), False, ("no analysis",))
+    vap = res.get("vap") or {}
+    missing = (vap.get("extraction") or {}).get("missing") or []
+    if missing:
+        undecided.append(f"vAP: {len(missing)} stop(s) of the {int(params.get('vap_cycles', 0))} cycles missing")
+    pose = res.get("pose") or {}
+    return Checks(tuple(undecided), bool(pose.get("iso_conformant")), tuple(pose.get("iso_reasons") or ()))
 
 
 def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
@@ -665,4 +694,5 @@ SPEC = ProcedureSpec(
     result_key="iso9283",
     summary=summary,
     preflight=preflight_problems,
+    checks=run_checks,
 )

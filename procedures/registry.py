@@ -67,6 +67,11 @@ class ProcedureSpec:
     preflight : callable
         ``preflight(params, cfg, devices) -> list[str]``: every reason the
         devices cannot run the plan, found before anything moves.
+    checks : callable or None
+        ``checks(store, run_id, params) -> procedures.decision.Checks``: what
+        the procedure says of a finished run beyond its stored limits (cycles
+        found against asked, limits not computed, conformance to its standard);
+        :func:`procedures.decision.decide` combines it into the run's verdict.
     """
 
     name: str
@@ -79,6 +84,7 @@ class ProcedureSpec:
     result_key: str
     summary: Callable[[Any, str], list[str]]
     preflight: Callable[[Mapping, Any, Any], list[str]] = field(default=lambda params, cfg, devices: [])
+    checks: Callable[[Any, str, Mapping], Any] | None = None
 
 
 def procedure_names() -> tuple[str, ...]:

@@ -94,6 +94,31 @@ class WorkspaceConfig(_Strict):
         return self
 
 
+class MeasurementConfig(_Strict):
+    """A plant's own measurement (:class:`station.measurements.Measurement`): limits in ``unit``."""
+
+    name: str = Field(min_length=1, max_length=64)
+    of: str = Field(min_length=1, max_length=64)
+    unit: str = "mm"
+    low: float | None = None
+    high: float | None = None
+    marginal: float = Field(0.0, ge=0)
+    pose: str | None = None
+    description: str = ""
+
+    @model_validator(mode="after")
+    def _limits(self) -> "MeasurementConfig":
+        if self.low is None and self.high is None:
+            raise ValueError(f"measurement {self.name!r}: give a limit (low and/or high, in {self.unit})")
+        if self.low is not None and self.high is not None and self.low > self.high:
+            raise ValueError(f"measurement {self.name!r}: low {self.low:g} > high {self.high:g}")
+        return self
+
+
+#: a plant's measurements per procedure name: ``[[measurements.iso9283]]`` tables
+Measurements = dict[str, list[MeasurementConfig]]
+
+
 class RobotConfig(_Strict):
     model: str
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
@@ -102,6 +127,8 @@ class RobotConfig(_Strict):
     controller: str
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()
+    #: this robot's own measurements per procedure, added to the station's
+    measurements: Measurements = Field(default_factory=dict)
 
     @field_validator("model")
     @classmethod
@@ -288,6 +315,15 @@ class StationConfig(_Strict):
     iso9283: ISOProcedureConfig = ISOProcedureConfig()
     arm_calibration: ArmCalibrationConfig = ArmCalibrationConfig()
     trailer: TrailerConfig | None = None
+    #: the plant's measurements per procedure (every robot)
+    measurements: Measurements = Field(default_factory=dict)
+
+    def measurements_for(self, procedure: str, robot: str | None = None) -> list[dict]:
+        """The plant's measurements of ``procedure`` for ``robot``: the station's, then the robot's."""
+        ms = list(self.measurements.get(procedure, []))
+        if robot is not None and robot in self.robots:
+            ms += self.robots[robot].measurements.get(procedure, [])
+        return [m.model_dump() for m in ms]
 
     @model_validator(mode="after")
     def _references(self) -> "StationConfig":

@@ -158,9 +158,16 @@ class Report:
     rows: list[Mapping] = field(default_factory=list)
     figures: list[tuple[str, str]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: the run's verdict (PASS, FAIL, NOT DECIDED, ABORTED; :mod:`station.verdict`) when it was decided
+    #: beyond these rows (cycles found, conformance, plant measurements); else judged from the rows
+    outcome: str | None = None
+    #: why (one sentence each)
+    reasons: list[str] = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
+        if self.outcome is not None:
+            return str(self.outcome)
         judged = [r.get("passed") for r in self.rows if r.get("passed") is not None]
         if not judged:
             return "NO LIMITS"
@@ -172,7 +179,7 @@ body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
 th{background:#f3f3f3}td.l{text-align:left}.pass{color:#176317;font-weight:600}.fail{color:#b00020;font-weight:600}
 .verdict{font-size:1.4em;padding:.3em .8em;display:inline-block;border-radius:4px}
-.v-PASS{background:#dff3df}.v-FAIL{background:#fbe0e4}.v-NO{background:#eee}
+.v-PASS{background:#dff3df}.v-FAIL{background:#fbe0e4}.v-NO{background:#eee}.v-NOT{background:#fff3cd}.v-ABORTED{background:#eee}
 figure{margin:1.5em 0}figcaption{font-size:.9em;color:#555}
 """
 
@@ -184,9 +191,11 @@ def render_html(report: Report) -> str:
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>{e(report.title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{e(report.title)}</h1>",
-        f"<p class='verdict v-{report.verdict.split()[0]}'>{e(report.verdict)}</p>",
-        "<table>",
+        f"<p class='verdict v-{report.verdict.split()[0]}' id='verdict'>{e(report.verdict)}</p>",
     ]
+    if report.reasons:
+        parts.append("<ul id='reasons'>" + "".join(f"<li>{e(x)}</li>" for x in report.reasons) + "</ul>")
+    parts.append("<table>")
     for k, v in report.facts.items():
         parts.append(f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>")
     parts.append("</table><h2>Results</h2><table><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>")
@@ -196,6 +205,8 @@ def render_html(report: Report) -> str:
         lim = "" if r.get("limit") is None else f"{r['limit']:.4g}"
         passed = r.get("passed")
         verdict = "" if passed is None else ("<span class='pass'>pass</span>" if passed else "<span class='fail'>FAIL</span>")
+        if r.get("outcome"):
+            verdict = f"<span class='{'pass' if r['outcome'] == 'PASS' else 'fail'}'>{e(str(r['outcome']))}</span>"
         parts.append(
             f"<tr><td class='l'>{e(str(r['pose']))}</td><td class='l'>{e(str(r['name']))}</td><td>{val}</td>"
             f"<td class='l'>{e(str(r.get('unit', '')))}</td><td>{lim}</td><td>{verdict}</td></tr>"

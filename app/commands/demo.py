@@ -11,6 +11,7 @@ report's path.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -36,6 +37,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     cfg = config_from_dict(demo_config(out.resolve(), cycles=args.cycles, vap_cycles=args.vap_cycles,
                                        rate_hz=args.rate), "demo config")
-    print(f"demo: fake cell (seed {args.seed}, {args.time_scale:g}x real time), store {out / 'station.sqlite'}")
-    return run_procedure(cfg, "iso9283", yes=True, time_scale=args.time_scale, seed=args.seed,
-                   json_out=args.json, quiet=args.quiet, config_dir=out)
+    print(f"demo: fake cell (seed {args.seed}, {args.time_scale:g}x real time), store {out / 'station.sqlite'}",
+          file=sys.stderr)
+    outcome = run_procedure(cfg, "iso9283", yes=True, time_scale=args.time_scale, seed=args.seed,
+                            json_out=args.json, quiet=args.quiet, config_dir=out)
+    for line in outcome.lines():  # the verdict first (exit codes as `station run`'s)
+        print(line)
+    return outcome.exit_code

@@ -10,7 +10,12 @@ confirmation on the terminal: ``--yes`` (every prompt answered yes) and
 are refused with ``--arm``.
 
 The run is assembled in :mod:`app.assemble` and executed by the
-application layer (:mod:`procedures.execute`); this module parses arguments.
+application layer (:mod:`procedures.execute`); this module parses arguments
+and prints the outcome, verdict first. Exit codes follow ``station analyze``:
+0 PASS, 1 a limit failed, 2 bad input, 3 NOT DECIDED (a limit not computed,
+fewer cycles than asked), 4 not ISO 9283 conformant with ``--require-iso``,
+and 5 the run did not finish (ABORTED: aborted or stopped by a fault,
+resumable).
 A run killed at any moment (Ctrl-C, ``kill -9``, a fault) is resumed with
 ``--resume RUN_ID``: the robot is brought back to a known pose, then the run
 goes on from its last finished step; with fakes, the same simulated cell
@@ -41,7 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(dry runs on the fakes only; refused with --arm)")
     p.add_argument("--time-scale", type=float, default=20.0, help="fake cell: simulated s per real s (default 20)")
     p.add_argument("--seed", type=int, default=0, help="fake cell: seed of the simulated world")
-    p.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    p.add_argument("--json", metavar="OUT", help="write the verdict and the results as JSON")
+    p.add_argument("--require-iso", action="store_true",
+                   help="a run that is not ISO 9283 conformant is NOT DECIDED (exit 4), not PASS")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=_cmd_run)
 
@@ -58,6 +65,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.yes and args.answers:
         raise ConfigError("give --yes or --answers, not both")
     operator = AnswerFileOperator(args.answers) if args.answers else None
-    return run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
-                         arm=args.arm, yes=args.yes, operator=operator, time_scale=args.time_scale, seed=args.seed,
-                         json_out=args.json, quiet=args.quiet, config_dir=Path(args.config).resolve().parent)
+    outcome = run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
+                            arm=args.arm, yes=args.yes, operator=operator, time_scale=args.time_scale,
+                            seed=args.seed, json_out=args.json, quiet=args.quiet,
+                            config_dir=Path(args.config).resolve().parent,
+                            acceptance={"require_conformance": True} if args.require_iso else None)
+    for line in outcome.lines():
+        print(line)
+    return outcome.exit_code

@@ -12,7 +12,6 @@ One run at a time: a station has one cell.
 
 from __future__ import annotations
 
-import io
 import threading
 import time
 import traceback
@@ -100,11 +99,14 @@ class LiveRun:
     operator: WebOperator
     started_at: float = field(default_factory=time.time)
     thread: threading.Thread | None = None
-    #: exit code of the front door (0 done, 1 failed, 3 aborted); None while running
+    #: exit code of the front door (station.assemble.ProcedureOutcome.exit_code; 2 when it could not
+    #: start); None while running
     exit_code: int | None = None
+    #: what the run came to (verdict, reasons, summary), once the front door returned
+    outcome: object | None = None
     #: why the run could not start or stopped, when the store cannot say (preflight, config)
     error: str | None = None
-    #: the console lines the front door printed (status, results)
+    #: the outcome's console lines (verdict, reasons, results)
     output: str = ""
     #: what the current step is doing now (e.g. "-> P3", "pose C12"), from the runner's progress
     detail: str = ""
@@ -216,17 +218,16 @@ class RunHub:
     def _drive(self, live: LiveRun, procedure: str | None, kwargs: dict) -> None:
         from app.assemble import run_procedure
 
-        out = io.StringIO()
         try:
-            live.exit_code = run_procedure(
+            outcome = run_procedure(
                 self.cfg, procedure, arm=self.arm, yes=False, time_scale=self.time_scale, quiet=True,
-                config_dir=self.config_dir, operator=live.operator, control=live.control, stdout=out,
+                config_dir=self.config_dir, operator=live.operator, control=live.control,
                 progress=_PageProgress(live), **kwargs)
+            live.outcome, live.exit_code = outcome, outcome.exit_code
+            live.output = "\n".join(outcome.lines())
         except StationError as exc:
             live.error = f"{type(exc).__name__}: {exc}"
             live.exit_code = 2
         except Exception as exc:  # a bug: keep the server up, show it on the page
             live.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
             live.exit_code = 1
-        finally:
-            live.output = out.getvalue()

@@ -171,7 +171,8 @@ _RUN_JS = r"""
     const cur = st.current ? `step ${st.current.idx + 1}/${st.n_steps}: <b id="current">${esc(st.current.name)}</b>`
       + (st.detail ? ` <span id="detail">${esc(st.detail)}</span>` : '') : '';
     const paused = st.paused ? ' <b class="aborted" id="paused">PAUSED</b>' : '';
-    const verdict = st.verdict ? ` verdict <b id="verdict" class="${esc(st.verdict)}">${esc(st.verdict)}</b>` : '';
+    const verdict = st.verdict ? ` verdict <b id="verdict" class="${esc(st.verdict)}">${esc(st.verdict)}</b>`
+      + ((st.reasons || []).length ? ` <span id="reasons">(${esc(st.reasons.join('; '))})</span>` : '') : '';
     document.getElementById('summary').innerHTML =
       `${esc(st.procedure || '')} ${esc(st.model || '')} ${esc(st.serial || '')} &mdash; ` +
       `<span id="status" class="${esc(st.status)}">${esc(st.status)}</span>${paused} ${cur}` +

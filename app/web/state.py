@@ -31,8 +31,23 @@ def _step_names(procedure: str, params_json: str) -> tuple[str, ...]:
         return ()
 
 
+def decided(store: RunStore, run_id: str) -> dict | None:
+    """The run's stored verdict ``{"verdict", "reasons", ...}`` (procedures.decision), if it has one."""
+    try:
+        return store.result(run_id, "verdict")
+    except Exception:  # noqa: BLE001 - a run stored before verdicts were, or not finished
+        return None
+
+
 def verdict(store: RunStore, run_id: str, steps: list[StepRecord] | None = None) -> str | None:
-    """'pass', 'fail' or None (nothing judged): the report's verdict, else the characteristics' one."""
+    """'pass', 'fail', 'not decided', 'aborted' or None (nothing judged): the run's stored verdict, else the
+    report's, else the characteristics' one."""
+    d = decided(store, run_id)
+    if d and d.get("verdict"):
+        return str(d["verdict"]).lower()
+    rec = store.run(run_id)
+    if rec.status in ("failed", "aborted"):
+        return "aborted"
     for s in reversed(steps if steps is not None else store.steps(run_id)):
         if s.name == "report" and s.status == "done" and s.output and s.output.get("verdict"):
             return str(s.output["verdict"]).lower()
@@ -113,7 +128,8 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
         "detail": live.detail if driven else "",
         "elapsed_s": elapsed, "remaining_s": remaining,
         "results": store.characteristics(run_id) if finished or n_done == len(names) else [],
-        "verdict": verdict(store, run_id, journal), "report": report_path(journal) is not None,
+        "verdict": verdict(store, run_id, journal), "reasons": (decided(store, run_id) or {}).get("reasons", []),
+        "report": report_path(journal) is not None,
         "tracker": _tracker(store, run_id, journal, current) if rec.status == "running" else None,
     }
 

@@ -45,7 +45,7 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     cfg = _cfg(tmp_path)
     code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
-    assert code == 0
+    assert code.status == "done"
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         doc = store.result("c1", RESULT_KEY)
         plan = ArmCalPlan.from_params(store.run("c1").params)
@@ -87,14 +87,14 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     code = run_procedure(cfg, "arm-calibration", run_id="c2", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
                          control=control, progress=AbortAtStep(control, f"measure {stop_after + 1}"))
-    assert code == 3
+    assert code.status == "aborted" and code.exit_code == 5
     with RunStore(db) as store:
         before = store.samples("c2", "points")
         first_q = store.run("c2").params["q_deg"]
     n_before = before["pose"].size
     assert n_before >= 5 * stop_after
     code = run_procedure(cfg, None, resume="c2", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
-    assert code == 0
+    assert code.status == "done"
     with RunStore(db) as store:
         after = store.samples("c2", "points")
         assert store.run("c2").params["q_deg"] == first_q  # the same poses

@@ -49,7 +49,7 @@ def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_er
     code = run_procedure(cfg, "arm-calibration", run_id="s1", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
                          fake_options={"scanner_faults": {"hide_jig": [hidden]}})
-    assert code == 0, f"cell seed {cell_seed}, selection seed {sel_seed}"
+    assert code.status == "done", f"cell seed {cell_seed}, selection seed {sel_seed}"
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         doc = store.result("s1", RESULT_KEY)
         plan = ArmCalPlan.from_params(store.run("s1").params)
@@ -102,7 +102,7 @@ def test_a_broken_scanner_answer_stops_the_run_cleanly(rng, tmp_path):
                          seed=int(rng.integers(2**31)), config_dir=tmp_path,
                          plan_overrides={"selection_seed": int(rng.integers(2**31))},
                          fake_options={"scanner_faults": {"corrupt": [bad]}})
-    assert code == 1
+    assert code.status == "failed" and code.exit_code == 5  # ABORTED: stopped by a fault, resumable
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         steps = store.steps("s2")
         s = store.samples("s2", SCAN_STREAM)
@@ -206,13 +206,13 @@ def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corne
                          seed=int(rng.integers(2**31)), config_dir=tmp_path, control=control,
                          progress=AbortAtStep(control, f"measure {stop_after + 1}"),
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
-    assert code == 3
+    assert code.status == "aborted" and code.exit_code == 5
     with RunStore(db) as store:
         before = store.samples("s4", SCAN_STREAM)
     n_before = before["pose"].size
     assert n_before >= 5 * stop_after
     code = run_procedure(cfg, None, resume="s4", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
-    assert code == 0
+    assert code.status == "done"
     with RunStore(db) as store:
         after = store.samples("s4", SCAN_STREAM)
         doc = store.result("s4", RESULT_KEY)

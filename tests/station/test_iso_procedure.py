@@ -39,7 +39,7 @@ def _run(fake_cell, tmp_path, **iso):
 @pytest.mark.parametrize("registration", ["axes", "best-fit"])
 def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp_path, registration):
     code, store = _run(fake_cell, tmp_path, registration=registration)
-    assert code == 0, store.steps("t1")[-1].message
+    assert code.status == "done", store.steps("t1")[-1].message
     world = fake_cell.world
     steps = store.steps("t1")
     assert [s.name for s in steps if s.status == "done"][-2:] == ["analyse", "report"]

@@ -25,8 +25,10 @@ def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
     code = run_procedure(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=100.0,
                          seed=int(rng.integers(2**31)), config_dir=tmp_path,
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
-    assert code == 0
-    assert "central store:" in out.getvalue()
+    assert code.status == "done"
+    # the centre holds the whole run, its verdict stored after the run included, and the line says so
+    assert f"central store: holds run f1 complete" in out.getvalue() and code.forwarding in out.getvalue()
+    assert out.getvalue().splitlines()[0].startswith(f"{code.verdict}: run f1")
     with RunStore(cfg.station.store_file(tmp_path)) as local, RunStore(pg_url) as central:
         assert central.run("f1").status == "done" and central.run("f1").station == "demo cell"
         same_samples(local, central, "f1")
@@ -35,6 +37,8 @@ def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
         for k in a:
             np.testing.assert_array_equal(a[k], b[k])
         assert forward_status(local)["f1"]["in_centre"] == "complete"
+        assert central.result("f1", "verdict") == local.result("f1", "verdict")
+        assert central.result("f1", "verdict")["verdict"] == str(code.verdict)
 
 
 def test_an_unreachable_centre_costs_the_run_nothing(rng, tmp_path):
@@ -43,7 +47,7 @@ def test_an_unreachable_centre_costs_the_run_nothing(rng, tmp_path):
     code = run_procedure(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=100.0,
                          seed=int(rng.integers(2**31)), config_dir=tmp_path,
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
-    assert code == 0
+    assert code.status == "done"
     out = buf.getvalue()
     assert "central store not reached" in out and "station store push" in out
     with RunStore(cfg.station.store_file(tmp_path)) as local:

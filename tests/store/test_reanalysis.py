@@ -23,7 +23,7 @@ def iso_store(tmp_path_factory, request):
         cfg = config_from_dict(cell.config_dict(store_path=str(tmp / "s.sqlite"), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": 3, "vap_cycles": 2}))
         code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="iso-1", config_dir=tmp)
-    assert code == 0
+    assert code.status == "done"
     (tmp / "c.json").write_text(json.dumps({"station": {"name": "cell", "store_path": "s.sqlite"}, "devices": {}}))
     return tmp
 

@@ -1,0 +1,169 @@
+"""The verdict of a run: its limits, what its procedure says, what the acceptance asked for.
+
+One function, :func:`decide`, reads a run from the store and gives its
+:class:`RunDecision`; every front door (``station run``, ``station demo``,
+the operator's page, the acceptance API) and the report use it, so they
+cannot disagree.
+
+* A run that did not finish is ``ABORTED`` (resumable), whatever it measured.
+* Every stored characteristic with a limit counts: kept PASS, not kept FAIL,
+  not computed (no value) NOT DECIDED (:func:`station.verdict.outcome_of`).
+* The procedure's own checks (``ProcedureSpec.checks``): for ISO 9283, a
+  limit configured for a characteristic the analysis did not compute, and
+  fewer cycles found than asked, are NOT DECIDED; a run that is not ISO 9283
+  conformant is NOT DECIDED when the acceptance requires conformance
+  (``params["acceptance"]["require_conformance"]``, ``--require-iso``).
+* Plant measurements (:mod:`station.measurements`) stored with the run
+  count like characteristics.
+
+Exit codes follow ``station analyze``'s table, plus one for a run that did
+not finish: 0 PASS, 1 FAIL, 3 NOT DECIDED, 4 NOT DECIDED only because
+conformance was required and not met, 5 ABORTED (2, bad input, is the
+command's: nothing ran).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from station.verdict import Outcome, Verdict, combine, outcome_of
+
+EXIT_PASS, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_UNDECIDED, EXIT_NOT_CONFORMANT, EXIT_ABORTED = 0, 1, 2, 3, 4, 5
+
+
+@dataclass(frozen=True)
+class Checks:
+    """What a procedure says about one of its finished runs beyond the stored limits."""
+
+    #: reasons no verdict can be given (fewer cycles than asked, a limit not computed, ...)
+    undecided: tuple[str, ...] = ()
+    #: the standard's conformance; None where the procedure has no such notion
+    conformant: bool | None = None
+    conformance_reasons: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class RunDecision:
+    """A run's verdict, its reasons, its conformance and the exit code that says it."""
+
+    verdict: Verdict
+    conformant: bool | None = None
+    #: NOT DECIDED only because conformance was required and the run is not conformant
+    conformance_only: bool = False
+    #: per judged row: (pose, name) -> outcome
+    outcomes: dict = field(default_factory=dict)
+
+    @property
+    def outcome(self) -> Outcome:
+        return self.verdict.outcome
+
+    @property
+    def reasons(self) -> tuple[str, ...]:
+        return self.verdict.reasons
+
+    @property
+    def exit_code(self) -> int:
+        return exit_code(self.outcome, self.conformance_only)
+
+    def to_dict(self) -> dict:
+        return {**self.verdict.to_dict(), "conformant": self.conformant, "exit_code": self.exit_code}
+
+
+def exit_code(outcome: Outcome, conformance_only: bool = False) -> int:
+    """The command's exit code of a run's outcome (module docstring)."""
+    if outcome is Outcome.NOT_DECIDED:
+        return EXIT_NOT_CONFORMANT if conformance_only else EXIT_UNDECIDED
+    return {Outcome.PASS: EXIT_PASS, Outcome.FAIL: EXIT_FAIL, Outcome.ABORTED: EXIT_ABORTED}[outcome]
+
+
+def _g(x) -> str:
+    return f"{float(x):.4g}"
+
+
+def _unit(u) -> str:
+    return "" if u in (None, "", "1") else f" {u}"
+
+
+def row_reason(r: dict, outcome: Outcome) -> str:
+    """One sentence for a judged row: value, unit and limit ("P1 RP_mm = 0.06 mm > limit 0.05 mm")."""
+    u = _unit(r.get("unit"))
+    if r.get("value") is None:
+        return f"{r['pose']} {r['name']}: limit {_g(r['limit'])}{u}, not computed"
+    if outcome is Outcome.FAIL:
+        return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} > limit {_g(r['limit'])}{u}"
+    if outcome is Outcome.NOT_DECIDED:
+        return f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
+    return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} <= limit {_g(r['limit'])}{u}"
+
+
+def row_outcome(r: dict) -> Outcome | None:
+    """A stored row's outcome: its ``outcome`` where stored, else from ``passed``; None when not judged."""
+    if r.get("outcome"):
+        return Outcome.parse(r["outcome"])
+    if r.get("limit") is None and r.get("passed") is None:
+        return None
+    return outcome_of(r.get("passed"))
+
+
+def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
+    """The verdict of stored run ``run_id`` of procedure ``spec`` (module docstring).
+
+    ``finished``: the run's last step is deciding it (its report), so its
+    stored status is not yet ``done``; judge what it has stored.
+    """
+    rec = store.run(run_id)
+    if rec.status != "done" and not finished:
+        err = _last_error(store, run_id)
+        return RunDecision(Verdict(Outcome.ABORTED, (f"run {rec.status}" + (f": {err}" if err else "")
+                                                     + "; resume it",)))
+    params = rec.params or {}
+    rows = store.characteristics(run_id)
+    outcomes = {}
+    for r in rows:
+        o = row_outcome(r)
+        if o is not None:
+            outcomes[(r["pose"], r["name"])] = (o, r)
+    reasons = [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.FAIL]
+    reasons += [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.NOT_DECIDED]
+    checks = spec.checks(store, run_id, params) if getattr(spec, "checks", None) else Checks()
+    undecided = list(checks.undecided)
+    reasons += undecided
+    found = [o for o, _ in outcomes.values()] + [Outcome.NOT_DECIDED] * bool(undecided)
+    require = bool((params.get("acceptance") or {}).get("require_conformance"))
+    conformance_only = False
+    if require and checks.conformant is False:
+        reasons.append("not conformant (required): " + "; ".join(checks.conformance_reasons))
+        conformance_only = combine(found) is Outcome.PASS
+        found.append(Outcome.NOT_DECIDED)
+    elif require and checks.conformant is None:
+        reasons.append(f"conformance required, but a {rec.procedure} run has no conformance to check")
+        found.append(Outcome.NOT_DECIDED)
+    return RunDecision(Verdict(combine(found), tuple(reasons)), checks.conformant, conformance_only,
+                       {k: o for k, (o, _) in outcomes.items()})
+
+
+#: the result entry of a run's evaluated plant measurements
+MEASUREMENTS_KEY = "measurements"
+
+
+def record_measurements(store, run_id: str) -> list[dict]:
+    """Judge the plant's measurements stored with the run's plan (``params["acceptance"]["measurements"]``)
+    against its characteristics; store them (result ``"measurements"`` with limits, marginal flag and
+    outcome, and one characteristic row each, so history and the fleet see them). Idempotent."""
+    from station.measurements import evaluate, parse
+
+    params = store.run(run_id).params or {}
+    ms = parse((params.get("acceptance") or {}).get("measurements"), f"run {run_id} measurements")
+    if not ms:
+        return []
+    names = {m.name for m in ms}
+    rows = [r for r in store.characteristics(run_id) if r["name"] not in names]
+    judged = evaluate(ms, rows)
+    store.put_result(run_id, MEASUREMENTS_KEY, judged)
+    store.put_characteristics(run_id, judged)
+    return judged
+
+
+def _last_error(store, run_id: str) -> str | None:
+    msgs = [s.message for s in store.steps(run_id) if s.status in ("failed", "aborted") and s.message]
+    return msgs[-1] if msgs else None
