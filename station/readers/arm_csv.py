@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.text import numbered_lines
 
 REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
@@ -39,6 +40,7 @@ class ArmData:
         return int(self.q_deg.shape[0])
 
 
+@reads_once
 def read_arm_csv(path) -> ArmData:
     """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
     p = Path(path)

@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.text import csv_records, parse_number
 
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
 
+@reads_once
 def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
@@ -59,6 +61,7 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return R, t, obj
 
 
+@reads_once
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)

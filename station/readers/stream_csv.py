@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.stream import PointStream
 
 #: status values that mean "valid sample" (case-insensitive)
@@ -78,6 +79,7 @@ def _status_ok(value: str) -> bool:
         return False
 
 
+@reads_once
 def read_stream_csv(path) -> PointStream:
     """Read a tracker stream CSV; DataError naming file, line and column for anything malformed.
 
@@ -139,6 +141,7 @@ def read_stream_csv(path) -> PointStream:
                        abc_deg=abc_deg, fmt="csv", source=str(path))
 
 
+@reads_once
 def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
     """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None."""
     path = Path(path)
