@@ -81,3 +81,27 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
              "duration_s": duration_s, "rate_hz": rate_hz,
              "sampling": "kappa and v: averages over the interval ending at t; psi: at t"}
     return cols, truth
+
+
+def simulate_hold(*, seed: int, duration_s: float = 60.0, rate_hz: float = 100.0,
+                  distance_mm: float = 2500.0) -> tuple[dict, dict]:
+    """``(columns t, x, y, z, truth)``: a robot holding one pose, measured by the tracker.
+
+    The tool drifts along a random direction at U(0.005, 0.03) mm/min (the
+    arm warming up); the tracker adds its noise at ``distance_mm``
+    (:meth:`fakes.sim.tracker.TrackerModel.sigma_mm`).
+    """
+    from fakes.sim.tracker import TrackerModel
+
+    rng = np.random.default_rng(seed)
+    n = int(round(duration_s * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    sigma = float(np.max(TrackerModel(np.eye(4), rate_hz=rate_hz).sigma_mm(distance_mm)))
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    drift = float(rng.uniform(0.005, 0.03)) * direction  # mm/min
+    p0 = rng.uniform(-1000.0, 1000.0, 3) + np.array([0.0, 0.0, distance_mm])
+    xyz = p0 + np.outer(t / 60.0, drift) + rng.normal(0.0, sigma, (n, 3))
+    truth = {"seed": seed, "position_mm": p0.tolist(), "drift_mm_per_min": drift.tolist(),
+             "noise_mm": sigma, "duration_s": duration_s, "rate_hz": rate_hz}
+    return {"t": t, "xyz_mm": xyz}, truth

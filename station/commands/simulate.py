@@ -4,6 +4,8 @@
   (:mod:`fakes.sim.offline_files`): ``arm.csv`` and ``truth.json``;
 * ``trailer``: a trailer record for ``calibrate trailer`` / ``diagnose trailer``:
   ``trailer.csv`` and ``truth.json``;
+* ``hold``: a robot holding one pose, measured by the tracker, for ``analyze hold``:
+  ``stream.csv`` (``t,x,y,z``) and ``truth.json``;
 * ``iso9283``: an ISO 9283 run (:mod:`fakes.sim.iso_run`), as follows.
 
 This module parses the arguments and writes the files.
@@ -36,6 +38,8 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from station.errors import ConfigError
 
 
@@ -50,7 +54,7 @@ def _parse_break(text: str) -> tuple[float, float]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="offline runs of the simulated cell")
+    p = sub.add_parser("simulate", help="offline data of the simulated cell, with the truth beside")
     ssub = p.add_subparsers(dest="simulate_cmd", metavar="RUN")
     s = ssub.add_parser("iso9283", help="ISO 9283 cycles P1..P5 (seed 000) -> tracker stream CSV")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
@@ -92,7 +96,39 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--duration", type=float, default=180.0, help="length of the record, s (default 180)")
     t.add_argument("--seed", type=int, default=0, help="seed of the drawn record (default 0)")
     t.set_defaults(func=_run_trailer)
+    h = ssub.add_parser("hold", help="a held pose measured by the tracker -> stream CSV for analyze hold",
+                        description="A robot standing at one pose while the tracker measures it: the tool drifts "
+                        "slowly (the arm warming up) and the tracker adds its noise. Writes DIR/stream.csv "
+                        "(t s, x,y,z mm) and DIR/truth.json (position, drift, noise).")
+    h.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    h.add_argument("--duration", type=float, default=60.0, help="length of the hold, s (default 60)")
+    h.add_argument("--rate", type=float, default=100.0, help="tracker rate, Hz, 10-3000 (default 100)")
+    h.add_argument("--seed", type=int, default=0, help="seed of the drawn hold (default 0)")
+    h.set_defaults(func=_run_hold)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _run_hold(args: argparse.Namespace) -> int:
+    import csv
+
+    from fakes.sim.offline_files import simulate_hold
+
+    if not (math.isfinite(args.duration) and args.duration >= 3.0):
+        raise ConfigError(f"--duration must be at least 3 s, got {args.duration!r}")
+    if not (math.isfinite(args.rate) and 10.0 <= args.rate <= 3000.0):
+        raise ConfigError(f"--rate must be within 10-3000 Hz, got {args.rate!r}")
+    cols, truth = simulate_hold(seed=args.seed, duration_s=args.duration, rate_hz=args.rate)
+    out = _out_dir(args.out)
+    with open(out / "stream.csv", "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "x", "y", "z"])
+        for t, p in zip(cols["t"], cols["xyz_mm"]):
+            w.writerow([repr(float(t))] + [repr(float(v)) for v in p])
+    _write_truth(out / "truth.json", truth)
+    print(f"wrote {out / 'stream.csv'} ({cols['t'].size} samples over {args.duration:g} s at {args.rate:g} Hz)")
+    print(f"wrote {out / 'truth.json'} (drift {np.linalg.norm(truth['drift_mm_per_min']):.4f} mm/min, noise "
+          f"{truth['noise_mm']:.4f} mm)")
+    return 0
 
 
 def _out_dir(text: str) -> Path:
