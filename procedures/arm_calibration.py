@@ -501,7 +501,10 @@ def step_measure(k: int):
             controller.run(rendered, timeout_s=_timeout(ctx, 60.0), on_status=lambda st: ctx.checkpoint())
             m = tracker.measure_stationary(duration_s=plan.measure_s)
             xyz = np.asarray(m.xyz_mm, dtype=float)
-            ctx.record(STREAM, {"pose": np.array([i], float), "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
+            # the commanded joint angles beside the point: the run's export is an arm CSV `calibrate arm` reads
+            ctx.record(STREAM, {"pose": np.array([i], float),
+                                **{f"q{j + 1}": np.array([float(plan.q_deg[i][j])]) for j in range(6)},
+                                "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
                                 "t": np.array([np.nan if m.t_device_s is None else float(m.t_device_s)])})
             done.append(i + 1)
         return {"poses": done}

@@ -21,7 +21,8 @@ The tests of seed 000 Table 3 on one robot with one laser tracker:
    each step committing what arrived while it ran;
 8. ``analyse`` — attained-pose extraction and every characteristic, with
    verdicts against the configured limits;
-9. ``report`` — one HTML file with the plots of Figs. 3-8.
+9. ``report`` — one HTML file with the plots of Figs. 3-8, and the registered
+   frame beside it (``<run>.frame.json``, the form ``analyze iso9283 --frame`` reads).
 
 Samples go to the run store in committed batches while the robot moves, so
 a run killed at any moment keeps every acknowledged sample and resumes at
@@ -540,6 +541,7 @@ def step_analyse(ctx: StepContext) -> dict:
 
 def step_report(ctx: StepContext) -> dict:
     from procedures.iso9283_report import build_report
+    from station.readers.registration_files import write_frame_json
     from station.report import write_report
 
     plan = _plan(ctx)
@@ -557,7 +559,9 @@ def step_report(ctx: StepContext) -> dict:
     report.outcome, report.reasons = str(decision.outcome), list(decision.reasons)
     report.notes += marginal
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
-    return {"report": str(path.resolve()), "verdict": report.verdict}
+    # the registered frame beside the report, in the form `station analyze iso9283 --frame` reads
+    frame = write_frame_json(path.with_name(f"{ctx.run_id}.frame.json"), ctx.outputs["register base frame"])
+    return {"report": str(path.resolve()), "verdict": report.verdict, "frame": str(frame.resolve())}
 
 
 def safe_state(session: IsoSession) -> None:
@@ -634,9 +638,11 @@ def summary(store, run_id: str) -> list[str]:
         pose = None
     if pose is not None and "iso_reasons" in pose:
         lines.append(conformance_text(pose["iso_reasons"]))
-    rep = [s.output["report"] for s in store.steps(run_id) if s.name == "report" and s.status == "done"]
+    rep = [s.output for s in store.steps(run_id) if s.name == "report" and s.status == "done"]
     if rep:
-        lines.append(f"report: {rep[0]}")
+        lines.append(f"report: {rep[0]['report']}")
+        if rep[0].get("frame"):
+            lines.append(f"frame: {rep[0]['frame']} (for station analyze iso9283 --frame)")
     return lines
 
 

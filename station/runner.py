@@ -143,9 +143,10 @@ class InteractiveOperator:
         self.stdin, self.stdout = stdin, stdout
 
     def confirm(self, message: str) -> bool:
-        self.stdout.write(f"? {message} [y/N] ")
-        self.stdout.flush()
-        line = self.stdin.readline()
+        with _PausedDisplay():  # the progress bar steps aside: the prompt has a line of its own
+            self.stdout.write(f"? {message} [y/N] ")
+            self.stdout.flush()
+            line = self.stdin.readline()
         return line.strip().lower() in ("y", "yes")
 
 
@@ -264,8 +265,31 @@ class StepContext:
         self.runner.progress.log(message)
 
 
+#: the progress display on the terminal now (one run at a time per process), paused while a person is asked
+_ACTIVE_DISPLAY: "ProgressLine | None" = None
+
+
+class _PausedDisplay:
+    """``with _PausedDisplay():`` the progress bar is off the terminal, so a prompt gets a line of its own."""
+
+    def __enter__(self):
+        self.display = _ACTIVE_DISPLAY
+        if self.display is not None:
+            self.display.pause()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.display is not None:
+            self.display.unpause()
+
+
 class ProgressLine:
-    """``[ 12/168] run cycle 3 P4  elapsed 0:41  remaining ~1:10``"""
+    """The run's progress: on a terminal a bar drawn by ``rich`` (it knows the terminal's width, redraws in
+    place, steps aside for prompts and log lines); on a pipe or file plain lines, at most one a second for
+    the details within a step::
+
+        [#####...........] 12/168 run cycle 3 P4  elapsed 0:41  remaining ~1:10
+    """
 
     def __init__(self, stream: TextIO | None = sys.stderr, total: int = 0) -> None:
         self.stream = stream
@@ -274,43 +298,96 @@ class ProgressLine:
         self.done = 0
         self._tty = bool(stream is not None and getattr(stream, "isatty", lambda: False)())
         self._last = 0.0
+        self._bar = None  # rich.progress.Progress while shown
+        self._task = None
+        self._paused = False
 
     def _fmt(self, seconds: float) -> str:
         s = int(max(0, seconds))
         return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
+    def _times(self) -> str:
+        elapsed = time.monotonic() - self.t0
+        frac = self.done / self.total if self.total else 0.0
+        remaining = f"~{self._fmt(elapsed * (1 - frac) / frac)}" if frac > 0 else "?"
+        return f"elapsed {self._fmt(elapsed)}  remaining {remaining}"
+
+    def _start_bar(self) -> None:
+        global _ACTIVE_DISPLAY
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn
+        from rich.table import Column
+
+        console = Console(file=self.stream, force_terminal=True, highlight=False, soft_wrap=False)
+        self._bar = Progress(
+            BarColumn(bar_width=16),
+            TextColumn("{task.fields[count]}"),
+            TextColumn("{task.description}", table_column=Column(ratio=1, no_wrap=True, overflow="ellipsis")),
+            TextColumn("{task.fields[times]}", table_column=Column(no_wrap=True)),
+            console=console, auto_refresh=False, transient=True, expand=True)
+        self._task = self._bar.add_task("", total=max(self.total, 1), times="", count="")
+        self._bar.start()
+        _ACTIVE_DISPLAY = self
+
     def update(self, idx: int, step: Step, detail: str = "") -> None:
         if self.stream is None:
             return
-        now = time.monotonic()
-        if not self._tty and now - self._last < 1.0 and detail:
-            return
-        self._last = now
-        elapsed = now - self.t0
-        frac = self.done / self.total if self.total else 0.0
-        remaining = f"~{self._fmt(elapsed * (1 - frac) / frac)}" if frac > 0 else "?"
-        width = 24
-        bar = "#" * int(width * frac) + "." * (width - int(width * frac))
         label = " ".join(x for x in (step.name, step.label, detail) if x)
-        line = f"[{bar}] {idx + 1:>3}/{self.total} {label}  elapsed {self._fmt(elapsed)}  remaining {remaining}"
-        if self._tty:
-            self.stream.write("\r" + line[:150].ljust(150))
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
+        if not self._tty:
+            now = time.monotonic()
+            if now - self._last < 1.0 and detail:
+                return
+            self._last = now
+            frac = self.done / self.total if self.total else 0.0
+            bar = "#" * int(24 * frac) + "." * (24 - int(24 * frac))
+            self.stream.write(f"[{bar}] {idx + 1:>3}/{self.total} {label}  {self._times()}\n")
+            self.stream.flush()
+            return
+        if self._bar is None:
+            self._start_bar()
+        now = time.monotonic()
+        if detail and now - self._last < 0.1:
+            return  # at most ten redraws a second for the details within a step
+        self._last = now
+        from rich.text import Text
+
+        self._bar.update(self._task, completed=self.done, total=max(self.total, 1), description=Text(label),
+                         times=self._times(), count=f"{idx + 1:>3}/{self.total}")
+        if not self._paused:
+            self._bar.refresh()
 
     def log(self, message: str) -> None:
         if self.stream is None:
             return
-        if self._tty:
-            self.stream.write("\r" + " " * 150 + "\r")
+        if self._bar is not None and not self._paused:
+            from rich.text import Text
+
+            self._bar.console.print(Text(message))  # above the bar, which is redrawn below it
+            return
         self.stream.write(message + "\n")
         self.stream.flush()
 
+    def pause(self) -> None:
+        """Take the bar off the terminal (a prompt follows on a line of its own)."""
+        if self._bar is not None and not self._paused:
+            self._paused = True
+            self._bar.stop()
+
+    def unpause(self) -> None:
+        if self._bar is not None and self._paused:
+            self._paused = False
+            self._bar.start()
+            self._bar.refresh()
+
     def finish(self) -> None:
-        if self.stream is not None and self._tty:
-            self.stream.write("\n")
-            self.stream.flush()
+        global _ACTIVE_DISPLAY
+        if self._bar is not None:
+            if not self._paused:
+                self._bar.stop()
+            self._bar = None
+            self._paused = False
+        if _ACTIVE_DISPLAY is self:
+            _ACTIVE_DISPLAY = None
 
 
 @dataclass

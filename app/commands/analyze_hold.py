@@ -15,6 +15,7 @@ import os
 import numpy as np
 
 from app.commands.analyze_inputs import check_positive, load_stream
+from station.readers.date_time import DATE_ORDERS
 
 
 def add_arguments(h: argparse.ArgumentParser) -> None:
@@ -22,6 +23,8 @@ def add_arguments(h: argparse.ArgumentParser) -> None:
                                                    "plain point list)")
     h.add_argument("--format", choices=("csv", "sa", "points"), default=None, help="format (default: sniffed)")
     h.add_argument("--group", default=None, help="SpatialAnalyzer group holding the stream")
+    h.add_argument("--date-order", choices=DATE_ORDERS, default=None,
+                   help="day/month order of A/B/Y dates in the stamps, when the file does not settle it")
     h.add_argument("--rate-hz", type=float, default=None, help="sample rate: the sample index / rate is the time base")
     h.add_argument("--window-s", type=float, default=1.0, help="window of the RP-style figure, s (default 1)")
     h.add_argument("--json", default=None, help="write the results JSON here")
@@ -31,13 +34,14 @@ def run_hold(args: argparse.Namespace) -> int:
     from station.analysis.iso9283.hold import analyze_hold
 
     check_positive(args.window_s, "--window-s")
-    si = load_stream(args.stream, args.format, args.group, args.rate_hz)
+    si = load_stream(args.stream, args.format, args.group, args.rate_hz, args.date_order,
+                     command="analyze hold")
     ps = si.points
     xyz = ps.xyz_mm.copy()
     xyz[~ps.valid] = 0.0  # flagged rows: never used
     res = analyze_hold(si.t_s, xyz, ps.valid, window_s=args.window_s)
     ax = "xyz"
-    lines = [f"held pose in {args.stream}: {res.n} samples over {res.duration_s:.3f} s "
+    lines = [f"held pose in {ps.source}: {res.n} samples over {res.duration_s:.3f} s "
              f"({int((~ps.valid).sum())} flagged invalid)", si.time_note]
     lines += [f"note: {x}" for x in si.notes]
     lines += [
@@ -51,12 +55,16 @@ def run_hold(args: argparse.Namespace) -> int:
         f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
         + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
     ]
+    if si.estimated_rate:
+        lines.append("drift per minute and the windows rest on the rate estimated from the stamps")
     print("\n".join(lines))
     if args.json is not None:
         d = res.to_dict()
         d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "units": ps.units, "notes": si.notes,
                       "n_invalid": int(np.count_nonzero(~ps.valid))}
         d["time_base"] = si.time_base
+        if si.estimated_rate:
+            d["time_base"]["estimated_figures"] = ["drift", "windows"]
         tmp = f"{args.json}.tmp"
         with open(tmp, "w", encoding="utf-8") as f:
             json.dump(d, f, indent=1, allow_nan=False)  # never NaN/Infinity in a JSON file

@@ -43,46 +43,41 @@ class StreamInput:
     t_s: np.ndarray
     time_base: dict
     notes: list[str] = field(default_factory=list)
+    time_note: str = ""
 
     @property
-    def time_note(self) -> str:
-        tb = self.time_base
-        if tb["source"] == "sample_index":
-            return (f"time base: sample index / {tb['rate_hz']:g} Hz (time stamps not used); PST, MPT and every "
-                    f"time are sample counts / {tb['rate_hz']:g} Hz")
-        return "time base: the file's time stamps"
+    def estimated_rate(self) -> bool:
+        return self.time_base.get("source") == "estimated_rate"
 
 
-def load_stream(path, fmt=None, group=None, rate_hz=None) -> StreamInput:
-    """Read a stream in any known format and fix its time base (stamps, or the sample index with ``rate_hz``)."""
-    from station.analysis.iso9283.time_base import check_time_stamps, sample_index_time
+def load_stream(path, fmt=None, group=None, rate_hz=None, date_order=None, *, command: str = "analyze") -> StreamInput:
+    """Read a stream in any known format and fix its time base (:func:`station.analysis.lab_files.stream_time_base`).
+
+    A per-pose reflector list given as a stream is refused (:func:`refuse_reflector_list`, ``command`` names
+    the command in the message).
+    """
+    from station.analysis.iso9283.lab_files import stream_time_base
     from station.readers.sniff import read_stream_file
 
     check_positive(rate_hz, "--rate-hz")
-    ps = read_stream_file(path, fmt, group=group)
-    notes = list(ps.notes)
-    tcol = "date time" if ps.fmt == "sa" else "t"
-    if rate_hz is not None:
-        t = sample_index_time(ps.n, rate_hz)
-        if ps.t_s is not None:
-            chk = check_time_stamps(ps.t_s)
-            if chk.ok and abs(chk.median_step_s * rate_hz - 1.0) > 0.05:
-                notes.append(f"the file's time stamps step by {chk.median_step_s:.6g} s, not 1/{rate_hz:g} Hz "
-                             f"= {1.0 / rate_hz:.6g} s: is --rate-hz right?")
-        return StreamInput(ps, t, {"source": "sample_index", "rate_hz": float(rate_hz)}, notes)
-    if ps.t_s is None:
-        raise DataError(f"{ps.source} has no time stamps: give the sample rate with --rate-hz R to take the sample "
-                        "index as the time base")
-    if ps.n >= 2:
-        chk = check_time_stamps(ps.t_s)
-        if not chk.ok:
-            msgs = []
-            for prob in chk.problems:
-                where = f"line {int(ps.line[prob.row])}, " if prob.row is not None else ""
-                msgs.append(f"{ps.source}: {where}column {tcol!r}: {prob.text}")
-            raise DataError("; ".join(msgs) + "; these time stamps cannot be the time base: give the sample rate "
-                            "with --rate-hz R to take the sample index instead")
-    return StreamInput(ps, np.asarray(ps.t_s, dtype=float), {"source": "stamps", "rate_hz": None}, notes)
+    ps = read_stream_file(path, fmt, group=group, date_order=date_order)
+    refuse_reflector_list(ps, command)
+    tb = stream_time_base(ps.t_s, ps.n, rate_hz, line=ps.line, source=ps.source,
+                          tcol="date time" if ps.fmt == "sa" else "t")
+    return StreamInput(ps, tb.t_s, tb.info, list(ps.notes) + tb.notes, tb.note)
+
+
+def refuse_reflector_list(ps, command: str) -> None:
+    """A plain point list whose first column repeats a few ids (1, 2, 3, 1, 2, 3, ...) is a per-pose reflector
+    list, not a stream: refused with what to do instead."""
+    from station.analysis.iso9283.lab_files import repeating_ids
+
+    ids = repeating_ids(ps.names) if ps.fmt == "points" else None
+    if ids is not None:
+        raise DataError(f"{ps.source}: the first column repeats {', '.join(ids)} every {len(ids)} rows: this is a "
+                        f"per-pose reflector list (reflector, x, y, z once per cycle), not a stream of one point; "
+                        f"'station {command}' would report the distance between the reflectors as noise. Analyse "
+                        "it with 'station analyze iso9283 --stops FILE...' (one file per pose)")
 
 
 def window_parameters(window_samples: int | None, rate_hz: float | None) -> dict:

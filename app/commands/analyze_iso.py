@@ -5,8 +5,13 @@ Inputs (see ``README.md``, "Analysing files you already have"):
 * ``--stream S``: the project's CSV, a SpatialAnalyzer point export or a plain
   point list, chosen by sniffing (``--format`` overrides, ``--group`` picks an
   SA group); ``--rate-hz R`` makes the sample index the time base;
-* ``--stops S.csv``: a stop list ``pose,cycle,x,y,z[,reflector][,approach]``;
+* ``--stops S.csv``: a stop list ``pose,cycle,x,y,z[,reflector][,approach]``; or
+  ``--stops P1.txt P2.txt ...``: per-pose reflector lists ``reflector,x,y,z``
+  (:mod:`station.readers.reflector_list`), the pose from the file name or ``--pose``;
+  RP per reflector is printed beside the centroid's;
 * ``--poses P.csv``: commanded poses ``name,x,y,z`` (required with a stream);
+* ``--date-order mdy|dmy``: the day/month order of stamps like ``02/12/25`` when
+  the file does not settle it (:mod:`station.readers.date_time`);
 * ``--frame F.json`` or ``--register R.csv``: the poses are in the robot base
   frame; the measurements are carried into it (the registration's rms and
   residuals are printed).
@@ -19,8 +24,8 @@ stderr.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import math
 import os
 import sys
 
@@ -36,18 +41,27 @@ from app.commands.analyze_inputs import (
 from app.commands.analyze_outcome import decide
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
+from station.readers.date_time import DATE_ORDERS
 
 
 def add_arguments(s: argparse.ArgumentParser) -> None:
     src = s.add_mutually_exclusive_group(required=True)
     src.add_argument("--stream", type=str, help="tracker stream: project CSV t,x,y,z[,status][,a,b,c], "
                                                 "SpatialAnalyzer point export, or plain point list")
-    src.add_argument("--stops", type=str, help="stop list CSV pose,cycle,x,y,z[,reflector][,approach]")
+    src.add_argument("--stops", type=str, nargs="+", metavar="FILE",
+                     help="a stop list CSV pose,cycle,x,y,z[,reflector][,approach], or per-pose reflector lists "
+                          "(lines reflector,x,y,z, no header, ids repeating once per cycle), one file per pose")
+    s.add_argument("--pose", type=str, nargs="+", default=None, metavar="NAME",
+                   help="with per-pose reflector lists: the pose of each file, in order (default: from the file "
+                        "name, e.g. P3.txt or list_pose3.txt)")
     s.add_argument("--poses", type=str, default=None,
                    help="commanded poses CSV name,x,y,z[,a,b,c] (required with --stream)")
     s.add_argument("--format", choices=("csv", "sa", "points"), default=None,
                    help="format of --stream (default: sniffed from its first lines)")
     s.add_argument("--group", default=None, help="SpatialAnalyzer group holding the stream")
+    s.add_argument("--date-order", choices=DATE_ORDERS, default=None,
+                   help="day/month order of A/B/Y dates in the stamps, when the file does not settle it and the "
+                        "date changes during the run (mdy: month first, dmy: day first)")
     frame = s.add_mutually_exclusive_group()
     frame.add_argument("--frame", type=str, default=None,
                        help="JSON {R, t_mm}: p_tracker = R p_base + t (as station run journals it); --poses are then "
@@ -165,14 +179,16 @@ def _read_poses(args):
 
 
 def _run_stream(args, limits, band) -> int:
-    from station.analysis.iso9283.characteristics import analyze_iso9283
-    from station.analysis.iso9283.extraction import STATUS_UNASSIGNED
+    from station.analysis.iso9283.lab_files import analyze_stream, rest_noise_mm
 
+    if args.pose is not None:
+        raise ConfigError("--pose applies to --stops (per-pose reflector lists), not to --stream")
     names, cmd, cori, order = _read_poses(args)
     extraction = dict(window_s=args.window_s, velocity_step_s=args.velocity_step_s,
                       assign_tol_mm=_tolerance(args, limits), initial_rest_stop=args.initial_rest == "count")
     extraction.update(window_parameters(args.window_samples, args.rate_hz))
-    si = load_stream(args.stream, args.format, args.group, args.rate_hz)
+    si = load_stream(args.stream, args.format, args.group, args.rate_hz, args.date_order,
+                     command="analyze iso9283 --stream")
     ps = si.points
     xyz = ps.xyz_mm.copy()
     valid = ps.valid
@@ -181,7 +197,7 @@ def _run_stream(args, limits, band) -> int:
         xyz[~valid] = 0.0  # rows left out by valid; never used
         if ori is not None:
             ori[~valid] = 0.0
-    noise = _rest_noise_mm(si.t_s[valid], xyz[valid])
+    noise = rest_noise_mm(si.t_s[valid], xyz[valid])
     reg, reg_js = read_frame(args.frame, args.register, noise_mm=noise, robot_error_mm=limits.get("AP_mm"),
                              max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
     if reg is not None:
@@ -189,93 +205,103 @@ def _run_stream(args, limits, band) -> int:
             raise DataError(f"{ps.source}: orientation a,b,c cannot be carried into the base frame here: drop the "
                             "columns, or give the poses in the tracker frame without --frame/--register")
         xyz = reg.to_base(xyz)
-    res = analyze_iso9283(
-        si.t_s, xyz, cmd, names=names, order=order, valid=valid,
+    lab = analyze_stream(
+        si.t_s, xyz, valid, cmd, names=names, order=order,
         orientation_rad=ori, commanded_orientation_rad=None if cori is None else np.radians(cori),
         limits=limits, band_mm=args.limit_mm if band == "limit" else None, distance_pairs=_pairs(args),
         linear_paths=bool(args.linear_paths), extraction=extraction,
     )
-    print(format_table(res, args.stream, si.time_note, si.notes))
-    st = res.extraction.stops
-    far_k = np.flatnonzero(st.status == STATUS_UNASSIGNED)
-    far = []
-    if far_k.size:
-        near = [f"row {int(st.row[k])} {float(st.distance_to_pose_mm[k]):.1f} mm from "
-                f"{res.extraction.names[int(st.nearest_pose[k])]}" for k in far_k[:5]]
-        far.append(f"{far_k.size} stop(s) lie farther than {res.extraction.params.assign_tol_mm:g} mm from every "
-                   f"commanded pose ({'; '.join(near)}{', ...' if far_k.size > 5 else ''})"
-                   + ("; no stop is near a pose: are the poses in another frame? give --frame or --register"
-                      if not np.any(st.status == 0) else "")
-                   + " (via points: --allow-other-stops)")
+    res = lab.result
+    print(format_table(res, ps.source, si.time_note, si.notes, estimated_rate=si.estimated_rate))
     d = res.to_dict()
     d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "frame": ps.frame, "units": ps.units,
                   "notes": si.notes}
     d["time_base"] = si.time_base
+    if si.estimated_rate:
+        mark_estimated_times(d)
     d["registration"] = reg_js
-    return _finish(res, d, args, far)
+    return _finish(res, d, args, lab.far)
+
+
+def mark_estimated_times(d: dict) -> None:
+    """Mark PST, MPT and drift in a results JSON as resting on a rate estimated from the stamps."""
+    d["time_base"]["estimated_figures"] = ["PST_s", "MPT_s", "drift"]
+    for pj in d.get("poses", {}).values():
+        if isinstance(pj, dict):
+            pj["PST_on_estimated_rate"] = True
+    for m in d.get("MPT", []) or []:
+        if isinstance(m, dict):
+            m["on_estimated_rate"] = True
+
+
+def _read_stops(args):
+    """The stop list of ``--stops``: one CSV stop list, or per-pose reflector lists (one per pose)."""
+    from station.readers.once import regular_file
+    from station.readers.reflector_list import (
+        combine_stop_lists,
+        looks_like_reflector_list,
+        pose_from_file_name,
+        read_reflector_list,
+    )
+    from station.readers.stop_list import read_stop_list
+    from station.readers.text import head_lines
+
+    files = list(args.stops)
+    if args.pose is not None and len(args.pose) != len(files):
+        raise ConfigError(f"--pose names {len(args.pose)} pose(s) for {len(files)} file(s) of --stops: one per file")
+    lists = []
+    for k, f in enumerate(files):
+        with regular_file(f) as (real, shown):
+            try:
+                if looks_like_reflector_list(head_lines(real)):
+                    pose = args.pose[k] if args.pose is not None else pose_from_file_name(shown)
+                    sl = read_reflector_list(real, pose)
+                else:
+                    if len(files) > 1:
+                        raise DataError(f"{shown}: not a reflector list (reflector, x, y, z); several files are "
+                                        "read as per-pose reflector lists, a stop list CSV comes alone")
+                    if args.pose is not None:
+                        raise ConfigError("--pose applies to per-pose reflector lists; a stop list CSV names its "
+                                          "poses in its 'pose' column")
+                    sl = read_stop_list(real)
+            except DataError as exc:
+                raise DataError(str(exc).replace(str(real), shown)) from None
+        lists.append(dataclasses.replace(sl, source=shown))
+    return combine_stop_lists(lists)
 
 
 def _run_stops(args, limits) -> int:
-    from station.analysis.iso9283.stop_list import analyze_stop_list
-    from station.readers.stop_list import read_stop_list
+    from station.analysis.iso9283.lab_files import analyze_stops, reflector_repeatability, stop_scatter_mm
 
-    for opt in ("format", "group", "rate_hz", "window_samples", "order", "linear_paths"):
+    for opt in ("format", "group", "rate_hz", "window_samples", "order", "linear_paths", "date_order"):
         if getattr(args, opt) not in (None, False):
             raise ConfigError(f"--{opt.replace('_', '-')} applies to --stream, not to --stops")
-    sl = read_stop_list(args.stops)
+    sl = _read_stops(args)
     names = cmd = None
     if args.poses is not None:
         names, cmd, _, _ = _read_poses(args)
         for k, p in enumerate(sl.pose):
             if p not in names:
                 raise DataError(f"{sl.source}: line {int(sl.lines[k].min())}, column 'pose': {p!r} is not in "
-                                f"{args.poses} (poses: {', '.join(names)})")
+                                f"{args.poses} (poses: {', '.join(names)}; name each file's pose with --pose)")
     elif args.frame is not None or args.register is not None:
         raise ConfigError("--frame/--register need --poses (the commanded poses in the robot base frame)")
     pts = sl.points_mm
-    noise = _stop_scatter_mm(sl)
+    noise = stop_scatter_mm(sl.centroid_mm, sl.pose)
     reg, reg_js = read_frame(args.frame, args.register, noise_mm=noise, robot_error_mm=limits.get("AP_mm"),
                              max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
     if reg is not None:
         pts = reg.to_base(pts.reshape(-1, 3)).reshape(pts.shape)
-    res = analyze_stop_list(sl.pose, sl.cycle, pts, commanded_mm=cmd, names=names, approach=sl.approach,
-                            reflectors=sl.reflectors, limits=limits, distance_pairs=_pairs(args),
-                            assign_tol_mm=_tolerance(args, limits))
-    print(format_stop_table(res, args.stops))
-    far = []
-    if res.n_far:
-        kf = np.flatnonzero(res.stop_far)
-        far.append(f"{kf.size} stop(s) lie farther than {res.assign_tol_mm:g} mm from their commanded pose ("
-                   + "; ".join(f"line {int(sl.lines[k].min())} {sl.pose[k]} {res.stop_distance_mm[k]:.1f} mm"
-                               for k in kf[:5]) + (", ..." if kf.size > 5 else "") + ")"
-                   + ("; are the poses in another frame? give --frame or --register" if kf.size == sl.n else ""))
+    lab = analyze_stops(sl.pose, sl.cycle, pts, lines=sl.lines.min(axis=1), commanded_mm=cmd, names=names,
+                        approach=sl.approach, reflectors=sl.reflectors, limits=limits, distance_pairs=_pairs(args),
+                        assign_tol_mm=_tolerance(args, limits))
+    res = lab.result
+    per_refl = reflector_repeatability(sl.pose, pts, sl.reflectors) if len(sl.reflectors) > 1 else []
+    print(format_stop_table(res, sl.source, reflector_rp=per_refl))
     d = res.to_dict()
     d["input"] = {"file": sl.source, "format": "stops", "reflectors": [r for r in sl.reflectors if r]}
     d["stops"]["line"] = [int(x) for x in sl.lines.min(axis=1)]
+    d["reflector_RP"] = [r.to_dict() for r in per_refl]
     d["time_base"] = None
     d["registration"] = reg_js
-    return _finish(res, d, args, far)
-
-
-def _rest_noise_mm(t, xyz) -> float:
-    """The tracker's per-axis noise from the quietest fifth of the samples (the robot at rest), mm."""
-    from station.analysis.iso9283.extraction import estimate_noise_mm
-
-    if t.size < 50:
-        return estimate_noise_mm(xyz, t) if t.size >= 3 else 0.0
-    v = np.linalg.norm(xyz[2:] - xyz[:-2], axis=1) / (t[2:] - t[:-2])
-    quiet = np.flatnonzero(v <= np.quantile(v, 0.2)) + 1
-    return estimate_noise_mm(xyz, t, at=quiet)
-
-
-def _stop_scatter_mm(sl) -> float:
-    """Per-axis scatter of the stops about their pose's mean, pooled, mm (bounds the points' noise)."""
-    c = sl.centroid_mm
-    pose = np.array(sl.pose, dtype=object)
-    dev, dof = 0.0, 0
-    for p in set(sl.pose):
-        m = pose == p
-        if m.sum() >= 2:
-            dev += float(np.sum((c[m] - c[m].mean(axis=0)) ** 2))
-            dof += 3 * (int(m.sum()) - 1)
-    return math.sqrt(dev / dof) if dof else 0.0
+    return _finish(res, d, args, lab.far)

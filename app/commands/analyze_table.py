@@ -12,8 +12,9 @@ def _n(x, fmt="{:.3f}"):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
-def _pose_rows(res) -> list[str]:
-    lines = [f"{'pose':<6}{'n':>5}{'AP_mm':>9}{'RP_mm':>9}{'POS_mm':>9}{'PST_s':>8}{'band_mm':>9} {'src':<7}"
+def _pose_rows(res, estimated_rate: bool = False) -> list[str]:
+    pst = "PST_s*" if estimated_rate else "PST_s"
+    lines = [f"{'pose':<6}{'n':>5}{'AP_mm':>9}{'RP_mm':>9}{'POS_mm':>9}{pst:>8}{'band_mm':>9} {'src':<7}"
              f"{'vAP_mm':>8}{'dirs':>5}"]
     for name, pr in res.poses.items():
         acc, rep, ovs, md = pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional
@@ -26,7 +27,7 @@ def _pose_rows(res) -> list[str]:
     return lines
 
 
-def _tail(res) -> list[str]:
+def _tail(res, estimated_rate: bool = False) -> list[str]:
     """Distances, orientation, verdicts, the overall line, left-out stops, warnings, conformance."""
     from station.analysis.iso9283.characteristics import conformance_text
 
@@ -35,7 +36,8 @@ def _tail(res) -> list[str]:
         lines.append(f"distance {d.pose_a}-{d.pose_b}: Dc {_n(d.Dc_mm)} mm, AD {_n(d.AD_mm, '{:+.3f}')} mm, "
                      f"RD +/-{_n(d.RD_mm)} mm (n={d.n})")
     for m in getattr(res, "posing_times", ()):
-        lines.append(f"MPT {m.from_pose}->{m.to_pose}: {_n(m.MPT_s)} s (mean of {m.n} of {m.n_available})")
+        lines.append(f"MPT {m.from_pose}->{m.to_pose}: {_n(m.MPT_s)} s{'*' if estimated_rate else ''} "
+                     f"(mean of {m.n} of {m.n_available})")
     for pa in getattr(res, "paths", ()):
         lines.append(f"path {pa.from_pose}->{pa.to_pose}: AT {pa.AT_mm:.3f} mm, RT {_n(pa.RT_mm)} mm (n={pa.n})")
     for name, pr in res.poses.items():
@@ -70,8 +72,10 @@ def _tail(res) -> list[str]:
     return lines
 
 
-def format_table(res, stream_name="stream", time_note: str | None = None, notes=()) -> str:
-    """Human-readable summary of an :class:`~station.analysis.iso9283.Iso9283Result`."""
+def format_table(res, stream_name="stream", time_note: str | None = None, notes=(),
+                 estimated_rate: bool = False) -> str:
+    """Human-readable summary of an :class:`~station.analysis.iso9283.Iso9283Result`; ``estimated_rate``
+    marks PST and MPT (``*``) as resting on a rate estimated from the stamps."""
     ex = res.extraction
     st = ex.stops
     lines = [
@@ -85,8 +89,10 @@ def format_table(res, stream_name="stream", time_note: str | None = None, notes=
         lines.append(time_note)
     lines += [f"note: {n}" for n in notes]
     lines.append("")
-    lines += _pose_rows(res)
-    tail = _tail(res)
+    lines += _pose_rows(res, estimated_rate)
+    if estimated_rate:
+        lines.append("* PST and MPT on the sample rate ESTIMATED from the stamps (see the time base above)")
+    tail = _tail(res, estimated_rate)
     k = next((i for i, line in enumerate(tail) if line.startswith(("left out:", "warning:", "PARTIAL", "ISO 9283"))),
              len(tail))
     miss = [f"missing: cycle {m.cycle} {m.pose}: {m.reason}" for m in ex.missing[:SHOW]]
@@ -95,8 +101,9 @@ def format_table(res, stream_name="stream", time_note: str | None = None, notes=
     return "\n".join(lines + tail[:k] + miss + tail[k:])
 
 
-def format_stop_table(res, source="stop list", notes=()) -> str:
-    """Human-readable summary of a :class:`~station.analysis.stop_list.StopListResult`."""
+def format_stop_table(res, source="stop list", notes=(), reflector_rp=()) -> str:
+    """Human-readable summary of a :class:`~station.analysis.stop_list.StopListResult`; ``reflector_rp``
+    (:class:`~station.analysis.lab_files.ReflectorRP` per pose) adds RP per reflector beside the centroid's."""
     n = len(res.stop_pose)
     refl = [r for r in res.reflectors if r]
     lines = [f"ISO 9283 analysis of the stop list {source}: {n} stops of {len(res.poses)} poses"
@@ -109,5 +116,12 @@ def format_stop_table(res, source="stop list", notes=()) -> str:
         rms = res.stop_fit_rms_mm[~(res.stop_fit_rms_mm != res.stop_fit_rms_mm)]
         if rms.size:
             lines.append(f"reflector sets: rigid fit rms up to {float(rms.max()):.4f} mm")
+    if reflector_rp:
+        refl_names = reflector_rp[0].reflectors
+        lines.append("")
+        lines.append(f"{'pose':<8}{'n':>4}{'RP centroid':>13}" + "".join(f"{'RP refl ' + r:>13}" for r in refl_names)
+                     + "  (mm, eq. (2))")
+        for rr in reflector_rp:
+            lines.append(f"{rr.pose:<8}{rr.n:>4}{rr.centroid_RP_mm:>13.4f}" + "".join(f"{v:>13.4f}" for v in rr.RP_mm))
     lines += _tail(res)
     return "\n".join(lines)

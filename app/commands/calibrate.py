@@ -48,10 +48,12 @@ def format_estimate(est) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from app.commands.help_text import plain
+
     p = sub.add_parser("calibrate", help="calibrations from recorded data")
     csub = p.add_subparsers(dest="calibrate_cmd", metavar="WHAT")
     t = csub.add_parser("trailer", help="link lengths of the two-link trailer (seed 003)",
-                        description=__doc__.split("\n\n")[1] if "\n\n" in __doc__ else None)
+                        description=plain(__doc__.split("\n\n")[1]))
     t.add_argument("--data", required=True, metavar="CSV", help="t,kappa,psi[,v] in s, 1/m, rad, m/s")
     t.add_argument("--method", default="auto", choices=TRAILER_METHODS,
                    help="M1..M24 (seed Table 3), odr, dynamic, or auto (default)")

@@ -16,7 +16,10 @@ from pathlib import Path
 
 
 def add_parser(csub) -> None:
-    a = csub.add_parser("arm", help="kinematic parameters of an arm from measured tool points (seed 002)")
+    from app.commands.help_text import plain
+
+    a = csub.add_parser("arm", help="kinematic parameters of an arm from measured tool points (seed 002)",
+                        description=plain(__doc__.split("\n\n", 1)[1]))
     a.add_argument("--robot", required=True, help="library model (rb5-850, ur5e, ...) or a JSON model file")
     a.add_argument("--data", required=True, metavar="CSV", help="q1..q6 (deg), x,y,z (mm), optional t,temperature,load")
     a.add_argument("--method", default="distance", choices=("distance", "absolute"),

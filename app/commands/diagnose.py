@@ -34,10 +34,12 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from app.commands.help_text import plain
+
     p = sub.add_parser("diagnose", help="find, name and fix what the station's model gets wrong")
     dsub = p.add_subparsers(dest="diagnose_cmd", metavar="WHAT")
     a = dsub.add_parser("arm", help="arm model against measured tool points",
-                        description=__doc__.split("\n\n")[1])
+                        description=plain(__doc__.split("\n\n")[1]))
     a.add_argument("--robot", required=True, help="library model (industrial-3100, ur5e, ...) or a JSON model file")
     a.add_argument("--data", required=True, metavar="CSV", help="q1..q6 (deg), x,y,z (mm), optional t,temperature,load")
     a.add_argument("--heldout-fraction", type=float, default=0.25, help="share of poses held out (default 0.25)")
@@ -46,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--report", metavar="OUT.html", help="write the HTML report")
     a.set_defaults(func=_arm)
     t = dsub.add_parser("trailer", help="the static trailer model (seed 003) against a measured record",
-                        description=__doc__.split("\n\n")[2])
+                        description=plain(__doc__.split("\n\n")[2]))
     t.add_argument("--l1", required=True, type=float, metavar="L1", help="nominal front link length, m")
     t.add_argument("--l2", required=True, type=float, metavar="L2", help="nominal rear link length, m")
     t.add_argument("--data", required=True, metavar="CSV", help="t,kappa,psi (s, 1/m, rad), optional v,kappa_cmd")

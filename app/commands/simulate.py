@@ -1,5 +1,14 @@
-"""`station simulate iso9283 --out DIR`: an offline ISO 9283 run on the simulated cell
-(:mod:`fakes.sim.iso_run`; this module parses the arguments).
+"""`station simulate iso9283|arm|trailer --out DIR`: offline data of the simulated cell, with the truth beside.
+
+* ``arm``: an arm measurement CSV for ``calibrate arm`` / ``diagnose arm``
+  (:mod:`fakes.sim.offline_files`): ``arm.csv`` and ``truth.json``;
+* ``trailer``: a trailer record for ``calibrate trailer`` / ``diagnose trailer``:
+  ``trailer.csv`` and ``truth.json``;
+* ``hold``: a robot holding one pose, measured by the tracker, for ``analyze hold``:
+  ``stream.csv`` (``t,x,y,z``) and ``truth.json``;
+* ``iso9283``: an ISO 9283 run (:mod:`fakes.sim.iso_run`), as follows.
+
+This module parses the arguments and writes the files.
 
 The world (:func:`fakes.sim.world.make_world`, on a ``ManualClock`` so it runs
 as fast as the machine computes) drives its arm through the cycles of seed
@@ -25,7 +34,11 @@ Files written to DIR:
 from __future__ import annotations
 
 import argparse
+import json
 import math
+from pathlib import Path
+
+import numpy as np
 
 from station.errors import ConfigError
 
@@ -41,7 +54,7 @@ def _parse_break(text: str) -> tuple[float, float]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="offline runs of the simulated cell")
+    p = sub.add_parser("simulate", help="offline data of the simulated cell, with the truth beside")
     ssub = p.add_subparsers(dest="simulate_cmd", metavar="RUN")
     s = ssub.add_parser("iso9283", help="ISO 9283 cycles P1..P5 (seed 000) -> tracker stream CSV")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
@@ -57,6 +70,108 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--beam-break", action="append", default=[], metavar="START:END",
                    help="beam break, seconds after the recording starts (repeatable)")
     s.set_defaults(func=_run_iso9283)
+    a = ssub.add_parser("arm", help="an arm measured at random poses -> arm CSV for calibrate/diagnose arm",
+                        description="A true arm (the library model plus drawn errors) measured by a laser tracker "
+                        "in a random frame at random poses, in order. Writes DIR/arm.csv (q1..q6 deg, x,y,z mm, "
+                        "t s, temperature degC, load kg) and DIR/truth.json (the drawn errors, the tracker frame, "
+                        "the noise and the noise-free points).")
+    a.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    a.add_argument("--robot", default="industrial-3100", help="library robot model (default industrial-3100)")
+    a.add_argument("--poses", type=int, default=80, help="number of measured poses (default 80)")
+    a.add_argument("--effects", choices=("geometric", "realistic", "none"), default="geometric",
+                   help="errors of the true arm: geometric only (what calibrate arm identifies, default), "
+                        "realistic (also compliance, backlash, thermal drift, encoder eccentricity: what diagnose "
+                        "arm finds), or none")
+    a.add_argument("--seed", type=int, default=0, help="seed of the drawn arm and measurements (default 0)")
+    a.set_defaults(func=_run_arm)
+    t = ssub.add_parser("trailer", help="a trailer record -> trailer CSV for calibrate/diagnose trailer",
+                        description="A front unit driving a smooth random path with its trailer; the hitch angle "
+                        "and the path curvature measured with noise. Writes DIR/trailer.csv (t s, kappa 1/m, psi "
+                        "rad, v m/s) and DIR/truth.json (link lengths and the hidden effects).")
+    t.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    t.add_argument("--hidden", action="append", default=[], metavar="EFFECT",
+                   choices=("link_lengths", "hitch_angle_offset", "curvature_gain", "hitch_dynamics"),
+                   help="an effect drawn into the record (repeatable): link_lengths, hitch_angle_offset, "
+                        "curvature_gain, hitch_dynamics")
+    t.add_argument("--duration", type=float, default=180.0, help="length of the record, s (default 180)")
+    t.add_argument("--seed", type=int, default=0, help="seed of the drawn record (default 0)")
+    t.set_defaults(func=_run_trailer)
+    h = ssub.add_parser("hold", help="a held pose measured by the tracker -> stream CSV for analyze hold",
+                        description="A robot standing at one pose while the tracker measures it: the tool drifts "
+                        "slowly (the arm warming up) and the tracker adds its noise. Writes DIR/stream.csv "
+                        "(t s, x,y,z mm) and DIR/truth.json (position, drift, noise).")
+    h.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    h.add_argument("--duration", type=float, default=60.0, help="length of the hold, s (default 60)")
+    h.add_argument("--rate", type=float, default=100.0, help="tracker rate, Hz, 10-3000 (default 100)")
+    h.add_argument("--seed", type=int, default=0, help="seed of the drawn hold (default 0)")
+    h.set_defaults(func=_run_hold)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _run_hold(args: argparse.Namespace) -> int:
+    import csv
+
+    from fakes.sim.offline_files import simulate_hold
+
+    if not (math.isfinite(args.duration) and args.duration >= 3.0):
+        raise ConfigError(f"--duration must be at least 3 s, got {args.duration!r}")
+    if not (math.isfinite(args.rate) and 10.0 <= args.rate <= 3000.0):
+        raise ConfigError(f"--rate must be within 10-3000 Hz, got {args.rate!r}")
+    cols, truth = simulate_hold(seed=args.seed, duration_s=args.duration, rate_hz=args.rate)
+    out = _out_dir(args.out)
+    with open(out / "stream.csv", "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "x", "y", "z"])
+        for t, p in zip(cols["t"], cols["xyz_mm"]):
+            w.writerow([repr(float(t))] + [repr(float(v)) for v in p])
+    _write_truth(out / "truth.json", truth)
+    print(f"wrote {out / 'stream.csv'} ({cols['t'].size} samples over {args.duration:g} s at {args.rate:g} Hz)")
+    print(f"wrote {out / 'truth.json'} (drift {np.linalg.norm(truth['drift_mm_per_min']):.4f} mm/min, noise "
+          f"{truth['noise_mm']:.4f} mm)")
+    return 0
+
+
+def _out_dir(text: str) -> Path:
+    out = Path(text)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _write_truth(path: Path, truth: dict) -> None:
+    path.write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
+
+
+def _run_arm(args: argparse.Namespace) -> int:
+    from fakes.sim.offline_files import simulate_arm
+    from station.readers.arm_csv import write_arm_csv
+
+    if args.poses < 10:
+        raise ConfigError(f"--poses must be at least 10, got {args.poses}")
+    cols, truth = simulate_arm(args.robot, n=args.poses, effects=args.effects, seed=args.seed)
+    out = _out_dir(args.out)
+    write_arm_csv(out / "arm.csv", cols["q_deg"], cols["xyz_mm"], t=cols["t"], temperature=cols["temperature"],
+                  load=cols["load"])
+    _write_truth(out / "truth.json", truth)
+    print(f"wrote {out / 'arm.csv'} ({args.poses} poses of {truth['robot']}, errors: {args.effects})")
+    print(f"wrote {out / 'truth.json'} (the drawn errors, the tracker frame, the noise {truth['noise_mm']:.4f} mm)")
+    return 0
+
+
+def _run_trailer(args: argparse.Namespace) -> int:
+    from fakes.sim.offline_files import simulate_trailer
+    from app.commands.calibrate import write_trailer_csv
+
+    if not (math.isfinite(args.duration) and args.duration >= 30.0):
+        raise ConfigError(f"--duration must be at least 30 s, got {args.duration!r}")
+    cols, truth = simulate_trailer(hidden=tuple(dict.fromkeys(args.hidden)), seed=args.seed,
+                                   duration_s=args.duration)
+    out = _out_dir(args.out)
+    write_trailer_csv(out / "trailer.csv", cols["t"], cols["kappa"], cols["psi"], v=cols["v"])
+    _write_truth(out / "truth.json", truth)
+    print(f"wrote {out / 'trailer.csv'} ({cols['t'].size} samples over {args.duration:g} s)")
+    print(f"wrote {out / 'truth.json'} (L1 {truth['L1_m']:.4f} m, L2 {truth['L2_m']:.4f} m; hidden: "
+          f"{', '.join(truth['hidden']) or 'none'})")
+    return 0
 
 
 def _run_iso9283(args: argparse.Namespace) -> int:

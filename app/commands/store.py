@@ -9,10 +9,11 @@
     station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
     station store status --config C                                  what of each run has reached the centre
     station store reanalyze --config C [--central] [--run ID ...] [--jobs N] [--force]
-    station store fleet history|since-overhaul|over-limits|drifting|page --config C ...
+    station store fleet history|since-overhaul|over-limits|drifting|page --config C [--central] ...
 
-``--central`` asks the store named by ``[station] store_url`` instead of the
-station's own file. Exit codes: 0 fine, 1 a finding (values over limits,
+One rule for which store a command asks: the station's own file, unless
+``--central`` asks the store named by ``[station] store_url`` (``store fleet``
+too). A question without an answer says so. Exit codes: 0 fine, 1 a finding (values over limits,
 drifting robots) or the central store unreachable (the runs stay local, push
 again later), 2 bad input.
 """
@@ -25,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from app.commands.store_open import open_store
+from app.commands.store_open import CENTRAL_HELP, CONFIG_HELP, JSON_HELP, open_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,17 +37,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.set_defaults(func=_runs)
     h = s.add_parser("history", help="one robot's values of a characteristic across its runs")
     _common(h)
-    h.add_argument("--serial", required=True)
+    h.add_argument("--serial", required=True, help="the robot's serial")
     h.add_argument("--model", default=None, help="the robot's model (needed when robots of two models share the serial)")
     h.add_argument("--name", required=True, help="characteristic, e.g. RP_mm, AP_mm, MPT_s")
-    h.add_argument("--pose", default=None)
-    h.add_argument("--json", action="store_true")
+    h.add_argument("--pose", default=None, help="one pose (default: every pose)")
+    h.add_argument("--json", action="store_true", help=JSON_HELP)
     h.set_defaults(func=_history)
     e = s.add_parser("exceeding", help="robots with a characteristic over its limit")
     _common(e)
-    e.add_argument("--name", required=True)
+    e.add_argument("--name", required=True, help="characteristic, e.g. RP_mm")
     e.add_argument("--all-runs", action="store_true", help="every finished run, not only each robot's latest")
-    e.add_argument("--json", action="store_true")
+    e.add_argument("--json", action="store_true", help=JSON_HELP)
     e.set_defaults(func=_exceeding)
     o = s.add_parser("overhaul", help="record an overhaul of a robot (since-overhaul figures and drift count from it)")
     _common(o)
@@ -64,21 +65,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     ol.add_argument("--json", action="store_true")
     ol.set_defaults(func=_overhauls)
     x = s.add_parser("export", help="write a run's samples, journal and results as CSV or Parquet")
-    x.add_argument("run_id")
+    x.add_argument("run_id", help="the run to export (station store runs lists them)")
     _common(x)
-    x.add_argument("--out", required=True)
-    x.add_argument("--format", choices=("csv", "parquet"), default="csv")
+    x.add_argument("--out", required=True, metavar="DIR", help="directory the files are written to")
+    x.add_argument("--format", choices=("csv", "parquet"), default="csv", help="file format (default csv)")
     x.set_defaults(func=_export)
     u = s.add_parser("push", help="forward the local runs to the central store (store_url)")
-    u.add_argument("--config", required=True)
+    u.add_argument("--config", required=True, help=CONFIG_HELP)
     u.add_argument("--run", action="append", dest="runs", metavar="RUN_ID", help="only these runs (repeatable)")
     u.add_argument("--watch", type=float, default=None, metavar="S",
                    help="keep forwarding every S seconds until interrupted (retries when the centre is away)")
     u.add_argument("--chunk-batches", type=int, default=200, help="sample batches per central transaction")
     u.set_defaults(func=_push)
     t = s.add_parser("status", help="what of each local run has reached the central store")
-    t.add_argument("--config", required=True)
-    t.add_argument("--json", action="store_true")
+    t.add_argument("--config", required=True, help=CONFIG_HELP)
+    t.add_argument("--json", action="store_true", help=JSON_HELP)
     t.set_defaults(func=_status)
     r = s.add_parser("reanalyze", help="re-run the analysis of archived runs from their raw samples (results kept beside)")
     _common(r)
@@ -86,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--procedure", default=None, help="only runs of this procedure")
     r.add_argument("--jobs", type=int, default=1, help="parallel processes")
     r.add_argument("--force", action="store_true", help="again even when this analysis version has a result")
-    r.add_argument("--json", action="store_true")
+    r.add_argument("--json", action="store_true", help=JSON_HELP)
     r.set_defaults(func=_reanalyze)
     from app.commands import store_fleet
 
@@ -94,8 +95,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _common(p) -> None:
-    p.add_argument("--config", required=True)
-    p.add_argument("--central", action="store_true", help="ask the central store (store_url), not the local file")
+    p.add_argument("--config", required=True, help=CONFIG_HELP)
+    p.add_argument("--central", action="store_true", help=CENTRAL_HELP)
 
 
 def _ts(t: float | None) -> str:
@@ -107,7 +108,10 @@ def _runs(args) -> int:
 
     with open_store(args.config, args.central) as store:
         fwd = {} if args.central else forward_status(store)
-        for r in store.runs():
+        runs = store.runs()
+        if not runs:
+            print(f"no runs in {'the central store' if args.central else 'the store'}")
+        for r in runs:
             f = fwd.get(r.run_id)
             centre = "" if f is None else f"centre: {f['in_centre']} ({f['batches_forwarded']}/{f['batches_local']} batches)"
             print(f"{r.run_id:<34} {r.procedure:<10} {r.serial or '-':<14} {r.overhaul_state or '-':<10} "
@@ -121,6 +125,9 @@ def _history(args) -> int:
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
+    if not rows:
+        print(f"no values of {args.name} for serial {args.serial}" + (f" at {args.pose}" if args.pose else "")
+              + " (is the serial right? station store runs lists the runs)")
     for r in rows:
         verdict = "" if r["passed"] is None else ("pass" if r["passed"] else "FAIL")
         print(f"{_ts(r['created_at'])}  {r['run_id']:<34} {r['overhaul_state'] or '-':<10} {r['pose']:<8} "
@@ -134,6 +141,9 @@ def _exceeding(args) -> int:
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
+    if not rows:
+        print(f"no robot over its {args.name} limit ("
+              + ("any finished run" if args.all_runs else "each robot's latest run") + ")")
     for r in rows:
         print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
               f"{args.name} = {r['value']:.4g} > {r['limit']:g}")
@@ -242,6 +252,8 @@ def _push(args) -> int:
 
 
 def _print_report(report) -> None:
+    if not report.runs:
+        print("nothing to send: no local run has anything the central store lacks", flush=True)
     for r in report.runs:
         extra = f"  ERROR: {r.error}" if r.error else ""
         print(f"{r.run_id:<34} {r.status:<8} sent {r.batches_sent} batches ({r.samples_sent} samples), "
@@ -259,6 +271,8 @@ def _status(args) -> int:
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
+    if not rows:
+        print("no runs in the store")
     for run_id, f in rows.items():
         print(f"{run_id:<34} {f['status']:<8} centre: {f['in_centre']:<8} {f['batches_forwarded']}/{f['batches_local']}"
               f" batches, status there: {f['status_forwarded'] or '-'}" + (f"  ({f['last_error']})" if f['last_error'] else ""))

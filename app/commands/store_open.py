@@ -1,8 +1,13 @@
-"""Which store a `station store` command asks: the station's own file or the central one."""
+"""Which store a `station store` command asks: the station's own file, or the central one with ``--central``
+(one rule for every store command, ``store fleet`` included)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+CONFIG_HELP = "the station config (TOML or JSON); its [station] store_path names the station's own store"
+JSON_HELP = "print the answer as JSON instead of a table"
+CENTRAL_HELP = "ask the central store ([station] store_url), not the station's own file (the default)"
 
 
 def open_store(config: str, central: bool = False):

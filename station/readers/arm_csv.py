@@ -16,10 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.text import MAX_ABS_MM, MAX_ABS_S, numbered_lines
 
 REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
 OPTIONAL = ("t", "temperature", "load")
+#: columns of a run's export (``station store export``) that are not measurements: accepted and not read
+IGNORED = ("pose", "step_idx")
 #: most poses of one file: a calibration measures tens to a few thousand stops (each some seconds); 20,000 is
 #: more than a day of stops at 5 s each, and more than the identification and the diagnosis handle in minutes
 MAX_ROWS = 20_000
@@ -46,6 +49,7 @@ class ArmData:
         return int(self.q_deg.shape[0])
 
 
+@reads_once
 def read_arm_csv(path) -> ArmData:
     """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
     p = Path(path)
@@ -64,6 +68,9 @@ def read_arm_csv(path) -> ArmData:
             raise DataError(f"{p}:{lineno}: {len(cells)} fields, the header has {ncol}")
         vals = []
         for col, (name, cell) in enumerate(zip(header, cells), 1):
+            if name in IGNORED or (name == "t" and cell.strip().lower() in ("nan", "")):
+                vals.append(math.nan)  # a run's export has t = nan where the instrument gave no time
+                continue
             try:
                 v = float(cell.strip())
             except ValueError:
@@ -85,6 +92,11 @@ def read_arm_csv(path) -> ArmData:
         raise DataError(f"{p}: no data rows")
     a = np.array(rows, dtype=float)
     col = {h: a[:, i] for i, h in enumerate(header)}
+    if "t" in col and np.isnan(col["t"]).any():
+        if not np.isnan(col["t"]).all():
+            raise DataError(f"{p}: t: no time on some rows (nan or empty), a time on others; give t on every row "
+                            "or on none")
+        col["t"] = None
     return ArmData(q_deg=np.column_stack([col[f"q{k}"] for k in range(1, 7)]),
                    xyz_mm=np.column_stack([col["x"], col["y"], col["z"]]),
                    t_s=col.get("t"), temperature_c=col.get("temperature"), load_kg=col.get("load"), source=str(p),
@@ -95,7 +107,7 @@ def _header(p: Path, header_line: str) -> list[str]:
     header = [h.strip() for h in header_line.strip().split(",")]
     if header != [h for h in header if h]:
         raise DataError(f"{p}:1: empty column name in the header")
-    unknown = [h for h in header if h not in REQUIRED + OPTIONAL]
+    unknown = [h for h in header if h not in REQUIRED + OPTIONAL + IGNORED]
     if unknown:
         raise DataError(f"{p}:1: unknown column(s) {', '.join(unknown)} "
                         f"(expected {','.join(REQUIRED)} and optionally {','.join(OPTIONAL)})")

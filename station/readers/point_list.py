@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.stream import PointStream
 from station.readers.text import MAX_ABS_S, MAX_ROWS, is_number, numbered_lines, parse_number
 
@@ -49,6 +50,7 @@ def _columns_from_header(cells: list[str], p, ln: int) -> dict[str, int]:
     return cols
 
 
+@reads_once
 def read_point_list(path) -> PointStream:
     """Read a plain point list; DataError naming file, line and column for anything malformed."""
     p = Path(path)

@@ -4,7 +4,8 @@
   ``station run`` journals it, ``{"R": [[3x3]], "t_mm": [3], ...}`` with
   ``p_tracker = R @ p_base + t_mm``; the object may also sit under a key
   ``"register base frame"`` or ``"frame"``. Further keys (``rms_mm``,
-  ``method``, ...) are kept as information.
+  ``method``, ...) are kept as information. ``station run`` writes its frame in
+  this form beside the report (:func:`write_frame_json`).
 * registration CSV (``--register``): point pairs measured in both frames,
   ``name,base_x,base_y,base_z,tracker_x,tracker_y,tracker_z`` (mm), at least three.
 """
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.text import MAX_ABS_MM, csv_records, parse_number
 
 #: largest frame file read, bytes (the step's JSON with its figures is a few hundred)
@@ -29,6 +31,7 @@ MAX_PAIRS = 10_000
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
 
+@reads_once
 def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
@@ -79,6 +82,7 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return R, t, obj
 
 
+@reads_once
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)
@@ -97,6 +101,32 @@ def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     if len(names) < 3:
         raise DataError(f"{p}: a registration needs at least 3 point pairs (not on one line), got {len(names)}")
     return names, np.array(base), np.array(trk)
+
+
+def write_frame_json(path, frame: dict) -> Path:
+    """Write a registered frame (the ``register base frame`` step's output: ``R``, ``t_mm`` and its figures) in
+    the form :func:`read_frame_json` reads (``--frame``); atomically, UTF-8. Returns the path."""
+    p = Path(path)
+    R = np.asarray(frame["R"], dtype=float)
+    t = np.asarray(frame["t_mm"], dtype=float)
+    if R.shape != (3, 3) or t.shape != (3,):
+        raise DataError(f"{p}: a frame needs R (3x3) and t_mm (3), got shapes {R.shape} and {t.shape}")
+    obj = {"R": R.tolist(), "t_mm": t.tolist(), "convention": "p_tracker = R @ p_base + t_mm",
+           **{k: v for k, v in frame.items() if k not in ("R", "t_mm")}}
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=_plain) + "\n", encoding="utf-8")
+    tmp.replace(p)
+    return p
+
+
+def _plain(x):
+    """numpy numbers and arrays in a frame's figures as JSON."""
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    raise TypeError(f"{type(x).__name__} is not JSON")
 
 
 def frame_info_text(obj: dict) -> str:

@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from station.errors import ConfigError, DataError
+from station.readers.once import reads_once
 from station.readers.point_list import read_point_list
 from station.readers.spatial_analyzer import looks_like_sa, read_sa_points
 from station.readers.stream import PointStream
@@ -43,8 +44,11 @@ def sniff_format(path) -> str:
     return "points"
 
 
-def read_stream_file(path, fmt: str | None = None, *, group: str | None = None) -> PointStream:
-    """Read a stream in any known format (sniffed unless ``fmt`` is given)."""
+@reads_once
+def read_stream_file(path, fmt: str | None = None, *, group: str | None = None,
+                     date_order: str | None = None) -> PointStream:
+    """Read a stream in any known format (sniffed unless ``fmt`` is given); ``date_order`` for SpatialAnalyzer
+    stamps whose day/month order the file does not settle (:mod:`station.readers.date_time`)."""
     p = Path(path)
     if fmt is not None and fmt not in FORMATS:
         raise ConfigError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -54,5 +58,5 @@ def read_stream_file(path, fmt: str | None = None, *, group: str | None = None) 
     if fmt == "csv":
         return read_stream_csv(p)
     if fmt == "sa":
-        return read_sa_points(p, group)
+        return read_sa_points(p, group, date_order=date_order)
     return read_point_list(p)

@@ -12,7 +12,9 @@ then one point per line, comma separated::
 
 Units from the ``AXES`` line (mm, cm, m, in, ft) are converted to mm. Group and
 point names are kept. The date-time column, when there is one, becomes ``t_s``
-(seconds from the first row); it must be present on every row or on none.
+(seconds from the first row); it must be present on every row or on none. The
+date forms read, and when the day/month order must be given, are in
+:mod:`station.readers.date_time`.
 
 A group is one contiguous block of lines; a group that starts again after
 another one (mixed groups) is refused. The stream is one group: the named one,
@@ -24,12 +26,13 @@ out are named in ``notes``. Groups of similar size are refused without a name.
 from __future__ import annotations
 
 import re
-from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
+from station.readers.date_time import FORM_TEXT, parse_stamp, stamps_to_seconds
 from station.readers.stream import PointStream
 from station.readers.text import MAX_ROWS, is_number, numbered_lines, parse_number
 
@@ -44,13 +47,6 @@ UNITS_MM = {
 }
 #: a group left out of a stream must be smaller than this fraction of the stream's group
 STRAY_FRACTION = 0.05
-DATETIME_FORMATS = (
-    "%Y-%m-%d %H:%M:%S.%f", "%Y-%m-%d %H:%M:%S", "%Y-%m-%dT%H:%M:%S.%f", "%Y-%m-%dT%H:%M:%S",
-    "%Y/%m/%d %H:%M:%S.%f", "%Y/%m/%d %H:%M:%S",
-    "%m/%d/%Y %I:%M:%S.%f %p", "%m/%d/%Y %I:%M:%S %p", "%m/%d/%Y %H:%M:%S.%f", "%m/%d/%Y %H:%M:%S",
-    "%d.%m.%Y %H:%M:%S.%f", "%d.%m.%Y %H:%M:%S",
-)
-
 _AXES = re.compile(r"^//\s*AXES\s*=\s*(?P<kind>[A-Za-z]+)\s*:\s*(?P<axes>[^()]*?)\s*(\((?P<unit>[^()]*)\))?\s*$",
                    re.IGNORECASE)
 _FRAME = re.compile(r"Coordinate\s+Frame\s+'(?P<frame>[^']*)'", re.IGNORECASE)
@@ -89,33 +85,9 @@ def parse_axes_line(text: str, path, ln: int) -> tuple[str, float]:
     return unit, UNITS_MM[unit.lower()]
 
 
-class _Clock:
-    """Date-time cells to seconds from the first one; the format is fixed by the first cell."""
-
-    def __init__(self, path) -> None:
-        self.path, self.fmt, self.t0 = path, None, None
-
-    def seconds(self, text: str, ln: int) -> float:
-        s = " ".join(text.split())
-        if self.fmt is None:
-            for f in DATETIME_FORMATS:
-                try:
-                    d = datetime.strptime(s, f)
-                except ValueError:
-                    continue
-                self.fmt, self.t0 = f, d
-                return 0.0
-            raise DataError(f"{self.path}: line {ln}, column 'date time': {text.strip()[:40]!r} is not a date "
-                            "and time this reader knows (e.g. 2024-03-05 10:15:01.25)")
-        try:
-            d = datetime.strptime(s, self.fmt)
-        except ValueError:
-            raise DataError(f"{self.path}: line {ln}, column 'date time': {text.strip()[:40]!r} does not match "
-                            f"the format of the first row ({self.fmt})") from None
-        return (d - self.t0).total_seconds()
-
-
-def read_sa_points(path, group: str | None = None, *, whole_file: bool = False) -> PointStream:
+@reads_once
+def read_sa_points(path, group: str | None = None, *, whole_file: bool = False,
+                   date_order: str | None = None) -> PointStream:
     """Read a SpatialAnalyzer point export into a :class:`PointStream`.
 
     Parameters
@@ -125,6 +97,9 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False) 
         The group to return (default: the largest, others must be strays).
     whole_file : bool
         Return every group (a point set, not a stream); ``names`` are then ``group:point``.
+    date_order : ``mdy`` or ``dmy``, optional
+        Day and month order of ``A/B/Y`` dates when the file does not settle it
+        (:mod:`station.readers.date_time`).
     """
     p = Path(path)
     unit = None
@@ -132,7 +107,7 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False) 
     frame = None
     seen_marker = False
     rows: list[tuple[str, str, float, float, float, float | None, int]] = []
-    clock = _Clock(p)
+    stamps = []
     has_time: bool | None = None
     header_seen = False
     for ln, line in numbered_lines(p):
@@ -173,14 +148,24 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False) 
         elif has_time != this_time:
             raise DataError(f"{p}: line {ln}: " + ("no date time where the rows before have one" if has_time
                                                     else "a date time where the rows before have none"))
-        t = clock.seconds(stamp, ln) if this_time else None
-        rows.append((g, name, x * scale, y * scale, z * scale, t, ln))
+        if this_time:
+            st = parse_stamp(stamp)
+            if st is None:
+                raise DataError(f"{p}: line {ln}, column 'date time': {stamp[:40]!r} is not a date and time this "
+                                f"reader knows ({FORM_TEXT})")
+            stamps.append(st)
+        rows.append((g, name, x * scale, y * scale, z * scale, None, ln))
         if len(rows) > MAX_ROWS:
             raise DataError(f"{p}: more than {MAX_ROWS} points")
     if not seen_marker and unit is None:
         raise DataError(f"{p}: not a SpatialAnalyzer export (no '// SpatialAnalyzer' line, no AXES line)")
     if not rows:
         raise DataError(f"{p}: no points after the header")
+    reading = None
+    if has_time:
+        reading = stamps_to_seconds(stamps, date_order=date_order,
+                                    where=lambda i: f"{p}: line {rows[i][6]}, column 'date time'")
+        rows = [r[:5] + (t,) + r[6:] for r, t in zip(rows, reading.t_s)]
     # groups: contiguous blocks
     blocks: list[tuple[str, int, int]] = []  # (group, first row, last row)
     for k, r in enumerate(rows):
@@ -195,6 +180,11 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False) 
                             "stream: export each group on its own")
         blocks.append((r[0], k, k))
     notes = []
+    if reading is not None and reading.order is not None:
+        why = {"field>12": "a date field above 12 says so", "option": "--date-order",
+               "one date": "every stamp has the same date, so the order does not change the intervals",
+               "either": "the intervals are the same in either order"}[reading.settled_by]
+        notes.append(f"dates A/B/Y read as {'month/day' if reading.order == 'mdy' else 'day/month'} ({why})")
     if whole_file:
         keep = range(len(rows))
         chosen = None

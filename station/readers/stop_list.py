@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.text import MAX_ROWS, csv_records, parse_number
 
 REQUIRED = ("pose", "cycle", "x", "y", "z")
@@ -57,6 +58,7 @@ def _stop_name(pose: str, cycle: int, approach: str | None) -> str:
     return f"pose {pose} cycle {cycle}" + ("" if approach is None else f" approach {approach}")
 
 
+@reads_once
 def read_stop_list(path) -> StopList:
     """Read a stop list CSV; DataError naming file, line and column for anything malformed."""
     p = Path(path)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import DataError
+from station.readers.once import reads_once
 from station.readers.stream import PointStream
 from station.readers.text import (
     MAX_ABS_MM, MAX_ABS_S, MAX_LINE_CHARS, MAX_ROWS, csv_records, max_line_bytes, numbered_lines, parse_number,
@@ -78,6 +79,7 @@ def _status_ok(value: str) -> bool:
         return False
 
 
+@reads_once
 def read_stream_csv(path) -> PointStream:
     """Read a tracker stream CSV; DataError naming file, line and column for anything malformed.
 
@@ -151,6 +153,7 @@ def read_stream_csv(path) -> PointStream:
                        abc_deg=abc_deg, fmt="csv", source=str(path))
 
 
+@reads_once
 def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
     """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None.
 

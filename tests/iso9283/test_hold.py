@@ -64,12 +64,15 @@ def test_hold_cli_in_two_formats(tmp_path, rng, capsys):
     assert rc == 0 and "sample index / 100 Hz" in out
     d2 = json.loads((tmp_path / "p.json").read_text())
     assert d2["noise_mm"] == pytest.approx(d["noise_mm"], abs=1e-6)
-    # 1 s time stamps: refused, then the rate
+    # 1 s time stamps: the rate estimated from them (100 samples in every whole second), said so
     stamps = [f"2024-01-01 00:{int(x) // 60:02d}:{int(x) % 60:02d}" for x in t]
     A = write_sa(tmp_path / "H.sa", xyz, stamps=stamps)
-    rc = main(["analyze", "hold", "--stream", str(A)])
-    err = capsys.readouterr().err
-    assert rc == 2 and "column 'date time'" in err and "--rate-hz" in err
+    rc = main(["analyze", "hold", "--stream", str(A), "--json", str(tmp_path / "a.json")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "ESTIMATED from the coarse stamps" in out and "rest on the rate estimated" in out
+    d3 = json.loads((tmp_path / "a.json").read_text())
+    assert d3["time_base"]["source"] == "estimated_rate" and d3["time_base"]["rate_hz"] == pytest.approx(100.0)
+    assert d3["windows"]["RP_mm"] == pytest.approx(d2["windows"]["RP_mm"], abs=1e-6)
 
 
 def test_a_stream_with_a_move_is_not_a_hold(rng, tmp_path, capsys):

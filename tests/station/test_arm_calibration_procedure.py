@@ -75,6 +75,18 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     err = np.linalg.norm(meas[split.test] - p_tracker, axis=1)
     assert err.mean() == pytest.approx(doc["test"]["mean_abs_after_mm"], abs=1e-6)
     assert (tmp_path / "reports" / "c1.html").exists()
+    # the run's export is an arm CSV the command that analyses such runs reads (pose, step_idx not measurements)
+    from app.cli import main
+    from station.readers.arm_csv import read_arm_csv
+
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        store.export("c1", tmp_path / "export")
+    f = tmp_path / "export" / "samples_points.csv"
+    assert open(f).readline().strip().split(",")[:2] == ["pose", "q1"]
+    data = read_arm_csv(f)
+    assert np.array_equal(data.q_deg, q_deg[s["pose"].astype(int)]) and np.array_equal(
+        data.xyz_mm, np.column_stack([s["x"], s["y"], s["z"]]))
+    assert main(["calibrate", "arm", "--robot", plan.robot.name, "--data", str(f), "--json", str(tmp_path / "a.json")]) == 0
 
 
 def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(rng, tmp_path):

@@ -79,6 +79,13 @@ def test_iso9283_procedure_end_to_end_matches_the_simulated_truth(fake_cell, tmp
     report = next(s.output["report"] for s in steps if s.name == "report")
     html = open(report).read()
     assert html.count("<svg") >= 5 and "P2-P4" in html
+    # the registered frame beside the report, in the form --frame reads
+    from station.readers.registration_files import read_frame_json
+
+    frame = next(s.output["frame"] for s in steps if s.name == "report")
+    assert frame == str((tmp_path / "reports" / "t1.frame.json").resolve())
+    R, t, obj = read_frame_json(frame)
+    assert np.array_equal(R, reg.R) and np.array_equal(t, reg.t_mm) and obj["method"] == registration
     if registration == "axes":
         _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars)
 

@@ -106,21 +106,21 @@ def test_fleet_from_the_command_line_and_the_page(fleet_stores, tmp_path, capsys
     cfg = station_config(tmp_path, "office", None)
     with pytest.raises(SystemExit):
         main(["store", "fleet", "drifting"])
-    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm"]) == 2  # no store_url
+    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm", "--central"]) == 2  # no URL
     assert "store_url is not set" in capsys.readouterr().err
     pg_url = [s for s in stores if s.dialect == "postgresql"][0]
     cfg = station_config(tmp_path, "office", _url_of(pg_url))
-    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm", "--q", "0.01", "--json"]) == 1
+    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm", "--q", "0.01", "--json", "--central"]) == 1
     rows = json.loads(capsys.readouterr().out)
     assert fleet.drifting <= {r["serial"] for r in rows}
-    assert main(["store", "fleet", "over-limits", "--config", str(cfg), "--name", "RP_mm"]) == 1
+    assert main(["store", "fleet", "over-limits", "--config", str(cfg), "--name", "RP_mm", "--central"]) == 1
     capsys.readouterr()
-    assert main(["store", "fleet", "history", "--config", str(cfg), "--serial", "SN-00000", "--name", "RP_mm"]) == 0
+    assert main(["store", "fleet", "history", "--config", str(cfg), "--serial", "SN-00000", "--name", "RP_mm", "--central"]) == 0
     assert capsys.readouterr().out.count("SN-00000-") == 14 * 5
-    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm", "--q", "2"]) == 2
+    assert main(["store", "fleet", "drifting", "--config", str(cfg), "--name", "RP_mm", "--q", "2", "--central"]) == 2
     capsys.readouterr()
     page = tmp_path / "fleet.html"
-    assert main(["store", "fleet", "page", "--config", str(cfg), "--name", "RP_mm", "--out", str(page)]) == 0
+    assert main(["store", "fleet", "page", "--config", str(cfg), "--name", "RP_mm", "--out", str(page), "--central"]) == 0
     text = page.read_text()
     for s in sorted(fleet.drifting)[:3]:
         assert s in text

@@ -125,3 +125,66 @@ def sample_index_time(n: int, rate_hz: float) -> np.ndarray:
     if n < 1:
         raise DataError(f"need at least 1 sample, got {n}")
     return np.arange(int(n), dtype=float) / float(rate_hz)
+
+
+#: a whole-stamp interval whose rate departs from the estimate by more than this fraction (and more than
+#: the one sample a stamp boundary can shift) is reported as a place where the rate varies
+RATE_VARIES_FRACTION = 0.02
+
+
+@dataclass(frozen=True)
+class RateEstimate:
+    """The sample rate read from coarse stamps: samples per stamp interval between stamp changes.
+
+    ``rate_hz`` is the samples of every whole interval over their seconds;
+    ``spread_hz`` the standard deviation of the intervals' own rates;
+    ``per_interval_hz`` (K,) those rates, ``first_row`` (K,) the row each
+    interval starts at; ``varies`` the intervals (indices into them) whose rate
+    departs from ``rate_hz`` beyond what a stamp boundary explains.
+    """
+
+    rate_hz: float
+    spread_hz: float
+    resolution_s: float
+    n_intervals: int
+    per_interval_hz: np.ndarray
+    first_row: np.ndarray
+    varies: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {"rate_hz": float(self.rate_hz), "spread_hz": float(self.spread_hz),
+                "stamp_resolution_s": float(self.resolution_s), "n_intervals": int(self.n_intervals),
+                "min_hz": float(self.per_interval_hz.min()), "max_hz": float(self.per_interval_hz.max()),
+                "n_varying": int(self.varies.size)}
+
+
+def estimate_rate_from_stamps(t_s) -> RateEstimate:
+    """Estimate the sample rate of a stream whose stamps repeat (a clock coarser than the sampling).
+
+    The stamps change at rows ``c_0 < c_1 < ...``; the samples from ``c_k`` up
+    to ``c_{k+1}`` were taken while the clock read ``t[c_k]``, so interval
+    ``k`` holds ``c_{k+1} - c_k`` samples over ``t[c_{k+1}] - t[c_k]`` seconds.
+    The first and the last run of equal stamps are partial (the stream starts
+    and ends within a second) and are not used. Needs stamps in order and at
+    least one whole interval; DataError otherwise.
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.ndim != 1 or t.size < 3 or not np.all(np.isfinite(t)):
+        raise DataError("estimating the rate needs at least 3 finite stamps")
+    dt = np.diff(t)
+    if np.any(dt < 0):
+        i = int(np.argmax(dt < 0)) + 1
+        raise DataError(f"row {i}: the stamps go back; no rate can be read from them")
+    change = np.flatnonzero(dt > 0) + 1  # rows where a new stamp starts
+    if change.size < 2:
+        raise DataError(f"the stamps change {change.size} time(s): no whole stamp interval to count samples in")
+    counts = np.diff(change).astype(float)
+    secs = t[change[1:]] - t[change[:-1]]
+    res = float(np.min(secs))
+    rates = counts / secs
+    rate = float(counts.sum() / secs.sum())
+    spread = float(np.std(rates, ddof=1)) if rates.size > 1 else 0.0
+    expect = rate * secs
+    varies = np.flatnonzero(np.abs(counts - expect) > np.maximum(1.0 + 1e-9, RATE_VARIES_FRACTION * expect))
+    return RateEstimate(rate_hz=rate, spread_hz=spread, resolution_s=res, n_intervals=int(counts.size),
+                        per_interval_hz=rates, first_row=change[:-1].astype(np.int64), varies=varies)

@@ -1,0 +1,107 @@
+"""Offline data of the simulated cell for `station simulate arm|trailer`: measurements and their truth.
+
+* :func:`simulate_arm` - a true arm (the library model plus drawn error effects:
+  geometric only, or every effect of :func:`station.models.effects.realistic_effects`)
+  measured at random poses in order by a tracker in a random frame
+  (:func:`fakes.sim.diagnosis_data.simulate_arm_data`); the rows an arm CSV holds.
+* :func:`simulate_trailer` - a trailer record with chosen effects hidden in it
+  (:func:`fakes.sim.trailer_diagnosis_data.make_trailer_case`).
+
+Each returns the data and a JSON-ready ``truth`` (what was drawn), so a person
+or a test can hold the analysis against it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.models.effects import EffectSet, realistic_effects
+from station.models.robots import get_robot
+
+ARM_EFFECTS = ("geometric", "realistic", "none")
+TRAILER_EFFECTS = ("link_lengths", "hitch_angle_offset", "curvature_gain", "hitch_dynamics")
+
+
+def simulate_arm(robot: str, *, n: int, effects: str, seed: int) -> tuple[dict, dict]:
+    """``(columns of an arm CSV, truth)``: q1..q6 deg, x, y, z mm (tracker frame), t s, temperature degC, load kg."""
+    if effects not in ARM_EFFECTS:
+        raise ValueError(f"effects must be one of {', '.join(ARM_EFFECTS)}, got {effects!r}")
+    spec = get_robot(robot)
+    rng = np.random.default_rng(seed)
+    drawn = realistic_effects(spec, rng)
+    if effects == "geometric":
+        eff = EffectSet.from_params({"geometric": drawn.get("geometric")})
+    elif effects == "none":
+        eff = EffectSet.none()
+    else:
+        eff = drawn
+    from fakes.sim.diagnosis_data import simulate_arm_data
+
+    d = simulate_arm_data(spec, eff, rng, n=n)
+    cols = {"q_deg": np.degrees(d.q_rad), "xyz_mm": d.xyz_mm, "t": d.t_s, "temperature": d.temperature_c,
+            "load": d.load_kg}
+    truth = {"robot": spec.name, "seed": seed, "effects": effects, "n_poses": n,
+             "effect_params": eff.to_dict(), "tracker_T_base": d.base_T.tolist(), "noise_mm": d.noise_mm,
+             "stop_sigma_rad": np.asarray(d.stop_sigma_rad).tolist(),
+             "true_points_mm": d.true_points(spec).tolist()}
+    return cols, truth
+
+
+#: the record is simulated this many times finer than it is written; curvature and speed are then averaged over
+#: each written interval, as odometry reports them (``calibrate trailer``'s default ``--sampling interval``)
+OVERSAMPLE = 10
+
+
+def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz: float = 20.0) -> tuple[dict, dict]:
+    """``(columns t, kappa, psi, v, truth)`` of a trailer record with the effects ``hidden`` drawn in it.
+
+    The trailer follows the joint-angle dynamics of eq. (D) as an ideal trailer
+    (relaxation over L2) unless ``hitch_dynamics`` is hidden (then its drawn
+    relaxation length). ``kappa`` and ``v`` are averages over the interval
+    ending at ``t``; ``psi`` the angle at ``t``.
+    """
+    from fakes.sim.trailer_diagnosis_data import make_trailer_case
+
+    bad = [h for h in hidden if h not in TRAILER_EFFECTS]
+    if bad:
+        raise ValueError(f"unknown trailer effect(s) {', '.join(bad)} (known: {', '.join(TRAILER_EFFECTS)})")
+    rng = np.random.default_rng(seed)
+    L2 = 2.48
+    kw = {} if "hitch_dynamics" in hidden else {"relaxation_m": L2}
+    rec = make_trailer_case(list(hidden), rng, L2_m=L2, duration_s=duration_s, rate_hz=rate_hz * OVERSAMPLE, **kw)
+    n = (rec["t"].size - 1) // OVERSAMPLE
+    end = np.arange(1, n + 1) * OVERSAMPLE  # the fine sample at each written t
+    blocks = end[:, None] - np.arange(OVERSAMPLE)[None, :]  # the fine samples of the interval ending there
+    cols = {"t": rec["t"][end], "kappa": rec["kappa"][blocks].mean(axis=1), "psi": rec["psi"][end],
+            "v": rec["v"][blocks].mean(axis=1)}
+    truth = {"seed": seed, "hidden": list(hidden), "relaxation_m": kw.get("relaxation_m"),
+             **{k: float(v) for k, v in rec["truth"].items()},
+             "psi_sigma_rad": float(rec["psi_sigma"]),
+             "kappa_sigma_per_m": float(rec["kappa_sigma"]) / np.sqrt(OVERSAMPLE),
+             "duration_s": duration_s, "rate_hz": rate_hz,
+             "sampling": "kappa and v: averages over the interval ending at t; psi: at t"}
+    return cols, truth
+
+
+def simulate_hold(*, seed: int, duration_s: float = 60.0, rate_hz: float = 100.0,
+                  distance_mm: float = 2500.0) -> tuple[dict, dict]:
+    """``(columns t, x, y, z, truth)``: a robot holding one pose, measured by the tracker.
+
+    The tool drifts along a random direction at U(0.005, 0.03) mm/min (the
+    arm warming up); the tracker adds its noise at ``distance_mm``
+    (:meth:`fakes.sim.tracker.TrackerModel.sigma_mm`).
+    """
+    from fakes.sim.tracker import TrackerModel
+
+    rng = np.random.default_rng(seed)
+    n = int(round(duration_s * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    sigma = float(np.max(TrackerModel(np.eye(4), rate_hz=rate_hz).sigma_mm(distance_mm)))
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    drift = float(rng.uniform(0.005, 0.03)) * direction  # mm/min
+    p0 = rng.uniform(-1000.0, 1000.0, 3) + np.array([0.0, 0.0, distance_mm])
+    xyz = p0 + np.outer(t / 60.0, drift) + rng.normal(0.0, sigma, (n, 3))
+    truth = {"seed": seed, "position_mm": p0.tolist(), "drift_mm_per_min": drift.tolist(),
+             "noise_mm": sigma, "duration_s": duration_s, "rate_hz": rate_hz}
+    return {"t": t, "xyz_mm": xyz}, truth

@@ -1,0 +1,34 @@
+"""`station ... --help` reads as plain text: no docstring markup, every option of the file and store commands
+explained, and the analyses described."""
+
+from __future__ import annotations
+
+import argparse
+
+from app.cli import build_parser
+
+EXPLAINED = ("init", "store", "simulate", "analyze", "calibrate", "diagnose")
+
+
+def _walk(p, path):
+    yield path, p
+    for a in p._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sp in a.choices.items():
+                yield from _walk(sp, path + [name])
+
+
+def test_help_texts_are_plain_and_complete():
+    seen = {}
+    for path, p in _walk(build_parser(), []):
+        text = p.format_help()
+        seen[" ".join(path)] = p
+        for mark in ("``", ":mod:", ":func:", ":class:"):
+            assert mark not in text, (path, mark)
+        if path and path[0] in EXPLAINED:
+            lacking = [a.option_strings or [a.dest] for a in p._actions
+                       if a.help is None and not isinstance(a, argparse._SubParsersAction)]
+            assert not lacking, (path, lacking)
+    for cmd in ("calibrate arm", "calibrate trailer", "diagnose arm", "diagnose trailer", "simulate arm",
+                "simulate trailer", "analyze iso9283", "analyze hold", "init"):
+        assert seen[cmd].description, cmd
