@@ -226,6 +226,7 @@ def make_world(
     base_T_tracker=None,
     jig: CornerJig | None = None,
     base_T_scanner=None,
+    start_s: float = 0.0,
 ) -> World:
     """Build a simulated cell.
 
@@ -270,6 +271,11 @@ def make_world(
         Jig on the tool (default 60 mm edges, corner at the TCP).
     base_T_scanner : array_like, shape (4, 4), optional
         Scanner pose; default 700 mm from the TCP at home, facing the tool.
+    start_s : float
+        Simulated time at which the new clock starts (>= 0; ignored when
+        ``clock`` is given). The cell was built at 0 (the arm's warm-up
+        counts from there): a cell started again to resume a run continues
+        the time of the one before, so device time never repeats.
 
     Returns
     -------
@@ -293,6 +299,7 @@ def make_world(
     seed = int(seed)
     if clock is None:
         time_scale = _num(time_scale, "time_scale", positive=True)
+        start_s = _num(start_s, "start_s", nonneg=True)
     elif not (hasattr(clock, "now") and hasattr(clock, "sleep_until")):
         raise ConfigError(f"`clock` must be a SimClock or ManualClock, got {type(clock).__name__}")
     if not (isinstance(effects, EffectSet) or effects is None or effects == "realistic"):
@@ -373,7 +380,7 @@ def make_world(
     except ConfigError as exc:
         raise ConfigError(f"scanner: {exc}") from exc
 
-    clk = clock if clock is not None else SimClock(time_scale)
+    clk = clock if clock is not None else SimClock(time_scale, start=start_s, lockstep=True)
     arm = SimArm(
         spec,
         clk,
@@ -385,6 +392,8 @@ def make_world(
         history_s=history_s,
         payload_kg=payload_kg,
     )
+    if clock is None:
+        arm.warmup_origin_s = 0.0
     return World(
         clock=clk,
         robot=spec,
