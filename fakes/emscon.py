@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fakes.sim.clock import keep_running, stop_running
 from station.errors import ConfigError
 
 # --- wire layout (TPI, little-endian, packed to 4) ----------------------------------
@@ -205,7 +206,10 @@ class EmsconFake:
     """Handle of a running emScon fake: ``endpoint``, ``stats``, ``close()``."""
 
     def __init__(self, world, *, host: str | None = None, port: int | None = None,
-                 faults: dict | None = None) -> None:
+                 faults: dict | None = None, drives_clock: bool = True) -> None:
+        #: a tracker served on its own keeps the clock running while it streams; in a cell whose controller
+        #: runs the programs (``drives_clock=False``) the stream only follows the clock
+        self._drives_clock = drives_clock
         self._faults = parse_tracker_faults(faults, allowed=EMSCON_FAULTS, drop_default_s=0.0)
         self._source = world.tracker_source()
         self._clock = self._source.clock
@@ -313,6 +317,7 @@ class _Session:
         self.packets = 0
         # while streaming, the clock never runs past the next packet the session has not sent
         self.producer = fake._clock.producer("emscon stream")
+        self.running = None  # the stream's own demand when the fake drives the clock
 
     # ------------------------------------------------------------------ loop
     def run(self) -> None:
@@ -320,6 +325,7 @@ class _Session:
             self._loop()
         finally:
             self.producer.release()
+            stop_running(self.running)
 
     def _loop(self) -> None:
         fake, clock = self.fake, self.fake._clock
@@ -470,12 +476,16 @@ class _Session:
                 self.next_k = max(0, int(math.ceil((now + fake._offset) * 1e6 / sep_us)))
                 self.streaming = True
                 self.producer.hold_until(self._next_batch_due())
+                if fake._drives_clock:
+                    self.running = keep_running(fake._clock)
             return _reply(command, _RS_OK)
         if command == 52:  # StopMeasurement
             if self.streaming:
                 self._stream(flush=True)
                 self.streaming = False
                 self.producer.release()
+                stop_running(self.running)
+                self.running = None
             return _reply(command, _RS_OK)
         return _reply(command, _RS_NOT_IMPLEMENTED)
 
@@ -567,9 +577,13 @@ class _Session:
 
 
 def start_fake(world, *, host: str | None = None, port: int | None = None,
-               faults: dict | None = None) -> EmsconFake:
-    """Start the emScon fake on loopback; see the module docstring for ``faults``."""
-    return EmsconFake(world, host=host, port=port, faults=faults)
+               faults: dict | None = None, drives_clock: bool = True) -> EmsconFake:
+    """Start the emScon fake on loopback; see the module docstring for ``faults``.
+
+    ``drives_clock=False`` in a cell where other fakes schedule simulated time (the controller's
+    programs): the stream then follows the lockstep clock instead of running it.
+    """
+    return EmsconFake(world, host=host, port=port, faults=faults, drives_clock=drives_clock)
 
 
 __all__ = ["start_fake", "EmsconFake", "TrackerFaults", "parse_tracker_faults", "check_loopback",

@@ -216,6 +216,18 @@ class SimClock:
             self._scale = scale
 
 
+def keep_running(clock) -> Demand | None:
+    """``clock.keep_running()`` for a fake driven by an outside real-time client (None: a clock without it)."""
+    fn = getattr(clock, "keep_running", None)
+    return fn() if callable(fn) else None
+
+
+def stop_running(demand: Demand | None) -> None:
+    """Withdraw what :func:`keep_running` returned (None: nothing)."""
+    if demand is not None:
+        demand.cancel()
+
+
 class ManualClock:
     """A clock that moves only when told: offline simulation and unit tests.
 
