@@ -52,8 +52,18 @@ class TrackerSource:
     _arm: SimArm = field(repr=False)
 
     def measure(self, t_sim) -> tuple[np.ndarray, np.ndarray]:
-        """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``."""
-        return self.tracker.measure(t_sim, self._arm.tool_position_mm)
+        """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``.
+
+        The noise of a sample is drawn per move of the arm and sample index since
+        that move started (:meth:`SimArm.noise_epochs`,
+        :meth:`TrackerModel.epoch_noise`): a move that names itself is measured
+        with the same noise in any world of the seed, so a resumed run meets
+        the samples of the run it resumes, not only its stops.
+        """
+        def noise(t):
+            return self.tracker.epoch_noise(t, *self._arm.noise_epochs(t))
+
+        return self.tracker.measure(t_sim, self._arm.tool_position_mm, noise_fn=noise)
 
     def sample_times(self, t_start: float, t_end: float) -> np.ndarray:
         """World times of the device's grid samples in ``[t_start, t_end)``."""
