@@ -214,6 +214,11 @@ class EmsconTracker(Tracker):
             self._stream_active = False
             raise
 
+    def sync(self, timeout_s: float = 5.0) -> None:
+        """A GetSystemStatus round trip: the reader decodes in order, so every data packet the server
+        sent before its reply is in the stream buffer on return."""
+        self._command(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS), timeout_s=timeout_s)
+
     def stop_stream(self, timeout_s: float = 5.0) -> StreamRecord:
         if self._stream is None:
             raise DeviceError("no stream was started")

@@ -451,6 +451,14 @@ class Tracker(abc.ABC):
             batch = SampleBatch(batch.t_s, batch.xyz_mm, batch.status, tuple(idle) + batch.events)
         return batch
 
+    def sync(self, timeout_s: float = 5.0) -> None:
+        """Return once every sample the device sent before this call is readable.
+
+        A driver whose samples share one ordered link with its command replies
+        makes a round trip (a reply comes after everything sent before it);
+        a driver that asks for each sample itself has nothing in flight.
+        """
+
     def poll_events(self) -> list[TrackerEvent]:
         """Events not yet handed out (with or without a stream)."""
         events = self._idle.take_events()

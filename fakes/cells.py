@@ -6,7 +6,8 @@ takes the run's stored plan (``params``) and the fake's own parameters
 (``fake``: ``seed``, ``time_scale``, and what the cell adds), and returns an
 object with ``urls`` (device role -> endpoint), ``time_scale`` and ``close()``.
 The same parameters give the same simulated cell, so a resumed run meets the
-robot it started with.
+robot it started with; ``fake["start_s"]`` (set by a resume) starts the cell's
+clock after everything the run stored, so its device time goes on.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
 
     world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
-                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)), **world)
+                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
+                                start_s=float(fake.get("start_s", 0.0)), **world)
     return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
                     float(fake["time_scale"]), station.close)
 
@@ -66,7 +68,8 @@ def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:
     from fakes.scanner_folder import start_fake
     from fakes.station import FakeStation
 
-    station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), robot=params["robot"])
+    station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), robot=params["robot"],
+                                start_s=float(fake.get("start_s", 0.0)))
     folder = Path(tempfile.mkdtemp(prefix="fake-scanner-"))
     try:
         scanner = start_fake(station.world, folder, faults=fake.get("scanner_faults"))
@@ -117,7 +120,8 @@ def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
     from fakes.sim.trailer import SimTrailer
     from fakes.sim.world import make_world
 
-    world = make_world(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), effects=None)
+    world = make_world(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]), effects=None,
+                       start_s=float(fake.get("start_s", 0.0)))
     try:
         if fake.get("true_lengths_m"):
             L1, L2 = fake["true_lengths_m"]

@@ -197,6 +197,7 @@ class ControllerCore:
         self.last_error = ""
         self.last_request = time.monotonic()
         self._run: RapidRun | None = None
+        self._runs_by_name: dict[str, int] = {}
         self._run_thread: threading.Thread | None = None
         self._worker = threading.Thread(target=self._work, name="controller-fake-worker")
         self._worker.start()
@@ -369,8 +370,11 @@ class ControllerCore:
             fault_at["protective_stop"] = self.faults.protective_stop_move
         if self.faults.emergency_stop_move:
             fault_at["emergency_stop"] = self.faults.emergency_stop_move
+        name = compiled.program.name
+        self._runs_by_name[name] = self._runs_by_name.get(name, 0) + 1
         run = RapidRun(
-            self.world, compiled, self.gate, self._on_progress, fault_at_move=fault_at, on_fault=self._on_injected_fault
+            self.world, compiled, self.gate, self._on_progress, fault_at_move=fault_at, on_fault=self._on_injected_fault,
+            run_no=self._runs_by_name[name],
         )
         with self._lock:
             self.state = State.RUNNING

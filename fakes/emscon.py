@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fakes.sim.clock import keep_running, stop_running
 from station.errors import ConfigError
 
 # --- wire layout (TPI, little-endian, packed to 4) ----------------------------------
@@ -205,7 +206,10 @@ class EmsconFake:
     """Handle of a running emScon fake: ``endpoint``, ``stats``, ``close()``."""
 
     def __init__(self, world, *, host: str | None = None, port: int | None = None,
-                 faults: dict | None = None) -> None:
+                 faults: dict | None = None, drives_clock: bool = True) -> None:
+        #: a tracker served on its own keeps the clock running while it streams; in a cell whose controller
+        #: runs the programs (``drives_clock=False``) the stream only follows the clock
+        self._drives_clock = drives_clock
         self._faults = parse_tracker_faults(faults, allowed=EMSCON_FAULTS, drop_default_s=0.0)
         self._source = world.tracker_source()
         self._clock = self._source.clock
@@ -231,6 +235,8 @@ class EmsconFake:
                       "anchor_t": None}
         # tracker state survives client sessions, as a real server's does
         self._t_started = self._clock.now()
+        if math.isfinite(self._faults.not_ready_s) and self._faults.not_ready_s > 0:
+            self._clock.schedule(self._t_started + self._faults.not_ready_s)  # the warm-up runs on its own
         self._initialised = False
         self._length_unit = 1
         self._meas_mode = 0
@@ -309,12 +315,27 @@ class _Session:
         self.single_window: tuple[float, float] | None = None
         self.init_done_at: float | None = None
         self.packets = 0
+        # while streaming, the clock never runs past the next packet the session has not sent
+        self.producer = fake._clock.producer("emscon stream")
+        self.running = None  # the stream's own demand when the fake drives the clock
 
     # ------------------------------------------------------------------ loop
     def run(self) -> None:
+        try:
+            self._loop()
+        finally:
+            self.producer.release()
+            stop_running(self.running)
+
+    def _loop(self) -> None:
         fake, clock = self.fake, self.fake._clock
         while not fake._stop.is_set():
             self._check_drop()
+            # what is due goes out before any reply: a reply the client gets tells it that every
+            # sample due before its command was sent ahead of it
+            if self.streaming:
+                self._stream()
+            self._finish_pending()
             wait = 0.05
             now = clock.now()
             for t_due in (self._next_batch_due(), self.init_done_at,
@@ -328,9 +349,6 @@ class _Session:
                     return
                 self.rx += data
                 self._commands()
-            if self.streaming:
-                self._stream()
-            self._finish_pending()
 
     def _send(self, data: bytes) -> None:
         try:
@@ -404,6 +422,7 @@ class _Session:
             if fake._not_ready():
                 return _reply(command, _RS_NOT_WARMED_UP)
             self.init_done_at = fake._clock.now() + _INIT_DURATION_S
+            fake._clock.schedule(self.init_done_at)
             return None  # replied when done
         if command == 24:  # SetMeasurementMode
             mode = ints(1)
@@ -451,15 +470,22 @@ class _Session:
                 fake.stats["anchor_t"] = now
             if fake._meas_mode == 0:
                 self.single_window = (now, now + fake._stationary_ms / 1000.0)
+                fake._clock.schedule(self.single_window[1])
             else:
                 sep_us = fake._separation_ms * 1000
                 self.next_k = max(0, int(math.ceil((now + fake._offset) * 1e6 / sep_us)))
                 self.streaming = True
+                self.producer.hold_until(self._next_batch_due())
+                if fake._drives_clock:
+                    self.running = keep_running(fake._clock)
             return _reply(command, _RS_OK)
         if command == 52:  # StopMeasurement
             if self.streaming:
                 self._stream(flush=True)
                 self.streaming = False
+                self.producer.release()
+                stop_running(self.running)
+                self.running = None
             return _reply(command, _RS_OK)
         return _reply(command, _RS_NOT_IMPLEMENTED)
 
@@ -497,7 +523,9 @@ class _Session:
         fake = self.fake
         sep_us = fake._separation_ms * 1000
         per = self._per_packet()
-        k_now = int(math.floor((fake._clock.now() + fake._offset) * 1e6 / sep_us))
+        # the clock stops exactly on a packet's due time (the producer's cap): the tolerance keeps the
+        # rounding of that time from postponing the packet
+        k_now = int(math.floor((fake._clock.now() + fake._offset) * 1e6 / sep_us + 1e-6))
         backlog = k_now - self.next_k + 1
         limit = int(fake._faults.device_buffer_s * 1e6 / sep_us)
         if backlog > limit + per:  # the client did not keep up: the device buffer overflowed
@@ -522,6 +550,8 @@ class _Session:
                 elif self.beam_ok:
                     self._send(_status_change(_SSC_NOT_READY))
                     self.beam_ok = False
+        if self.streaming:
+            self.producer.hold_until(self._next_batch_due())
 
     def _data_packet(self, packet: bytes, n_samples: int, span_s: tuple) -> None:
         fake, faults, stats = self.fake, self.fake._faults, self.fake.stats
@@ -547,9 +577,13 @@ class _Session:
 
 
 def start_fake(world, *, host: str | None = None, port: int | None = None,
-               faults: dict | None = None) -> EmsconFake:
-    """Start the emScon fake on loopback; see the module docstring for ``faults``."""
-    return EmsconFake(world, host=host, port=port, faults=faults)
+               faults: dict | None = None, drives_clock: bool = True) -> EmsconFake:
+    """Start the emScon fake on loopback; see the module docstring for ``faults``.
+
+    ``drives_clock=False`` in a cell where other fakes schedule simulated time (the controller's
+    programs): the stream then follows the lockstep clock instead of running it.
+    """
+    return EmsconFake(world, host=host, port=port, faults=faults, drives_clock=drives_clock)
 
 
 __all__ = ["start_fake", "EmsconFake", "TrackerFaults", "parse_tracker_faults", "check_loopback",

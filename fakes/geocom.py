@@ -45,6 +45,7 @@ import numpy as np
 
 from fakes.emscon import parse_tracker_faults
 from fakes.pty_port import PtyPort
+from fakes.sim.clock import keep_running, stop_running
 from station.errors import ConfigError
 
 GEOCOM_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "slow_reply_s",
@@ -81,6 +82,8 @@ class GeoComFake:
         self.stats = {"requests": 0, "replies": 0, "ignored_lines": 0, "malformed": 0, "garbage_bytes": 0,
                       "truncated": 0, "dropped_requests": 0, "anchor_t": None}
         self._t_started = self._clock.now()
+        # the driver asks for every measurement itself, in real time: the clock runs while it is served
+        self._running = keep_running(self._clock)
         self._tracking = False
         self._stored: tuple | None = None  # (xyz_mm, t_s, valid) of the last distance measurement
         self._stop = threading.Event()
@@ -91,6 +94,7 @@ class GeoComFake:
         self._stop.set()
         self._thread.join(timeout=10.0)
         self._port.close()
+        stop_running(self._running)
 
     def __enter__(self):
         return self

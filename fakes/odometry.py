@@ -37,6 +37,7 @@ import threading
 import numpy as np
 
 from fakes.pty_port import PtyPort
+from fakes.sim.clock import keep_running, stop_running
 from station.errors import ConfigError, DataError
 from station.models.trailer import CurvatureBoundError, JointAngleLimitError
 
@@ -130,6 +131,8 @@ class OdometryFake:
         self._master = self._port.master
         self.endpoint = {"device": self._port.device}
         self._t0 = float(clock.now())
+        # the driver steers the trailer in real time from the samples it reads: the clock runs while served
+        self._running = keep_running(clock)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="odometry-fake", daemon=True)
         self._thread.start()
@@ -138,6 +141,7 @@ class OdometryFake:
         self._stop.set()
         self._thread.join(timeout=10.0)
         self._port.close()
+        stop_running(self._running)
 
     def __enter__(self) -> "OdometryFake":
         return self

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import re
 import threading
+import zlib
 from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -56,6 +57,8 @@ from station.programs.model import (
     check_name,
 )
 
+#: the controller's interpolation tick, s: a program starts on a multiple of it
+IPO_TICK_S = 0.02
 #: largest program file the fake accepts, bytes
 MAX_PROGRAM_BYTES = 1 << 20
 #: group output mapped to the Modbus cycle counter
@@ -706,6 +709,8 @@ class RapidRun:
         of the n-th move (1-based, counted over the run).
     on_fault : callable(kind, line)
         Called when an injected fault halts the arm.
+    run_no : int
+        How many times the controller has started a program of this name (1 first).
     """
 
     def __init__(
@@ -717,8 +722,12 @@ class RapidRun:
         *,
         fault_at_move: dict[str, int] | None = None,
         on_fault: Callable[[str, int], None] | None = None,
+        run_no: int = 1,
     ) -> None:
         self.world = world
+        # every move names itself to the arm (program, run of that program, cycle, instruction), so its
+        # stopping error is the same in any world of the seed: a resumed run meets the same stops
+        self._key = (zlib.crc32(compiled.program.name.encode()), int(run_no))
         self.arm = world.arm
         self.clock = world.clock
         self.program = compiled.program
@@ -744,7 +753,7 @@ class RapidRun:
             return np.asarray(moves[-1].q_target_rad, dtype=float).reshape(6)
         return np.asarray(self.arm.commanded_q_rad(self.clock.now()), dtype=float).reshape(6)
 
-    def _queue(self, ins) -> float:
+    def _queue(self, ins, key=None) -> float:
         """Queue ``ins`` on the arm; return the simulated time it ends."""
         if isinstance(ins, Dwell) and ins.seconds > 0:
             self._t_last = float(self.arm.dwell(ins.seconds).t_end)
@@ -755,14 +764,17 @@ class RapidRun:
         label = self.gate.describe(ins)
         if isinstance(t, JointTarget):
             q = self.gate.check_joint_target(t.q_rad, label)
-            mv = self.arm.move_joint(q, speed_frac=ins.speed_frac, accel_frac=self.program.accel_frac)
+            mv = self.arm.move_joint(q, speed_frac=ins.speed_frac, accel_frac=self.program.accel_frac,
+                                     noise_key=key)
         elif ins.interpolation == "joint":
             q = self.gate.check_cartesian_target(t.pose, label, q_seed=self._q_queue_end())
-            mv = self.arm.move_joint(q, speed_frac=ins.speed_frac, accel_frac=self.program.accel_frac)
+            mv = self.arm.move_joint(q, speed_frac=ins.speed_frac, accel_frac=self.program.accel_frac,
+                                     noise_key=key)
         else:
             self.gate.check_cartesian_target(t.pose, label, q_seed=self._q_queue_end())
             mv = self.arm.move_linear(
-                t.pose, speed_mm_s=ins.speed_frac * self.program.rated_tcp_speed_mm_s, accel_mm_s2=self._accel_mm_s2
+                t.pose, speed_mm_s=ins.speed_frac * self.program.rated_tcp_speed_mm_s, accel_mm_s2=self._accel_mm_s2,
+                noise_key=key,
             )
         self._queued_moves += 1
         for kind, at in self.fault_at_move.items():
@@ -808,14 +820,20 @@ class RapidRun:
 
     def run(self) -> None:
         """Execute to the end; raises RunAborted when stopped, SafetyError on a refused move."""
+        # the program starts on the controller's next interpolation tick: on a tracker's sample grid too
+        # (20 ms is a whole number of 1, 2, 4, 5, 10 or 20 ms sample periods), so the stream samples
+        # every run of a program at the same phase of its motion, whenever it starts
+        t0 = math.ceil(float(self.clock.now()) / IPO_TICK_S - 1e-9) * IPO_TICK_S
+        if not self.clock.sleep_until(t0, self.stop_event):
+            raise RunAborted()
         self._t_last = float(self.clock.now())
         self._fault_mid: dict[int, tuple[str, float]] = {}
         pending: deque = deque()  # queued on the arm, not yet finished
-        for item in self._stream():
+        for index, item in enumerate(self._stream()):
             if self.stop_event.is_set():
                 raise RunAborted()
             n_faults = len(self._fault_mid)
-            pending.append((item[0], self._queue(item[0]), item[1]))
+            pending.append((item[0], self._queue(item[0], (*self._key, item[1], index)), item[1]))
             # an injected fault move is queued: stop planning ahead so that nothing
             # delays the wait for the middle of that move
             limit = 0 if len(self._fault_mid) > n_faults else self.lookahead

@@ -53,7 +53,8 @@ class FakeStation:
             t_faults.setdefault("device_buffer_s", str(max(2.0, 3.0 * scale)))
         self.world = world
         self._owns_world = False
-        self.tracker = emscon_fake.start_fake(world, host=host, faults=t_faults)
+        # the controller's programs schedule the cell's time; the stream follows it (lockstep)
+        self.tracker = emscon_fake.start_fake(world, host=host, faults=t_faults, drives_clock=False)
         try:
             self.controller = controller_fake.start_fake(world, host=host, faults=c_faults)
         except BaseException:

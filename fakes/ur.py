@@ -85,6 +85,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fakes import rtde_protocol as rp
+from fakes.sim.clock import keep_running, stop_running
 from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitter, bind_arguments, parse_program
 from station.errors import ConfigError, DataError, ProtocolError
 from station.models import kinematics
@@ -985,6 +986,8 @@ class URFake:
         self.world = world
         self.plan = plan
         self.ctl = _Controller(world, plan)
+        # ur_rtde drives the arm in real time (servo loops, RTDE at 500 Hz): the clock runs while served
+        self._running = keep_running(world.clock)
         self.stop_event = threading.Event()
         self.endpoint = {"host": host, **{k: socks[k].getsockname()[1] for k in ("rtde", "dashboard", "script")}}
         self.protocol_errors: list[str] = []
@@ -1188,6 +1191,7 @@ class URFake:
         for s in sessions:  # each session sees stop_event within 0.1 s and closes its own socket
             s.join(timeout_s)
         self.interpreter.thread.join(timeout_s)
+        stop_running(self._running)
         alive = [t.name for t in (*self._listeners, *sessions, self.interpreter.thread) if t.is_alive()]
         if alive:
             raise RuntimeError(f"UR fake threads did not stop: {alive}")

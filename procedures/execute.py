@@ -27,7 +27,7 @@ from pathlib import Path
 from procedures.devices import DeviceSet
 from procedures.registry import ProcedureSpec, Subject, get_procedure
 from station.errors import ConfigError, PreflightError
-from station.runner import Operator, ProgressLine, RunControl, RunOutcome, Runner
+from station.runner import Operator, ProgressLine, RunControl, RunOutcome, Runner, resume_start_s
 from station.store import RunStore
 
 
@@ -66,7 +66,11 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
         spec = get_procedure(rec.procedure)
         params = dict(rec.params)
         subject = Subject(rec.model, rec.serial, rec.overhaul_state, f"{rec.model} serial {rec.serial}")
-        return PreparedRun(spec, resume, params, True, robot, subject, params.get("fake"))
+        fake_again = params.get("fake")
+        if fake_again is not None:
+            # the same cell, its clock going on after everything the run stored (time never repeats)
+            fake_again = {**fake_again, "start_s": resume_start_s(store, resume)}
+        return PreparedRun(spec, resume, params, True, robot, subject, fake_again)
     if procedure is None:
         raise ConfigError("name a procedure or a run to resume")
     spec = get_procedure(procedure)

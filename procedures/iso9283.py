@@ -6,7 +6,9 @@ The tests of seed 000 Table 3 on one robot with one laser tracker:
    program generated (ABB RAPID) and passed through the safety gate before
    anything connects;
 2. ``mount reflector`` / ``clear the cell`` — operator prompts (``--yes``
-   answers them from a script); the cell is cleared again in every session;
+   answers them from a script), asked once per run: a resume does not ask
+   again what was confirmed (an armed run's own confirmation is asked in
+   every session by the front door);
 3. ``connect devices`` — tracker (emScon/GeoCOM) and controller (FTP+Modbus);
 4. ``home`` — the robot goes to P1, a known pose (again after a resume);
 5. ``register base frame`` — stationary tracker points at the inset cube
@@ -26,7 +28,11 @@ The tests of seed 000 Table 3 on one robot with one laser tracker:
 
 Samples go to the run store in committed batches while the robot moves, so
 a run killed at any moment keeps every acknowledged sample and resumes at
-the cycle it was in.
+the cycle it was in. The interrupted cycle is redone whole (its partial
+samples stay in the store under their attempt, outside the analysis), and
+entered as an uninterrupted run enters it: the program of the step before
+runs again, unmeasured, first (:func:`predecessor`). A resume with only the
+analysis left opens no device.
 """
 
 from __future__ import annotations
@@ -235,15 +241,35 @@ def programs(plan: IsoPlan) -> dict[str, object]:
     else:
         for name, xyz in plan.registration_mm.items():
             out[f"register {name}"] = render_rapid(_point_program(plan, name, xyz, dwell_s=0.2))
-    out["pose cycle"] = render_rapid(
-        iso_pose_program(plan.robot, plan.poses_mm, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac)
-    )
-    vap = {n: plan.poses_mm[n] for n in VAP_POSES}
-    out["vAP cycle"] = render_rapid(
-        vap_program(plan.robot, vap, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac,
-                    approach_mm=plan.vap_offset_mm)
-    )
+    out["pose cycle"] = cycle_program(plan, "pose cycle", 1)
+    out["vAP cycle"] = cycle_program(plan, "vAP cycle", 1)
     return out
+
+
+def cycle_program(plan: IsoPlan, kind: str, k: int):
+    """Cycle ``k`` of ``kind`` (``"pose cycle"``, ``"vAP cycle"``), rendered (RAPID) and named for its cycle
+    (``ISO_POSE_3``): the controller's program list tells the cycles apart, and so do the fakes' stops."""
+    if kind == "pose cycle":
+        prog = iso_pose_program(plan.robot, plan.poses_mm, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac,
+                                name=f"ISO_POSE_{k}")
+    else:
+        vap = {n: plan.poses_mm[n] for n in VAP_POSES}
+        prog = vap_program(plan.robot, vap, cycles=1, dwell_s=plan.dwell_s, speed_frac=plan.speed_frac,
+                           approach_mm=plan.vap_offset_mm, name=f"ISO_VAP_{k}")
+    return render_rapid(prog)
+
+
+def predecessor(plan: IsoPlan, kind: str, k: int) -> tuple[str, object]:
+    """The step that runs just before cycle ``k`` of ``kind`` in an uninterrupted run, and its last program:
+    the one that leaves the arm at the cycle's start, arriving the way the cycle expects it."""
+    if kind == "vAP cycle" and k > 1:
+        return f"vAP cycle {k - 1}", cycle_program(plan, kind, k - 1)
+    if kind == "vAP cycle":
+        return f"pose cycle {plan.cycles}", cycle_program(plan, "pose cycle", plan.cycles)
+    if k > 1:
+        return f"pose cycle {k - 1}", cycle_program(plan, kind, k - 1)
+    last = [name for name in programs(plan) if name.startswith("register ")][-1]
+    return "register base frame", programs(plan)[last]
 
 
 # --------------------------------------------------------------------------
@@ -259,6 +285,8 @@ class IsoSession(CellSession):
     streams: dict | None = None
     #: ``(main, vap)`` analysis results
     analysis: tuple | None = None
+    #: the last step that moved the arm in this session (a cycle whose predecessor it is not is entered again)
+    moved_by: str | None = None
 
 
 def _plan(ctx: StepContext) -> IsoPlan:
@@ -335,10 +363,14 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
         tracker.start_stream(plan.tracker_rate_hz)
     try:
         status = controller.run(rendered, timeout_s=timeout_s, on_status=on_status)
+        if stream:
+            # every sample the tracker sent before the program ended (on the lockstep fakes: up to its
+            # last full packet) is readable after a round trip: the step's samples do not depend on
+            # how fast this host is
+            tracker.sync()
     finally:
         if stream:
-            # let the last dwell's samples arrive and commit everything delivered so far
-            drain(0.05)
+            drain(0.0)  # commit everything delivered so far (an interrupted attempt keeps what it took)
     out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
     record = tracker.stream_record() if stream else None
     if record is not None:
@@ -371,6 +403,7 @@ def _timeout(ctx: StepContext, sim_seconds: float) -> float:
 
 
 def step_home(ctx: StepContext) -> dict:
+    ctx.session.moved_by = "home"
     return _run_program(ctx, programs(_plan(ctx))["home"], timeout_s=_timeout(ctx, 60), stream=False)
 
 
@@ -387,6 +420,7 @@ def step_register(ctx: StepContext) -> dict:
         m = tracker.measure_stationary(duration_s=0.2)
         measured.append(np.asarray(m.xyz_mm, dtype=float))
         ctx.progress(f"point {name}")
+    ctx.session.moved_by = ctx.step.name
     measured = np.array(measured)
     if plan.registration == "axes":
         q = axis_sweep_q_deg(plan)
@@ -429,20 +463,29 @@ def registration_uncertainty(fit, n: int, reg: Registration, poses_mm: np.ndarra
     return np.sqrt((n - 1) / n * np.sum(dev**2, axis=(0, 2)))
 
 
-def step_pose_cycle(k: int):
+def _cycle_step(kind: str, k: int, sim_s_per_dwell: float):
     def run(ctx: StepContext) -> dict:
         plan = _plan(ctx)
-        sim = 8.0 * (plan.dwell_s + 2.0)
-        return _run_program(ctx, programs(plan)["pose cycle"], timeout_s=_timeout(ctx, sim), stream=True)
+        timeout_s = _timeout(ctx, sim_s_per_dwell * (plan.dwell_s + 2.0))
+        before, program = predecessor(plan, kind, k)
+        entered = None
+        if ctx.session.moved_by != before:
+            # a session that did not run the step before (a resume): its program runs again, unmeasured, so
+            # the cycle starts where and as an uninterrupted run starts it (each joint's last motion, the stop)
+            _run_program(ctx, program, timeout_s=timeout_s, stream=False)
+            entered = f"from {before}"
+        ctx.session.moved_by = ctx.step.name
+        out = _run_program(ctx, cycle_program(plan, kind, k), timeout_s=timeout_s, stream=True)
+        return {**out, "entered_again": entered}
     return run
+
+
+def step_pose_cycle(k: int):
+    return _cycle_step("pose cycle", k, 8.0)
 
 
 def step_vap_cycle(k: int):
-    def run(ctx: StepContext) -> dict:
-        plan = _plan(ctx)
-        sim = 12.0 * (plan.dwell_s + 2.0)
-        return _run_program(ctx, programs(plan)["vAP cycle"], timeout_s=_timeout(ctx, sim), stream=True)
-    return run
+    return _cycle_step("vAP cycle", k, 12.0)
 
 
 def registration_of(outputs: Mapping) -> Registration:
@@ -574,7 +617,7 @@ def build_procedure(plan: IsoPlan) -> Procedure:
     steps = [
         Step("check programs", step_check_programs, every_session=True),
         Step("mount reflector", _prompt("Mount the tracker reflector on the tool flange (SMR in its nest)")),
-        Step("clear the cell", _prompt("Clear the robot cell and close the safety fence"), every_session=True),
+        Step("clear the cell", _prompt("Clear the robot cell and close the safety fence")),
         Step("connect devices", step_connect, every_session=True),
         Step("home", step_home, every_session=True),
         Step("register base frame", step_register),
@@ -582,7 +625,8 @@ def build_procedure(plan: IsoPlan) -> Procedure:
     steps += [Step(f"pose cycle {k}", step_pose_cycle(k), label=f"{k}/{plan.cycles}") for k in range(1, plan.cycles + 1)]
     steps += [Step(f"vAP cycle {k}", step_vap_cycle(k), label=f"{k}/{plan.vap_cycles}")
               for k in range(1, plan.vap_cycles + 1)]
-    steps += [Step("stop stream", step_stop_stream), Step("analyse", step_analyse), Step("report", step_report)]
+    steps += [Step("stop stream", step_stop_stream), Step("analyse", step_analyse, offline=True),
+              Step("report", step_report, offline=True)]
     return Procedure("iso9283", steps, safe_state=safe_state)
 
 

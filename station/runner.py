@@ -196,14 +196,17 @@ class Step:
 
     ``run(ctx)`` does the work and returns a JSON-able dict (its output, kept
     in the journal) or None. ``every_session`` steps (connect, home) run at
-    the start of every session, fresh or resumed. ``label`` is what the
-    progress line shows (e.g. ``"cycle 3/30"``).
+    the start of every session, fresh or resumed, unless every step left is
+    ``offline`` (works on the store alone: analysis, report): a resume then
+    opens no device and asks nothing again. ``label`` is what the progress
+    line shows (e.g. ``"cycle 3/30"``).
     """
 
     name: str
     run: Callable[["StepContext"], Mapping | None]
     label: str = ""
     every_session: bool = False
+    offline: bool = False
 
 
 @dataclass
@@ -457,7 +460,9 @@ class Runner:
         try:
             # every-session steps before the resume point run again first (reconnect, home)
             first_pending = pending[0] if pending else len(self.procedure.steps)
-            replay = [i for i in range(first_pending) if self.procedure.steps[i].every_session and i in done]
+            needs_session = any(not self.procedure.steps[i].offline for i in pending)
+            replay = [i for i in range(first_pending)
+                      if self.procedure.steps[i].every_session and i in done and needs_session]
             for i in replay:
                 self._run_step(run_id, i, params, outputs, replay=True)
             for i in pending:
@@ -510,3 +515,22 @@ class Runner:
             self.progress.log(f"warning: bringing devices to a safe state failed: {exc}")
 
 
+#: a resumed fake cell starts its clock this long after the last stored sample, s (a gap, never a repeat)
+RESUME_GAP_S = 1.0
+
+
+def resume_start_s(store: RunStore, run_id: str) -> float:
+    """Simulated time at which a fake cell that resumes ``run_id`` starts its clock, s.
+
+    After the last time stamp (``t``) of every sample the run stored, in any
+    attempt, plus :data:`RESUME_GAP_S`: the cell goes on from where the one
+    that was interrupted left off, as a real instrument's clock does, so a
+    resumed stream's time base never repeats or goes back. 0 for a run with
+    no samples.
+    """
+    last = 0.0
+    for stream in store.streams(run_id):
+        t = store.samples(run_id, stream, finished_only=False).get("t")
+        if t is not None and t.size:
+            last = max(last, float(np.nanmax(t)) + RESUME_GAP_S)
+    return float(np.ceil(last))

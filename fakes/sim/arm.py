@@ -87,6 +87,8 @@ class Move:
     q_target_rad: np.ndarray
     move_id: int
     cancelled: bool = field(default=False)
+    #: the identity the move was queued with (its stopping error and its measurement noise), if any
+    noise_key: tuple | None = field(default=None)
 
     @property
     def duration_s(self) -> float:
@@ -251,6 +253,8 @@ class SimArm:
         self.ipo_period_s = float(ipo_period_s)
         self.history_s = float(history_s)
         self._rng = rng if rng is not None else np.random.default_rng(0)
+        #: root of the keyed stopping errors (a move that names itself draws from its own stream)
+        self._stop_root = int(self._rng.integers(0, 2**63))
         self._lock = threading.RLock()
         t_now = float(clock.now())
         self.warmup_origin_s = t_now
@@ -266,6 +270,10 @@ class SimArm:
         self._moves: list[Move] = []
         self._next_id = 0
         self._max_moves_kept = 10000
+        # start and key of every motion (noise epochs of the instruments that measure the arm); (0,) is the
+        # rest since the arm was made
+        self._epoch_t: list[float] = [-math.inf]
+        self._epoch_key: list[tuple] = [(0,)]
 
     # ------------------------------------------------------------------ state
     @property
@@ -314,10 +322,13 @@ class SimArm:
                 f"[{math.degrees(lim[j, 0]):.4f}, {math.degrees(lim[j, 1]):.4f}] deg"
             )
 
-    def _draw_delta(self) -> np.ndarray:
+    def _draw_delta(self, noise_key=None) -> np.ndarray:
+        """The stopping error of the next move: from the move's own stream when it names itself
+        (``noise_key``: integers, e.g. program, run, cycle, instruction), else the next draw of the arm's."""
         if not np.any(self.stop_sigma_rad):
             return np.zeros(_N)
-        return self._rng.normal(0.0, 1.0, _N) * self.stop_sigma_rad
+        rng = self._rng if noise_key is None else np.random.default_rng([self._stop_root, *map(int, noise_key)])
+        return rng.normal(0.0, 1.0, _N) * self.stop_sigma_rad
 
     def _state_at(self, t: float):
         """Reference and servo state of the store at time ``t`` (scalar)."""
@@ -344,7 +355,8 @@ class SimArm:
             "dir": direction,
         }
 
-    def _append(self, t_start: float, traj_cmd: PiecewiseCubic, traj_srv: PiecewiseCubic, kind: str) -> Move:
+    def _append(self, t_start: float, traj_cmd: PiecewiseCubic, traj_srv: PiecewiseCubic, kind: str,
+                noise_key=None) -> Move:
         """Append a planned move (cmd and srv share knots) at ``t_start``, then a hold."""
         seg = self._seg
         st = self._state_at(t_start)
@@ -374,18 +386,37 @@ class SimArm:
         self._t_end = t_end
         self._q_cmd_end = traj_cmd.q_end.copy()
         self._delta_end = traj_srv.q_end - traj_cmd.q_end
-        move = Move(kind, t_start, t_end, traj_cmd.q_end.copy(), self._next_id)
+        move = Move(kind, t_start, t_end, traj_cmd.q_end.copy(), self._next_id,
+                    noise_key=None if noise_key is None else tuple(int(v) for v in noise_key))
         self._next_id += 1
         self._moves.append(move)
+        if kind != "dwell":
+            self._epoch_t.append(t_start)
+            self._epoch_key.append((1, *move.noise_key) if move.noise_key is not None else (2, move.move_id))
         if len(self._moves) > self._max_moves_kept:
             del self._moves[: len(self._moves) - self._max_moves_kept]
         seg.drop_before(float(self.clock.now()) - self.history_s)
         return move
 
+    def noise_epochs(self, t) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The motion in progress (or last ended) at each time ``t`` (N,): ``(epoch (N,), start_s (N,),
+        {epoch: key})``; the key is the move's ``noise_key`` (or its number on this arm).
+
+        A sample at a motion's very start still belongs to the one before (it
+        does not depend on whether the next move was queued when it was taken).
+        """
+        tt = np.asarray(t, dtype=float).reshape(-1)
+        with self._lock:
+            starts = np.asarray(self._epoch_t)
+            i = np.maximum(np.searchsorted(starts, tt, side="left") - 1, 0)
+            keys = {int(j): self._epoch_key[j] for j in np.unique(i)}
+        s = starts[i]
+        return i, np.where(np.isfinite(s), s, 0.0), keys
+
     def _start_time(self) -> float:
         return max(float(self.clock.now()), self._t_end)
 
-    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0) -> Move:
+    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0, *, noise_key=None) -> Move:
         """Queue a synchronised joint move to ``q_rad`` (commanded, nominal model).
 
         Parameters
@@ -393,6 +424,10 @@ class SimArm:
         q_rad : array_like, shape (6,)
         speed_frac, accel_frac : float
             Fractions of the rated joint speed and acceleration, in (0, 1].
+        noise_key : tuple of int, optional
+            Identity of the move (see :meth:`_draw_delta`): the same key draws
+            the same stopping error in any world of the same seed, whatever
+            moved before (a resumed run meets the stops of the run it resumes).
 
         Returns
         -------
@@ -423,12 +458,14 @@ class SimArm:
             )
             t_start = self._start_time()
             if plan.duration_s == 0:
-                return self._append(t_start, plan.trajectory, motion.hold(self._q_cmd_end + self._delta_end), "joint")
-            delta = self._draw_delta()
+                return self._append(t_start, plan.trajectory, motion.hold(self._q_cmd_end + self._delta_end), "joint",
+                                    noise_key)
+            delta = self._draw_delta(noise_key)
             traj_srv = motion.trajectory_from_profile(plan.profile, self._q_cmd_end + self._delta_end, q1 + delta)
-            return self._append(t_start, plan.trajectory, traj_srv, "joint")
+            return self._append(t_start, plan.trajectory, traj_srv, "joint", noise_key)
 
-    def move_linear(self, target, speed_mm_s: float = 250.0, accel_mm_s2: float = 2500.0) -> Move:
+    def move_linear(self, target, speed_mm_s: float = 250.0, accel_mm_s2: float = 2500.0, *,
+                    noise_key=None) -> Move:
         """Queue a straight-line TCP move (nominal model, fixed or slerped orientation).
 
         Parameters
@@ -440,6 +477,8 @@ class SimArm:
             Path speed, at most ``robot.max_tcp_speed_mm_s``.
         accel_mm_s2 : float
             Path acceleration.
+        noise_key : tuple of int, optional
+            As in :meth:`move_joint`.
 
         Returns
         -------
@@ -479,12 +518,13 @@ class SimArm:
                 raise DeviceFault(f"linear move refused: {exc}") from exc
             t_start = self._start_time()
             if plan.duration_s == 0:
-                return self._append(t_start, plan.trajectory, motion.hold(self._q_cmd_end + self._delta_end), "linear")
-            delta = self._draw_delta()
+                return self._append(t_start, plan.trajectory, motion.hold(self._q_cmd_end + self._delta_end), "linear",
+                                    noise_key)
+            delta = self._draw_delta(noise_key)
             d0 = self._delta_end
             q_srv = plan.q_knots + d0 + plan.s_knots[:, None] * (delta - d0)
             traj_srv = motion.spline_trajectory(plan.t_knots, q_srv)
-            return self._append(t_start, plan.trajectory, traj_srv, "linear")
+            return self._append(t_start, plan.trajectory, traj_srv, "linear", noise_key)
 
     def dwell(self, seconds: float) -> Move:
         """Queue a pause of ``seconds`` at the current target."""

@@ -47,6 +47,7 @@ RATE_RANGE_HZ = (10.0, 3000.0)
 _NOISE_BLOCK = 65536  # grid samples per noise block
 _BREAK_BLOCK_S = 60.0  # seconds per random-break block
 _CACHE = 8
+_EPOCH_BLOCK = 4096  # samples per noise block of an epoch
 
 
 def _check_transform(T, name: str) -> np.ndarray:
@@ -246,7 +247,45 @@ class TrackerModel:
         T = self.tracker_T_base
         return p @ T[:3, :3].T + T[:3, 3]
 
-    def measure(self, t_sim, position_fn: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def epoch_noise(self, t_sim, epoch, epoch_starts, keys: dict) -> np.ndarray:
+        """Standard normal noise (N, 3) drawn per epoch and sample index within it.
+
+        Sample ``i`` at ``t_sim[i]`` belongs to epoch ``epoch[i]`` (e.g. the
+        arm's move in progress) with key ``keys[epoch[i]]`` (tuple of ints) that
+        started at ``epoch_starts[i]``; its noise is drawn from the stream of
+        ``(seed, key)`` at the index ``round((t - start) * rate_hz)``. The same
+        epoch measured in another world of the same seed, at another time, gets
+        the same noise: a resumed run's samples match those of the run left
+        alone. Each index within an epoch is one independent draw.
+        """
+        t = np.asarray(t_sim, dtype=float).reshape(-1)
+        rel = np.rint((t - np.asarray(epoch_starts, dtype=float)) * self.rate_hz).astype(np.int64)
+        epoch = np.asarray(epoch).reshape(-1)
+        blocks = np.floor_divide(rel, _EPOCH_BLOCK)
+        out = np.empty((t.size, 3))
+        for e in np.unique(epoch):  # one pass per epoch and noise block in the batch (a few), not per sample
+            for b in np.unique(blocks[epoch == e]):
+                sel = (epoch == e) & (blocks == b)
+                out[sel] = self._epoch_block(keys[int(e)], int(b))[rel[sel] - int(b) * _EPOCH_BLOCK]
+        return out
+
+    def _epoch_block(self, key: tuple, b: int) -> np.ndarray:
+        ck = ("epoch", key, b)
+        with self._lock:
+            blk = self._noise_cache.get(ck)
+            if blk is not None:
+                self._noise_cache.move_to_end(ck)
+                return blk
+        blk = np.random.default_rng([self.seed, 3, *(int(v) + (1 << 40) for v in key), b + (1 << 40)]) \
+            .standard_normal((_EPOCH_BLOCK, 3))
+        with self._lock:
+            self._noise_cache[ck] = blk
+            while len(self._noise_cache) > 4 * _CACHE:
+                self._noise_cache.popitem(last=False)
+        return blk
+
+    def measure(self, t_sim, position_fn: Callable[[np.ndarray], np.ndarray], *,
+                noise_fn: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Measure the reflector at world times ``t_sim``.
 
         Parameters
@@ -256,6 +295,9 @@ class TrackerModel:
         position_fn : callable
             ``position_fn(t (N,)) -> (N, 3)`` true reflector position in the
             robot base frame, mm.
+        noise_fn : callable, optional
+            ``noise_fn(t (N,)) -> (N, 3)`` standard normal noise (default
+            :meth:`unit_noise`, per grid index).
 
         Returns
         -------
@@ -269,7 +311,7 @@ class TrackerModel:
         p_base = np.asarray(position_fn(t - self.latency_s), dtype=float).reshape(t.size, 3)
         p = self.to_tracker_frame(p_base)
         R = np.linalg.norm(p, axis=1)
-        xyz = p + self.sigma_mm(R)[:, None] * self.unit_noise(t)
+        xyz = p + self.sigma_mm(R)[:, None] * (self.unit_noise(t) if noise_fn is None else noise_fn(t))
         valid = ~self.broken(t)
         xyz[~valid] = np.nan
         return xyz, valid

@@ -52,8 +52,18 @@ class TrackerSource:
     _arm: SimArm = field(repr=False)
 
     def measure(self, t_sim) -> tuple[np.ndarray, np.ndarray]:
-        """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``."""
-        return self.tracker.measure(t_sim, self._arm.tool_position_mm)
+        """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``.
+
+        The noise of a sample is drawn per move of the arm and sample index since
+        that move started (:meth:`SimArm.noise_epochs`,
+        :meth:`TrackerModel.epoch_noise`): a move that names itself is measured
+        with the same noise in any world of the seed, so a resumed run meets
+        the samples of the run it resumes, not only its stops.
+        """
+        def noise(t):
+            return self.tracker.epoch_noise(t, *self._arm.noise_epochs(t))
+
+        return self.tracker.measure(t_sim, self._arm.tool_position_mm, noise_fn=noise)
 
     def sample_times(self, t_start: float, t_end: float) -> np.ndarray:
         """World times of the device's grid samples in ``[t_start, t_end)``."""
@@ -210,6 +220,7 @@ def make_world(
     base_T_tracker=None,
     jig: CornerJig | None = None,
     base_T_scanner=None,
+    start_s: float = 0.0,
 ) -> World:
     """Build a simulated cell.
 
@@ -254,6 +265,11 @@ def make_world(
         Jig on the tool (default 60 mm edges, corner at the TCP).
     base_T_scanner : array_like, shape (4, 4), optional
         Scanner pose; default 700 mm from the TCP at home, facing the tool.
+    start_s : float
+        Simulated time at which the new clock starts (>= 0; ignored when
+        ``clock`` is given). The cell was built at 0 (the arm's warm-up
+        counts from there): a cell started again to resume a run continues
+        the time of the one before, so device time never repeats.
 
     Returns
     -------
@@ -277,6 +293,7 @@ def make_world(
     seed = int(seed)
     if clock is None:
         time_scale = finite_number(time_scale, "time_scale", positive=True)
+        start_s = finite_number(start_s, "start_s", nonneg=True)
     elif not (hasattr(clock, "now") and hasattr(clock, "sleep_until")):
         raise ConfigError(f"`clock` must be a SimClock or ManualClock, got {type(clock).__name__}")
     if not (isinstance(effects, EffectSet) or effects is None or effects == "realistic"):
@@ -357,7 +374,7 @@ def make_world(
     except ConfigError as exc:
         raise ConfigError(f"scanner: {exc}") from exc
 
-    clk = clock if clock is not None else SimClock(time_scale)
+    clk = clock if clock is not None else SimClock(time_scale, start=start_s, lockstep=True)
     arm = SimArm(
         spec,
         clk,
@@ -369,6 +386,8 @@ def make_world(
         history_s=history_s,
         payload_kg=payload_kg,
     )
+    if clock is None:
+        arm.warmup_origin_s = 0.0
     return World(
         clock=clk,
         robot=spec,

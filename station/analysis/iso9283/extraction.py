@@ -847,7 +847,9 @@ def extract_validated(
     if n < 3:
         raise InsufficientDataError(f"the stream has {n} valid samples, at least 3 are needed")
     dt = np.diff(t)
-    med_dt = float(np.median(dt[:: max(1, dt.size // 500_000)]))
+    # to the nanosecond: the rounding of the stamps (which depends on where in time they lie, e.g. after a
+    # resume) must not tip the half-widths below from one integer to the next
+    med_dt = round(float(np.median(dt[:: max(1, dt.size // 500_000)])), 9)
     rate = 1.0 / med_dt
     lo_r, hi_r = RATE_RANGE_HZ
     if not (0.95 * lo_r <= rate <= 1.05 * hi_r):
