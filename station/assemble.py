@@ -58,7 +58,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
                   config_dir: Path | None = None, plan_overrides: dict | None = None,
                   fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
                   control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None) -> int:
-    """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted).
+    """Run or resume a procedure; prints the results; returns the exit code (0 done, 1 failed, 3 aborted, or
+    done with a figure not decided under the guarded decision rule).
 
     With armed devices (``arm``: the configured URLs, real hardware) the
     ``operator`` must be a person (:func:`require_human`): ``yes`` or a
@@ -113,9 +114,16 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             print(line, file=stdout)
         if json_out:
             _write_json(store, prepared.run_id, outcome, json_out, spec.result_key)
+        undecided = outcome.status == "done" and _not_decided(store, prepared.run_id)
     if outcome.status == "done":
-        return 0
+        return 3 if undecided else 0
     return 3 if outcome.status == "aborted" else 1
+
+
+def _not_decided(store, run_id: str) -> bool:
+    """A finished run whose analysis left a figure in its guard band under the guarded rule (exit 3)."""
+    return any(s.status == "done" and isinstance(s.output, dict) and s.output.get("decision_rule") == "guarded"
+               and s.output.get("decision") == "not decided" for s in store.steps(run_id))
 
 
 def _start_forwarding(cfg, base: Path, stack: ExitStack):
