@@ -33,6 +33,9 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     assert v and all(x["outcome"] == "not decided" and x["U_mm"] is None for x in v)
     an = next(s for s in store.steps("u1") if s.name == "analyse")
     assert an.output["decision"] == "not decided" and an.output["decision_rule"] == "guarded"
+    rep = next(s for s in store.steps("u1") if s.name == "report").output
+    html = open(rep["report"], encoding="utf-8").read()
+    assert rep["verdict"] == "NOT DECIDED" and "not decided" in html and "decision rule (ISO 14253-1)" in html
 
 
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
@@ -44,3 +47,5 @@ def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_pat
     for v in vs:
         assert v["outcome"] == "pass" and v["k"] == 2.0 and 0 < v["U_mm"] < v["limit"] - abs(v["value"])
         assert v["U_mm"] == 2 * v["u_mm"] or abs(v["U_mm"] - 2 * v["u_mm"]) < 1e-6
+    html = open(next(s for s in store.steps("u1") if s.name == "report").output["report"], encoding="utf-8").read()
+    assert "U (k=2)" in html and "guard band (limit -/+ U)" in html and "with U (k = 2) and the guard band" in html
