@@ -100,6 +100,9 @@ class IsoPlan:
     registration: str = "axes"
     axis_sweep_deg: tuple[float, float] = (25.0, 30.0)
     axis_sweep_points: int = 13
+    #: "simple" or "guarded" (ISO 14253-1); the budget's keyword arguments (None: no uncertainty stated)
+    decision_rule: str = "simple"
+    uncertainty: dict | None = None
 
     def gate(self) -> SafetyGate:
         return SafetyGate(
@@ -122,6 +125,7 @@ class IsoPlan:
             "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
             "registration": self.registration, "axis_sweep_deg": list(self.axis_sweep_deg),
             "axis_sweep_points": self.axis_sweep_points,
+            "decision_rule": self.decision_rule, "uncertainty": None if self.uncertainty is None else dict(self.uncertainty),
         }
 
     @classmethod
@@ -139,6 +143,8 @@ class IsoPlan:
             registration=str(p.get("registration", "axes")),
             axis_sweep_deg=tuple(p.get("axis_sweep_deg", (25.0, 30.0))),
             axis_sweep_points=int(p.get("axis_sweep_points", 13)),
+            decision_rule=str(p.get("decision_rule", "simple")),
+            uncertainty=None if p.get("uncertainty") is None else dict(p["uncertainty"]),
         )
 
 
@@ -169,6 +175,8 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
         axis_sweep_deg=tuple(iso.axis_sweep_deg),
         axis_sweep_points=iso.axis_sweep_points,
     )
+    if cfg.uncertainty is not None:
+        kw.update(decision_rule=cfg.uncertainty.decision_rule, uncertainty=cfg.uncertainty.budget_kwargs())
     kw.update(overrides)
     return IsoPlan(**kw)
 
@@ -505,8 +513,12 @@ def _stream_in_base(ctx: StepContext, step_names: list[str]):
     return s["t"][order], xyz[order], s["status"][order]
 
 
-def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None):
-    """Both analyses of the procedure's data (pure: arrays in, results out)."""
+def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None):
+    """Both analyses of the procedure's data (pure: arrays in, results out).
+
+    With a stated budget (``plan.uncertainty``) every verdict carries its uncertainty and is decided by
+    ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget).
+    """
     names = list(plan.poses_mm)
     commanded = np.array([plan.poses_mm[n] for n in names])
     # vAP is judged on the multi-directional cycles (below), not on the single-direction pose cycles
@@ -522,6 +534,14 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None):
         vlim = {k: v for k, v in plan.limits.items() if k == "vAP_mm"}
         vap = analyze_iso9283(vap_t, vap_xyz, vcmd, names=vnames, order=order, limits=vlim,
                               distance_pairs=None, band_mm=plan.band_mm)
+    if plan.uncertainty is not None:
+        from station.analysis.iso9283.uncertainty import figure_uncertainties, apply_rule
+        from station.analysis.uncertainty import Budget
+
+        budget = Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz).with_registration(reg)
+        main = apply_rule(main, figure_uncertainties(main, budget, pose_xyz), plan.decision_rule)
+        if vap is not None:
+            vap = apply_rule(vap, figure_uncertainties(vap, budget, vap_xyz), plan.decision_rule)
     return main, vap
 
 
@@ -555,6 +575,17 @@ def characteristic_rows(main, vap) -> list[dict]:
     return rows
 
 
+def run_decision(main, vap) -> str | None:
+    """The decision over every verdict that carries one: "fail" if one failed, else "not decided" if one is in
+    its guard band (or could not be computed), else "pass"; None without verdicts or without a rule."""
+    vs = list(main.verdicts) + ([v for v in vap.verdicts if v.characteristic == "vAP_mm"] if vap is not None else [])
+    if not vs or all(v.rule is None for v in vs):
+        return None
+    if any(v.passed is False for v in vs):
+        return "fail"
+    return "not decided" if any(v.passed is None for v in vs) else "pass"
+
+
 def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
     streams = ctx.session.streams
@@ -570,16 +601,19 @@ def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndar
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     streams = measured_streams(ctx, plan)
-    main, vap = analyse(plan, *streams["pose"], *streams["vap"])
+    main, vap = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs))
     rows = characteristic_rows(main, vap)
     ctx.store.put_characteristics(ctx.run_id, rows)
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
     ctx.store.put_result(ctx.run_id, "iso9283", result)
     ctx.session.analysis = (main, vap)
     judged = [r["passed"] for r in rows if r["passed"] is not None]
-    return {"passed": (all(judged) if judged else None), "partial": bool(main.partial),
-            "warnings": list(main.warnings) + (list(vap.warnings) if vap is not None else []),
-            "n_rows": len(rows)}
+    out = {"passed": (all(judged) if judged else None), "partial": bool(main.partial),
+           "warnings": list(main.warnings) + (list(vap.warnings) if vap is not None else []),
+           "n_rows": len(rows)}
+    if plan.uncertainty is not None:
+        out.update(decision_rule=plan.decision_rule, decision=run_decision(main, vap))
+    return out
 
 
 def step_report(ctx: StepContext) -> dict:
@@ -590,7 +624,7 @@ def step_report(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     if ctx.session.analysis is None:  # a resumed run whose analysis ran in an earlier session
         streams = measured_streams(ctx, plan)
-        ctx.session.analysis = analyse(plan, *streams["pose"], *streams["vap"])
+        ctx.session.analysis = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs))
     main, vap = ctx.session.analysis
     marginal = [f"{m['pose']} {m['name']} = {m['value']:.4g} {m['unit']}: marginal (passes, within its "
                 f"marginal band of a limit)" for m in record_measurements(ctx.store, ctx.run_id) if m["marginal"]]
@@ -676,6 +710,7 @@ def summary(store, run_id: str) -> list[str]:
                 lines.append(f"{key:<7} {pose:<8} {_fmt(d[key]):>10}")
     if not any(r["limit"] is not None for r in rows):
         lines.append("no limits configured")
+    lines += _decision_lines(store, run_id)
     try:
         pose = store.result(run_id, "iso9283")["pose"]
     except Exception:  # noqa: BLE001 - a run stored before the analysis kept its reasons
@@ -713,6 +748,29 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
         undecided.append(f"vAP: {len(missing)} stop(s) of the {int(params.get('vap_cycles', 0))} cycles missing")
     pose = res.get("pose") or {}
     return Checks(tuple(undecided), bool(pose.get("iso_conformant")), tuple(pose.get("iso_reasons") or ()))
+
+
+def _decision_lines(store, run_id: str) -> list[str]:
+    """The decision rule and each figure left in its guard band (from the stored verdicts), when a rule was used."""
+    try:
+        res = store.result(run_id, "iso9283")
+    except Exception:  # noqa: BLE001 - no stored result: nothing to say
+        return []
+    vs = list((res.get("pose") or {}).get("verdicts", []))
+    vs += [v for v in (res.get("vap") or {}).get("verdicts", []) if v.get("characteristic") == "vAP_mm"]
+    rules = {v.get("rule") for v in vs} - {None}
+    if not rules:
+        return []
+    lines = [f"decision rule: {', '.join(sorted(rules))} (ISO 14253-1); U = k u with k = 2"]
+    for v in vs:
+        if v.get("outcome") == "not decided":
+            unit = v["characteristic"].rsplit("_", 1)[-1]
+            U = v.get(f"U_{unit}")
+            lines.append(f"NOT DECIDED {v['characteristic']} {v['subject']}: {v['value']:.4g} +/- {U:.2g} against "
+                         f"{v['limit']:g} (guard band {v['guard_band'][0]:.4g}..{v['guard_band'][1]:.4g})"
+                         if U is not None and v.get("guard_band") else
+                         f"NOT DECIDED {v['characteristic']} {v['subject']}: {v.get('note', '')}")
+    return lines
 
 
 def preflight_problems(params: Mapping, cfg, devices) -> list[str]:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.report import Report, plot_approach, plot_bars, plot_clusters, plot_velocity_windows
+from station.report import Report, plot_approach, plot_bars, plot_clusters, plot_intervals, plot_velocity_windows
 
 
 def _rows_used(ex, idx):
@@ -71,6 +71,24 @@ def _cluster_figures(vap_xyz, vap, plan) -> list[tuple[str, str]]:
     return figs
 
 
+def _with_decisions(rows, main, vap) -> list[dict]:
+    """The stored rows with each verdict's rule, decision and U (k = 2) when a budget was stated."""
+    vs = {(v.characteristic, v.subject): v for v in main.verdicts}
+    if vap is not None:
+        vs.update({(v.characteristic, v.subject): v for v in vap.verdicts if v.characteristic == "vAP_mm"})
+    out = []
+    for r in rows:
+        v = vs.get((r["name"], r["pose"]))
+        r = dict(r)
+        if v is not None and v.rule is not None:
+            fu = v.uncertainty
+            r.update(rule=v.rule, U=None if fu is None else float(fu.U),
+                     decision=None if v.value is None else
+                     ("pass" if v.passed else ("fail" if v.passed is False else "not decided")))
+        out.append(r)
+    return out
+
+
 def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) -> Report:
     """The run's HTML report.
 
@@ -101,6 +119,18 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
     if f:
         figs.append(("Figs. 5-6: approach to P1 with the limit band", f))
     figs += _cluster_figures(vxyz, vap, plan)
+    rows = _with_decisions(rows, main, vap)
+    rule = next((r["rule"] for r in rows if r.get("rule")), None)
+    if rule is not None:
+        facts["decision rule (ISO 14253-1)"] = (
+            "guarded: conformance proven when figure + U <= limit, non-conformance when figure - U > limit, "
+            "else not decided" if rule == "guarded" else "simple: the figure against the limit (U shown)")
+        b = plan.uncertainty or {}
+        facts["uncertainty budget"] = (
+            f"tracker {b.get('instrument_a_um', 15.0):g} um + {b.get('instrument_b_um_per_m', 6.0):g} um/m "
+            f"({b.get('instrument_kind', 'mpe')}), registration fit rms {reg.rms_mm:.3f} mm over {reg.n} points, "
+            f"air temperature u {b.get('temperature_u_K', 0.0):g} K; GUM S1 Monte Carlo "
+            f"({b.get('trials', 20000)} trials, seed {b.get('seed', 0)}), U = 2 u")
     by = {}
     for r in rows:
         by.setdefault(r["name"], []).append(r)
@@ -110,8 +140,13 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
         rs = [r for r in by.get(key, []) if r["value"] is not None]
         if rs:
             lim = next((r["limit"] for r in rs if r["limit"] is not None), None)
-            figs.append((title, plot_bars([r["pose"] for r in rs], [r["value"] for r in rs], limit=lim,
-                                          ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
+            if rule is not None:
+                figs.append((title + ", with U (k = 2) and the guard band", plot_intervals(
+                    [r["pose"] for r in rs], [r["value"] for r in rs], [r.get("U") for r in rs], limit=lim,
+                    ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
+            else:
+                figs.append((title, plot_bars([r["pose"] for r in rs], [r["value"] for r in rs], limit=lim,
+                                              ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
     notes = list(main.warnings) + (list(vap.warnings) if vap is not None else [])
     shown = [r for r in rows if r["name"] != "n_cycles"]
     return Report(title=f"ISO 9283 run {run.run_id}", facts=facts, rows=shown, figures=figs, notes=notes)

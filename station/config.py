@@ -265,6 +265,31 @@ class TrailerConfig(_Strict):
         return self
 
 
+class UncertaintyConfig(_Strict):
+    """The uncertainty budget of the ISO 9283 figures and the decision rule (ISO 14253-1).
+
+    ``simple``: the figure against the limit (u and U shown); ``guarded``: conformance only when
+    figure + U is within the limit, non-conformance only when figure - U is beyond, else not decided.
+    The tracker's term is ``a + b R`` per coordinate, an MPE read as a k = 2 bound (``tracker_kind = "mpe"``)
+    or a standard deviation (``"sd"``).
+    """
+
+    decision_rule: Literal["simple", "guarded"] = "simple"
+    tracker_a_um: float = Field(15.0, ge=0, le=10_000, allow_inf_nan=False)
+    tracker_b_um_per_m: float = Field(6.0, ge=0, le=10_000, allow_inf_nan=False)
+    tracker_kind: Literal["mpe", "sd"] = "mpe"
+    #: uncertainty of the air temperature of the tracker's refraction compensation, K
+    temperature_u_K: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
+    mc_trials: int = Field(20_000, ge=200, le=10_000_000)
+    mc_seed: int = Field(0, ge=0)
+
+    def budget_kwargs(self) -> dict:
+        """Keyword arguments of :class:`station.analysis.uncertainty.Budget`."""
+        return {"instrument_a_um": self.tracker_a_um, "instrument_b_um_per_m": self.tracker_b_um_per_m,
+                "instrument_kind": self.tracker_kind, "temperature_u_K": self.temperature_u_K,
+                "trials": self.mc_trials, "seed": self.mc_seed}
+
+
 class StationSection(_Strict):
     name: str = Field(min_length=1)
     store_path: str = Field("station.sqlite", min_length=1, max_length=4096)
@@ -324,6 +349,8 @@ class StationConfig(_Strict):
         if robot is not None and robot in self.robots:
             ms += self.robots[robot].measurements.get(procedure, [])
         return [m.model_dump() for m in ms]
+    #: the uncertainty of the ISO 9283 figures and the decision rule; None: figures against limits only
+    uncertainty: UncertaintyConfig | None = None
 
     @model_validator(mode="after")
     def _references(self) -> "StationConfig":

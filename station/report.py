@@ -11,7 +11,9 @@ procedure decides what to show:
 * :func:`plot_clusters` — attained positions per approach direction (Fig. 7);
 * :func:`plot_bars` — per-pose or per-cycle values against a limit (Fig. 8:
   distance accuracy, posing time);
-* :func:`plot_errors_before_after` — calibration errors before and after.
+* :func:`plot_errors_before_after` — calibration errors before and after;
+* :func:`plot_intervals` — figures with their expanded uncertainty, the
+  limit and each figure's guard band (ISO 14253-1).
 """
 
 from __future__ import annotations
@@ -122,6 +124,42 @@ def plot_bars(labels: Sequence[str], values: Sequence[float], *, limit: float | 
     return _svg(fig)
 
 
+def plot_intervals(labels: Sequence[str], values: Sequence[float], U: Sequence[float | None], *,
+                   limit: float | None, ylabel: str, title: str) -> str:
+    """Each figure with its interval figure +/- U, the limit, and the guard band limit -/+ U of each figure.
+
+    A figure whose interval lies below the limit is conformance proven (green), above it non-conformance
+    proven (red), across it not decided (orange); without a U it is drawn as a plain point.
+    """
+    fig, (ax,) = _figure(6.5, 3.0)
+    vals = np.abs(np.asarray(values, float))
+    us = np.array([np.nan if u is None else float(u) for u in U])
+    x = np.arange(len(vals))
+    for i, (v, u) in enumerate(zip(vals, us)):
+        if limit is not None and np.isfinite(u):
+            ax.add_patch(__import__("matplotlib.patches", fromlist=["Rectangle"]).Rectangle(
+                (i - 0.35, limit - u), 0.7, 2 * u, color="C1", alpha=0.18, lw=0,
+                label="guard band (limit -/+ U)" if i == 0 else None))
+        if limit is None or not np.isfinite(u):
+            color = "C0"
+        elif v + u <= limit:
+            color = "C2"
+        elif v - u > limit:
+            color = "C3"
+        else:
+            color = "C1"
+        ax.errorbar([i], [v], yerr=None if not np.isfinite(u) else [[u], [u]], fmt="o", ms=4, color=color,
+                    capsize=3, lw=1.0)
+    if limit is not None:
+        ax.axhline(limit, color="C3", ls="--", lw=0.8, label=f"limit {limit:g}")
+        ax.legend(fontsize=7)
+    ax.set_xticks(x, labels, fontsize=7, rotation=45 if len(vals) > 8 else 0)
+    ax.set_xlim(-0.6, len(vals) - 0.4)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    return _svg(fig)
+
+
 def plot_xy(series: Sequence[tuple[str, np.ndarray, np.ndarray, str]], *, xlabel: str, ylabel: str, title: str) -> str:
     """Lines or points: ``series`` of (label, x, y, style) with style ``"-"`` (line) or ``"."`` (points)."""
     fig, (ax,) = _figure(7.0, 3.2)
@@ -169,9 +207,12 @@ class Report:
         if self.outcome is not None:
             return str(self.outcome)
         judged = [r.get("passed") for r in self.rows if r.get("passed") is not None]
-        if not judged:
+        undecided = any(r.get("decision") == "not decided" for r in self.rows)
+        if not judged and not undecided:
             return "NO LIMITS"
-        return "PASS" if all(judged) else "FAIL"
+        if not all(judged):
+            return "FAIL"
+        return "NOT DECIDED" if undecided else "PASS"
 
 
 _CSS = """
@@ -180,6 +221,7 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:
 th{background:#f3f3f3}td.l{text-align:left}.pass{color:#176317;font-weight:600}.fail{color:#b00020;font-weight:600}
 .verdict{font-size:1.4em;padding:.3em .8em;display:inline-block;border-radius:4px}
 .v-PASS{background:#dff3df}.v-FAIL{background:#fbe0e4}.v-NO{background:#eee}.v-NOT{background:#fff3cd}.v-ABORTED{background:#eee}
+.und{color:#a35a00;font-weight:600}
 figure{margin:1.5em 0}figcaption{font-size:.9em;color:#555}
 """
 
@@ -198,7 +240,10 @@ def render_html(report: Report) -> str:
     parts.append("<table>")
     for k, v in report.facts.items():
         parts.append(f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>")
-    parts.append("</table><h2>Results</h2><table><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>")
+    with_u = any(r.get("U") is not None or r.get("decision") is not None for r in report.rows)
+    parts.append("</table><h2>Results</h2><table><tr><th>pose</th><th>characteristic</th><th>value</th>"
+                 + ("<th>U (k=2)</th><th>interval</th>" if with_u else "")
+                 + "<th>unit</th><th>limit</th><th>verdict</th></tr>")
     for r in report.rows:
         v = r.get("value")
         val = "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.4g}"
@@ -207,8 +252,15 @@ def render_html(report: Report) -> str:
         verdict = "" if passed is None else ("<span class='pass'>pass</span>" if passed else "<span class='fail'>FAIL</span>")
         if r.get("outcome"):
             verdict = f"<span class='{'pass' if r['outcome'] == 'PASS' else 'fail'}'>{e(str(r['outcome']))}</span>"
+        if r.get("decision") == "not decided":
+            verdict = "<span class='und'>not decided</span>"
+        unc = ""
+        if with_u:
+            U = r.get("U")
+            unc = ("<td></td><td></td>" if U is None or v is None else
+                   f"<td>{U:.2g}</td><td>{v - U:.4g} .. {v + U:.4g}</td>")
         parts.append(
-            f"<tr><td class='l'>{e(str(r['pose']))}</td><td class='l'>{e(str(r['name']))}</td><td>{val}</td>"
+            f"<tr><td class='l'>{e(str(r['pose']))}</td><td class='l'>{e(str(r['name']))}</td><td>{val}</td>{unc}"
             f"<td class='l'>{e(str(r.get('unit', '')))}</td><td>{lim}</td><td>{verdict}</td></tr>"
         )
     parts.append("</table>")

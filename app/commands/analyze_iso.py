@@ -100,6 +100,18 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("--require-iso", action="store_true",
                    help="exit 4 unless the run is ISO 9283 conformant (30 cycles, nothing missing, all decided)")
     s.add_argument("--json", type=str, default=None, help="write the results JSON here")
+    u = s.add_argument_group("uncertainty and decision (ISO 14253-1)")
+    u.add_argument("--decision-rule", choices=("simple", "guarded"), default="simple",
+                   help="simple: the figure against the limit (default); guarded: pass only when figure + U is "
+                        "within the limit, fail only when figure - U is beyond, else not decided (exit 3)")
+    u.add_argument("--tracker-uncertainty", default=None, metavar="A+B/m",
+                   help="the tracker's MPE per coordinate, um + um/m (k = 2 bound), e.g. 15+6/m, or a standard "
+                        "deviation sd:7.5+3/m; states u and U of every figure (default with --decision-rule "
+                        "guarded: 15+6/m)")
+    u.add_argument("--temperature-u-k", type=float, default=0.0,
+                   help="uncertainty of the air temperature of the tracker's compensation, K (default 0)")
+    u.add_argument("--mc-trials", type=int, default=None, help="Monte Carlo trials (default 20000)")
+    u.add_argument("--mc-seed", type=int, default=0, help="Monte Carlo seed (default 0)")
 
 
 def _limits(args) -> tuple[dict, str]:
@@ -146,7 +158,29 @@ def _write_json(path, d) -> None:
     print(f"results written to {path}")
 
 
-def _finish(res, d: dict, args, far: list[str]) -> int:
+def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
+    """The result decided by the rule with every figure's uncertainty (unchanged when none is asked)."""
+    if args.decision_rule == "simple" and args.tracker_uncertainty is None:
+        return res, None
+    from station.analysis.iso9283.uncertainty import with_uncertainty
+    from station.analysis.uncertainty import budget_from_options
+
+    budget = budget_from_options(args.tracker_uncertainty, temperature_u_K=args.temperature_u_k,
+                                 trials=args.mc_trials, seed=args.mc_seed, rate_hz=rate_hz)
+    base = None
+    if args.register is not None:
+        from station.readers.registration_files import read_registration_csv
+
+        base = read_registration_csv(args.register)[1]
+    res, _, js, lines = with_uncertainty(res, budget.with_registration(reg, base), args.decision_rule,
+                                         points_by_row)
+    return res, (js, lines)
+
+
+def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
+    if unc is not None:
+        print("\n".join(unc[1]))
+        d["uncertainty"] = unc[0]
     out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
     d["exit"] = out.to_dict()
     if args.json is not None:
@@ -211,7 +245,7 @@ def _run_stream(args, limits, band) -> int:
         limits=limits, band_mm=args.limit_mm if band == "limit" else None, distance_pairs=_pairs(args),
         linear_paths=bool(args.linear_paths), extraction=extraction,
     )
-    res = lab.result
+    res, unc = _uncertainty(args, lab.result, reg, xyz, lab.result.extraction.params.rate_hz)
     print(format_table(res, ps.source, si.time_note, si.notes, estimated_rate=si.estimated_rate))
     d = res.to_dict()
     d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "frame": ps.frame, "units": ps.units,
@@ -220,7 +254,7 @@ def _run_stream(args, limits, band) -> int:
     if si.estimated_rate:
         mark_estimated_times(d)
     d["registration"] = reg_js
-    return _finish(res, d, args, lab.far)
+    return _finish(res, d, args, lab.far, unc)
 
 
 def mark_estimated_times(d: dict) -> None:
@@ -295,7 +329,7 @@ def _run_stops(args, limits) -> int:
     lab = analyze_stops(sl.pose, sl.cycle, pts, lines=sl.lines.min(axis=1), commanded_mm=cmd, names=names,
                         approach=sl.approach, reflectors=sl.reflectors, limits=limits, distance_pairs=_pairs(args),
                         assign_tol_mm=_tolerance(args, limits))
-    res = lab.result
+    res, unc = _uncertainty(args, lab.result, reg, None)
     per_refl = reflector_repeatability(sl.pose, pts, sl.reflectors) if len(sl.reflectors) > 1 else []
     print(format_stop_table(res, sl.source, reflector_rp=per_refl))
     d = res.to_dict()
@@ -304,4 +338,4 @@ def _run_stops(args, limits) -> int:
     d["reflector_RP"] = [r.to_dict() for r in per_refl]
     d["time_base"] = None
     d["registration"] = reg_js
-    return _finish(res, d, args, lab.far)
+    return _finish(res, d, args, lab.far, unc)

@@ -53,7 +53,11 @@ def _tail(res, estimated_rate: bool = False) -> list[str]:
         lines.append("")
         for v in res.verdicts:
             mark = "PASS" if v.passed else ("FAIL" if v.passed is False else "N/A ")
-            lines.append(f"{mark} {v.characteristic:<8} {v.subject:<8} {_n(v.value, '{:.4f}'):>9} <= {v.limit:g}"
+            fu = getattr(v, "uncertainty", None)
+            if v.passed is None and v.value is not None and getattr(v, "rule", None) == "guarded":
+                mark = "UND "  # not decided: in the guard band
+            unc = "" if fu is None else f" +/- {fu.U:.2g} (k={fu.k:g})"
+            lines.append(f"{mark} {v.characteristic:<8} {v.subject:<8} {_n(v.value, '{:.4f}'):>9}{unc} <= {v.limit:g}"
                          + (f"  ({v.note})" if v.note else ""))
         word = "PASS" if res.passed else ("FAIL" if res.passed is False else "not decided")
         iso = "ISO 9283 conformant" if res.iso_conformant else "NOT ISO 9283 conformant (see below)"

@@ -228,6 +228,8 @@ class PathAR:
     n: int
     rows_from: np.ndarray
     rows_to: np.ndarray
+    #: (n, m, 3) the traversals' crossing points of the planes (for the uncertainty of AT and RT)
+    crossings_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -253,8 +255,14 @@ class Verdict:
     subject: str  # pose name, "P2-P4", "P1->P2"
     value: float | None
     limit: float
-    passed: bool | None  # None: not computed
+    passed: bool | None  # None: not computed (or, under the guarded rule, not decided)
     note: str = ""
+    #: the figure's uncertainty (:class:`station.analysis.uncertainty.FigureUncertainty`) when one was asked
+    uncertainty: object | None = None
+    #: the decision rule that set ``passed`` ("simple" or "guarded"; None: the plain comparison, no budget)
+    rule: str | None = None
+    #: under "guarded": (limit - U, limit + U)
+    guard_band: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -1086,7 +1094,7 @@ def _stage_paths(run: _Stages, k0, k1, linear_paths, n_planes: int) -> list:
             RT = None
             run.warn(f"RT {fa}->{fb}: needs 2 traversals, got 1", partial=True)
         paths.append(PathAR(fa, fb, float(at_i.max()), RT, s_pl, at_i, rt_i, int(cm.shape[0]),
-                            st.row[k0[ok][m][good]], st.row[k1[ok][m][good]]))
+                            st.row[k0[ok][m][good]], st.row[k1[ok][m][good]], cm))
     return paths
 
 
@@ -1324,8 +1332,13 @@ def distance_to_dict(d: DistanceAR) -> dict:
 
 
 def verdict_to_dict(v: Verdict) -> dict:
-    return {"characteristic": v.characteristic, "subject": v.subject, "value": finite_or_none(v.value, 6), "limit": finite_or_none(v.limit, 6),
-            "passed": v.passed, "note": v.note}
+    d = {"characteristic": v.characteristic, "subject": v.subject, "value": finite_or_none(v.value, 6), "limit": finite_or_none(v.limit, 6),
+         "passed": v.passed, "note": v.note}
+    if v.rule is not None:
+        from station.analysis.iso9283.uncertainty import verdict_uncertainty_dict
+
+        d.update(verdict_uncertainty_dict(v))
+    return d
 
 
 def left_out_to_dict(x: LeftOut) -> dict:

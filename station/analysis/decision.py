@@ -1,0 +1,87 @@
+"""Conformity decisions of one figure against its limit (ISO 14253-1).
+
+The limits of ISO 9283 figures are upper limits (``|figure| <= limit``).
+
+* ``simple``: the figure itself is compared with the limit (what the station
+  always did; the uncertainty is shown but does not decide);
+* ``guarded``: conformance is proven only when ``|figure| + U <= limit``,
+  non-conformance only when ``|figure| - U > limit``; in between the figure
+  lies inside the guard band ``(limit - U, limit + U]`` and the outcome is
+  "not decided".
+
+Outcomes are the strings :data:`PASS`, :data:`FAIL`, :data:`NOT_DECIDED` (the
+run's one verdict combines them elsewhere).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from station.errors import ConfigError
+
+PASS, FAIL, NOT_DECIDED = "pass", "fail", "not decided"
+RULES = ("simple", "guarded")
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The outcome of one figure; ``guard_band`` = (acceptance limit, rejection limit) under ``guarded``."""
+
+    outcome: str
+    rule: str
+    value: float
+    limit: float
+    U: float | None
+    guard_band: tuple[float, float] | None
+
+    @property
+    def passed(self) -> bool | None:
+        """As a verdict's ``passed``: True, False, or None (not decided)."""
+        return {PASS: True, FAIL: False}.get(self.outcome)
+
+    def explain(self) -> str:
+        """One sentence: why this outcome."""
+        v = abs(self.value)
+        if self.rule == "simple" or self.U is None:
+            return f"{v:.4g} {'<=' if self.outcome == PASS else '>'} {self.limit:g}"
+        if self.outcome == PASS:
+            return f"{v:.4g} + U {self.U:.2g} <= {self.limit:g}: conformance proven"
+        if self.outcome == FAIL:
+            return f"{v:.4g} - U {self.U:.2g} > {self.limit:g}: non-conformance proven"
+        lo, hi = self.guard_band
+        return (f"{v:.4g} lies in the guard band {lo:.4g}..{hi:.4g} (limit {self.limit:g} -/+ U {self.U:.2g}): "
+                "neither conformance nor non-conformance proven")
+
+
+def check_rule(rule: str) -> str:
+    if rule not in RULES:
+        raise ConfigError(f"decision_rule must be one of {', '.join(RULES)}, got {rule!r}")
+    return rule
+
+
+def decide(value: float, limit: float, U: float | None = None, rule: str = "simple") -> Decision:
+    """The decision on ``|value| <= limit`` under ``rule`` with the expanded uncertainty ``U``.
+
+    Under ``guarded`` a missing ``U`` decides nothing (:data:`NOT_DECIDED`).
+    """
+    check_rule(rule)
+    v, L = float(value), float(limit)
+    if not (math.isfinite(v) and math.isfinite(L)):
+        raise ValueError(f"decide: value and limit must be finite, got {value!r}, {limit!r}")
+    a = abs(v)
+    if rule == "simple":
+        return Decision(PASS if a <= L else FAIL, rule, v, L, U, None)
+    if U is None or not math.isfinite(U):
+        return Decision(NOT_DECIDED, rule, v, L, None, None)
+    U = float(U)
+    if U < 0:
+        raise ValueError(f"decide: U must be >= 0, got {U!r}")
+    band = (L - U, L + U)
+    if a + U <= L:
+        out = PASS
+    elif a - U > L:
+        out = FAIL
+    else:
+        out = NOT_DECIDED
+    return Decision(out, rule, v, L, U, band)

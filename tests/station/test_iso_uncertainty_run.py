@@ -1,0 +1,51 @@
+"""`station run iso9283` under the guarded decision rule (ISO 14253-1) on the fake cell.
+
+A figure without an uncertainty (fewer than 4 cycles) or inside its guard band
+is not decided: the run finishes, its summary says NOT DECIDED and the exit
+code is 3; with enough cycles and a limit far above the figure + U the run
+passes with every verdict carrying u, U and k.
+"""
+
+from procedures.iso9283 import plan_from_config
+from app.assemble import run_procedure
+from station.config import config_from_dict
+from station.store import RunStore
+from tests.person import person_typing_yes
+
+
+def _run(fake_cell, tmp_path, capsys, *, cycles, limits, rule="guarded"):
+    cfg = config_from_dict(fake_cell.config_dict(
+        store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
+        iso9283={"cycles": cycles, "vap_cycles": 2}, limits=limits)
+        | {"uncertainty": {"decision_rule": rule, "mc_trials": 2000, "mc_seed": 4}})
+    assert plan_from_config(cfg).decision_rule == rule
+    code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
+                         config_dir=tmp_path)
+    return code, RunStore(tmp_path / "s.sqlite"), capsys.readouterr().out
+
+
+def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, capsys):
+    code, store, out = _run(fake_cell, tmp_path, capsys, cycles=3, limits={"rp_limit_mm": 5.0})
+    assert code == 3, out
+    assert "verdict: NOT DECIDED" in out and "decision rule: guarded" in out
+    assert "NOT DECIDED RP_mm P1" in out
+    v = [x for x in store.result("u1", "iso9283")["pose"]["verdicts"] if x["characteristic"] == "RP_mm"]
+    assert v and all(x["outcome"] == "not decided" and x["U_mm"] is None for x in v)
+    an = next(s for s in store.steps("u1") if s.name == "analyse")
+    assert an.output["decision"] == "not decided" and an.output["decision_rule"] == "guarded"
+    rep = next(s for s in store.steps("u1") if s.name == "report").output
+    html = open(rep["report"], encoding="utf-8").read()
+    assert rep["verdict"] == "NOT DECIDED" and "not decided" in html and "decision rule (ISO 14253-1)" in html
+
+
+def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
+    code, store, out = _run(fake_cell, tmp_path, capsys, cycles=5, limits={"rp_limit_mm": 5.0, "ap_limit_mm": 20.0})
+    assert code == 0, out
+    assert "verdict: PASS" in out and "decision rule: guarded" in out
+    vs = store.result("u1", "iso9283")["pose"]["verdicts"]
+    assert {v["characteristic"] for v in vs} == {"AP_mm", "RP_mm"}
+    for v in vs:
+        assert v["outcome"] == "pass" and v["k"] == 2.0 and 0 < v["U_mm"] < v["limit"] - abs(v["value"])
+        assert v["U_mm"] == 2 * v["u_mm"] or abs(v["U_mm"] - 2 * v["u_mm"]) < 1e-6
+    html = open(next(s for s in store.steps("u1") if s.name == "report").output["report"], encoding="utf-8").read()
+    assert "U (k=2)" in html and "guard band (limit -/+ U)" in html and "with U (k = 2) and the guard band" in html
