@@ -14,7 +14,7 @@ import sys
 from station.errors import StationError
 
 #: command groups, in the order ``station --help`` lists them
-GROUPS = ("demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "fakes")
+GROUPS = ("demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "predict", "compensate", "fakes")
 
 
 def build_parser() -> argparse.ArgumentParser:
