@@ -344,8 +344,8 @@ def _parameter_sd(Jf: np.ndarray, cost: float, info: int, method: str, meas: np.
 
 
 #: a length this close to 0, or an angle this close to a multiple of 90 deg, is the structure's 0 or 90
-SNAP_MM = 2.0
-SNAP_DEG = 2.0
+SNAP_MM = 5.0
+SNAP_DEG = 3.0
 
 
 def ideal_structure(dh) -> np.ndarray:
@@ -381,6 +381,27 @@ PLAUSIBLE_TOOL_LENGTH_MM = 25.0
 PLAUSIBLE_TOOL_ANGLE_DEG = 10.0
 #: two identified parameters whose estimates correlate beyond this are named together
 CORRELATION_WARN = 0.995
+
+
+#: 1-sigma of the weak prior at the start (joint rows / tool row)
+PRIOR_LENGTH_MM = 1.0
+PRIOR_ANGLE_DEG = 0.5
+PRIOR_TOOL_LENGTH_MM = 10.0
+PRIOR_TOOL_ANGLE_DEG = 5.0
+
+
+PRIOR_BASE_MM = 5.0
+PRIOR_BASE_DEG = 0.1
+
+
+def prior_sd(name: str) -> float:
+    """1-sigma of the prior of a parameter in internal units (mm, rad)."""
+    if name.startswith("base_"):
+        return PRIOR_BASE_MM if name[5] == "t" else math.radians(PRIOR_BASE_DEG)
+    tool = name.endswith("TCP")
+    if name[0] in "ad":
+        return PRIOR_TOOL_LENGTH_MM if tool else PRIOR_LENGTH_MM
+    return math.radians(PRIOR_TOOL_ANGLE_DEG if tool else PRIOR_ANGLE_DEG)
 
 
 def plausible_bound(name: str) -> tuple[float, str]:
@@ -438,7 +459,7 @@ def parameter_warnings(dh_new, dh_start, free, Jf, sigma: dict) -> list[dict]:
 def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=None, base_T_start=None,
              max_iter: int = 100, tol: float = 1e-10, fixed_extra: dict | None = None,
              free_extra=(), use_beta: bool = True, strict: bool = False,
-             allow_rank_deficient: bool | None = None) -> IdentificationResult:
+             allow_rank_deficient: bool | None = None, prior: bool = True) -> IdentificationResult:
     """Identify the kinematic parameters (and the base transform) from measured tool points.
 
     Parameters
@@ -474,6 +495,14 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         Refuse (InsufficientDataError naming them) poses that cannot see a
         parameter which well-spread poses of this arm would see. By default
         such parameters are fixed at their start and named with the reason.
+
+    prior : bool
+        After the least-squares fit, refit with a weak Gaussian prior at the
+        start (1-sigma :data:`PRIOR_LENGTH_MM`, :data:`PRIOR_ANGLE_DEG`; the
+        tool row wider), weighted by the fit's own noise: parameters the
+        data see are not moved by it, parameters the poses barely see (a
+        joint that hardly moved) stay near the start instead of following
+        the noise into extrapolation. False: plain least squares.
 
     The fit runs in two stages on the same solver: the base transform and
     the tool row first (the nominal model's largest misfit on a new cell is
@@ -566,6 +595,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
 
     from station.analysis.lm_solver import levenberg_marquardt
 
+    x_base0 = None if x_base is None else x_base.copy()
     # stage 1: base transform and tool row
     stage1 = np.array([i for i in free if i >= kin.N_PARAMS or i >= 5 * (kin.N_ROWS - 1)], dtype=np.int64)
     state = (dh, x_base)
@@ -581,6 +611,39 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
                               step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
     hist_states += sol.states[1:]
     hist_rms += sol.rms_history[1:]
+    prior_note = None
+    pri = np.array([i for i in free], dtype=np.int64)
+    if prior and pri.size and sol.r.size > free.size:
+        # a weak prior at the start (the build tolerances; the base near the nominal model's rigid fit):
+        # well-seen parameters do not feel it, parameters the poses barely see (a joint that hardly moved)
+        # stay near their start instead of following the noise into extrapolation
+        s_noise = math.sqrt(sol.cost / (sol.r.size - free.size))
+        psd = np.array([prior_sd(_name(i)) for i in pri])
+        w = s_noise / psd
+        x_start = np.concatenate([dh_start_arr.reshape(-1), x_base0 if x_base0 is not None else np.zeros(0)])
+        m_data = sol.r.size
+
+        def flat(st):
+            return np.concatenate([st[0].reshape(-1), st[1] if st[1] is not None else np.zeros(0)])
+
+        def evaluate_prior(st):
+            r_, J_ = evaluate(st)
+            rp = w * (x_start[pri] - flat(st)[pri])
+            Jp = np.zeros((pri.size, J_.shape[1]))
+            Jp[np.arange(pri.size), pri] = w
+            return np.concatenate([r_, rp]), np.concatenate([J_, Jp])
+
+        solp = levenberg_marquardt(evaluate_prior, apply, sol.state, free=free, max_iter=max_iter, rtol=tol,
+                                   step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+        hist_states += solp.states[1:]
+        hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / math.sqrt(m_data)) for st in solp.states[1:]]
+        r_d, J_d = evaluate(solp.state)
+        sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
+                        sol.converged and solp.converged, solp.message if not solp.converged else sol.message,
+                        sol.rms_history, sol.states)
+        prior_note = (f"weak prior at the start: 1-sigma {PRIOR_LENGTH_MM:g} mm / {PRIOR_ANGLE_DEG:g} deg "
+                      f"(tool row {PRIOR_TOOL_LENGTH_MM:g} mm / {PRIOR_TOOL_ANGLE_DEG:g} deg; base "
+                      f"{PRIOR_BASE_MM:g} mm / {PRIOR_BASE_DEG:g} deg from the nominal model's rigid fit)")
     dh, x_base = sol.state
     J, cost, m = sol.J, sol.cost, sol.r.size
     # uncertainties from the residuals at the solution
@@ -593,6 +656,6 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,
                                 math.sqrt(cost / m), time.perf_counter() - t0,
-                                {"n_residuals": m, "method": method, "warnings": warnings,
+                                {"n_residuals": m, "method": method, "warnings": warnings, "prior": prior_note,
                                  "unseen": list(unseen), "stage1_iterations": it1,
                                  "history": [(h, None if xb is None else _base_T(xb)) for h, xb in hist_states]})

@@ -46,6 +46,7 @@ def add_parser(csub) -> None:
                    help="parameters held at their start, comma-separated (a5,theta5,dTCP,...)")
     a.add_argument("--free", type=_names, default=[], metavar="NAMES",
                    help="parameters identified in preference to a redundant partner or a structural fix (dTCP,...)")
+    a.add_argument("--max-iter", type=int, default=100, help="iteration limit of the solver (default 100)")
     a.add_argument("--ur-calibration", metavar="CONF", help="start from the UR model plus this calibration.conf")
     a.add_argument("--ur-deltas", metavar="OUT",
                    help="also write the result as UR calibration deltas (identifies a plain DH model: no beta)")
@@ -75,14 +76,14 @@ def _arm(args: argparse.Namespace) -> int:
     cal = calibrate_arm(dh0, q, data.xyz_mm, method=args.method,
                         test_fraction=args.test_fraction, joint_limits_rad=limits,
                         use_beta=not args.ur_deltas, split_kind=args.split, seed=seed, strict=args.strict,
-                        fix=args.fix, free=args.free)
+                        fix=args.fix, free=args.free, max_iter=args.max_iter)
     doc = calibration_json(cal, name=f"{name} calibrated", joint_limits_rad=limits)
     doc["split"] = {"kind": args.split if args.test_fraction != 0 else "none", "seed": seed}
     if args.folds:
         doc["cross_validation"] = cross_validate(dh0, q, data.xyz_mm, folds=args.folds, seed=seed,
                                                 method=args.method, joint_limits_rad=limits,
                                                 use_beta=not args.ur_deltas, strict=args.strict, fix=args.fix,
-                                                free=args.free)
+                                                free=args.free, max_iter=args.max_iter)
     deltas = ur_deltas(cal.dh, dh0) if args.ur_deltas else None
     report = build_report(cal, title=f"Kinematic calibration of {name}",
                           facts={"data": str(args.data), "robot": str(args.robot)}) if args.report else None

@@ -125,9 +125,9 @@ def test_cli_json_keys_and_bad_input(tmp_path, capsys):
     d = make_case(ROBOT, [("backlash", int(rng.integers(1, 7)))], rng, n=100, strength=(1.5, 2.0))
     csv_path = tmp_path / "a.csv"
     write_arm_csv(csv_path, np.degrees(d.q_rad), d.xyz_mm, t=d.t_s)
-    out, rep = tmp_path / "d.json", tmp_path / "d.html"
+    out, rep, model = tmp_path / "d.json", tmp_path / "d.html", tmp_path / "m.json"
     assert main(["diagnose", "arm", "--robot", "industrial-3100", "--data", str(csv_path),
-                 "--json", str(out), "--report", str(rep)]) == 0
+                 "--json", str(out), "--report", str(rep), "--model-out", str(model)]) == 0
     doc = json.loads(out.read_text())
     for key in ("steps", "final_heldout_rms", "noise_floor"):
         assert key in doc
@@ -135,7 +135,11 @@ def test_cli_json_keys_and_bad_input(tmp_path, capsys):
                 "statistic", "threshold"):
         assert key in doc["steps"][0]
     assert rep.read_text().count("<svg") == len(doc["steps"])
-    EffectSet.from_dict(doc["extended_model"]["effects"])  # the simulated world can use it
+    # the model file is the JSON's extended model, and it carries the named effects
+    assert json.loads(model.read_text()) == doc["extended_model"]
+    named = {(s["effect"], s["joint"]) for s in doc["steps"] if s["effect"] != "geometric"}
+    assert {(e["effect"], e.get("joint")) for e in doc["extended_model"]["effects"]} == named
+    assert doc["noise_floor_source"] and doc["selection"].startswith("nested")
     bad = tmp_path / "bad.csv"
     bad.write_text("q1,q2,q3,q4,q5,q6,x,y\n1,2,3,4,5,6,7,8\n")
     out2 = tmp_path / "bad.json"
