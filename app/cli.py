@@ -14,7 +14,8 @@ import sys
 from station.errors import StationError
 
 #: command groups, in the order ``station --help`` lists them
-GROUPS = ("init", "demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "fakes")
+GROUPS = ("init", "demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "predict",
+          "compensate", "fakes")
 
 
 def build_parser() -> argparse.ArgumentParser:

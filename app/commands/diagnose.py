@@ -1,18 +1,28 @@
 """`station diagnose arm`: where the station's arm model disagrees with measured data, and why (issue 13).
 
-``station diagnose arm --robot NAME|FILE --data A.csv [--json OUT] [--report OUT.html]``
+``station diagnose arm --robot NAME|FILE --data A.csv [--json OUT] [--report OUT.html] [--model-out M.json]``
     The arm CSV (``q1..q6`` deg, ``x,y,z`` mm in the instrument frame,
-    optional ``t``, ``temperature``, ``load``; rows in measurement order) is
-    predicted by the station's model, split into training and held-out
-    poses spanning the workspace, and the named effects are selected one by
-    one while a test against the noise finds structure (see
-    :mod:`station.analysis.diagnose.arm`). ``--json`` keys: ``steps`` (each
-    ``effect``, ``joint``, ``params``, ``ci``, ``heldout_rms_before``,
-    ``heldout_rms_after``, ``gain``, ``statistic``, ``threshold``,
+    optional ``t``, ``temperature``, ``load``) is predicted by the station's
+    model and split into training and held-out poses spanning the
+    workspace. The diagnosis starts from a geometric calibration; the named
+    effects are then chosen one by one on the training poses alone (a
+    significance test against the noise and a cross-validation inside the
+    training poses: nested), and the held-out poses report the gain. When
+    geometry cannot be tested nothing else is named. Backlash needs the
+    order of motion: a ``t`` column or ``--rows-in-motion-order``; without
+    them the answer does not depend on the rows' order. ``--json`` keys:
+    ``steps`` (each ``effect``, ``joint``, ``params``, ``ci``,
+    ``heldout_rms_before``, ``heldout_rms_after``, ``gain``,
+    ``cv_rms_before``, ``cv_rms_after``, ``statistic``, ``threshold``,
     ``ambiguous_with``), ``simulation_heldout_rms``, ``final_heldout_rms``,
-    ``noise_floor`` (mm), ``remaining_structure``, ``not_testable``,
-    ``extended_model`` (table and ``EffectSet`` parameters the simulated
-    world can use). Nothing is written unless everything succeeded.
+    ``noise_floor`` (mm) and ``noise_floor_source``, ``selection``,
+    ``geometry``, ``stop_reason``, ``remaining_structure``,
+    ``not_testable``, ``rejected``, ``fits`` (each fit's convergence),
+    ``extended_model`` (the model file ``--model-out`` writes: the chosen
+    effects refitted on every pose, read by ``station predict arm`` and
+    ``station compensate arm``). Exit code 3: a fit did not converge (the
+    results are still written, marked). Nothing is written unless
+    everything succeeded.
 
 ``station diagnose trailer --l1 L1 --l2 L2 --data T.csv [--json OUT] [--report OUT.html]``
     The trailer CSV (``t,kappa,psi``, optional ``v``, ``kappa_cmd``) is
@@ -44,8 +54,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--data", required=True, metavar="CSV", help="q1..q6 (deg), x,y,z (mm), optional t,temperature,load")
     a.add_argument("--heldout-fraction", type=float, default=0.25, help="share of poses held out (default 0.25)")
     a.add_argument("--alpha", type=float, default=0.05, help="false-discovery rate of each selection round")
+    a.add_argument("--rows-in-motion-order", action="store_true",
+                   help="the rows are in the order the arm visited them (backlash testable without a t column)")
+    a.add_argument("--folds", type=int, default=5, help="folds of the cross-validation that chooses the effects")
+    a.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the folds (default 0)")
     a.add_argument("--json", metavar="OUT", help="write the result as JSON")
     a.add_argument("--report", metavar="OUT.html", help="write the HTML report")
+    a.add_argument("--model-out", metavar="M.json",
+                   help="write the extended model (table, base, named effects) for station predict/compensate")
     a.set_defaults(func=_arm)
     t = dsub.add_parser("trailer", help="the static trailer model (seed 003) against a measured record",
                         description=plain(__doc__.split("\n\n")[2]))
@@ -59,36 +75,47 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.set_defaults(func=_trailer)
 
 
+#: exit code when a fit of the diagnosis did not converge
+EXIT_NOT_CONVERGED = 3
+
+
 def _arm(args: argparse.Namespace) -> int:
+    import sys
+
     import numpy as np
 
     from procedures.diagnosis_report import build_report
     from station.analysis.diagnose import diagnose_arm
-    from station.errors import ConfigError
-    from station.models.arm_model_file import load_arm
-    from station.models.robots import get_robot
+    from station.models.arm_model_file import resolve_arm
     from station.readers.arm_csv import read_arm_csv
     from station.report import write_report
 
-    name, dh0, limits, _ = load_arm(args.robot)
-    try:
-        robot = get_robot(args.robot)
-    except ConfigError:
-        robot = None  # a model file: no mass model, the compliance basis stands alone
+    arm = resolve_arm(args.robot)
     data = read_arm_csv(args.data)
     from station.analysis.arm.screen import screen_arm_poses
 
-    screen_arm_poses(dh0, np.radians(data.q_deg), data.xyz_mm, source=data.source, lines=data.lines)
-    res = diagnose_arm(dh0, np.radians(data.q_deg), data.xyz_mm, t_s=data.t_s, temperature_c=data.temperature_c,
-                       load_kg=data.load_kg, robot=robot, heldout_fraction=args.heldout_fraction, alpha=args.alpha)
+    screen_arm_poses(arm.dh, np.radians(data.q_deg), data.xyz_mm, source=data.source, lines=data.lines)
+    res = diagnose_arm(arm.dh, np.radians(data.q_deg), data.xyz_mm, t_s=data.t_s, temperature_c=data.temperature_c,
+                       load_kg=data.load_kg, robot=arm.spec, heldout_fraction=args.heldout_fraction,
+                       alpha=args.alpha, rows_in_motion_order=args.rows_in_motion_order, folds=args.folds,
+                       seed=args.seed)
     doc = res.to_json()
-    doc["robot"], doc["data"] = name, str(args.data)
-    report = build_report(res, title=f"Diagnosis of {name}", facts={"data": str(args.data)}) if args.report else None
+    doc["robot"], doc["data"] = arm.name, str(args.data)
+    gravity = arm.spec.name if arm.spec is not None else None
+    doc["extended_model"] = res.extended_model(name=f"{arm.name} diagnosed", gravity_model=gravity,
+                                               joint_limits_rad=arm.joint_limits_rad)
+    report = build_report(res, title=f"Diagnosis of {arm.name}", facts={"data": str(args.data)}) if args.report else None
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    if args.model_out:
+        Path(args.model_out).write_text(json.dumps(doc["extended_model"], indent=2), encoding="utf-8")
     if report is not None:
         write_report(report, args.report)
     _print(doc)
+    if not doc["converged"]:
+        bad = "; ".join(f"{f['fit']}: {f['message']}" for f in doc["fits"] if not f["converged"])
+        print(f"error: a fit did not converge ({bad}); exit code {EXIT_NOT_CONVERGED}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0
 
 
@@ -139,6 +166,8 @@ def _print_trailer(doc: dict) -> None:
 def _print(doc: dict) -> None:
     print(f"simulation held-out RMS {doc['simulation_heldout_rms']:.4f} mm "
           f"({doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out poses)")
+    print(f"selection: {doc['selection']}")
+    print(f"row order: {doc['row_order']}")
     for k, s in enumerate(doc["steps"], 1):
         joint = f" joint {s['joint']}" if s["joint"] else ""
         amb = "".join(f"; same residual as {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
@@ -149,10 +178,17 @@ def _print(doc: dict) -> None:
         print("nothing significant: the model explains the data to the noise")
     g = doc["gain_percent"]
     print(f"extended model held-out RMS {doc['final_heldout_rms']:.4f} mm ({g:.1f} % less); "
-          f"noise floor {doc['noise_floor']:.4f} mm")
+          f"noise floor {doc['noise_floor']:.4f} mm (from {doc['noise_floor_source']})")
+    if doc.get("stop_reason"):
+        print(f"stopped: {doc['stop_reason']}")
+    for w in doc.get("geometry", {}).get("warnings", []):
+        print(f"warning (geometry): {w['message']}")
     left = [c for c in doc["remaining_structure"] if c.get("significant")]
     if left:
-        print("significant but not improving held-out poses: " + ", ".join(c["candidate"] for c in left))
+        print("significant but not lowering the cross-validated error of the training poses: "
+              + ", ".join(c["candidate"] for c in left))
+    for key, why in doc.get("rejected", {}).items():
+        print(f"not named: {key}: {why}")
     for key, why in doc["not_testable"].items():
         print(f"not testable: {key}: {why}")
     if not math.isfinite(doc["final_heldout_rms"]):

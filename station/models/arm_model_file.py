@@ -7,7 +7,19 @@ what ``--robot FILE`` reads, so one calibration is the start of the next)::
      "tool": {"x_mm": 0, "y_mm": 0, "z_mm": -88},
      "base": {"rotation_matrix": [[...], [...], [...]], "translation_mm": [x, y, z]},   (optional)
      "joint_limits_deg": [[lo, hi], ... six],                                           (optional)
-     "name": "...", "description": "..."}                                             (optional)
+     "name": "...", "description": "...",                                            (optional)
+     "effects": [{"effect": "encoder_eccentricity", "joint": 3,
+                  "params": {"s3_rad": 1e-4, "c3_rad": -2e-5}}, ...],                   (optional: extended model)
+     "gravity_model": "industrial-3100"}                                               (optional: compliance's mass model)
+
+An extended model (``station diagnose arm --model-out``) adds the named
+effects in the form :mod:`station.models.arm_extended` evaluates
+(``encoder_eccentricity``: ``s<j>_rad, c<j>_rad``; ``backlash``: ``b<j>_rad``;
+``joint_compliance``: ``c<j>_rad_per_Nm`` (the ``gravity_model``'s masses),
+``k<j>_tcp_rad_per_kg``, ``k<j>_elbow_rad_per_kg``; ``thermal_drift``:
+``alpha_per_K`` with ``reference_temperature_c``, or ``dT_max_K`` with
+``tau_s`` and ``t0_s``). ``station predict arm`` and ``station compensate
+arm`` read both kinds; so does ``--robot`` (it uses the table).
 
 ``theta_deg`` is the offset added to the joint angle (seed 002 Table 2's
 ``theta_i - 90`` is ``theta_deg = -90``). The tool point is the TCP row of
@@ -29,6 +41,7 @@ from __future__ import annotations
 import ast
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,12 +50,12 @@ from station.errors import ConfigError
 from station.models import kinematics as kin
 from station.models.robots import RobotSpec, get_robot
 
-__all__ = ["model_to_json", "model_from_json", "load_arm", "ur_deltas", "write_ur_calibration",
-           "read_ur_calibration"]
+__all__ = ["model_to_json", "model_from_json", "load_arm", "resolve_arm", "ResolvedArm", "ur_deltas",
+           "write_ur_calibration", "read_ur_calibration"]
 
 _JOINT_KEYS = ("a_mm", "alpha_deg", "d_mm", "theta_deg", "beta_deg")
 _TOOL_KEYS = ("x_mm", "y_mm", "z_mm")
-_TOP_KEYS = {"joints", "tool", "base", "joint_limits_deg", "name", "description"}
+_TOP_KEYS = {"joints", "tool", "base", "joint_limits_deg", "name", "description", "effects", "gravity_model"}
 #: angles in a model file beyond this (deg) are not plausible: written in radians, or a typo
 _MAX_OFFSET_DEG = 360.0
 
@@ -127,14 +140,39 @@ def model_from_json(data: dict, source: str = "model") -> tuple[np.ndarray, np.n
     return dh, base, limits
 
 
-def load_arm(robot: str) -> tuple[str, np.ndarray, np.ndarray, np.ndarray | None]:
-    """``(name, dh (7, 5), joint_limits_rad (6, 2), base_T or None)`` of a library robot or a model file.
+@dataclass(frozen=True)
+class ResolvedArm:
+    """A library robot or a model file, resolved one way.
 
-    ``robot`` is a library name (``rb5-850``, ``ur5e``, ...) or the path of a
-    JSON model file (the schema above, or the whole output of ``station
-    calibrate arm --json``). A model file without ``joint_limits_deg`` gets
-    +-360 deg.
+    ``spec`` is the library :class:`RobotSpec` (mass model, speed limits) or
+    None for a model file (unless it names a ``gravity_model``); ``effects``
+    the extended model's named effects (empty for a plain model).
     """
+
+    name: str
+    dh: np.ndarray
+    joint_limits_rad: np.ndarray
+    base_T: np.ndarray | None
+    spec: RobotSpec | None
+    effects: tuple = ()
+    source: str = ""
+
+    def extended(self):
+        """The :class:`station.models.arm_extended.ExtendedArm` of this model."""
+        from station.models.arm_extended import ExtendedArm
+
+        return ExtendedArm(self.name, self.dh, self.base_T, self.joint_limits_rad, list(self.effects), self.spec)
+
+
+def resolve_arm(robot: str) -> ResolvedArm:
+    """The one resolver of ``--robot``/``--model``: a library name (``rb5-850``, ``ur5e``, ...) or a JSON model file.
+
+    A model file is the schema above, or the whole output of ``station
+    calibrate arm --json`` / ``station diagnose arm --json`` (its ``model``
+    or ``extended_model``); without ``joint_limits_deg`` it gets +-360 deg.
+    """
+    from station.models.arm_extended import terms_from_json
+
     p = Path(robot)
     if p.suffix.lower() == ".json" or (p.exists() and p.is_file()):
         if not p.is_file():
@@ -143,14 +181,30 @@ def load_arm(robot: str) -> tuple[str, np.ndarray, np.ndarray, np.ndarray | None
             data = json.loads(p.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ConfigError(f"{p}: not a JSON model ({exc})") from None
-        if isinstance(data, dict) and "model" in data and "joints" not in data:
-            data = data["model"]  # the whole output of `station calibrate arm --json`
+        if isinstance(data, dict) and "joints" not in data:
+            if isinstance(data.get("extended_model"), dict):
+                data = data["extended_model"]  # the whole output of `station diagnose arm --json`
+            elif "model" in data:
+                data = data["model"]  # the whole output of `station calibrate arm --json`
         dh, base, limits = model_from_json(data, str(p))
         if limits is None:
             limits = np.tile(np.radians([-360.0, 360.0]), (6, 1))
-        return str(data.get("name") or p.stem), dh, limits, base
-    spec: RobotSpec = get_robot(robot)
-    return spec.name, spec.dh_nominal.copy(), spec.joint_limits_rad.copy(), None
+        spec = None
+        if data.get("gravity_model") is not None:
+            try:
+                spec = get_robot(data["gravity_model"])
+            except ConfigError as exc:
+                raise ConfigError(f"{p}: gravity_model: {exc}") from None
+        effects = tuple(terms_from_json(data["effects"], str(p))) if data.get("effects") is not None else ()
+        return ResolvedArm(str(data.get("name") or p.stem), dh, limits, base, spec, effects, str(p))
+    spec = get_robot(robot)
+    return ResolvedArm(spec.name, spec.dh_nominal.copy(), spec.joint_limits_rad.copy(), None, spec, (), robot)
+
+
+def load_arm(robot: str) -> tuple[str, np.ndarray, np.ndarray, np.ndarray | None]:
+    """``(name, dh (7, 5), joint_limits_rad (6, 2), base_T or None)``: :func:`resolve_arm` as a tuple."""
+    r = resolve_arm(robot)
+    return r.name, r.dh, r.joint_limits_rad, r.base_T
 
 
 # ---------------------------------------------------------------------- UR calibration deltas

@@ -93,7 +93,7 @@ def test_calibration_reaches_what_the_true_model_reaches(rng, robot, truth, meth
 def test_seed_table_3_bold_parameters_are_the_ones_fixed(rng):
     """RB5-850 with Table 3 as the truth: what the distance method cannot see is fixed, and named."""
     nom, true_dh, q, B, meas, noise = _case(rng, "rb5-850", get_robot("rb5-850-as-built").dh_nominal)
-    res = identify(nom.dh_nominal, q, meas, method="distance")
+    res = identify(nom.dh_nominal, q, meas, method="distance", strict=True)
     fixed = res.identifiability.fixed
     # rotations about and shifts along the first axis move every point alike: distances do not see them
     assert fixed["theta1"].startswith("no effect") and fixed["d1"].startswith("no effect")
@@ -175,7 +175,12 @@ def test_bad_input_is_refused_with_exit_2_and_nothing_written(rng, tmp_path, cap
     q1[:, 0] = rng.uniform(-2.5, 2.5, 64)
     m1 = measure(true_dh, q1, B, noise, rng)
     with pytest.raises(InsufficientDataError, match="these poses cannot see .*alpha2"):
-        calibrate_arm(nom.dh_nominal, q1, m1)
+        calibrate_arm(nom.dh_nominal, q1, m1, strict=True)
+    refused(["--robot", "rb5-850", "--strict", "--data", _write(tmp_path, np.degrees(q1), m1, "one.csv")],
+            "these poses cannot see")
+    # without --strict the same poses calibrate what they can see and name what was fixed, and why
+    cal = calibrate_arm(nom.dh_nominal, q1, m1)
+    assert "cannot see" in cal.identification.identifiability.fixed["alpha2"]
     qq = np.degrees(q.copy())
     qq[5, 2] = 400.0
     refused(["--robot", "rb5-850", "--data", _write(tmp_path, qq, meas)], "pose 6: q3 = 400.000 deg is outside")
@@ -197,8 +202,8 @@ def test_rank_deficient_poses_name_what_cannot_be_seen(rng):
     q[:, 4] = 0.3  # joint 5 never moves: its offset cannot be told from the others
     meas = measure(nom.dh_nominal, q, instrument_frame(rng), 0.02, rng)
     with pytest.raises(InsufficientDataError, match=r"these poses cannot see .*theta5 \(redundant with"):
-        identify(nom.dh_nominal, q, meas, method="distance")
-    res = identify(nom.dh_nominal, q, meas, method="distance", allow_rank_deficient=True)
+        identify(nom.dh_nominal, q, meas, method="distance", strict=True)
+    res = identify(nom.dh_nominal, q, meas, method="distance")
     assert "theta5" in res.identifiability.fixed and "redundant" in res.identifiability.fixed["theta5"]
     with pytest.raises(ConfigError, match="six objects"):
         model_from_json({"joints": [], "tool": {}})

@@ -87,7 +87,8 @@ def test_not_testable_candidates_are_named_with_the_reason(rng):
     nt = res.to_json()["not_testable"]
     assert "no time or temperature column" in nt["thermal_drift"]
     assert "constant" in nt["backlash[6]"] and "constant" in nt["encoder_eccentricity[6]"]
-    assert "too few" in nt["geometric"]
+    # no t column and no --rows-in-motion-order: the order of motion is unknown, backlash is not tested
+    assert "order of motion" in nt["backlash[2]"]
 
 
 def test_other_generator_anisotropic_noise_backlash_found(rng):
@@ -108,7 +109,7 @@ def test_other_generator_anisotropic_noise_backlash_found(rng):
     los = p - np.array([3000.0, 0.0, 500.0])
     los /= np.linalg.norm(los, axis=1)[:, None]
     noise = rng.normal(0, 0.01, (n, 3)) + los * rng.normal(0, 0.02, (n, 1))
-    res = diagnose_arm(ROBOT.dh_nominal, q, p + noise, robot=ROBOT, alpha=ALPHA)
+    res = diagnose_arm(ROBOT.dh_nominal, q, p + noise, robot=ROBOT, alpha=ALPHA, rows_in_motion_order=True)
     assert found(res, "backlash", joint), (joint, res.selected)
     assert len(res.selected) <= 3
 
@@ -117,9 +118,9 @@ def test_cli_json_keys_and_bad_input(rng, tmp_path, capsys):
     d = make_case(ROBOT, [("backlash", int(rng.integers(1, 7)))], rng, n=100, strength=(1.5, 2.0))
     csv_path = tmp_path / "a.csv"
     write_arm_csv(csv_path, np.degrees(d.q_rad), d.xyz_mm, t=d.t_s)
-    out, rep = tmp_path / "d.json", tmp_path / "d.html"
+    out, rep, model = tmp_path / "d.json", tmp_path / "d.html", tmp_path / "m.json"
     assert main(["diagnose", "arm", "--robot", "industrial-3100", "--data", str(csv_path),
-                 "--json", str(out), "--report", str(rep)]) == 0
+                 "--json", str(out), "--report", str(rep), "--model-out", str(model)]) == 0
     doc = json.loads(out.read_text())
     for key in ("steps", "final_heldout_rms", "noise_floor"):
         assert key in doc
@@ -127,7 +128,11 @@ def test_cli_json_keys_and_bad_input(rng, tmp_path, capsys):
                 "statistic", "threshold"):
         assert key in doc["steps"][0]
     assert rep.read_text().count("<svg") == len(doc["steps"])
-    EffectSet.from_dict(doc["extended_model"]["effects"])  # the simulated world can use it
+    # the model file is the JSON's extended model, and it carries the named effects
+    assert json.loads(model.read_text()) == doc["extended_model"]
+    named = {(s["effect"], s["joint"]) for s in doc["steps"] if s["effect"] != "geometric"}
+    assert {(e["effect"], e.get("joint")) for e in doc["extended_model"]["effects"]} == named
+    assert doc["noise_floor_source"] and doc["selection"].startswith("nested")
     bad = tmp_path / "bad.csv"
     bad.write_text("q1,q2,q3,q4,q5,q6,x,y\n1,2,3,4,5,6,7,8\n")
     out2 = tmp_path / "bad.json"

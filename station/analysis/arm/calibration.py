@@ -40,8 +40,8 @@ from station.models import kinematics as kin
 #: the seed's split: 13 of the 63 distances from the first pose are for testing
 SEED_TEST_FRACTION = 13 / 63
 
-__all__ = ["SEED_TEST_FRACTION", "Split", "ErrorStats", "ArmCalibration", "split_poses", "distance_errors",
-           "position_errors", "calibrate_arm", "check_joint_limits"]
+__all__ = ["SEED_TEST_FRACTION", "SPLITS", "Split", "ErrorStats", "ArmCalibration", "split_poses", "distance_errors",
+           "position_errors", "calibrate_arm", "cross_validate", "heldout_coverage", "check_joint_limits"]
 
 
 @dataclass(frozen=True)
@@ -87,13 +87,30 @@ class ArmCalibration:
         return self.identification.dh
 
 
-def split_poses(n: int, test_fraction: float | None = None) -> Split:
-    """Reference pose 0, then training poses, then the last ``round(test_fraction (n - 1))`` poses for testing.
+SPLITS = ("tail", "random", "spread")
 
-    The default fraction is the seed's (13 of 63); ``0`` keeps every pose for training.
+
+def split_poses(n: int, test_fraction: float | None = None, *, kind: str = "tail", seed: int | None = None,
+                q_rad=None, measured_mm=None) -> Split:
+    """Training and test poses; the reference (distance method) is the first training pose.
+
+    ``kind``:
+
+    ``tail``
+        The last ``round(test_fraction (n - 1))`` poses are held out (the seed's way; default fraction 13/63).
+    ``random``
+        A random draw of that many poses (``seed``; the same seed gives the same split).
+    ``spread``
+        Poses spread over the joint space and the measured points
+        (:func:`station.analysis.diagnose.split.workspace_split`), so every
+        held-out pose has training poses around it.
+
+    A fraction of ``0`` keeps every pose for training.
     """
     if n < 2:
         raise InsufficientDataError(f"calibration needs at least 2 poses, got {n}")
+    if kind not in SPLITS:
+        raise DataError(f"--split must be one of {', '.join(SPLITS)}, got {kind!r}")
     frac = SEED_TEST_FRACTION if test_fraction is None else float(test_fraction)
     if not (0.0 <= frac < 1.0) or not math.isfinite(frac):
         raise DataError(f"--test-fraction must be in [0, 1), got {test_fraction!r}")
@@ -103,7 +120,43 @@ def split_poses(n: int, test_fraction: float | None = None) -> Split:
     n_train = n - n_test
     if n_train < 2:
         raise InsufficientDataError(f"{n} poses leave {n_train} for training with test fraction {frac:g}")
-    return Split(0, np.arange(n_train), np.arange(n_train, n))
+    if kind == "tail" or n_test == 0:
+        return Split(0, np.arange(n_train), np.arange(n_train, n))
+    if kind == "random":
+        test = np.sort(np.random.default_rng(seed).permutation(n)[:n_test])
+    else:
+        if q_rad is None or measured_mm is None:
+            raise DataError("a spread split needs the joint angles and the measured points")
+        from station.analysis.diagnose.split import workspace_split
+
+        _, test = workspace_split(np.asarray(q_rad, float), np.asarray(measured_mm, float),
+                                  min(max(n_test / n, 0.05), 0.5), seed=0 if seed is None else int(seed))
+    train = np.setdiff1d(np.arange(n), test)
+    return Split(int(train[0]), train, np.asarray(test, dtype=np.int64))
+
+
+def heldout_coverage(q_train_rad: np.ndarray, q_test_rad: np.ndarray, *, margin_deg: float = 2.0) -> list[str]:
+    """What the training poses cannot represent of the held-out ones, per joint (empty: nothing).
+
+    A held-out pose with a joint outside the training poses' range of that
+    joint (beyond ``margin_deg``) asks the model to extrapolate; a joint the
+    training poses never moved cannot be calibrated at all.
+    """
+    notes = []
+    if q_test_rad.size == 0 or q_train_rad.size == 0:
+        return notes
+    lo, hi = np.degrees(q_train_rad.min(axis=0)), np.degrees(q_train_rad.max(axis=0))
+    qt = np.degrees(q_test_rad)
+    for j in range(6):
+        if hi[j] - lo[j] < 1.0 and np.ptp(qt[:, j]) >= 1.0:
+            notes.append(f"q{j + 1}: the training poses never move it (range {hi[j] - lo[j]:.2g} deg) but the "
+                         f"held-out poses do ({np.ptp(qt[:, j]):.3g} deg): its geometry is not calibrated for them")
+            continue
+        out = (qt[:, j] < lo[j] - margin_deg) | (qt[:, j] > hi[j] + margin_deg)
+        if out.any():
+            notes.append(f"q{j + 1}: {int(out.sum())} held-out pose(s) outside the training range "
+                         f"[{lo[j]:.1f}, {hi[j]:.1f}] deg (the model extrapolates there)")
+    return notes
 
 
 def _check_split(split: Split, n: int) -> None:
@@ -147,8 +200,9 @@ def check_joint_limits(q_rad: np.ndarray, limits_rad: np.ndarray) -> None:
 
 
 def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", test_fraction: float | None = None,
-                  joint_limits_rad=None, max_iter: int = 50, use_beta: bool = True,
-                  split: Split | None = None) -> ArmCalibration:
+                  joint_limits_rad=None, max_iter: int = 100, use_beta: bool = True,
+                  split: Split | None = None, split_kind: str = "tail", seed: int | None = None,
+                  strict: bool = False, fix=(), free=(), alternative: bool = True) -> ArmCalibration:
     """Identify on the training poses and report seed 002's figures on both parts.
 
     Parameters
@@ -168,7 +222,16 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
     split : Split, optional
         Explicit reference, training and test poses (a procedure that chose
         its training poses and drew its test poses apart); overrides
-        ``test_fraction``.
+        ``test_fraction`` and ``split_kind``.
+    split_kind, seed
+        ``tail``, ``random`` or ``spread`` (:func:`split_poses`).
+    strict : bool
+        Refuse poses that cannot see a parameter well-spread poses would (default: fix it and say so).
+    fix, free : iterables of parameter names
+        Held at the start / identified in preference to a redundant partner.
+    alternative : bool
+        When a change is implausible, also fit with those parameters fixed
+        and report it (``extra["alternative"]`` of the identification).
     """
     dh0 = kin.validate_dh(dh_nominal)
     q = np.asarray(q_rad, dtype=float)
@@ -184,25 +247,15 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
     if joint_limits_rad is not None:
         check_joint_limits(q, np.asarray(joint_limits_rad, dtype=float))
     if split is None:
-        split = split_poses(q.shape[0], test_fraction)
+        split = split_poses(q.shape[0], test_fraction, kind=split_kind, seed=seed, q_rad=q, measured_mm=meas)
     else:
         _check_split(split, q.shape[0])
     tr = split.train
-    res = identify(dh0, q[tr], meas[tr], method=method, max_iter=max_iter, use_beta=use_beta)
-    if method == "distance":
-        tr_idx = tr[tr != split.reference]
-
-        def errs(dh, idx, _base=None):
-            return distance_errors(dh, q, meas, split.reference, idx)
-
-        base_before = base_after = None
-    else:
-        tr_idx = tr
-        base_before = rigid_fit(kin.tool_position(dh0, q[tr]), meas[tr])
-        base_after = res.base_T
-
-        def errs(dh, idx, base):
-            return position_errors(dh, base, q, meas, idx)
+    fixed_extra = {nm: "fixed as asked (--fix)" for nm in fix}
+    res = identify(dh0, q[tr], meas[tr], method=method, max_iter=max_iter, use_beta=use_beta, strict=strict,
+                   fixed_extra=fixed_extra, free_extra=tuple(free))
+    errs, tr_idx, base_before = _error_function(method, dh0, q, meas, split)
+    base_after = res.base_T
 
     train = ErrorStats(errs(dh0, tr_idx, base_before), errs(res.dh, tr_idx, base_after), res.rmse_per_iteration)
     test = None
@@ -211,7 +264,71 @@ def calibrate_arm(dh_nominal, q_rad, measured_mm, *, method: str = "distance", t
         hist = [math.sqrt(float(np.mean(errs(h, split.test, b if b is not None else base_before) ** 2)))
                 for h, b in res.extra["history"]]
         test = ErrorStats(errs(dh0, split.test, base_before), errs(res.dh, split.test, base_after), hist)
+        res.extra["coverage"] = heldout_coverage(q[tr], q[split.test])
+    bad = sorted({nm for w in res.extra["warnings"] if w["kind"] == "implausible" for nm in w["parameters"]})
+    if alternative and bad:
+        alt_fix = {**fixed_extra, **{nm: "fixed: its change was implausible" for nm in bad}}
+        try:
+            alt = identify(dh0, q[tr], meas[tr], method=method, max_iter=max_iter, use_beta=use_beta, strict=False,
+                           fixed_extra=alt_fix, free_extra=tuple(nm for nm in free if nm not in alt_fix))
+        except InsufficientDataError:
+            alt = None
+        if alt is not None:
+            d = {"fix": bad, "converged": alt.converged,
+                 "train_mean_after_mm": float(np.mean(errs(alt.dh, tr_idx, alt.base_T)))}
+            if split.test.size:
+                d["test_mean_after_mm"] = float(np.mean(errs(alt.dh, split.test, alt.base_T)))
+            d["model"] = (alt.dh, alt.base_T)
+            res.extra["alternative"] = d
     return ArmCalibration(method, dh0, res, split, train, test)
+
+
+def _error_function(method, dh0, q, meas, split):
+    tr = split.train
+    if method == "distance":
+        tr_idx = tr[tr != split.reference]
+
+        def errs(dh, idx, _base=None):
+            return distance_errors(dh, q, meas, split.reference, idx)
+
+        return errs, tr_idx, None
+
+    def errs(dh, idx, base):
+        return position_errors(dh, base, q, meas, idx)
+
+    return errs, tr, rigid_fit(kin.tool_position(dh0, q[tr]), meas[tr])
+
+
+def cross_validate(dh_nominal, q_rad, measured_mm, *, folds: int, seed: int | None = None, method: str = "distance",
+                   joint_limits_rad=None, use_beta: bool = True, strict: bool = False, fix=(), free=(),
+                   max_iter: int = 100) -> dict:
+    """K-fold cross-validated held-out error: every pose is held out once, by a model fitted on the others.
+
+    Returns ``folds`` (per fold: ``n_test``, ``test_mean_after_mm``, ``test_mean_before_mm``,
+    ``converged``, ``coverage``), ``mean_mm`` and ``sd_mm`` of the per-fold held-out means, ``seed``.
+    """
+    q = np.asarray(q_rad, dtype=float)
+    meas = np.asarray(measured_mm, dtype=float)
+    n = q.shape[0]
+    if isinstance(folds, bool) or int(folds) != folds or not (2 <= folds <= n // 2):
+        raise DataError(f"--folds must be an integer from 2 to {n // 2} for {n} poses, got {folds!r}")
+    perm = np.random.default_rng(seed).permutation(n)
+    out = []
+    for f, test in enumerate(np.array_split(perm, int(folds))):
+        test = np.sort(test)
+        train = np.setdiff1d(np.arange(n), test)
+        cal = calibrate_arm(dh_nominal, q, meas, method=method, joint_limits_rad=joint_limits_rad, use_beta=use_beta,
+                            split=Split(int(train[0]), train, test), strict=strict, fix=fix, free=free,
+                            max_iter=max_iter, alternative=False)
+        out.append({"fold": f + 1, "n_test": int(test.size), "test_mean_before_mm": float(np.mean(cal.test.before_mm)),
+                    "test_mean_after_mm": float(np.mean(cal.test.after_mm)),
+                    "converged": cal.identification.converged,
+                    "coverage": cal.identification.extra.get("coverage", [])})
+    means = np.array([d["test_mean_after_mm"] for d in out])
+    return {"folds": out, "k": int(folds), "seed": seed, "mean_mm": float(means.mean()),
+            "sd_mm": float(means.std(ddof=1)), "all_converged": all(d["converged"] for d in out),
+            "errors_are": ("distances from each fold's first training pose (seed 002 eq. (11))"
+                           if method == "distance" else "positions in the instrument frame")}
 
 
 def calibration_json(cal: ArmCalibration, *, name: str = "", joint_limits_rad=None) -> dict:
@@ -235,6 +352,16 @@ def calibration_json(cal: ArmCalibration, *, name: str = "", joint_limits_rad=No
         "converged": res.converged,
         "message": res.message,
         "n_poses": {"train": int(cal.split.train.size), "test": int(cal.split.test.size)},
+        "test_poses": [int(i) + 1 for i in cal.split.test],
+        "warnings": [{k: v for k, v in w.items()} for w in res.extra.get("warnings", [])],
+        "alternative": _alternative_json(res.extra.get("alternative")),
+        "heldout_coverage": res.extra.get("coverage", []),
         "errors_are": ("distances from the first pose (seed 002 eq. (11))" if cal.method == "distance"
                        else "positions in the instrument frame"),
     }
+
+
+def _alternative_json(alt: dict | None) -> dict | None:
+    if alt is None:
+        return None
+    return {k: v for k, v in alt.items() if k != "model"}

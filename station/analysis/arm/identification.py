@@ -343,12 +343,123 @@ def _parameter_sd(Jf: np.ndarray, cost: float, info: int, method: str, meas: np.
     return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
+#: a length this close to 0, or an angle this close to a multiple of 90 deg, is the structure's 0 or 90
+SNAP_MM = 5.0
+SNAP_DEG = 3.0
+
+
+def ideal_structure(dh) -> np.ndarray:
+    """The table with near-zero lengths and near-right angles snapped (what the arm is built to be).
+
+    A start that is itself a calibration (a model file) carries offsets of
+    a fraction of a millimetre where the design has none; they break the
+    exact redundancies of the structure (``a5`` and ``theta5`` of a wrist
+    whose ``a5`` is 0) without making the parameters any more visible: the
+    fit then moves such a pair by tens of millimetres and degrees against
+    each other. Identifiability is decided on this snapped table.
+    """
+    out = np.array(dh, dtype=float)
+    for c in (0, 2):
+        col = out[:, c]
+        col[np.abs(col) < SNAP_MM] = 0.0
+    for c in (1, 3):
+        deg = np.degrees(out[:, c])
+        near = np.round(deg / 90.0) * 90.0
+        snap = np.abs(deg - near) < SNAP_DEG
+        out[snap, c] = np.radians(near[snap])
+    out[:, 4] = 0.0
+    return out
+
+
+# --------------------------------------------------------------------------
+# plausibility of the identified changes
+# --------------------------------------------------------------------------
+#: changes beyond these are not what a real arm's build tolerances give (joint rows / tool row)
+PLAUSIBLE_LENGTH_MM = 5.0
+PLAUSIBLE_ANGLE_DEG = 1.0
+PLAUSIBLE_TOOL_LENGTH_MM = 25.0
+PLAUSIBLE_TOOL_ANGLE_DEG = 10.0
+#: two identified parameters whose estimates correlate beyond this are named together
+CORRELATION_WARN = 0.995
+
+
+#: 1-sigma of the weak prior at the start (joint rows / tool row)
+PRIOR_LENGTH_MM = 1.0
+PRIOR_ANGLE_DEG = 0.5
+PRIOR_TOOL_LENGTH_MM = 10.0
+PRIOR_TOOL_ANGLE_DEG = 5.0
+
+
+PRIOR_BASE_MM = 5.0
+PRIOR_BASE_DEG = 0.1
+
+
+def prior_sd(name: str) -> float:
+    """1-sigma of the prior of a parameter in internal units (mm, rad)."""
+    if name.startswith("base_"):
+        return PRIOR_BASE_MM if name[5] == "t" else math.radians(PRIOR_BASE_DEG)
+    tool = name.endswith("TCP")
+    if name[0] in "ad":
+        return PRIOR_TOOL_LENGTH_MM if tool else PRIOR_LENGTH_MM
+    return math.radians(PRIOR_TOOL_ANGLE_DEG if tool else PRIOR_ANGLE_DEG)
+
+
+def plausible_bound(name: str) -> tuple[float, str]:
+    """``(bound, unit)`` of the change of a kinematic parameter a real arm makes plausible."""
+    tool = name.endswith("TCP")
+    if name[0] in "ad":
+        return (PLAUSIBLE_TOOL_LENGTH_MM if tool else PLAUSIBLE_LENGTH_MM), "mm"
+    return (PLAUSIBLE_TOOL_ANGLE_DEG if tool else PLAUSIBLE_ANGLE_DEG), "deg"
+
+
+def _change(i: int, dh_new, dh_old) -> float:
+    v = float(dh_new.reshape(-1)[i] - dh_old.reshape(-1)[i])
+    return math.degrees(v) if _is_angle(i) else v
+
+
+def _correlations(Jf: np.ndarray) -> np.ndarray:
+    sc = np.linalg.norm(Jf, axis=0)
+    sc[sc == 0] = 1.0
+    C = np.linalg.pinv((Jf / sc).T @ (Jf / sc))
+    d = np.sqrt(np.maximum(np.diag(C), 1e-300))
+    return C / np.outer(d, d)
+
+
+def parameter_warnings(dh_new, dh_start, free, Jf, sigma: dict) -> list[dict]:
+    """Implausible changes and near-perfect correlations among the identified kinematic parameters.
+
+    Each warning: ``kind`` (``"implausible"`` or ``"correlated"``), ``parameters`` (names), ``message``.
+    """
+    out = []
+    kin_free = [int(i) for i in free if i < kin.N_PARAMS]
+    for i in kin_free:
+        name = _name(i)
+        bound, unit = plausible_bound(name)
+        ch = _change(i, dh_new, dh_start)
+        if abs(ch) > bound:
+            out.append({"kind": "implausible", "parameters": [name], "change": ch, "unit": unit, "bound": bound,
+                        "message": f"{name} changes by {ch:+.4g} {unit} (+-{sigma.get(name, math.nan):.2g}), beyond "
+                                   f"the {bound:g} {unit} a real arm's tolerances make plausible: the poses leave it "
+                                   "nearly free, and the fit uses it to absorb something else"})
+    if len(kin_free) >= 2:
+        pos = [k for k, i in enumerate(free) if i < kin.N_PARAMS]
+        rho = _correlations(Jf)[np.ix_(pos, pos)]
+        a, b = np.nonzero(np.triu(np.abs(rho) > CORRELATION_WARN, 1))
+        for x, y in zip(a, b):
+            n1, n2 = _name(kin_free[x]), _name(kin_free[y])
+            out.append({"kind": "correlated", "parameters": [n1, n2], "rho": float(rho[x, y]),
+                        "message": f"{n1} and {n2} are estimated together (correlation {rho[x, y]:+.4f}): the poses "
+                                   "tell little more than a combination of them"})
+    return out
+
+
 # --------------------------------------------------------------------------
 # identification
 # --------------------------------------------------------------------------
 def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=None, base_T_start=None,
-             max_iter: int = 50, tol: float = 1e-9, fixed_extra: dict | None = None,
-             use_beta: bool = True, allow_rank_deficient: bool = False) -> IdentificationResult:
+             max_iter: int = 100, tol: float = 1e-10, fixed_extra: dict | None = None,
+             free_extra=(), use_beta: bool = True, strict: bool = False,
+             allow_rank_deficient: bool | None = None, prior: bool = True) -> IdentificationResult:
     """Identify the kinematic parameters (and the base transform) from measured tool points.
 
     Parameters
@@ -366,31 +477,46 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         Starting instrument <- base transform (absolute; default a rigid fit
         of the nominal points to the measured ones).
     max_iter, tol
-        Iteration limit and relative cost change at which it has converged.
-        It has also converged when the next Gauss-Newton step would move
-        the parameters by less than :data:`STEP_TOL_SIGMA` of their standard
-        deviation (Mahalanobis length of the step), which saves the
-        evaluation of a step that cannot matter.
+        Iteration limit and relative cost change at which it has converged
+        (:func:`station.analysis.lm_solver.levenberg_marquardt`; also
+        converged when the next step is under :data:`STEP_TOL_SIGMA`
+        standard deviations).
     fixed_extra : dict, optional
-        ``name -> reason`` of further parameters to hold fixed.
+        ``name -> reason`` of further parameters to hold fixed (``--fix``).
+    free_extra : iterable of str
+        Parameters to identify even where the model's structure would fix
+        them (a Hayati beta, a ``d`` of parallel axes) and to prefer over a
+        redundant partner (``--free d_TCP`` keeps the tool's z and fixes
+        ``d6`` instead).
     use_beta : bool
         Hayati's beta for parallel joint axes (default); False for a plain DH
         model (UR calibration deltas).
-    allow_rank_deficient : bool
-        By default, poses that cannot see a parameter which well-spread poses
-        of this arm would see are refused (InsufficientDataError naming them);
-        True fixes such parameters instead.
+    strict : bool
+        Refuse (InsufficientDataError naming them) poses that cannot see a
+        parameter which well-spread poses of this arm would see. By default
+        such parameters are fixed at their start and named with the reason.
 
-    Returns
-    -------
-    IdentificationResult
+    prior : bool
+        After the least-squares fit, refit with a weak Gaussian prior at the
+        start (1-sigma :data:`PRIOR_LENGTH_MM`, :data:`PRIOR_ANGLE_DEG`; the
+        tool row wider), weighted by the fit's own noise: parameters the
+        data see are not moved by it, parameters the poses barely see (a
+        joint that hardly moved) stay near the start instead of following
+        the noise into extrapolation. False: plain least squares.
+
+    The fit runs in two stages on the same solver: the base transform and
+    the tool row first (the nominal model's largest misfit on a new cell is
+    where the instrument and the reflector are), then everything identifiable.
     """
     t0 = time.perf_counter()
+    if allow_rank_deficient is not None:
+        strict = not allow_rank_deficient
     if method not in ("distance", "absolute"):
         raise DataError(f"`method` must be 'distance' or 'absolute', got {method!r}")
     dh = kin.validate_dh(dh_start).copy()
     if dh.shape != (kin.N_ROWS, 5):
         raise DataError(f"`dh_start` must have shape (7, 5), got {dh.shape}")
+    dh_start_arr = dh.copy()
     q = np.asarray(q_rad, dtype=float)
     meas = np.asarray(measured_mm, dtype=float)
     if q.ndim != 2 or q.shape[1] != kin.N_JOINTS:
@@ -399,6 +525,14 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         raise DataError(f"`measured_mm` must have shape ({q.shape[0]}, 3), got {meas.shape}")
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(meas))):
         raise DataError("joint angles and measured points must be finite")
+    known = set(kin.PARAM_NAMES) | set(BASE_NAMES)
+    for nm in list(fixed_extra or {}) + list(free_extra):
+        if nm not in known:
+            raise DataError(f"unknown parameter {nm!r} (names: a1, alpha1, d1, theta1, beta1, ..., a6, ..., "
+                            "aTCP, alphaTCP, dTCP, thetaTCP, betaTCP, base_rx, ..., base_tz)")
+    both = set(fixed_extra or {}) & set(free_extra)
+    if both:
+        raise DataError(f"{', '.join(sorted(both))}: asked to be both fixed and free")
     n = q.shape[0]
     if method == "distance":
         pairs = distance_pairs(n) if pairs is None else np.asarray(pairs, dtype=np.int64)
@@ -414,90 +548,114 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         x_base = np.concatenate([Rotation.from_matrix(B0[:3, :3]).as_rotvec(), B0[:3, 3]])
         r, J = _absolute_problem(dh, x_base, q, meas)
         order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
+    dh_ideal = ideal_structure(dh)
+    if not np.array_equal(dh_ideal, dh):
+        # identifiability is the structure's: judge it where the near-zero offsets are zero
+        if method == "distance":
+            _, J_id = _distance_problem(dh_ideal, q, meas, pairs)
+        else:
+            _, J_id = _absolute_problem(dh_ideal, x_base, q, meas)
+    else:
+        J_id = J
     fixed0 = _structural(dh, use_beta)
+    prefer = [i for i in range(n_p) if _name(i) in set(free_extra)]
+    for nm in free_extra:
+        fixed0.pop(nm, None)
+    order = prefer + [i for i in order if i not in prefer]
     fixed0.update(fixed_extra or {})
-    ident = analyse_identifiability(J, fixed0, n_params=n_p, order=order)
-    unseen = [] if allow_rank_deficient else _unseen_by_poses(dh, ident, method, fixed0, n_p, order)
+    ident = analyse_identifiability(J_id, fixed0, n_params=n_p, order=order)
+    unseen = _unseen_by_poses(dh_ideal, ident, method, fixed0, n_p, order)
     # independent numbers in the data: K points carry 3K coordinates, and distances lose the 6 of a rigid motion
     info = 3 * n - (6 if method == "distance" else 0)
-    n_wanted = ident.free.size + len(unseen)
+    n_wanted = ident.free.size + (len(unseen) if strict else 0)
     if info <= n_wanted:
         need = (n_wanted + (6 if method == "distance" else 0)) // 3 + 1
         raise InsufficientDataError(
             f"{n} poses give {info} independent numbers for {n_wanted} parameters: "
             f"the {method} method needs at least {need} poses here")
-    if unseen:
+    if unseen and strict:
         raise InsufficientDataError(
             "these poses cannot see " + ", ".join(f"{k} ({ident.fixed[k]})" for k in unseen)
-            + ": measure poses that move every joint (or pass allow_rank_deficient to fix them)")
+            + ": measure poses that move every joint (or leave out --strict to fix them)")
+    fixed = dict(ident.fixed)
+    for k in unseen:
+        fixed[k] = f"fixed at its start: these poses cannot see it ({fixed[k]}); poses that move every joint would"
+    ident = Identifiability(ident.free, fixed, ident.singular_values, ident.condition_number, ident.observability)
     free = ident.free
-    m = r.size
 
-    def evaluate(dh_, xb_):
+    def evaluate(st):
+        dh_, xb_ = st
         return _distance_problem(dh_, q, meas, pairs) if method == "distance" else _absolute_problem(dh_, xb_, q, meas)
 
-    def apply(dh_, xb_, step_free):
-        full = np.zeros(n_p)
-        full[free] = step_free
+    def apply(st, full):
+        dh_, xb_ = st
         dh_new = dh_ + full[:kin.N_PARAMS].reshape(kin.N_ROWS, 5)
         xb_new = _update_base(xb_, full[kin.N_PARAMS:]) if xb_ is not None else None
         return dh_new, xb_new
 
-    cost = float(r @ r)
-    rmse = [math.sqrt(cost / m)]
-    history = [(dh.copy(), None if x_base is None else x_base.copy())]
-    lam = 1e-3
-    converged = False
-    message = "iteration limit reached"
-    it = 0
-    for it in range(1, max_iter + 1):
-        Jf = J[:, free]
-        scale = np.linalg.norm(Jf, axis=0)
-        scale[scale == 0] = 1.0
-        Js = Jf / scale
-        A = Js.T @ Js
-        g = Js.T @ r
-        # the full Gauss-Newton step's decrease of the cost is its Mahalanobis length times s^2
-        try:
-            decrease = float(g @ np.linalg.solve(A, g))
-        except np.linalg.LinAlgError:
-            decrease = math.inf
-        if decrease < STEP_TOL_SIGMA ** 2 * cost / max(m - free.size, 1):
-            converged = True
-            message = f"converged: the next step is under {STEP_TOL_SIGMA:g} standard deviations"
-            it -= 1
-            break
-        improved = False
-        for _ in range(12):
-            step_s = np.linalg.solve(A + lam * np.diag(np.diag(A)), g)
-            dh_try, xb_try = apply(dh, x_base, step_s / scale)
-            r_try, J_try = evaluate(dh_try, xb_try)
-            c_try = float(r_try @ r_try)
-            if np.isfinite(c_try) and c_try <= cost:
-                improved = True
-                break
-            lam *= 10.0
-        if not improved:
-            converged = True
-            message = "converged: no step lowers the cost further"
-            break
-        rel = (cost - c_try) / max(cost, 1e-300)
-        dh, x_base, r, J, cost = dh_try, xb_try, r_try, J_try, c_try
-        rmse.append(math.sqrt(cost / m))
-        history.append((dh.copy(), None if x_base is None else x_base.copy()))
-        lam = max(lam / 10.0, 1e-12)
-        if rel < tol:
-            converged = True
-            message = f"converged: relative cost change {rel:.1e} < {tol:g}"
-            break
+    from station.analysis.arm.lm_solver import levenberg_marquardt
+
+    x_base0 = None if x_base is None else x_base.copy()
+    # stage 1: base transform and tool row
+    stage1 = np.array([i for i in free if i >= kin.N_PARAMS or i >= 5 * (kin.N_ROWS - 1)], dtype=np.int64)
+    state = (dh, x_base)
+    hist_states, hist_rms = [state], [math.sqrt(float(r @ r) / r.size)]
+    it1 = 0
+    if 0 < stage1.size < free.size:
+        s1 = levenberg_marquardt(evaluate, apply, state, free=stage1, max_iter=max_iter, rtol=tol,
+                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+        state, it1 = s1.state, s1.iterations
+        hist_states += s1.states[1:]
+        hist_rms += s1.rms_history[1:]
+    sol = levenberg_marquardt(evaluate, apply, state, free=free, max_iter=max_iter, rtol=tol,
+                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+    hist_states += sol.states[1:]
+    hist_rms += sol.rms_history[1:]
+    prior_note = None
+    pri = np.array([i for i in free], dtype=np.int64)
+    if prior and pri.size and sol.r.size > free.size:
+        # a weak prior at the start (the build tolerances; the base near the nominal model's rigid fit):
+        # well-seen parameters do not feel it, parameters the poses barely see (a joint that hardly moved)
+        # stay near their start instead of following the noise into extrapolation
+        s_noise = math.sqrt(sol.cost / (sol.r.size - free.size))
+        psd = np.array([prior_sd(_name(i)) for i in pri])
+        w = s_noise / psd
+        x_start = np.concatenate([dh_start_arr.reshape(-1), x_base0 if x_base0 is not None else np.zeros(0)])
+        m_data = sol.r.size
+
+        def flat(st):
+            return np.concatenate([st[0].reshape(-1), st[1] if st[1] is not None else np.zeros(0)])
+
+        def evaluate_prior(st):
+            r_, J_ = evaluate(st)
+            rp = w * (x_start[pri] - flat(st)[pri])
+            Jp = np.zeros((pri.size, J_.shape[1]))
+            Jp[np.arange(pri.size), pri] = w
+            return np.concatenate([r_, rp]), np.concatenate([J_, Jp])
+
+        solp = levenberg_marquardt(evaluate_prior, apply, sol.state, free=free, max_iter=max_iter, rtol=tol,
+                                   step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+        hist_states += solp.states[1:]
+        hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / math.sqrt(m_data)) for st in solp.states[1:]]
+        r_d, J_d = evaluate(solp.state)
+        sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
+                        sol.converged and solp.converged, solp.message if not solp.converged else sol.message,
+                        sol.rms_history, sol.states)
+        prior_note = (f"weak prior at the start: 1-sigma {PRIOR_LENGTH_MM:g} mm / {PRIOR_ANGLE_DEG:g} deg "
+                      f"(tool row {PRIOR_TOOL_LENGTH_MM:g} mm / {PRIOR_TOOL_ANGLE_DEG:g} deg; base "
+                      f"{PRIOR_BASE_MM:g} mm / {PRIOR_BASE_DEG:g} deg from the nominal model's rigid fit)")
+    dh, x_base = sol.state
+    J, cost, m = sol.J, sol.cost, sol.r.size
     # uncertainties from the residuals at the solution
     sd = _parameter_sd(J[:, free], cost, info, method, meas, pairs)
     sigma = {}
     for k, i in enumerate(free):
         v = float(sd[k])
         sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
+    warnings = parameter_warnings(dh, dh_start_arr, free, J[:, free], sigma)
     base_T = _base_T(x_base) if x_base is not None else None
-    return IdentificationResult(dh, base_T, ident, sigma, rmse, it, converged, message, math.sqrt(cost / m),
-                                time.perf_counter() - t0,
-                                {"n_residuals": m, "method": method,
-                                 "history": [(h, None if xb is None else _base_T(xb)) for h, xb in history]})
+    return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,
+                                math.sqrt(cost / m), time.perf_counter() - t0,
+                                {"n_residuals": m, "method": method, "warnings": warnings, "prior": prior_note,
+                                 "unseen": list(unseen), "stage1_iterations": it1,
+                                 "history": [(h, None if xb is None else _base_T(xb)) for h, xb in hist_states]})

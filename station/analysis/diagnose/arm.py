@@ -39,8 +39,8 @@ from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 from station.numeric import finite_or_none
 
-from .model import ModelState, fit, initial_state, jacobian, predict, robust_cov
-from .block_test import model_basis, refit_step, wald_block
+from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
+from .block_test import model_basis, wald_block
 from .split import workspace_split
 from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
@@ -72,7 +72,8 @@ class CandidateTest:
     threshold: float = math.nan
     k: int = 0
     rss_reduction: float = 0.0      # mm^2, training
-    heldout_rms_after: float = math.nan
+    heldout_rms_after: float = math.nan   # cross-validated RMS inside the training poses with the candidate
+    cv_gain: bool = False                 # lowers it by more than CV_GAIN_SE standard errors
     variant: Term | None = None
 
     @property
@@ -83,7 +84,7 @@ class CandidateTest:
         d = {"candidate": self.key, "effect": self.effect, "joint": self.joint, "testable": self.testable}
         if self.testable:
             d.update(statistic=finite_or_none(self.statistic), threshold=finite_or_none(self.threshold), significant=self.significant,
-                     dof=self.k, heldout_rms_after_mm=finite_or_none(self.heldout_rms_after))
+                     dof=self.k, cv_rms_after_mm=finite_or_none(self.heldout_rms_after), cv_gain=self.cv_gain)
         else:
             d["reason"] = self.reason
         return d
@@ -104,6 +105,7 @@ class Step:
     ambiguous_with: list = field(default_factory=list)
     resid_before: np.ndarray | None = None
     resid_after: np.ndarray | None = None
+    cv: tuple | None = None          # cross-validated RMS inside the training poses, before and after (chose it)
 
     @property
     def gain(self) -> float:
@@ -114,6 +116,8 @@ class Step:
              "heldout_rms_before": self.heldout_rms_before, "heldout_rms_after": self.heldout_rms_after,
              "gain": self.gain, "gain_percent": 100.0 * self.gain, "statistic": self.statistic,
              "threshold": self.threshold, "test": self.test, "ambiguous_with": self.ambiguous_with}
+        if self.cv is not None:
+            d["cv_rms_before"], d["cv_rms_after"] = float(self.cv[0]), float(self.cv[1])
         if self.term.extra:
             d["details"] = {k: v for k, v in self.term.extra.items()}
         return d
@@ -137,6 +141,21 @@ class ArmDiagnosis:
     variables: dict
     alpha: float
     elapsed_s: float = 0.0
+    noise_floor_source: str = ""
+    fit_residual_floor: float = math.nan
+    geometry: dict = field(default_factory=dict)
+    stop_reason: str | None = None
+    row_order: str = ""
+    state_all: ModelState | None = None
+    refs: dict = field(default_factory=dict)
+    fits: list = field(default_factory=list)
+    selection: str = ""
+    rejected: dict = field(default_factory=dict)   # significant and cross-validated, but implausible: not named
+
+    @property
+    def converged(self) -> bool:
+        """Every fit of the diagnosis converged (the command exits non-zero otherwise)."""
+        return all(f["converged"] for f in self.fits)
 
     @property
     def selected(self) -> list[tuple[str, int | None]]:
@@ -146,44 +165,50 @@ class ArmDiagnosis:
     def gain(self) -> float:
         return 1.0 - self.final_heldout_rms / self.simulation_heldout_rms if self.simulation_heldout_rms > 0 else 0.0
 
-    def extended_effects(self) -> dict:
-        """The extended model as :meth:`station.models.effects.EffectSet.to_dict` plus the identified table."""
+    def extended_model(self, *, name: str = "diagnosed", gravity_model: str | None = None,
+                       joint_limits_rad=None) -> dict:
+        """The extended model file (schema of :mod:`station.models.arm_model_file`): the table, the base
+        transform and the named effects, refitted on every pose; ``station predict``/``compensate`` read it."""
+        from station.models.arm_extended import EffectTerm, terms_to_json
         from station.models.arm_model_file import model_to_json
-        from station.models.effects import EffectSet
 
-        params: dict = {}
-        notes = []
-        for term, th in zip(self.state.terms, self.state.theta):
-            j = (term.joint or 0) - 1
-            if term.effect == "encoder_eccentricity":
-                v = params.setdefault("encoder_eccentricity", np.zeros(12))
-                v[2 * j:2 * j + 2] = th
-            elif term.effect == "backlash":
-                params.setdefault("backlash", np.zeros(6))[j] = th[0]
-            elif term.effect == "joint_compliance":
-                if term.param_names[0].startswith("c"):
-                    params.setdefault("joint_compliance", np.zeros(6))[j] = th[0]
-                notes.append(f"joint_compliance[{term.joint}]: the basis term(s) "
-                             f"{', '.join(term.param_names[1:] if term.param_names[0].startswith('c') else term.param_names)}"
-                             " have no EffectSet parameter and are not written out")
-            elif term.effect == "thermal_drift":
+        st = self.state_all if self.state_all is not None else self.state
+        terms = []
+        for term, th in zip(st.terms, st.theta):
+            if term.kind == "geometric":
+                continue
+            params = {name: float(v) for name, v in zip(term.param_names, th)}
+            extra = {}
+            if term.effect == "thermal_drift":
                 if "tau_s" in term.extra:
-                    params["thermal_drift"] = np.array([th[0], term.extra["tau_s"]])
+                    extra = {"tau_s": float(term.extra["tau_s"]), "t0_s": float(self.refs.get("t0_s") or 0.0)}
                 else:
-                    notes.append("thermal_drift from a temperature column: alpha_per_K given, the simulation's "
-                                 "warm-up parameters are not identified")
-        effects = EffectSet.from_params(params).to_dict()
+                    extra = {"reference_temperature_c": float(self.refs.get("reference_temperature_c") or 20.0)}
+            terms.append(EffectTerm(term.effect, term.joint, params, extra))
         base = np.eye(4)
-        base[:3, :3], base[:3, 3] = self.state.R, self.state.t
-        return {"model": model_to_json(self.state.dh_static(), base, name="diagnosed"), "effects": effects,
-                "notes": notes}
+        base[:3, :3], base[:3, 3] = st.R, st.t
+        doc = model_to_json(st.dh_static(), base, name=name, joint_limits_rad=joint_limits_rad)
+        doc["effects"] = terms_to_json(terms)
+        uses_mass = any(t.effect == "joint_compliance" and any(n.startswith("c") for n in t.params) for t in terms)
+        if uses_mass:
+            doc["gravity_model"] = gravity_model
+        return doc
 
     def to_json(self) -> dict:
         return {
             **core_json(self, lambda ct: ct.key),
             "n_poses": {"train": int(self.train.size), "heldout": int(self.heldout.size)},
             "alpha": self.alpha,
-            "extended_model": self.extended_effects(),
+            "extended_model": self.extended_model(),
+            "noise_floor_source": self.noise_floor_source,
+            "fit_residual_floor": finite_or_none(self.fit_residual_floor),
+            "geometry": self.geometry,
+            "stop_reason": self.stop_reason,
+            "row_order": self.row_order,
+            "selection": self.selection,
+            "fits": self.fits,
+            "rejected": self.rejected,
+            "converged": self.converged,
             "units": "rms and noise_floor: mm (3-D position error); params: mm, rad, rad per N m, 1/K as named",
             "elapsed_s": self.elapsed_s,
         }
@@ -193,28 +218,70 @@ def _rms(resid: np.ndarray) -> float:
     return math.sqrt(float(np.mean(np.sum(resid ** 2, axis=1)))) if resid.size else math.nan
 
 
-def _geometric_term(dh, q, meas, train) -> tuple[Term | None, str | None]:
-    """The geometric candidate: the parameters :func:`identify` finds identifiable on the training poses."""
+def _geometric_term(dh, q, meas, train):
+    """The geometric candidate and its calibration: what :func:`identify` finds identifiable on the training
+    poses, fitted by the shared solver from a base/tool fit. ``(term, identification, reason)``."""
     from station.analysis.arm.identification import identify
 
     try:
-        res = identify(dh, q[train], meas[train], method="absolute", max_iter=1)
+        res = identify(dh, q[train], meas[train], method="absolute")
     except InsufficientDataError as exc:
-        return None, f"too few poses: {exc}"
+        return None, None, f"too few poses: {exc}"
     except DataError as exc:
-        return None, str(exc)
+        return None, None, str(exc)
     free = np.array([i for i in res.identifiability.free if i < kin.N_PARAMS], dtype=np.int64)
     if free.size == 0:
-        return None, "no kinematic parameter is identifiable from these poses"
+        return None, None, "no kinematic parameter is identifiable from these poses"
     from station.models.effects import Geometric
 
     names = tuple(Geometric().param_names[i] for i in free)
     return Term("geometric", None, "geometric", names, index=free,
-                extra={"fixed": dict(res.identifiability.fixed)}), None
+                extra={"fixed": dict(res.identifiability.fixed)}), res, None
 
 
-def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term], alpha: float,
-                m_candidates: int) -> list[CandidateTest]:
+def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
+    """``k`` folds of positions ``0..n-1`` (seeded: the same data give the same folds)."""
+    perm = np.random.default_rng(seed).permutation(n)
+    return [np.sort(f) for f in np.array_split(perm, min(k, n)) if f.size]
+
+
+def cv_errors(M: np.ndarray, r: np.ndarray, folds, B: np.ndarray | None = None) -> np.ndarray:
+    """Cross-validated squared 3-D errors per pose (n,), mm^2, of the linearised refit: columns ``M``
+    (n, 3, p) [+ ``B`` (n, 3, k)] fitted to the residual ``r`` (n, 3) on all poses but a fold, predicting it."""
+    X = M if B is None else np.concatenate([M, B], axis=2)
+    n, _, P = X.shape
+    out = np.zeros(n)
+    for f in folds:
+        keep = np.ones(n, bool)
+        keep[f] = False
+        Xk = X[keep].reshape(-1, P)
+        sc = np.linalg.norm(Xk, axis=0)
+        sc[sc == 0] = 1.0
+        step = np.linalg.lstsq(Xk / sc, r[keep].reshape(-1), rcond=1e-10)[0] / sc
+        e = r[f] - np.einsum("nip,p->ni", X[f], step)
+        out[f] = np.sum(e ** 2, axis=1)
+    return out
+
+
+def cv_rms(M, r, folds, B=None) -> float:
+    return math.sqrt(float(np.mean(cv_errors(M, r, folds, B))))
+
+
+#: an effect must lower the cross-validated squared error by this many standard errors of the paired difference
+CV_GAIN_SE = 1.0
+
+
+def cv_gain(e_before: np.ndarray, e_after: np.ndarray) -> bool:
+    """The paired one-standard-error rule: the candidate predicts the poses left out clearly better."""
+    d = e_before - e_after
+    if d.size < 2:
+        return False
+    return float(d.mean()) > CV_GAIN_SE * float(d.std(ddof=1)) / math.sqrt(d.size)
+
+
+def _test_round(state: ModelState, q, meas, train, variants: list[Term], alpha: float, m_candidates: int,
+                folds) -> tuple[list[CandidateTest], float]:
+    """Every candidate tested against the current residual; ``(tests, cross-validated RMS of the model now)``."""
     pred, A, extra = jacobian(state, q, train, variants)
     r3 = meas[train] - pred
     r = r3.reshape(-1)
@@ -222,11 +289,10 @@ def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term]
     p = A.shape[2]
     M = A.reshape(-1, p)
     Q = model_basis(M)
-    pred_h, A_h, extra_h = jacobian(state, q, heldout, variants)
-    r_h = (meas[heldout] - pred_h).reshape(-1)
-    Mh = A_h.reshape(-1, p)
+    e_now = cv_errors(A, r3, folds)
+    cv_now = math.sqrt(float(np.mean(e_now)))
     out = []
-    for (term, B), (_, Bh) in zip(extra, extra_h):
+    for term, B in extra:
         ct = CandidateTest(term.key, term.effect, term.joint, True, k=term.k, variant=term)
         dof_poses = n - (p + term.k) / 3.0
         if dof_poses < MIN_DOF_POSES:
@@ -248,10 +314,9 @@ def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term]
         ct.statistic = bt.wald / term.k
         m = m_candidates * (len(_tau_family(variants)) if term.fitted_dof else 1)
         ct.threshold = float(stats.f.isf(alpha / max(m, 1), term.k, dof_poses))
-        # held-out: the linearised refit with the candidate
-        step = refit_step(M, Bf, r)
-        rh1 = r_h - np.concatenate([Mh, Bh.reshape(-1, term.k)], axis=1) @ step
-        ct.heldout_rms_after = _rms(rh1.reshape(-1, 3))
+        e_c = cv_errors(A, r3, folds, B)   # cross-validated inside the training poses
+        ct.heldout_rms_after = math.sqrt(float(np.mean(e_c)))
+        ct.cv_gain = cv_gain(e_now, e_c)
         out.append(ct)
     # one entry per candidate key: the best variant (thermal drift's tau grid)
     best: dict = {}
@@ -260,7 +325,50 @@ def _test_round(state: ModelState, q, meas, train, heldout, variants: list[Term]
         score = ct.statistic / ct.threshold if ct.testable else -1.0
         if cur is None or score > (cur.statistic / cur.threshold if cur.testable else -1.0):
             best[ct.key] = ct
-    return list(best.values())
+    return list(best.values()), cv_now
+
+
+def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float, folds) -> tuple[CandidateTest, float]:
+    """The geometric candidate's test: a classical partial F on every coordinate (the robust covariance of
+    the joint effects needs more poses than a table of 20-30 parameters leaves on a 30-pose set)."""
+    pred, A, extra = jacobian(state, q, train, [geo])
+    r3 = meas[train] - pred
+    r = r3.reshape(-1)
+    B = extra[0][1]
+    m, p, k = r.size, A.shape[2], geo.k
+    ct = CandidateTest(geo.key, geo.effect, None, True, k=k, variant=geo)
+    e_now = cv_errors(A, r3, folds)
+    cv_now = math.sqrt(float(np.mean(e_now)))
+    dof = m - p - k
+    if dof < 3:
+        ct.testable, ct.reason = False, (f"{train.size} training poses give {m} coordinates for {p + k} parameters "
+                                         "(base transform and geometry)")
+        return ct, cv_now
+    Q = model_basis(A.reshape(-1, p))
+    bt = wald_block(B.reshape(-1, k), r, Q, lambda X, res: np.eye(X.shape[1]))
+    if bt.why is not None:
+        ct.testable, ct.reason = False, "it does not move the measured point in these poses"
+        return ct, cv_now
+    rss0 = float(r @ r)
+    rss1 = max(rss0 - bt.rss_reduction, 1e-300)
+    ct.rss_reduction = bt.rss_reduction
+    ct.statistic = (bt.rss_reduction / k) / (rss1 / dof)
+    ct.threshold = float(stats.f.isf(alpha, k, dof))
+    e_c = cv_errors(A, r3, folds, B)
+    ct.heldout_rms_after = math.sqrt(float(np.mean(e_c)))
+    ct.cv_gain = cv_gain(e_now, e_c)
+    return ct, cv_now
+
+
+#: a joint effect whose fit moves a joint by more than this is not named (5 arcmin)
+PLAUSIBLE_JOINT_ERROR_RAD = math.radians(5.0 / 60.0)
+
+
+def _joint_error_size(term: Term, th: np.ndarray, rows) -> float | None:
+    """Largest joint-angle change (rad) the fitted joint term makes over ``rows`` (None: not a joint term)."""
+    if term.kind != "joint":
+        return None
+    return float(np.max(np.abs(term.features[rows] @ th)))
 
 
 def _tau_family(variants: list[Term]) -> list[Term]:
@@ -305,8 +413,45 @@ def _check_inputs(dh, q, meas, optional: dict) -> None:
     screen_arm_poses(dh, q, meas)
 
 
+def canonical_order(q: np.ndarray, meas: np.ndarray, t_s, rows_in_motion_order: bool) -> tuple[np.ndarray, bool, str]:
+    """``(perm, motion_known, how)``: the order the diagnosis works in.
+
+    By time when there is a ``t`` column (the motion order, whatever the
+    rows' order), the rows' own order when the caller vouches for it, and
+    otherwise a canonical order of the joint angles and points: then nothing
+    the diagnosis finds depends on how the rows were shuffled, and effects
+    that need the order of motion (backlash) are not testable.
+    """
+    n = q.shape[0]
+    if t_s is not None:
+        return np.argsort(np.asarray(t_s, float), kind="stable"), True, "sorted by the t column (motion order)"
+    if rows_in_motion_order:
+        return np.arange(n), True, "rows in motion order (as the caller says)"
+    keys = np.round(np.column_stack([q, meas]), 9)
+    return np.lexsort(keys.T[::-1]), False, "no motion order: rows taken in a canonical order of q and x,y,z"
+
+
+def repeat_groups(q: np.ndarray, tol_rad: float = 1e-6) -> list[np.ndarray]:
+    """Rows measured at the same joint angles (groups of two or more)."""
+    keys = np.round(q / tol_rad).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    return [np.flatnonzero(inv == g) for g in np.flatnonzero(counts >= 2)]
+
+
+def noise_from_repeats(meas: np.ndarray, groups) -> tuple[float, int]:
+    """3-D RMS scatter (mm) of repeated measurements of the same pose, pooled; and its degrees of freedom."""
+    ss, dof = 0.0, 0
+    for g in groups:
+        x = meas[g]
+        ss += float(np.sum((x - x.mean(axis=0)) ** 2))
+        dof += g.size - 1
+    return (math.sqrt(ss / dof) if dof else math.nan), dof
+
+
 def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, load_kg=None, robot=None,
-                 heldout_fraction: float = 0.25, alpha: float = 0.05, max_steps: int = 20) -> ArmDiagnosis:
+                 heldout_fraction: float = 0.25, alpha: float = 0.05, max_steps: int = 20,
+                 rows_in_motion_order: bool = False, folds: int = 5, seed: int = 0) -> ArmDiagnosis:
     """Diagnose the station's arm model against measured tool points.
 
     Parameters
@@ -314,95 +459,206 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     dh_nominal : array_like, shape (7, 5)
         The station's model (mm, rad; seed 002 eq. (3)).
     q_rad : array_like, shape (N, 6)
-        Joint angles in measurement order (the order gives the direction of the last motion).
+        Joint angles.
     xyz_mm : array_like, shape (N, 3)
         Measured tool points, instrument frame.
     t_s, temperature_c, load_kg : array_like, shape (N,), optional
+        ``t`` also gives the order of motion (backlash).
     robot : RobotSpec, optional
         Mass model for the gravity torque of ``joint_compliance``.
     heldout_fraction : float
-        Share of the poses held out (chosen to span the workspace).
+        Share of the poses held out (spanning the workspace): they report
+        the gain and are never used to choose an effect.
     alpha : float
         Family-wise false-discovery rate of each selection round.
+    rows_in_motion_order : bool
+        The rows are in the order the arm visited them (backlash testable without ``t``).
+    folds, seed
+        Inner cross-validation that chooses the effects (folds of the training poses, seeded).
     """
     import time
 
     t0 = time.perf_counter()
     dh = np.asarray(dh_nominal, dtype=float)
-    q = np.asarray(q_rad, dtype=float)
-    meas = np.asarray(xyz_mm, dtype=float)
-    _check_inputs(dh, q, meas, {"t_s": t_s, "temperature_c": temperature_c, "load_kg": load_kg})
+    q_in = np.asarray(q_rad, dtype=float)
+    meas_in = np.asarray(xyz_mm, dtype=float)
+    _check_inputs(dh, q_in, meas_in, {"t_s": t_s, "temperature_c": temperature_c, "load_kg": load_kg})
     if not (0.0 < alpha < 0.5):
         raise DataError(f"`alpha` must be in (0, 0.5), got {alpha!r}")
-    train, heldout = workspace_split(q, meas, heldout_fraction)
+    if isinstance(folds, bool) or int(folds) != folds or folds < 2:
+        raise DataError(f"`folds` must be an integer >= 2, got {folds!r}")
+    perm, motion_known, order_how = canonical_order(q_in, meas_in, t_s, rows_in_motion_order)
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    q, meas = q_in[perm], meas_in[perm]
+
+    def take(v):
+        return None if v is None else np.asarray(v, dtype=float)[perm]
+
+    t_w, temp_w, load_w = take(t_s), take(temperature_c), take(load_kg)
+    train, heldout = workspace_split(q, meas, heldout_fraction, seed=seed)
+    folds_tr = inner_folds(train.size, int(folds), seed)
     last_dir = last_motion_direction(q)
     not_testable: dict = {}
-    candidates: list[Term] = []
-    geo, why = _geometric_term(dh, q, meas, train)
-    if geo is None:
-        not_testable["geometric"] = why
-    else:
-        candidates.append(geo)
-    th_terms, why = thermal_terms(t_s, temperature_c)
+    th_terms, why = thermal_terms(t_w, temp_w)
     if why:
         not_testable["thermal_drift"] = why
-    candidates += th_terms
-    jt, why_j = joint_terms(dh, q, last_dir, robot=robot, load_kg=load_kg)
-    candidates += jt
+    jt, why_j = joint_terms(dh, q, last_dir, robot=robot, load_kg=load_w)
+    if not motion_known:
+        jt = [t for t in jt if t.effect != "backlash"]
+        last_dir = np.zeros_like(q)
+        for j in range(1, 7):
+            if "constant" not in why_j.get(f"backlash[{j}]", ""):
+                why_j[f"backlash[{j}]"] = ("needs the order of motion: a t column, or the rows in motion order "
+                                           "(--rows-in-motion-order)")
     not_testable.update(why_j)
+    others = th_terms + jt
 
-    state = initial_state(dh, q, meas, train)
-    state, _ = fit(state, q, meas, train)
-    resid_sim = meas - predict(state, q, np.arange(q.shape[0]))
+    all_rows = np.arange(q.shape[0])
+    state, _, sol0 = fit_report(initial_state(dh, q, meas, train), q, meas, train)
+    fits = [("simulation (base transform)", sol0)]
+    resid_sim = meas - predict(state, q, all_rows)
     sim_ho = _rms(resid_sim[heldout])
     steps: list[Step] = []
     rounds: list[list[CandidateTest]] = []
-    remaining = list(candidates)
+    geometry = {"named": False}
+
+    # ---- geometry first: the diagnosis starts from a geometric calibration
+    geo, geo_res, why = _geometric_term(dh, q, meas, train)
+    stop_why = None
+    if geo is None:
+        not_testable["geometric"] = why
+        stop_why = f"geometry cannot be tested ({why}): nothing else is named, it could stand in for geometric error"
+    else:
+        ct, cv_now = _geometry_test(state, q, meas, train, geo, alpha, folds_tr)
+        rounds.append([ct])
+        geometry.update(statistic=finite_or_none(ct.statistic), threshold=finite_or_none(ct.threshold), cv_rms_before=cv_now,
+                        cv_rms_after=finite_or_none(ct.heldout_rms_after), converged=geo_res.converged,
+                        message=geo_res.message, warnings=geo_res.extra.get("warnings", []))
+        if not ct.testable:
+            not_testable["geometric"] = ct.reason
+            stop_why = f"geometry cannot be tested ({ct.reason}): nothing else is named"
+        elif ct.significant and ct.cv_gain:
+            st = state.with_term(geo)
+            st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
+            st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
+            st, _, sol = fit_report(st, q, meas, train)
+            fits.append(("geometric", sol))
+            params, ci = _step_params(st, q, meas, train, len(st.terms) - 1)
+            r_before, r_after = resid_sim, meas - predict(st, q, all_rows)
+            steps.append(Step(geo, params, ci, sim_ho, _rms(r_after[heldout]), ct.statistic, ct.threshold,
+                              f"partial F of the {ct.k} geometric parameters against F({ct.k}, 3n-p) at 1 - {alpha:g}; "
+                              f"{len(folds_tr)}-fold cross-validated RMS inside the training poses "
+                              f"{cv_now:.4g} -> {ct.heldout_rms_after:.4g} mm",
+                              resid_before=r_before, resid_after=r_after))
+            steps[-1].cv = (cv_now, ct.heldout_rms_after)
+            state = st
+            geometry["named"] = True
+        else:
+            geometry["why_not"] = ("not significant" if not ct.significant else
+                                   "significant but does not lower the cross-validated error")
+    # ---- noise floor
+    groups = repeat_groups(q)
+    n_rep, dof_rep = noise_from_repeats(meas, groups) if groups else (math.nan, 0)
+    rss = float(np.sum((meas[train] - predict(state, q, train)) ** 2))
+    fit_floor = math.sqrt(rss / max(train.size - state.n_params / 3.0, 1.0))
+    if dof_rep >= 3:
+        noise_floor, noise_src = n_rep, (f"repeated measurements ({len(groups)} pose(s) measured more than once, "
+                                         f"{dof_rep} degrees of freedom)")
+    else:
+        noise_floor = fit_floor
+        noise_src = ("the " + ("geometric" if geometry["named"] else "simulation's") + " fit's training residual, "
+                     "corrected for its degrees of freedom (no repeated measurements)")
+
+    # ---- the other effects, only where geometry could be tested
+    remaining = [] if stop_why else list(others)
     prev_sig: list[CandidateTest] = []
     chosen_prev: CandidateTest | None = None
-    for _ in range(max_steps + 1):
+    rejected: dict = {}
+    while remaining and len(steps) < max_steps:
         keys = {t.key for t in remaining}
-        tests = _test_round(state, q, meas, train, heldout, remaining, alpha, len(keys)) if remaining else []
+        tests, cv_now = _test_round(state, q, meas, train, remaining, alpha, len(keys), folds_tr)
         rounds.append(tests)
         if chosen_prev is not None and steps:
-            now = {ct.key: ct for ct in tests}
-            for ct in prev_sig:
-                if ct.key == chosen_prev.key:
-                    continue
-                later = now.get(ct.key)
-                gone = later is None or not later.significant
-                if gone and ct.rss_reduction >= AMBIGUITY_SHARE * chosen_prev.rss_reduction:
-                    steps[-1].ambiguous_with.append(
-                        {"effect": ct.effect, "joint": ct.joint,
-                         "share_of_residual_explained": ct.rss_reduction / chosen_prev.rss_reduction,
-                         "heldout_rms_alone": ct.heldout_rms_after,
-                         "note": "explains the same residual: nothing significant is left of it after this step"})
-        if len(steps) >= max_steps:
+            _ambiguity(steps[-1], prev_sig, chosen_prev, tests)
+        sig = sorted((ct for ct in tests if ct.significant and ct.cv_gain),
+                     key=lambda ct: ct.heldout_rms_after)
+        taken = False
+        for best in sig:
+            new_state, _, sol = fit_report(state.with_term(best.variant), q, meas, train)
+            th = new_state.theta[-1]
+            rss_old = float(np.sum((meas[train] - predict(state, q, train)) ** 2))
+            rss_new = float(np.sum((meas[train] - predict(new_state, q, train)) ** 2))
+            if not np.any(th != 0.0) or rss_new >= rss_old:
+                remaining = [t for t in remaining if t.key != best.key]  # no step without gain
+                continue
+            size = _joint_error_size(best.variant, th, train)
+            if size is not None and size > PLAUSIBLE_JOINT_ERROR_RAD:
+                remaining = [t for t in remaining if t.key != best.key]
+                rejected[best.key] = (f"its fit moves joint {best.joint} by up to {math.degrees(size) * 60:.3g} "
+                                      f"arcmin, beyond the {math.degrees(PLAUSIBLE_JOINT_ERROR_RAD) * 60:g} arcmin a "
+                                      "real joint shows: it stands in for something else (a joint offset, "
+                                      "extrapolation)")
+                continue
+            fits.append((best.key, sol))
+            params, ci = _step_params(new_state, q, meas, train, len(new_state.terms) - 1)
+            r_before = meas - predict(state, q, all_rows)
+            r_after = meas - predict(new_state, q, all_rows)
+            steps.append(Step(best.variant, params, ci, _rms(r_before[heldout]), _rms(r_after[heldout]),
+                              best.statistic, best.threshold,
+                              f"cluster-robust Wald W/k against F({best.k}, n-p/3) at 1 - {alpha:g}/{len(keys)} "
+                              f"(Bonferroni over the round's candidates); {len(folds_tr)}-fold cross-validated RMS "
+                              f"inside the training poses {cv_now:.4g} -> {best.heldout_rms_after:.4g} mm",
+                              resid_before=r_before, resid_after=r_after))
+            steps[-1].cv = (cv_now, best.heldout_rms_after)
+            state = new_state
+            remaining = [t for t in remaining if t.key != best.key]
+            prev_sig = [c for c in tests if c.significant]
+            chosen_prev = best
+            taken = True
             break
-        ho_now = _rms((meas[heldout] - predict(state, q, heldout)))
-        sig = [ct for ct in tests if ct.significant and ct.heldout_rms_after < ho_now]
-        if not sig:
+        if not taken:
             break
-        best = min(sig, key=lambda ct: ct.heldout_rms_after)
-        new_state, _ = fit(state.with_term(best.variant), q, meas, train)
-        params, ci = _step_params(new_state, q, meas, train, len(new_state.terms) - 1)
-        all_rows = np.arange(q.shape[0])
-        r_before = meas - predict(state, q, all_rows)
-        r_after = meas - predict(new_state, q, all_rows)
-        steps.append(Step(best.variant, params, ci, ho_now, _rms(r_after[heldout]), best.statistic, best.threshold,
-                          f"cluster-robust Wald W/k against F({best.k}, n-p/3) at 1 - {alpha:g}/{len(keys)} "
-                          "(Bonferroni over the round's candidates)", resid_before=r_before, resid_after=r_after))
-        state = new_state
-        remaining = [t for t in remaining if t.key != best.key]
-        prev_sig = [ct for ct in tests if ct.significant]
-        chosen_prev = best
-    all_rows = np.arange(q.shape[0])
     resid_final = meas - predict(state, q, all_rows)
-    rss = float(np.sum(resid_final[train] ** 2))
-    noise_floor = math.sqrt(rss / max(train.size - state.n_params / 3.0, 1.0))
-    variables = {"q_rad": q, "last_dir": last_dir, "t_s": t_s, "temperature_c": temperature_c}
-    for term in candidates:
+    # the model written out: the chosen terms refitted on every pose
+    state_all, _, sol_all = fit_report(state, q, meas, all_rows)
+    fits.append(("all poses (model written out)", sol_all))
+    variables = {"q_rad": q_in, "last_dir": last_dir[inv], "t_s": t_s, "temperature_c": temperature_c}
+    for term in others:
         if term.effect == "joint_compliance":
-            variables.setdefault("gravity_torque", {})[term.joint] = -term.features[:, 0]
-    return ArmDiagnosis(steps, rounds, not_testable, train, heldout, sim_ho, _rms(resid_final[heldout]), noise_floor,
-                        state, resid_sim, resid_final, variables, alpha, time.perf_counter() - t0)
+            variables.setdefault("gravity_torque", {})[term.joint] = -term.features[inv, 0]
+    for stp in steps:
+        stp.resid_before, stp.resid_after = stp.resid_before[inv], stp.resid_after[inv]
+    out = ArmDiagnosis(steps, rounds, not_testable, np.sort(perm[train]), np.sort(perm[heldout]), sim_ho,
+                       _rms(resid_final[heldout]), noise_floor, state, resid_sim[inv], resid_final[inv], variables,
+                       alpha, time.perf_counter() - t0)
+    out.noise_floor_source = noise_src
+    out.rejected = rejected
+    out.fit_residual_floor = fit_floor
+    out.geometry = geometry
+    out.stop_reason = stop_why
+    out.row_order = order_how
+    out.state_all = state_all
+    out.refs = {"t0_s": float(np.min(t_s)) if t_s is not None else None,
+                "reference_temperature_c": float(np.min(temperature_c)) if temperature_c is not None else None}
+    out.fits = [{"fit": name, "converged": s.converged, "iterations": s.iterations, "message": s.message}
+                for name, s in fits]
+    out.selection = (f"nested: each effect is chosen on the {train.size} training poses (significance test and "
+                     f"{len(folds_tr)}-fold cross-validation inside them); the {heldout.size} held-out poses "
+                     "report the gain and never take part in the choice")
+    return out
+
+
+def _ambiguity(step: Step, prev_sig, chosen_prev, tests) -> None:
+    now = {ct.key: ct for ct in tests}
+    for ct in prev_sig:
+        if ct.key == chosen_prev.key:
+            continue
+        later = now.get(ct.key)
+        gone = later is None or not later.significant
+        if gone and ct.rss_reduction >= AMBIGUITY_SHARE * chosen_prev.rss_reduction:
+            step.ambiguous_with.append(
+                {"effect": ct.effect, "joint": ct.joint,
+                 "share_of_residual_explained": ct.rss_reduction / chosen_prev.rss_reduction,
+                 "cv_rms_alone": ct.heldout_rms_after,
+                 "note": "explains the same residual: nothing significant is left of it after this step"})

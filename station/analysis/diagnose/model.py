@@ -1,4 +1,4 @@
-"""The extended arm model of the diagnosis: prediction, Jacobian and its Gauss-Newton fit.
+"""The extended arm model of the diagnosis: prediction, Jacobian and its damped least-squares fit.
 
 ``P_meas = R p(dh', q + dq) + t`` where ``(R, t)`` is the instrument <- base
 transform, ``dh'`` the nominal table plus the geometric deviations (seed 002
@@ -26,7 +26,7 @@ from station.models import kinematics as kin
 
 from .terms import Term
 
-__all__ = ["ModelState", "predict", "jacobian", "fit", "robust_cov"]
+__all__ = ["ModelState", "predict", "jacobian", "fit", "fit_report", "robust_cov"]
 
 _THETA_COLS = np.arange(6) * 5 + 3
 _LEN_COLS = np.array([5 * r + c for r in range(7) for c in (0, 2)])
@@ -138,28 +138,24 @@ def initial_state(dh_nominal, q: np.ndarray, meas: np.ndarray, rows: np.ndarray)
     return state
 
 
-def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 8,
+def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 50,
         rtol: float = 1e-10) -> tuple[ModelState, float]:
-    """Gauss-Newton on ``rows`` from ``state``; returns the fitted state and its RSS (mm^2)."""
-    cur = state
-    pred = predict(cur, q, rows)
-    rss = float(np.sum((meas[rows] - pred) ** 2))
-    for _ in range(max_iter):
-        pred, A, _ = jacobian(cur, q, rows)
-        r = (meas[rows] - pred).reshape(-1)
-        M = A.reshape(-1, A.shape[2])
-        scale = np.linalg.norm(M, axis=0)
-        scale[scale == 0] = 1.0
-        step, *_ = np.linalg.lstsq(M / scale, r, rcond=None)
-        cand = _apply_step(cur, step / scale)
-        rss_new = float(np.sum((meas[rows] - predict(cand, q, rows)) ** 2))
-        if rss_new > rss * (1 + 1e-12):
-            break
-        done = rss - rss_new <= rtol * max(rss, 1e-300)
-        cur, rss = cand, rss_new
-        if done:
-            break
-    return cur, rss
+    """Damped Levenberg-Marquardt on ``rows`` from ``state`` (the solver of the identification,
+    :func:`station.analysis.lm_solver.levenberg_marquardt`); returns the fitted state and its RSS (mm^2)."""
+    return fit_report(state, q, meas, rows, max_iter=max_iter, rtol=rtol)[:2]
+
+
+def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 50,
+               rtol: float = 1e-10):
+    """As :func:`fit`, with the solver's outcome third (``converged``, ``message``, ``iterations``)."""
+    from station.analysis.arm.lm_solver import levenberg_marquardt
+
+    def evaluate(st):
+        pred, A, _ = jacobian(st, q, rows)
+        return (meas[rows] - pred).reshape(-1), A.reshape(-1, A.shape[2])
+
+    sol = levenberg_marquardt(evaluate, _apply_step, state, max_iter=max_iter, rtol=rtol)
+    return sol.state, sol.cost, sol
 
 
 def robust_cov(A: np.ndarray, resid: np.ndarray) -> np.ndarray:

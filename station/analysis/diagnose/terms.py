@@ -166,7 +166,7 @@ def thermal_terms(t_s=None, temperature_c=None) -> tuple[list[Term], str | None]
     """Variants of the ``thermal_drift`` candidate (one per ``tau`` when only ``t`` is known), or the reason why none."""
     if temperature_c is not None:
         T = np.asarray(temperature_c, dtype=float)
-        dT = T - T[0]
+        dT = T - T.min()  # order-free: the coolest row is the reference
         if np.ptp(T) < 0.05:
             return [], f"temperature is constant (range {np.ptp(T):.3g} K)"
         return [Term("thermal_drift", None, "scale", ("alpha_per_K",), dT[:, None],
@@ -174,7 +174,7 @@ def thermal_terms(t_s=None, temperature_c=None) -> tuple[list[Term], str | None]
     if t_s is None:
         return [], "no time or temperature column"
     t = np.asarray(t_s, dtype=float)
-    t = t - t[0]
+    t = t - t.min()
     span = float(np.ptp(t))
     if span < 0.1 * TAU_GRID_S[0]:
         return [], f"the file spans {span:.3g} s, too short for a warm-up (shortest time constant {TAU_GRID_S[0]:g} s)"
