@@ -536,6 +536,9 @@ class URDriver:
     q_tol_rad, rest_speed_mm_s : float
         A move is done when every joint is within ``q_tol_rad`` of the target
         and the TCP slower than ``rest_speed_mm_s``.
+    status_period_s : float
+        While :meth:`run` runs a program, its ``on_status`` is called at most this often (real s) and
+        whenever a move is done.
     rtde, dashboard, script : optional
         Injected clients (default: the sidecar, ``DashboardClient``, ``ScriptClient``).
     """
@@ -558,6 +561,7 @@ class URDriver:
         q_tol_rad: float = 1e-3,
         rest_speed_mm_s: float = 1.0,
         max_buffer_samples: int = 200_000,
+        status_period_s: float = 0.02,
         rtde=None,
         dashboard=None,
         script=None,
@@ -589,6 +593,7 @@ class URDriver:
         self.q_tol_rad = float(q_tol_rad)
         self.rest_speed_mm_s = float(rest_speed_mm_s)
         self.max_buffer_samples = int(max_buffer_samples)
+        self.status_period_s = float(status_period_s)
         self._rtde = rtde
         self._dashboard = dashboard
         self._script = script
@@ -951,7 +956,15 @@ class URDriver:
         q = self._gate_program(prog, st.q_rad)
         seq = self._next_seq()
         rendered = render_urscript(prog, q, robot=self.robot, seq=seq, register_base=self.register_base)
-        report = None if on_status is None else (lambda s: on_status(URProgramStatus.of(s, seq)))
+        report = None
+        if on_status is not None:
+            last = [-1.0, -1]
+
+            def report(s: URState) -> None:  # progress at most every status_period_s, and at every move done
+                now = time.monotonic()
+                if now - last[0] >= self.status_period_s or s.register_moves != last[1]:
+                    last[0], last[1] = now, s.register_moves
+                    on_status(URProgramStatus.of(s, seq))
         final = self._execute(rendered.text, seq, q[-1] if len(q) else st.q_rad, label,
                               prog.name.lower(), timeout_s=timeout_s, on_state=report)
         return URProgramStatus.of(final, seq, done=True)
