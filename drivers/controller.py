@@ -685,6 +685,17 @@ class ControllerDriver:
                        statements=(Move(tgt, interpolation, speed_frac),), accel_frac=0.5, title="station: one move")
         return self.run(prog, timeout_s=timeout_s)
 
+    def wait_settled(self, timeout_s: float) -> ControllerStatus:
+        """Until the controller runs no program (it reports a program done only with the arm at rest)."""
+        deadline = time.monotonic() + float(timeout_s)
+        while True:
+            st = self.status()
+            if st.state != State.RUNNING:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"controller still running a program after {timeout_s:g} s ({st.summary()})")
+            time.sleep(self.poll_interval_s)
+
     def joints_rad(self) -> np.ndarray:
         return np.radians(self.status().q_deg)
 

@@ -18,6 +18,8 @@ dialect (RAPID/KRL files; one URScript ``def`` program) and runs it, reporting
 progress as a :class:`RobotStatus`-like object (moves done, cycles done) to
 ``on_status`` while it runs, and returning when the arm has come to rest on
 the last target. A single move (:meth:`Robot.move_to`) is a one-move program.
+Every move ends in a fine stop (ISO 9283 measures attained poses at rest):
+the model has no blending zones, and none is offered here.
 Streaming one command at a time is the UR driver's own lower layer
 (``move_joint``/``move_linear``) and stays inside the driver: a procedure
 never depends on which of the two a robot does.
@@ -103,6 +105,9 @@ class Robot(Protocol):
     def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
                 timeout_s: float = 60.0) -> Any:
         """One move to a joint target (6,) rad or a Cartesian (4, 4) pose / (3,) position, mm; gated."""
+
+    def wait_settled(self, timeout_s: float) -> Any:
+        """Block until no program of the station's runs and the arm is at rest; the state then."""
 
     def joints_rad(self) -> np.ndarray:
         """The measured joint angles now (the controller's encoders), rad."""

@@ -1011,6 +1011,17 @@ class URDriver:
         return (f"robot mode {st.robot_mode}, safety mode {st.safety_mode}, "
                 f"{'program running' if st.program_running else 'no program running'}")
 
+    def wait_settled(self, timeout_s: float) -> URState:
+        """Until no program runs and the TCP is slower than ``rest_speed_mm_s``; DeviceTimeout after ``timeout_s``."""
+        deadline = time.monotonic() + float(timeout_s)
+        while True:
+            st = self.state()
+            if not st.program_running and float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"UR: arm not at rest within {timeout_s:g} s")
+            time.sleep(0.002)
+
     def joints_rad(self) -> np.ndarray:
         return self.state().q_rad
 
