@@ -84,7 +84,8 @@ from station.programs.handshake import (
     join_i32,
     join_u32,
 )
-from station.programs.model import RenderedProgram
+from station.programs import RENDERERS
+from station.programs.model import Program, RenderedProgram
 
 __all__ = [
     "CommandRefused",
@@ -221,6 +222,9 @@ class ControllerDriver:
         Communication watchdog written at start (0 = off).
     ftp_factory : callable, optional
         ``ftp_factory(timeout_s) -> ftplib.FTP``-like object (injected transport).
+    dialect : {"rapid", "krl"}
+        The language a dialect-neutral :class:`~station.programs.model.Program` given to :meth:`run` is
+        rendered in (a :class:`RenderedProgram` is uploaded as it is).
     modbus_client : object, optional
         A pymodbus-compatible sync client (``connect``, ``close``,
         ``read_holding_registers``, ``write_registers``); default
@@ -243,6 +247,7 @@ class ControllerDriver:
         watchdog_ms: int = 2000,
         ftp_factory: Callable[[float], Any] | None = None,
         modbus_client: Any = None,
+        dialect: str = "rapid",
     ) -> None:
         if gate is None or not hasattr(gate, "check_program"):
             raise ConfigError("ControllerDriver needs a safety gate (station.safety.SafetyGate)")
@@ -254,6 +259,9 @@ class ControllerDriver:
         for name, port in (("ftp_port", ftp_port), ("modbus_port", modbus_port)):
             if not (isinstance(port, int) and 0 < port < 65536):
                 raise ConfigError(f"{name} must be in 1..65535, got {port!r}")
+        if dialect not in RENDERERS:
+            raise ConfigError(f"dialect must be one of {', '.join(RENDERERS)}, got {dialect!r}")
+        self.dialect = dialect
         self.host = host
         self.gate = gate
         self.ftp_port = ftp_port
@@ -280,10 +288,12 @@ class ControllerDriver:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_url(cls, url: str, *, gate, **kwargs) -> "ControllerDriver":
+    def from_url(cls, url, *, gate, timeout_s: float | None = None, **kwargs) -> "ControllerDriver":
         """``modbus+ftp://host[:ftp_port]?modbus_port=..&user=..&password_env=..&dir=..``
         (defaults from :mod:`station.device_urls`: FTP 21, Modbus 502, user anonymous)."""
         u = parse_device_url(url, scheme="modbus+ftp")
+        if timeout_s is not None:
+            kwargs["timeout_s"] = timeout_s
         return cls(
             u.host,
             gate=gate,
@@ -620,12 +630,88 @@ class ControllerDriver:
         except (DeviceError, DeviceTimeout, ConnectionLost) as exc:
             raise self._stop_after(exc)
 
-    def run(self, rendered: RenderedProgram, *, timeout_s: float, on_status=None) -> ControllerStatus:
-        """Gate, upload, verify, select, start and wait: the whole sequence."""
+    def run(self, rendered, *, timeout_s: float, on_status=None) -> ControllerStatus:
+        """Gate, upload, verify, select, start and wait: the whole sequence.
+
+        ``rendered`` is a :class:`RenderedProgram`, or a dialect-neutral
+        :class:`~station.programs.model.Program` that is rendered here in the driver's ``dialect``.
+        """
+        if isinstance(rendered, Program):
+            rendered = RENDERERS[self.dialect](rendered)
         self.upload(rendered)
         self.select()
         self.start()
         return self.wait_done(timeout_s, on_status=on_status)
+
+    # ------------------------------------------------------------------ the robot interface (drivers.robot)
+    def take_over(self) -> tuple[str, str]:
+        """Stop a program an earlier session left running; clear the comm-watchdog fault its death caused.
+
+        Any other fault (e-stop, protective stop, ...) is a person's to clear: ``DeviceFault``.
+        """
+        status = self.status()
+        took_over = ""
+        if status.state == State.RUNNING:
+            # a program of an earlier session (killed station process) is still running: stop it first
+            status = self.stop()
+            took_over = "stopped a program left running by an earlier session"
+        elif status.state == State.FAULT:
+            if status.fault != Fault.COMM_WATCHDOG:
+                raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, "
+                                  f"then resume")
+            # the watchdog stopped the program when the earlier session died: that is ours to clear
+            status = self.reset()
+            took_over = "cleared the comm-watchdog fault of an earlier session"
+        return status.summary(), took_over
+
+    def release(self) -> None:
+        """Stop the station's program if one runs (a program not running is already released)."""
+        if self.status().state == State.RUNNING:
+            self.stop()
+
+    def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
+                timeout_s: float = 60.0) -> ControllerStatus:
+        """One gated move as a one-move program: joints (6,) rad, or a Cartesian (4, 4) pose mm."""
+        from station.programs.model import CartesianTarget, JointTarget, Move, quat_from_matrix
+
+        t = np.asarray(target, dtype=float)
+        if t.shape == (6,):
+            tgt = JointTarget("T1", tuple(float(v) for v in np.degrees(t)))
+        elif t.shape == (4, 4):
+            tgt = CartesianTarget("T1", tuple(float(v) for v in t[:3, 3]), quat_from_matrix(t[:3, :3]))
+        else:
+            raise SafetyError(f"move_to: target must be joints (6,) rad or a (4, 4) pose, got shape {t.shape}")
+        robot = self.gate.robot
+        prog = Program(name="ST_MOVE", robot_name=robot.name, rated_tcp_speed_mm_s=float(robot.max_tcp_speed_mm_s),
+                       statements=(Move(tgt, interpolation, speed_frac),), accel_frac=0.5, title="station: one move")
+        return self.run(prog, timeout_s=timeout_s)
+
+    def wait_settled(self, timeout_s: float) -> ControllerStatus:
+        """Until the controller runs no program (it reports a program done only with the arm at rest)."""
+        deadline = time.monotonic() + float(timeout_s)
+        while True:
+            st = self.status()
+            if st.state != State.RUNNING:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"controller still running a program after {timeout_s:g} s ({st.summary()})")
+            time.sleep(self.poll_interval_s)
+
+    def joints_rad(self) -> np.ndarray:
+        return np.radians(self.status().q_deg)
+
+    def tcp_mm(self) -> np.ndarray:
+        from station.models import kinematics
+
+        return kinematics.tool_position(self.gate.robot.dh_nominal, self.joints_rad())
+
+    def fault_state(self) -> str | None:
+        st = self.status()
+        return f"fault {describe(Fault, st.fault)} at line {st.line}" if st.state == State.FAULT else None
+
+    def readings(self) -> None:
+        """The Modbus status gives point reads of the joints only (:meth:`joints_rad`), no stream."""
+        return None
 
 
 def _exc_name(code: int) -> str:

@@ -106,9 +106,12 @@ class EmsconTracker(Tracker):
         self.info: TrackerInfo | None = None
 
     @classmethod
-    def from_url(cls, url: str, **options) -> "EmsconTracker":
-        """``emscon://HOST[:PORT]`` (port 700 by default; :mod:`station.device_urls`)."""
+    def from_url(cls, url, *, timeout_s: float | None = None, **options) -> "EmsconTracker":
+        """``emscon://HOST[:PORT]`` (port 700 by default; :mod:`station.device_urls`);
+        ``timeout_s`` is the reply timeout."""
         u = parse_device_url(url, scheme="emscon")
+        if timeout_s is not None:
+            options["reply_timeout_s"] = timeout_s
         return cls(tcp_factory(u.host, u.port), **options)
 
     # ------------------------------------------------------------------ public API

@@ -263,10 +263,12 @@ class GeoComTracker(Tracker):
         self.retries = 0
 
     @classmethod
-    def from_url(cls, url: str, **options) -> "GeoComTracker":
+    def from_url(cls, url, *, timeout_s: float | None = None, **options) -> "GeoComTracker":
         """``geocom:///dev/ttyX[?baud=N]`` (115200 baud by default) or ``geocom+socket://HOST:PORT``
-        (a TCP serial bridge), as :mod:`station.device_urls` defines them."""
+        (a TCP serial bridge), as :mod:`station.device_urls` defines them; ``timeout_s`` is the reply timeout."""
         u = parse_device_url(url, scheme=("geocom", "geocom+socket"))
+        if timeout_s is not None:
+            options["reply_timeout_s"] = timeout_s
         if u.scheme == "geocom":
             return cls(serial_factory(u.path, baudrate=u.int_option("baud")), **options)
         return cls(serial_factory(f"socket://{u.host}:{u.port}"), **options)

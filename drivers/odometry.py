@@ -125,9 +125,22 @@ class OdometryDriver:
         self.command_stats = CommandStats()
 
     @classmethod
+    def from_url(cls, url, *, timeout_s: float | None = None, baudrate: int | None = None,
+                 ack_timeout_s: float = 0.5, command_retries: int = 2) -> "OdometryDriver":
+        """``nmea:///dev/ttyX[?baud=N]`` (57600 baud by default; :mod:`station.device_urls`);
+        ``timeout_s``: how long to wait for a sample (2 s when None)."""
+        u = parse_device_url(url, scheme="nmea")
+        return cls(SerialTransport(u.path, baudrate=baudrate or u.int_option("baud")),
+                   timeout_s=2.0 if timeout_s is None else timeout_s,
+                   ack_timeout_s=ack_timeout_s, command_retries=command_retries)
+
+    @classmethod
     def open(cls, device: str, *, baudrate: int | None = None, timeout_s: float = 2.0,
              ack_timeout_s: float = 0.5, command_retries: int = 2) -> "OdometryDriver":
-        """Open a serial device path, ``nmea://`` URL or pyserial URL."""
+        """Open a plain serial device path or pyserial URL (an ``nmea://`` URL goes to :meth:`from_url`)."""
+        if isinstance(device, str) and device.lower().startswith("nmea:"):
+            return cls.from_url(device, timeout_s=timeout_s, baudrate=baudrate, ack_timeout_s=ack_timeout_s,
+                                command_retries=command_retries)
         port, baud = parse_odometry_url(device)
         return cls(SerialTransport(port, baudrate=baudrate or baud), timeout_s=timeout_s,
                    ack_timeout_s=ack_timeout_s, command_retries=command_retries)

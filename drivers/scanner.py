@@ -87,11 +87,13 @@ class ScannerDriver:
         self.connected = False
 
     @classmethod
-    def from_url(cls, url: str, **options) -> "ScannerDriver":
-        """``ply:///path/to/folder``."""
+    def from_url(cls, url, *, timeout_s: float | None = None, **options) -> "ScannerDriver":
+        """``ply:///path/to/folder``; ``timeout_s``: how long a scan may take."""
         u = parse_device_url(url, scheme="ply")
+        if timeout_s is not None:
+            options["timeout_s"] = timeout_s
         if not u.path:
-            raise ConfigError(f"device URL {url!r}: a ply URL needs the folder path, e.g. ply:///data/scans")
+            raise ConfigError(f"device URL {u.raw!r}: a ply URL needs the folder path, e.g. ply:///data/scans")
         return cls(u.path, **options)
 
     def connect(self) -> ScannerInfo:

@@ -79,7 +79,8 @@ _C_QT = slice(7, 13)
 _C_POSE = slice(13, 19)
 _C_SPEED = slice(19, 25)
 _C_ROBOT_MODE, _C_SAFETY_MODE, _C_SAFETY_BITS, _C_RUNTIME, _C_STATUS, _C_REG_START, _C_REG_DONE = range(25, 32)
-N_COLUMNS = 32
+_C_REG_MOVES, _C_REG_CYCLES = 32, 33
+N_COLUMNS = 34
 
 
 def rtde_variables(register_base: int) -> list[str]:
@@ -88,6 +89,7 @@ def rtde_variables(register_base: int) -> list[str]:
         "timestamp", "actual_q", "target_q", "actual_TCP_pose", "actual_TCP_speed",
         "robot_mode", "safety_mode", "safety_status_bits", "runtime_state", "robot_status_bits",
         f"output_int_register_{register_base}", f"output_int_register_{register_base + 1}",
+        f"output_int_register_{register_base + 2}", f"output_int_register_{register_base + 3}",
     ]
 
 
@@ -123,7 +125,8 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
         row += rtde.getActualTCPSpeed()
         row += [rtde.getRobotMode(), rtde.getSafetyMode(), rtde.getSafetyStatusBits(),
                 rtde.getRuntimeState(), rtde.getRobotStatus(),
-                rtde.getOutputIntRegister(r0), rtde.getOutputIntRegister(r1)]
+                rtde.getOutputIntRegister(r0), rtde.getOutputIntRegister(r1),
+                rtde.getOutputIntRegister(r0 + 2), rtde.getOutputIntRegister(r0 + 3)]
         return row
 
     def sample() -> None:
@@ -261,7 +264,7 @@ class RtdeSidecar:
             raise ConnectionLost(f"RTDE {self.host}:30004: ur_rtde could not connect: {info}")
 
     def drain(self, timeout_s: float = 5.0) -> tuple[np.ndarray, int, bool]:
-        """``(rows (N, 32), dropped, connected)`` since the last drain."""
+        """``(rows (N, 34), dropped, connected)`` since the last drain."""
         with self._lock:
             if self._conn is None:
                 raise ConnectionLost(f"RTDE {self.host}: receive process not running")
@@ -364,6 +367,8 @@ class URState:
     robot_mode, safety_mode, safety_status_bits, runtime_state, robot_status_bits : int
     register_start, register_done : int
         The driver's program sequence registers.
+    register_moves, register_cycles : int
+        Moves and cycles done by the running (or last) program (:mod:`station.programs.urscript`).
     """
 
     t_s: float
@@ -379,6 +384,8 @@ class URState:
     robot_status_bits: int
     register_start: int
     register_done: int
+    register_moves: int = 0
+    register_cycles: int = 0
 
     @classmethod
     def from_row(cls, row: np.ndarray) -> "URState":
@@ -399,6 +406,8 @@ class URState:
             robot_status_bits=int(row[_C_STATUS]),
             register_start=int(row[_C_REG_START]),
             register_done=int(row[_C_REG_DONE]),
+            register_moves=int(row[_C_REG_MOVES]),
+            register_cycles=int(row[_C_REG_CYCLES]),
         )
 
     @property
@@ -455,10 +464,39 @@ class URSamples:
     missed: int
 
 
+@dataclass(frozen=True)
+class URProgramStatus:
+    """Progress of a program the driver runs (:meth:`URDriver.run`), in the controller status's terms."""
+
+    state: str
+    moves_done: int
+    cycle_count: int
+    line: int
+    q_deg: np.ndarray
+    t_s: float
+
+    @classmethod
+    def of(cls, st: URState, seq: int, done: bool = False) -> "URProgramStatus":
+        ours = st.register_start == seq
+        moves = st.register_moves if ours else 0
+        return cls(state="finished" if done else "running", moves_done=int(moves),
+                   cycle_count=int(st.register_cycles if ours else 0), line=int(moves),
+                   q_deg=np.degrees(st.q_rad), t_s=st.t_s)
+
+    def summary(self) -> str:
+        return f"{self.state}, moves {self.moves_done}, cycles {self.cycle_count}"
+
+
+def _with_position(T: np.ndarray, xyz) -> np.ndarray:
+    out = np.array(T, dtype=float)
+    out[:3, 3] = xyz
+    return out
+
+
 # ====================================================================== driver
 
 
-def parse_ur_url(url: str) -> str:
+def parse_ur_url(url) -> str:
     """``ur://HOST`` -> HOST (ports are fixed by ur_rtde; :mod:`station.device_urls`)."""
     return parse_device_url(url, scheme="ur").host
 
@@ -483,8 +521,8 @@ class URDriver:
     rtde_frequency_hz : float
         RTDE output frequency (e-Series: <= 500).
     register_base : int
-        Output integer registers ``register_base`` and ``+1`` (0..46) carry the
-        driver's program sequence numbers.
+        Output integer registers ``register_base`` .. ``+3`` (0..44) carry the
+        driver's program sequence numbers, moves and cycles done.
     trusted_programs : collection of str
         Controller programs (``.urp``) that :meth:`play` may start; the gate
         cannot see inside them, so nothing else is played.
@@ -498,6 +536,9 @@ class URDriver:
     q_tol_rad, rest_speed_mm_s : float
         A move is done when every joint is within ``q_tol_rad`` of the target
         and the TCP slower than ``rest_speed_mm_s``.
+    status_period_s : float
+        While :meth:`run` runs a program, its ``on_status`` is called at most this often (real s) and
+        whenever a move is done.
     rtde, dashboard, script : optional
         Injected clients (default: the sidecar, ``DashboardClient``, ``ScriptClient``).
     """
@@ -520,6 +561,7 @@ class URDriver:
         q_tol_rad: float = 1e-3,
         rest_speed_mm_s: float = 1.0,
         max_buffer_samples: int = 200_000,
+        status_period_s: float = 0.02,
         rtde=None,
         dashboard=None,
         script=None,
@@ -528,8 +570,8 @@ class URDriver:
             raise ConfigError(f"UR host must be a host name or IPv4 address, got {host!r}")
         if not (0 < float(rtde_frequency_hz) <= 500):
             raise ConfigError(f"rtde_frequency_hz must be in (0, 500], got {rtde_frequency_hz!r}")
-        if not (isinstance(register_base, int) and 0 <= register_base <= 46):
-            raise ConfigError(f"register_base must be an integer 0..46, got {register_base!r}")
+        if not (isinstance(register_base, int) and 0 <= register_base <= 44):
+            raise ConfigError(f"register_base must be an integer 0..44, got {register_base!r}")
         for name, val in (("tcp_accel_limit_mm_s2", tcp_accel_limit_mm_s2), ("connect_timeout_s", connect_timeout_s),
                           ("start_timeout_s", start_timeout_s), ("motion_timeout_s", motion_timeout_s),
                           ("stale_after_s", stale_after_s), ("settle_timeout_s", settle_timeout_s),
@@ -551,6 +593,7 @@ class URDriver:
         self.q_tol_rad = float(q_tol_rad)
         self.rest_speed_mm_s = float(rest_speed_mm_s)
         self.max_buffer_samples = int(max_buffer_samples)
+        self.status_period_s = float(status_period_s)
         self._rtde = rtde
         self._dashboard = dashboard
         self._script = script
@@ -565,9 +608,13 @@ class URDriver:
         self._connected = False
 
     @classmethod
-    def from_url(cls, url: str, robot, gate, **kwargs) -> "URDriver":
-        """Driver for ``ur://HOST``."""
-        return cls(parse_ur_url(url), robot, gate, **kwargs)
+    def from_url(cls, url, *, gate, timeout_s: float | None = None, robot=None, **kwargs) -> "URDriver":
+        """Driver for ``ur://HOST``; ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake
+        and a sent program's start."""
+        if timeout_s is not None:
+            kwargs.setdefault("connect_timeout_s", timeout_s)
+            kwargs.setdefault("start_timeout_s", timeout_s)
+        return cls(parse_ur_url(url), robot if robot is not None else gate.robot, gate, **kwargs)
 
     # ------------------------------------------------------------------ lifetime
     def connect(self) -> "URDriver":
@@ -789,12 +836,20 @@ class URDriver:
             f"  write_output_integer_register({r1}, {seq})\n"
             f"end\n"
         )
+        return self._execute(text, seq, q_target, label, f"station_move_{seq}")
+
+    def _execute(self, text: str, seq: int, q_target: np.ndarray, label: str, name: str, *,
+                 timeout_s: float | None = None, on_state=None) -> URState:
+        """Send one program whose registers carry ``seq``; watch RTDE until it is done and the arm settled."""
+        timeout_s = self.motion_timeout_s if timeout_s is None else float(timeout_s)
         self._send_script(text, label)
         t_sent = time.monotonic()
         started = False
         try:
             while True:
                 st = self.state()
+                if on_state is not None and started:
+                    on_state(st)
                 if st.protective_stopped or st.emergency_stopped:
                     self._after_fault(label)
                     raise DeviceFault(
@@ -808,14 +863,16 @@ class URDriver:
                     started = True
                 elif not started and time.monotonic() - t_sent > self.start_timeout_s:
                     raise DeviceError(
-                        f"{label}: the controller did not start program station_move_{seq} within "
+                        f"{label}: the controller did not start program {name} within "
                         f"{self.start_timeout_s} s (refused by the controller? robot_mode {st.robot_mode})"
                     )
                 if started and st.runtime_state == RUNTIME_STOPPED and st.register_done != seq:
-                    raise DeviceError(f"{label}: program station_move_{seq} stopped before its motion finished")
-                if time.monotonic() - t_sent > self.motion_timeout_s:
+                    self._after_fault(label)
+                    raise DeviceError(f"{label}: program {name} stopped before its motion finished "
+                                      f"({st.register_moves} moves done); the robot is at rest")
+                if time.monotonic() - t_sent > timeout_s:
                     self.stop_motion()
-                    raise DeviceTimeout(f"{label}: motion not done within {self.motion_timeout_s} s; robot stopped")
+                    raise DeviceTimeout(f"{label}: motion not done within {timeout_s:g} s; robot stopped")
                 time.sleep(0.001)
             return self._settle(q_target, label)
         except ConnectionLost:
@@ -867,6 +924,125 @@ class URDriver:
     def stop_motion(self, decel_rad_s2: float = 2.0) -> None:
         """Halt the arm now (``stopj``; stopping needs no gate)."""
         self._send_script(f"stopj({_fmt(decel_rad_s2)})\n", "stop")
+
+    # ------------------------------------------------------------------ the robot interface (drivers.robot)
+    def _gate_program(self, program, q_start: np.ndarray) -> np.ndarray:
+        """Every executed move of ``program`` through the gate from ``q_start``; the joint targets (M, 6)."""
+        from station.programs.model import Move, Program, RenderedProgram
+        from station.programs.urscript import executed
+
+        prog = program.program if isinstance(program, RenderedProgram) else program
+        if not isinstance(prog, Program):
+            raise SafetyError(f"run needs a Program, got {type(program).__name__}")
+        self.gate.check_program(prog, q_start=q_start)  # names, robot, speeds, accelerations, as every dialect
+        q = np.asarray(q_start, dtype=float)
+        out = []
+        for i, ins in enumerate(executed(prog)):
+            if isinstance(ins, Move):
+                q, _ = self.gate.check_move(ins, q, prog, where=f"instruction {i + 1}")
+                out.append(q)
+        return np.array(out).reshape(-1, 6)
+
+    def run(self, program, *, timeout_s: float | None = None, on_status=None) -> "URProgramStatus":
+        """Gate every move of a :class:`~station.programs.model.Program` (or a rendered one) from the joints
+        RTDE reports, send it as one URScript program, watch its progress on RTDE and return when it is done
+        and the arm rests on the last target (:mod:`drivers.robot`)."""
+        from station.programs.model import RenderedProgram
+        from station.programs.urscript import render_urscript
+
+        prog = program.program if isinstance(program, RenderedProgram) else program
+        label = f"program {getattr(prog, 'name', '?')}"
+        st = self._require_ready(label)
+        q = self._gate_program(prog, st.q_rad)
+        seq = self._next_seq()
+        rendered = render_urscript(prog, q, robot=self.robot, seq=seq, register_base=self.register_base)
+        report = None
+        if on_status is not None:
+            last = [-1.0, -1]
+
+            def report(s: URState) -> None:  # progress at most every status_period_s, and at every move done
+                now = time.monotonic()
+                if now - last[0] >= self.status_period_s or s.register_moves != last[1]:
+                    last[0], last[1] = now, s.register_moves
+                    on_status(URProgramStatus.of(s, seq))
+        final = self._execute(rendered.text, seq, q[-1] if len(q) else st.q_rad, label,
+                              prog.name.lower(), timeout_s=timeout_s, on_state=report)
+        return URProgramStatus.of(final, seq, done=True)
+
+    def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
+                timeout_s: float | None = None) -> URState:
+        """One gated move: joints (6,) rad, or a Cartesian (4, 4) pose / (3,) position mm."""
+        t = np.asarray(target, dtype=float)
+        if interpolation == "linear":
+            return self.move_linear(t, speed_mm_s=speed_frac * float(self.robot.max_tcp_speed_mm_s))
+        if t.shape != (6,):
+            st = self._require_ready("move")
+            t = self.gate.check_cartesian_target(t if t.shape == (4, 4) else _with_position(st.tcp_T, t),
+                                                 "move", q_seed=st.q_rad)
+        return self.move_joint(t, speed_frac=speed_frac)
+
+    def take_over(self) -> tuple[str, str]:
+        """Stop a program an earlier session left running; refuse a stop a person must clear."""
+        st = self.state(timeout_s=self.connect_timeout_s)
+        if st.emergency_stopped:
+            raise DeviceFault("UR: emergency stop engaged: release it on the pendant, then resume")
+        if st.protective_stopped:
+            raise DeviceFault("UR: protective stop: inspect its cause, unlock it on the pendant, then resume")
+        if st.robot_mode != ROBOT_MODE_RUNNING:
+            raise DeviceNotReady(f"UR: robot mode {st.robot_mode} (not RUNNING): power on and release the brakes")
+        took = ""
+        if st.program_running or float(np.linalg.norm(st.tcp_speed[:3])) > self.rest_speed_mm_s:
+            self.release()
+            took = "stopped a program left running by an earlier session"
+        return self.summary(), took
+
+    def release(self) -> None:
+        """Halt the arm, stop any program, wait (bounded) for rest."""
+        self.stop_motion()
+        self._after_fault("release")
+
+    def stop(self) -> URState:
+        """The safe state: motion halted, program stopped, arm at rest (``stopj`` + dashboard stop)."""
+        self.release()
+        return self.state()
+
+    def summary(self) -> str:
+        st = self.state()
+        return (f"robot mode {st.robot_mode}, safety mode {st.safety_mode}, "
+                f"{'program running' if st.program_running else 'no program running'}")
+
+    def wait_settled(self, timeout_s: float) -> URState:
+        """Until no program runs and the TCP is slower than ``rest_speed_mm_s``; DeviceTimeout after ``timeout_s``."""
+        deadline = time.monotonic() + float(timeout_s)
+        while True:
+            st = self.state()
+            if not st.program_running and float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s:
+                return st
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"UR: arm not at rest within {timeout_s:g} s")
+            time.sleep(0.002)
+
+    def joints_rad(self) -> np.ndarray:
+        return self.state().q_rad
+
+    def tcp_mm(self) -> np.ndarray:
+        return self.state().tcp_xyz_mm
+
+    def fault_state(self) -> str | None:
+        st = self.state()
+        if st.emergency_stopped:
+            return "emergency stop"
+        if st.protective_stopped:
+            return "protective stop"
+        if not st.ready_to_move:
+            return f"not ready (robot mode {st.robot_mode}, safety mode {st.safety_mode})"
+        return None
+
+    def readings(self):
+        from drivers.robot import RobotReadings
+
+        s = self.samples()
+        return RobotReadings(t_s=s.t_s, q_rad=s.q_rad, tcp_xyz_mm=s.tcp_xyz_mm)
 
     # ------------------------------------------------------------------ dashboard
     def _dashboard_call(self, what: str, fn, *args):

@@ -140,19 +140,30 @@ def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
     return FakeCell({"odometry": f"nmea://{handle.endpoint['device']}"}, float(fake["time_scale"]), close)
 
 
-def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float) -> dict:
-    """The demo station's config; device URLs are replaced by the fakes' at start."""
+def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float, robot: str = "industrial-3100") -> dict:
+    """The demo station's config; device URLs are replaced by the fakes' at start.
+
+    ``robot`` picks the arm and with it the controller's fake (:func:`fakes.station.robot_fake`: a UR model
+    gets the UR fake, ``ur://``); the workspace box is the seed's cube in that arm's workspace, grown by a
+    margin (:func:`fakes.station.workspace_box`).
+    """
+    from fakes.station import robot_fake, workspace_box
+    from station.models.robots import get_robot
+
+    spec = get_robot(robot)
+    lo, hi = workspace_box(spec)
     return {
         "station": {"name": "demo cell", "store_path": str(out / "station.sqlite"), "report_dir": str(out / "reports")},
-        "devices": {"tracker": {"url": "fake://tracker-emscon"}, "controller": {"url": "fake://controller"}},
+        "devices": {"tracker": {"url": "fake://tracker-emscon"}, "controller": {"url": f"fake://{robot_fake(robot)}"}},
         "robots": {
             "r1": {
-                "model": "industrial-3100", "serial": "DEMO-0001", "overhaul_state": "after", "payload_kg": 0.0,
+                "model": robot, "serial": "DEMO-0001", "overhaul_state": "after", "payload_kg": 0.0,
                 "controller": "controller",
-                "workspace": {"min_mm": [-900.0, 800.0, 500.0], "max_mm": [900.0, 2600.0, 2300.0],
-                              "max_tcp_speed_mm_s": 2000.0},
+                "workspace": {"min_mm": lo, "max_mm": hi, "max_tcp_speed_mm_s": float(spec.max_tcp_speed_mm_s)},
                 "limits": {"rp_limit_mm": 0.5, "ap_limit_mm": 5.0, "vap_limit_mm": 2.0, "ad_limit_mm": 2.0},
             }
         },
-        "iso9283": {"cycles": cycles, "vap_cycles": vap_cycles, "tracker_rate_hz": rate_hz},
+        "iso9283": {"cycles": cycles, "vap_cycles": vap_cycles, "tracker_rate_hz": rate_hz,
+                    # a cobot's joint-2 circle about P1 stays inside its (smaller) box over +/- 20 deg
+                    **({"axis_sweep_deg": [25.0, 20.0]} if robot_fake(robot) == "ur" else {})},
     }

@@ -4,8 +4,13 @@ One world (arm with realistic errors, tracker measurement model, one clock)
 and the fakes that speak the real protocols around it:
 
 * the emScon tracker server (``fakes.emscon``) on 127.0.0.1, ephemeral port;
-* the robot controller (``fakes.controller``): FTP server + Modbus TCP server
-  + the RAPID interpreter moving the simulated arm.
+* the robot's controller, by the arm's make (:func:`robot_fake`): for an
+  industrial arm the program-upload controller (``fakes.controller``: FTP
+  server + Modbus TCP server + the RAPID interpreter moving the simulated
+  arm), for a UR the UR controller (``fakes.ur``: RTDE, dashboard and script
+  servers on a loopback address of its own, ``ur://127.0.0.N``).
+
+Both are started by name from :mod:`fakes.registry`.
 
 :meth:`FakeStation.config_dict` gives a station config whose device URLs
 point at these fakes, so the procedure runs through the real drivers over
@@ -18,14 +23,30 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from fakes import controller as controller_fake
-from fakes import emscon as emscon_fake
+from fakes.registry import start_named, url_of
 from fakes.sim.world import World, make_world
+from station.analysis.iso9283.poses import fit_cube_to_reach
+from station.programs.builders import TOOL_DOWN
 
-#: cube of seed 000 Table 1 (mm, robot base frame) shrunk by this much gives the workspace box
+#: cube of seed 000 Table 1 (mm, robot base frame) grown by this much gives the workspace box
+#: (both scaled to the arm's size, :func:`station.analysis.iso_poses.fit_cube_to_reach`)
 WORKSPACE_MARGIN_MM = 300.0
 SEED_CUBE_MIN = (-600.0, 1100.0, 800.0)
 SEED_CUBE_MAX = (600.0, 2300.0, 2000.0)
+
+
+def robot_fake(robot_name: str) -> str:
+    """The fake (by name, :mod:`fakes.registry`) of the controller an arm of this model has."""
+    return "ur" if robot_name.lower().startswith("ur") else "controller"
+
+
+def workspace_box(robot) -> tuple[list[float], list[float]]:
+    """The safety gate's box of the fake cell: the seed's test cube in this arm's workspace
+    (:func:`~station.analysis.iso_poses.fit_cube_to_reach`), grown by the margin scaled alike."""
+    cube = fit_cube_to_reach(robot.dh_nominal, robot.joint_limits_rad, robot.home_q_rad, TOOL_DOWN)
+    lo = cube.corners_mm.min(axis=0) - cube.scale * WORKSPACE_MARGIN_MM
+    hi = cube.corners_mm.max(axis=0) + cube.scale * WORKSPACE_MARGIN_MM
+    return [float(v) for v in lo], [float(v) for v in hi]
 
 
 def _split_faults(faults: Mapping[str, str] | None) -> tuple[dict, dict]:
@@ -53,16 +74,17 @@ class FakeStation:
             t_faults.setdefault("device_buffer_s", str(max(2.0, 3.0 * scale)))
         self.world = world
         self._owns_world = False
-        # the controller's programs schedule the cell's time; the stream follows it (lockstep)
-        self.tracker = emscon_fake.start_fake(world, host=host, faults=t_faults, drives_clock=False)
+        # the robot's programs schedule the cell's time; the stream follows it (lockstep)
+        self.tracker = start_named("tracker-emscon", world, host=host, faults=t_faults, drives_clock=False)
+        kind = robot_fake(world.robot.name)
         try:
-            self.controller = controller_fake.start_fake(world, host=host, faults=c_faults)
+            # the UR fake takes a loopback address of its own (ur_rtde fixes its ports)
+            self.controller = start_named(kind, world, host=host if kind != "ur" else None, faults=c_faults)
         except BaseException:
             self.tracker.close()
             raise
-        te = self.tracker.endpoint
-        self.tracker_url = f"emscon://{te['host']}:{te['port']}"
-        self.controller_url = self.controller.url
+        self.tracker_url = url_of("emscon", self.tracker)
+        self.controller_url = url_of("ur" if kind == "ur" else "modbus+ftp", self.controller)
         self.endpoint = {
             "robot": world.robot.name,
             "tracker": self.tracker_url,
@@ -86,8 +108,7 @@ class FakeStation:
                     report_dir: str = "reports", serial: str = "SIM-0001", overhaul_state: str = "after",
                     iso9283: Mapping | None = None, limits: Mapping | None = None) -> dict:
         """A station config (dict) with the fakes' URLs, ready for :func:`station.config.config_from_dict`."""
-        lo = [c - WORKSPACE_MARGIN_MM for c in SEED_CUBE_MIN]
-        hi = [c + WORKSPACE_MARGIN_MM for c in SEED_CUBE_MAX]
+        lo, hi = workspace_box(self.world.robot)
         return {
             "station": {"name": name, "store_path": store_path, "report_dir": report_dir},
             "devices": {

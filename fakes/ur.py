@@ -54,6 +54,15 @@ Fault injection (``faults`` dict, string values):
     those dashboard commands (first word, e.g. ``play``, ``stop``, ``load``)
     answer ``Failed to execute: <cmd>``; ``connect`` closes every dashboard
     connection at once, without the greeting.
+``emergency_stop_move=N``
+    the emergency stop is pressed during the N-th motion (at
+    ``protective_stop_fraction`` of it): the arm halts, safety mode
+    ROBOT_EMERGENCY_STOP, the emergency bits of ``safety_status_bits`` set,
+    robot mode IDLE (brakes on); it stays so until ``sim_release_emergency_stop()``
+    (the button turned back), after which ``brake release`` makes the robot RUNNING;
+``refuse_script=N``
+    the N-th program that reaches the script port is refused as if it did not
+    compile (``Compile error: ...`` text message, not run).
 
 Dashboard ``pause`` halts the arm (controlled stop) and ``play`` resumes the
 program, re-issuing the interrupted move to the same target; ``stop``,
@@ -125,8 +134,11 @@ class FaultPlan:
     protective_stop_fraction: float = 0.5
     rtde_drop_after_s: float | None = None
     dashboard_refuse: frozenset = frozenset()
+    emergency_stop_move: int | None = None
+    refuse_script: int | None = None
 
-    KEYS = ("protective_stop_move", "protective_stop_fraction", "rtde_drop_after_s", "dashboard_refuse")
+    KEYS = ("protective_stop_move", "protective_stop_fraction", "rtde_drop_after_s", "dashboard_refuse",
+            "emergency_stop_move", "refuse_script")
 
     @classmethod
     def parse(cls, faults: dict | None) -> "FaultPlan":
@@ -142,6 +154,9 @@ class FaultPlan:
             if not 0.0 < f < 1.0:
                 raise ConfigError(f"fault protective_stop_fraction must be in (0, 1), got {f!r}")
             kw["protective_stop_fraction"] = f
+        for key in ("emergency_stop_move", "refuse_script"):
+            if key in faults:
+                kw[key] = _parse_number(faults, key, int, lo=1)
         if "rtde_drop_after_s" in faults:
             kw["rtde_drop_after_s"] = _parse_number(faults, "rtde_drop_after_s", float, lo=0.0)
         if "dashboard_refuse" in faults:
@@ -230,6 +245,7 @@ class _Controller:
         self.lock = threading.RLock()
         self.robot_mode = MODE_RUNNING
         self.protective_stop_t: float | None = None
+        self.emergency_stopped = False
         self.runtime_state = RUNTIME_STOPPED
         self.loaded_program: str | None = None
         self.programs: dict[str, str] = {
@@ -272,6 +288,8 @@ class _Controller:
     # ---------------------------------------------------------------- modes
     def safety_mode(self) -> int:
         with self.lock:
+            if self.emergency_stopped:
+                return SafetyMode.ROBOT_EMERGENCY_STOP
             if self.protective_stop_t is not None:
                 return SAFETY_PROTECTIVE_STOP
             return SAFETY_NORMAL
@@ -282,11 +300,19 @@ class _Controller:
                 self.protective_stop_t = self.clock.now()
         self.message(f"C153A1: Protective stop: {reason}")
 
+    def enter_emergency_stop(self, reason: str) -> None:
+        with self.lock:
+            self.emergency_stopped = True
+            self.robot_mode = MODE_IDLE  # brakes on
+        self.message(f"C150A0: Robot emergency stop: {reason}")
+
     def ready_to_move(self) -> str | None:
         """None when a program may move the arm, else why not."""
         with self.lock:
             if self.robot_mode != MODE_RUNNING:
                 return f"robot is in mode {ROBOT_MODE.get(self.robot_mode, self.robot_mode)}"
+            if self.emergency_stopped:
+                return "robot is in emergency stop"
             if self.safety_mode() != SAFETY_NORMAL:
                 return "robot is in protective stop"
             return None
@@ -353,6 +379,7 @@ class _Controller:
         powered = robot_mode in (4, 5, 6, 7)
         running = runtime == RUNTIME_PLAYING
         pstop = safety_mode == SAFETY_PROTECTIVE_STOP
+        estop = safety_mode == SafetyMode.ROBOT_EMERGENCY_STOP
         joint_mode = JOINT_RUNNING if robot_mode == MODE_RUNNING else (JOINT_IDLE if powered else JOINT_POWER_OFF)
         scalars = {
             "timestamp": ts,
@@ -361,9 +388,9 @@ class _Controller:
             "safety_status": safety_mode,
             "runtime_state": runtime,
             "robot_status_bits": (1 if powered else 0) | (2 if running else 0),
-            "safety_status_bits": (4 | (1 << 10)) if pstop else 1,
+            "safety_status_bits": (4 | (1 << 10)) if pstop else (((1 << 6) | (1 << 7)) if estop else 1),
             "joint_mode": [joint_mode] * 6,
-            "speed_scaling": 0.0 if pstop else 1.0,
+            "speed_scaling": 0.0 if (pstop or estop) else 1.0,
             "target_speed_fraction": 1.0,
             "actual_execution_time": 0.3,
             "actual_momentum": 0.0,
@@ -625,14 +652,16 @@ class _Interpreter:
             except Exception as exc:  # the arm refuses (unreachable, limits): a runtime error
                 raise ScriptError(f"line {call.line}: {call.name}: {exc}") from exc
             try:
-                if plan.protective_stop_move == count:
+                if count in (plan.protective_stop_move, plan.emergency_stop_move):
                     t_stop = move.t_start + plan.protective_stop_fraction * (move.t_end - move.t_start)
                     self._wait_until(t_stop)
                     if self.pause_epoch == epoch:
-                        arm.protective_stop()
-                        ctl.enter_protective_stop(
-                            f"fault injected during motion {count} (program {program.name} line {call.line})"
-                        )
+                        arm.protective_stop()  # the arm's halt on a stop of either category
+                        why = f"fault injected during motion {count} (program {program.name} line {call.line})"
+                        if count == plan.emergency_stop_move:
+                            ctl.enter_emergency_stop(why)
+                        else:
+                            ctl.enter_protective_stop(why)
                         raise _Abort()
                 self._wait_until(move.t_end)
             except _Abort:
@@ -1050,6 +1079,14 @@ class URFake:
         self.rtde_drops += len(victims)
         return len(victims)
 
+    def sim_release_emergency_stop(self) -> None:
+        """The emergency stop button turned back (test-only control): safety mode NORMAL, robot still IDLE
+        (``brake release`` on the dashboard makes it RUNNING)."""
+        with self.ctl.lock:
+            self.ctl.emergency_stopped = False
+            if getattr(self.ctl.arm, "state", "") == "protective_stop":
+                self.ctl.arm.reset()
+
     def sim_add_program(self, path: str, urscript: str) -> None:
         """Store a program that ``load <path>`` then ``play`` runs (test-only control)."""
         parse_program(urscript, "program")  # refuse at once what could never run
@@ -1067,6 +1104,11 @@ class URFake:
     def run_script(self, text: str) -> None:
         with self.ctl.lock:
             self.ctl.scripts_received.append(text)
+            n = len(self.ctl.scripts_received)
+        if self.plan.refuse_script == n:
+            first = text.strip().splitlines()[0] if text.strip() else ""
+            self.refuse_script(f"fault injected: program {n} ({first[:40]!r}) refused")
+            return
         try:
             program = parse_program(text)
         except ScriptError as exc:

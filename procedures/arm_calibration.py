@@ -63,7 +63,8 @@ from typing import Any
 
 import numpy as np
 
-from procedures.cell import CellSession, connect_cell, robot_subject, connect_controller, prompt_step, stop_cell
+from procedures.cell import (CellSession, connect_cell, connect_controller, prompt_step, record_robot_readings,
+                            robot_subject, stop_cell)
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
@@ -111,6 +112,13 @@ class ArmCalPlan:
     instrument: str = "tracker"
     #: scanner: how long one capture may take (s)
     scan_timeout_s: float = 30.0
+    #: the model the identification starts from (7, 5) mm/rad; None: the robot's nominal one
+    start_dh: tuple | None = None
+
+    @property
+    def is_ur(self) -> bool:
+        """A UR: identified as plain DH (no beta) so that the result is written as UR calibration deltas."""
+        return self.robot.name.lower().startswith("ur")
 
     def gate(self) -> SafetyGate:
         return SafetyGate(self.robot, SafetyLimits(
@@ -140,6 +148,7 @@ class ArmCalPlan:
             "dwell_s": self.dwell_s, "measure_s": self.measure_s, "speed_frac": self.speed_frac,
             "poses_per_step": self.poses_per_step, "report_dir": self.report_dir, "selection": self.selection,
             "instrument": self.instrument, "scan_timeout_s": self.scan_timeout_s,
+            "start_dh": None if self.start_dh is None else [list(r) for r in self.start_dh],
         }
 
     @classmethod
@@ -153,6 +162,7 @@ class ArmCalPlan:
             speed_frac=float(p["speed_frac"]), poses_per_step=int(p["poses_per_step"]),
             report_dir=str(p["report_dir"]), selection=p.get("selection"),
             instrument=str(p.get("instrument", "tracker")), scan_timeout_s=float(p.get("scan_timeout_s", 30.0)),
+            start_dh=None if p.get("start_dh") is None else tuple(tuple(float(v) for v in r) for r in p["start_dh"]),
         )
 
 
@@ -222,6 +232,12 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
               speed_frac=min(ac.speed_percent, rc.workspace.max_speed_percent) / 100.0,
               poses_per_step=ac.poses_per_step, report_dir=cfg.station.report_dir, selection=info,
               instrument=ac.instrument, scan_timeout_s=ac.scan_timeout_s)
+    if ac.ur_calibration:
+        from station.models.arm_model_file import read_ur_calibration
+
+        # the UR's previous calibration (read back as the controller holds it) is where this one starts
+        kw["start_dh"] = tuple(tuple(float(v) for v in r) for r in read_ur_calibration(ac.ur_calibration,
+                                                                                        robot.dh_nominal))
     kw.update(overrides)
     return ArmCalPlan(**kw)
 
@@ -355,16 +371,48 @@ def step_measure(k: int):
             ctx.progress(f"pose C{i + 1}")
             rendered = render_rapid(pose_program(plan, i))
             controller.run(rendered, timeout_s=_timeout(ctx, 60.0), on_status=lambda st: ctx.checkpoint())
+            record_robot_readings(ctx, controller)  # the move's; what follows is the measurement's
             m = tracker.measure_stationary(duration_s=plan.measure_s)
             xyz = np.asarray(m.xyz_mm, dtype=float)
-            # the commanded joint angles beside the point: the run's export is an arm CSV `calibrate arm` reads
-            ctx.record(STREAM, {"pose": np.array([i], float),
-                                **{f"q{j + 1}": np.array([float(plan.q_deg[i][j])]) for j in range(6)},
-                                "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
-                                "t": np.array([np.nan if m.t_device_s is None else float(m.t_device_s)])})
+            # the joint angles beside the point, so that the run's export is an arm CSV `calibrate arm` reads:
+            # the arm's own while the tracker measured where it gives them (RTDE on a UR), else the commanded
+            row = {"pose": np.array([i], float),
+                   **{f"q{j + 1}": np.array([float(plan.q_deg[i][j])]) for j in range(6)},
+                   "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
+                   "t": np.array([np.nan if m.t_device_s is None else float(m.t_device_s)])}
+            q_meas = _measured_joints_deg(controller)
+            if q_meas is not None:
+                row.update({f"q{j + 1}": q_meas[j:j + 1] for j in range(6)})
+            row["q_measured"] = np.array([0.0 if q_meas is None else 1.0])
+            ctx.record(STREAM, row)
             done.append(i + 1)
         return {"poses": done}
     return run
+
+
+def _measured_joints_deg(controller) -> np.ndarray | None:
+    """Mean joint angles (deg) the robot reported since the last call (the measurement's), or None when it
+    gives no readings stream (the Modbus controller: the plan's joint angles are used)."""
+    r = controller.readings()
+    if r is None:
+        return None
+    if not len(r):
+        return np.degrees(np.asarray(controller.joints_rad(), dtype=float))
+    return np.degrees(np.mean(r.q_rad, axis=0))
+
+
+def measured_joints_deg(ctx: StepContext, plan: ArmCalPlan) -> np.ndarray:
+    """(N, 6) joint angles of the poses in plan order, deg: the arm's own reading where the robot gave one
+    (a UR's RTDE ``actual_q`` while the tracker measured), else the commanded ones of the plan."""
+    q = np.array(plan.q_deg, dtype=float)
+    steps = [f"measure {k}" for k in range(1, plan.n_batches + 1)]
+    s = ctx.samples(STREAM, steps=steps)
+    if s and "q1" in s:
+        idx = s["pose"].astype(int)
+        qm = np.column_stack([s[f"q{j}"] for j in range(1, 7)])
+        ok = np.isfinite(qm).all(axis=1)
+        q[idx[ok]] = qm[ok]
+    return q
 
 
 def measured_points(ctx: StepContext, plan: ArmCalPlan) -> np.ndarray:
@@ -427,12 +475,17 @@ def _kept_split(plan: ArmCalPlan, keep: np.ndarray) -> Split:
     return Split(int(new[ref]), new[train], new[test])
 
 
-def _calibrate(plan: ArmCalPlan, points: np.ndarray):
-    """Identify from the measured points (N, 3); rows with NaN (scanner poses without the jig) are left out."""
+def _calibrate(plan: ArmCalPlan, points: np.ndarray, q_deg: np.ndarray | None = None):
+    """Identify from the measured points (N, 3) at the joint angles ``q_deg`` (N, 6) (default: the plan's);
+    rows with NaN (scanner poses without the jig) are left out. A UR is identified as plain DH (no beta)
+    from its start model (its previous calibration, or the nominal one)."""
     keep = np.isfinite(points).all(axis=1)
     split = plan.split() if keep.all() else _kept_split(plan, keep)
-    return calibrate_arm(plan.robot.dh_nominal, np.radians(np.array(plan.q_deg))[keep], points[keep],
-                         method=plan.method, joint_limits_rad=plan.robot.joint_limits_rad, split=split)
+    q = np.array(plan.q_deg if q_deg is None else q_deg, dtype=float)
+    dh0 = plan.robot.dh_nominal if plan.start_dh is None else np.array(plan.start_dh, dtype=float)
+    return calibrate_arm(dh0, np.radians(q)[keep], points[keep],
+                         method=plan.method, joint_limits_rad=plan.robot.joint_limits_rad, split=split,
+                         use_beta=not plan.is_ur)
 
 
 def _points(ctx: StepContext, plan: ArmCalPlan) -> tuple[np.ndarray, ScannerPoints | None]:
@@ -450,7 +503,8 @@ def _measured(ctx: StepContext, plan: ArmCalPlan) -> tuple[np.ndarray, ScannerPo
 
 def _calibration(ctx: StepContext, plan: ArmCalPlan):
     if ctx.session.calibration is None:
-        ctx.session.calibration = _calibrate(plan, _measured(ctx, plan)[0])
+        q = measured_joints_deg(ctx, plan) if plan.instrument == "tracker" else None
+        ctx.session.calibration = _calibrate(plan, _measured(ctx, plan)[0], q)
     return ctx.session.calibration
 
 
@@ -473,10 +527,21 @@ def step_identify(ctx: StepContext) -> dict:
     model_path.parent.mkdir(parents=True, exist_ok=True)
     model_path.write_text(json.dumps(doc["model"], indent=2), encoding="utf-8")
     doc["model_file"] = str(model_path.resolve())
+    if plan.is_ur:
+        from station.models.arm_model_file import ur_deltas, write_ur_calibration
+
+        # the deltas are the controller's: relative to the UR's nominal model, whatever this run started from
+        conf = Path(plan.report_dir) / f"{ctx.run_id}-calibration.conf"
+        write_ur_calibration(conf, ur_deltas(cal.dh, plan.robot.dh_nominal))
+        doc["ur_calibration_file"] = str(conf.resolve())
+    recorded = ctx.samples(STREAM, steps=[f"measure {k}" for k in range(1, plan.n_batches + 1)])
+    doc["joints"] = ("measured" if plan.instrument == "tracker" and recorded and "q_measured" in recorded
+                     and bool(np.all(recorded["q_measured"] == 1.0)) else "commanded")
     ctx.store.put_result(ctx.run_id, RESULT_KEY, doc)
     return {"train_mean_after_mm": doc["train"]["mean_abs_after_mm"],
             "test_mean_after_mm": doc["test"]["mean_abs_after_mm"] if doc["test"] else None,
             "model_file": doc["model_file"], "converged": doc["converged"],
+            "ur_calibration_file": doc.get("ur_calibration_file"),
             "failed_poses": sorted(doc.get("failed_poses", {}))}
 
 
@@ -494,7 +559,7 @@ def step_diagnose(ctx: StepContext) -> dict:
 
     plan = _plan(ctx)
     points, _ = _measured(ctx, plan)
-    q = np.radians(np.array(plan.q_deg))
+    q = np.radians(measured_joints_deg(ctx, plan) if plan.instrument == "tracker" else np.array(plan.q_deg))
     ok = np.isfinite(points).all(axis=1)
     try:
         diag = diagnose_arm(plan.robot.dh_nominal, q[ok], points[ok], robot=plan.robot)

@@ -13,8 +13,7 @@ from typing import Any
 
 from procedures.registry import Subject
 from procedures.session import Session
-from station.errors import ConfigError, DeviceFault, StationError
-from station.programs.handshake import Fault, State, describe
+from station.errors import ConfigError, StationError
 
 
 @dataclass
@@ -29,22 +28,25 @@ class CellSession(Session):
 
 
 def connect_controller(session, gate) -> dict:
-    """Open ``session.controller`` behind ``gate``; stop or clear what an earlier session that died left."""
+    """Open ``session.controller`` (a :class:`drivers.robot.Robot`: the program-upload controller or the UR)
+    behind ``gate``; stop or clear what an earlier session that died left (:meth:`~drivers.robot.Robot.take_over`)."""
     controller = session.controller = session.device("controller", gate=gate)
     controller.connect()
-    status = controller.status()
-    took_over = ""
-    if status.state == State.RUNNING:
-        # a program of an earlier session (killed station process) is still running: stop it first
-        status = controller.stop()
-        took_over = "stopped a program left running by an earlier session"
-    elif status.state == State.FAULT:
-        if status.fault != Fault.COMM_WATCHDOG:
-            raise DeviceFault(f"controller is in fault {describe(Fault, status.fault)}: clear its cause, then resume")
-        # the watchdog stopped the program when the earlier session died: that is ours to clear
-        status = controller.reset()
-        took_over = "cleared the comm-watchdog fault of an earlier session"
-    return {"controller_state": status.summary(), "took_over": took_over}
+    state, took_over = controller.take_over()
+    return {"controller_state": state, "took_over": took_over}
+
+
+#: the stream of the arm's own readings (controller time; joints deg, TCP mm in the base frame)
+ROBOT_STREAM = "robot"
+
+
+def record_robot_readings(ctx, robot) -> int:
+    """Commit the arm's own joint and TCP readings since the last call to the run's ``robot`` stream
+    (a robot that gives only point reads records nothing); how many."""
+    readings = robot.readings()
+    if readings is None or not len(readings):
+        return 0
+    return ctx.record(ROBOT_STREAM, readings.columns())
 
 
 def connect_cell(session, gate) -> dict:

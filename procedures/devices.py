@@ -6,7 +6,8 @@ application layer a :class:`DeviceSet`: one entry per *role* the procedure
 uses (``tracker``, ``controller``, ``odometry``), each either
 
 * a device URL (the configured devices with ``--arm``, or the fake cell's
-  loopback/pty endpoints otherwise), opened here by the matching driver, or
+  loopback/pty endpoints otherwise), opened by the driver its scheme names
+  (:func:`drivers.registry.device_for_url`, the one table), or
 * a driver object that is already open (a test or script injects it; its
   owner closes it).
 
@@ -16,55 +17,11 @@ chooses which one, from the role.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from station.device_urls import parse_device_url
 from station.errors import ConfigError
-
-
-def _open_tracker(url: str, *, timeout_s: float | None = None, **options):
-    from drivers.tracker_url import open_tracker
-
-    if timeout_s is not None:
-        options["reply_timeout_s"] = timeout_s
-    return open_tracker(url, **options)
-
-
-def _open_controller(url: str, *, timeout_s: float | None = None, **options):
-    from drivers.controller import ControllerDriver
-
-    if timeout_s is not None:
-        options["timeout_s"] = timeout_s
-    return ControllerDriver.from_url(url, **options)
-
-
-def _open_odometry(url: str, *, timeout_s: float | None = None, **options):
-    from drivers.odometry import OdometryDriver
-
-    if timeout_s is not None:
-        options["timeout_s"] = timeout_s
-    return OdometryDriver.open(url, **options)
-
-
-def _open_scanner(url: str, *, timeout_s: float | None = None, **options):
-    from drivers.scanner import ScannerDriver
-
-    if timeout_s is not None:
-        options["timeout_s"] = timeout_s
-    return ScannerDriver.from_url(url, **options)
-
-
-#: device kind (of the URL's scheme, :mod:`station.device_urls`) -> how it is opened (the driver
-#: module that speaks its protocol);
-#: ``timeout_s`` (the config's ``devices.*.timeout_s``) becomes the driver's reply timeout
-OPENERS: dict[str, Callable[..., Any]] = {
-    "tracker": _open_tracker,
-    "controller": _open_controller,
-    "odometry": _open_odometry,
-    "scanner": _open_scanner,
-}
 
 
 @dataclass
@@ -106,12 +63,12 @@ class DeviceSet:
         if role not in self.urls:
             have = ", ".join(sorted(self.roles())) or "none"
             raise ConfigError(f"the run needs a {role} device; the device set has {have}")
-        url = self.urls[role]
-        kind = parse_device_url(url).kind
-        if kind not in OPENERS:
-            raise ConfigError(f"{role}: no driver in this station opens {kind} URLs ({url}); "
-                              f"drivers exist for {', '.join(sorted(OPENERS))}")
-        return OPENERS[kind](url, **{**self.options.get(role, {}), **options}), True
+        from drivers.registry import device_for_url
+
+        try:
+            return device_for_url(self.urls[role], **{**self.options.get(role, {}), **options}), True
+        except ConfigError as exc:
+            raise ConfigError(f"{role}: {exc}") from None
 
 
 def configured_devices(cfg, roles: Mapping[str, str]) -> DeviceSet:

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from station.analysis.iso9283.characteristics import analyze_iso9283, conformance_text
-from station.analysis.iso9283.poses import cube_test_poses
+from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
 from station.errors import ConfigError, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot
@@ -56,7 +56,7 @@ from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
 from procedures.decision import Checks, decide, record_measurements
-from procedures.cell import CellSession, connect_cell, robot_subject, prompt_step, stop_cell
+from procedures.cell import CellSession, connect_cell, record_robot_readings, robot_subject, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 
@@ -154,19 +154,31 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
         raise ConfigError(f"robots.{robot_name}: no such robot (have {', '.join(sorted(cfg.robots))})")
     rc = cfg.robots[robot_name]
     iso = cfg.iso9283
-    corners = np.asarray(iso.cube_corners_mm or SEED_CUBE_MM, dtype=float)
-    tp = cube_test_poses(corners, inset_mm=iso.inset_mm)
+    robot = get_robot(rc.model)
+    given = iso.model_fields_set
+    inset_mm, vap_offset_mm = iso.inset_mm, iso.vap_offset_mm
+    if iso.cube_corners_mm:
+        corners = np.asarray(iso.cube_corners_mm, dtype=float)
+    else:
+        # seed 000 Table 1 -> Table 2 placed in this arm's workspace (scale 1 for the Table 1 arm); the
+        # inset and the vAP approach scale alike unless the config gives them
+        cube = fit_cube_to_reach(robot.dh_nominal, robot.joint_limits_rad, robot.home_q_rad, TOOL_DOWN,
+                                 inset_mm=iso.inset_mm, approach_mm=iso.vap_offset_mm)
+        corners = cube.corners_mm
+        inset_mm = iso.inset_mm if "inset_mm" in given else cube.inset_mm
+        vap_offset_mm = iso.vap_offset_mm if "vap_offset_mm" in given else cube.approach_mm
+    tp = cube_test_poses(corners, inset_mm=inset_mm)
     poses = {n: tuple(float(v) for v in p) for n, p in zip(tp.names, tp.positions_mm)}
     centre = corners.mean(axis=0)
-    inset = corners - np.sign(corners - centre) * iso.inset_mm
+    inset = corners - np.sign(corners - centre) * inset_mm
     registration = {f"R{k + 1}": tuple(float(v) for v in c) for k, c in enumerate(inset)}
     limits = {LIMIT_KEYS[k]: v for k, v in rc.limits.model_dump().items() if k in LIMIT_KEYS and v is not None}
     kw = dict(
-        robot=get_robot(rc.model), workspace_min_mm=tuple(rc.workspace.min_mm),
+        robot=robot, workspace_min_mm=tuple(rc.workspace.min_mm),
         workspace_max_mm=tuple(rc.workspace.max_mm), max_tcp_speed_mm_s=rc.workspace.max_tcp_speed_mm_s,
         poses_mm=poses, registration_mm=registration, cycles=iso.cycles, vap_cycles=iso.vap_cycles,
         dwell_s=iso.dwell_s, speed_frac=min(iso.speed_percent, rc.workspace.max_speed_percent) / 100.0,
-        vap_offset_mm=iso.vap_offset_mm, tracker_rate_hz=iso.tracker_rate_hz, limits=limits,
+        vap_offset_mm=vap_offset_mm, tracker_rate_hz=iso.tracker_rate_hz, limits=limits,
         band_mm=rc.limits.pos_band_mm or rc.limits.rp_limit_mm, payload_kg=rc.payload_kg,
         report_dir=cfg.station.report_dir,
         max_speed_frac=rc.workspace.max_speed_percent / 100.0,
@@ -346,12 +358,14 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
     tracker, controller = ctx.session.tracker, ctx.session.controller
     events: list[str] = []
 
-    def drain(timeout: float = 0.0) -> None:
+    def drain(timeout: float = 0.0, robot: bool = True) -> None:
         batch = tracker.read_samples(timeout_s=timeout)
         for ev in batch.events:
             events.append(f"{ev.kind.value}@{ev.t_device_s}")
         if len(batch):
             _record_batch(ctx, batch)
+        if robot:
+            record_robot_readings(ctx, controller)
 
     last = [time.monotonic()]
 
@@ -369,8 +383,10 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
         # one continuous stream across the cycles (seed 000: the tracker measures the whole run);
         # a new session (resume) starts it again
         tracker.start_stream(plan.tracker_rate_hz)
+    ok = False
     try:
         status = controller.run(rendered, timeout_s=timeout_s, on_status=on_status)
+        ok = True
         if stream:
             # every sample the tracker sent before the program ended (on the lockstep fakes: up to its
             # last full packet) is readable after a round trip: the step's samples do not depend on
@@ -378,7 +394,11 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
             tracker.sync()
     finally:
         if stream:
-            drain(0.0)  # commit everything delivered so far (an interrupted attempt keeps what it took)
+            # commit everything delivered so far (an interrupted attempt keeps what it took), the arm's own
+            # readings too, unless the robot failed: its link may be what broke
+            drain(0.0, robot=ok)
+    if not stream:
+        record_robot_readings(ctx, controller)
     out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
     record = tracker.stream_record() if stream else None
     if record is not None:

@@ -218,6 +218,10 @@ class ArmCalibrationConfig(_Strict):
     measure_s: float = Field(0.2, gt=0, le=60)
     speed_percent: float = Field(20.0, ge=MIN_SPEED_PERCENT, le=100)
     poses_per_step: int = Field(8, ge=1, le=200)
+    #: UR only: the controller's calibration (a ``calibration.conf`` [mounting] section, as a run writes it)
+    #: the identification starts from instead of the nominal model; a run on a UR identifies a plain DH
+    #: model (no beta) and writes its deltas beside the model file
+    ur_calibration: str | None = None
 
     @model_validator(mode="after")
     def _scanner(self) -> "ArmCalibrationConfig":

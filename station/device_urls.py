@@ -1,8 +1,18 @@
-"""The one grammar of device URLs: a table of schemes with their defaults.
+"""The one table of devices: URL scheme -> grammar, defaults, driver class and fake.
+
+In the manner of pyserial's ``serial_for_url``: each row names the scheme's
+driver class (``"module:Class"``, resolved and built by
+:func:`drivers.registry.device_for_url` through the class's
+``from_url(url, *, timeout_s, **options)``) and the fake that speaks its
+protocol (the name :mod:`fakes.registry` serves it under and the module that
+starts it). The core only names them here; it imports neither. A new
+instrument is one driver, one fake and one row.
 
 The config validation (:mod:`station.config`) and every driver's ``from_url``
 parse device URLs here, so a default documented in the table is the default
-used, and a URL the config accepts is one a driver opens.
+used, and a URL the config accepts is one a driver opens. A URL is parsed
+once: :func:`parse_device_url` hands a :class:`DeviceURL` back unchanged
+(after checking its scheme), so the parsed URL travels to the transport.
 
 =================  ==========================================  =========================================
 scheme             device                                      address, defaults, options
@@ -62,23 +72,35 @@ class Scheme:
     #: what the path of a ``"path"`` address is, and an example
     path_what: str = "serial device path"
     path_example: str = "/dev/ttyUSB0"
+    #: the driver class, ``"package.module:Class"`` (None: no driver, e.g. ``fake://``)
+    driver: str | None = None
+    #: the fake that speaks this protocol: its name (``station fakes serve NAME``) and module
+    fake: str | None = None
+    fake_module: str | None = None
 
 
 SCHEMES: dict[str, Scheme] = {s.name: s for s in (
-    Scheme("emscon", "tracker", "laser tracker (Leica emScon TPI over TCP)", "host", default_port=700),
+    Scheme("emscon", "tracker", "laser tracker (Leica emScon TPI over TCP)", "host", default_port=700,
+           driver="drivers.emscon:EmsconTracker", fake="tracker-emscon", fake_module="fakes.emscon"),
     Scheme("geocom", "tracker", "tracker/total station (Leica GeoCOM over serial)", "path",
-           options={"baud": "115200"}, int_options=("baud",)),
+           options={"baud": "115200"}, int_options=("baud",),
+           driver="drivers.geocom:GeoComTracker", fake="tracker-geocom", fake_module="fakes.geocom"),
     Scheme("geocom+socket", "tracker", "tracker/total station (Leica GeoCOM over a TCP serial bridge)", "host",
-           port_required=True),
+           port_required=True, driver="drivers.geocom:GeoComTracker", fake="tracker-geocom",
+           fake_module="fakes.geocom"),
     Scheme("modbus+ftp", "controller", "robot controller (FTP upload + Modbus TCP)", "host", default_port=21,
            options={"modbus_port": "502", "user": "anonymous", "password_env": None, "password_file": None,
                     "dir": ""},
-           int_options=("modbus_port",)),
-    Scheme("ur", "cobot", "UR-style cobot (ur_rtde)", "host", port_allowed=False),
+           int_options=("modbus_port",),
+           driver="drivers.controller:ControllerDriver", fake="controller", fake_module="fakes.controller"),
+    Scheme("ur", "controller", "UR-style cobot (ur_rtde)", "host", port_allowed=False,
+           driver="drivers.ur:URDriver", fake="ur", fake_module="fakes.ur"),
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
-           options={"baud": "57600"}, int_options=("baud",)),
+           options={"baud": "57600"}, int_options=("baud",),
+           driver="drivers.odometry:OdometryDriver", fake="odometry", fake_module="fakes.odometry"),
     Scheme("ply", "scanner", "3D scanner point clouds (PLY files in a folder)", "path",
-           path_what="folder path", path_example="/data/scans"),
+           path_what="folder path", path_example="/data/scans",
+           driver="drivers.scanner:ScannerDriver", fake="scanner", fake_module="fakes.scanner_folder"),
     Scheme("fake", "fake", "simulated device of the station's own fake set", "name"),
 )}
 
@@ -123,11 +145,17 @@ class DeviceURL:
         return ""
 
 
-def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -> DeviceURL:
+def parse_device_url(url: "str | DeviceURL", *, scheme: str | tuple[str, ...] | None = None) -> DeviceURL:
     """Parse and check a device URL against the table; ConfigError names what is wrong.
 
     ``scheme`` restricts the accepted schemes (a driver passes the ones it speaks).
+    A :class:`DeviceURL` (already parsed) is returned as it is once its scheme is checked.
     """
+    wanted = (scheme,) if isinstance(scheme, str) else scheme
+    if isinstance(url, DeviceURL):
+        if wanted is not None and url.scheme not in wanted:
+            raise ConfigError(f"device URL {url.raw!r}: expected a {' or '.join(wanted)} URL, got {url.scheme!r}")
+        return url
     if not isinstance(url, str) or "://" not in url:
         raise ConfigError(f"device URL {url!r} must look like scheme://host:port or scheme:///dev/...")
     if len(url) > 2048 or any(ord(c) < 32 or ord(c) == 127 for c in url):
@@ -139,7 +167,6 @@ def parse_device_url(url: str, *, scheme: str | tuple[str, ...] | None = None) -
     name = parts.scheme.lower()
     if name not in SCHEMES:
         raise ConfigError(f"device URL {url!r}: unknown scheme {name!r} (known: {', '.join(SCHEMES)})")
-    wanted = (scheme,) if isinstance(scheme, str) else scheme
     if wanted is not None and name not in wanted:
         raise ConfigError(f"device URL {url!r}: expected a {' or '.join(wanted)} URL, got {name!r}")
     sch = SCHEMES[name]

@@ -1,7 +1,8 @@
 """`station demo`: the whole ISO 9283 procedure on the fake station.
 
 Starts a simulated cell (industrial arm with realistic errors, emScon
-tracker fake, controller fake with FTP upload and Modbus TCP) on loopback,
+tracker fake, controller fake with FTP upload and Modbus TCP; with
+``--robot ur5e`` a UR arm and the UR fake that ``ur_rtde`` talks to) on loopback,
 runs the full procedure of seed 000 Table 3 (30 pose cycles P1..P5 at rated
 speed, 30 multi-directional cycles, registration, analysis, report) through
 the real drivers in accelerated time, prints the results table and the
@@ -23,6 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--time-scale", type=float, default=20.0, help="simulated seconds per real second")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell")
     p.add_argument("--rate", type=float, default=100.0, help="tracker rate, Hz (seed 000: 100)")
+    p.add_argument("--robot", default="industrial-3100",
+                   help="robot model of the fake cell (default industrial-3100 with the FTP+Modbus controller; "
+                        "ur5e / ur10e: the UR fake through ur_rtde, the seed's cube scaled to the arm)")
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
@@ -36,7 +40,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path.cwd() / "demo-runs"
     out.mkdir(parents=True, exist_ok=True)
     cfg = config_from_dict(demo_config(out.resolve(), cycles=args.cycles, vap_cycles=args.vap_cycles,
-                                       rate_hz=args.rate), "demo config")
+                                       rate_hz=args.rate, robot=args.robot), "demo config")
     print(f"demo: fake cell (seed {args.seed}, {args.time_scale:g}x real time), store {out / 'station.sqlite'}",
           file=sys.stderr)
     outcome = run_procedure(cfg, "iso9283", yes=True, time_scale=args.time_scale, seed=args.seed,

@@ -3,7 +3,8 @@
 Prints the endpoint as one JSON line first (e.g. ``{"host": ..., "port": ...}``
 or ``{"device": "/dev/pts/N"}``), then serves until interrupted.
 
-Each fake module exposes ``start_fake(world, *, host=None, port=None,
+The fakes are the table of :mod:`fakes.registry` (from the device table's
+rows). Each fake module exposes ``start_fake(world, *, host=None, port=None,
 faults=None) -> handle`` where ``handle.endpoint`` is a JSON-able dict and
 ``handle.close()`` stops its servers and joins their threads.
 """
@@ -11,7 +12,6 @@ faults=None) -> handle`` where ``handle.endpoint`` is a JSON-able dict and
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import signal
 import sys
@@ -19,15 +19,6 @@ import threading
 
 from station.errors import ConfigError
 
-#: fake name -> module that provides ``start_fake``
-FAKES = {
-    "tracker-emscon": "fakes.emscon",
-    "tracker-geocom": "fakes.geocom",
-    "controller": "fakes.controller",
-    "ur": "fakes.ur",
-    "odometry": "fakes.odometry",
-    "station": "fakes.station",
-}
 
 
 def parse_faults(items: list[str]) -> dict[str, str]:
@@ -45,7 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fakes", help="run simulated devices on loopback")
     fsub = p.add_subparsers(dest="fakes_cmd", metavar="ACTION")
     s = fsub.add_parser("serve", help="start one fake and serve until interrupted")
-    s.add_argument("name", choices=sorted(FAKES))
+    from fakes.registry import SERVABLE
+
+    s.add_argument("name", choices=sorted(SERVABLE))
     s.add_argument("--host", default=None, help="loopback address to bind (default: the fake's own)")
     s.add_argument("--port", type=int, default=None, help="port (default: the fake's own or 0)")
     s.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second")
@@ -58,10 +51,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    from fakes.registry import fake_module
     from fakes.sim.world import make_world
 
     faults = parse_faults(args.fault)
-    module = importlib.import_module(FAKES[args.name])
+    module = fake_module(args.name)
     world_kwargs = {"seed": args.seed, "time_scale": args.time_scale}
     # a fake simulates the robot its protocol belongs to unless told otherwise (a UR fake is a UR)
     robot = args.robot or getattr(module, "DEFAULT_ROBOT", None)

@@ -16,7 +16,8 @@ as fast as the machine computes) drives its arm through the cycles of seed
 visits P2, P3, P4, P5, P1 in every cycle with fine stops and a dwell at each
 pose, at rated speed (synchronised joint moves at 100 % of the rated joint
 speeds, or straight lines at the rated TCP speed with ``--move linear``).
-Commanded poses are seed 000 Table 2 with one tool orientation (the one the
+Commanded poses are seed 000 Table 2 (the cube fitted to the arm's reach for other arms, e.g.
+``--robot ur5e``) with one tool orientation (the one the
 nominal inverse kinematics finds for P1 from the home pose).
 
 Files written to DIR:

@@ -43,8 +43,9 @@ def _form(action: str, label: str, csrf: str, fields: dict | None = None, name: 
 def station_page(state: dict, csrf: str, procedures: list[str]) -> str:
     """Devices, robots, runs with verdicts, and the form that starts a run."""
     armed = state["armed"]
-    rows_dev = "".join(f"<tr><td>{escape(d['name'])}</td><td>{escape(d['url'])}</td><td>{escape(d['state'])}</td></tr>"
-                       for d in state["devices"])
+    rows_dev = "".join(f"<tr><td>{escape(d['name'])}</td><td>{escape(d.get('kind', ''))}</td>"
+                       f"<td>{escape(d['url'])}</td><td>{escape(d['state'])}</td>"
+                       f"<td class='target'>{escape(d.get('target', ''))}</td></tr>" for d in state["devices"])
     rows_rob = "".join(f"<tr><td>{escape(r['key'])}</td><td>{escape(str(r['model']))}</td>"
                        f"<td><a href='/robots/{escape(str(r['serial']))}'>{escape(str(r['serial']))}</a></td>"
                        f"<td>{escape(str(r['overhaul_state']))}</td></tr>" for r in state["robots"])
@@ -63,7 +64,7 @@ def station_page(state: dict, csrf: str, procedures: list[str]) -> str:
                  f"<label>robot <select name='robot'>{robot_opts}</select></label> {seed} "
                  "<button type='submit' id='btn-start'>Start run</button></form>")
     body = (f"<h1>Station {escape(state['station'])}</h1>{mode}<h2>Start a run</h2>{start}"
-            f"<h2>Devices</h2><table><tr><th>device</th><th>URL</th><th>state</th></tr>{rows_dev}</table>"
+            f"<h2>Devices</h2><table><tr><th>device</th><th>kind</th><th>URL</th><th>state</th><th>moving to</th></tr>{rows_dev}</table>"
             f"<h2>Robots</h2><table><tr><th>key</th><th>model</th><th>serial (history)</th><th>overhaul</th></tr>"
             f"{rows_rob}</table><h2>Runs</h2><div id='runs'>{runs_table(state['runs'])}</div>"
             f"<script>{_STATION_JS}</script>")

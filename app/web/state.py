@@ -165,10 +165,23 @@ def _last_error(journal: list[StepRecord], status: str) -> str | None:
 
 def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
     """Devices, robots, and the latest ``limit`` runs of the store with their verdicts."""
+    from station.device_urls import SCHEMES
+
     active = hub.active()
-    devices = [{"name": name, "url": _redact(dev.url),
-                "state": (f"in use by run {active.run_id}" if active else "idle") if hub.arm
-                else "not used (runs use the fake cell)"} for name, dev in cfg.devices.items()]
+    # the robots' controllers (the FTP+Modbus controller or a UR cobot): what the active run moves to
+    robot_devices = {r.controller for r in cfg.robots.values()}
+    moving_to = ""
+    if active is not None and active.detail.startswith("->"):
+        moving_to = active.detail[2:].strip()
+    devices = []
+    for name, dev in cfg.devices.items():
+        scheme = str(dev.url).split("://", 1)[0].lower()
+        devices.append({
+            "name": name, "url": _redact(dev.url),
+            "kind": SCHEMES[scheme].description if scheme in SCHEMES else "",
+            "state": (f"in use by run {active.run_id}" if active else "idle") if hub.arm
+            else "not used (runs use the fake cell)",
+            "target": moving_to if name in robot_devices else ""})
     robots = [{"key": key, "model": r.model, "serial": r.serial, "overhaul_state": r.overhaul_state}
               for key, r in cfg.robots.items()]
     runs = []

@@ -6,7 +6,8 @@ as fast as the machine computes) drives its arm through the cycles of seed
 visits P2, P3, P4, P5, P1 in every cycle with fine stops and a dwell at each
 pose, at rated speed (synchronised joint moves at 100 % of the rated joint
 speeds, or straight lines at the rated TCP speed with ``--move linear``).
-Commanded poses are seed 000 Table 2 with one tool orientation (the one the
+Commanded poses are seed 000 Table 2 (the cube fitted to the arm's reach for other arms, e.g.
+``--robot ur5e``) with one tool orientation (the one the
 nominal inverse kinematics finds for P1 from the home pose).
 
 Files written to DIR:
@@ -106,7 +107,9 @@ def simulate_iso9283(
     seed : int
         Seed of the world.
     robot : str
-        Robot model; it must reach seed 000 Table 2.
+        Robot model. The poses are seed 000 Table 2 for the arm Table 1 was laid out for, and the same
+        cube fitted to any other arm's reach (:func:`station.analysis.iso_poses.fit_cube_to_reach`: a UR5e
+        gets a 360 mm cube in front of its home pose).
     wait_s : float
         Time at P1 with the tracker measuring before the first move.
     move : {"joint", "linear"}
@@ -126,10 +129,15 @@ def simulate_iso9283(
     _check(cycles, float(dwell_s), float(rate_hz), seed, float(wait_s), move, effects)
     from fakes.sim.clock import ManualClock
     from fakes.sim.world import make_world
-    from station.analysis.iso9283.poses import TABLE2_POSES_MM
+    from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
+    from station.models.robots import get_robot
+    from station.programs.builders import TOOL_DOWN
 
-    names = ("P1", "P2", "P3", "P4", "P5")
-    positions = np.array(TABLE2_POSES_MM, dtype=float)
+    spec = get_robot(robot)
+    cube = fit_cube_to_reach(spec.dh_nominal, spec.joint_limits_rad, spec.home_q_rad, TOOL_DOWN)
+    tp = cube_test_poses(cube.corners_mm, inset_mm=cube.inset_mm)
+    names = tp.names
+    positions = np.array(tp.positions_mm, dtype=float)
     clock = ManualClock()
     world = make_world(robot=robot, seed=seed, clock=clock, effects="realistic" if effects == "realistic" else None,
                        tracker_rate_hz=rate_hz)

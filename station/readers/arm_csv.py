@@ -22,7 +22,7 @@ from station.readers.text import MAX_ABS_MM, MAX_ABS_S, numbered_lines
 REQUIRED = ("q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z")
 OPTIONAL = ("t", "temperature", "load")
 #: columns of a run's export (``station store export``) that are not measurements: accepted and not read
-IGNORED = ("pose", "step_idx")
+IGNORED = ("pose", "step_idx", "q_measured")
 #: most poses of one file: a calibration measures tens to a few thousand stops (each some seconds); 20,000 is
 #: more than a day of stops at 5 s each, and more than the identification and the diagnosis handle in minutes
 MAX_ROWS = 20_000

@@ -19,6 +19,7 @@ and gives Table 2 exactly.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,3 +192,120 @@ def cube_test_poses(
         corners_mm=c.copy(),
         inset_mm=inset,
     )
+
+
+#: the arm the seed's cube (Table 1) was laid out for; the station's stand-in for the NACHI 8608
+TABLE1_ROBOT = "industrial-3100"
+
+
+def span_mm(dh) -> float:
+    """An arm's span from its DH table: the sum of every link length and offset, ``sum |a| + |d|`` (mm).
+
+    Not the reach to a point, but a length that scales with the arm: two arms
+    of the same shape and different size have spans in the ratio of their sizes.
+    """
+    dh = np.asarray(dh, dtype=float)
+    return float(np.sum(np.abs(dh[:, 0])) + np.sum(np.abs(dh[:, 2])))
+
+
+@dataclass(frozen=True)
+class ScaledCube:
+    """Seed 000 Table 1 placed in another arm's workspace (see :func:`cube_for_robot`).
+
+    Attributes
+    ----------
+    corners_mm : ndarray, shape (8, 3)
+        C1..C8 in that arm's base frame.
+    inset_mm : float
+        The corner-to-pose move of sec. 2.2 scaled alike (P2..P5 stay at 8.33 % of the diagonal).
+    scale : float
+        Span of the arm / span of the Table 1 arm (1 for that arm: Table 1 and Table 2 exactly).
+    """
+
+    corners_mm: np.ndarray
+    inset_mm: float
+    scale: float
+    approach_mm: float = 100.0
+
+
+def cube_for_robot(dh, inset_mm: float = 100.0, *, home_q_rad=None, reference_dh=None) -> ScaledCube:
+    """Seed 000 Table 1 -> Table 2 applied to an arm's reach.
+
+    The seed's cube (1200 mm edge, centre (0, 1700, 1400) mm, in front of the
+    arm along +y) and its 100 mm inset are scaled about the base origin by the
+    ratio of the arm's span to the span of the arm the table was laid out for
+    (:data:`TABLE1_ROBOT`, ``reference_dh``), so the cube keeps its share of
+    the reach and the poses of Table 2 their 8.33 % of the diagonal. With
+    ``home_q_rad`` the cube is then turned about the base z axis by the
+    multiple of 90 deg that puts it in front of the arm as it stands at home
+    (the azimuth of its home TCP; +y for the Table 1 arm), so its edges stay
+    parallel to the base axes (sec. 2.1) and the corners are labelled C1..C8
+    as in Table 1 again. For the Table 1 arm the seed's numbers come back
+    exactly. Whether every pose is reachable is the safety gate's question
+    (it solves each target before anything moves).
+    """
+    if reference_dh is None:
+        from station.models.robots import get_robot
+
+        reference_dh = get_robot(TABLE1_ROBOT).dh_nominal
+    scale = span_mm(dh) / span_mm(reference_dh)
+    if not (math.isfinite(scale) and scale > 0):
+        raise ConfigError(f"cannot scale the test cube: span ratio {scale!r}")
+    if abs(scale - 1.0) < 1e-12:
+        scale = 1.0
+    corners = np.asarray(TABLE1_CORNERS_MM, dtype=float) * scale
+    turns = 0
+    if home_q_rad is not None:
+        from station.models import kinematics
+
+        p = kinematics.fk(np.asarray(dh, dtype=float), np.asarray(home_q_rad, dtype=float))[:3, 3]
+        azimuth = math.degrees(math.atan2(p[1], p[0]))
+        turns = int(round((azimuth - 90.0) / 90.0)) % 4
+    for _ in range(turns):  # a quarter turn about z: (x, y) -> (-y, x)
+        corners = np.column_stack([-corners[:, 1], corners[:, 0], corners[:, 2]])
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    corners = 0.5 * (lo + hi) + _CORNER_SIGNS * 0.5 * (hi - lo)
+    return ScaledCube(corners_mm=corners, inset_mm=float(inset_mm) * scale, scale=scale, approach_mm=100.0 * scale)
+
+
+def fit_cube_to_reach(dh, joint_limits_rad, home_q_rad, tool_rotation, *, inset_mm: float = 100.0,
+                      approach_mm: float = 100.0, vap_poses=("P1", "P2", "P4"), shrink: float = 0.95,
+                      max_shrinks: int = 20) -> ScaledCube:
+    """:func:`cube_for_robot`, shrunk about its centre until the arm reaches every point the ISO 9283
+    procedure commands with the tool held at ``tool_rotation`` (3, 3).
+
+    Checked by the nominal inverse kinematics from the home pose: the five
+    poses of sec. 2.2, the inset corners (the best-fit registration) and the
+    vAP pre-points ``pose - approach * d`` for d along +x, +y, +z (sec. 3.3),
+    the approach scaled with the cube. Each shrink multiplies the edge and the
+    inset by ``shrink`` (P2..P5 keep their 8.33 % of the diagonal), so the cube
+    is the largest of the seed's shape and place the arm reaches (sec. 2.1:
+    the largest volume allowed). The arm the table was laid out for gets
+    Table 1 unchanged. ConfigError after ``max_shrinks``.
+    """
+    from station.models import kinematics
+
+    cube = cube_for_robot(dh, inset_mm, home_q_rad=home_q_rad)
+    approach = float(approach_mm) * cube.scale
+    R = np.asarray(tool_rotation, dtype=float)
+    corners, inset = cube.corners_mm, cube.inset_mm
+    for _ in range(max_shrinks + 1):
+        tp = cube_test_poses(corners, inset_mm=inset)
+        centre = corners.mean(axis=0)
+        points = [tp.positions_mm, corners - np.sign(corners - centre) * inset]
+        for name in vap_poses:
+            p = tp.positions_mm[tp.names.index(name)]
+            points.append(p - approach * np.eye(3))
+        pts = np.vstack(points)
+        T = np.repeat(np.eye(4)[None], len(pts), axis=0)
+        T[:, :3, :3] = R
+        T[:, :3, 3] = pts
+        first = kinematics.ik(dh, T[:1], home_q_rad, joint_limits_rad)
+        if first.all_success:
+            sol = kinematics.ik(dh, T, first.q_rad[0], joint_limits_rad)
+            if sol.all_success:
+                return ScaledCube(corners_mm=corners, inset_mm=inset, scale=cube.scale, approach_mm=approach)
+        corners = centre + shrink * (corners - centre)
+        inset *= shrink
+    raise ConfigError(f"no test cube of the seed's shape in front of this arm is reachable with the tool "
+                      f"orientation given (shrunk {max_shrinks} times by {shrink})")
