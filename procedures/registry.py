@@ -91,6 +91,26 @@ def procedure_names() -> tuple[str, ...]:
     return tuple(REGISTRY)
 
 
+def runnable_procedures(cfg) -> tuple[str, ...]:
+    """The procedures this config can run: those whose subject and devices it names for some robot (the
+    trailer needs its [trailer] section, a cell procedure a robot with a controller device)."""
+    from station.errors import StationError
+
+    out = []
+    for name in REGISTRY:
+        spec = get_procedure(name)
+        for robot in list(cfg.robots) or ["r1"]:
+            try:
+                spec.subject(cfg, robot)
+                roles = spec.device_roles(cfg, robot)
+            except StationError:
+                continue
+            if all(device in cfg.devices for device in roles.values()):
+                out.append(name)
+                break
+    return tuple(out)
+
+
 def get_procedure(name: str) -> ProcedureSpec:
     """The spec of procedure ``name``; ConfigError naming the known ones otherwise."""
     if name not in REGISTRY:

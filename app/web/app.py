@@ -54,7 +54,7 @@ HISTORY_NAMES = ("AP_mm", "RP_mm", "vAP_mm", "AD_mm", "RD_mm", "overshoot_mm", "
 
 def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
     """The app of one station: ``hub`` drives runs, ``store`` is read, ``guard`` checks requests."""
-    from procedures.registry import procedure_names
+    from procedures.registry import runnable_procedures
 
     def _html(body: str, status: int = 200) -> HTMLResponse:
         return HTMLResponse(body, status_code=status, headers={"Cache-Control": "no-store",
@@ -112,7 +112,7 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
 
     async def station(request: Request) -> Response:
         st = station_state(hub.cfg, store, hub)
-        return _html(pages.station_page(st, guard.csrf_token, list(procedure_names())))
+        return _html(pages.station_page(st, guard.csrf_token, list(runnable_procedures(hub.cfg))))
 
     async def station_events(request: Request) -> Response:
         def snapshot() -> str:

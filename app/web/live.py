@@ -152,12 +152,14 @@ class RunHub:
     # -- actions ------------------------------------------------------------
     def start(self, procedure: str, robot: str = "r1", seed: int = 0, existing: set[str] | None = None) -> str:
         """Start a new run in a thread; returns its id. ``existing``: ids already in the store."""
-        from procedures.registry import get_procedure
+        from procedures.registry import get_procedure, runnable_procedures
 
         spec = get_procedure(procedure)
-        if robot not in self.cfg.robots and procedure != "trailer":
-            raise ConfigError(f"no robot {robot!r} in the config; known: {', '.join(self.cfg.robots) or 'none'}")
-        serial = spec.subject(self.cfg, robot).serial
+        offered = runnable_procedures(self.cfg)
+        if procedure not in offered:
+            raise ConfigError(f"procedure {procedure!r} cannot run with this config (it can run: "
+                              f"{', '.join(offered) or 'none'})")
+        serial = spec.subject(self.cfg, robot).serial  # an unknown robot of a cell procedure is refused here
         base = f"{serial}-{time.strftime('%Y%m%d-%H%M%S')}"
         taken = set(existing or ()) | set(self._runs)
         run_id, k = base, 1

@@ -18,6 +18,10 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding
 th{background:#f3f3f3}.pass,.done{color:#176b2c;font-weight:600}.fail,.failed{color:#b00020;font-weight:600}
 .aborted,.interrupted{color:#a15c00;font-weight:600}.running{color:#0b57d0;font-weight:600}
 .pending{color:#888}tr.current{background:#eef4ff}
+.banner{position:sticky;top:0;z-index:5;font-size:2em;font-weight:700;padding:.3em .6em;margin:0 0 .5em;border-radius:6px}
+.banner ul{font-size:.45em;font-weight:400;margin:.2em 0 0 1em}
+.v-PASS{background:#cdeccd;color:#0b5d1e}.v-FAIL{background:#f7c9d0;color:#8a0016}
+.v-NOT{background:#ffe8a8;color:#6b4e00}.v-ABORTED{background:#ddd;color:#333}
 #prompt{border:3px solid #0b57d0;padding:1em;margin:1em 0;font-size:1.2em;background:#f5f9ff}
 #prompt button{font-size:1.1em;padding:.4em 1.4em;margin-right:1em}
 .bar{height:14px;background:#eee;width:100%;max-width:600px}.bar div{height:100%;background:#0b57d0}
@@ -84,7 +88,7 @@ def runs_table(runs: list[dict]) -> str:
 def run_page(state: dict, csrf: str) -> str:
     """The run: its steps, the current one, the prompt, controls, results; redrawn from the event stream."""
     rid = escape(state["run_id"])
-    body = (f"<p><a href='/'>&larr; station</a></p><h1>Run {rid}</h1>"
+    body = (f"<div id='banner' class='banner' hidden></div><p><a href='/'>&larr; station</a></p><h1>Run {rid}</h1>"
             f"<p id='summary'></p><div class='bar'><div id='bar' style='width:0%'></div></div>"
             "<div id='prompt' hidden></div><p id='controls'></p><p id='error' class='error'></p>"
             "<h2>Tracker, last seconds</h2><div id='tracker'></div>"
@@ -180,13 +184,19 @@ _RUN_JS = r"""
       ` &mdash; ${st.n_done}/${st.n_steps} steps, elapsed ${fmt(st.elapsed_s)}` +
       (st.status === 'running' ? `, remaining ~${fmt(st.remaining_s)}` : '') + verdict;
     document.getElementById('bar').style.width = (st.n_steps ? 100 * st.n_done / st.n_steps : 0) + '%';
+    // the prompt and the controls are redrawn only when they change: a button under the operator's
+    // finger is never replaced by the next state event (a press held across one would be lost)
     const p = document.getElementById('prompt');
-    if (st.prompt) {
-      p.hidden = false;
-      p.innerHTML = `<p id="prompt-text">${esc(st.prompt.message)}</p>` +
-        form(base + '/answer', 'Yes', {prompt_id: st.prompt.id, answer: 'yes'}) +
-        form(base + '/answer', 'No', {prompt_id: st.prompt.id, answer: 'no'});
-    } else { p.hidden = true; p.innerHTML = ''; }
+    const pid = st.prompt ? String(st.prompt.id) : '';
+    if (p.dataset.promptId !== pid) {
+      p.dataset.promptId = pid;
+      if (st.prompt) {
+        p.hidden = false;
+        p.innerHTML = `<p id="prompt-text">${esc(st.prompt.message)}</p>` +
+          form(base + '/answer', 'Yes', {prompt_id: st.prompt.id, answer: 'yes'}) +
+          form(base + '/answer', 'No', {prompt_id: st.prompt.id, answer: 'no'});
+      } else { p.hidden = true; p.innerHTML = ''; }
+    }
     let c = '';
     if (st.live) {
       c += st.paused ? form(base + '/continue', 'Continue') : form(base + '/pause', 'Pause');
@@ -195,10 +205,24 @@ _RUN_JS = r"""
       c += form(base + '/resume', 'Resume');
     }
     if (st.report) c += `<a id="report" href="${base}/report">HTML report</a>`;
-    document.getElementById('controls').innerHTML = c;
-    document.getElementById('error').textContent = st.error || '';
+    const ctl = document.getElementById('controls');
+    if (ctl.dataset.html !== c) { ctl.dataset.html = c; ctl.innerHTML = c; }
+    const resumable = !st.live && (st.status === 'failed' || st.status === 'aborted');
+    document.getElementById('error').textContent = (st.error || '') +
+      (resumable ? (st.error ? ' ' : '') + 'Press Resume to go on from the last finished step.' : '');
+    // the verdict, once the run has one, in a banner at the top of the page
+    const banner = document.getElementById('banner');
+    const word = st.verdict ? String(st.verdict).toUpperCase() : (resumable ? 'ABORTED' : '');
+    if (word && st.status !== 'running') {
+      banner.hidden = false;
+      banner.className = 'banner v-' + word.split(' ')[0];
+      banner.innerHTML = `<span id="banner-verdict">${esc(word)}</span>` +
+        ((st.reasons || []).length ? `<ul id="banner-reasons">${st.reasons.map(x => `<li>${esc(x)}</li>`).join('')}</ul>` : '');
+    } else { banner.hidden = true; }
     const out = document.getElementById('output');
-    out.hidden = !st.output; out.textContent = st.output || '';
+    // the console's hint to resume from the command line is the Resume button here
+    const text = (st.output || '').split('\n').filter(l => !l.startsWith('resume with: station run')).join('\n');
+    out.hidden = !text.trim(); out.textContent = text;
     let r = '';
     if (st.results.length) {
       r = '<table id="results-table"><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>';
