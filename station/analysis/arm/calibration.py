@@ -127,7 +127,7 @@ def split_poses(n: int, test_fraction: float | None = None, *, kind: str = "tail
     else:
         if q_rad is None or measured_mm is None:
             raise DataError("a spread split needs the joint angles and the measured points")
-        from station.analysis.diagnose.split import workspace_split
+        from station.analysis.arm.split import workspace_split
 
         _, test = workspace_split(np.asarray(q_rad, float), np.asarray(measured_mm, float),
                                   min(max(n_test / n, 0.05), 0.5), seed=0 if seed is None else int(seed))

@@ -41,7 +41,7 @@ from station.numeric import finite_or_none
 
 from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
 from .block_test import model_basis, wald_block
-from .split import workspace_split
+from station.analysis.arm.split import workspace_split
 from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
 
