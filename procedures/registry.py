@@ -22,7 +22,7 @@ from station.errors import ConfigError
 #: procedure name -> module whose ``SPEC`` defines it
 REGISTRY: dict[str, str] = {
     "iso9283": "procedures.iso9283",
-    "trailer": "procedures.trailer_run",
+    "trailer": "procedures.trailer",
     "arm-calibration": "procedures.arm_calibration",
 }
 

@@ -1,45 +1,58 @@
-"""Trailer link-length calibration (seed 003), as a sequence of small steps.
+"""Trailer link-length calibration (seed 003): the plan, the steps, and the procedure's registry entry.
 
-The steps (each ``step(ctx) -> dict | None``, JSON-able output):
+Steps, journaled and resumable like every procedure's (``step(ctx) -> dict``,
+JSON-able output; ``ctx`` the runner's :class:`~station.runner.StepContext`,
+``ctx.session`` a :class:`TrailerSession`):
 
 1. ``check plan`` — every command of the plan (H, C, L of para. [0127] with
    amplitude M) is checked against the jackknife bound of eq. (25) and the
    45 deg joint-angle limit for the nominal lengths, and the speed against
    its limit, before anything moves;
-2. ``start driving`` — curvature set to the first command's start value,
-   then the speed;
-3. ``command k`` — hold the command's start curvature for ``settle_s`` (the
-   joint angle settles), then stream the profile as curvature set points,
-   one per control tick after the newest sample (the jump to the start
-   value is ramped at ``curvature_rate``),
-   recording every sample (device time, speed, curvature, joint angle, the
-   set point in force, segment and phase);
-4. ``stop`` — speed 0, curvature 0;
-5. ``estimate`` — link lengths by the chosen method (default ``dynamic``, on
-   the whole continuous record) and by the comparison methods;
-6. ``report`` — a JSON-able summary.
+2. ``connect odometry`` — the link opened in every session, the trailer
+   stood still first (whatever an earlier session left running);
+3. ``start driving`` — curvature set to the first command's start value,
+   then the speed (again after a resume);
+4. ``command k/n`` — hold the command's start curvature for ``settle_s``
+   (the joint angle settles), then stream the profile as curvature set
+   points, one per control tick after the newest sample (the jump to the
+   start value is ramped at ``curvature_rate``), recording every sample
+   (device time, speed, curvature, joint angle, the set point in force,
+   segment and phase);
+5. ``stop`` — speed 0, curvature 0;
+6. ``estimate`` — link lengths by the chosen method (default ``dynamic``) and
+   by the comparison methods; a resumed run's record is estimated per
+   continuous piece and combined;
+7. ``report`` — the HTML report and the stored result.
 
-:mod:`procedures.trailer_run` runs them as journaled steps of the station's
-runner (the one way every procedure runs). Samples go through
-``ctx.record(stream, columns)`` as they are taken (the run store), and
+Samples go to the run store as they are taken (``ctx.record``), and
 ``ctx.checkpoint()`` is called before every sample read, so a pause or abort
-takes effect inside a command that streams for a minute.
+takes effect inside a command that streams for a minute. A new session (a
+resume) rebuilds the record of its finished commands from the store before
+it goes on; a command interrupted half-way is driven again from its start.
+The trailer is stopped after a failure or an abort.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from procedures.preflight import report_dir_problems
+from procedures.registry import ProcedureSpec, Subject
+from procedures.session import Session
 from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
 from station.errors import ConfigError, StationError
 from station.models.trailer import (
     COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,
     check_lengths, command_curvature,
 )
+from station.runner import Procedure, Step, StepContext
 
 #: speed limit of the plan, m/s
 MAX_PLAN_SPEED_M_S = 3.0
@@ -114,29 +127,47 @@ class TrailerCalibrationPlan:
                 raise ConfigError(f"plan method {name!r} unknown; use one of M1..M24, odr, dynamic")
 
 
-@dataclass
-class TrailerCalibrationContext:
-    """What the steps share: the driver, the plan, the record, the results.
+def plan_params(plan: TrailerCalibrationPlan) -> dict:
+    d = dataclasses.asdict(plan)
+    d["commands"] = [[k, float(m)] for k, m in plan.commands]
+    d["compare"] = list(plan.compare)
+    return d
 
-    ``record(stream, columns)`` is called with every batch of samples as it
-    is taken (stream ``"odometry"``) and with the curvature set points of
-    each command once it is done (stream ``"setpoints"``: the device time
-    each was applied — from its acknowledgement, or the intended tick when
-    the acknowledgement was lost on the line — and its value).
+
+def plan_from_params(p: dict) -> TrailerCalibrationPlan:
+    kw = {f.name: p[f.name] for f in dataclasses.fields(TrailerCalibrationPlan) if f.name in p}
+    kw["commands"] = tuple((k, float(m)) for k, m in kw.get("commands", ()))
+    kw["compare"] = tuple(kw.get("compare", ()))
+    return TrailerCalibrationPlan(**kw)
+
+
+@dataclass(frozen=True)
+class SetPoint:
+    """A curvature set point: its value and the device time it was applied (None: its acknowledgement
+    was lost on the line). The driver's own sent commands have the same two attributes."""
+
+    value: float
+    t_applied_s: float | None
+
+
+@dataclass
+class TrailerSession(Session):
+    """What the trailer steps share within one session: the odometry link and the run's record.
+
+    ``samples`` (``COLUMNS`` -> list) and ``setpoints`` (``[(set point,
+    intended apply time)]``, send order) are rebuilt from the store when a
+    new session starts (:func:`_record`); ``estimates`` and ``errors`` are
+    the estimate step's.
     """
 
-    driver: object
-    plan: TrailerCalibrationPlan = field(default_factory=TrailerCalibrationPlan)
-    record: Callable[[str, dict], None] | None = None
-    #: called before every sample read: blocks while the run is paused, raises when it is aborted
-    checkpoint: Callable[[], None] | None = None
-    samples: dict = field(default_factory=lambda: {c: [] for c in COLUMNS})
+    odometry: Any = None
+    plan: TrailerCalibrationPlan | None = None
+    samples: dict | None = None
+    setpoints: list = field(default_factory=list)
     estimates: dict = field(default_factory=dict)
     errors: dict = field(default_factory=dict)
-    log: list = field(default_factory=list)
     kappa_cmd: float = 0.0
     max_steady_psi_rad: float = 0.0
-    setpoints: list = field(default_factory=list)  # [SentCommand-like, intended apply time]
 
     def setpoint_timeline(self) -> tuple[np.ndarray, np.ndarray]:
         """``(t_applied, value)`` of every curvature set point, device time, in send order.
@@ -169,10 +200,27 @@ class TrailerCalibrationContext:
         return out
 
 
+def _record(ctx: StepContext) -> TrailerSession:
+    """The session, its plan and record rebuilt from the store once in a new session."""
+    s: TrailerSession = ctx.session
+    if s.samples is None:
+        s.plan = plan_from_params(ctx.params["plan"])
+        s.samples = {c: [] for c in COLUMNS}
+        done = ctx.samples("odometry")
+        if done:
+            for c in COLUMNS:
+                s.samples[c] = list(done[c])
+        sp = ctx.samples("setpoints")
+        if sp:
+            s.setpoints = [(SetPoint(float(v), None if math.isnan(ta) else float(ta)), float(ti))
+                           for v, ta, ti in zip(sp["value"], sp["t_applied"], sp["t_intended"])]
+    return s
+
+
 # ----------------------------------------------------------------------------- steps
-def check_plan(ctx: TrailerCalibrationContext) -> dict:
-    """Step 1: refuse a plan that passes eq. (25) or 45 deg for the nominal lengths."""
-    plan = ctx.plan
+def plan_check(plan: TrailerCalibrationPlan) -> dict:
+    """Every command of ``plan`` against eq. (25) and the 45 deg limit for the nominal lengths
+    (StationError naming the command); the settling each jump needs against ``settle_s``."""
     tau = np.linspace(0.0, plan.duration_s, 2001)
     worst = 0.0
     for i, (kind, M) in enumerate(plan.commands):
@@ -181,7 +229,6 @@ def check_plan(ctx: TrailerCalibrationContext) -> dict:
             worst = max(worst, check_curvature_command(kappa, plan.nominal_L1_m, plan.nominal_L2_m))
         except StationError as exc:
             raise type(exc)(f"plan.commands[{i}] ({kind}, M={M}): {exc}") from exc
-    ctx.max_steady_psi_rad = worst
     # time to ramp into each command and let the joint angle settle (3 L2/v)
     ends = [0.0] + [float(command_curvature(k, M, np.array([plan.duration_s]), plan.omega_rad_s)[0])
                     for k, M in plan.commands[:-1]]
@@ -192,29 +239,56 @@ def check_plan(ctx: TrailerCalibrationContext) -> dict:
             "settled": bool(all(n <= plan.settle_s for n in need))}
 
 
-def start_driving(ctx: TrailerCalibrationContext) -> dict:
-    """Step 2: at rest, steer to the first command's start curvature, then drive."""
-    kind, M = ctx.plan.commands[0]
-    k0 = float(command_curvature(kind, M, np.array([0.0]), ctx.plan.omega_rad_s)[0])
-    ctx.driver.command_speed(0.0)
-    t_k = ctx.driver.command_curvature(k0)
-    ctx.setpoints.append((_Applied(k0, t_k), t_k))
-    ctx.kappa_cmd = k0
-    t_v = ctx.driver.command_speed(ctx.plan.v_m_s)
+def check_plan(ctx: StepContext) -> dict:
+    """Step 1: refuse a plan that passes eq. (25) or 45 deg for the nominal lengths."""
+    s = _record(ctx)
+    out = plan_check(s.plan)
+    s.max_steady_psi_rad = math.radians(out["max_steady_psi_deg"])
+    return out
+
+
+def connect(ctx: StepContext) -> dict:
+    """Step 2: open the odometry link; whatever an earlier session left running stands still first."""
+    s = _record(ctx)
+    drv = s.odometry = s.device("odometry")
+    t_v = drv.command_speed(0.0)
+    return {"device": s.devices.describe("odometry"), "t_stopped_s": t_v}
+
+
+def start_driving(ctx: StepContext) -> dict:
+    """Step 3: at rest, steer to the first command's start curvature, then drive."""
+    ctx.checkpoint()
+    s = _record(ctx)
+    kind, M = s.plan.commands[0]
+    k0 = float(command_curvature(kind, M, np.array([0.0]), s.plan.omega_rad_s)[0])
+    s.odometry.command_speed(0.0)
+    t_k = s.odometry.command_curvature(k0)
+    s.setpoints.append((SetPoint(k0, t_k), t_k))
+    s.kappa_cmd = k0
+    t_v = s.odometry.command_speed(s.plan.v_m_s)
     return {"kappa0_1_m": k0, "t_kappa_s": t_k, "t_speed_s": t_v}
 
 
-def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
-    """Step 3: settle, then stream command ``index`` of the plan, recording every sample.
+def run_command(index: int):
+    """Step 4, command ``index``: settle, then stream the command, recording every sample.
 
     Each round takes every sample waiting (all recorded) and sets the point
     for the tick after the newest one, so the set points follow the device's
     time even when the station lags behind the stream.
     """
-    plan = ctx.plan
+    def run(ctx: StepContext) -> dict:
+        ctx.checkpoint()
+        s = _record(ctx)
+        ctx.progress(f"{s.plan.commands[index][0]} M={s.plan.commands[index][1]:g}")
+        return _command(ctx, s, index)
+    return run
+
+
+def _command(ctx: StepContext, s: TrailerSession, index: int) -> dict:
+    plan = s.plan
     kind, M = plan.commands[index]
-    drv = ctx.driver
-    waiting = _read(ctx)
+    drv = s.odometry
+    waiting = _read(ctx, s)
     t_seg = waiting[-1].t_s
     t_prof = t_seg + plan.settle_s
     t_end = t_prof + plan.duration_s
@@ -227,7 +301,7 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
         for sample in waiting:
             phase = 0 if sample.t_s < t_prof else 1
             for c, val in zip(COLUMNS, (sample.t_s, sample.v_m_s, sample.kappa_1_m, sample.psi_rad,
-                                        ctx.kappa_cmd, index, phase)):
+                                        s.kappa_cmd, index, phase)):
                 batch[c].append(val)
             n += 1
             if last_t is not None and sample.t_s > last_t:
@@ -241,20 +315,20 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
         t_apply = last_t + step
         if t_apply < t_prof:
             room = plan.curvature_rate * step
-            target = ctx.kappa_cmd + min(max(k0 - ctx.kappa_cmd, -room), room)
+            target = s.kappa_cmd + min(max(k0 - s.kappa_cmd, -room), room)
         else:
             tau = min(t_apply - t_prof, plan.duration_s)
             target = float(command_curvature(kind, M, np.array([tau]), plan.omega_rad_s)[0])
-        if abs(target - ctx.kappa_cmd) > 1e-9:
+        if abs(target - s.kappa_cmd) > 1e-9:
             sent = drv.send_curvature(target)  # streamed; a refusal raises from the next read
-            ctx.setpoints.append((sent, t_apply))
-            ctx.kappa_cmd = target
+            s.setpoints.append((sent, t_apply))
+            s.kappa_cmd = target
         if len(batch["t"]) >= 20:  # commit often: what is not committed is not yet acknowledged
-            _flush(ctx, batch)
-        waiting = _read(ctx)
-    _flush(ctx, batch)
-    if ctx.record is not None:
-        seg = [(sp, ti) for sp, ti in ctx.setpoints if ti > t_seg]
+            _flush(ctx, s, batch)
+        waiting = _read(ctx, s)
+    _flush(ctx, s, batch)
+    seg = [(sp, ti) for sp, ti in s.setpoints if ti > t_seg]
+    if seg:
         ctx.record("setpoints", {
             "t_intended": np.array([ti for _, ti in seg]),
             "t_applied": np.array([np.nan if getattr(sp, "t_applied_s", None) is None else sp.t_applied_s
@@ -265,65 +339,109 @@ def run_command(ctx: TrailerCalibrationContext, index: int) -> dict:
             "set_points": drv.command_stats.as_dict() if hasattr(drv, "command_stats") else None}
 
 
-def _read(ctx: TrailerCalibrationContext) -> list:
+def _read(ctx: StepContext, s: TrailerSession) -> list:
     """The next sample (waiting for it) and every one already queued, after the run's checkpoint."""
-    if ctx.checkpoint is not None:
-        ctx.checkpoint()
-    return [ctx.driver.read_sample(ctx.plan.sample_timeout_s)] + ctx.driver.drain()
+    ctx.checkpoint()
+    return [s.odometry.read_sample(s.plan.sample_timeout_s)] + s.odometry.drain()
 
 
-def stop(ctx: TrailerCalibrationContext) -> dict:
-    """Step 4: speed 0 and straight ahead; samples taken meanwhile are kept (phase 2)."""
-    t_v = ctx.driver.command_speed(0.0)
-    t_k = ctx.driver.command_curvature(0.0)
-    ctx.setpoints.append((_Applied(0.0, t_k), t_k))
-    ctx.kappa_cmd = 0.0
+def stop(ctx: StepContext) -> dict:
+    """Step 5: speed 0 and straight ahead; samples taken meanwhile are kept (phase 2)."""
+    ctx.checkpoint()
+    s = _record(ctx)
+    t_v = s.odometry.command_speed(0.0)
+    t_k = s.odometry.command_curvature(0.0)
+    s.setpoints.append((SetPoint(0.0, t_k), t_k))
+    s.kappa_cmd = 0.0
     batch = {c: [] for c in COLUMNS}
-    for s in ctx.driver.drain():
-        for c, val in zip(COLUMNS, (s.t_s, s.v_m_s, s.kappa_1_m, s.psi_rad, 0.0,
-                                    len(ctx.plan.commands) - 1, 2)):
+    for sample in s.odometry.drain():
+        for c, val in zip(COLUMNS, (sample.t_s, sample.v_m_s, sample.kappa_1_m, sample.psi_rad, 0.0,
+                                    len(s.plan.commands) - 1, 2)):
             batch[c].append(val)
     n = len(batch["t"])
-    _flush(ctx, batch)
+    _flush(ctx, s, batch)
     return {"t_speed_s": t_v, "t_kappa_s": t_k, "samples_while_stopping": n}
 
 
-def estimate(ctx: TrailerCalibrationContext) -> dict:
-    """Step 5: the chosen estimate (errors raise) and the comparisons (errors reported)."""
-    data = ctx.arrays()
-    ctx.estimates[ctx.plan.method] = estimate_trailer(data, ctx.plan.method)
-    for name in ctx.plan.compare:
-        if name == ctx.plan.method:
+def estimate(ctx: StepContext) -> dict:
+    """Step 6: the chosen estimate (errors raise) and the comparisons (errors reported); a resumed run's
+    record, split where the trailer stood still between sessions, is estimated per continuous piece by
+    the dynamic method and the pieces combined."""
+    s = _record(ctx)
+    data = s.arrays()
+    pieces = continuous_pieces(data["t"])
+    for name in (s.plan.method, *s.plan.compare):
+        if name in s.estimates:
             continue
         try:
-            ctx.estimates[name] = estimate_trailer(data, name)
+            if name == "dynamic" and len(pieces) > 1:
+                parts = [estimate_trailer({k: v[sl] for k, v in data.items()}, name) for sl in pieces]
+                s.estimates[name] = combine_estimates(name, parts)
+            else:
+                s.estimates[name] = estimate_trailer(data, name)
         except StationError as exc:
-            ctx.errors[name] = str(exc)
-    return {name: est.to_json() for name, est in ctx.estimates.items()}
+            if name == s.plan.method:
+                raise
+            s.errors[name] = str(exc)
+    return {name: est.to_json() for name, est in s.estimates.items()}
 
 
-def report(ctx: TrailerCalibrationContext) -> dict:
-    """Step 6: summary of the run."""
-    main = ctx.estimates.get(ctx.plan.method)
-    data = ctx.arrays()
-    return {
-        "method": ctx.plan.method,
-        "result": main.to_json() if main is not None else None,
-        "comparisons": {k: v.to_json() for k, v in ctx.estimates.items() if k != ctx.plan.method},
-        "comparison_errors": dict(ctx.errors),
+def report(ctx: StepContext) -> dict:
+    """Step 7: the characteristics, the HTML report and the stored result."""
+    from station.report import Report, plot_xy, write_report
+
+    s = _record(ctx)
+    main = s.estimates[s.plan.method]
+    data = s.arrays()
+    drv = s.odometry
+    out = {
+        "method": s.plan.method,
+        "result": main.to_json(),
+        "comparisons": {k: v.to_json() for k, v in s.estimates.items() if k != s.plan.method},
+        "comparison_errors": dict(s.errors),
         "n_samples": int(data["t"].size),
-        "nominal_L_m": [ctx.plan.nominal_L1_m, ctx.plan.nominal_L2_m],
-        "line": ctx.driver.stats.as_dict() if hasattr(ctx.driver, "stats") else None,
-        "set_points": ctx.driver.command_stats.as_dict() if hasattr(ctx.driver, "command_stats") else None,
+        "nominal_L_m": [s.plan.nominal_L1_m, s.plan.nominal_L2_m],
+        "line": drv.stats.as_dict() if hasattr(drv, "stats") else None,
+        "set_points": drv.command_stats.as_dict() if hasattr(drv, "command_stats") else None,
     }
+    rows = []
+    for name, est in s.estimates.items():
+        j = est.to_json()
+        for key in ("L1_m", "L2_m"):
+            rows.append({"pose": name, "name": key, "value": j[key], "unit": "m", "limit": None, "passed": None})
+            rows.append({"pose": name, "name": key.replace("_m", "_sigma_m"), "value": j[f"{key[:2]}_sigma_m"],
+                         "unit": "m", "limit": None, "passed": None})
+    ctx.store.put_characteristics(ctx.run_id, rows)
+    k = np.linspace(np.nanmin(data["kappa"]), np.nanmax(data["kappa"]), 200)
+    # steady state of eq. (23) for the estimated lengths: sin psi = kappa (L2 + L1 cos psi)
+    L1, L2 = main.L1_m, main.L2_m
+    psi = _steady_psi(k, L1, L2)
+    figs = [("Joint angle against curvature: measurements and the steady state of eq. (23) for the estimated lengths",
+             plot_xy([("measured", data["kappa"], np.degrees(data["psi"]), "."),
+                      (f"eq. (23), L1={L1:.3f} m, L2={L2:.3f} m", k, np.degrees(psi), "-")],
+                     xlabel="curvature [1/m]", ylabel="joint angle [deg]", title="psi vs kappa"))]
+    run = ctx.store.run(ctx.run_id)
+    rep = Report(
+        title=f"Trailer calibration {ctx.run_id}",
+        facts={"trailer": f"serial {run.serial}", "method": s.plan.method,
+               "commands": ", ".join(f"{kd} M={m:g}" for kd, m in s.plan.commands),
+               "samples": str(out["n_samples"]),
+               "nominal L1, L2": f"{s.plan.nominal_L1_m} m, {s.plan.nominal_L2_m} m"},
+        rows=rows, figures=figs, notes=list(main.to_json().get("warnings", [])))
+    path = write_report(rep, Path(ctx.params.get("report_dir", "reports")) / f"{ctx.run_id}.html")
+    out["report"] = str(path.resolve())
+    ctx.store.put_result(ctx.run_id, "trailer", out)
+    return out
 
 
-@dataclass(frozen=True)
-class _Applied:
-    """A set point acknowledged by a blocking command."""
-
-    value: float
-    t_applied_s: float
+def _steady_psi(kappa: np.ndarray, L1: float, L2: float) -> np.ndarray:
+    """Stable root of eq. (23), sin psi = kappa (L2 + L1 cos psi), NaN beyond eq. (25)."""
+    # a sin + b cos = c with a = 1, b = -kappa L1, c = kappa L2
+    b = -kappa * L1
+    c = kappa * L2
+    r = np.sqrt(1 + b**2)
+    with np.errstate(invalid="ignore"):
+        return np.arcsin(c / r) - np.arctan2(b, 1.0)
 
 
 def interval_average(t_s, t_change, values, fallback) -> np.ndarray:
@@ -352,18 +470,133 @@ def interval_average(t_s, t_change, values, fallback) -> np.ndarray:
     return out
 
 
-def _flush(ctx: TrailerCalibrationContext, batch: dict) -> None:
+def _flush(ctx: StepContext, s: TrailerSession, batch: dict) -> None:
+    """Commit a batch of samples (acknowledged once in the store), then keep it in the session's record."""
     if not batch["t"]:
         return
-    if ctx.record is not None:
-        ctx.record("odometry", {c: np.asarray(batch[c]) for c in COLUMNS})
+    ctx.record("odometry", {c: np.asarray(batch[c]) for c in COLUMNS})
     for c in COLUMNS:
-        ctx.samples[c].extend(batch[c])
+        s.samples[c].extend(batch[c])
         batch[c].clear()
 
 
-__all__ = [
-    "ESTIMATORS", "TrailerCalibrationPlan", "TrailerCalibrationContext",
-    "check_plan", "start_driving", "run_command", "stop", "estimate", "report",
-    "estimate_trailer", "interval_average",
-]
+def continuous_pieces(t_s: np.ndarray, gap_factor: float = 5.0) -> list[slice]:
+    """Slices of ``t_s`` without a time step longer than ``gap_factor`` x the median step."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 3:
+        return [slice(0, t.size)]
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > gap_factor * np.median(dt)) + 1
+    edges = np.concatenate([[0], cut, [t.size]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def combine_estimates(method: str, parts: list) -> Any:
+    """Inverse-covariance combination of independent estimates of (L1, L2)."""
+    from station.analysis.trailer.least_squares import TrailerEstimate
+
+    info = np.zeros((2, 2))
+    acc = np.zeros(2)
+    for e in parts:
+        c = e.L1_L2_corr * e.L1_sigma_m * e.L2_sigma_m
+        cov = np.array([[e.L1_sigma_m**2, c], [c, e.L2_sigma_m**2]])
+        w = np.linalg.inv(cov)
+        info += w
+        acc += w @ np.array([e.L1_m, e.L2_m])
+    cov = np.linalg.inv(info)
+    L = cov @ acc
+    s1, s2 = np.sqrt(np.diag(cov))
+    return TrailerEstimate(
+        method, float(L[0]), float(L[1]), float(s1), float(s2), float(cov[0, 1] / (s1 * s2)),
+        float(max(e.condition_number for e in parts)), int(sum(e.n_samples for e in parts)),
+        {"pieces": [e.to_json() for e in parts]},
+        (f"the record has {len(parts)} continuous pieces (a resumed run): {method} estimated per piece "
+         f"and combined by inverse covariance",),
+    )
+
+
+def safe_state(session: TrailerSession) -> None:
+    drv = session.odometry
+    if drv is not None:
+        try:
+            drv.command_speed(0.0)
+        except StationError as exc:
+            raise StationError(f"could not stop the trailer: {exc}") from exc
+
+
+def build_procedure(plan: TrailerCalibrationPlan) -> Procedure:
+    steps = [
+        Step("check plan", check_plan, every_session=True),
+        Step("connect odometry", connect, every_session=True),
+        Step("start driving", start_driving, every_session=True),
+    ]
+    for i, (kind, M) in enumerate(plan.commands):
+        steps.append(Step(f"command {i + 1}/{len(plan.commands)}: {kind} M={M:g}", run_command(i)))
+    steps += [Step("stop", stop), Step("estimate", estimate), Step("report", report)]
+    return Procedure("trailer", steps, safe_state=safe_state)
+
+
+# ----------------------------------------------------------------------------- the registry entry
+def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
+    """The stored plan of a new run, from the config's [trailer] section."""
+    tc = _trailer_section(cfg)
+    kw = dict(commands=tuple((k, float(m)) for k, m in tc.commands), duration_s=tc.duration_s,
+              settle_s=tc.settle_s, v_m_s=tc.v_m_s, nominal_L1_m=tc.nominal_L1_m, nominal_L2_m=tc.nominal_L2_m,
+              method=tc.method)
+    kw.update(overrides)
+    return {"plan": plan_params(TrailerCalibrationPlan(**kw)), "report_dir": report_dir}
+
+
+def _trailer_section(cfg):
+    if cfg.trailer is None:
+        raise ConfigError("trailer: the config has no [trailer] section (odometry device, nominal lengths)")
+    return cfg.trailer
+
+
+def subject(cfg, robot: str) -> Subject:
+    tc = _trailer_section(cfg)
+    return Subject("trailer", tc.serial, None, f"the trailer (serial {tc.serial})")
+
+
+def device_roles(cfg, robot: str) -> dict[str, str]:
+    return {"odometry": _trailer_section(cfg).odometry}
+
+
+def summary(store, run_id: str) -> list[str]:
+    """The estimates (chosen method first, then the comparisons) and the report, as console lines."""
+    res = store.result(run_id, "trailer")
+    rows = [res["result"]] + list(res["comparisons"].values())
+
+    def f(v, w, d):
+        return f"{v:>{w}.{d}f}" if v is not None else f"{'-':>{w}}"
+
+    lines = [f"{'method':<10}{'L1 m':>10}{'+-':>8}{'L2 m':>10}{'+-':>8}{'cond':>10}"]
+    for r in rows:
+        lines.append(f"{r['method']:<10}{f(r['L1_m'], 10, 4)}{f(r['L1_sigma_m'], 8, 4)}{f(r['L2_m'], 10, 4)}"
+                     f"{f(r['L2_sigma_m'], 8, 4)}{f(r['condition_number'], 10, 1)}")
+    lines.append(f"report: {res['report']}")
+    return lines
+
+
+def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
+    """The plan against eq. (25), the 45 deg joint-angle limit and the report folder."""
+    problems = report_dir_problems(params.get("report_dir", "reports"))
+    try:
+        plan_check(plan_from_params(params["plan"]))
+    except StationError as exc:
+        problems.append(f"trailer plan: {exc}")
+    return problems
+
+
+SPEC = ProcedureSpec(
+    name="trailer",
+    new_params=new_params,
+    build=lambda params: build_procedure(plan_from_params(params["plan"])),
+    new_session=lambda devices: TrailerSession(devices),
+    subject=subject,
+    device_roles=device_roles,
+    fake_cell="fakes.cells:trailer_cell",
+    result_key="trailer",
+    summary=summary,
+    preflight=preflight_problems,
+)

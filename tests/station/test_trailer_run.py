@@ -15,7 +15,7 @@ from fakes.sim.trailer import SimTrailer
 from fakes.sim.world import make_world
 from procedures import trailer as tp
 from procedures.devices import DeviceSet
-from procedures.trailer_run import TrailerSession, build_procedure, plan_params
+from procedures.trailer import TrailerSession, build_procedure, plan_params
 from app.assemble import run_procedure
 from station.errors import PreflightError
 from station.config import config_from_dict
@@ -119,7 +119,7 @@ def test_unsafe_trailer_plan_refused_before_anything_moves(tmp_path):
 
 
 def test_pieces_and_inverse_covariance_combination(rng):
-    from procedures.trailer_run import combine_estimates, continuous_pieces
+    from procedures.trailer import combine_estimates, continuous_pieces
     from station.analysis.trailer.least_squares import TrailerEstimate
 
     t = np.concatenate([np.arange(0, 10, 0.1), 50 + np.arange(0, 5, 0.1)])

@@ -9,8 +9,8 @@ import pytest
 
 from fakes.sim.trailer import record_commands
 from procedures.devices import DeviceSet
-from procedures.trailer import TrailerCalibrationContext, TrailerCalibrationPlan, check_plan
-from procedures.trailer_run import TrailerSession, build_procedure, plan_params, preflight_problems
+from procedures.trailer import (TrailerCalibrationPlan, TrailerSession, build_procedure, plan_check, plan_params,
+                                preflight_problems)
 from app.cli import main
 from station.readers.trailer_csv import read_trailer_csv, write_trailer_csv
 from station.errors import ConfigError, DataError, DeviceTimeout
@@ -39,7 +39,7 @@ def test_procedure_calibrates_through_driver_and_fake(odometry, tmp_path):
     plan = TrailerCalibrationPlan(**SHORT)
     out, store, session = _run(drv, plan, tmp_path)
     assert out.status == "done", out.error
-    tc = session.trailer_ctx
+    tc = session  # the session holds the record and the estimates
     est = tc.estimates["dynamic"]
     assert est.method == "dynamic" and est.details["input"] == "commanded curvature as instrument"
     assert abs(est.L1_m - 1.25) < 5 * est.L1_sigma_m and abs(est.L2_m - 2.48) < 5 * est.L2_sigma_m
@@ -78,7 +78,7 @@ def test_plan_check_refuses_before_anything_moves(odometry, tmp_path):
     assert out.status == "failed" and "CurvatureBoundError" in out.error and "plan.commands[1]" in out.error
     assert [s.name for s in store.steps("t")] == ["check plan"]
     with pytest.raises(JointAngleLimitError, match="45"):
-        check_plan(TrailerCalibrationContext(drv, TrailerCalibrationPlan(commands=(("L", 0.22),))))
+        plan_check(TrailerCalibrationPlan(commands=(("L", 0.22),)))
     assert fake.stats["commands"] == 0
     with pytest.raises(ConfigError, match="method"):
         TrailerCalibrationPlan(method="M30")
