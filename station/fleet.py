@@ -39,6 +39,8 @@ def robot_history(store: RunStore, serial: str, name: str, pose: str | None = No
     says whether the run came after the robot's last recorded overhaul
     (``since_overhaul``).
     """
+    if not store.robot_models(serial):
+        return []  # no robot of that serial
     model, serial = store.resolve_robot(serial, model)
     sql = ("SELECT r.run_id, r.station, b.model, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
            " FROM characteristics c JOIN runs r ON r.run_id=c.run_id JOIN robots b ON b.robot_id=r.robot_id"

@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.set_defaults(func=_exceeding)
     o = s.add_parser("overhaul", help="record an overhaul of a robot (since-overhaul figures and drift count from it)")
     _common(o)
-    o.add_argument("--serial", required=True)
+    o.add_argument("--serial", required=True, help="the robot's serial")
     o.add_argument("--model", default=None,
                    help="the robot's model (default: the one model the store knows this serial of)")
     o.add_argument("--date", required=True, metavar="WHEN",
@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.set_defaults(func=_overhaul)
     ol = s.add_parser("overhauls", help="list the recorded overhauls")
     _common(ol)
-    ol.add_argument("--serial", default=None)
-    ol.add_argument("--json", action="store_true")
+    ol.add_argument("--serial", default=None, help="one robot's (default: every robot's)")
+    ol.add_argument("--json", action="store_true", help=JSON_HELP)
     ol.set_defaults(func=_overhauls)
     x = s.add_parser("export", help="write a run's samples, journal and results as CSV or Parquet")
     x.add_argument("run_id", help="the run to export (station store runs lists them)")

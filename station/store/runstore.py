@@ -516,6 +516,8 @@ class RunStore:
         ``created_at`` (epoch s), ``overhaul_state`` (the run's label),
         ``pose``, ``value``, ``limit``, ``passed`` (None without a limit).
         """
+        if not self.robot_models(serial):
+            return []  # no robot of that serial: nothing to show (the command says so)
         model, serial = self.resolve_robot(serial, model)
         sql = (
             "SELECT r.run_id, r.created_at, r.overhaul_state, c.pose, c.value, c.limit_value, c.passed"
