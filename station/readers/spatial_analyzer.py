@@ -108,6 +108,7 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False,
     seen_marker = False
     rows: list[tuple[str, str, float, float, float, float | None, int]] = []
     stamps = []
+    last_stamp: tuple = (None, None)
     has_time: bool | None = None
     header_seen = False
     for ln, line in numbered_lines(p):
@@ -149,7 +150,8 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False,
             raise DataError(f"{p}: line {ln}: " + ("no date time where the rows before have one" if has_time
                                                     else "a date time where the rows before have none"))
         if this_time:
-            st = parse_stamp(stamp)
+            st = last_stamp[1] if stamp == last_stamp[0] else parse_stamp(stamp)  # coarse stamps repeat
+            last_stamp = (stamp, st)
             if st is None:
                 raise DataError(f"{p}: line {ln}, column 'date time': {stamp[:40]!r} is not a date and time this "
                                 f"reader knows ({FORM_TEXT})")

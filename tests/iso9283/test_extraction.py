@@ -230,3 +230,22 @@ def test_equivalent_to_the_direct_transcription(rng, bench_module):
     assert len(centers) == ex.moves_i.shape[0]
     assert bench_module.same_choices(centers, ex)
     assert (~ex.stops.fallback).sum() >= 10  # enough phases compared
+
+
+def test_the_options_object_and_keywords_are_one_setting(rng):
+    from station.analysis.iso9283.extraction import ExtractionOptions
+
+    s = iso_stream(rng, n_cycles=2, rate_hz=200.0, offsets_mm=random_offsets(rng), scatter_mm=SCATTER,
+                   noise_mm=NOISE)
+    opt = ExtractionOptions(window_s=0.2, initial_rest_stop=True)
+    a = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5, options=opt)
+    b = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5, window_s=0.2, initial_rest_stop=True)
+    c = extract_attained_poses(s.t, s.xyz, CMD, names=NAMES5, options=ExtractionOptions(window_s=0.2),
+                               initial_rest_stop=True)
+    for other in (b, c):
+        assert np.array_equal(a.stops.position_mm, other.stops.position_mm) and a.params == other.params
+    assert a.params.M == round(0.2 * 200.0 / 2) and a.stops.initial.any()
+    with pytest.raises(TypeError, match="window_ms"):
+        extract_attained_poses(s.t, s.xyz, CMD, window_ms=0.2)
+    with pytest.raises(DataError, match="gap_factor"):
+        extract_attained_poses(s.t, s.xyz, CMD, options=ExtractionOptions(gap_factor=0.5))

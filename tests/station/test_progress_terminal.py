@@ -16,14 +16,11 @@ import subprocess
 import sys
 import termios
 import time
-from pathlib import Path
 
 import pyte
-import pytest
 
 from app.cli import main
 
-ROOT = Path(__file__).resolve().parents[2]
 COLS = 80
 
 

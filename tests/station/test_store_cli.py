@@ -35,4 +35,3 @@ def test_history_exceeding_and_export_from_the_command_line(tmp_path, capsys):
     assert main(["store", "export", "a1", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 0
     assert (tmp_path / "x" / "characteristics.csv").read_text().count("RP_mm") == 1
     assert main(["store", "export", "zz", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 2
-

@@ -695,48 +695,13 @@ def _check_commanded(commanded_mm, names, order):
     return c, names, order_idx
 
 
-def extract_attained_poses(
-    t_s,
-    xyz_mm,
-    commanded_mm,
-    *,
-    names=None,
-    order=None,
-    valid=None,
-    window_s: float = 0.1,
-    velocity_step_s: float = 0.01,
-    M: int | None = None,
-    Mp: int | None = None,
-    smooth_s: float | None = None,
-    v_rest_mm_s: float | None = None,
-    min_move_mm: float = 1.0,
-    min_dwell_s: float | None = None,
-    gap_factor: float = 1.5,
-    break_factor: float = 5.0,
-    assign_tol_mm: float = 25.0,
-    min_fallback_M: int = 1,
-    approach_final_mm: float = 50.0,
-    initial_rest_stop: bool = False,
-) -> Extraction:
-    """Attained poses of a continuous stream, assigned to commanded poses and cycles.
+@dataclass(frozen=True)
+class ExtractionOptions:
+    """Settings of the attained-pose extraction (:func:`extract_attained_poses`); every field has the seed's
+    default or one derived from the stream.
 
-    Parameters
+    Attributes
     ----------
-    t_s : array_like, shape (N,)
-        Device timestamps, s, strictly increasing.
-    xyz_mm : array_like, shape (N, 3)
-        Tool positions in the frame of ``commanded_mm``, mm.
-    commanded_mm : array_like, shape (P, 3)
-        Commanded positions, mm.
-    names : sequence of str, length P, optional
-        Pose names (default ``P1..PP``).
-    order : sequence of str or int, optional
-        Commanded order of one cycle; a pose may appear more than once.
-        Default: the poses in the given order, rotated so that the cycle
-        starts with the first stop found (the seed starts at rest at P1 and
-        runs P2, P3, P4, P5, P1).
-    valid : array_like of bool, shape (N,), optional
-        False for rows the instrument flagged invalid (dropped, reported).
     window_s : float
         Horizon length when ``M`` is not given: ``M = round(window_s * rate / 2)``
         (default 0.1 s; the seed's M = 10 at 100 Hz is 0.2 s).
@@ -783,6 +748,67 @@ def extract_attained_poses(
         procedure keeps it so that a resumed run, which starts its stream at
         rest at P1 after ``home``, counts the same stops as an uninterrupted
         one. ``station analyze`` counts it unless ``--initial-rest skip``.
+    """
+
+    window_s: float = 0.1
+    velocity_step_s: float = 0.01
+    M: int | None = None
+    Mp: int | None = None
+    smooth_s: float | None = None
+    v_rest_mm_s: float | None = None
+    min_move_mm: float = 1.0
+    min_dwell_s: float | None = None
+    gap_factor: float = 1.5
+    break_factor: float = 5.0
+    assign_tol_mm: float = 25.0
+    min_fallback_M: int = 1
+    approach_final_mm: float = 50.0
+    initial_rest_stop: bool = False
+
+    def check(self) -> None:
+        """DataError naming the first setting out of range."""
+        for pname, val in (("window_s", self.window_s), ("min_move_mm", self.min_move_mm),
+                           ("gap_factor", self.gap_factor), ("break_factor", self.break_factor),
+                           ("assign_tol_mm", self.assign_tol_mm), ("approach_final_mm", self.approach_final_mm)):
+            if not (np.isfinite(val) and val > 0):
+                raise DataError(f"{pname} must be finite and > 0, got {float(val)}")
+        if self.gap_factor <= 1.0 or self.break_factor < self.gap_factor:
+            raise DataError(f"need 1 < gap_factor <= break_factor, got {self.gap_factor}, {self.break_factor}")
+
+
+def extraction_options(options: ExtractionOptions | None = None, **fields) -> ExtractionOptions:
+    """``options`` (default: the defaults) with ``fields`` set; TypeError naming a field that does not exist."""
+    import dataclasses
+
+    base = ExtractionOptions() if options is None else options
+    return dataclasses.replace(base, **fields) if fields else base
+
+
+def extract_attained_poses(t_s, xyz_mm, commanded_mm, *, names=None, order=None, valid=None,
+                           options: ExtractionOptions | None = None, **fields) -> Extraction:
+    """Attained poses of a continuous stream, assigned to commanded poses and cycles.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Device timestamps, s, strictly increasing.
+    xyz_mm : array_like, shape (N, 3)
+        Tool positions in the frame of ``commanded_mm``, mm.
+    commanded_mm : array_like, shape (P, 3)
+        Commanded positions, mm.
+    names : sequence of str, length P, optional
+        Pose names (default ``P1..PP``).
+    order : sequence of str or int, optional
+        Commanded order of one cycle; a pose may appear more than once.
+        Default: the poses in the given order, rotated so that the cycle
+        starts with the first stop found (the seed starts at rest at P1 and
+        runs P2, P3, P4, P5, P1).
+    valid : array_like of bool, shape (N,), optional
+        False for rows the instrument flagged invalid (dropped, reported).
+    options : ExtractionOptions, optional
+        The extraction's settings (horizon, velocity step, rest threshold,
+        dwell, gaps, assignment tolerance, approach, initial rest); keyword
+        arguments of the same names set single fields (``window_s=0.2``).
 
     Returns
     -------
@@ -797,55 +823,108 @@ def extract_attained_poses(
     """
     n_rows = int(np.shape(t_s)[0]) if np.ndim(t_s) else 0
     t, xyz, rows_used, _ = validate_stream(t_s, xyz_mm, valid)
-    return extract_validated(
-        t, xyz, rows_used, n_rows, commanded_mm, names=names, order=order, window_s=window_s,
-        velocity_step_s=velocity_step_s, M=M, Mp=Mp,
-        smooth_s=smooth_s, v_rest_mm_s=v_rest_mm_s, min_move_mm=min_move_mm, min_dwell_s=min_dwell_s,
-        gap_factor=gap_factor, break_factor=break_factor, assign_tol_mm=assign_tol_mm,
-        min_fallback_M=min_fallback_M, approach_final_mm=approach_final_mm, initial_rest_stop=initial_rest_stop,
-    )
+    return extract_validated(t, xyz, rows_used, n_rows, commanded_mm, names=names, order=order,
+                             options=extraction_options(options, **fields))
 
 
-def extract_validated(
-    t,
-    xyz,
-    rows_used,
-    n_rows,
-    commanded_mm,
-    *,
-    names=None,
-    order=None,
-    window_s: float = 0.1,
-    velocity_step_s: float = 0.01,
-    M: int | None = None,
-    Mp: int | None = None,
-    smooth_s: float | None = None,
-    v_rest_mm_s: float | None = None,
-    min_move_mm: float = 1.0,
-    min_dwell_s: float | None = None,
-    gap_factor: float = 1.5,
-    break_factor: float = 5.0,
-    assign_tol_mm: float = 25.0,
-    min_fallback_M: int = 1,
-    approach_final_mm: float = 50.0,
-    initial_rest_stop: bool = False,
-) -> Extraction:
-    """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`.
+def extract_validated(t, xyz, rows_used, n_rows, commanded_mm, *, names=None, order=None,
+                      options: ExtractionOptions | None = None, **fields) -> Extraction:
+    """:func:`extract_attained_poses` on arrays already through :func:`validate_stream`, in named stages.
 
     ``rows_used`` maps used samples to stream rows (None: identity);
-    ``n_rows`` is the number of rows of the stream as given.
+    ``n_rows`` is the number of rows of the stream as given. The stages:
+    :func:`_sampling` (the rate and every setting in samples), :func:`_gaps`
+    (gaps and beam breaks), :func:`_moves` (moves and phases from the moving
+    average speed), :func:`_horizons` (the least-velocity horizon of each
+    phase, eq. (4), and the special phases), :func:`_stop_points` (attained
+    positions and approach directions) and :func:`_assignment` (commanded pose,
+    order and cycle of each stop).
     """
+    opt = extraction_options(options, **fields)
     commanded, names, order_idx = _check_commanded(commanded_mm, names, order)
-    for pname, val in (("window_s", window_s), ("min_move_mm", min_move_mm), ("gap_factor", gap_factor),
-                       ("break_factor", break_factor), ("assign_tol_mm", assign_tol_mm),
-                       ("approach_final_mm", approach_final_mm)):
-        if not (np.isfinite(val) and val > 0):
-            raise DataError(f"{pname} must be finite and > 0, got {float(val)}")
-    if gap_factor <= 1.0 or break_factor < gap_factor:
-        raise DataError(f"need 1 < gap_factor <= break_factor, got {gap_factor}, {break_factor}")
+    opt.check()
     n = t.size
     if n < 3:
         raise InsufficientDataError(f"the stream has {n} valid samples, at least 3 are needed")
+    to_row = (lambda i: i) if rows_used is None else (lambda i: rows_used[i])
+    smp = _sampling(t, opt)
+    gaps, brk, block_starts = _gaps(t, smp, opt, to_row)
+    mv = _moves(t, xyz, smp, opt, brk, block_starts)
+    hz = _horizons(t, xyz, smp, opt, mv, brk, to_row)
+    sp = _stop_points(t, xyz, opt, mv, hz, brk)
+    asg = _assignment(sp, commanded, names, order, order_idx, opt, mv.noise, brk, t, hz.failed)
+    stops = Stops(
+        row=np.asarray(to_row(sp.ci), dtype=np.int64),
+        i_center=sp.ci,
+        i_window_first=sp.ci - sp.wM,
+        i_window_last=sp.ci + sp.wM,
+        i_phase_start=sp.ph_start,
+        i_phase_end=sp.ph_end,
+        i_move_start=sp.mstart,
+        t_s=t[sp.ci],
+        position_mm=sp.pos,
+        window_sum_mm_s=sp.wsum,
+        window_M=sp.wM.astype(np.int64),
+        fallback=sp.fallback,
+        approach_unit=sp.app_unit,
+        approach_mm=sp.app_len,
+        gap_in_approach=sp.gap_app,
+        pose=asg.pose.astype(np.int64),
+        cycle=asg.cycle,
+        seq=asg.seq,
+        distance_to_pose_mm=asg.dist,
+        nearest_pose=asg.nearest.astype(np.int64),
+        status=asg.status,
+        initial=sp.initial,
+    )
+    warnings = []
+    if sp.ci.size and np.any(stops.fallback):
+        warnings.append(
+            f"{int(np.count_nonzero(stops.fallback))} stop(s) took their horizon between beam breaks or inside a "
+            f"short rest ({int(np.count_nonzero(stops.window_M < smp.M))} with fewer than 2M+1 = {2 * smp.M + 1} "
+            "samples)"
+        )
+    return Extraction(
+        params=ExtractionParams(
+            rate_hz=float(smp.rate), median_dt_s=smp.med_dt, lag=smp.lag, M=smp.M, Mp=smp.Mp, h=smp.h,
+            noise_mm=mv.noise, v_rest_mm_s=mv.v_rest, gap_factor=opt.gap_factor, break_s=smp.break_s,
+            min_move_mm=float(opt.min_move_mm), min_dwell_s=float(smp.min_dwell), assign_tol_mm=float(asg.tol_mm),
+        ),
+        names=names,
+        commanded_mm=commanded,
+        order=asg.order_idx,
+        n_rows=n_rows,
+        n_used=n,
+        rows_used=rows_used,
+        gaps=gaps,
+        stops=stops,
+        missing=tuple(asg.missing),
+        failed_phases=tuple(hz.failed),
+        moves_i=mv.moves_i,
+        initial_rest_i=mv.initial_rest,
+        trailing_motion=mv.trailing_motion,
+        n_cycles=asg.n_cycles,
+        warnings=tuple(warnings),
+    )
+
+
+@dataclass(frozen=True)
+class _Sampling:
+    """The stream's rate and every setting in samples."""
+
+    med_dt: float
+    rate: float
+    lag: int
+    M: int
+    Mp: int
+    h: int
+    min_dwell: float
+    break_s: float
+
+
+def _sampling(t, opt: ExtractionOptions) -> _Sampling:
+    """Rate from the median interval (10-3000 Hz), velocity lag, horizon M, Mp (eq. (4)), smoothing h."""
+    window_s, velocity_step_s, M, Mp = opt.window_s, opt.velocity_step_s, opt.M, opt.Mp
     dt = np.diff(t)
     # to the nanosecond: the rounding of the stamps (which depends on where in time they lie, e.g. after a
     # resume) must not tip the half-widths below from one integer to the next
@@ -854,8 +933,6 @@ def extract_validated(
     lo_r, hi_r = RATE_RANGE_HZ
     if not (0.95 * lo_r <= rate <= 1.05 * hi_r):
         raise DataError(f"sampling rate {rate:.3g} Hz (median interval {med_dt:.3g} s) is outside {lo_r:g}-{hi_r:g} Hz")
-
-    # --- parameters in samples
     if not (np.isfinite(velocity_step_s) and velocity_step_s >= 0):
         raise DataError(f"velocity_step_s must be finite and >= 0, got {velocity_step_s!r}")
     lag = max(1, int(round(velocity_step_s * rate)))
@@ -866,38 +943,61 @@ def extract_validated(
     M, Mp = int(M), int(Mp)
     if M < 1 or Mp < 1:
         raise DataError(f"M and Mp must be >= 1, got M={M}, Mp={Mp}")
-    smooth = 0.5 * window_s if smooth_s is None else float(smooth_s)
+    smooth = 0.5 * window_s if opt.smooth_s is None else float(opt.smooth_s)
     if not (np.isfinite(smooth) and smooth > 0):
-        raise DataError(f"smooth_s must be finite and > 0, got {smooth_s!r}")
+        raise DataError(f"smooth_s must be finite and > 0, got {opt.smooth_s!r}")
     h = max(1, int(round(smooth * rate / 2)))
-    min_dwell = window_s if min_dwell_s is None else float(min_dwell_s)
-    break_s = break_factor * med_dt
+    min_dwell = window_s if opt.min_dwell_s is None else float(opt.min_dwell_s)
+    return _Sampling(med_dt, rate, lag, M, Mp, h, min_dwell, opt.break_factor * med_dt)
 
-    # --- gaps and beam breaks
-    gap_i = np.flatnonzero(dt > gap_factor * med_dt)
-    split = dt[gap_i] > break_s
-    to_row = (lambda i: i) if rows_used is None else (lambda i: rows_used[i])
+
+def _gaps(t, smp: _Sampling, opt: ExtractionOptions, to_row):
+    """``(Gaps, brk, block_starts)``: steps longer than ``gap_factor`` intervals; those longer than
+    ``break_factor`` split the stream (a break between ``brk`` and ``brk + 1``)."""
+    dt = np.diff(t)
+    gap_i = np.flatnonzero(dt > opt.gap_factor * smp.med_dt)
+    split = dt[gap_i] > smp.break_s
     gaps = Gaps(
         row_before=np.asarray(to_row(gap_i), dtype=np.int64),
         row_after=np.asarray(to_row(gap_i + 1), dtype=np.int64),
         t_start_s=t[gap_i],
         t_end_s=t[gap_i + 1],
-        lost_samples=np.maximum(np.rint(dt[gap_i] / med_dt).astype(np.int64) - 1, 0),
+        lost_samples=np.maximum(np.rint(dt[gap_i] / smp.med_dt).astype(np.int64) - 1, 0),
         splits=split,
     )
     brk = gap_i[split]  # break between brk and brk+1
     block_starts = np.concatenate([[0], brk + 1]).astype(np.int64)
-    del dt
+    return gaps, brk, block_starts
 
-    # --- phases from the moving-average speed
+
+@dataclass
+class _Moves:
+    """Moves (start, speed peak, end) and the phases from each peak to the next move."""
+
+    noise: float
+    v_rest: float
+    u: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    moves_i: np.ndarray
+    initial_rest: tuple | None
+    trailing_motion: bool
+    phase_start: np.ndarray
+    phase_end: np.ndarray
+
+
+def _moves(t, xyz, smp: _Sampling, opt: ExtractionOptions, brk, block_starts) -> _Moves:
+    """Moves from the moving-average speed above the rest threshold, net ``min_move_mm``, split by dwells."""
+    n = t.size
+    h, med_dt, min_dwell, min_move_mm = smp.h, smp.med_dt, smp.min_dwell, opt.min_move_mm
     noise = estimate_noise_mm(xyz, t)
-    if v_rest_mm_s is None:
+    if opt.v_rest_mm_s is None:
         v_noise = np.sqrt(2.0) * noise / ((2 * h) * med_dt)
         v_rest = float(max(2.0, 6.0 * v_noise))
     else:
-        v_rest = float(v_rest_mm_s)
+        v_rest = float(opt.v_rest_mm_s)
         if not (np.isfinite(v_rest) and v_rest > 0):
-            raise DataError(f"v_rest_mm_s must be finite and > 0, got {v_rest_mm_s!r}")
+            raise DataError(f"v_rest_mm_s must be finite and > 0, got {opt.v_rest_mm_s!r}")
     u = moving_speed(t, xyz, h, block_starts)
     moving = u > v_rest  # NaN -> False
     starts, ends = _runs(moving)
@@ -936,8 +1036,31 @@ def extract_validated(
     trailing_motion = bool(ends[-1] >= n - 1)
     phase_start = peaks
     phase_end = np.concatenate([starts[1:] - 1, [n - 1]])
+    return _Moves(noise, v_rest, u, starts, ends, moves_i, initial_rest, trailing_motion, phase_start, phase_end)
 
-    # --- least-velocity horizons
+
+@dataclass
+class _Horizons:
+    """The least-velocity horizon of each phase (centre -1: none), the failed phases and the initial rest's."""
+
+    center: np.ndarray
+    wsum: np.ndarray
+    wM: np.ndarray
+    fallback: np.ndarray
+    failed: list
+    init: tuple | None
+
+
+def _horizons(t, xyz, smp: _Sampling, opt: ExtractionOptions, mv: _Moves, brk, to_row) -> _Horizons:
+    """Eq. (4) in each phase; phases with a beam break, a horizon not at rest or none get the best horizon
+    at rest that fits (:func:`least_velocity_windows` per piece between breaks)."""
+    n = t.size
+    lag, M, Mp, min_dwell = smp.lag, smp.M, smp.Mp, smp.min_dwell
+    v_rest, u, starts, ends = mv.v_rest, mv.u, mv.starts, mv.ends
+    phase_start, phase_end, trailing_motion, initial_rest = mv.phase_start, mv.phase_end, mv.trailing_motion, \
+        mv.initial_rest
+    min_fallback_M, initial_rest_stop = opt.min_fallback_M, opt.initial_rest_stop
+    R = starts.size
     # velocities whose step has no predecessor or crosses a beam break
     invalid = np.unique(np.concatenate([np.arange(min(lag, n))] + [np.arange(b + 1, min(b + 1 + lag, n))
                                                                       for b in brk])).astype(np.int64)
@@ -1010,7 +1133,32 @@ def extract_validated(
             best = rest_horizon(0, b0)
             if best is not None:
                 init = (int(best[1]), float(best[2]), int(best[3]), True)
-    del v, u
+    return _Horizons(center, wsum, wM, fallback, failed, init)
+
+
+@dataclass
+class _StopPoints:
+    """The stops found (K,): centre sample, horizon, phase, move start, position and approach."""
+
+    ci: np.ndarray
+    mstart: np.ndarray
+    ph_start: np.ndarray
+    ph_end: np.ndarray
+    wsum: np.ndarray
+    wM: np.ndarray
+    fallback: np.ndarray
+    initial: np.ndarray
+    pos: np.ndarray
+    app_unit: np.ndarray
+    app_len: np.ndarray
+    gap_app: np.ndarray
+
+
+def _stop_points(t, xyz, opt: ExtractionOptions, mv: _Moves, hz: _Horizons, brk) -> _StopPoints:
+    """The phases with a horizon (and the initial rest, when it counts): attained position and approach."""
+    center, wsum, wM, fallback, init = hz.center, hz.wsum, hz.wM, hz.fallback, hz.init
+    starts, phase_start, phase_end, initial_rest = mv.starts, mv.phase_start, mv.phase_end, mv.initial_rest
+    approach_final_mm = opt.approach_final_mm
     ok = center >= 0
     ci = center[ok]
     mstart = starts[ok]
@@ -1038,9 +1186,30 @@ def extract_validated(
     app_len[initial] = 0.0
     gap_app = (np.searchsorted(brk, ci, side="left") - np.searchsorted(brk, mstart, side="left")) > 0
     gap_app[initial] = False
+    return _StopPoints(ci, mstart, ph_start, ph_end, wsum_k, wM_k, fb_k, initial, pos, app_unit, app_len, gap_app)
 
-    # --- assignment to commanded poses
-    assign_tol_mm = max(float(assign_tol_mm), ASSIGN_NOISE_FACTOR * noise)
+
+@dataclass
+class _Assignment:
+    """Commanded pose, order position and cycle of each stop, the stops missing from the order."""
+
+    tol_mm: float
+    nearest: np.ndarray
+    dist: np.ndarray
+    status: np.ndarray
+    pose: np.ndarray
+    seq: np.ndarray
+    cycle: np.ndarray
+    missing: list
+    order_idx: list
+    n_cycles: int
+
+
+def _assignment(sp: _StopPoints, commanded, names, order, order_idx, opt: ExtractionOptions, noise, brk, t,
+                failed) -> _Assignment:
+    """Each stop to the nearest commanded pose within the tolerance, then walked along the commanded order."""
+    pos, ci, initial = sp.pos, sp.ci, sp.initial
+    assign_tol_mm = max(float(opt.assign_tol_mm), ASSIGN_NOISE_FACTOR * noise)
     d = np.linalg.norm(pos[:, None, :] - commanded[None, :, :], axis=2)  # (K, P)
     nearest = np.argmin(d, axis=1) if d.size else np.zeros(0, np.int64)
     dist = d[np.arange(d.shape[0]), nearest] if d.size else np.zeros(0)
@@ -1080,59 +1249,7 @@ def extract_validated(
     pose = np.where(status == STATUS_ASSIGNED, pose, -1)
     L = len(order_idx)
     n_cycles = int(seq[seq >= 0].max() // L + 1) if np.any(seq >= 0) else 0
-
-    stops = Stops(
-        row=np.asarray(to_row(ci), dtype=np.int64),
-        i_center=ci,
-        i_window_first=ci - wM_k,
-        i_window_last=ci + wM_k,
-        i_phase_start=ph_start,
-        i_phase_end=ph_end,
-        i_move_start=mstart,
-        t_s=t_stop,
-        position_mm=pos,
-        window_sum_mm_s=wsum_k,
-        window_M=wM_k.astype(np.int64),
-        fallback=fb_k,
-        approach_unit=app_unit,
-        approach_mm=app_len,
-        gap_in_approach=gap_app,
-        pose=pose.astype(np.int64),
-        cycle=cycle,
-        seq=seq,
-        distance_to_pose_mm=dist,
-        nearest_pose=nearest.astype(np.int64),
-        status=status,
-        initial=initial,
-    )
-    warnings = []
-    if K and np.any(stops.fallback):
-        warnings.append(
-            f"{int(np.count_nonzero(stops.fallback))} stop(s) took their horizon between beam breaks or inside a "
-            f"short rest ({int(np.count_nonzero(stops.window_M < M))} with fewer than 2M+1 = {2 * M + 1} samples)"
-        )
-    return Extraction(
-        params=ExtractionParams(
-            rate_hz=float(rate), median_dt_s=med_dt, lag=lag, M=M, Mp=Mp, h=h, noise_mm=noise, v_rest_mm_s=v_rest,
-            gap_factor=gap_factor, break_s=break_s, min_move_mm=float(min_move_mm),
-            min_dwell_s=float(min_dwell), assign_tol_mm=float(assign_tol_mm),
-        ),
-        names=names,
-        commanded_mm=commanded,
-        order=order_idx,
-        n_rows=n_rows,
-        n_used=n,
-        rows_used=rows_used,
-        gaps=gaps,
-        stops=stops,
-        missing=tuple(missing),
-        failed_phases=tuple(failed),
-        moves_i=moves_i,
-        initial_rest_i=initial_rest,
-        trailing_motion=trailing_motion,
-        n_cycles=n_cycles,
-        warnings=tuple(warnings),
-    )
+    return _Assignment(assign_tol_mm, nearest, dist, status, pose, seq, cycle, missing, order_idx, n_cycles)
 
 
 def _walk_order(pose, t_stop, order_idx, names, brk, t, failed):
