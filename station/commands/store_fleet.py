@@ -27,7 +27,8 @@ def register(s) -> None:
     o.add_argument("--name", required=True)
     o.add_argument("--model", default=None)
     o.set_defaults(func=_since)
-    x = fs.add_parser("over-limits", help="robots whose latest run is over a limit")
+    x = fs.add_parser("over-limits", help="robots whose latest run is over a limit (proven), then those not decided "
+                                          "under the guarded rule (in the guard band)")
     _common(x)
     x.add_argument("--name", default=None, help="one characteristic (default: any)")
     x.set_defaults(func=_over)
@@ -93,12 +94,22 @@ def _since(args) -> int:
 
 
 def _over(args) -> int:
-    from station.fleet import over_limits_now
+    from station.fleet import limit_decisions_now
 
     with _open(args) as store:
-        rows = over_limits_now(store, args.name)
-    _emit(args, rows, lambda r: f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} "
-                                f"{r['pose']:<6} {r['name']} = {r['value']:.4g} > {r['limit']:g}")
+        d = limit_decisions_now(store, args.name)
+    # non-conformance proven first (the line of old), then the figures left in their guard band
+    rows = d["proven"] + d["not_decided"]
+
+    def line(r):
+        head = f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} {r['pose']:<6} "
+        if r["decision"] == "not decided":
+            u = "" if r["U"] is None else f" +/- {r['U']:.2g}"
+            return head + f"{r['name']} = {r['value']:.4g}{u} against {r['limit']:g}: NOT DECIDED (guard band)"
+        return head + f"{r['name']} = {r['value']:.4g} > {r['limit']:g}" + (
+            f" (proven: - U {r['U']:.2g}, {r['rule']} rule)" if r["rule"] == "guarded" and r["U"] is not None else "")
+
+    _emit(args, rows, line)
     return 1 if rows else 0
 
 

@@ -2,11 +2,12 @@
 
 A figure without an uncertainty (fewer than 4 cycles) or inside its guard band
 is not decided: the run finishes, its summary says NOT DECIDED and the exit
-code is 3; with enough cycles and a limit far above the figure + U the run
+code is 3; with enough cycles (6: one stop lost on a loaded machine leaves 5) and a limit far above the figure + U the run
 passes with every verdict carrying u, U and k.
 """
 
 from procedures.iso9283 import plan_from_config
+from station.fleet import limit_decisions_now, over_limits_now
 from station.assemble import run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
@@ -36,10 +37,15 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     rep = next(s for s in store.steps("u1") if s.name == "report").output
     html = open(rep["report"], encoding="utf-8").read()
     assert rep["verdict"] == "NOT DECIDED" and "not decided" in html and "decision rule (ISO 14253-1)" in html
+    # the fleet's question: nothing is over its limit, the RP figures are not decided (listed apart)
+    d = limit_decisions_now(store, "RP_mm")
+    assert d["proven"] == [] and over_limits_now(store, "RP_mm") == []
+    assert {r["pose"] for r in d["not_decided"]} == {x["subject"] for x in v}
+    assert all(r["rule"] == "guarded" and r["decision"] == "not decided" for r in d["not_decided"])
 
 
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
-    code, store, out = _run(fake_cell, tmp_path, capsys, cycles=5, limits={"rp_limit_mm": 5.0, "ap_limit_mm": 20.0})
+    code, store, out = _run(fake_cell, tmp_path, capsys, cycles=6, limits={"rp_limit_mm": 5.0, "ap_limit_mm": 20.0})
     assert code == 0, out
     assert "verdict: PASS" in out and "decision rule: guarded" in out
     vs = store.result("u1", "iso9283")["pose"]["verdicts"]
@@ -47,5 +53,7 @@ def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_pat
     for v in vs:
         assert v["outcome"] == "pass" and v["k"] == 2.0 and 0 < v["U_mm"] < v["limit"] - abs(v["value"])
         assert v["U_mm"] == 2 * v["u_mm"] or abs(v["U_mm"] - 2 * v["u_mm"]) < 1e-6
+    d = limit_decisions_now(store)
+    assert d == {"proven": [], "not_decided": []}
     html = open(next(s for s in store.steps("u1") if s.name == "report").output["report"], encoding="utf-8").read()
     assert "U (k=2)" in html and "guard band (limit -/+ U)" in html and "with U (k = 2) and the guard band" in html
