@@ -321,15 +321,21 @@ def scatter_draws(S: np.ndarray, n: int, M: int, rng) -> tuple[np.ndarray, np.nd
     return nu / rng.chisquare(nu, size=M), lam
 
 
-def rp_of_scale(f: np.ndarray, lam: np.ndarray, noise_var: float) -> np.ndarray:
-    """:func:`population_rp` of the eigenvalues ``f lam - noise_var`` for every draw of the scale ``f`` (M,).
+def robot_rp(trace: np.ndarray, lam: np.ndarray, noise_var: float) -> np.ndarray:
+    """The robot's RP for measured scatters of total variance ``trace`` (M,), shape ``lam`` (3,), noise ``noise_var``.
 
-    RP is smooth and monotone in f: it is computed on 257 scales and interpolated.
+    The instrument's noise adds ``noise_var`` to every axis, so the robot's total variance is
+    ``trace - 3 noise_var`` (clipped at 0), an unbiased deflation.  Its shape is that of ``lam - noise_var``
+    (clipped; isotropic when nothing is left): the sample's eigenvalues spread wider than the population's,
+    so taking the noise out of each one would leave a robot where there is only noise.  RP scales with the
+    square root of the variance: ``sqrt(trace_robot) * population_rp(shape)``.
     """
-    lo, hi = float(f.min()), float(f.max())
-    grid = np.geomspace(lo, hi, 257) if hi > lo else np.array([lo, lo * (1 + 1e-12) + 1e-300])
-    rp = population_rp(grid[:, None] * lam[None, :] - noise_var)
-    return np.interp(f, grid, rp)
+    shape = np.clip(np.asarray(lam, dtype=float) - noise_var, 0.0, None)
+    if shape.sum() <= 0:
+        shape = np.ones(3)
+    shape = shape / shape.sum()
+    tr_r = np.clip(np.asarray(trace, dtype=float) - 3.0 * noise_var, 0.0, None)
+    return np.sqrt(tr_r) * float(population_rp(shape))
 
 
 def _mean_t_draws(x: np.ndarray, M: int, rng, floor_var: float) -> np.ndarray:
@@ -426,12 +432,11 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
     rp_comp: dict = {}
     if need_rp and mu is not None:
         f, lam_s = scatter_draws(S, n, M, rng)
-        RP = rp_of_scale(f, lam_s, sd_i ** 2)
+        RP = robot_rp(f * lam_s.sum(), lam_s, sd_i ** 2)
         l = np.linalg.norm(x - xb, axis=1)
         S_l = float(np.std(l, ddof=1))
         rp_meas = float(l.mean() + 3.0 * S_l)
-        lam_hat = np.linalg.eigvalsh(S) - sd_i ** 2
-        bias = rp_meas - float(population_rp(lam_hat))
+        bias = rp_meas - float(robot_rp(np.array([lam_s.sum()]), lam_s, sd_i ** 2)[0])
         samp = S_l * math.sqrt(1.0 / n + 9.0 / (2.0 * (n - 1)))
         rp_comp = {"sampling": samp, "bias": abs(bias)}
         rp_g = math.sqrt(samp ** 2 + bias ** 2)

@@ -56,6 +56,7 @@ def test_coverage_of_ap_and_rp(rng, n):
     T = 300
     hit_ap = np.zeros(T, bool)
     hit_rp = np.zeros(T, bool)
+    int_rp = np.zeros(T, bool)
     rel_rp = []
     for i in range(T):
         sim = simulate_pose_test(rng, n)
@@ -65,6 +66,7 @@ def test_coverage_of_ap_and_rp(rng, n):
         hit_ap[i] = abs(fu["AP_mm"].value - sim.AP_true_mm) <= fu["AP_mm"].U
         hit_rp[i] = abs(fu["RP_mm"].value - sim.RP_true_mm) <= fu["RP_mm"].U
         rel_rp.append(fu["RP_mm"].U / fu["RP_mm"].value)
+        int_rp[i] = fu["RP_mm"].interval[0] <= sim.RP_true_mm <= fu["RP_mm"].interval[1]
     tol = _band(0.95, T)
     assert abs(hit_ap.mean() - 0.95) <= tol, f"AP coverage {hit_ap.mean():.3f} at n={n}"
     assert hit_rp.mean() >= 0.95 - tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
@@ -72,10 +74,11 @@ def test_coverage_of_ap_and_rp(rng, n):
         assert hit_rp.mean() <= 0.95 + tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
     else:
         # at few cycles the measurand's PDF is skewed to the right (the scatter's scale is poorly known): its
-        # RMS, and so U = 2 u, over-covers (bench: 0.985-0.99 at 5 and 10 cycles); a U of several times the
+        # RMS, and so U = 2 u, over-covers (bench: 0.99-0.996 at 5 and 10 cycles); a U of several times the
         # figure would still pass the line above, so the width is bounded by what 5 or 10 stops allow
-        assert hit_rp.mean() <= 1.0
-        assert np.median(rel_rp) < (1.6 if n == 5 else 0.7), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
+        assert np.median(rel_rp) < (1.8 if n == 5 else 0.8), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
+    # the Monte Carlo 95 % coverage interval of the measurand
+    assert abs(int_rp.mean() - 0.95) <= tol, f"RP 95 % interval coverage {int_rp.mean():.3f} at n={n}"
 
 
 def test_ap_mc_matches_the_first_order_law_away_from_zero(rng):
