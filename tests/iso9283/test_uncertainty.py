@@ -230,3 +230,68 @@ def test_simple_rule_with_a_budget_changes_no_verdict(tmp_path, files, capsys):
     assert a["poses"] == b["poses"]
     assert "uncertainty" not in a and "u_mm" not in a["verdicts"][0]
     assert b["verdicts"][0]["rule"] == "simple" and b["verdicts"][0]["U_mm"] > 0
+
+
+# --------------------------------------------------------------------------
+# every characteristic of an analysis
+# --------------------------------------------------------------------------
+
+
+def test_every_characteristic_gets_an_uncertainty(rng):
+    """Drift, orientation, AD/RD, MPT, POS/PST and paths of one long synthetic run; vAP of a multi-direction one.
+
+    Each figure's U is positive and finite, its first-order u exists, and the figure lies in its own 95 %
+    interval or within U of it (a figure is an estimate of the measurand, not far from it).
+    """
+    from station.analysis.iso9283 import analyze_iso9283
+    from station.analysis.iso_uncertainty import figure_uncertainties
+
+    from .synth import iso_cycle_programme, multidirection_programme, render
+
+    servo = dict(wn_hz=15.0, zeta=0.9)
+    abc_cmd = rng.uniform(-1, 1, (5, 3))
+    prog = iso_cycle_programme(rng, n_cycles=20, scatter_mm=0.02, abc_commanded_rad=abc_cmd,
+                               abc_offset_rad=rng.normal(0, 2e-3, (5, 3)), abc_scatter_rad=2e-4, dwell_s=0.4)
+    s = render(rng, prog, start_mm=CMD[0], start_abc_rad=abc_cmd[0], rate_hz=200.0, noise_mm=0.005,
+               abc_noise_rad=5e-5, **servo)
+    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, orientation_rad=s.abc, commanded_orientation_rad=abc_cmd,
+                          drift_block=10, linear_paths=[("P2", "P3")], n_planes=5, band_mm=0.05)
+    b = Budget(trials=3000, seed=1, rate_hz=200.0, angle_sd_deg=math.degrees(5e-5))
+    unc = figure_uncertainties(res, b, s.xyz)
+    kinds = {k[0] for k in unc}
+    assert {"AP_mm", "RP_mm", "PST_s", "dAP_mm", "dRP_mm", "APa_deg", "RPc_deg", "AD_mm", "RD_mm", "MPT_s",
+            "AT_mm", "RT_mm"} <= kinds, kinds
+    if any(pr.overshoot is not None and pr.overshoot.POS_mm for pr in res.poses.values()):
+        assert "POS_mm" in kinds
+    for (ch, subj), fu in unc.items():
+        assert math.isfinite(fu.U) and fu.U > 0 and fu.u_gum is not None, (ch, subj, fu)
+        lo, hi = fu.interval
+        assert lo - fu.U <= fu.value <= hi + fu.U, (ch, subj, fu)
+    # vAP: three approach directions
+    dir_off = rng.normal(0, 0.4, (3, 3))
+    mp = multidirection_programme(rng, commanded=CMD, pose=0, dir_offsets_mm=dir_off, n_each=10, scatter_mm=0.02)
+    sv = render(rng, mp, start_mm=CMD[0] - [0, 0, 150.0], rate_hz=200.0, noise_mm=0.005, speed_mm_s=500.0, **servo)
+    rv = analyze_iso9283(sv.t, sv.xyz, CMD[[0]], names=[NAMES5[0]])
+    fv = figure_uncertainties(rv, b, sv.xyz)[("vAP_mm", NAMES5[0])]
+    truth = max(np.linalg.norm(mp.target_mm[mp.direction == h].mean(axis=0) - mp.target_mm[mp.direction == k].mean(axis=0))
+                for h in range(3) for k in range(3))
+    assert abs(fv.value - truth) <= 2.5 * fv.U  # the figure's scatter about a truth drawn from 10 stops each
+
+
+def test_stop_list_with_the_guarded_rule(tmp_path, rng, capsys):
+    from .labfiles import write_stops
+
+    n = 12
+    names = ["P1", "P2"]
+    pose = [p for _ in range(n) for p in names]
+    cycle = [c for c in range(n) for _ in names]
+    pts = np.array([CMD[names.index(p)] + 0.3 + rng.normal(0, 0.02, 3) for p in pose])
+    S = write_stops(tmp_path / "s.csv", pose, cycle, pts[:, None, :])
+    P = write_poses(tmp_path / "p.csv", names, CMD[:2])
+    rc, out, err = _run(capsys, "--stops", S, "--poses", P, "--limit", "AP_mm=5", "--decision-rule", "guarded",
+                        "--mc-trials", "2000", "--json", tmp_path / "o.json")
+    d = json.loads((tmp_path / "o.json").read_text())
+    assert rc == 0, err
+    ap = [v for v in d["verdicts"] if v["characteristic"] == "AP_mm"]
+    assert len(ap) == 2 and all(v["outcome"] == "pass" and 0 < v["U_mm"] < 0.2 for v in ap)
+    assert {f["characteristic"] for f in d["uncertainty"]["figures"]} >= {"AP_mm", "RP_mm"}
