@@ -96,6 +96,9 @@ class Budget:
     registration_n: int | None = None
     registration_centroid_mm: tuple[float, float, float] | None = None
     registration_spread_mm2: float | None = None  # sum of squared distances of the pairs from their centroid
+    #: the frame's own standard uncertainty at given points, ((x, y, z), sd per axis) each (e.g. a jackknife of
+    #: the registration at the test poses): used at the nearest of them instead of the fit's rms
+    registration_at_points: tuple | None = None
     temperature_u_K: float = 0.0
     angle_sd_deg: float = 0.0  # instrument sd of a 6-DOF angle
     rate_hz: float | None = None  # time stamps' quantisation (PST, MPT)
@@ -131,6 +134,11 @@ class Budget:
     def registration_sd_mm(self, points_mm) -> np.ndarray:
         """Per-axis standard deviation of the frame at each point (...,), mm (0 without a fit)."""
         p = np.asarray(points_mm, dtype=float)
+        if self.registration_at_points:
+            q = np.array([a for a, _ in self.registration_at_points], dtype=float)
+            sd = np.array([b for _, b in self.registration_at_points], dtype=float)
+            near = np.argmin(np.linalg.norm(p[..., None, :] - q, axis=-1), axis=-1)
+            return sd[near]
         if self.registration_rms_mm is None or not self.registration_n or self.registration_n < 3:
             return np.zeros(p.shape[:-1])
         n = int(self.registration_n)
@@ -177,8 +185,10 @@ class Budget:
                            "meaning": ("maximum permissible error of a coordinate, read as a k = 2 bound"
                                        if self.instrument_kind == "mpe" else "standard deviation of a coordinate"),
                            "tracker_origin_mm": list(self.tracker_origin_mm)},
-            "registration": None if self.registration_rms_mm is None else {
-                "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n},
+            "registration": None if self.registration_rms_mm is None and not self.registration_at_points else {
+                "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n,
+                "sd_at_points_mm": None if not self.registration_at_points else
+                [[list(a), b] for a, b in self.registration_at_points]},
             "temperature_u_K": self.temperature_u_K,
             "angle_sd_deg": self.angle_sd_deg,
             "rate_hz": self.rate_hz,
