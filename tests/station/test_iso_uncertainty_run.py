@@ -8,6 +8,7 @@ passes with every verdict carrying u, U and k.
 
 from procedures.iso9283 import plan_from_config
 from station.fleet import limit_decisions_now, over_limits_now
+from station.fleet_page import fleet_report
 from station.assemble import run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
@@ -42,6 +43,10 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     assert d["proven"] == [] and over_limits_now(store, "RP_mm") == []
     assert {r["pose"] for r in d["not_decided"]} == {x["subject"] for x in v}
     assert all(r["rule"] == "guarded" and r["decision"] == "not decided" for r in d["not_decided"])
+    page = fleet_report(store, "RP_mm")
+    assert page.facts["robots over a limit now"] == "0"
+    assert page.facts["robots not decided now (a figure in its guard band, ISO 14253-1)"] == "1"
+    assert [r["decision"] for r in page.rows] == ["not decided"] * len(v) and page.verdict == "NOT DECIDED"
 
 
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
