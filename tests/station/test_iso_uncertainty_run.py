@@ -62,3 +62,6 @@ def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_pat
     assert d == {"proven": [], "not_decided": []}
     html = open(next(s for s in store.steps("u1") if s.name == "report").output["report"], encoding="utf-8").read()
     assert "U (k=2)" in html and "guard band (limit -/+ U)" in html and "with U (k = 2) and the guard band" in html
+    # every figure with an uncertainty is kept with the result, judged or not (POS, PST have no limit here)
+    figs = store.result("u1", "iso9283")["pose"]["uncertainty_figures"]
+    assert {f["characteristic"] for f in figs} >= {"AP_mm", "RP_mm", "PST_s"}
