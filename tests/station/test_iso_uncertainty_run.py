@@ -43,6 +43,14 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     assert d["proven"] == [] and over_limits_now(store, "RP_mm") == []
     assert {r["pose"] for r in d["not_decided"]} == {x["subject"] for x in v}
     assert all(r["rule"] == "guarded" and r["decision"] == "not decided" for r in d["not_decided"])
+    from station.cli import main
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[station]\nname = "x"\nstore_path = "{tmp_path / "s.sqlite"}"\n[devices]\n')
+    capsys.readouterr()
+    assert main(["store", "exceeding", "--config", str(cfg), "--name", "RP_mm"]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines and all("NOT DECIDED (guard band)" in line for line in lines)
     page = fleet_report(store, "RP_mm")
     assert page.facts["robots over a limit now"] == "0"
     assert page.facts["robots not decided now (a figure in its guard band, ISO 14253-1)"] == "1"
