@@ -30,8 +30,10 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     code, store, out = _run(fake_cell, tmp_path, capsys, cycles=3, limits={"rp_limit_mm": 5.0})
     assert code == 3, out
     assert "verdict: NOT DECIDED" in out and "decision rule: guarded" in out
-    assert "NOT DECIDED RP_mm P1" in out
-    v = [x for x in store.result("u1", "iso9283")["pose"]["verdicts"] if x["characteristic"] == "RP_mm"]
+    assert "NOT DECIDED RP_mm P" in out
+    # (a loaded machine may lose a stop: a pose left with fewer than 2 has no RP at all, and no outcome)
+    v = [x for x in store.result("u1", "iso9283")["pose"]["verdicts"]
+         if x["characteristic"] == "RP_mm" and x["value"] is not None]
     assert v and all(x["outcome"] == "not decided" and x["U_mm"] is None for x in v)
     an = next(s for s in store.steps("u1") if s.name == "analyse")
     assert an.output["decision"] == "not decided" and an.output["decision_rule"] == "guarded"
