@@ -210,7 +210,8 @@ def parse_tracker_uncertainty(text: str) -> dict:
         a = float(m.group(2))
         b = float(m.group(3)) if m.group(3) is not None else 0.0
     except ValueError:
-        raise ConfigError(f"--tracker-uncertainty: not numbers in {text!r}") from None
+        raise ConfigError(f"--tracker-uncertainty must be like 15+6/m (MPE, um + um/m; the distance term ends in "
+                          f"/m) or sd:7.5+3/m, got {text!r}") from None
     if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0 and a + b > 0):
         raise ConfigError(f"--tracker-uncertainty: the terms must be finite, >= 0 and not both 0, got {text!r}")
     return {"instrument_a_um": a, "instrument_b_um_per_m": b, "instrument_kind": kind}
