@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -533,11 +533,13 @@ def _stream_in_base(ctx: StepContext, step_names: list[str]):
     return s["t"][order], xyz[order], s["status"][order]
 
 
-def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None):
+def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None, reg_u_at_poses=None):
     """Both analyses of the procedure's data (pure: arrays in, results out).
 
     With a stated budget (``plan.uncertainty``) every verdict carries its uncertainty and is decided by
-    ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget).
+    ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget);
+    ``reg_u_at_poses``: ``{pose: jackknife standard error (3-D), mm}`` of the frame at the test poses, used
+    instead of the fit's rms when given.
     """
     names = list(plan.poses_mm)
     commanded = np.array([plan.poses_mm[n] for n in names])
@@ -559,6 +561,10 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None)
         from station.analysis.uncertainty import Budget
 
         budget = Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz).with_registration(reg)
+        if reg_u_at_poses:
+            budget = replace(budget, registration_at_points=tuple(
+                (tuple(plan.poses_mm[k]), float(v) / math.sqrt(3.0)) for k, v in reg_u_at_poses.items()
+                if k in plan.poses_mm))
         main = apply_rule(main, figure_uncertainties(main, budget, pose_xyz), plan.decision_rule)
         if vap is not None:
             vap = apply_rule(vap, figure_uncertainties(vap, budget, vap_xyz), plan.decision_rule)
@@ -621,7 +627,8 @@ def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndar
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     streams = measured_streams(ctx, plan)
-    main, vap = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs))
+    main, vap = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
+                        reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"))
     rows = characteristic_rows(main, vap)
     ctx.store.put_characteristics(ctx.run_id, rows)
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
@@ -644,7 +651,9 @@ def step_report(ctx: StepContext) -> dict:
     plan = _plan(ctx)
     if ctx.session.analysis is None:  # a resumed run whose analysis ran in an earlier session
         streams = measured_streams(ctx, plan)
-        ctx.session.analysis = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs))
+        ctx.session.analysis = analyse(
+            plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
+            reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"))
     main, vap = ctx.session.analysis
     marginal = [f"{m['pose']} {m['name']} = {m['value']:.4g} {m['unit']}: marginal (passes, within its "
                 f"marginal band of a limit)" for m in record_measurements(ctx.store, ctx.run_id) if m["marginal"]]

@@ -76,10 +76,16 @@ def _with_decisions(rows, main, vap) -> list[dict]:
     vs = {(v.characteristic, v.subject): v for v in main.verdicts}
     if vap is not None:
         vs.update({(v.characteristic, v.subject): v for v in vap.verdicts if v.characteristic == "vAP_mm"})
+    unc = dict(getattr(main, "uncertainties", {}) or {})
+    if vap is not None:
+        unc.update({k: fu for k, fu in (getattr(vap, "uncertainties", {}) or {}).items() if k[0] == "vAP_mm"})
     out = []
     for r in rows:
         v = vs.get((r["name"], r["pose"]))
         r = dict(r)
+        fu = unc.get((r["name"], r["pose"]))
+        if fu is not None:
+            r.update(U=float(fu.U))
         if v is not None and v.rule is not None:
             fu = v.uncertainty
             r.update(rule=v.rule, U=None if fu is None else float(fu.U),
@@ -120,7 +126,7 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
         figs.append(("Figs. 5-6: approach to P1 with the limit band", f))
     figs += _cluster_figures(vxyz, vap, plan)
     rows = _with_decisions(rows, main, vap)
-    rule = next((r["rule"] for r in rows if r.get("rule")), None)
+    rule = plan.decision_rule if plan.uncertainty is not None else None
     if rule is not None:
         facts["decision rule (ISO 14253-1)"] = (
             "guarded: conformance proven when figure + U <= limit, non-conformance when figure - U > limit, "

@@ -9,6 +9,9 @@
   robot with none counts from its first run on record), its latest run, the
   change between them and the trend since;
 * :func:`over_limits_now` — robots whose latest finished run is over a limit;
+* :func:`limit_decisions_now` — the same, split by the run's decision rule
+  (ISO 14253-1) into non-conformance proven and not decided (a figure in its
+  guard band, on either side of the limit);
 * :func:`drifting` — robots of a model whose characteristic grows with time
   since their last overhaul, by the trend test of :mod:`station.fleet_trend`
   with false-discovery control across the model's robots.
@@ -26,7 +29,7 @@ import numpy as np
 
 from station.errors import ConfigError
 from station.fleet_trend import benjamini_hochberg, trends
-from station.store import RunStore
+from station.store import RunStore, StoreError
 
 YEAR_S = 365.25 * 86400.0
 
@@ -181,3 +184,54 @@ def over_limits_now(store: RunStore, name: str | None = None) -> list[dict]:
     args = (name, name) if name else ()
     keys = ("model", "serial", "station", "run_id", "created_at", "pose", "name", "value", "unit", "limit")
     return [dict(zip(keys, row)) for row in store.backend.query(sql, args)]
+
+
+def limit_decisions_now(store: RunStore, name: str | None = None) -> dict[str, list[dict]]:
+    """Each robot's latest finished run, by the decision its verdicts carry: ``{"proven": [...], "not_decided": [...]}``.
+
+    A run analysed with a decision rule stored each verdict's outcome and U in its ``iso9283`` result: a
+    failed one is non-conformance proven (under ``guarded``: figure - U beyond the limit), a figure in its
+    guard band is not decided.  A run without a rule is judged as :func:`over_limits_now` does (value over
+    the limit: proven, rule ``None``).  Rows as :func:`over_limits_now` plus ``rule``, ``decision`` and
+    ``U`` (k = 2, the figure's unit).
+    """
+    name_filter = " AND c2.name=?" if name else ""
+    sql = (
+        "WITH latest AS (SELECT r.robot_id, MAX(r.created_at) AS t FROM runs r WHERE r.status='done'"
+        " AND EXISTS (SELECT 1 FROM characteristics c2 WHERE c2.run_id=r.run_id" + name_filter + ")"
+        " GROUP BY r.robot_id)"
+        " SELECT b.model, b.serial, r.station, r.run_id, r.created_at, c.pose, c.name, c.value, c.unit, c.limit_value"
+        " FROM latest l JOIN runs r ON r.robot_id=l.robot_id AND r.created_at=l.t AND r.status='done'"
+        " JOIN robots b ON b.robot_id=r.robot_id JOIN characteristics c ON c.run_id=r.run_id"
+        " WHERE c.limit_value IS NOT NULL AND c.value IS NOT NULL" + (" AND c.name=?" if name else "") +
+        " ORDER BY b.serial, c.name, c.pose")
+    args = (name, name) if name else ()
+    keys = ("model", "serial", "station", "run_id", "created_at", "pose", "name", "value", "unit", "limit")
+    rows = [dict(zip(keys, row)) for row in store.backend.query(sql, args)]
+    verdicts: dict[str, dict] = {}
+    out: dict[str, list[dict]] = {"proven": [], "not_decided": []}
+    for r in rows:  # loop over the limited values of the latest runs
+        if r["run_id"] not in verdicts:
+            verdicts[r["run_id"]] = _stored_verdicts(store, r["run_id"])
+        v = verdicts[r["run_id"]].get((r["name"], r["pose"]))
+        if v is not None and v.get("rule") is not None:
+            unit = r["name"].rsplit("_", 1)[-1]
+            r.update(rule=v["rule"], decision=v.get("outcome"), U=v.get(f"U_{unit}"))
+        else:
+            r.update(rule=None, decision="fail" if r["value"] > r["limit"] else "pass", U=None)
+        if r["decision"] == "fail":
+            out["proven"].append(r)
+        elif r["decision"] == "not decided":
+            out["not_decided"].append(r)
+    return out
+
+
+def _stored_verdicts(store: RunStore, run_id: str) -> dict:
+    """``{(characteristic, subject): verdict JSON}`` of a run's stored ISO 9283 result (empty without one)."""
+    try:
+        res = store.result(run_id, "iso9283")
+    except StoreError:  # a run of another procedure, or stored before its analysis
+        return {}
+    vs = list((res.get("pose") or {}).get("verdicts", []))
+    vs += [v for v in (res.get("vap") or {}).get("verdicts", []) if v.get("characteristic") == "vAP_mm"]
+    return {(v.get("characteristic"), v.get("subject")): v for v in vs}

@@ -11,14 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from station.fleet import YEAR_S, drifting, over_limits_now, run_values, since_overhaul
+from station.fleet import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
 from station.report import Report, plot_xy, render_html
 from station.store import RunStore
 
 
 def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: int = 30) -> Report:
     """The fleet page's content for characteristic ``name``: over-limit rows, drifting robots, their trends."""
-    over = over_limits_now(store, name)
+    decided = limit_decisions_now(store, name)
+    over, undecided = decided["proven"], decided["not_decided"]
     drift = drifting(store, name, q_max=q_max)
     since = since_overhaul(store, name)
     runs = run_values(store, name)
@@ -30,11 +31,18 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
         "robots over a limit now": str(len({(r["model"], r["serial"]) for r in over})),
         f"robots drifting (trend since last overhaul, false-discovery rate {q_max:g})": str(len(drift)),
     }
-    for r in over:
-        rep.rows.append({"pose": f"{r['serial']} ({r['model']}, {r['station'] or '-'}) {r['pose']}", "name": r["name"],
-                         "value": r["value"], "unit": r["unit"], "limit": r["limit"], "passed": False})
+    if undecided:
+        rep.facts["robots not decided now (a figure in its guard band, ISO 14253-1)"] = str(
+            len({(r["model"], r["serial"]) for r in undecided}))
+    for r in over + undecided:
+        row = {"pose": f"{r['serial']} ({r['model']}, {r['station'] or '-'}) {r['pose']}", "name": r["name"],
+               "value": r["value"], "unit": r["unit"], "limit": r["limit"],
+               "passed": False if r["decision"] == "fail" else None}
+        if r["rule"] is not None:
+            row.update(U=r["U"], decision=r["decision"])
+        rep.rows.append(row)
     # every other robot's latest run: its worst pose against its limit (the page's verdict is the fleet's)
-    over_robots = {(r["model"], r["serial"]) for r in over}
+    over_robots = {(r["model"], r["serial"]) for r in over + undecided}
     for r in since:
         if (r["model"], r["serial"]) in over_robots:
             continue

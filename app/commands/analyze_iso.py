@@ -180,6 +180,7 @@ def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
 def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
     if unc is not None:
         print("\n".join(unc[1]))
+        d.pop("uncertainty_figures", None)  # the same figures, in the block with the budget and the rule
         d["uncertainty"] = unc[0]
     out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
     d["exit"] = out.to_dict()

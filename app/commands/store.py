@@ -43,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     h.add_argument("--pose", default=None, help="one pose (default: every pose)")
     h.add_argument("--json", action="store_true", help=JSON_HELP)
     h.set_defaults(func=_history)
-    e = s.add_parser("exceeding", help="robots with a characteristic over its limit")
+    e = s.add_parser("exceeding", help="robots with a characteristic over its limit (and, in their latest run, "
+                                       "those not decided under the guarded rule, listed apart)")
     _common(e)
     e.add_argument("--name", required=True, help="characteristic, e.g. RP_mm")
     e.add_argument("--all-runs", action="store_true", help="every finished run, not only each robot's latest")
@@ -136,10 +137,20 @@ def _history(args) -> int:
 
 
 def _exceeding(args) -> int:
+    undecided = []
     with open_store(args.config, args.central) as store:
         rows = store.robots_exceeding(args.name, latest_only=not args.all_runs)
+        if not args.all_runs:
+            # the runs' decision rule (ISO 14253-1): over the limit but within U of it is not proven
+            from station.fleet import limit_decisions_now
+
+            d = limit_decisions_now(store, args.name)
+            proven = {(r["run_id"], r["pose"]) for r in d["proven"]}
+            rows = [r for r in rows if (r["run_id"], r["pose"]) in proven]
+            undecided = [{k: r[k] for k in ("model", "serial", "run_id", "created_at", "pose", "value", "limit", "U",
+                                            "rule", "decision")} for r in d["not_decided"]]
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(json.dumps(rows + undecided, indent=2))
         return 0
     if not rows:
         print(f"no robot over its {args.name} limit ("
@@ -147,7 +158,11 @@ def _exceeding(args) -> int:
     for r in rows:
         print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
               f"{args.name} = {r['value']:.4g} > {r['limit']:g}")
-    return 1 if rows else 0
+    for r in undecided:
+        u = "" if r["U"] is None else f" +/- {r['U']:.2g}"
+        print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
+              f"{args.name} = {r['value']:.4g}{u} against {r['limit']:g}: NOT DECIDED (guard band)")
+    return 1 if rows or undecided else 0
 
 
 def parse_when(text: str) -> float:

@@ -34,7 +34,8 @@ def register(s) -> None:
     o.add_argument("--name", required=True, help="characteristic, e.g. RP_mm")
     o.add_argument("--model", default=None, help="one robot model (default: every model)")
     o.set_defaults(func=_since)
-    x = fs.add_parser("over-limits", help="robots whose latest run is over a limit")
+    x = fs.add_parser("over-limits", help="robots whose latest run is over a limit (proven), then those not decided "
+                                          "under the guarded rule (in the guard band)")
     _common(x)
     x.add_argument("--name", default=None, help="one characteristic (default: any)")
     x.set_defaults(func=_over)
@@ -110,13 +111,23 @@ def _since(args) -> int:
 
 
 def _over(args) -> int:
-    from station.fleet import over_limits_now
+    from station.fleet import limit_decisions_now
 
     with _open(args) as store:
-        rows = over_limits_now(store, args.name)
-    _emit(args, rows, lambda r: f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} "
-                                f"{r['pose']:<6} {r['name']} = {r['value']:.4g} > {r['limit']:g}",
-          "no robot whose latest run is over " + (f"its {args.name} limit" if args.name else "a limit"))
+        d = limit_decisions_now(store, args.name)
+    # non-conformance proven first (the line of old), then the figures left in their guard band
+    rows = d["proven"] + d["not_decided"]
+
+    def line(r):
+        head = f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} {r['pose']:<6} "
+        if r["decision"] == "not decided":
+            u = "" if r["U"] is None else f" +/- {r['U']:.2g}"
+            return head + f"{r['name']} = {r['value']:.4g}{u} against {r['limit']:g}: NOT DECIDED (guard band)"
+        return head + f"{r['name']} = {r['value']:.4g} > {r['limit']:g}" + (
+            f" (proven: - U {r['U']:.2g}, {r['rule']} rule)" if r["rule"] == "guarded" and r["U"] is not None else "")
+
+    _emit(args, rows, line, "no robot whose latest run is over " + (f"its {args.name} limit" if args.name else "a limit")
+          + " or not decided against it")
     return 1 if rows else 0
 
 

@@ -96,6 +96,9 @@ class Budget:
     registration_n: int | None = None
     registration_centroid_mm: tuple[float, float, float] | None = None
     registration_spread_mm2: float | None = None  # sum of squared distances of the pairs from their centroid
+    #: the frame's own standard uncertainty at given points, ((x, y, z), sd per axis) each (e.g. a jackknife of
+    #: the registration at the test poses): used at the nearest of them instead of the fit's rms
+    registration_at_points: tuple | None = None
     temperature_u_K: float = 0.0
     angle_sd_deg: float = 0.0  # instrument sd of a 6-DOF angle
     rate_hz: float | None = None  # time stamps' quantisation (PST, MPT)
@@ -131,6 +134,11 @@ class Budget:
     def registration_sd_mm(self, points_mm) -> np.ndarray:
         """Per-axis standard deviation of the frame at each point (...,), mm (0 without a fit)."""
         p = np.asarray(points_mm, dtype=float)
+        if self.registration_at_points:
+            q = np.array([a for a, _ in self.registration_at_points], dtype=float)
+            sd = np.array([b for _, b in self.registration_at_points], dtype=float)
+            near = np.argmin(np.linalg.norm(p[..., None, :] - q, axis=-1), axis=-1)
+            return sd[near]
         if self.registration_rms_mm is None or not self.registration_n or self.registration_n < 3:
             return np.zeros(p.shape[:-1])
         n = int(self.registration_n)
@@ -177,8 +185,10 @@ class Budget:
                            "meaning": ("maximum permissible error of a coordinate, read as a k = 2 bound"
                                        if self.instrument_kind == "mpe" else "standard deviation of a coordinate"),
                            "tracker_origin_mm": list(self.tracker_origin_mm)},
-            "registration": None if self.registration_rms_mm is None else {
-                "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n},
+            "registration": None if self.registration_rms_mm is None and not self.registration_at_points else {
+                "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n,
+                "sd_at_points_mm": None if not self.registration_at_points else
+                [[list(a), b] for a, b in self.registration_at_points]},
             "temperature_u_K": self.temperature_u_K,
             "angle_sd_deg": self.angle_sd_deg,
             "rate_hz": self.rate_hz,
@@ -200,7 +210,8 @@ def parse_tracker_uncertainty(text: str) -> dict:
         a = float(m.group(2))
         b = float(m.group(3)) if m.group(3) is not None else 0.0
     except ValueError:
-        raise ConfigError(f"--tracker-uncertainty: not numbers in {text!r}") from None
+        raise ConfigError(f"--tracker-uncertainty must be like 15+6/m (MPE, um + um/m; the distance term ends in "
+                          f"/m) or sd:7.5+3/m, got {text!r}") from None
     if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0 and a + b > 0):
         raise ConfigError(f"--tracker-uncertainty: the terms must be finite, >= 0 and not both 0, got {text!r}")
     return {"instrument_a_um": a, "instrument_b_um_per_m": b, "instrument_kind": kind}
@@ -321,15 +332,21 @@ def scatter_draws(S: np.ndarray, n: int, M: int, rng) -> tuple[np.ndarray, np.nd
     return nu / rng.chisquare(nu, size=M), lam
 
 
-def rp_of_scale(f: np.ndarray, lam: np.ndarray, noise_var: float) -> np.ndarray:
-    """:func:`population_rp` of the eigenvalues ``f lam - noise_var`` for every draw of the scale ``f`` (M,).
+def robot_rp(trace: np.ndarray, lam: np.ndarray, noise_var: float) -> np.ndarray:
+    """The robot's RP for measured scatters of total variance ``trace`` (M,), shape ``lam`` (3,), noise ``noise_var``.
 
-    RP is smooth and monotone in f: it is computed on 257 scales and interpolated.
+    The instrument's noise adds ``noise_var`` to every axis, so the robot's total variance is
+    ``trace - 3 noise_var`` (clipped at 0), an unbiased deflation.  Its shape is that of ``lam - noise_var``
+    (clipped; isotropic when nothing is left): the sample's eigenvalues spread wider than the population's,
+    so taking the noise out of each one would leave a robot where there is only noise.  RP scales with the
+    square root of the variance: ``sqrt(trace_robot) * population_rp(shape)``.
     """
-    lo, hi = float(f.min()), float(f.max())
-    grid = np.geomspace(lo, hi, 257) if hi > lo else np.array([lo, lo * (1 + 1e-12) + 1e-300])
-    rp = population_rp(grid[:, None] * lam[None, :] - noise_var)
-    return np.interp(f, grid, rp)
+    shape = np.clip(np.asarray(lam, dtype=float) - noise_var, 0.0, None)
+    if shape.sum() <= 0:
+        shape = np.ones(3)
+    shape = shape / shape.sum()
+    tr_r = np.clip(np.asarray(trace, dtype=float) - 3.0 * noise_var, 0.0, None)
+    return np.sqrt(tr_r) * float(population_rp(shape))
 
 
 def _mean_t_draws(x: np.ndarray, M: int, rng, floor_var: float) -> np.ndarray:
@@ -426,12 +443,11 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
     rp_comp: dict = {}
     if need_rp and mu is not None:
         f, lam_s = scatter_draws(S, n, M, rng)
-        RP = rp_of_scale(f, lam_s, sd_i ** 2)
+        RP = robot_rp(f * lam_s.sum(), lam_s, sd_i ** 2)
         l = np.linalg.norm(x - xb, axis=1)
         S_l = float(np.std(l, ddof=1))
         rp_meas = float(l.mean() + 3.0 * S_l)
-        lam_hat = np.linalg.eigvalsh(S) - sd_i ** 2
-        bias = rp_meas - float(population_rp(lam_hat))
+        bias = rp_meas - float(robot_rp(np.array([lam_s.sum()]), lam_s, sd_i ** 2)[0])
         samp = S_l * math.sqrt(1.0 / n + 9.0 / (2.0 * (n - 1)))
         rp_comp = {"sampling": samp, "bias": abs(bias)}
         rp_g = math.sqrt(samp ** 2 + bias ** 2)

@@ -56,6 +56,7 @@ def test_coverage_of_ap_and_rp(rng, n):
     T = 300
     hit_ap = np.zeros(T, bool)
     hit_rp = np.zeros(T, bool)
+    int_rp = np.zeros(T, bool)
     rel_rp = []
     for i in range(T):
         sim = simulate_pose_test(rng, n)
@@ -65,6 +66,7 @@ def test_coverage_of_ap_and_rp(rng, n):
         hit_ap[i] = abs(fu["AP_mm"].value - sim.AP_true_mm) <= fu["AP_mm"].U
         hit_rp[i] = abs(fu["RP_mm"].value - sim.RP_true_mm) <= fu["RP_mm"].U
         rel_rp.append(fu["RP_mm"].U / fu["RP_mm"].value)
+        int_rp[i] = fu["RP_mm"].interval[0] <= sim.RP_true_mm <= fu["RP_mm"].interval[1]
     tol = _band(0.95, T)
     assert abs(hit_ap.mean() - 0.95) <= tol, f"AP coverage {hit_ap.mean():.3f} at n={n}"
     assert hit_rp.mean() >= 0.95 - tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
@@ -72,10 +74,11 @@ def test_coverage_of_ap_and_rp(rng, n):
         assert hit_rp.mean() <= 0.95 + tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
     else:
         # at few cycles the measurand's PDF is skewed to the right (the scatter's scale is poorly known): its
-        # RMS, and so U = 2 u, over-covers (bench: 0.985-0.99 at 5 and 10 cycles); a U of several times the
+        # RMS, and so U = 2 u, over-covers (bench: 0.99-0.996 at 5 and 10 cycles); a U of several times the
         # figure would still pass the line above, so the width is bounded by what 5 or 10 stops allow
-        assert hit_rp.mean() <= 1.0
-        assert np.median(rel_rp) < (1.6 if n == 5 else 0.7), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
+        assert np.median(rel_rp) < (1.8 if n == 5 else 0.8), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
+    # the Monte Carlo 95 % coverage interval of the measurand
+    assert abs(int_rp.mean() - 0.95) <= tol, f"RP 95 % interval coverage {int_rp.mean():.3f} at n={n}"
 
 
 def test_ap_mc_matches_the_first_order_law_away_from_zero(rng):
@@ -89,13 +92,18 @@ def test_ap_mc_matches_the_first_order_law_away_from_zero(rng):
 
 
 def test_rp_takes_the_instrument_out_of_the_scatter(rng):
-    """A perfect robot measured by a noisy tracker: RP is the tracker's; the truth (0) lies inside."""
-    sd_um = rng.uniform(10.0, 30.0)
-    x = CMD[0] + rng.normal(0.0, sd_um / 1000.0, (30, 3))
-    b = Budget(instrument_a_um=sd_um, instrument_b_um_per_m=0.0, instrument_kind="sd", trials=20_000)
-    fu = pose_uncertainty(x, CMD[0], b)["RP_mm"]
-    assert fu.value > 0.5 * rp_population(sd_um / 1000.0)
-    assert fu.interval[0] <= 0.25 * fu.value and fu.value - fu.U <= 0.0
+    """A perfect robot measured by a noisy tracker: RP is the tracker's; the truth (0) lies in the intervals."""
+    T = 200
+    low = inside = 0
+    for i in range(T):
+        sd_um = rng.uniform(10.0, 30.0)
+        x = CMD[0] + rng.normal(0.0, sd_um / 1000.0, (30, 3))
+        b = Budget(instrument_a_um=sd_um, instrument_b_um_per_m=0.0, instrument_kind="sd", trials=4000, seed=i)
+        fu = pose_uncertainty(x, CMD[0], b)["RP_mm"]
+        assert fu.value > 0.5 * rp_population(sd_um / 1000.0)
+        low += fu.interval[0] <= 0.0
+        inside += fu.value - fu.U <= 0.0
+    assert low / T >= 0.95 - _band(0.95, T) and inside / T >= 0.95 - _band(0.95, T), (low / T, inside / T)
 
 
 def test_scalar_figures_cover(rng):
@@ -162,6 +170,18 @@ def test_tracker_uncertainty_option():
     assert float(b.instrument_sd_mm([0.0, 0.0, 2000.0])) == pytest.approx((15 + 12) / 2 / 1000)
 
 
+def test_registration_enters_ap_not_rp(rng):
+    """A frame uncertainty stated at the poses widens AP's U by it (quadrature) and leaves RP's alone."""
+    x = CMD[0] + np.array([0.4, 0.0, 0.0]) + rng.normal(0, 0.02, (30, 3))
+    sd_reg = rng.uniform(0.05, 0.2)
+    b0 = Budget(trials=40_000, seed=2)
+    b1 = Budget(trials=40_000, seed=2, registration_at_points=((tuple(CMD[0]), sd_reg), (tuple(CMD[1]), 9.0)))
+    f0, f1 = pose_uncertainty(x, CMD[0], b0), pose_uncertainty(x, CMD[0], b1)
+    assert f1["AP_mm"].components["registration"] == pytest.approx(sd_reg)
+    assert f1["AP_mm"].u == pytest.approx(math.hypot(f0["AP_mm"].u, sd_reg), rel=0.05)
+    assert f1["RP_mm"].u == pytest.approx(f0["RP_mm"].u, rel=0.03)  # other draws of the same PDF
+
+
 # --------------------------------------------------------------------------
 # the command
 # --------------------------------------------------------------------------
@@ -175,7 +195,7 @@ def _run(capsys, *argv):
 
 @pytest.fixture
 def files(rng, tmp_path):
-    s = iso_stream(rng, n_cycles=8, rate_hz=100.0, offsets_mm=random_offsets(rng), scatter_mm=0.02,
+    s = iso_stream(rng, n_cycles=15, rate_hz=100.0, offsets_mm=random_offsets(rng), scatter_mm=0.02,
                    noise_mm=0.005, wn_hz=10.0, zeta=0.8)
     return write_stream_csv(tmp_path / "S.csv", s.t, s.xyz), write_poses(tmp_path / "P.csv", NAMES5, CMD)
 
@@ -201,16 +221,17 @@ def test_guarded_rule_on_the_command_exit_codes(tmp_path, files, capsys):
         return rc, out, err, mine
 
     # on the limit: in the guard band -> not decided (exit 3) under guarded, pass (exit 0) under simple
-    rc, out, err, mine = at(rp + 1e-7, "guarded")
+    rc, out, err, mine = at(rp + 1e-6, "guarded")
     assert rc == 3 and mine["outcome"] == NOT_DECIDED and f"RP_mm {pose} not decided" in err
     assert "guard band" in err and "UND  RP_mm" in out
     assert mine["guard_band"] == pytest.approx([mine["limit"] - U, mine["limit"] + U], abs=2e-6)
-    rc, out, err, mine = at(rp + 1e-7, "simple")
+    rc, out, err, mine = at(rp + 1e-6, "simple")  # the JSON rounds to 1e-6
     assert rc == 0 and mine["passed"] is True
     # inside the conformance zone, and beyond the guard band
     rc, _, _, mine = at(rp + 1.5 * U, "guarded")
     assert mine["outcome"] == PASS and rc in (0, 3)  # another pose may sit in its own guard band
-    rc, _, err, mine = at(max(rp - 1.5 * U, 1e-6), "guarded")
+    assert U < rp, (U, rp)  # at 15 cycles U is about 0.4 RP: a limit below figure - U exists
+    rc, _, err, mine = at(rp - 1.5 * U if rp > 1.5 * U else 0.5 * (rp - U), "guarded")
     assert rc == 1 and mine["outcome"] == FAIL and f"RP_mm {pose} = " in err
 
 
@@ -226,3 +247,68 @@ def test_simple_rule_with_a_budget_changes_no_verdict(tmp_path, files, capsys):
     assert a["poses"] == b["poses"]
     assert "uncertainty" not in a and "u_mm" not in a["verdicts"][0]
     assert b["verdicts"][0]["rule"] == "simple" and b["verdicts"][0]["U_mm"] > 0
+
+
+# --------------------------------------------------------------------------
+# every characteristic of an analysis
+# --------------------------------------------------------------------------
+
+
+def test_every_characteristic_gets_an_uncertainty(rng):
+    """Drift, orientation, AD/RD, MPT, POS/PST and paths of one long synthetic run; vAP of a multi-direction one.
+
+    Each figure's U is positive and finite, its first-order u exists, and the figure lies in its own 95 %
+    interval or within U of it (a figure is an estimate of the measurand, not far from it).
+    """
+    from station.analysis.iso9283.characteristics import analyze_iso9283
+    from station.analysis.iso9283.uncertainty import figure_uncertainties
+
+    from .synth import iso_cycle_programme, multidirection_programme, render
+
+    servo = dict(wn_hz=15.0, zeta=0.9)
+    abc_cmd = rng.uniform(-1, 1, (5, 3))
+    prog = iso_cycle_programme(rng, n_cycles=20, scatter_mm=0.02, abc_commanded_rad=abc_cmd,
+                               abc_offset_rad=rng.normal(0, 2e-3, (5, 3)), abc_scatter_rad=2e-4, dwell_s=0.4)
+    s = render(rng, prog, start_mm=CMD[0], start_abc_rad=abc_cmd[0], rate_hz=200.0, noise_mm=0.005,
+               abc_noise_rad=5e-5, **servo)
+    res = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, orientation_rad=s.abc, commanded_orientation_rad=abc_cmd,
+                          drift_block=10, linear_paths=[("P2", "P3")], n_planes=5, band_mm=0.05)
+    b = Budget(trials=3000, seed=1, rate_hz=200.0, angle_sd_deg=math.degrees(5e-5))
+    unc = figure_uncertainties(res, b, s.xyz)
+    kinds = {k[0] for k in unc}
+    assert {"AP_mm", "RP_mm", "PST_s", "dAP_mm", "dRP_mm", "APa_deg", "RPc_deg", "AD_mm", "RD_mm", "MPT_s",
+            "AT_mm", "RT_mm"} <= kinds, kinds
+    if any(pr.overshoot is not None and pr.overshoot.POS_mm for pr in res.poses.values()):
+        assert "POS_mm" in kinds
+    for (ch, subj), fu in unc.items():
+        assert math.isfinite(fu.U) and fu.U > 0 and fu.u_gum is not None, (ch, subj, fu)
+        lo, hi = fu.interval
+        assert lo - fu.U <= fu.value <= hi + fu.U, (ch, subj, fu)
+    # vAP: three approach directions
+    dir_off = rng.normal(0, 0.4, (3, 3))
+    mp = multidirection_programme(rng, commanded=CMD, pose=0, dir_offsets_mm=dir_off, n_each=10, scatter_mm=0.02)
+    sv = render(rng, mp, start_mm=CMD[0] - [0, 0, 150.0], rate_hz=200.0, noise_mm=0.005, speed_mm_s=500.0, **servo)
+    rv = analyze_iso9283(sv.t, sv.xyz, CMD[[0]], names=[NAMES5[0]])
+    fv = figure_uncertainties(rv, b, sv.xyz)[("vAP_mm", NAMES5[0])]
+    truth = max(np.linalg.norm(mp.target_mm[mp.direction == h].mean(axis=0) - mp.target_mm[mp.direction == k].mean(axis=0))
+                for h in range(3) for k in range(3))
+    assert abs(fv.value - truth) <= 2.5 * fv.U  # the figure's scatter about a truth drawn from 10 stops each
+
+
+def test_stop_list_with_the_guarded_rule(tmp_path, rng, capsys):
+    from .labfiles import write_stops
+
+    n = 12
+    names = ["P1", "P2"]
+    pose = [p for _ in range(n) for p in names]
+    cycle = [c for c in range(n) for _ in names]
+    pts = np.array([CMD[names.index(p)] + 0.3 + rng.normal(0, 0.02, 3) for p in pose])
+    S = write_stops(tmp_path / "s.csv", pose, cycle, pts[:, None, :])
+    P = write_poses(tmp_path / "p.csv", names, CMD[:2])
+    rc, out, err = _run(capsys, "--stops", S, "--poses", P, "--limit", "AP_mm=5", "--decision-rule", "guarded",
+                        "--mc-trials", "2000", "--json", tmp_path / "o.json")
+    d = json.loads((tmp_path / "o.json").read_text())
+    assert rc == 0, err
+    ap = [v for v in d["verdicts"] if v["characteristic"] == "AP_mm"]
+    assert len(ap) == 2 and all(v["outcome"] == "pass" and 0 < v["U_mm"] < 0.2 for v in ap)
+    assert {f["characteristic"] for f in d["uncertainty"]["figures"]} >= {"AP_mm", "RP_mm"}

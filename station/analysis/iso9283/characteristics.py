@@ -306,6 +306,8 @@ class Iso9283Result:
     iso_reasons: tuple[str, ...] = ()
     #: every stop left out of a statistic, with the reason, in time order
     left_out: tuple[LeftOut, ...] = ()
+    #: {(characteristic, subject): FigureUncertainty} when a budget was stated (station.analysis.iso9283.uncertainty)
+    uncertainties: dict = field(default_factory=dict)
 
     @property
     def passed(self) -> bool | None:
@@ -1359,6 +1361,13 @@ def overall_passed(verdicts) -> bool | None:
 
 
 def _result_to_dict(r: Iso9283Result) -> dict:
+    d = _result_dict(r)
+    if r.uncertainties:
+        d["uncertainty_figures"] = [fu.to_dict() for fu in r.uncertainties.values()]
+    return d
+
+
+def _result_dict(r: Iso9283Result) -> dict:
     ex = r.extraction
     st = ex.stops
     poses = {name: pose_to_dict(pr) for name, pr in r.poses.items()}

@@ -139,7 +139,8 @@ def apply_rule(res, uncertainties: dict[Key, FigureUncertainty], rule: str):
             elif d.outcome == NOT_DECIDED:
                 note = d.explain()
         new.append(replace(v, passed=d.passed, note=note, uncertainty=fu, rule=rule, guard_band=d.guard_band))
-    return replace(res, verdicts=tuple(new))
+    extra = {"uncertainties": dict(uncertainties)} if hasattr(res, "uncertainties") else {}
+    return replace(res, verdicts=tuple(new), **extra)
 
 
 def unit_of(characteristic: str) -> str:
