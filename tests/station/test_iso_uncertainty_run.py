@@ -28,7 +28,7 @@ def _run(fake_cell, tmp_path, capsys, *, cycles, limits, rule="guarded"):
 
 def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, capsys):
     code, store, out = _run(fake_cell, tmp_path, capsys, cycles=3, limits={"rp_limit_mm": 5.0})
-    assert code == 3, out
+    assert code.exit_code == 3, out
     assert "verdict: NOT DECIDED" in out and "decision rule: guarded" in out
     assert "NOT DECIDED RP_mm P" in out
     # (a loaded machine may lose a stop: a pose left with fewer than 2 has no RP at all, and no outcome)
@@ -61,7 +61,7 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
 
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
     code, store, out = _run(fake_cell, tmp_path, capsys, cycles=6, limits={"rp_limit_mm": 5.0, "ap_limit_mm": 20.0})
-    assert code == 0, out
+    assert code.exit_code == 0, out
     assert "verdict: PASS" in out and "decision rule: guarded" in out
     vs = store.result("u1", "iso9283")["pose"]["verdicts"]
     assert {v["characteristic"] for v in vs} == {"AP_mm", "RP_mm"}
