@@ -152,7 +152,7 @@ def _exceeding(args) -> int:
     if args.json:
         print(json.dumps(rows + undecided, indent=2))
         return 0
-    if not rows:
+    if not rows and not undecided:
         print(f"no robot over its {args.name} limit ("
               + ("any finished run" if args.all_runs else "each robot's latest run") + ")")
     for r in rows:

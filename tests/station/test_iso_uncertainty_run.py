@@ -21,15 +21,16 @@ def _run(fake_cell, tmp_path, capsys, *, cycles, limits, rule="guarded"):
         iso9283={"cycles": cycles, "vap_cycles": 2}, limits=limits)
         | {"uncertainty": {"decision_rule": rule, "mc_trials": 2000, "mc_seed": 4}})
     assert plan_from_config(cfg).decision_rule == rule
-    code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
-                         config_dir=tmp_path)
-    return code, RunStore(tmp_path / "s.sqlite"), capsys.readouterr().out
+    outcome = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
+                            config_dir=tmp_path)
+    capsys.readouterr()
+    return outcome, RunStore(tmp_path / "s.sqlite"), "\n".join(outcome.lines())
 
 
 def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, capsys):
     code, store, out = _run(fake_cell, tmp_path, capsys, cycles=3, limits={"rp_limit_mm": 5.0})
     assert code.exit_code == 3, out
-    assert "verdict: NOT DECIDED" in out and "decision rule: guarded" in out
+    assert out.startswith("NOT DECIDED: run u1") and "decision rule: guarded" in out
     assert "NOT DECIDED RP_mm P" in out
     # (a loaded machine may lose a stop: a pose left with fewer than 2 has no RP at all, and no outcome)
     v = [x for x in store.result("u1", "iso9283")["pose"]["verdicts"]
@@ -62,7 +63,7 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):
     code, store, out = _run(fake_cell, tmp_path, capsys, cycles=6, limits={"rp_limit_mm": 5.0, "ap_limit_mm": 20.0})
     assert code.exit_code == 0, out
-    assert "verdict: PASS" in out and "decision rule: guarded" in out
+    assert out.startswith("PASS: run u1") and "decision rule: guarded" in out
     vs = store.result("u1", "iso9283")["pose"]["verdicts"]
     assert {v["characteristic"] for v in vs} == {"AP_mm", "RP_mm"}
     for v in vs:

@@ -18,7 +18,7 @@ def test_empty_answers_say_so(tmp_path, pg_url, capsys):
         ("store", "exceeding", "--name", "AP_mm"): "no robot over its AP_mm limit (each robot's latest run)",
         ("store", "history", "--serial", "NOPE", "--name", "RP_mm"): "no values of RP_mm for serial NOPE",
         ("store", "fleet", "over-limits", "--name", "AP_mm"):
-            "no robot whose latest run is over its AP_mm limit in this station's store",
+            "no robot whose latest run is over its AP_mm limit or not decided against it in this station's store",
         ("store", "fleet", "drifting", "--name", "RP_mm"): "no robot whose RP_mm drifts",
     }
     for argv, said in asked.items():
