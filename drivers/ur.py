@@ -1048,7 +1048,7 @@ class URDriver:
         from drivers.robot import RobotReadings
 
         s = self.samples()
-        return RobotReadings(t_s=s.t_s, q_rad=s.q_rad, tcp_xyz_mm=s.tcp_xyz_mm)
+        return RobotReadings(t_s=s.t_s, q_rad=s.q_rad, tcp_xyz_mm=s.tcp_xyz_mm, dropped=s.dropped, missed=s.missed)
 
     # ------------------------------------------------------------------ dashboard
     def _dashboard_call(self, what: str, fn, *args):
