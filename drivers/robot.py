@@ -53,11 +53,17 @@ class RobotReadings:
         Measured joint angles.
     tcp_xyz_mm : ndarray, shape (N, 3)
         TCP position the controller computes from them (its nominal kinematics), base frame.
+    dropped, missed : int
+        Counted, never hidden: samples lost to full buffers, and controller periods with no sample
+        between two that arrived (a UR streams 500 Hz; a host reading slower sees the newest only).
     """
 
     t_s: np.ndarray
     q_rad: np.ndarray
     tcp_xyz_mm: np.ndarray
+    #: samples lost to full buffers, and controller periods without a sample (sent faster than read)
+    dropped: int = 0
+    missed: int = 0
 
     def __len__(self) -> int:
         return len(self.t_s)

@@ -10,6 +10,12 @@
   ``register_base + 1`` when its motion is done, so the driver knows from the
   RTDE stream alone that *its* program ran. **The safety gate checks every
   target, path and speed before a byte is sent** (:class:`station.safety.SafetyGate`).
+* **Programs run whole** (:meth:`URDriver.run`, the robot interface of
+  :mod:`drivers.robot`): a station :class:`~station.programs.model.Program`
+  is gated move by move from the joints RTDE reports, rendered as one
+  URScript program (:mod:`station.programs.urscript`; registers
+  ``register_base + 2`` and ``+ 3`` carry the moves and cycles done) and
+  watched on RTDE until the arm rests on its last target.
 * **Program and power state** through ``dashboard_client.DashboardClient``.
 
 ``RTDEReceiveInterface``'s constructor holds the Python GIL while it waits
@@ -1042,7 +1048,7 @@ class URDriver:
         from drivers.robot import RobotReadings
 
         s = self.samples()
-        return RobotReadings(t_s=s.t_s, q_rad=s.q_rad, tcp_xyz_mm=s.tcp_xyz_mm)
+        return RobotReadings(t_s=s.t_s, q_rad=s.q_rad, tcp_xyz_mm=s.tcp_xyz_mm, dropped=s.dropped, missed=s.missed)
 
     # ------------------------------------------------------------------ dashboard
     def _dashboard_call(self, what: str, fn, *args):

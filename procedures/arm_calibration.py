@@ -63,8 +63,8 @@ from typing import Any
 
 import numpy as np
 
-from procedures.cell import (CellSession, connect_cell, connect_controller, prompt_step, record_robot_readings,
-                            robot_subject, stop_cell)
+from procedures.cell import (ROBOT_STREAM, CellSession, connect_cell, connect_controller, prompt_step,
+                            record_robot_readings, robot_subject, stop_cell)
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
@@ -380,7 +380,7 @@ def step_measure(k: int):
                    **{f"q{j + 1}": np.array([float(plan.q_deg[i][j])]) for j in range(6)},
                    "x": xyz[:1], "y": xyz[1:2], "z": xyz[2:3],
                    "t": np.array([np.nan if m.t_device_s is None else float(m.t_device_s)])}
-            q_meas = _measured_joints_deg(controller)
+            q_meas = _measured_joints_deg(ctx, controller)
             if q_meas is not None:
                 row.update({f"q{j + 1}": q_meas[j:j + 1] for j in range(6)})
             row["q_measured"] = np.array([0.0 if q_meas is None else 1.0])
@@ -390,14 +390,16 @@ def step_measure(k: int):
     return run
 
 
-def _measured_joints_deg(controller) -> np.ndarray | None:
-    """Mean joint angles (deg) the robot reported since the last call (the measurement's), or None when it
-    gives no readings stream (the Modbus controller: the plan's joint angles are used)."""
+def _measured_joints_deg(ctx: StepContext, controller) -> np.ndarray | None:
+    """Mean joint angles (deg) the robot reported since the last call (the measurement's; committed to the
+    ``robot`` stream too), or None when it gives no readings stream (the Modbus controller: the plan's joint
+    angles are used)."""
     r = controller.readings()
     if r is None:
         return None
     if not len(r):
         return np.degrees(np.asarray(controller.joints_rad(), dtype=float))
+    ctx.record(ROBOT_STREAM, r.columns())
     return np.degrees(np.mean(r.q_rad, axis=0))
 
 

@@ -40,11 +40,17 @@ def connect_controller(session, gate) -> dict:
 ROBOT_STREAM = "robot"
 
 
-def record_robot_readings(ctx, robot) -> int:
+def record_robot_readings(ctx, robot, counts: dict | None = None) -> int:
     """Commit the arm's own joint and TCP readings since the last call to the run's ``robot`` stream
-    (a robot that gives only point reads records nothing); how many."""
+    (a robot that gives only point reads records nothing); how many. ``counts`` (a dict) accumulates
+    ``received``, ``dropped`` and ``missed`` for the step's output."""
     readings = robot.readings()
-    if readings is None or not len(readings):
+    if readings is None:
+        return 0
+    if counts is not None:
+        for key, n in (("received", len(readings)), ("dropped", readings.dropped), ("missed", readings.missed)):
+            counts[key] = counts.get(key, 0) + int(n)
+    if not len(readings):
         return 0
     return ctx.record(ROBOT_STREAM, readings.columns())
 

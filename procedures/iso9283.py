@@ -357,6 +357,7 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
     plan = _plan(ctx)
     tracker, controller = ctx.session.tracker, ctx.session.controller
     events: list[str] = []
+    robot_counts: dict = {}
 
     def drain(timeout: float = 0.0, robot: bool = True) -> None:
         batch = tracker.read_samples(timeout_s=timeout)
@@ -365,7 +366,7 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
         if len(batch):
             _record_batch(ctx, batch)
         if robot:
-            record_robot_readings(ctx, controller)
+            record_robot_readings(ctx, controller, robot_counts)
 
     last = [time.monotonic()]
 
@@ -398,8 +399,10 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
             # readings too, unless the robot failed: its link may be what broke
             drain(0.0, robot=ok)
     if not stream:
-        record_robot_readings(ctx, controller)
+        record_robot_readings(ctx, controller, robot_counts)
     out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
+    if robot_counts:  # the arm's own readings (a robot that streams them: the UR)
+        out["robot_samples"] = robot_counts
     record = tracker.stream_record() if stream else None
     if record is not None:
         out.update(_record_counts(record))

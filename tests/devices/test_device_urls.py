@@ -201,12 +201,12 @@ def test_the_table_names_a_driver_and_a_fake_for_every_device_scheme():
     assert set(SERVABLE) == set(FAKES) - {"scanner"}
 
 
-def _open_against_fakes(world, tmp_path, timeouts):
+def _open_against_fakes(world, tmp_path):
     """Start the fake of every scheme of the table (by its name in the fakes' table) and return
     ``(scheme -> URL, closers)``; the bridged GeoCOM socket and the scanner's folder are set up here."""
     from fakes.registry import start_named, url_of
 
-    urls, closers, started = {}, [], {}
+    urls, closers = {}, []
     for name, sch in SCHEMES.items():
         if sch.fake is None:
             continue
@@ -217,7 +217,6 @@ def _open_against_fakes(world, tmp_path, timeouts):
         else:
             h = start_named(sch.fake, world)
         closers.append(h.close)
-        started[name] = h
         if name == "geocom+socket":
             bridge = _TcpToPty(h.endpoint["device"])
             closers.append(bridge.close)
@@ -239,7 +238,7 @@ def test_every_scheme_of_the_table_opens_against_its_fake_through_the_registry(t
     rng = np.random.default_rng(seed)
     timeouts = {n: float(np.round(rng.uniform(2.0, 9.0), 3)) for n in SCHEMES}
     gate = SafetyGate(world.robot, default_limits(world.robot))
-    urls, closers = _open_against_fakes(world, tmp_path, timeouts)
+    urls, closers = _open_against_fakes(world, tmp_path)
     opened = []
     try:
         assert set(urls) == {n for n, s in SCHEMES.items() if s.driver}

@@ -100,7 +100,7 @@ def test_a_fault_stops_the_ur_run_safe_and_resumably(tmp_path, fault):
             ur.sim_release_emergency_stop()
             assert ur.dashboard_reply("brake release")[0] == "Brake releasing"
         code = _run(cfg, tmp_path, resume="f1")
-        assert code == 0, [s.message for s in store.steps("f1") if s.message]
+        assert code.exit_code == 0, [s.message for s in store.steps("f1") if s.message]
     after = _batches(tmp_path / "s.sqlite")
     assert not [k for k, blob in before.items() if after.get(k) != blob]
     store = RunStore(tmp_path / "s.sqlite")
