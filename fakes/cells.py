@@ -35,8 +35,9 @@ class FakeCell:
 
 
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
-#: more (``stop_sigma_mm``, mm per coordinate at home)
-WORLD_OPTIONS = ("stop_sigma_mm",)
+#: more (``stop_sigma_mm``, mm per coordinate at home) or a tracker whose beam is broken (``beam_breaks``, pairs of
+#: simulated s)
+WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks")
 
 
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:

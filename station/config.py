@@ -220,6 +220,8 @@ class ArmCalibrationConfig(_Strict):
     measure_s: float = Field(0.2, gt=0, le=60)
     speed_percent: float = Field(20.0, ge=MIN_SPEED_PERCENT, le=100)
     poses_per_step: int = Field(8, ge=1, le=200)
+    #: limit of the test poses' mean |error| after calibration (a characteristic with a verdict), mm
+    test_error_limit_mm: float | None = Field(None, gt=0, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _scanner(self) -> "ArmCalibrationConfig":
@@ -248,6 +250,8 @@ class TrailerConfig(_Strict):
     settle_s: float = Field(20.0, ge=0, le=1e4)
     duration_s: float = Field(63.0, gt=0, le=1e4)
     method: str = "dynamic"
+    #: |L1 - nominal_L1_m| and |L2 - nominal_L2_m| of the estimate must stay within this (verdicts), m
+    length_tolerance_m: float | None = Field(None, gt=0, allow_inf_nan=False)
 
     @field_validator("method")
     @classmethod
