@@ -22,6 +22,7 @@ from station.verdict import Outcome
 SHORT = {"cycles": 3, "vap_cycles": 2, "time_scale": 10.0}
 
 
+@pytest.mark.timeout(300)
 def test_a_marginal_robot_passes_and_its_plant_measurement_says_marginal(make_fake_station, tmp_path):
     station = make_fake_station(condition="marginal", record={"operator": "J. Kim", "work_order": "WO-2211",
                                                               "overhaul_ticket": "OH-77"}, **SHORT)
@@ -85,6 +86,7 @@ def test_a_robot_whose_stops_scatter_fails_on_repeatability(make_fake_station):
         run.assert_within_limits()
 
 
+@pytest.mark.timeout(400)  # two runs
 def test_fewer_cycles_than_asked_is_not_decided(make_fake_station):
     # the same cell twice: the second time the tracker's beam is broken in the middle of pose cycle 2
     first = make_fake_station(condition="in-spec", **SHORT)
@@ -117,6 +119,7 @@ def test_conformance_required_and_not_met_is_not_decided(fake_station):
     assert run.exit_code == 4 and any(r.startswith("not conformant (required)") for r in run.reasons)
 
 
+@pytest.mark.timeout(400)  # a run and its resume
 def test_a_run_stopped_by_its_operator_is_aborted_and_resumes_from_the_api(tmp_path, request):
     answers = tmp_path / "answers.txt"
     answers.write_text("yes\nclear = no\n")
@@ -143,6 +146,7 @@ def test_a_time_scale_the_fakes_cannot_keep_up_with_is_refused_before_anything_r
         assert [r.run_id for r in store.runs()] == []
 
 
+@pytest.mark.timeout(400)  # two runs
 def test_history_spans_sessions_in_a_persistent_plant_store(make_fake_station, tmp_path):
     plant = tmp_path / "plant.sqlite"
     ms = {"iso9283": [{"name": "RP_P1_plant", "of": "RP_mm", "high": 0.4, "pose": "P1", "unit": "mm"}]}
