@@ -1,6 +1,7 @@
 """`station run` tells its verdict: first line, --json top level, exit code, the store; --require-iso."""
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from station.store import RunStore
 
 def test_station_run_exits_with_its_verdict_and_says_it_first(tmp_path, capsys):
     seed = int(np.random.default_rng().integers(2**31))
-    print(f"cell seed {seed}")
+    print(f"cell seed {seed}", file=sys.stderr)
     cfg = tmp_path / "station.json"
     cfg.write_text(json.dumps(demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0), default=str))
     out = tmp_path / "r.json"
