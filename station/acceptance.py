@@ -284,9 +284,9 @@ class Station:
     ``operator`` answers the runs' prompts (see :func:`make_operator`): on
     the fakes a script may answer them (default: yes to each); with ``arm``
     only a person may (default: the terminal; or the operator's page).
-    ``store`` points the runs at another store than the config's (a path or
-    a ``postgresql://`` URL: e.g. the plant's persistent store, so history
-    spans test sessions). ``record`` is the test record's who and what
+    ``store`` points the runs at another SQLite store than the config's (e.g.
+    a persistent plant store, so history spans test sessions; the central
+    PostgreSQL store gets the runs by forwarding, ``station.store_url``). ``record`` is the test record's who and what
     (``operator``, ``work_order``, ``overhaul_ticket``, any other text
     fields), stored with every run and written by :meth:`AcceptanceRun.write_record`.
     """

@@ -22,8 +22,9 @@ Conditions (:data:`station.acceptance.CONDITIONS`): ``as-drawn``,
 ``in-spec``, ``out-of-spec`` (AP out), ``marginal``,
 ``rp-out``. The cell's seed is printed (shown with a failing test's output):
 rerun with ``--station-seed N``. ``--station-store PATH`` points every
-fixture's store at one persistent store (a SQLite path or a
-``postgresql://`` URL: the plant's store) so history spans sessions.
+fixture's store at one persistent SQLite store so history spans sessions
+(a plant's central PostgreSQL store is reached by forwarding: ``store_url``
+in a config, :meth:`Station.from_config`).
 """
 
 from __future__ import annotations
@@ -38,8 +39,7 @@ def pytest_addoption(parser):
     group.addoption("--station-seed", type=int, default=None, help="seed of the fake cell (default: random)")
     group.addoption("--station-time-scale", type=float, default=20.0, help="fake cell speed-up (default 20)")
     group.addoption("--station-store", default=None,
-                    help="store of every fake station (SQLite path or postgresql:// URL; default: the test's "
-                         "temporary directory)")
+                    help="SQLite store of every fake station (default: the test's temporary directory)")
 
 
 def pytest_configure(config):

@@ -112,7 +112,7 @@ def test_pause_abort_then_resume_from_the_cli(served, client, seed):
     proc = subprocess.run([sys.executable, "-m", "station.cli", "run", "--resume", run_id, "--config",
                            str(served.config_path), "--yes", "--quiet"], cwd=ROOT, capture_output=True, text=True,
                           timeout=60)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.returncode in (0, 1, 3), proc.stdout + proc.stderr  # done, with its verdict's exit code
     st = client.state(run_id)
     assert st["status"] == "done" and st["n_done"] == st["n_steps"] > n_before
     # the pause check above means something only if an unpaused step ends well within its 2 s window
