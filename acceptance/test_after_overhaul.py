@@ -24,15 +24,15 @@ def test_iso9283_after_overhaul(fake_station):
         assert run.value(pose, "PST_s") <= 0.5, f"{pose}: settles too slowly after a stop"
     assert abs(run.value("P2-P4", "AD_mm")) <= 2.0
     run.assert_within_limits()
-    assert run.passed is True
+    assert run.passed is True and run.verdict == "PASS" and run.reasons == []
 
 
 def test_a_robot_outside_the_limits_is_refused(fake_station_out_of_spec):
     run = fake_station_out_of_spec.iso9283(cycles=3, vap_cycles=2)
     assert run.status == "done", run.output
-    with pytest.raises(AssertionError, match=r"P\d AP_mm = [\d.]+ > limit 5"):
+    with pytest.raises(AssertionError, match=r"FAIL, outside the limits: .*P\d AP_mm = [\d.]+ mm > limit 5 mm"):
         run.assert_within_limits()
-    assert run.passed is False
+    assert run.passed is False and run.verdict == "FAIL" and run.exit_code == 1
 
 
 def test_history_shows_the_run(fake_station):

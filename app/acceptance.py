@@ -14,6 +14,7 @@ pytest plugin :mod:`app.testing` provides the ``fake_station`` fixture.
 
 from __future__ import annotations
 
+import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +27,7 @@ from station.store import RunStore
 from station.verdict import Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
-CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "one-pose-out", "marginal", "rp-out")
+CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out")
 #: a "marginal" robot's worst predicted AP lies within this fraction of the AP limit below it
 MARGINAL_FRACTION = 0.25
 #: an "rp-out" robot's expected RP, in units of the RP limit
@@ -73,18 +74,15 @@ def fake_cell_truth(plan, seed: int, world_kwargs: dict | None = None) -> CellTr
 
 def _meets(condition, ap_lo, ap_hi, ad_hi, ap_margin, ad_margin, ap_lim, ad_lim) -> bool:
     """In spec: every AP and |AD| plus its margin within its limit (no limit, no bound); out of spec:
-    some pose's AP minus its margin at or over the AP limit; one pose out: exactly one pose so, every
-    other pose's AP plus its margin within the limit; marginal: in spec, and the worst pose's AP within
-    :data:`MARGINAL_FRACTION` of the AP limit."""
+    some pose's AP minus its margin at or over the AP limit; marginal: in spec, and the worst pose's AP
+    plus its margin within :data:`MARGINAL_FRACTION` of the AP limit."""
     out = ap_lo - ap_margin >= ap_lim if ap_lim is not None else None
     inside = ap_hi + ap_margin <= ap_lim if ap_lim is not None else None
     if condition == "out-of-spec":
         return bool(np.any(out))
-    if condition == "one-pose-out":
-        return bool(np.count_nonzero(out) == 1 and np.count_nonzero(inside) == len(inside) - 1)
     in_spec = (ap_lim is None or bool(np.all(inside))) and (ad_lim is None or ad_hi + ad_margin <= ad_lim)
     if condition == "marginal":
-        return in_spec and bool(np.max(ap_lo) >= (1.0 - MARGINAL_FRACTION) * ap_lim)
+        return in_spec and bool(np.max(ap_hi + ap_margin) >= (1.0 - MARGINAL_FRACTION) * ap_lim)
     return in_spec
 
 
@@ -112,10 +110,23 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     InsufficientDataError
         No such cell among ``max_tries`` seeds (limits too tight or too loose for the simulated arms).
     """
+    return _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs)[0]
+
+
+def fake_robot_prediction(config: StationConfig, seed: int, condition: str, robot: str = "r1", *,
+                          sigmas: float = SPEC_SIGMAS, max_tries: int = 5000,
+                          world_kwargs: dict | None = None) -> tuple[int, dict]:
+    """:func:`fake_robot_seed` with what the cell predicts: ``(seed, {"AP_low_mm", "AP_high_mm",
+    "AP_margin_mm"})``, per pose the predicted AP cold and warm (low, high) and ``sigmas`` times the
+    run-to-prediction scatter."""
+    return _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs)
+
+
+def _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs) -> tuple[int, dict]:
     from procedures.iso9283 import plan_from_config
     from procedures.iso9283_truth import RunGeometry, predict_static, prediction_scatter
 
-    drawn = ("in-spec", "out-of-spec", "one-pose-out", "marginal")
+    drawn = ("in-spec", "out-of-spec", "marginal")
     if condition not in drawn:
         raise ConfigError(f"condition must be one of {', '.join(drawn)}, got {condition!r}")
     plan = plan_from_config(config, robot)
@@ -132,14 +143,16 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
         ap_lo, ap_hi = ap.min(axis=0), ap.max(axis=0)
         ad_hi = max((abs(v) for p in (cold, warm) for v in p.AD_mm.values()), default=0.0)
         # the cheap test first: the noise-free numbers must already be on the right side
-        if not _meets(condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0, ap_lim, ad_lim):
+        if not _meets("in-spec" if condition == "marginal" else condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0,
+                      ap_lim, ad_lim):
             continue
         sc = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=_SPEC_CYCLES,
                                 tracker_sigma_mm=cell.tracker_sigma_mm, rng=np.random.default_rng(s), geometry=geo)
         rms = np.array([sc.AP_rms_mm[n] for n in names])
         ad_sd = max(sc.AD_sd_mm.values(), default=0.0)
         if _meets(condition, ap_lo, ap_hi, ad_hi, sigmas * rms, sigmas * ad_sd, ap_lim, ad_lim):
-            return s
+            return s, {"AP_low_mm": dict(zip(names, ap_lo.tolist())), "AP_high_mm": dict(zip(names, ap_hi.tolist())),
+                       "AP_margin_mm": dict(zip(names, (sigmas * rms).tolist()))}
     raise InsufficientDataError(f"no fake cell {condition} among seeds {seed}..{seed + max_tries - 1} "
                                 f"(AP limit {ap_lim}, AD limit {ad_lim}, {sigmas:g} sigma)")
 
@@ -271,9 +284,9 @@ class Station:
     ``operator`` answers the runs' prompts (see :func:`make_operator`): on
     the fakes a script may answer them (default: yes to each); with ``arm``
     only a person may (default: the terminal; or the operator's page).
-    ``store`` points the runs at another store than the config's (a path or
-    a ``postgresql://`` URL: e.g. the plant's persistent store, so history
-    spans test sessions). ``record`` is the test record's who and what
+    ``store`` points the runs at another SQLite store than the config's (e.g.
+    a persistent plant store, so history spans test sessions; the central
+    PostgreSQL store gets the runs by forwarding, ``station.store_url``). ``record`` is the test record's who and what
     (``operator``, ``work_order``, ``overhaul_ticket``, any other text
     fields), stored with every run and written by :meth:`AcceptanceRun.write_record`.
     """
@@ -323,13 +336,14 @@ class Station:
         ``condition`` chooses the simulated robot (:data:`CONDITIONS`):
         ``"as-drawn"`` takes the cell of ``seed`` whatever its errors (an
         uncalibrated arm after overhaul: AP of about 1-6 mm); ``"in-spec"``,
-        ``"out-of-spec"`` (AP over its limit at some pose), ``"one-pose-out"``
-        (AP over its limit at exactly one pose, every other pose inside) and
-        ``"marginal"`` (inside, but the worst pose's AP within
-        :data:`MARGINAL_FRACTION` of its limit) take the first cell from
+        ``"out-of-spec"`` (AP over its limit at some pose) and
+        ``"marginal"`` (inside, but the worst pose's AP plus its scatter
+        margin within :data:`MARGINAL_FRACTION` of its limit) take the first cell from
         ``seed`` on that meets it by a clear margin (:func:`fake_robot_seed`);
-        ``"rp-out"`` is an in-spec cell whose stops scatter so that the
-        expected RP is twice ``rp_limit_mm`` (:data:`RP_OUT_FACTOR`).
+        ``"rp-out"`` is the cell of ``seed`` with stops that scatter so that
+        the expected RP is twice ``rp_limit_mm`` (:data:`RP_OUT_FACTOR`); its
+        AP is not conditioned (a scatter that wide also widens the AP's, so
+        no AP margin of 4 of its rms fits the simulated arms).
         ``self.seed`` is the cell used.
         """
         from fakes.cells import demo_config
@@ -352,15 +366,17 @@ class Station:
             if rp is None:
                 raise ConfigError("condition 'rp-out' needs an RP limit (limits={'rp_limit_mm': ...})")
             fake_options = {"stop_sigma_mm": rp * RP_OUT_FACTOR / _RP_PER_SIGMA}
-        if condition != "as-drawn":
-            seed = fake_robot_seed(config, seed, "in-spec" if condition == "rp-out" else condition,
-                                   world_kwargs=fake_options)
+        prediction = None
+        if condition not in ("as-drawn", "rp-out"):
+            seed, prediction = fake_robot_prediction(config, seed, condition)
         station = cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator, store=store,
                       record=record)
-        station.condition, station.fake_options = condition, fake_options
+        station.condition, station.fake_options, station.prediction = condition, fake_options, prediction
         return station
 
     condition: str | None = None
+    #: a drawn fake robot's predicted AP per pose (:func:`fake_robot_prediction`); None otherwise
+    prediction: dict | None = None
     #: extra parameters of the fake cell (e.g. the stop scatter of an "rp-out" robot)
     fake_options: dict | None = None
 
@@ -380,7 +396,7 @@ class Station:
 
         self._n += 1
         subject = self.config.robots[robot].serial if robot in self.config.robots else procedure
-        run_id = run_id or f"{subject}-accept-{self._n}-{int(time.time())}"
+        run_id = run_id or f"{subject}-{time.strftime('%Y%m%d-%H%M%S')}-{self._n}-{secrets.token_hex(2)}"
         acceptance = {"record": {**self.record, **dict(record or {})}}
         if require_conformance:
             acceptance["require_conformance"] = True
@@ -437,8 +453,8 @@ class Station:
         oldest first, optionally of one ``pose``.
 
         Each row is a dict with ``run_id``, ``created_at`` (s since the epoch),
-        ``overhaul_state``, ``model``, ``pose``, ``value``, ``unit``, ``limit``
-        (None without one) and ``passed`` (True, False, None): as
+        ``overhaul_state``, ``pose``, ``value``, ``limit`` (None without one)
+        and ``passed`` (True, False, None): as
         :meth:`station.store.RunStore.history` gives them.
         """
         with RunStore(self.config.station.store_file(self.workdir)) as store:

@@ -1,7 +1,8 @@
 """Re-analysis of the archive: archived runs' raw samples through the current analysis code.
 
 ``station store reanalyze`` runs here. For every finished run of a procedure
-that has a re-analysis (:data:`ANALYSES`), the analysis is re-run from the
+whose spec says how its runs are re-analysed (``ProcedureSpec.reanalyse``,
+:func:`procedures.registry.reanalysable`), that analysis is re-run from the
 run's stored plan, journal outputs and raw samples, in parallel processes
 (one per ``jobs``, each with its own store connection), and the result is
 kept in ``reanalyses`` under :func:`analysis_version`, beside the original
@@ -9,12 +10,13 @@ kept in ``reanalyses`` under :func:`analysis_version`, beside the original
 stays as it was decided.
 
 The analysis version is the package version plus a hash of the analysis
-code's source (``station/analysis``, ``station/models`` and the procedure's
-module), so two results of the same code share a version and any change of
+code's source (``station/analysis``, ``station/models`` and the modules of the
+re-analysable procedures), so two results of the same code share a version and any change of
 the code gives a new one.
 
-Like :mod:`app.assemble`, this module is a front door's helper: it uses
-the procedures' own analysis functions (the core never imports procedures).
+Like :mod:`app.assemble`, this module is a front door's helper: it asks
+the procedures' registry, never a procedure module or its step names (the
+core never imports procedures).
 """
 
 from __future__ import annotations
@@ -30,14 +32,11 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
+from procedures.registry import module_of, reanalysable
 from station.errors import ConfigError, DataError
 from station.store import RunStore
 from station.numeric import json_default
-
-PROCEDURE_MODULES = {"iso9283": "procedures.iso9283"}
-
 
 def analysis_version() -> str:
     """``<package version>+<sha1 of the analysis sources, 12 hex>``."""
@@ -51,7 +50,7 @@ def analysis_version() -> str:
 
     root = Path(station.__file__).resolve().parent
     files = sorted((root / "analysis").rglob("*.py")) + sorted((root / "models").rglob("*.py"))
-    for module in PROCEDURE_MODULES.values():
+    for module in sorted(module_of(name) for name in reanalysable()):
         spec = importlib.util.find_spec(module)
         if spec is not None and spec.origin:
             files.append(Path(spec.origin))
@@ -60,40 +59,6 @@ def analysis_version() -> str:
         h.update(f.name.encode())
         h.update(f.read_bytes())
     return f"{pkg}+{h.hexdigest()[:12]}"
-
-
-def reanalyze_iso9283(store: RunStore, run_id: str) -> tuple[dict, list[dict]]:
-    """The ISO 9283 analysis of a stored run, from its plan, registration output and tracker samples."""
-    from procedures import iso9283 as iso
-
-    rec = store.run(run_id)
-    plan = iso.IsoPlan.from_params(rec.params)
-    done = store.done_steps(run_id)
-    outputs = {s.name: s.output for s in done.values()}
-    index = {s.name: i for i, s in done.items()}
-    if "register base frame" not in outputs:
-        raise DataError(f"run {run_id}: no finished registration step: nothing to re-analyse")
-    reg = iso.registration_of(outputs)
-
-    def stream(names):
-        steps = [index[n] for n in names if n in index]
-        s = store.samples(run_id, iso.STREAM, steps=steps)
-        if not s:
-            return np.empty(0), np.empty((0, 3))
-        xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
-        order = np.argsort(s["t"], kind="stable")
-        return s["t"][order], xyz[order]
-
-    pose = stream([f"pose cycle {k}" for k in range(1, plan.cycles + 1)])
-    vap = stream([f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"])
-    if not len(pose[0]):
-        raise DataError(f"run {run_id}: no tracker samples of finished pose cycles")
-    main, vres = iso.analyse(plan, *pose, *vap)
-    rows = iso.characteristic_rows(main, vres)
-    return {"pose": main.to_dict(), "vap": vres.to_dict() if vres is not None else None}, rows
-
-
-ANALYSES = {"iso9283": ("iso9283", reanalyze_iso9283)}
 
 
 @dataclass
@@ -114,7 +79,8 @@ def reanalyze_run(target, run_id: str, version: str, force: bool = False) -> Rea
     t0 = time.perf_counter()
     with RunStore(target) as store:
         rec = store.run(run_id)
-        key, fn = ANALYSES[rec.procedure]
+        spec = reanalysable()[rec.procedure]
+        key, fn = spec.result_key, spec.reanalyse
         out = Reanalysis(run_id, rec.procedure, version, 0.0)
         if not force and store.backend.query(
                 "SELECT 1 FROM reanalyses WHERE run_id=? AND key=? AND analysis_version=?", (run_id, key, version)):
@@ -147,17 +113,18 @@ def reanalyze_run(target, run_id: str, version: str, force: bool = False) -> Rea
 
 def runs_to_reanalyze(store: RunStore, run_ids: Iterable[str] | None = None,
                       procedure: str | None = None) -> list[str]:
-    if procedure is not None and procedure not in ANALYSES:
-        raise ConfigError(f"no re-analysis for procedure {procedure!r} (have: {', '.join(ANALYSES)})")
+    analyses = reanalysable()
+    if procedure is not None and procedure not in analyses:
+        raise ConfigError(f"no re-analysis for procedure {procedure!r} (have: {', '.join(analyses)})")
     if run_ids:
         ids = list(run_ids)
         for r in ids:
             rec = store.run(r)
-            if rec.procedure not in ANALYSES:
+            if rec.procedure not in analyses:
                 raise ConfigError(f"run {r} is a {rec.procedure} run; no re-analysis for it "
-                                  f"(have: {', '.join(ANALYSES)})")
+                                  f"(have: {', '.join(analyses)})")
         return ids
-    return [r.run_id for r in store.runs() if r.status == "done" and r.procedure in ANALYSES
+    return [r.run_id for r in store.runs() if r.status == "done" and r.procedure in analyses
             and (procedure is None or r.procedure == procedure)]
 
 

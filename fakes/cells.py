@@ -36,8 +36,9 @@ class FakeCell:
 
 
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
-#: more (``stop_sigma_mm``, mm per coordinate at home)
-WORLD_OPTIONS = ("stop_sigma_mm",)
+#: more (``stop_sigma_mm``, mm per coordinate at home) or a tracker whose beam is broken (``beam_breaks``, pairs of
+#: simulated s)
+WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks")
 
 
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
@@ -91,8 +92,6 @@ def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:
 def default_scanner_pose(robot: str, working_distance_mm: float = 700.0) -> tuple[list[float], list[float]]:
     """(eye, look-at) of the fake world's default scanner, base frame mm: the home feature point and
     ``working_distance_mm`` along the home tool z from it (as :func:`fakes.sim.world.make_world` places it)."""
-    import numpy as np
-
     from station.models import kinematics as kin
     from station.models.jig import CornerJig
     from station.models.robots import get_robot

@@ -617,9 +617,11 @@ class _FtpServer:
     """pyftpdlib server in its own thread, rooted at the program directory."""
 
     def __init__(self, root: Path, host: str, faults: FaultPlan, password: str) -> None:
+        # servers first: its IO loop imports asyncore/asynchat with their deprecation warnings silenced, so the
+        # handlers' own `import asynchat` finds them loaded and warns no more
+        from pyftpdlib.servers import FTPServer  # noqa: I001
         from pyftpdlib.authorizers import AuthenticationFailed, DummyAuthorizer
         from pyftpdlib.handlers import FTPHandler
-        from pyftpdlib.servers import FTPServer
 
         refuse = faults.ftp_refuse
         corrupt = faults.ftp_corrupt

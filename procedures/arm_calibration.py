@@ -540,11 +540,31 @@ def step_identify(ctx: StepContext) -> dict:
     doc["joints"] = ("measured" if plan.instrument == "tracker" and recorded and "q_measured" in recorded
                      and bool(np.all(recorded["q_measured"] == 1.0)) else "commanded")
     ctx.store.put_result(ctx.run_id, RESULT_KEY, doc)
+    limit = (run.config.get("arm_calibration") or {}).get("test_error_limit_mm")
+    ctx.store.put_characteristics(ctx.run_id, error_rows(doc, limit))
     return {"train_mean_after_mm": doc["train"]["mean_abs_after_mm"],
             "test_mean_after_mm": doc["test"]["mean_abs_after_mm"] if doc["test"] else None,
             "model_file": doc["model_file"], "converged": doc["converged"],
             "ur_calibration_file": doc.get("ur_calibration_file"),
             "failed_poses": sorted(doc.get("failed_poses", {}))}
+
+
+def error_rows(doc: Mapping, test_limit_mm: float | None) -> list[dict]:
+    """The calibration's characteristics (pose ``train`` / ``test``): mean |error| before and after, max
+    after; ``test`` ``mean_error_after_mm`` is judged against ``arm_calibration.test_error_limit_mm``
+    (no test poses with a limit: not computed, NOT DECIDED)."""
+    rows = []
+    for part in ("train", "test"):
+        d = doc.get(part)
+        for name, key in (("mean_error_before_mm", "mean_abs_before_mm"), ("mean_error_after_mm", "mean_abs_after_mm"),
+                          ("max_error_after_mm", "max_abs_after_mm")):
+            value = None if not d else float(d[key])
+            lim = test_limit_mm if (part == "test" and name == "mean_error_after_mm") else None
+            if value is None and lim is None:
+                continue
+            passed = None if (lim is None or value is None) else bool(value <= lim)
+            rows.append({"pose": part, "name": name, "value": value, "unit": "mm", "limit": lim, "passed": passed})
+    return rows
 
 
 DIAGNOSIS_KEY = "diagnosis"

@@ -57,7 +57,7 @@ from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
 from procedures.decision import Checks, decide, record_measurements
 from procedures.cell import CellSession, connect_cell, record_robot_readings, robot_subject, prompt_step, stop_cell
-from procedures.preflight import report_dir_problems, tracker_rate_problems
+from procedures.preflight import report_dir_problems, time_scale_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 
 #: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
@@ -619,12 +619,46 @@ def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndar
     """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
     streams = ctx.session.streams
     if streams is None:
-        pose_steps = [f"pose cycle {k}" for k in range(1, plan.cycles + 1)]
-        # the stream's tail (the last vAP dwell) arrives in the step that stops it
-        vap_steps = [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"]
+        pose_steps, vap_steps = stream_steps(plan)
         streams = ctx.session.streams = {
             "pose": _stream_in_base(ctx, pose_steps)[:2], "vap": _stream_in_base(ctx, vap_steps)[:2]}
     return streams
+
+
+def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
+    """The analysis of a finished stored run, from its plan, its registration output and the tracker samples
+    of its finished steps (the same steps and frame as :func:`measured_streams`); DataError when it has none."""
+    from station.errors import DataError
+
+    rec = store.run(run_id)
+    plan = IsoPlan.from_params(rec.params)
+    done = store.done_steps(run_id)
+    outputs = {s.name: s.output for s in done.values()}
+    index = {s.name: i for i, s in done.items()}
+    if "register base frame" not in outputs:
+        raise DataError(f"run {run_id}: no finished registration step: nothing to re-analyse")
+    reg = registration_of(outputs)
+
+    def stream(names):
+        s = store.samples(run_id, STREAM, steps=[index[n] for n in names if n in index])
+        if not s:
+            return np.empty(0), np.empty((0, 3))
+        xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
+        order = np.argsort(s["t"], kind="stable")
+        return s["t"][order], xyz[order]
+
+    pose_steps, vap_steps = stream_steps(plan)
+    pose, vap = stream(pose_steps), stream(vap_steps)
+    if not len(pose[0]):
+        raise DataError(f"run {run_id}: no tracker samples of finished pose cycles")
+    main, vres = analyse(plan, *pose, *vap)
+    return {"pose": main.to_dict(), "vap": vres.to_dict() if vres is not None else None}, characteristic_rows(main, vres)
+
+
+def stream_steps(plan: IsoPlan) -> tuple[list[str], list[str]]:
+    """The steps whose samples are the pose stream and the vAP stream (its tail arrives in "stop stream")."""
+    return ([f"pose cycle {k}" for k in range(1, plan.cycles + 1)],
+            [f"vAP cycle {k}" for k in range(1, plan.vap_cycles + 1)] + ["stop stream"])
 
 
 def step_analyse(ctx: StepContext) -> dict:
@@ -810,6 +844,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = IsoPlan.from_params(params)
     problems = report_dir_problems(plan.report_dir)
     problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
+    problems += time_scale_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
     try:
         rendered = programs(plan)
     except StationError as exc:
@@ -835,4 +870,5 @@ SPEC = ProcedureSpec(
     summary=summary,
     preflight=preflight_problems,
     checks=run_checks,
+    reanalyse=reanalyse,
 )

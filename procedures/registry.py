@@ -72,6 +72,11 @@ class ProcedureSpec:
         the procedure says of a finished run beyond its stored limits (cycles
         found against asked, limits not computed, conformance to its standard);
         :func:`procedures.decision.decide` combines it into the run's verdict.
+    reanalyse : callable or None
+        ``reanalyse(store, run_id) -> (result, rows)``: the procedure's analysis
+        of a finished stored run from its plan, journal and raw samples (the
+        result stored under ``result_key``, the characteristic rows); None:
+        its runs are not re-analysed (``station store reanalyze``).
     """
 
     name: str
@@ -85,6 +90,7 @@ class ProcedureSpec:
     summary: Callable[[Any, str], list[str]]
     preflight: Callable[[Mapping, Any, Any], list[str]] = field(default=lambda params, cfg, devices: [])
     checks: Callable[[Any, str, Mapping], Any] | None = None
+    reanalyse: Callable[[Any, str], tuple[dict, list[dict]]] | None = None
 
 
 def procedure_names() -> tuple[str, ...]:
@@ -109,6 +115,17 @@ def runnable_procedures(cfg) -> tuple[str, ...]:
                 out.append(name)
                 break
     return tuple(out)
+
+
+def reanalysable() -> dict[str, ProcedureSpec]:
+    """The procedures whose runs can be re-analysed, by name."""
+    return {name: spec for name in REGISTRY if (spec := get_procedure(name)).reanalyse is not None}
+
+
+def module_of(name: str) -> str:
+    """The module that defines procedure ``name`` (its source is part of the analysis version)."""
+    get_procedure(name)
+    return REGISTRY[name]
 
 
 def get_procedure(name: str) -> ProcedureSpec:

@@ -386,8 +386,19 @@ def estimate(ctx: StepContext) -> dict:
     return {name: est.to_json() for name, est in s.estimates.items()}
 
 
+def length_rows(method: str, L1_m, L2_m, nominal_L1_m, nominal_L2_m, tol_m: float | None) -> list[dict]:
+    """|L - nominal| of both links of the run's estimate, judged against ``trailer.length_tolerance_m``."""
+    rows = []
+    for name, est, nom in (("L1_error_m", L1_m, nominal_L1_m), ("L2_error_m", L2_m, nominal_L2_m)):
+        value = None if est is None or not np.isfinite(est) else abs(float(est) - float(nom))
+        passed = None if (tol_m is None or value is None) else bool(value <= tol_m)
+        rows.append({"pose": method, "name": name, "value": value, "unit": "m", "limit": tol_m, "passed": passed})
+    return rows
+
+
 def report(ctx: StepContext) -> dict:
-    """Step 7: the characteristics, the HTML report and the stored result."""
+    """Step 7: the characteristics (the link lengths, and their errors from nominal judged against
+    ``trailer.length_tolerance_m``), the HTML report and the stored result."""
     from station.report import Report, plot_xy, write_report
 
     s = _record(ctx)
@@ -411,6 +422,8 @@ def report(ctx: StepContext) -> dict:
             rows.append({"pose": name, "name": key, "value": j[key], "unit": "m", "limit": None, "passed": None})
             rows.append({"pose": name, "name": key.replace("_m", "_sigma_m"), "value": j[f"{key[:2]}_sigma_m"],
                          "unit": "m", "limit": None, "passed": None})
+    tol = (ctx.store.run(ctx.run_id).config.get("trailer") or {}).get("length_tolerance_m")
+    rows += length_rows(s.plan.method, main.L1_m, main.L2_m, s.plan.nominal_L1_m, s.plan.nominal_L2_m, tol)
     ctx.store.put_characteristics(ctx.run_id, rows)
     k = np.linspace(np.nanmin(data["kappa"]), np.nanmax(data["kappa"]), 200)
     # steady state of eq. (23) for the estimated lengths: sin psi = kappa (L2 + L1 cos psi)

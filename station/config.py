@@ -222,6 +222,8 @@ class ArmCalibrationConfig(_Strict):
     #: the identification starts from instead of the nominal model; a run on a UR identifies a plain DH
     #: model (no beta) and writes its deltas beside the model file
     ur_calibration: str | None = None
+    #: limit of the test poses' mean |error| after calibration (a characteristic with a verdict), mm
+    test_error_limit_mm: float | None = Field(None, gt=0, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _scanner(self) -> "ArmCalibrationConfig":
@@ -250,6 +252,8 @@ class TrailerConfig(_Strict):
     settle_s: float = Field(20.0, ge=0, le=1e4)
     duration_s: float = Field(63.0, gt=0, le=1e4)
     method: str = "dynamic"
+    #: |L1 - nominal_L1_m| and |L2 - nominal_L2_m| of the estimate must stay within this (verdicts), m
+    length_tolerance_m: float | None = Field(None, gt=0, allow_inf_nan=False)
 
     @field_validator("method")
     @classmethod

@@ -8,7 +8,8 @@ In the manner of OpenHTF's measurements: each has a name, a unit, limits
   ``"mean_test_error_mm"``, ...);
 * ``pose``: one pose (``"P1"``), every pose (``"each"``: one row per pose),
   or the whole run (``None``: the worst over the poses, i.e. the largest
-  value when only ``high`` is given, else the value farthest out).
+  value when only ``high`` is given, the smallest when only ``low``, else
+  the value nearest a limit).
 
 Declared in the config (``[[measurements.iso9283]]`` tables, or under a
 robot: ``[[robots.r1.measurements.iso9283]]``) or in a script

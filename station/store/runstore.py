@@ -279,6 +279,10 @@ class RunStore:
             raise StoreError(f"run {run_id!r} already exists in {self.name}") from exc
 
     def run(self, run_id: str) -> RunRecord:
+        """The record of run ``run_id`` (:class:`RunRecord`: ``run_id``, ``procedure``, ``model``, ``serial``,
+        ``overhaul_state``, ``config`` and ``params`` (dicts as stored), ``status`` (one of
+        :data:`RUN_TRANSITIONS`), ``created_at``/``finished_at`` (s since the epoch; None while not
+        finished), ``station``). StoreError if there is none."""
         rows = self._query(
             "SELECT r.run_id, r.procedure, b.model, b.serial, r.overhaul_state, r.config_json, r.params_json,"
             " r.status, r.created_at, r.finished_at, r.station FROM runs r LEFT JOIN robots b USING (robot_id)"
@@ -450,12 +454,16 @@ class RunStore:
                    " ON CONFLICT (run_id, key) DO UPDATE SET value_json=excluded.value_json", (run_id, key, dumps(value)))])
 
     def result(self, run_id: str, key: str):
+        """The JSON value stored under ``key`` (e.g. ``"iso9283"``: the analysis; ``"verdict"``:
+        ``{"verdict", "reasons", "conformant", "exit_code"}``; ``"measurements"``: the plant's judged
+        measurements). StoreError if the run has no such result."""
         rows = self._query("SELECT value_json FROM results WHERE run_id=? AND key=?", (run_id, key))
         if not rows:
             raise StoreError(f"run {run_id}: no result {key!r}")
         return json.loads(rows[0][0])
 
     def results(self, run_id: str) -> dict:
+        """Every stored result of the run: ``{key: JSON value}`` (see :meth:`result`); empty when none."""
         return {k: json.loads(v) for k, v in self._query("SELECT key, value_json FROM results WHERE run_id=?", (run_id,))}
 
     def put_characteristics(self, run_id: str, rows: Iterable[Mapping]) -> None:
@@ -482,6 +490,9 @@ class RunStore:
         self._tx(stmts)
 
     def characteristics(self, run_id: str) -> list[dict]:
+        """One dict per stored number of the run, by pose then name: ``pose`` (``"P1"``, ``"P2-P4"``,
+        ``"run"``), ``name`` (unit in the name: ``"RP_mm"``), ``value`` (None: not computed), ``unit``,
+        ``limit`` (None: no limit) and ``passed`` (True, False; None without a limit or not decided)."""
         rows = self._query(
             "SELECT pose, name, value, unit, limit_value, passed FROM characteristics WHERE run_id=? ORDER BY pose, name",
             (run_id,),
@@ -509,7 +520,8 @@ class RunStore:
 
     # -- history ----------------------------------------------------------
     def history(self, serial: str, name: str, pose: str | None = None, *, model: str | None = None) -> list[dict]:
-        """One robot's values of characteristic ``name`` across its finished runs, oldest first.
+        """One robot's values of characteristic ``name`` (or a plant measurement) across its finished runs, oldest
+        first.
 
         The robot is (``model``, ``serial``); the model may be left out while
         one model has that serial (:meth:`resolve_robot`). Rows: ``run_id``,

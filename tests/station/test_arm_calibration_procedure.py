@@ -42,7 +42,7 @@ def _seeds(rng):
 
 def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng, tmp_path):
     cell_seed, sel_seed = _seeds(rng)
-    cfg = _cfg(tmp_path)
+    cfg = _cfg(tmp_path, test_error_limit_mm=0.1)
     code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
     assert code.status == "done"
@@ -61,6 +61,14 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     assert doc["test"]["mean_abs_before_mm"] > 0.3
     assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
     assert doc["train"]["n"] == 31 and doc["test"]["n"] == 9
+    # the calibration's characteristics, the test poses' mean error after it judged against its limit
+    with RunStore(cfg.station.store_file(tmp_path)) as store:
+        rows = {(r["pose"], r["name"]): r for r in store.characteristics("c1")}
+    after = rows[("test", "mean_error_after_mm")]
+    assert after["value"] == doc["test"]["mean_abs_after_mm"] and after["limit"] == 0.1 and after["unit"] == "mm"
+    assert after["passed"] is (after["value"] <= 0.1)
+    assert rows[("train", "mean_error_before_mm")]["value"] == doc["train"]["mean_abs_before_mm"]
+    assert str(code.verdict) == ("PASS" if after["passed"] else "FAIL")
     # the exported model (with its tracker <- base transform) by an independent FK
     model = json.loads(open(doc["model_file"]).read())
     split = plan.split()

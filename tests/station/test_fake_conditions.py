@@ -38,8 +38,10 @@ def test_in_and_out_of_spec_cells_keep_their_margin(tmp_path, world_seed):
 def test_conditions_refused_clearly(tmp_path, world_seed):
     with pytest.raises(ConfigError, match="condition must be one of"):
         Station.fake(tmp_path, seed=world_seed, condition="nice")
-    with pytest.raises(ConfigError, match="ap_limit_mm is needed"):
-        Station.fake(tmp_path, seed=world_seed, condition="out-of-spec", limits={"rp_limit_mm": 0.5})
+    with pytest.raises(ConfigError, match="ap_limit_mm is needed"):  # limits merge: None removes one
+        Station.fake(tmp_path, seed=world_seed, condition="out-of-spec", limits={"ap_limit_mm": None})
+    merged = Station.fake(tmp_path, seed=world_seed, limits={"rp_limit_mm": 0.3}).config.robots["r1"].limits
+    assert (merged.rp_limit_mm, merged.ap_limit_mm, merged.vap_limit_mm, merged.ad_limit_mm) == (0.3, 5.0, 2.0, 2.0)
     st = Station.fake(tmp_path, seed=world_seed, limits={"ap_limit_mm": 0.5})
     with pytest.raises(InsufficientDataError, match="no fake cell in-spec among seeds"):
         fake_robot_seed(st.config, world_seed, "in-spec", max_tries=20)

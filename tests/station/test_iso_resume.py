@@ -102,7 +102,7 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
         assert RunStore(db).run("k1").status in ("running", "done"), err
         resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
                                  cwd=ROOT, capture_output=True, text=True, timeout=180, input=TYPED_YES)
-        assert resumed.returncode in (0, 2), resumed.stderr
+        assert resumed.returncode in (0, 1, 2, 3), resumed.stderr  # the verdict's code (2: done already)
         store = RunStore(db)
         if store.run("k1").status != "done":
             pytest.fail(f"resumed run not done: {resumed.stdout} {resumed.stderr}")
@@ -133,7 +133,7 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
         ref = subprocess.run(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
                                       "--run-id", "r1"), cwd=ROOT, capture_output=True, text=True, timeout=180,
                              input=TYPED_YES)
-        assert ref.returncode == 0, ref.stderr
+        assert ref.returncode in (0, 1, 3), ref.stderr  # done: the verdict's exit code (5 would be unfinished)
     ref_store = RunStore(tmp_path / "ref.sqlite")
     ref_res = _pose_table(ref_store, "r1")
     # each run registered the tracker to the base on its own: the two frames differ by the registration's

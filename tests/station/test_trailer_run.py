@@ -36,7 +36,7 @@ def test_trailer_calibration_end_to_end_recovers_the_true_lengths(rng, tmp_path)
         "station": {"name": "yard", "store_path": str(tmp_path / "s.sqlite"), "report_dir": str(tmp_path / "r")},
         "devices": {"odo": {"url": "nmea:///dev/ttyS1?baud=57600"}},
         "trailer": {"odometry": "odo", "serial": "TR-1", "commands": [list(c) for c in SHORT["commands"]],
-                    "settle_s": SHORT["settle_s"], "duration_s": SHORT["duration_s"]},
+                    "settle_s": SHORT["settle_s"], "duration_s": SHORT["duration_s"], "length_tolerance_m": 0.03},
     })
     code = run_procedure(cfg, "trailer", run_id="t1", yes=True, quiet=True, time_scale=20.0,
                          seed=int(rng.integers(2**31)), fake_options={"true_lengths_m": [L1, L2]},
@@ -52,6 +52,13 @@ def test_trailer_calibration_end_to_end_recovers_the_true_lengths(rng, tmp_path)
     assert {"t", "kappa", "psi", "v"} <= set(s) and s["t"].size > 500 and np.all(np.diff(s["t"]) > 0)
     report = store.result("t1", "trailer")["report"]
     assert open(report).read().count("<svg") == 1
+    # L1, L2 within tolerance of nominal: characteristics with limits and the run's verdict
+    rows = {r["name"]: r for r in store.characteristics("t1") if r["pose"] == "dynamic"}
+    for name, est, nom in (("L1_error_m", res["L1_m"], 1.25), ("L2_error_m", res["L2_m"], 2.48)):
+        assert rows[name]["value"] == pytest.approx(abs(est - nom), abs=1e-12) and rows[name]["limit"] == 0.03
+        assert rows[name]["passed"] is (abs(est - nom) <= 0.03)
+    ok = rows["L1_error_m"]["passed"] and rows["L2_error_m"]["passed"]
+    assert str(code.verdict) == ("PASS" if ok else "FAIL") and code.exit_code == (0 if ok else 1)
 
 
 def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(rng, tmp_path):
