@@ -337,9 +337,10 @@ def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float, f
     e_now = cv_errors(A, r3, folds)
     cv_now = math.sqrt(float(np.mean(e_now)))
     dof = m - p - k
-    if dof < 3:
+    if dof < max(3.0, k / 2.0):
         ct.testable, ct.reason = False, (f"{train.size} training poses give {m} coordinates for {p + k} parameters "
-                                         "(base transform and geometry)")
+                                         f"(base transform and geometry): {dof} to spare, the test needs "
+                                         f"{max(3, int(math.ceil(k / 2)))}")
         return ct, cv_now
     Q = model_basis(A.reshape(-1, p))
     bt = wald_block(B.reshape(-1, k), r, Q, lambda X, res: np.eye(X.shape[1]))
@@ -609,7 +610,17 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             break
     resid_final = meas - predict(state, q, all_rows)
     # the model written out: the chosen terms refitted on every pose
-    state_all, _, sol_all = fit_report(state, q, meas, all_rows)
+    start_all = state
+    if geometry["named"]:
+        # the geometry of the written model is the calibration of every pose (its own identifiable set)
+        geo_all, res_all, _ = _geometric_term(dh, q, meas, all_rows)
+        if geo_all is not None:
+            gi = next(i for i, t in enumerate(state.terms) if t.kind == "geometric")
+            start_all = state.copy()
+            start_all.terms[gi] = geo_all
+            start_all.theta[gi] = (res_all.dh.reshape(-1) - dh.reshape(-1))[geo_all.index].copy()
+            start_all.R, start_all.t = res_all.base_T[:3, :3].copy(), res_all.base_T[:3, 3].copy()
+    state_all, _, sol_all = fit_report(start_all, q, meas, all_rows)
     fits.append(("all poses (model written out)", sol_all))
     variables = {"q_rad": q_in, "last_dir": last_dir[inv], "t_s": t_s, "temperature_c": temperature_c}
     for term in others:
