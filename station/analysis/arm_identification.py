@@ -619,6 +619,16 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         # stay near their start instead of following the noise into extrapolation
         s_noise = math.sqrt(sol.cost / (sol.r.size - free.size))
         psd = np.array([prior_sd(_name(i)) for i in pri])
+        if x_base0 is not None:
+            # the nominal model's rigid fit places the base only as well as the nominal model fits: its
+            # misfit over the spread of the points bounds the rotation, the misfit itself the translation
+            B0 = _base_T(x_base0)
+            miss = math.sqrt(float(np.mean(np.sum((meas - model_positions(dh_start_arr, q) @ B0[:3, :3].T
+                                                   - B0[:3, 3]) ** 2, axis=1))))
+            spread = math.sqrt(float(np.mean(np.sum((meas - meas.mean(axis=0)) ** 2, axis=1))))
+            for k, i in enumerate(pri):
+                if i >= kin.N_PARAMS:
+                    psd[k] = max(psd[k], 3.0 * (miss / max(spread, 1e-9) if i < kin.N_PARAMS + 3 else miss))
         w = s_noise / psd
         x_start = np.concatenate([dh_start_arr.reshape(-1), x_base0 if x_base0 is not None else np.zeros(0)])
         m_data = sol.r.size

@@ -546,6 +546,14 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         else:
             geometry["why_not"] = ("not significant" if not ct.significant else
                                    "significant but does not lower the cross-validated error")
+            # not named, but the diagnosis still starts from the geometric calibration (it costs nothing
+            # where the table is right, and joint effects must not stand in for a geometry left out)
+            st = state.with_term(geo)
+            st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
+            st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
+            state, _, sol = fit_report(st, q, meas, train)
+            fits.append(("geometric (adopted, not named)", sol))
+            geometry["adopted"] = True
     # ---- noise floor
     groups = repeat_groups(q)
     n_rep, dof_rep = noise_from_repeats(meas, groups) if groups else (math.nan, 0)
@@ -556,7 +564,8 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
                                          f"{dof_rep} degrees of freedom)")
     else:
         noise_floor = fit_floor
-        noise_src = ("the " + ("geometric" if geometry["named"] else "simulation's") + " fit's training residual, "
+        noise_src = ("the " + ("geometric" if geometry["named"] or geometry.get("adopted") else "simulation's")
+                     + " fit's training residual, "
                      "corrected for its degrees of freedom (no repeated measurements)")
 
     # ---- the other effects, only where geometry could be tested
@@ -611,7 +620,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     resid_final = meas - predict(state, q, all_rows)
     # the model written out: the chosen terms refitted on every pose
     start_all = state
-    if geometry["named"]:
+    if geometry["named"] or geometry.get("adopted"):
         # the geometry of the written model is the calibration of every pose (its own identifiable set)
         geo_all, res_all, _ = _geometric_term(dh, q, meas, all_rows)
         if geo_all is not None:

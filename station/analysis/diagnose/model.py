@@ -171,6 +171,14 @@ def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndar
         cols = np.concatenate([np.arange(6) if base else np.zeros(0, np.int64), off + np.arange(term.k)])
         sds = ([prior_sd(nm) for nm in BASE_NAMES] if base else []) + [prior_sd(kin.PARAM_NAMES[i])
                                                                       for i in term.index]
+        if base:
+            # as the identification: the nominal rigid fit's misfit over the points' spread bounds the base
+            R0, t0 = sol.state.base0
+            p_nom = kin.tool_position(sol.state.dh_nominal, q[rows]) @ R0.T + t0
+            miss = float(np.sqrt(np.mean(np.sum((meas[rows] - p_nom) ** 2, axis=1))))
+            spread = float(np.sqrt(np.mean(np.sum((meas[rows] - meas[rows].mean(axis=0)) ** 2, axis=1))))
+            for k in range(6):
+                sds[k] = max(sds[k], 3.0 * (miss / max(spread, 1e-9) if k < 3 else miss))
         w = np.sqrt(sol.cost / (m - sol.state.n_params)) / np.array(sds)
 
         def deviation(st):
