@@ -21,10 +21,22 @@ parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8)):
     ``P_meas = R P(x) + t``; the base transform ``(R, t)`` (6 parameters, a
     rotation vector and a translation) is identified with the kinematics.
 
-Identifiability is decided before iterating, explicitly:
+Both are solved by :func:`station.analysis.lm_solver.levenberg_marquardt`
+(the solver the diagnosis shares): the base transform and the tool row
+first, then every identifiable parameter, then the same with a weak prior at
+the start (:func:`prior_sd`) so that what the poses barely see stays near it.
+Changes beyond plausible bounds and near-perfect correlations are warnings
+(:func:`parameter_warnings`).
+
+Identifiability is decided before iterating, explicitly, on the model's
+structure (:func:`ideal_structure`: near-zero lengths and near-right angles
+snapped, so a start that is itself a calibration does not unlock pairs
+that are redundant by design):
 
 * parallel consecutive axes (``alpha`` of 0 or +-180 deg) take the Hayati
   ``beta`` in place of ``d`` (seed 002 eq. (3)); elsewhere ``beta`` is fixed;
+* parameters these poses cannot see but 200 poses spread over the joint
+  space would are fixed and named (refused with ``strict``);
 * the remaining columns of the column-scaled identification Jacobian are
   taken in a preferred order and a column is kept only if it is not (to a
   relative 1e-6) a combination of the ones kept before it; what is dropped
@@ -384,7 +396,7 @@ CORRELATION_WARN = 0.995
 
 
 #: 1-sigma of the weak prior at the start (joint rows / tool row)
-PRIOR_LENGTH_MM = 1.0
+PRIOR_LENGTH_MM = 2.0
 PRIOR_ANGLE_DEG = 0.5
 PRIOR_TOOL_LENGTH_MM = 10.0
 PRIOR_TOOL_ANGLE_DEG = 5.0

@@ -2,22 +2,36 @@
 
 1. The simulation predicts the measurements: nominal table, base transform
    fitted on the training poses (:mod:`.model`).
-2. Train / held-out split spanning the workspace (:mod:`.split`).
-3. Every candidate term (:mod:`.terms`) is tested against the residual left
-   by the current model: the part of its Jacobian columns the model cannot
-   already produce (Frisch-Waugh), least squares, and a cluster-robust Wald
-   statistic ``W`` (poses are the clusters; :func:`.model.robust_cov`).
-   ``W / k`` is compared with the ``1 - alpha / m`` quantile of
-   ``F(k, n_train - p/3)``: ``m`` counts the candidates tested in that round
-   (times the ``tau`` grid for a warm-up), so the family-wise false-discovery
-   rate of a round is at most ``alpha`` (Bonferroni).
-4. Forward selection: of the significant candidates that also lower the
-   held-out RMS (linearised refit), the one that lowers it most is added;
-   the model is refitted (Gauss-Newton) and the round repeats until nothing
-   significant is left.
-5. Ambiguity: a candidate that was significant in the round another one was
+2. Train / held-out split spanning the workspace (:mod:`.split`); the rows
+   are first put in motion order (by ``t``, or as given with
+   ``rows_in_motion_order``) or, without one, in a canonical order, so the
+   answer does not depend on how the rows were shuffled.
+3. Geometry first: the geometric calibration of the training poses
+   (:func:`station.analysis.arm_identification.identify`, the shared
+   Levenberg-Marquardt solver) is the start of everything else. It is
+   *named* when a partial F test of its columns against the simulation's
+   residual passes and it lowers the cross-validated error inside the
+   training poses. When geometry cannot be tested, nothing else is named.
+4. Every other candidate term (:mod:`.terms`) is tested against the
+   residual left by the current model: the part of its Jacobian columns the
+   model cannot already produce (Frisch-Waugh), least squares, and a
+   cluster-robust Wald statistic ``W`` (poses are the clusters;
+   :func:`.model.robust_cov`) against the ``1 - alpha / m`` quantile of
+   ``F(k, n_train - p/3)`` (Bonferroni over the round's candidates).
+5. Choice (nested): of the significant candidates, those whose linearised
+   refit lowers the K-fold cross-validated squared error *inside the
+   training poses* by more than one standard error of the paired difference
+   (:func:`cv_gain`); the lowest is refitted (the shared solver); a refit
+   with no training gain, a zero estimate or a joint error beyond
+   :data:`PLAUSIBLE_JOINT_ERROR_RAD` is no step. The held-out poses never
+   take part in a choice: they report the gain.
+6. Ambiguity: a candidate that was significant in the round another one was
    chosen, explained at least half as much of the residual alone, and is no
    longer significant after it, explains the same residual: the step names it.
+
+The noise floor is the pooled scatter of repeated measurements of the same
+joint angles when there are any, otherwise the geometric fit's training
+residual corrected for its degrees of freedom (``noise_floor_source``).
 
 Parameters come with 95 % confidence intervals from the cluster-robust
 covariance of the refit (t quantile). Lengths mm, angles rad (as the
