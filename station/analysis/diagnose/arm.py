@@ -268,7 +268,7 @@ def cv_errors(M: np.ndarray, r: np.ndarray, folds, B: np.ndarray | None = None) 
         Xk = X[keep].reshape(-1, P)
         sc = np.linalg.norm(Xk, axis=0)
         sc[sc == 0] = 1.0
-        step = np.linalg.lstsq(Xk / sc, r[keep].reshape(-1), rcond=1e-10)[0] / sc
+        step = np.linalg.lstsq(Xk / sc, r[keep].reshape(-1), rcond=1e-6)[0] / sc
         e = r[f] - np.einsum("nip,p->ni", X[f], step)
         out[f] = np.sum(e ** 2, axis=1)
     return out
@@ -541,7 +541,9 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         if not ct.testable:
             not_testable["geometric"] = ct.reason
             stop_why = f"geometry cannot be tested ({ct.reason}): nothing else is named"
-        elif ct.significant and ct.cv_gain:
+        elif ct.significant and ct.heldout_rms_after < cv_now:
+            # geometry is the base of everything else: a lower cross-validated error suffices (the one-SE
+            # rule of the joint effects would drop it where a fold takes a whole sweep away)
             st = state.with_term(geo)
             st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
             st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
