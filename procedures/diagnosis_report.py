@@ -55,7 +55,8 @@ def build_report(res: ArmDiagnosis, *, title: str, facts: dict | None = None) ->
     rows = _param_rows(doc, _arm_name, 3)
     f = {"held-out RMS, simulation": f"{doc['simulation_heldout_rms']:.4f} mm",
          "held-out RMS, extended model": f"{doc['final_heldout_rms']:.4f} mm ({doc['gain_percent']:.1f} % less)",
-         "noise floor": f"{doc['noise_floor']:.4f} mm",
+         "noise floor": f"{doc['noise_floor']:.4f} mm (from {doc.get('noise_floor_source', '')})",
+         "selection": doc.get("selection", ""),
          "poses": f"{doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out"}
     f.update(facts or {})
     notes = _notes(doc, _arm_name)

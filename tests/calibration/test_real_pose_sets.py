@@ -36,6 +36,7 @@ def _files(tmp_path, d, name="nom.json", dh=None):
     return str(tmp_path / name), str(tmp_path / "a.csv")
 
 
+@pytest.mark.timeout(600)  # eight finite-difference reference fits: slow on a shared machine
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
 def test_random_splits_hold_out_as_well_as_a_plain_full_fit(make, n):
     """Absolute method, random 70/30 splits, no preparation of the file: within 1.05x of the full fit."""

@@ -75,7 +75,8 @@ def test_nominal_arm_gives_nothing(rng):
     d = simulate_arm_data(ROBOT, EffectSet.none(), rng, n=120)
     res = _diagnose(d)
     assert res.steps == []
-    assert res.final_heldout_rms == res.simulation_heldout_rms
+    # the geometric calibration it starts from is not named, and costs the held-out poses next to nothing
+    assert res.final_heldout_rms < 1.1 * res.simulation_heldout_rms
 
 
 def test_not_testable_candidates_are_named_with_the_reason(rng):

@@ -21,10 +21,22 @@ parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8)):
     ``P_meas = R P(x) + t``; the base transform ``(R, t)`` (6 parameters, a
     rotation vector and a translation) is identified with the kinematics.
 
-Identifiability is decided before iterating, explicitly:
+Both are solved by :func:`station.analysis.lm_solver.levenberg_marquardt`
+(the solver the diagnosis shares): the base transform and the tool row
+first, then every identifiable parameter, then the same with a weak prior at
+the start (:func:`prior_sd`) so that what the poses barely see stays near it.
+Changes beyond plausible bounds and near-perfect correlations are warnings
+(:func:`parameter_warnings`).
+
+Identifiability is decided before iterating, explicitly, on the model's
+structure (:func:`ideal_structure`: near-zero lengths and near-right angles
+snapped, so a start that is itself a calibration does not unlock pairs
+that are redundant by design):
 
 * parallel consecutive axes (``alpha`` of 0 or +-180 deg) take the Hayati
   ``beta`` in place of ``d`` (seed 002 eq. (3)); elsewhere ``beta`` is fixed;
+* parameters these poses cannot see but 200 poses spread over the joint
+  space would are fixed and named (refused with ``strict``);
 * the remaining columns of the column-scaled identification Jacobian are
   taken in a preferred order and a column is kept only if it is not (to a
   relative 1e-6) a combination of the ones kept before it; what is dropped
@@ -384,7 +396,7 @@ CORRELATION_WARN = 0.995
 
 
 #: 1-sigma of the weak prior at the start (joint rows / tool row)
-PRIOR_LENGTH_MM = 1.0
+PRIOR_LENGTH_MM = 2.0
 PRIOR_ANGLE_DEG = 0.5
 PRIOR_TOOL_LENGTH_MM = 10.0
 PRIOR_TOOL_ANGLE_DEG = 5.0
@@ -619,6 +631,16 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         # stay near their start instead of following the noise into extrapolation
         s_noise = math.sqrt(sol.cost / (sol.r.size - free.size))
         psd = np.array([prior_sd(_name(i)) for i in pri])
+        if x_base0 is not None:
+            # the nominal model's rigid fit places the base only as well as the nominal model fits: its
+            # misfit over the spread of the points bounds the rotation, the misfit itself the translation
+            B0 = _base_T(x_base0)
+            miss = math.sqrt(float(np.mean(np.sum((meas - model_positions(dh_start_arr, q) @ B0[:3, :3].T
+                                                   - B0[:3, 3]) ** 2, axis=1))))
+            spread = math.sqrt(float(np.mean(np.sum((meas - meas.mean(axis=0)) ** 2, axis=1))))
+            for k, i in enumerate(pri):
+                if i >= kin.N_PARAMS:
+                    psd[k] = max(psd[k], 3.0 * (miss / max(spread, 1e-9) if i < kin.N_PARAMS + 3 else miss))
         w = s_noise / psd
         x_start = np.concatenate([dh_start_arr.reshape(-1), x_base0 if x_base0 is not None else np.zeros(0)])
         m_data = sol.r.size

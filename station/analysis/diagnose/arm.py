@@ -2,22 +2,36 @@
 
 1. The simulation predicts the measurements: nominal table, base transform
    fitted on the training poses (:mod:`.model`).
-2. Train / held-out split spanning the workspace (:mod:`.split`).
-3. Every candidate term (:mod:`.terms`) is tested against the residual left
-   by the current model: the part of its Jacobian columns the model cannot
-   already produce (Frisch-Waugh), least squares, and a cluster-robust Wald
-   statistic ``W`` (poses are the clusters; :func:`.model.robust_cov`).
-   ``W / k`` is compared with the ``1 - alpha / m`` quantile of
-   ``F(k, n_train - p/3)``: ``m`` counts the candidates tested in that round
-   (times the ``tau`` grid for a warm-up), so the family-wise false-discovery
-   rate of a round is at most ``alpha`` (Bonferroni).
-4. Forward selection: of the significant candidates that also lower the
-   held-out RMS (linearised refit), the one that lowers it most is added;
-   the model is refitted (Gauss-Newton) and the round repeats until nothing
-   significant is left.
-5. Ambiguity: a candidate that was significant in the round another one was
+2. Train / held-out split spanning the workspace (:mod:`.split`); the rows
+   are first put in motion order (by ``t``, or as given with
+   ``rows_in_motion_order``) or, without one, in a canonical order, so the
+   answer does not depend on how the rows were shuffled.
+3. Geometry first: the geometric calibration of the training poses
+   (:func:`station.analysis.arm_identification.identify`, the shared
+   Levenberg-Marquardt solver) is the start of everything else. It is
+   *named* when a partial F test of its columns against the simulation's
+   residual passes and it lowers the cross-validated error inside the
+   training poses. When geometry cannot be tested, nothing else is named.
+4. Every other candidate term (:mod:`.terms`) is tested against the
+   residual left by the current model: the part of its Jacobian columns the
+   model cannot already produce (Frisch-Waugh), least squares, and a
+   cluster-robust Wald statistic ``W`` (poses are the clusters;
+   :func:`.model.robust_cov`) against the ``1 - alpha / m`` quantile of
+   ``F(k, n_train - p/3)`` (Bonferroni over the round's candidates).
+5. Choice (nested): of the significant candidates, those whose linearised
+   refit lowers the K-fold cross-validated squared error *inside the
+   training poses* by more than one standard error of the paired difference
+   (:func:`cv_gain`); the lowest is refitted (the shared solver); a refit
+   with no training gain, a zero estimate or a joint error beyond
+   :data:`PLAUSIBLE_JOINT_ERROR_RAD` is no step. The held-out poses never
+   take part in a choice: they report the gain.
+6. Ambiguity: a candidate that was significant in the round another one was
    chosen, explained at least half as much of the residual alone, and is no
    longer significant after it, explains the same residual: the step names it.
+
+The noise floor is the pooled scatter of repeated measurements of the same
+joint angles when there are any, otherwise the geometric fit's training
+residual corrected for its degrees of freedom (``noise_floor_source``).
 
 Parameters come with 95 % confidence intervals from the cluster-robust
 covariance of the refit (t quantile). Lengths mm, angles rad (as the
@@ -257,7 +271,7 @@ def cv_errors(M: np.ndarray, r: np.ndarray, folds, B: np.ndarray | None = None) 
         Xk = X[keep].reshape(-1, P)
         sc = np.linalg.norm(Xk, axis=0)
         sc[sc == 0] = 1.0
-        step = np.linalg.lstsq(Xk / sc, r[keep].reshape(-1), rcond=1e-10)[0] / sc
+        step = np.linalg.lstsq(Xk / sc, r[keep].reshape(-1), rcond=1e-6)[0] / sc
         e = r[f] - np.einsum("nip,p->ni", X[f], step)
         out[f] = np.sum(e ** 2, axis=1)
     return out
@@ -340,9 +354,10 @@ def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float, f
     e_now = cv_errors(A, r3, folds)
     cv_now = math.sqrt(float(np.mean(e_now)))
     dof = m - p - k
-    if dof < 3:
+    if dof < max(3.0, k / 2.0):
         ct.testable, ct.reason = False, (f"{train.size} training poses give {m} coordinates for {p + k} parameters "
-                                         "(base transform and geometry)")
+                                         f"(base transform and geometry): {dof} to spare, the test needs "
+                                         f"{max(3, int(math.ceil(k / 2)))}")
         return ct, cv_now
     Q = model_basis(A.reshape(-1, p))
     bt = wald_block(B.reshape(-1, k), r, Q, lambda X, res: np.eye(X.shape[1]))
@@ -538,7 +553,9 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         if not ct.testable:
             not_testable["geometric"] = ct.reason
             stop_why = f"geometry cannot be tested ({ct.reason}): nothing else is named"
-        elif ct.significant and ct.cv_gain:
+        elif ct.significant and ct.heldout_rms_after < cv_now:
+            # geometry is the base of everything else: a lower cross-validated error suffices (the one-SE
+            # rule of the joint effects would drop it where a fold takes a whole sweep away)
             st = state.with_term(geo)
             st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
             st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
@@ -557,6 +574,14 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         else:
             geometry["why_not"] = ("not significant" if not ct.significant else
                                    "significant but does not lower the cross-validated error")
+            # not named, but the diagnosis still starts from the geometric calibration (it costs nothing
+            # where the table is right, and joint effects must not stand in for a geometry left out)
+            st = state.with_term(geo)
+            st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
+            st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
+            state, _, sol = fit_report(st, q, meas, train)
+            fits.append(("geometric (adopted, not named)", sol))
+            geometry["adopted"] = True
     # ---- noise floor
     groups = repeat_groups(q)
     n_rep, dof_rep = noise_from_repeats(meas, groups) if groups else (math.nan, 0)
@@ -567,7 +592,8 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
                                          f"{dof_rep} degrees of freedom)")
     else:
         noise_floor = fit_floor
-        noise_src = ("the " + ("geometric" if geometry["named"] else "simulation's") + " fit's training residual, "
+        noise_src = ("the " + ("geometric" if geometry["named"] or geometry.get("adopted") else "simulation's")
+                     + " fit's training residual, "
                      "corrected for its degrees of freedom (no repeated measurements)")
 
     # ---- the other effects, only where geometry could be tested
@@ -621,7 +647,17 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             break
     resid_final = meas - predict(state, q, all_rows)
     # the model written out: the chosen terms refitted on every pose
-    state_all, _, sol_all = fit_report(state, q, meas, all_rows)
+    start_all = state
+    if geometry["named"] or geometry.get("adopted"):
+        # the geometry of the written model is the calibration of every pose (its own identifiable set)
+        geo_all, res_all, _ = _geometric_term(dh, q, meas, all_rows)
+        if geo_all is not None:
+            gi = next(i for i, t in enumerate(state.terms) if t.kind == "geometric")
+            start_all = state.copy()
+            start_all.terms[gi] = geo_all
+            start_all.theta[gi] = (res_all.dh.reshape(-1) - dh.reshape(-1))[geo_all.index].copy()
+            start_all.R, start_all.t = res_all.base_T[:3, :3].copy(), res_all.base_T[:3, 3].copy()
+    state_all, _, sol_all = fit_report(start_all, q, meas, all_rows)
     fits.append(("all poses (model written out)", sol_all))
     variables = {"q_rad": q_in, "last_dir": last_dir[inv], "t_s": t_s, "temperature_c": temperature_c}
     for term in others:

@@ -41,10 +41,11 @@ class ModelState:
     t: np.ndarray
     terms: list = field(default_factory=list)
     theta: list = field(default_factory=list)
+    base0: tuple | None = None   # (R, t) of the nominal model's rigid fit: where the prior holds the base
 
     def copy(self) -> "ModelState":
         return ModelState(self.dh_nominal, self.R.copy(), self.t.copy(), list(self.terms),
-                          [th.copy() for th in self.theta])
+                          [th.copy() for th in self.theta], self.base0)
 
     def with_term(self, term: Term) -> "ModelState":
         s = self.copy()
@@ -134,7 +135,8 @@ def _apply_step(state: ModelState, step: np.ndarray) -> ModelState:
 def initial_state(dh_nominal, q: np.ndarray, meas: np.ndarray, rows: np.ndarray) -> ModelState:
     """The station's simulation: nominal table, base transform by a rigid fit on ``rows``."""
     T = rigid_fit(kin.tool_position(dh_nominal, q[rows]), meas[rows])
-    state = ModelState(np.asarray(dh_nominal, dtype=float), T[:3, :3].copy(), T[:3, 3].copy())
+    state = ModelState(np.asarray(dh_nominal, dtype=float), T[:3, :3].copy(), T[:3, 3].copy(),
+                       base0=(T[:3, :3].copy(), T[:3, 3].copy()))
     return state
 
 
@@ -155,6 +157,48 @@ def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndar
         return (meas[rows] - pred).reshape(-1), A.reshape(-1, A.shape[2])
 
     sol = levenberg_marquardt(evaluate, _apply_step, state, max_iter=max_iter, rtol=rtol)
+    geo = [i for i, t in enumerate(sol.state.terms) if t.kind == "geometric"]
+    m = rows.size * 3
+    if geo and m > sol.state.n_params:
+        # the identification's weak prior on the geometric deviations (station.analysis.arm_identification):
+        # what the poses barely see stays near the nominal table instead of following the noise
+        from station.analysis.arm_identification import BASE_NAMES, prior_sd
+
+        gi = geo[0]
+        off = 6 + sum(t.k for t in sol.state.terms[:gi])
+        term = sol.state.terms[gi]
+        base = sol.state.base0 is not None
+        cols = np.concatenate([np.arange(6) if base else np.zeros(0, np.int64), off + np.arange(term.k)])
+        sds = ([prior_sd(nm) for nm in BASE_NAMES] if base else []) + [prior_sd(kin.PARAM_NAMES[i])
+                                                                      for i in term.index]
+        if base:
+            # as the identification: the nominal rigid fit's misfit over the points' spread bounds the base
+            R0, t0 = sol.state.base0
+            p_nom = kin.tool_position(sol.state.dh_nominal, q[rows]) @ R0.T + t0
+            miss = float(np.sqrt(np.mean(np.sum((meas[rows] - p_nom) ** 2, axis=1))))
+            spread = float(np.sqrt(np.mean(np.sum((meas[rows] - meas[rows].mean(axis=0)) ** 2, axis=1))))
+            for k in range(6):
+                sds[k] = max(sds[k], 3.0 * (miss / max(spread, 1e-9) if k < 3 else miss))
+        w = np.sqrt(sol.cost / (m - sol.state.n_params)) / np.array(sds)
+
+        def deviation(st):
+            dev = [st.theta[gi]]
+            if base:
+                R0, t0 = st.base0
+                dev = [Rotation.from_matrix(st.R @ R0.T).as_rotvec(), st.t - t0] + dev
+            return np.concatenate(dev)
+
+        def evaluate_prior(st):
+            r_, J_ = evaluate(st)
+            Jp = np.zeros((cols.size, J_.shape[1]))
+            Jp[np.arange(cols.size), cols] = w
+            return np.concatenate([r_, -w * deviation(st)]), np.concatenate([J_, Jp])
+
+        solp = levenberg_marquardt(evaluate_prior, _apply_step, sol.state, max_iter=max_iter, rtol=rtol)
+        r_d, J_d = evaluate(solp.state)
+        sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
+                        sol.converged and solp.converged, solp.message if not solp.converged else sol.message,
+                        sol.rms_history, [])
     return sol.state, sol.cost, sol
 
 
