@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fakes.sim.real_like_arms import fanuc_like, rokae_like  # noqa: E402
-from station.analysis.arm_calibration import calibrate_arm, split_poses  # noqa: E402
+from station.analysis.arm.calibration import calibrate_arm, split_poses  # noqa: E402
 from station.analysis.diagnose import diagnose_arm  # noqa: E402
 from station.models.arm_extended import ExtendedArm, motion_directions, terms_from_json  # noqa: E402
 from station.models.arm_model_file import model_from_json  # noqa: E402

@@ -14,6 +14,8 @@
 
 from __future__ import annotations
 
+from app.commands.help_text import plain
+
 import argparse
 
 #: exit code when a target cannot be reached within --tol-mm (Q.csv is written all the same)
@@ -23,7 +25,7 @@ EXIT_MISSED = 3
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compensate", help="joint angles that put the tool on wanted points with a calibrated model")
     csub = p.add_subparsers(dest="compensate_cmd", metavar="WHAT")
-    a = csub.add_parser("arm", help="joint commands for wanted tool points", description=__doc__.split("\n\n")[1],
+    a = csub.add_parser("arm", help="joint commands for wanted tool points", description=plain(__doc__.split("\n\n")[1]),
                         epilog=f"exit codes: 0 every target reached; 2 refused; {EXIT_MISSED} a target missed")
     a.add_argument("--model", required=True, metavar="M.json", help="library robot or (extended) arm model file")
     a.add_argument("--targets", required=True, metavar="T.csv",

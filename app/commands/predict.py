@@ -14,13 +14,15 @@
 
 from __future__ import annotations
 
+from app.commands.help_text import plain
+
 import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("predict", help="evaluate a calibrated or extended model at joint angles")
     psub = p.add_subparsers(dest="predict_cmd", metavar="WHAT")
-    a = psub.add_parser("arm", help="tool points of an arm model at joint angles", description=__doc__.split("\n\n")[1])
+    a = psub.add_parser("arm", help="tool points of an arm model at joint angles", description=plain(__doc__.split("\n\n")[1]))
     a.add_argument("--model", required=True, metavar="M.json", help="library robot or (extended) arm model file")
     a.add_argument("--joints", required=True, metavar="Q.csv", help="q1..q6 (deg), optional t,temperature,load,dir1..dir6")
     a.add_argument("--out", required=True, metavar="P.csv", help="q1..q6, x,y,z (mm)")

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fakes.sim.real_like_arms import fanuc_like, rokae_like
-from station.analysis.arm_calibration import calibrate_arm, split_poses
+from station.analysis.arm.calibration import calibrate_arm, split_poses
 from station.analysis.diagnose import diagnose_arm
-from station.cli import main
+from app.cli import main
 from station.models import kinematics as kin
 from station.models.arm_extended import motion_directions
 from station.models.arm_model_file import model_to_json, resolve_arm

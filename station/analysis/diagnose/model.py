@@ -160,9 +160,9 @@ def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndar
     geo = [i for i, t in enumerate(sol.state.terms) if t.kind == "geometric"]
     m = rows.size * 3
     if geo and m > sol.state.n_params:
-        # the identification's weak prior on the geometric deviations (station.analysis.arm_identification):
+        # the identification's weak prior on the geometric deviations (station.analysis.arm.identification):
         # what the poses barely see stays near the nominal table instead of following the noise
-        from station.analysis.arm_identification import BASE_NAMES, prior_sd
+        from station.analysis.arm.identification import BASE_NAMES, prior_sd
 
         gi = geo[0]
         off = 6 + sum(t.k for t in sol.state.terms[:gi])
