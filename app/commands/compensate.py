@@ -14,9 +14,9 @@
 
 from __future__ import annotations
 
-from app.commands.help_text import plain
-
 import argparse
+
+from app.commands.help_text import plain
 
 #: exit code when a target cannot be reached within --tol-mm (Q.csv is written all the same)
 EXIT_MISSED = 3

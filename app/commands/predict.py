@@ -14,9 +14,9 @@
 
 from __future__ import annotations
 
-from app.commands.help_text import plain
-
 import argparse
+
+from app.commands.help_text import plain
 
 
 def register(sub: argparse._SubParsersAction) -> None:
