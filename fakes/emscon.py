@@ -334,7 +334,9 @@ class _Session:
             # what is due goes out before any reply: a reply the client gets tells it that every
             # sample due before its command was sent ahead of it
             if self.streaming:
-                self._stream()
+                # a lockstep clock with nothing scheduled stands still: what it has passed goes out whole,
+                # so a step's samples end where its program ended, not at the last full packet
+                self._stream(flush=bool(getattr(clock, "lockstep", False)) and clock.idle())
             self._finish_pending()
             wait = 0.05
             now = clock.now()
