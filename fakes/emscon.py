@@ -12,8 +12,13 @@ measurement time; continuous-time mode streams MultiMeasResultT packets
 ``t_k = k * lTimeSeparation`` (the source's device clock when it has one:
 ``device_time``); beam breaks are announced with
 SystemStatusChange MeasStatus_NotReady / MeasStatus_Ready and leave a hole
-in the grid. A client that reads too slowly overflows the device buffer
-(``device_buffer_s``): the oldest samples are dropped, as a real device does.
+in the grid. The stream holds the world's clock (:mod:`fakes.sim.clock`): the clock
+never passes the next packet not yet sent, so a client that reads too slowly
+stalls simulated time and loses nothing; with nothing scheduled the clock
+stands still and the fake sends everything up to it. Only on a clock that is
+not held (a source without ``producer``) does a slow client overflow the device
+buffer (``device_buffer_s``): the oldest samples are dropped, as a real device does.
+A reply goes out after every sample due before the command.
 
 The packet layouts are written here independently of ``drivers/`` (from the
 TPI headers), so the driver's codec is checked against a second reading.
