@@ -47,8 +47,7 @@ def _batches(db: Path, run_id: str) -> dict:
     return {tuple(r[:4]): r[4] for r in rows}
 
 
-@pytest.mark.parametrize("trial", range(2))
-def test_a_signalled_station_run_resumes_to_the_uninterrupted_result(tmp_path, trial):
+def test_a_signalled_station_run_resumes_to_the_uninterrupted_result(tmp_path):
     seed = int(np.random.default_rng().integers(0, 2**31))
     rng = np.random.default_rng(seed)
     sig = [signal.SIGINT, signal.SIGTERM, signal.SIGKILL][int(rng.integers(3))]
