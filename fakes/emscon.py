@@ -12,8 +12,13 @@ measurement time; continuous-time mode streams MultiMeasResultT packets
 ``t_k = k * lTimeSeparation`` (the source's device clock when it has one:
 ``device_time``); beam breaks are announced with
 SystemStatusChange MeasStatus_NotReady / MeasStatus_Ready and leave a hole
-in the grid. A client that reads too slowly overflows the device buffer
-(``device_buffer_s``): the oldest samples are dropped, as a real device does.
+in the grid. The stream holds the world's clock (:mod:`fakes.sim.clock`): the clock
+never passes the next packet not yet sent, so a client that reads too slowly
+stalls simulated time and loses nothing; with nothing scheduled the clock
+stands still and the fake sends everything up to it. Only on a clock that is
+not held (a source without ``producer``) does a slow client overflow the device
+buffer (``device_buffer_s``): the oldest samples are dropped, as a real device does.
+A reply goes out after every sample due before the command.
 
 The packet layouts are written here independently of ``drivers/`` (from the
 TPI headers), so the driver's codec is checked against a second reading.
@@ -334,7 +339,9 @@ class _Session:
             # what is due goes out before any reply: a reply the client gets tells it that every
             # sample due before its command was sent ahead of it
             if self.streaming:
-                self._stream()
+                # a lockstep clock with nothing scheduled stands still: what it has passed goes out whole,
+                # so a step's samples end where its program ended, not at the last full packet
+                self._stream(flush=bool(getattr(clock, "lockstep", False)) and clock.idle())
             self._finish_pending()
             wait = 0.05
             now = clock.now()

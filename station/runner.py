@@ -532,5 +532,7 @@ def resume_start_s(store: RunStore, run_id: str) -> float:
     for stream in store.streams(run_id):
         t = store.samples(run_id, stream, finished_only=False).get("t")
         if t is not None and t.size:
-            last = max(last, float(np.nanmax(t)) + RESUME_GAP_S)
+            t = t[np.isfinite(t)]
+            if t.size:
+                last = max(last, float(t.max()) + RESUME_GAP_S)
     return float(np.ceil(last))
