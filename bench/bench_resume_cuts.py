@@ -29,7 +29,7 @@ from fakes.cells import demo_config  # noqa: E402
 
 
 def station(*args):
-    return [sys.executable, "-m", "station.cli", *args]
+    return [sys.executable, "-m", "app.cli", *args]
 
 
 def table(path: Path) -> dict:

@@ -36,7 +36,7 @@ import pytest
 
 from fakes.cells import demo_config
 from procedures.iso9283 import IsoPlan, analyse, build_procedure, registration_of
-from station.assemble import run_procedure
+from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.runner import CallableOperator, ProgressLine, RunControl
 from station.store import RunStore
@@ -125,7 +125,8 @@ def test_a_run_cut_anywhere_resumes_as_if_never_interrupted(tmp_path):
     print(f"seed {seed} (world and interruption points)")
     cfg = config_from_dict(demo_config(tmp_path, cycles=CYCLES, vap_cycles=VAP, rate_hz=100.0))
     code, reports, asked = _run(cfg, tmp_path, "ref", seed)
-    assert code == 0
+    assert code.status == "done", code.error
+    ref_verdict = code.verdict
     store = RunStore(tmp_path / "station.sqlite")
     names = [s.name for s in build_procedure(IsoPlan.from_params(store.run("ref").params)).steps]
     ref = _analysis(store, "ref")
@@ -146,10 +147,10 @@ def test_a_run_cut_anywhere_resumes_as_if_never_interrupted(tmp_path):
         run_id = f"cut{j}"
         print(f"{run_id}: cut at {kind}: {cut_at}")
         code, _, asked_first = _run(cfg, tmp_path, run_id, seed, cut_at=cut_at)
-        assert code == 3, f"{run_id} was not aborted at {cut_at}"
+        assert code.status == "aborted" and code.exit_code == 5, f"{run_id} was not aborted at {cut_at}"
         finished_before = [s for s in store.steps(run_id) if s.status == "done"]
         code, _, asked_again = _run(cfg, tmp_path, run_id, seed, resume=True)
-        assert code == 0
+        assert code.status == "done" and code.verdict == ref_verdict, (code.error, code.reasons)
         assert store.run(run_id).status == "done"
         # nothing confirmed is asked again
         assert sorted(asked_first + asked_again) == sorted(asked)

@@ -34,7 +34,7 @@ SCALE = "100"
 
 
 def _station(*args):
-    return [sys.executable, "-m", "station.cli", *args]
+    return [sys.executable, "-m", "app.cli", *args]
 
 
 def _batches(db: Path, run_id: str) -> dict:
@@ -60,7 +60,7 @@ def test_a_signalled_station_run_resumes_to_the_uninterrupted_result(tmp_path):
     common = ["--config", str(cfg), "--yes", "--quiet", "--time-scale", SCALE, "--seed", str(seed)]
     ref = subprocess.run(_station("run", "iso9283", "--run-id", "ref", *common), cwd=ROOT, capture_output=True,
                          text=True, timeout=300)
-    assert ref.returncode == 0, ref.stderr
+    assert ref.returncode in (0, 1, 3), ref.stderr  # finished: PASS, FAIL or NOT DECIDED (not 2, not 5 ABORTED)
 
     db = tmp_path / "station.sqlite"
     child = subprocess.Popen(_station("run", "iso9283", "--run-id", "cut", *common), cwd=ROOT,
@@ -91,7 +91,8 @@ def test_a_signalled_station_run_resumes_to_the_uninterrupted_result(tmp_path):
         pytest.skip(f"the run finished before the signal (seed {seed}); nothing to resume")
     resumed = subprocess.run(_station("run", "--resume", "cut", *common[:-4]), cwd=ROOT, capture_output=True,
                              text=True, timeout=300)
-    assert resumed.returncode == 0, (err, resumed.stdout, resumed.stderr)
+    # the resumed run ends with the verdict (and exit code) of the run left alone
+    assert resumed.returncode == ref.returncode, (err, resumed.stdout, resumed.stderr)
     assert store.run("cut").status == "done"
     after_batches = _batches(db, "cut")
     assert not [k for k, blob in before.items() if after_batches.get(k) != blob], "acknowledged batches lost"
