@@ -38,14 +38,15 @@ def browser():
 def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
     from playwright.sync_api import expect
 
-    page = browser.new_page(viewport={"width": 1200, "height": 1400})
+    context = browser.new_context(viewport={"width": 1200, "height": 1400})  # one browser: one access cookie
+    page = context.new_page()
     page.goto(served.url)
     expect(page.locator("h1")).to_contain_text("demo cell")
     page.fill("input[name=seed]", str(seed))
     page.click("#btn-start")
     page.wait_for_url("**/runs/*")
     run_id = page.url.rsplit("/", 1)[1]
-    watcher = browser.new_page()
+    watcher = context.new_page()
     watcher.goto(page.url)
     for expected in ("reflector", "clear the robot cell"):
         expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=20_000)
