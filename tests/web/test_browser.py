@@ -38,16 +38,15 @@ def browser():
 def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
     from playwright.sync_api import expect
 
-    context = browser.new_context(viewport={"width": 1200, "height": 1400})  # one browser: one access cookie
-    page = context.new_page()
+    page = browser.new_page(viewport={"width": 1200, "height": 1400})
     page.goto(served.url)
     expect(page.locator("h1")).to_contain_text("demo cell")
     page.fill("input[name=seed]", str(seed))
     page.click("#btn-start")
     page.wait_for_url("**/runs/*")
     run_id = page.url.rsplit("/", 1)[1]
-    watcher = context.new_page()
-    watcher.goto(page.url)
+    watcher = browser.new_page()  # another browser: it opens the page with the token (then holds its cookie)
+    watcher.goto(f"{page.url}?token={served.guard.access_token}")
     for expected in ("reflector", "clear the robot cell"):
         expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=20_000)
         expect(watcher.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=5_000)
