@@ -1,4 +1,6 @@
-"""Long fuzz run: every property of tests/fuzz with 5,000 examples each (hypothesis profile ``long``).
+"""Long fuzz run: every property of tests/fuzz (the wire decoders, configs, URLs, PLY, programs, and every file
+reader over whole files and absurd numbers: tests/fuzz/test_fuzz_files.py) with 5,000 examples each (hypothesis
+profile ``long``).
 
 Run by hand: ``.venv/bin/python bench/bench_fuzz.py [--profile long]``. Prints hypothesis's
 statistics per target (examples, time, share of invalid draws) and the wall time; a foreign
