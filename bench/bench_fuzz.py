@@ -1,4 +1,6 @@
-"""Long fuzz run: every property of tests/fuzz with 5,000 examples each (hypothesis profile ``long``).
+"""Long fuzz run: every property of tests/fuzz (the wire decoders, configs, URLs, PLY, programs, and every file
+reader over whole files and absurd numbers: tests/fuzz/test_fuzz_files.py) with 5,000 examples each (hypothesis
+profile ``long``).
 
 Run by hand: ``.venv/bin/python bench/bench_fuzz.py [--profile long]``. Prints hypothesis's
 statistics per target (examples, time, share of invalid draws) and the wall time; a foreign
@@ -22,7 +24,9 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     rc = subprocess.call([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(ROOT / "tests" / "fuzz"),
-                          f"--hypothesis-profile={args.profile}", "--hypothesis-show-statistics"], cwd=ROOT)
+                          f"--hypothesis-profile={args.profile}", "--hypothesis-show-statistics",
+                          "--timeout=0"],  # 5,000 examples of a file reader take minutes: no per-test limit
+                         cwd=ROOT)
     print(f"wall time {time.perf_counter() - t0:.1f} s, exit {rc}")
     return rc
 

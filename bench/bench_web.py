@@ -54,23 +54,25 @@ def server_tids() -> set[int]:
 
 
 class Http:
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, cookie: str = "") -> None:
         self.port = port
         self.csrf = None
+        self.cookie = cookie  # the page's access cookie (every request carries the token)
 
     def call(self, method: str, path: str, fields: dict | None = None):
         con = http.client.HTTPConnection("127.0.0.1", self.port, timeout=10)
         body = urlencode({**(fields or {}), "csrf": self.csrf}).encode() if method == "POST" else None
-        con.request(method, path, body=body, headers={"Content-Type": "application/x-www-form-urlencoded"})
+        con.request(method, path, body=body, headers={"Content-Type": "application/x-www-form-urlencoded",
+                                                      "Cookie": self.cookie})
         r = con.getresponse()
         data = (r.status, dict(r.getheaders()), r.read().decode())
         con.close()
         return data
 
 
-def watch(port: int, run_id: str, stop: threading.Event, counts: list, k: int) -> None:
+def watch(port: int, run_id: str, stop: threading.Event, counts: list, k: int, cookie: str = "") -> None:
     con = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-    con.request("GET", f"/runs/{run_id}/events")
+    con.request("GET", f"/runs/{run_id}/events", headers={"Cookie": cookie})
     resp = con.getresponse()
     while not stop.is_set():
         line = resp.fp.readline()
@@ -94,7 +96,8 @@ def main() -> None:
         cfg = config_from_dict(demo_config(out, cycles=cycles, vap_cycles=2, rate_hz=args.rate), "bench config")
         server = WebServer(cfg, out, port=0, time_scale=1.0).start()
         try:
-            h = Http(server.port)
+            cookie = f"{server.guard.cookie_name}={server.guard.access_token}"
+            h = Http(server.port, cookie)
             h.csrf = server.guard.csrf_token
             status, hdrs, _ = h.call("POST", "/runs", {"procedure": "iso9283", "robot": "r1", "seed": 1})
             run_id = hdrs["location"].rsplit("/", 1)[1]
@@ -119,7 +122,7 @@ def main() -> None:
             for n in watcher_counts:
                 stop = threading.Event()
                 counts = [0] * n
-                threads = [threading.Thread(target=watch, args=(server.port, run_id, stop, counts, k))
+                threads = [threading.Thread(target=watch, args=(server.port, run_id, stop, counts, k, cookie))
                            for k in range(n)]
                 for t in threads:
                     t.start()

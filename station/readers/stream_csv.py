@@ -51,8 +51,8 @@ def _scan_for_error(path: Path, header: list[str], float_cols: list[str]) -> Non
                 text = raw.decode("utf-8")
             except UnicodeDecodeError as exc:
                 raise DataError(f"{path}: line {ln}, byte {exc.start + 1}: not UTF-8 text") from None
-            if not text.strip():
-                continue
+            if not text.strip("\r\n"):
+                continue  # an empty line (a line of blanks is a row of one field)
             try:
                 row = next(csv.reader([text]))
             except csv.Error as exc:

@@ -55,7 +55,9 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
                     raise DataError(f"{p}: line {ln}, byte {exc.start + 1}: not UTF-8 text ({exc.reason})") from None
                 line = raw.decode("utf-8", "replace")  # cut inside a character: overlong anyway
             if len(line.rstrip("\r\n")) > MAX_LINE_CHARS or (not ended and len(raw) > 4 * MAX_LINE_CHARS):
-                raise DataError(f"{p}: line {ln}: longer than {MAX_LINE_CHARS} characters")
+                cr = " (its lines end in CR alone? save the file with LF or CRLF line ends)" \
+                    if "\r" in line.rstrip("\r\n") else ""
+                raise DataError(f"{p}: line {ln}: longer than {MAX_LINE_CHARS} characters{cr}")
             yield ln, line.rstrip("\r\n")
 
 

@@ -45,8 +45,8 @@ def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
     page.click("#btn-start")
     page.wait_for_url("**/runs/*")
     run_id = page.url.rsplit("/", 1)[1]
-    watcher = browser.new_page()
-    watcher.goto(page.url)
+    watcher = browser.new_page()  # another browser: it opens the page with the token (then holds its cookie)
+    watcher.goto(f"{page.url}?token={served.guard.access_token}")
     for expected in ("reflector", "clear the robot cell"):
         expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=20_000)
         expect(watcher.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=5_000)
