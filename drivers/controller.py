@@ -73,7 +73,7 @@ from station.errors import (
     ProtocolError,
     SafetyError,
 )
-from station.programs.handshake import (
+from station.protocols.handshake import (
     Command,
     Fault,
     RegisterMap,

@@ -72,7 +72,7 @@ import numpy as np
 
 from fakes.rapid_interp import RapidError, RapidRun, RapidSafetyError, RunAborted, compile_rapid
 from station.errors import ConfigError, SafetyError
-from station.programs.handshake import (
+from station.protocols.handshake import (
     Command,
     Fault,
     RegisterMap,

@@ -24,7 +24,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from station.errors import ConfigError
-from station.programs.handshake import RegisterMap
+from station.protocols.handshake import RegisterMap
 
 # the device-URL grammar is one table, shared with the drivers
 from station.device_urls import DeviceURL, parse_device_url

@@ -327,9 +327,14 @@ def _run_stops(args, limits) -> int:
                              max_rms_mm=args.register_max_rms_mm, out=sys.stdout)
     if reg is not None:
         pts = reg.to_base(pts.reshape(-1, 3)).reshape(pts.shape)
-    lab = analyze_stops(sl.pose, sl.cycle, pts, lines=sl.lines.min(axis=1), commanded_mm=cmd, names=names,
-                        approach=sl.approach, reflectors=sl.reflectors, limits=limits, distance_pairs=_pairs(args),
-                        assign_tol_mm=_tolerance(args, limits))
+    try:
+        lab = analyze_stops(sl.pose, sl.cycle, pts, lines=sl.lines.min(axis=1), commanded_mm=cmd, names=names,
+                            approach=sl.approach, reflectors=sl.reflectors, limits=limits,
+                            distance_pairs=_pairs(args), assign_tol_mm=_tolerance(args, limits))
+    except DataError as exc:
+        if str(exc).startswith("line "):  # a stop of the file: say which file
+            raise DataError(f"{sl.source}:{str(exc)[5:]}") from None
+        raise
     res, unc = _uncertainty(args, lab.result, reg, None)
     per_refl = reflector_repeatability(sl.pose, pts, sl.reflectors) if len(sl.reflectors) > 1 else []
     print(format_stop_table(res, sl.source, reflector_rp=per_refl))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 
-from station.programs.handshake import RegisterMap, State
+from station.protocols.handshake import RegisterMap, State
 
 ROOT = Path(__file__).resolve().parents[2]
 

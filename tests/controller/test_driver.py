@@ -13,7 +13,7 @@ import pytest
 from drivers.controller import CommandRefused, ControllerDriver
 from station.errors import ConfigError, ConnectionLost, SafetyError
 from station.programs import iso_pose_program, render_krl, render_rapid, vap_program
-from station.programs.handshake import Result, State
+from station.protocols.handshake import Result, State
 
 
 def _dwell_positions(world, t0):

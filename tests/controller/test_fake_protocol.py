@@ -12,7 +12,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from station.programs import iso_pose_program, render_krl, render_rapid
-from station.programs.handshake import Command, Fault, RegisterMap, Result, State, encode_name, join_i32, join_u32
+from station.protocols.handshake import Command, Fault, RegisterMap, Result, State, encode_name, join_i32, join_u32
 
 MAP = RegisterMap()
 

@@ -10,7 +10,7 @@ import pytest
 from drivers.controller import ControllerFault, ModbusExceptionError, UploadVerificationError
 from station.errors import ConnectionLost, DeviceError, DeviceTimeout
 from station.programs import expected_stops, iso_pose_program, render_rapid
-from station.programs.handshake import Fault, State
+from station.protocols.handshake import Fault, State
 
 
 @pytest.fixture

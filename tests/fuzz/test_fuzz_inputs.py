@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers import emscon_codec as ec
-from drivers.geocom import parse_reply, split_values
+from drivers.geocom_codec import parse_reply, split_values
 from drivers.odometry import NmeaDecoder, encode_sentence
 from drivers.ply import parse_ply, write_ply
 from station.config import config_from_dict

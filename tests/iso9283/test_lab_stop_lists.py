@@ -185,5 +185,6 @@ def test_bad_stop_lists_exit_2(tmp_path, rng, capsys):
     S2 = write_stops(tmp_path / "line.csv", pose2, cycle2, pts2, reflectors=REFL)
     rc, _, err = run(capsys, "--stops", S2, "--poses", P)
     assert rc == 2 and "reflectors lie on one line" in err
+    assert f"{S2}:2 (" in err  # the file and the line of the first such stop (its first reflector's row)
     rc, _, err = run(capsys, "--stops", S, "--poses", P, "--rate-hz", 100)
     assert rc == 2 and "--rate-hz applies to --stream" in err

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from drivers.geocom import (GeoComReply, MeasureProgram, GeoComTracker, encode_request, geocom_error, parse_reply,
-                            split_values)
+from drivers.geocom import GeoComTracker
+from drivers.geocom_codec import GeoComReply, MeasureProgram, encode_request, geocom_error, parse_reply, split_values
 from drivers.tracker import BeamBroken, EventKind
 from drivers.tracker_url import open_tracker
 from drivers.transport import LineReader, SerialTransport, serial_factory

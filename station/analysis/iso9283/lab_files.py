@@ -172,6 +172,7 @@ def analyze_stops(pose, cycle, points_mm, *, lines, commanded_mm=None, names=Non
     """
     from station.analysis.iso9283.stop_list import analyze_stop_list
 
+    _refuse_collinear_sets(points_mm, lines, pose, cycle)
     res = analyze_stop_list(pose, cycle, points_mm, commanded_mm=commanded_mm, names=names, approach=approach,
                             reflectors=reflectors, limits=limits, distance_pairs=distance_pairs,
                             assign_tol_mm=assign_tol_mm)
@@ -183,6 +184,20 @@ def analyze_stops(pose, cycle, points_mm, *, lines, commanded_mm=None, names=Non
                                for k in kf[:5]) + (", ..." if kf.size > 5 else "") + ")"
                    + ("; are the poses in another frame? give --frame or --register" if kf.size == len(pose) else ""))
     return LabResult(res, far)
+
+
+def _refuse_collinear_sets(points_mm, lines, pose, cycle) -> None:
+    """A stop whose three or more reflectors lie on one line gives no orientation: refused naming its line."""
+    pts = np.asarray(points_mm, dtype=float)
+    if pts.ndim != 3 or pts.shape[1] < 3:
+        return
+    centred = pts - pts.mean(axis=1, keepdims=True)
+    sv = np.linalg.svd(centred, compute_uv=False)  # (K, 3), descending
+    bad = np.flatnonzero(sv[:, 1] <= 1e-9 * np.maximum(sv[:, 0], 1e-300))
+    if bad.size:
+        k = int(bad[0])
+        raise DataError(f"line {int(lines[k])} ({pose[k]}, cycle {cycle[k]}): the reflectors lie on one line: their "
+                        "set gives no orientation (a reflector measured twice, or one left off the flange?)")
 
 
 @dataclass(frozen=True)
