@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import ConfigError
+from station.errors import ConfigError, DataError
 from station.models import kinematics as kin
 from station.models.robots import RobotSpec, get_robot
 
@@ -173,14 +173,19 @@ def resolve_arm(robot: str) -> ResolvedArm:
     """
     from station.models.arm_extended import terms_from_json
 
+    from station.readers.once import STDIN, STDIN_NAME, regular_file
+
     p = Path(robot)
-    if p.suffix.lower() == ".json" or (p.exists() and p.is_file()):
-        if not p.is_file():
-            raise ConfigError(f"--robot {robot}: no such model file")
-        try:
-            data = json.loads(p.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ConfigError(f"{p}: not a JSON model ({exc})") from None
+    if robot == STDIN or p.suffix.lower() == ".json" or (p.exists() and not p.is_dir()):
+        # a file, standard input (``-``) or a pipe, read once
+        p = Path(STDIN_NAME) if robot == STDIN else p
+        with regular_file(robot) as (real, _):
+            if not Path(real).is_file():
+                raise ConfigError(f"--robot {robot}: no such model file")
+            try:
+                data = json.loads(Path(real).read_text(encoding="utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise ConfigError(f"{p}: not a JSON model ({exc})") from None
         if isinstance(data, dict) and "joints" not in data:
             if isinstance(data.get("extended_model"), dict):
                 data = data["extended_model"]  # the whole output of `station diagnose arm --json`
@@ -238,11 +243,16 @@ def write_ur_calibration(path, deltas: dict) -> None:
 
 def read_ur_calibration(path, dh_nominal) -> np.ndarray:
     """The UR nominal ``dh_nominal`` (7, 5) plus the deltas of a ``calibration.conf`` file."""
-    p = Path(path)
+    from station.readers.once import STDIN, STDIN_NAME, regular_file
+
+    p = Path(STDIN_NAME if str(path) == STDIN else path)
     try:
-        text = p.read_text(encoding="utf-8")
+        with regular_file(path) as (real, _):  # a file, ``-`` or a pipe, read once
+            text = Path(real).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read the UR calibration ({exc})") from None
+    except DataError as exc:
+        raise ConfigError(str(exc)) from None
     section, values = None, {}
     for lineno, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].strip()

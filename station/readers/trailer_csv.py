@@ -15,6 +15,7 @@ import numpy as np
 
 from station.errors import DataError
 from station.readers.text import MAX_ABS_S, csv_records, parse_number
+from station.readers.once import reads_once
 
 TRAILER_COLUMNS = ("t", "kappa", "psi")
 #: optional columns: speed (m/s), commanded curvature (1/m, the set points in force)
@@ -28,6 +29,7 @@ MAX_ROWS = 30_000_000
 LIMITS = {"t": MAX_ABS_S, "kappa": 1.0e3, "psi": 2.0 * math.pi, "v": 100.0, "kappa_cmd": 1.0e3}
 
 
+@reads_once
 def read_trailer_csv(path) -> dict[str, np.ndarray]:
     """Read a trailer CSV (``t,kappa,psi`` [+ ``v``, ``kappa_cmd``]); DataError names the file, line and column.
 

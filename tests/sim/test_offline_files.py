@@ -54,3 +54,42 @@ def test_simulated_hold_gives_its_drift_and_noise(tmp_path, seed, capsys):
     assert np.all(np.abs(np.array(d["drift_mm_per_min"]) - truth["drift_mm_per_min"]) < 5 * sd)
     n = 6001
     assert np.all(np.abs(np.array(d["noise_mm"]) / truth["noise_mm"] - 1) < 5 / np.sqrt(2 * n))
+
+
+def test_the_trailer_csv_and_an_arm_model_come_through_a_pipe_or_standard_input(tmp_path, seed, capsys, monkeypatch):
+    """`-` and pipes for the trailer CSV, the arm's model file and a UR calibration file: each read once."""
+    import io
+    import os
+    import threading
+
+    assert main(["simulate", "trailer", "--out", str(tmp_path), "--seed", str(seed)]) == 0
+    data = (tmp_path / "trailer.csv").read_bytes()
+    assert main(["calibrate", "trailer", "--data", str(tmp_path / "trailer.csv"), "--json", str(tmp_path / "a.json")]) == 0
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(data)))
+    assert main(["calibrate", "trailer", "--data", "-", "--json", str(tmp_path / "b.json")]) == 0
+    a, b = (json.loads((tmp_path / f"{k}.json").read_text()) for k in "ab")
+    assert a["L1_m"] == b["L1_m"] and a["L2_m"] == b["L2_m"]
+    # an arm model through a named pipe (as <(cat cal.json) gives it), then a UR calibration on standard input
+    assert main(["simulate", "arm", "--out", str(tmp_path), "--seed", str(seed)]) == 0
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    assert main(["calibrate", "arm", "--robot", truth["robot"], "--data", str(tmp_path / "arm.csv"),
+                 "--json", str(tmp_path / "cal.json")]) == 0
+    fifo = tmp_path / "model.fifo"
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=lambda: fifo.write_bytes((tmp_path / "cal.json").read_bytes()))
+    writer.start()
+    assert main(["calibrate", "arm", "--robot", str(fifo), "--data", str(tmp_path / "arm.csv"),
+                 "--json", str(tmp_path / "again.json")]) == 0
+    writer.join(timeout=10)
+    again = json.loads((tmp_path / "again.json").read_text())["test"]
+    assert again["mean_abs_before_mm"] < json.loads((tmp_path / "cal.json").read_text())["test"]["mean_abs_before_mm"]
+    from station.models.arm_model_file import read_ur_calibration, ur_deltas, write_ur_calibration
+    from station.models.robots import get_robot
+
+    dh = get_robot("ur5e").dh_nominal
+    moved = dh.copy()
+    moved[:6] += np.random.default_rng(seed).normal(0, 1e-3, (6, dh.shape[1])) * (dh[:6] != 0)
+    conf = tmp_path / "calibration.conf"
+    write_ur_calibration(conf, ur_deltas(moved, dh))
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(conf.read_bytes())))
+    np.testing.assert_array_equal(read_ur_calibration("-", dh), read_ur_calibration(conf, dh))
