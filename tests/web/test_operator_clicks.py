@@ -17,22 +17,10 @@ import pytest
 from procedures.registry import REGISTRY
 from station.store import RunStore
 from tests.web.prompts_procedure import N_PROMPTS
-from tests.web.test_browser import ARGS, CHROMIUM
+from tests.web.test_browser import CHROMIUM, browser  # noqa: F401  (the fixture: one headless chromium)
 
 pytestmark = pytest.mark.skipif(not os.access(CHROMIUM, os.X_OK) and not os.environ.get("CI"),
                                 reason="no /usr/bin/chromium (scripts/setup installs it as root)")
-
-
-@pytest.fixture
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-        try:
-            yield b
-        finally:
-            b.close()
 
 
 def _press(page, selector: str, hold_ms: float) -> None:
