@@ -1,7 +1,7 @@
 """Feature points of the corner jig from point clouds (seed 002 sec. 2).
 
 Jigs are rendered by the simulated scanner at poses, noise levels, outlier
-rates and occlusions drawn at random each run (``JIG_TEST_SEED`` replays
+rates and occlusions drawn at random each run (``--seed`` of tests/seeding.py replays
 one). Bounds come from the noise and the point counts:
 
 * the station's fit: the corner error is a few ``sigma / sqrt(n)`` (``sigma``

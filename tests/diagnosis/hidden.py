@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from fakes.sim.diagnosis_data import simulate_arm_data
+from station.models import kinematics as kin
 from station.models.effects import EffectSet, realistic_effects
 
 JOINT_EFFECTS = ("encoder_eccentricity", "backlash", "joint_compliance")
@@ -43,9 +44,33 @@ def compliance_joints(robot) -> list[int]:
     return [j + 1 for j in range(6) if tau[j] > 1e-3 * tau.max()]
 
 
+def _geometric_basis(robot, probe) -> np.ndarray:
+    """Columns (3n, k) of what a geometric fit can absorb at the probe's poses, in the instrument frame:
+    the 35 kinematic parameters (seed 002 eq. (7)-(8)) and a small move of the instrument frame."""
+    R = probe.base_T[:3, :3]
+    J = kin.param_jacobian(robot.dh_nominal, probe.q_rad)  # (n, 3, 35), robot base frame
+    J = np.einsum("ij,njk->nik", R, J)
+    p = probe.true_points(robot)
+    shift = np.broadcast_to(np.eye(3), (p.shape[0], 3, 3))
+    turn = np.stack([np.cross(np.eye(3)[k], p) for k in range(3)], axis=2)  # (n, 3, 3): e_k x p
+    return np.concatenate([J, shift, turn], axis=2).reshape(-1, 35 + 6)
+
+
+def _unabsorbed_rms(basis: np.ndarray, d: np.ndarray) -> float:
+    """RMS (3-D, per point) of the displacement ``d`` (n, 3) that no geometric error can mimic."""
+    flat = d.reshape(-1)
+    scale = np.linalg.norm(basis, axis=0)
+    scale[scale == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(basis / scale, flat, rcond=1e-10)
+    rest = (flat - (basis / scale) @ coef).reshape(-1, 3)
+    return float(np.sqrt(np.mean(np.sum(rest ** 2, axis=1))))
+
+
 def make_case(robot, hidden: list, rng, *, n: int = 160, strength=(0.6, 1.0)):
-    """Data with realistic geometric errors plus ``hidden`` [(effect, joint)], each scaled so that its
-    tool-point displacement RMS is ``U(strength)`` times the RMS of the measurement and stopping noise."""
+    """Data with realistic geometric errors plus ``hidden`` [(effect, joint)], each scaled so that the
+    part of its tool-point displacement that no geometric error can mimic (the part a diagnosis can
+    see once the geometric step has fitted the arm) has an RMS of ``U(strength)`` times the RMS of the
+    measurement and stopping noise."""
     base = realistic_effects(robot, rng)
     params = {"geometric": base.get("geometric")}
     for effect, joint in hidden:
@@ -57,13 +82,14 @@ def make_case(robot, hidden: list, rng, *, n: int = 160, strength=(0.6, 1.0)):
                               np.random.default_rng(seed), n=n)
     noise_rms = float(np.sqrt(np.mean(np.sum((probe.xyz_mm - probe.true_points(robot)) ** 2, axis=1))))
     geo_only = probe.true_points(robot)
+    basis = _geometric_basis(robot, probe)
     for effect, joint in hidden:
         one = {"geometric": params["geometric"], effect: hidden_params(robot, effect, joint, rng) * 0}
         # displacement of this effect alone at unit size, then the scale that gives the drawn strength
         unit = _unit_vector(effect, joint, params[effect])
         one[effect] = unit
         d = probe.true_points(robot, EffectSet.from_params(one)) - geo_only
-        rms = float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+        rms = _unabsorbed_rms(basis, d)
         target = rng.uniform(*strength) * noise_rms
         params[effect] = _rescale(effect, joint, params[effect], target / rms)
     data = simulate_arm_data(robot, EffectSet.from_params(params), np.random.default_rng(seed), n=n)

@@ -249,5 +249,5 @@ def test_program_generator_refuses_or_renders_what_parses_back(name, points, spe
     elif name[0].isalpha() and 0.0 < speed <= 1.0:
         # a valid name, targets and speed: refusing it is a bug (only names that clash with what the
         # generator declares itself may be refused)
-        with pytest.raises(StationError, match="clash|reserved|generated"):
+        with pytest.raises(StationError, match="same identifier|reserved word"):
             build()

@@ -105,7 +105,6 @@ def test_options_reach_the_parts():
 
 
 def test_trailer_created_lazily_on_the_world_clock():
-    pytest.importorskip("fakes.sim.trailer")
     w = make_world(seed=2, clock=ManualClock())
     tr = w.get_trailer()
     assert w.trailer is tr and w.get_trailer() is tr

@@ -13,8 +13,6 @@ import pytest
 
 from drivers.tracker_url import open_tracker
 
-pytest.importorskip("fakes.sim.world")
-
 
 def _serve(*args):
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "fakes", "serve", *args],

@@ -13,11 +13,10 @@ import pytest
 from drivers.emscon import EmsconTracker
 from drivers.geocom import GeoComTracker
 from drivers.tracker import EventKind
+import fakes.sim.world as world_mod
 from drivers.transport import serial_factory, tcp_factory
 
 from .helpers import collect, finish
-
-world_mod = pytest.importorskip("fakes.sim.world")
 
 
 @pytest.fixture

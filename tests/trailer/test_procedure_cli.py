@@ -7,13 +7,14 @@ import json
 import numpy as np
 import pytest
 
+from drivers.odometry import OdometryDriver
 from fakes.sim.trailer import record_commands
 from procedures.devices import DeviceSet
 from procedures.trailer import (TrailerCalibrationPlan, TrailerSession, build_procedure, plan_check, plan_params,
                                 preflight_problems)
 from app.cli import main
 from station.readers.trailer_csv import read_trailer_csv, write_trailer_csv
-from station.errors import ConfigError, DataError, DeviceTimeout
+from station.errors import ConfigError, DataError
 from station.models.trailer import JointAngleLimitError
 from station.runner import Runner
 from station.store import RunStore
@@ -88,27 +89,21 @@ def test_plan_check_refuses_before_anything_moves(odometry, tmp_path):
         TrailerCalibrationPlan(v_m_s=-1.0)
 
 
-class _FailingDriver:
-    """Wraps the real driver; the line dies after ``n`` samples."""
-
-    def __init__(self, drv, n):
-        self._drv, self._n = drv, n
-
-    def read_sample(self, timeout_s=None):
-        self._n -= 1
-        if self._n < 0:
-            raise DeviceTimeout("line died (test)")
-        return self._drv.read_sample(timeout_s)
-
-    def __getattr__(self, name):
-        return getattr(self._drv, name)
-
-
-def test_a_failed_step_leaves_the_trailer_stopped(odometry, tmp_path):
-    drv, fake = odometry
-    out, _, _ = _run(_FailingDriver(drv, 50), TrailerCalibrationPlan(**SHORT), tmp_path)
-    assert out.status == "failed" and "line died" in out.error
-    assert fake.trailer.state().v_m_s == 0.0
+@pytest.mark.parametrize("odometry_fake", [{"stall": "200:240"}], indirect=True)
+def test_a_failed_step_leaves_the_trailer_stopped(odometry_fake, tmp_path):
+    """The line goes silent in the middle of a long command (the fake's stall fault: from 200 simulated s,
+    1 s after the fake started at 200x, for 240 s, 1.2 s): the sample read times out after 0.5 s, the run
+    fails, and its safe state stops the trailer once the line answers again (set points are re-sent until
+    acknowledged: 11 attempts of 0.2 s)."""
+    drv = OdometryDriver.open(odometry_fake.endpoint["device"], timeout_s=1.0, ack_timeout_s=0.2, command_retries=10)
+    plan = TrailerCalibrationPlan(**{**SHORT, "commands": (("H", 0.2),), "duration_s": 2000.0}, sample_timeout_s=0.5)
+    try:
+        out, _, _ = _run(drv, plan, tmp_path)
+    finally:
+        drv.close()
+    assert out.status == "failed" and "no odometry sample" in out.error and "within 0.5 s" in out.error
+    assert odometry_fake.stats["stalled_samples"] > 0
+    assert odometry_fake.trailer.state().v_m_s == 0.0
 
 
 # ----------------------------------------------------------------------------- command line

@@ -86,8 +86,12 @@ def test_the_ur_fake_with_no_options_is_a_ur_that_ur_rtde_moves(rng):
         rows = np.array(before["rows"])
         # a UR5e's TCP is within its 850 mm reach of the base (an industrial arm's is metres away)
         assert np.linalg.norm(rows[-1, 7:10]) < 0.9
-        # 500 Hz: device time steps of 2 ms
-        assert np.median(np.diff(rows[:, 0])) == pytest.approx(0.002, abs=2e-4)
+        # 500 Hz: sample k is the state at t0 + k / 500 s of the device clock. The probe polls
+        # ur_rtde's latest sample and misses some on a busy machine, so the steps it sees are whole
+        # multiples of 2 ms, and the shortest one is 2 ms (a 250 Hz stream would have none)
+        k = np.diff(rows[:, 0]) * 500.0
+        assert np.all(np.round(k) >= 1) and np.abs(k - np.round(k)).max() < 1e-3, k
+        assert np.round(k).min() == 1
         home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
         target = home + rng.uniform(-0.3, 0.3, 6)
         sc = script_client.ScriptClient(host, 5, 11)

@@ -4,12 +4,12 @@ its own driver: the tracker measures the displacement the robot really made."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
+
+import drivers.emscon as emscon_driver
+import fakes.emscon as emscon_fake
 
 
 def test_tracker_sees_the_move_the_ur_driver_commanded(world, fake, make_driver, rng):
-    emscon_fake = pytest.importorskip("fakes.emscon")
-    emscon_driver = pytest.importorskip("drivers.emscon")
     tracker_fake = emscon_fake.start_fake(world)
     try:
         ep = tracker_fake.endpoint
