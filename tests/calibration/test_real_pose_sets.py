@@ -23,12 +23,6 @@ from station.readers.arm_csv import write_arm_csv
 from tests.calibration.reference_fit import plain_fit, position_error
 
 
-def _seed() -> int:
-    s = int(np.random.SeedSequence().entropy % (2 ** 31))
-    print(f"seed {s}")
-    return s
-
-
 def _files(tmp_path, d, name="nom.json", dh=None):
     write_arm_csv(tmp_path / "a.csv", np.degrees(d.q_rad), d.xyz_mm)
     (tmp_path / name).write_text(json.dumps(model_to_json(d.dh_nominal if dh is None else dh, name=d.name,
@@ -38,9 +32,9 @@ def _files(tmp_path, d, name="nom.json", dh=None):
 
 @pytest.mark.timeout(600)  # eight finite-difference reference fits: slow on a shared machine
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
-def test_random_splits_hold_out_as_well_as_a_plain_full_fit(make, n):
+def test_random_splits_hold_out_as_well_as_a_plain_full_fit(test_seed, make, n):
     """Absolute method, random 70/30 splits, no preparation of the file: within 1.05x of the full fit."""
-    seed = _seed()
+    seed = test_seed
     rng = np.random.default_rng(seed)
     ours, ref = [], []
     for k in range(8):  # two sets, four random splits each: the acceptance is a mean over random splits
@@ -57,8 +51,8 @@ def test_random_splits_hold_out_as_well_as_a_plain_full_fit(make, n):
     assert np.mean(ours) < 0.2 * cal.test.before_mm.mean(), seed
 
 
-def test_fanuc_tail_is_the_j6_sweep_calibrated_without_preparation_and_named(tmp_path, capsys):
-    seed = _seed()
+def test_fanuc_tail_is_the_j6_sweep_calibrated_without_preparation_and_named(test_seed, tmp_path, capsys):
+    seed = test_seed
     d = fanuc_like(np.random.default_rng(seed), n=36)
     robot, data = _files(tmp_path, d)
     out = tmp_path / "c.json"
@@ -79,8 +73,8 @@ def test_fanuc_tail_is_the_j6_sweep_calibrated_without_preparation_and_named(tmp
         calibrate_arm(d.dh_nominal, d.q_rad, d.xyz_mm, method="absolute", test_fraction=0.17, strict=True)
 
 
-def test_splits_and_folds(tmp_path, capsys):
-    seed = _seed()
+def test_splits_and_folds(test_seed, tmp_path, capsys):
+    seed = test_seed
     d = rokae_like(np.random.default_rng(seed), n=40)
     a = split_poses(40, 0.3, kind="random", seed=7)
     b = split_poses(40, 0.3, kind="random", seed=7)
@@ -102,9 +96,9 @@ def test_splits_and_folds(tmp_path, capsys):
     assert "split random, seed 5" in text and "cross-validation (3 folds, seed 5)" in text
 
 
-def test_redundant_pair_keeps_one_free_and_free_fix_by_name():
+def test_redundant_pair_keeps_one_free_and_free_fix_by_name(test_seed):
     """d6 and the tool's z move the point alike (alpha6 = 0): one of them is identified, --free chooses which."""
-    seed = _seed()
+    seed = test_seed
     d = rokae_like(np.random.default_rng(seed), n=40, hidden=False)
     res = identify(d.dh_nominal, d.q_rad, d.xyz_mm, method="absolute")
     names = set(res.identifiability.names)
@@ -122,10 +116,10 @@ def test_redundant_pair_keeps_one_free_and_free_fix_by_name():
         identify(d.dh_nominal, d.q_rad, d.xyz_mm, fixed_extra={"a2": "x"}, free_extra=("a2",))
 
 
-def test_a_calibrated_start_does_not_unlock_near_redundant_pairs():
+def test_a_calibrated_start_does_not_unlock_near_redundant_pairs(test_seed):
     """A model file that is itself a calibration has tenths of a mm where the design has 0: the fit must not
     trade a5 against theta5 by tens of mm and degrees, and the distance method converges."""
-    seed = _seed()
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=50, hidden=False)
     start = d.dh_true.copy()
@@ -137,8 +131,8 @@ def test_a_calibrated_start_does_not_unlock_near_redundant_pairs():
         assert "a5" not in res.identifiability.names and "a5" in res.identifiability.fixed
 
 
-def test_implausible_change_is_warned_with_a_fixed_alternative(tmp_path, capsys):
-    seed = _seed()
+def test_implausible_change_is_warned_with_a_fixed_alternative(test_seed, tmp_path, capsys):
+    seed = test_seed
     d = rokae_like(np.random.default_rng(seed), n=40, hidden=False)
     start = d.dh_nominal.copy()
     start[1, 0] += 12.0  # a2 written 12 mm wrong: the fit moves it back, beyond what tolerances make plausible
@@ -154,8 +148,8 @@ def test_implausible_change_is_warned_with_a_fixed_alternative(tmp_path, capsys)
     assert "warning: a2 changes by" in text and "rerun with --fix a2" in text
 
 
-def test_correlation_warning_names_the_pair():
-    rng = np.random.default_rng(_seed())
+def test_correlation_warning_names_the_pair(test_seed):
+    rng = np.random.default_rng(test_seed)
     J = rng.normal(size=(60, 3))
     J[:, 1] = J[:, 0] + 1e-4 * rng.normal(size=60)   # a1 and alpha1 (columns 0 and 1) nearly the same
     w = parameter_warnings(kin.dh_from_degrees(np.zeros((7, 5))), kin.dh_from_degrees(np.zeros((7, 5))),
@@ -164,8 +158,8 @@ def test_correlation_warning_names_the_pair():
     assert "estimated together" in w[0]["message"]
 
 
-def test_not_converged_exits_3_and_says_so(tmp_path, capsys):
-    seed = _seed()
+def test_not_converged_exits_3_and_says_so(test_seed, tmp_path, capsys):
+    seed = test_seed
     d = rokae_like(np.random.default_rng(seed), n=40)
     robot, data = _files(tmp_path, d)
     out = tmp_path / "c.json"

@@ -226,13 +226,13 @@ def _open_against_fakes(world, tmp_path):
     return urls, closers
 
 
-def test_every_scheme_of_the_table_opens_against_its_fake_through_the_registry(tmp_path):
+def test_every_scheme_of_the_table_opens_against_its_fake_through_the_registry(test_seed, tmp_path):
     """Listed from the table, not from this test: a scheme added with a driver and a fake is opened here too."""
     from drivers.registry import device_for_url
     from fakes.sim.world import make_world
     from station.safety import SafetyGate, default_limits
 
-    seed = int(np.random.default_rng().integers(2**31))
+    seed = test_seed  # the session's seed for this test (printed on failure, --seed replays)
     print(f"world seed {seed}")
     world = make_world("ur5e", seed=seed, time_scale=20.0, effects=None)
     rng = np.random.default_rng(seed)

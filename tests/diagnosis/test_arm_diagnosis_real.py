@@ -18,12 +18,6 @@ from station.models.arm_model_file import model_to_json, resolve_arm
 from station.readers.arm_csv import write_arm_csv
 
 
-def _seed() -> int:
-    s = int(np.random.SeedSequence().entropy % (2 ** 31))
-    print(f"seed {s}")
-    return s
-
-
 def _extended_error(res, d, test) -> float:
     """Mean 3-D error of the diagnosis' extended model (as written to a file) on poses it never saw."""
     doc = res.extended_model(joint_limits_rad=d.joint_limits_rad)
@@ -44,8 +38,8 @@ def _arm_from(doc):
 
 @pytest.mark.timeout(600)  # six diagnoses and calibrations: slow on a shared machine
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
-def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(make, n):
-    seed = _seed()
+def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_seed, make, n):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     ext, geo = [], []
     for k in range(6):
@@ -67,9 +61,9 @@ def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(make, n)
     assert np.mean(ext) <= 1.02 * np.mean(geo), (seed, ext, geo)
 
 
-def test_rokae_like_from_the_nominal_model_names_geometry_and_reaches_the_noise():
+def test_rokae_like_from_the_nominal_model_names_geometry_and_reaches_the_noise(test_seed):
     """2.2-2.5 mm nominal error, ~0.1 mm after calibration: the fit from the nominal does not diverge."""
-    seed = _seed()
+    seed = test_seed
     d = rokae_like(np.random.default_rng(seed), n=50, noise_mm=0.05, hidden=False)
     res = diagnose_arm(d.dh_nominal, d.q_rad, d.xyz_mm)
     assert res.selected == [("geometric", None)] or res.selected[0] == ("geometric", None), (seed, res.selected)
@@ -80,8 +74,8 @@ def test_rokae_like_from_the_nominal_model_names_geometry_and_reaches_the_noise(
     assert res.converged
 
 
-def test_geometry_untestable_names_nothing_else_and_says_why():
-    seed = _seed()
+def test_geometry_untestable_names_nothing_else_and_says_why(test_seed):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=14, hidden=False)
     q = d.q_rad.copy()
@@ -94,8 +88,8 @@ def test_geometry_untestable_names_nothing_else_and_says_why():
     assert "geometric" in res.to_json()["not_testable"]
 
 
-def test_row_order_does_not_change_the_answer_without_a_motion_order():
-    seed = _seed()
+def test_row_order_does_not_change_the_answer_without_a_motion_order(test_seed):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=50)
     a = diagnose_arm(d.dh_nominal, d.q_rad, d.xyz_mm)
@@ -111,8 +105,8 @@ def test_row_order_does_not_change_the_answer_without_a_motion_order():
     assert c.selected == e.selected and e.final_heldout_rms == pytest.approx(c.final_heldout_rms, rel=1e-6)
 
 
-def test_noise_floor_from_repeated_measurements():
-    seed = _seed()
+def test_noise_floor_from_repeated_measurements(test_seed):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=40, noise_mm=0.08, hidden=False)
     rep = rng.choice(40, 10, replace=False)
@@ -125,9 +119,9 @@ def test_noise_floor_from_repeated_measurements():
     assert 0.7 < res.noise_floor / (0.08 * np.sqrt(3)) < 1.3, (seed, res.noise_floor)
 
 
-def test_implausible_joint_effect_is_not_named():
+def test_implausible_joint_effect_is_not_named(test_seed):
     """A 'joint error' of 20 arcmin that a sweep cannot tell from an offset is refused, with the reason."""
-    seed = _seed()
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=60, noise_mm=0.05, hidden=False)
     q = d.q_rad
@@ -139,8 +133,8 @@ def test_implausible_joint_effect_is_not_named():
     assert "arcmin" in res.rejected.get("encoder_eccentricity[2]", ""), (seed, res.rejected)
 
 
-def test_cli_model_out_predict_and_compensate(tmp_path, capsys):
-    seed = _seed()
+def test_cli_model_out_predict_and_compensate(test_seed, tmp_path, capsys):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     d = rokae_like(rng, n=50)
     (tmp_path / "nom.json").write_text(json.dumps(model_to_json(d.dh_nominal, name="rokae-like",

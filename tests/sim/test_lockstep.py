@@ -120,7 +120,7 @@ def test_one_seed_gives_the_same_samples_at_any_pace_and_any_consumer_speed(worl
 
 
 @pytest.fixture
-def world_seed():
-    seed = int(np.random.default_rng().integers(0, 2**31))
+def world_seed(test_seed):
+    seed = test_seed  # the session's seed for this test (printed on failure, --seed replays)
     print(f"world seed {seed}")
     return seed

@@ -6,7 +6,6 @@ Seeds are drawn each run and printed; bounds come from the figures' own uncertai
 from __future__ import annotations
 
 import json
-import secrets
 
 import numpy as np
 import pytest
@@ -15,10 +14,10 @@ from app.cli import main
 
 
 @pytest.fixture
-def seed(request):
-    s = secrets.randbits(31)
-    print(f"{request.node.name}: seed {s}")
-    return s
+def seed(request, test_seed):
+    """The test's seed from the session's (printed on failure; --seed replays)."""
+    print(f"{request.node.name}: seed {test_seed}")
+    return test_seed
 
 
 def test_simulated_trailer_gives_its_link_lengths(tmp_path, seed, capsys):

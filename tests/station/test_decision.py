@@ -21,8 +21,8 @@ POSES = ["P1", "P2", "P3", "P4", "P5"]
 
 
 @pytest.fixture
-def rng():
-    seed = int(np.random.default_rng().integers(2**31))
+def rng(test_seed):
+    seed = test_seed  # the session's seed for this test (printed on failure, --seed replays)
     print(f"test_decision seed {seed}")
     return np.random.default_rng(seed)
 

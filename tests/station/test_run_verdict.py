@@ -4,15 +4,14 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from fakes.cells import demo_config
 from app.cli import main
 from station.store import RunStore
 
 
-def test_station_run_exits_with_its_verdict_and_says_it_first(tmp_path, capsys):
-    seed = int(np.random.default_rng().integers(2**31))
+def test_station_run_exits_with_its_verdict_and_says_it_first(test_seed, tmp_path, capsys):
+    seed = test_seed  # the session's seed for this test (printed on failure, --seed replays)
     print(f"cell seed {seed}", file=sys.stderr)
     cfg = tmp_path / "station.json"
     cfg.write_text(json.dumps(demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0), default=str))

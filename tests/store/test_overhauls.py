@@ -10,8 +10,6 @@ false-discovery rate is set so that a steady robot is flagged about once
 in a thousand draws.
 """
 
-import os
-
 import numpy as np
 import pytest
 
@@ -24,10 +22,6 @@ from tests.store.fleetgen import POSES, Fleet, load_fleet
 from tests.store.helpers import station_config
 
 Q = 1e-3
-
-
-def _seed() -> int:
-    return int(os.environ.get("FLEET_TEST_SEED", np.random.SeedSequence().entropy % 2**32))
 
 
 def _months(rng, n_robots=6) -> tuple[Fleet, dict]:
@@ -73,11 +67,11 @@ def store(request, tmp_path):
     s.close()
 
 
-def test_since_overhaul_and_drift_count_from_the_recorded_overhaul(store):
-    seed = _seed()
+def test_since_overhaul_and_drift_count_from_the_recorded_overhaul(store, test_seed):
+    seed = test_seed
     fleet, truth = _months(np.random.default_rng(seed))
     load_fleet(store, fleet)
-    why = f"(FLEET_TEST_SEED={seed})"
+    why = f"(test seed {seed}; --seed replays the session)"
     rows = {r["serial"]: r for r in since_overhaul(store, "RP_mm")}
     by_serial = {}
     for r in fleet.runs:
@@ -96,8 +90,8 @@ def test_since_overhaul_and_drift_count_from_the_recorded_overhaul(store):
     assert rows[truth["before"]]["runs_since"] < len(by_serial[truth["before"]])
 
 
-def test_history_marks_the_runs_since_the_last_overhaul(store):
-    seed = _seed()
+def test_history_marks_the_runs_since_the_last_overhaul(store, test_seed):
+    seed = test_seed
     fleet, truth = _months(np.random.default_rng(seed))
     load_fleet(store, fleet)
     serial = truth["drifter"]
@@ -106,8 +100,8 @@ def test_history_marks_the_runs_since_the_last_overhaul(store):
     assert [x["since_overhaul"] for x in h] == [x["created_at"] >= at for x in h]
 
 
-def test_an_overhaul_from_the_command_line_reaches_the_fleet_and_the_centre(tmp_path, pg_url, capsys):
-    seed = _seed()
+def test_an_overhaul_from_the_command_line_reaches_the_fleet_and_the_centre(tmp_path, pg_url, capsys, test_seed):
+    seed = test_seed
     fleet, truth = _months(np.random.default_rng(seed))
     recorded = fleet.overhauls
     fleet.overhauls = []  # nothing recorded yet: the plant records them with the command
@@ -129,7 +123,7 @@ def test_an_overhaul_from_the_command_line_reaches_the_fleet_and_the_centre(tmp_
     capsys.readouterr()
     with RunStore(local_path) as local:
         found = {d["serial"] for d in drifting(local, "RP_mm", q_max=Q)}
-        assert found == {truth["drifter"]}, f"FLEET_TEST_SEED={seed}"
+        assert found == {truth["drifter"]}, f"test seed {seed}"
         with RunStore(pg_url, station="cell-7") as central:
             report = push(local, central, station="cell-7")
             assert report.overhauls_sent == len(recorded)
@@ -165,8 +159,8 @@ def test_a_robot_is_its_model_and_serial(tmp_path):
         assert store.history("NOPE", "RP_mm") == []  # no such robot: no history (the command says so)
 
 
-def test_the_fleet_page_judges_every_robot_against_its_limit(tmp_path):
-    rng = np.random.default_rng(_seed())
+def test_the_fleet_page_judges_every_robot_against_its_limit(tmp_path, test_seed):
+    rng = np.random.default_rng(test_seed)
     fleet, truth = _months(rng)
     with RunStore(tmp_path / "s.sqlite") as store:
         load_fleet(store, fleet)  # every characteristic carries the fleet's limit
