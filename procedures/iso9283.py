@@ -57,7 +57,7 @@ from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
 from procedures.decision import Checks, decide, record_measurements
 from procedures.cell import CellSession, connect_cell, record_robot_readings, robot_subject, prompt_step, stop_cell
-from procedures.preflight import report_dir_problems, time_scale_problems, tracker_rate_problems
+from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 
 #: seed 000 Table 1, corners C1..C8 (mm, robot base frame)
@@ -844,7 +844,6 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = IsoPlan.from_params(params)
     problems = report_dir_problems(plan.report_dir)
     problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
-    problems += time_scale_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
     try:
         rendered = programs(plan)
     except StationError as exc:

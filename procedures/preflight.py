@@ -70,20 +70,3 @@ def tracker_rate_problems(devices: DeviceSet, rate_hz: float, *, field: str = "t
     problem = check(rate_hz) if check is not None else None
     return [f"{field}: {problem}"] if problem else []
 
-
-#: simulated tracker samples per wall-clock second the fake cell keeps up with while a stream is analysed
-#: for stops (the fakes run in accelerated wall-clock time: a late thread is a shorter dwell or a lost stop).
-#: At 100 Hz, 20x (2,000/s) finds every cycle here; 100x (10,000/s) lost 9-12 of 30 (issue 28).
-MAX_FAKE_SAMPLES_PER_S = 4000.0
-
-
-def time_scale_problems(devices: DeviceSet, rate_hz: float, *, field: str = "tracker_rate_hz") -> list[str]:
-    """Why a fake cell cannot keep up with a stream at ``rate_hz`` and the devices' time scale (real devices,
-    time scale 1: nothing to check)."""
-    scale = float(getattr(devices, "time_scale", 1.0) or 1.0)
-    if devices.armed or scale <= 1.0 or rate_hz * scale <= MAX_FAKE_SAMPLES_PER_S:
-        return []
-    most = MAX_FAKE_SAMPLES_PER_S / rate_hz
-    return [f"time scale {scale:g} with {field} {rate_hz:g} Hz asks the fake cell for {rate_hz * scale:,.0f} "
-            f"samples per second, more than it keeps up with ({MAX_FAKE_SAMPLES_PER_S:,.0f}): stops would be lost "
-            f"and cycles go missing; use a time scale of at most {most:g}"]

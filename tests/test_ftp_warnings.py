@@ -13,7 +13,7 @@ START_FTP = """
 import tempfile
 from pathlib import Path
 from fakes.controller import FaultPlan, _FtpServer
-server = _FtpServer(Path(tempfile.mkdtemp()), "127.0.0.1", FaultPlan())
+server = _FtpServer(Path(tempfile.mkdtemp()), "127.0.0.1", FaultPlan(), "a-drawn-password")
 server.close()
 """
 
