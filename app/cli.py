@@ -19,7 +19,9 @@ GROUPS = ("init", "demo", "run", "serve", "store", "simulate", "analyze", "calib
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="station", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="station", description="The robot metrology station: ISO 9283 tests, arm and trailer calibration, "
+                                    "diagnosis of the simulation, on real devices (--arm) or their fakes.")
     sub = parser.add_subparsers(dest="group", metavar="COMMAND")
     for name in GROUPS:
         importlib.import_module(f"app.commands.{name}").register(sub)
