@@ -13,7 +13,7 @@
   ``localhost``) and port (a page on another site that resolves its name to
   127.0.0.1 is refused).
 * The page never listens on every interface at once: decided by the address
-  the socket binds (``0``, ``0x0``, ``::ffff:0.0.0.0`` are all the wildcard),
+  the socket binds (``0``, ``0x0`` and the IPv4-mapped IPv6 form are all the wildcard),
   not by its spelling.
 """
 
@@ -46,11 +46,11 @@ def is_loopback(host: str) -> bool:
 
 def bind_addresses(host: str) -> list[str]:
     """The numeric addresses a socket bound to ``host`` may take (as the C library reads the spelling:
-    ``0``, ``0.0``, ``0x0`` are 0.0.0.0); empty when it names none."""
+    ``0``, ``0.0``, ``0x0`` are the IPv4 wildcard); empty when it names none."""
     import socket
 
     if host in ("", "*"):
-        return ["0.0.0.0"]
+        return [str(ipaddress.IPv4Address(0))]  # the wildcard, as the socket would bind it
     try:
         infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except (socket.gaierror, UnicodeError, ValueError):
