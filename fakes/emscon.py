@@ -338,10 +338,7 @@ class _Session:
             self._check_drop()
             # what is due goes out before any reply: a reply the client gets tells it that every
             # sample due before its command was sent ahead of it
-            if self.streaming:
-                # a lockstep clock with nothing scheduled stands still: what it has passed goes out whole,
-                # so a step's samples end where its program ended, not at the last full packet
-                self._stream(flush=bool(getattr(clock, "lockstep", False)) and clock.idle())
+            self._send_due()
             self._finish_pending()
             wait = 0.05
             now = clock.now()
@@ -356,6 +353,13 @@ class _Session:
                     return
                 self.rx += data
                 self._commands()
+
+    def _send_due(self) -> None:
+        """Send the samples due now. A lockstep clock with nothing scheduled stands still: what it has passed
+        goes out whole, so a step's samples end where its program ended, not at the last full packet."""
+        if self.streaming:
+            clock = self.fake._clock
+            self._stream(flush=bool(getattr(clock, "lockstep", False)) and clock.idle())
 
     def _send(self, data: bytes) -> None:
         try:
@@ -392,6 +396,9 @@ class _Session:
             params = bytes(self.rx[12:size])
             del self.rx[:size]
             self.fake.stats["commands"] += 1
+            # what is due goes out before the reply, also when the command came in while the loop waited (the
+            # clock may have come to a stand meanwhile): the reply tells the client every sample due is ahead of it
+            self._send_due()
             reply = self._command(command, params)
             if reply is not None:
                 if self.fake._faults.slow_reply_s:
