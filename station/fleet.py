@@ -169,8 +169,9 @@ def drifting(store: RunStore, name: str, *, model: str | None = None, q_max: flo
     return sorted(out, key=lambda r: -(r["slope_per_year"] or 0.0))
 
 
-def over_limits_now(store: RunStore, name: str | None = None) -> list[dict]:
-    """Every value over its limit in each robot's latest finished run (with ``name``, or of any kind)."""
+def _latest_limited(store: RunStore, name: str | None, condition: str) -> list[dict]:
+    """The values with a limit (and ``condition`` on ``c``) in each robot's latest finished run with ``name``
+    (or with any characteristic): model, serial, station, run_id, created_at, pose, name, value, unit, limit."""
     name_filter = " AND c2.name=?" if name else ""
     sql = (
         "WITH latest AS (SELECT r.robot_id, MAX(r.created_at) AS t FROM runs r WHERE r.status='done'"
@@ -179,11 +180,16 @@ def over_limits_now(store: RunStore, name: str | None = None) -> list[dict]:
         " SELECT b.model, b.serial, r.station, r.run_id, r.created_at, c.pose, c.name, c.value, c.unit, c.limit_value"
         " FROM latest l JOIN runs r ON r.robot_id=l.robot_id AND r.created_at=l.t AND r.status='done'"
         " JOIN robots b ON b.robot_id=r.robot_id JOIN characteristics c ON c.run_id=r.run_id"
-        " WHERE c.limit_value IS NOT NULL AND c.value > c.limit_value" + (" AND c.name=?" if name else "") +
+        " WHERE c.limit_value IS NOT NULL AND " + condition + (" AND c.name=?" if name else "") +
         " ORDER BY b.serial, c.name, c.pose")
     args = (name, name) if name else ()
     keys = ("model", "serial", "station", "run_id", "created_at", "pose", "name", "value", "unit", "limit")
     return [dict(zip(keys, row)) for row in store.backend.query(sql, args)]
+
+
+def over_limits_now(store: RunStore, name: str | None = None) -> list[dict]:
+    """Every value over its limit in each robot's latest finished run (with ``name``, or of any kind)."""
+    return _latest_limited(store, name, "c.value > c.limit_value")
 
 
 def limit_decisions_now(store: RunStore, name: str | None = None) -> dict[str, list[dict]]:
@@ -195,19 +201,7 @@ def limit_decisions_now(store: RunStore, name: str | None = None) -> dict[str, l
     the limit: proven, rule ``None``).  Rows as :func:`over_limits_now` plus ``rule``, ``decision`` and
     ``U`` (k = 2, the figure's unit).
     """
-    name_filter = " AND c2.name=?" if name else ""
-    sql = (
-        "WITH latest AS (SELECT r.robot_id, MAX(r.created_at) AS t FROM runs r WHERE r.status='done'"
-        " AND EXISTS (SELECT 1 FROM characteristics c2 WHERE c2.run_id=r.run_id" + name_filter + ")"
-        " GROUP BY r.robot_id)"
-        " SELECT b.model, b.serial, r.station, r.run_id, r.created_at, c.pose, c.name, c.value, c.unit, c.limit_value"
-        " FROM latest l JOIN runs r ON r.robot_id=l.robot_id AND r.created_at=l.t AND r.status='done'"
-        " JOIN robots b ON b.robot_id=r.robot_id JOIN characteristics c ON c.run_id=r.run_id"
-        " WHERE c.limit_value IS NOT NULL AND c.value IS NOT NULL" + (" AND c.name=?" if name else "") +
-        " ORDER BY b.serial, c.name, c.pose")
-    args = (name, name) if name else ()
-    keys = ("model", "serial", "station", "run_id", "created_at", "pose", "name", "value", "unit", "limit")
-    rows = [dict(zip(keys, row)) for row in store.backend.query(sql, args)]
+    rows = _latest_limited(store, name, "c.value IS NOT NULL")
     verdicts: dict[str, dict] = {}
     out: dict[str, list[dict]] = {"proven": [], "not_decided": []}
     for r in rows:  # loop over the limited values of the latest runs

@@ -8,28 +8,9 @@
   ``stream.csv`` (``t,x,y,z``) and ``truth.json``;
 * ``iso9283``: an ISO 9283 run (:mod:`fakes.sim.iso_run`), as follows.
 
-This module parses the arguments and writes the files.
-
-The world (:func:`fakes.sim.world.make_world`, on a ``ManualClock`` so it runs
-as fast as the machine computes) drives its arm through the cycles of seed
-000 sec. 3.1.3: the arm waits at P1 while the tracker starts measuring, then
-visits P2, P3, P4, P5, P1 in every cycle with fine stops and a dwell at each
-pose, at rated speed (synchronised joint moves at 100 % of the rated joint
-speeds, or straight lines at the rated TCP speed with ``--move linear``).
-Commanded poses are seed 000 Table 2 (the cube fitted to the arm's reach for other arms, e.g.
-``--robot ur5e``) with one tool orientation (the one the
-nominal inverse kinematics finds for P1 from the home pose).
-
-Files written to DIR:
-
-* ``stream.csv``: ``t,x,y,z,status``: the tracker stream (device time s,
-  mm in the tracker frame); ``status`` 0 = valid, 1 = beam broken (then
-  x, y, z are ``nan``). Every sample the tracker produced is there.
-* ``poses.csv``: ``name,x,y,z``: the commanded positions in the tracker
-  frame.
-* ``truth.json``: the true attained positions per stop (base and tracker
-  frames), the tracker's base transform, the error effects, servo and
-  scatter parameters, and the stop timing, for people and tests.
+This module parses the arguments and writes the files; what the ISO 9283 run
+simulates (the world, its cycles and the files written to DIR) is told in
+:mod:`fakes.sim.iso_run`.
 """
 
 from __future__ import annotations

@@ -1023,7 +1023,6 @@ def _moves(t, xyz, smp: _Sampling, opt: ExtractionOptions, brk, block_starts) ->
             f"no move found in the stream: the moving-average speed never exceeded "
             f"{v_rest:.3g} mm/s over a net {min_move_mm:g} mm (a held pose? `station analyze hold`)"
         )
-    R = starts.size
     # speed peak of each move: the first sample of the run's largest moving-average speed
     # (the maximum over [start_r, start_r+1) is the run's: the rest after it is slower)
     u[np.isnan(u)] = -np.inf
@@ -1213,7 +1212,6 @@ def _assignment(sp: _StopPoints, commanded, names, order, order_idx, opt: Extrac
     d = np.linalg.norm(pos[:, None, :] - commanded[None, :, :], axis=2)  # (K, P)
     nearest = np.argmin(d, axis=1) if d.size else np.zeros(0, np.int64)
     dist = d[np.arange(d.shape[0]), nearest] if d.size else np.zeros(0)
-    K = ci.size
     status = np.where(dist <= assign_tol_mm, STATUS_ASSIGNED, STATUS_UNASSIGNED).astype(np.int64)
     in_order = np.zeros(commanded.shape[0], bool)
     in_order[list(order_idx)] = True
