@@ -25,7 +25,12 @@ pose per stop and assigns it to its commanded pose and cycle, as the seed does:
    sample ``p(j)`` is the attained pose.  Taking the centre of the quietest
    window, not the single slowest sample, avoids picking the best point and so
    flattering the repeatability (seed 3.1.3).  The attained pose must be a
-   sample at rest (moving average below ``v_rest``).
+   sample at rest (moving average below ``v_rest``).  The horizon is sought in
+   the phase's *final* rest (after the last sample in motion) when that rest
+   holds one (the horizon's centre in it): a pause on the way shorter than the dwell that separates moves
+   (a vAP pre-point held 0.2 s, smoothed to less than ``min_dwell_s``) joins
+   the next move, and in a phase holding two rests the quietest window would
+   otherwise fall in either one by the noise alone.
 
 Beam breaks are handled explicitly: a step in time longer than
 ``break_factor`` sampling intervals splits the stream; no velocity and no
@@ -626,6 +631,21 @@ def least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid=None, origi
     return center, wsum
 
 
+def final_rest_start(moving, phase_start, phase_end, min_len):
+    """Start of each phase's final rest: the sample after the last one in motion (``moving``, bool (N,)),
+    when at least ``min_len`` samples of rest remain before the phase's end; else the phase's start."""
+    phase_start = np.asarray(phase_start, dtype=np.int64)
+    phase_end = np.asarray(phase_end, dtype=np.int64)
+    mi = np.flatnonzero(moving)
+    if mi.size == 0 or phase_start.size == 0:
+        return phase_start.copy()
+    k = np.searchsorted(mi, phase_end, side="right") - 1
+    last = np.where(k >= 0, mi[np.maximum(k, 0)], -1)
+    rest0 = last + 1
+    use = (last >= phase_start) & (phase_end - rest0 + 1 >= min_len)
+    return np.where(use, rest0, phase_start)
+
+
 def final_approach_start(xyz, move_start, center, approach_final_mm):
     """Index of the last sample in ``[move_start, center)`` at least ``approach_final_mm`` from ``xyz[center]``.
 
@@ -1064,7 +1084,9 @@ def _horizons(t, xyz, smp: _Sampling, opt: ExtractionOptions, mv: _Moves, brk, t
     invalid = np.unique(np.concatenate([np.arange(min(lag, n))] + [np.arange(b + 1, min(b + 1 + lag, n))
                                                                       for b in brk])).astype(np.int64)
     v = sample_velocity(t, xyz, invalid, fill=0.0, lag=lag)
-    center, wsum = least_velocity_windows(v, M, Mp, phase_start, phase_end, invalid)
+    # horizons centred in the final rest (their windows may reach M samples back into the motion before it)
+    search_start = np.maximum(phase_start, final_rest_start(u > v_rest, phase_start, phase_end, M + Mp) - M)
+    center, wsum = least_velocity_windows(v, M, Mp, search_start, phase_end, invalid)
     if trailing_motion:  # the last move never came to rest: its phase has no stop
         center[-1], wsum[-1] = -1, np.nan
     # Special phases, taken one by one (a loop over phases, few of them):
