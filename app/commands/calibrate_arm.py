@@ -120,7 +120,9 @@ def _print(doc: dict) -> None:
 
     sp = doc.get("split", {})
     seed = f", seed {sp['seed']}" if sp.get("seed") is not None else ""
-    print(f"method {doc['method']}: {len(doc['identified'])} parameters identified, {len(doc['fixed'])} fixed, "
+    n_held = len(doc.get("held", {}))
+    print(f"method {doc['method']}: {len(doc['identified'])} parameters identified ({n_held} of them held at the "
+          f"start by the prior), {len(doc['fixed'])} fixed, "
           f"condition number {doc['condition_number']:.1f}, {doc['iterations']} iterations ({doc['message']}); "
           f"split {sp.get('kind', 'tail')}{seed}")
     print(f"{'':<8}{'mean before':>13}{'mean after':>12}{'max before':>12}{'max after':>11}{'less':>8}")
@@ -133,6 +135,8 @@ def _print(doc: dict) -> None:
     for nm, why in doc["fixed"].items():
         if why.startswith("fixed at its start: these poses cannot see") or why.startswith("fixed as asked"):
             print(f"fixed: {nm}: {why}")
+    for nm, why in doc.get("held", {}).items():
+        print(f"held: {nm}: {why}")
     for note in doc.get("heldout_coverage", []):
         print(f"held-out poses: {note}")
     for w in doc.get("warnings", []):

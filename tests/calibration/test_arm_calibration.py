@@ -15,7 +15,7 @@ import pytest
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
 from station.analysis.arm.calibration import calibrate_arm, distance_errors, position_errors
-from station.analysis.arm.identification import identify
+from station.analysis.arm.identification import identify, prior_sd
 from app.cli import main
 from station.errors import ConfigError, InsufficientDataError
 from station.models import kinematics as kin
@@ -194,9 +194,15 @@ def test_bad_input_is_refused_with_exit_2_and_nothing_written(rng, tmp_path, cap
         calibrate_arm(nom.dh_nominal, q1, m1, strict=True)
     refused(["--robot", "rb5-850", "--strict", "--data", _write(tmp_path, np.degrees(q1), m1, "one.csv")],
             "these poses cannot see")
-    # without --strict the same poses calibrate what they can see and name what was fixed, and why
+    # without --strict the same poses calibrate what they can see and name what the prior held, and why
     cal = calibrate_arm(nom.dh_nominal, q1, m1)
-    assert "cannot see" in cal.identification.identifiability.fixed["alpha2"]
+    held = cal.identification.extra["held"]
+    assert "cannot see" in held["alpha2"] and "alpha2" not in cal.identification.identifiability.fixed
+    # held: near its start (a tenth of its prior's sigma), where the poses leave it free
+    assert abs(cal.identification.dh[1, 1] - nom.dh_nominal[1, 1]) < 0.1 * prior_sd("alpha2")
+    # without the prior the same parameter is fixed at its start, and named
+    res = identify(nom.dh_nominal, q1, m1, prior=False)
+    assert "cannot see" in res.identifiability.fixed["alpha2"] and not res.extra["held"]
     qq = np.degrees(q.copy())
     qq[5, 2] = 400.0
     refused(["--robot", "rb5-850", "--data", _write(tmp_path, qq, meas)], "pose 6: q3 = 400.000 deg is outside")
@@ -220,6 +226,15 @@ def test_rank_deficient_poses_name_what_cannot_be_seen(rng):
     with pytest.raises(InsufficientDataError, match=r"these poses cannot see .*theta5 \(redundant with"):
         identify(nom.dh_nominal, q, meas, method="distance", strict=True)
     res = identify(nom.dh_nominal, q, meas, method="distance")
-    assert "theta5" in res.identifiability.fixed and "redundant" in res.identifiability.fixed["theta5"]
+    assert "theta5" in res.extra["held"] and "redundant" in res.extra["held"]["theta5"]
+    assert "theta5" not in res.identifiability.fixed and "theta5" in res.identifiability.names
     with pytest.raises(ConfigError, match="six objects"):
         model_from_json({"joints": [], "tool": {}})
+
+
+def test_the_prior_of_a_twist_is_an_angle():
+    """alpha is an angle (its prior's sigma in rad), not a length though its name starts with an a."""
+    from station.analysis.arm.identification import PRIOR_ANGLE_DEG, PRIOR_LENGTH_MM
+
+    assert prior_sd("alpha3") == prior_sd("theta3") == math.radians(PRIOR_ANGLE_DEG)
+    assert prior_sd("a3") == prior_sd("d3") == PRIOR_LENGTH_MM

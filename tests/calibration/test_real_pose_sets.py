@@ -56,13 +56,13 @@ def test_fanuc_tail_is_the_j6_sweep_calibrated_without_preparation_and_named(tes
     d = fanuc_like(np.random.default_rng(seed), n=36)
     robot, data = _files(tmp_path, d)
     out = tmp_path / "c.json"
-    # the J6 sweep is the tail: the default calibrates what the training poses see and says what it fixed
+    # the J6 sweep is the tail: the default calibrates what the training poses see and says what the prior held
     assert main(["calibrate", "arm", "--robot", robot, "--data", data, "--method", "absolute", "--test-fraction",
                  "0.17", "--json", str(out)]) == 0, seed
     doc = json.loads(out.read_text())
     text = capsys.readouterr().out
-    unseen = [k for k, why in doc["fixed"].items() if "cannot see" in why]
-    assert unseen and "fixed:" in text, (seed, doc["fixed"])
+    unseen = [k for k, why in doc["held"].items() if "cannot see" in why]
+    assert unseen and "held:" in text, (seed, doc["held"])
     assert any(note.startswith("q6:") and "never move" in note for note in doc["heldout_coverage"]), seed
     assert "held-out poses: q6" in text
     # --strict refuses the same poses, naming what they cannot see

@@ -332,7 +332,8 @@ def cross_validate(dh_nominal, q_rad, measured_mm, *, folds: int, seed: int | No
 
 
 def calibration_json(cal: ArmCalibration, *, name: str = "", joint_limits_rad=None) -> dict:
-    """The ``--json`` document: ``model``, ``fixed``, ``uncertainty``, ``train``, ``test``, ``condition_number``."""
+    """The ``--json`` document: ``model``, ``fixed``, ``held`` (kept at the start by the prior where the poses
+    cannot see them), ``uncertainty``, ``train``, ``test``, ``condition_number``."""
     from station.models.arm_model_file import model_to_json
 
     res = cal.identification
@@ -341,6 +342,7 @@ def calibration_json(cal: ArmCalibration, *, name: str = "", joint_limits_rad=No
         "method": cal.method,
         "model": model_to_json(res.dh, res.base_T, name=name or None, joint_limits_rad=joint_limits_rad),
         "fixed": dict(ident.fixed),
+        "held": dict(res.extra.get("held", {})),
         "uncertainty": dict(res.sigma),
         "uncertainty_units": "mm for a, d and base translations; deg for alpha, theta, beta and base rotations",
         "train": cal.train.to_json(),

@@ -36,7 +36,12 @@ that are redundant by design):
 * parallel consecutive axes (``alpha`` of 0 or +-180 deg) take the Hayati
   ``beta`` in place of ``d`` (seed 002 eq. (3)); elsewhere ``beta`` is fixed;
 * parameters these poses cannot see but 200 poses spread over the joint
-  space would are fixed and named (refused with ``strict``);
+  space would are *held* and named (refused with ``strict``): they stay in
+  the fit, where the weak prior at the start holds them as far as the poses
+  leave them free (a joint that moved 20 degrees still says something about
+  its offsets; fixing them there made the others absorb their error, and the
+  held-out sweep of that joint missed by mm).  Without the prior they are
+  fixed at their start;
 * the remaining columns of the column-scaled identification Jacobian are
   taken in a preferred order and a column is kept only if it is not (to a
   relative 1e-6) a combination of the ones kept before it; what is dropped
@@ -411,7 +416,7 @@ def prior_sd(name: str) -> float:
     if name.startswith("base_"):
         return PRIOR_BASE_MM if name[5] == "t" else math.radians(PRIOR_BASE_DEG)
     tool = name.endswith("TCP")
-    if name[0] in "ad":
+    if name[0] in "ad" and not name.startswith("alpha"):  # a, d: lengths; alpha, theta, beta: angles
         return PRIOR_TOOL_LENGTH_MM if tool else PRIOR_LENGTH_MM
     return math.radians(PRIOR_TOOL_ANGLE_DEG if tool else PRIOR_ANGLE_DEG)
 
@@ -590,9 +595,17 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
             "these poses cannot see " + ", ".join(f"{k} ({ident.fixed[k]})" for k in unseen)
             + ": measure poses that move every joint (or leave out --strict to fix them)")
     fixed = dict(ident.fixed)
+    held: dict[str, str] = {}
     for k in unseen:
-        fixed[k] = f"fixed at its start: these poses cannot see it ({fixed[k]}); poses that move every joint would"
-    ident = Identifiability(ident.free, fixed, ident.singular_values, ident.condition_number, ident.observability)
+        why = fixed.pop(k)
+        if prior:
+            held[k] = (f"held at its start by the prior: these poses cannot see it ({why}); poses that move every "
+                       "joint would")
+        else:
+            fixed[k] = f"fixed at its start: these poses cannot see it ({why}); poses that move every joint would"
+    free_all = np.array(sorted(set(ident.free.tolist()) | {i for i in range(n_p) if _name(i) in held}),
+                        dtype=np.int64)
+    ident = Identifiability(free_all, fixed, ident.singular_values, ident.condition_number, ident.observability)
     free = ident.free
 
     def evaluate(st):
@@ -668,16 +681,22 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
                       f"{PRIOR_BASE_MM:g} mm / {PRIOR_BASE_DEG:g} deg from the nominal model's rigid fit)")
     dh, x_base = sol.state
     J, cost, m = sol.J, sol.cost, sol.r.size
-    # uncertainties from the residuals at the solution
-    sd = _parameter_sd(J[:, free], cost, info, method, meas, pairs)
+    # uncertainties from the residuals at the solution; a held parameter's is its prior's (the poses add
+    # next to nothing to it), and it takes no part in the warnings (its change is the prior's to keep small)
+    seen = np.array([i for i in free if _name(i) not in held], dtype=np.int64)
+    sd = _parameter_sd(J[:, seen], cost, info, method, meas, pairs)
     sigma = {}
-    for k, i in enumerate(free):
+    for k, i in enumerate(seen):
         v = float(sd[k])
         sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
-    warnings = parameter_warnings(dh, dh_start_arr, free, J[:, free], sigma)
+    for i in free:
+        if _name(i) in held:
+            v = prior_sd(_name(i))
+            sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
+    warnings = parameter_warnings(dh, dh_start_arr, seen, J[:, seen], sigma)
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,
                                 math.sqrt(cost / m), time.perf_counter() - t0,
                                 {"n_residuals": m, "method": method, "warnings": warnings, "prior": prior_note,
-                                 "unseen": list(unseen), "stage1_iterations": it1,
+                                 "unseen": list(unseen), "held": held, "stage1_iterations": it1,
                                  "history": [(h, None if xb is None else _base_T(xb)) for h, xb in hist_states]})

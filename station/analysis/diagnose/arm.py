@@ -243,14 +243,17 @@ def _geometric_term(dh, q, meas, train):
         return None, None, f"too few poses: {exc}"
     except DataError as exc:
         return None, None, str(exc)
-    free = np.array([i for i in res.identifiability.free if i < kin.N_PARAMS], dtype=np.int64)
+    # what the poses see; a parameter the identification held at its start by the prior is left out here
+    held = res.extra.get("held", {})
+    free = np.array([i for i, nm in zip(res.identifiability.free, res.identifiability.names)
+                     if i < kin.N_PARAMS and nm not in held], dtype=np.int64)
     if free.size == 0:
         return None, None, "no kinematic parameter is identifiable from these poses"
     from station.models.effects import Geometric
 
     names = tuple(Geometric().param_names[i] for i in free)
     return Term("geometric", None, "geometric", names, index=free,
-                extra={"fixed": dict(res.identifiability.fixed)}), res, None
+                extra={"fixed": {**res.identifiability.fixed, **held}}), res, None
 
 
 def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
