@@ -256,6 +256,27 @@ def _geometric_term(dh, q, meas, train):
                 extra={"fixed": {**res.identifiability.fixed, **held}}), res, None
 
 
+def _held_at_calibration(dh, res) -> np.ndarray:
+    """``dh`` with the parameters the identification held by its prior (the poses barely see them) at their
+    calibrated values: the geometric term fits what the poses see around them, as the calibration did."""
+    out = np.array(dh, dtype=float).reshape(-1).copy()
+    held = res.extra.get("held", {})
+    for i, nm in zip(res.identifiability.free, res.identifiability.names):
+        if nm in held and i < kin.N_PARAMS:
+            out[i] = res.dh.reshape(-1)[i]
+    return out.reshape(np.shape(dh))
+
+
+def _with_geometry(state: ModelState, geo: Term, res, dh) -> ModelState:
+    """``state`` with the geometric term at the calibration ``res`` (its base, what it identified and what
+    it held)."""
+    st = state.with_term(geo)
+    st.dh_nominal = _held_at_calibration(dh, res)
+    st.theta[-1] = (res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
+    st.R, st.t = res.base_T[:3, :3].copy(), res.base_T[:3, 3].copy()
+    return st
+
+
 def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
     """``k`` folds of positions ``0..n-1`` (seeded: the same data give the same folds)."""
     perm = np.random.default_rng(seed).permutation(n)
@@ -559,9 +580,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         elif ct.significant and ct.heldout_rms_after < cv_now:
             # geometry is the base of everything else: a lower cross-validated error suffices (the one-SE
             # rule of the joint effects would drop it where a fold takes a whole sweep away)
-            st = state.with_term(geo)
-            st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
-            st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
+            st = _with_geometry(state, geo, geo_res, dh)
             st, _, sol = fit_report(st, q, meas, train)
             fits.append(("geometric", sol))
             params, ci = _step_params(st, q, meas, train, len(st.terms) - 1)
@@ -579,9 +598,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
                                    "significant but does not lower the cross-validated error")
             # not named, but the diagnosis still starts from the geometric calibration (it costs nothing
             # where the table is right, and joint effects must not stand in for a geometry left out)
-            st = state.with_term(geo)
-            st.theta[-1] = (geo_res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
-            st.R, st.t = geo_res.base_T[:3, :3].copy(), geo_res.base_T[:3, 3].copy()
+            st = _with_geometry(state, geo, geo_res, dh)
             state, _, sol = fit_report(st, q, meas, train)
             fits.append(("geometric (adopted, not named)", sol))
             geometry["adopted"] = True
@@ -658,6 +675,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             gi = next(i for i, t in enumerate(state.terms) if t.kind == "geometric")
             start_all = state.copy()
             start_all.terms[gi] = geo_all
+            start_all.dh_nominal = _held_at_calibration(dh, res_all)
             start_all.theta[gi] = (res_all.dh.reshape(-1) - dh.reshape(-1))[geo_all.index].copy()
             start_all.R, start_all.t = res_all.base_T[:3, :3].copy(), res_all.base_T[:3, 3].copy()
     state_all, _, sol_all = fit_report(start_all, q, meas, all_rows)
