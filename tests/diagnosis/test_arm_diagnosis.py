@@ -96,6 +96,21 @@ def test_not_testable_candidates_are_named_with_the_reason(rng):
     assert "order of motion" in nt["backlash[2]"]
 
 
+def test_eccentricity_needs_a_joint_swept_a_quarter_turn(rng):
+    """Over a short arc a once-per-turn error is an offset and a slope: it is not tested, and the reason names
+    the arc."""
+    d = make_case(ROBOT, [], rng, n=40)
+    q = d.q_rad.copy()
+    arc_deg = float(rng.uniform(20.0, 80.0))
+    q[:, 2] = np.radians(rng.uniform(-arc_deg / 2, arc_deg / 2, q.shape[0]))  # joint 3 swept less than 90 deg
+    meas = kin.tool_position(ROBOT.dh_nominal, q) + rng.normal(0, 0.02, (q.shape[0], 3))
+    res = diagnose_arm(ROBOT.dh_nominal, q, meas, robot=ROBOT, alpha=ALPHA)
+    nt = res.to_json()["not_testable"]
+    assert "spans" in nt["encoder_eccentricity[3]"] and "90 deg" in nt["encoder_eccentricity[3]"], nt
+    assert "encoder_eccentricity[1]" not in nt  # the other joints move over the whole range
+    assert ("encoder_eccentricity", 3) not in res.selected
+
+
 def test_other_generator_anisotropic_noise_backlash_found(rng):
     """Data made without the station's effects code: backlash by hand, tracker noise larger along the line of sight."""
     n = 160

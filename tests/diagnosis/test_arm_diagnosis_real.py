@@ -49,7 +49,11 @@ def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_see
         tr, te = sp.train, sp.test
         res = diagnose_arm(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr], t_s=d.t_s[tr])
         assert res.converged, (seed, res.fits)
-        assert res.selected[:1] == [("geometric", None)], (seed, res.selected)
+        if make is rokae_like:  # spread poses: geometry is named
+            assert res.selected[:1] == [("geometric", None)], (seed, res.selected)
+        else:  # sweeps: an inner fold that takes a sweep's end away may not confirm it; it is then adopted
+            assert res.selected[:1] == [("geometric", None)] or (
+                res.geometry.get("adopted") and "cross-validated" in res.geometry["why_not"]), (seed, res.geometry)
         # no step without gain: each chose itself by a lower cross-validated error, with a non-zero estimate
         for s in res.steps:
             assert s.cv[1] < s.cv[0] and any(v != 0.0 for v in s.params.values()), (seed, s.term.key)
