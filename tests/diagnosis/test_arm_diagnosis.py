@@ -76,7 +76,12 @@ def test_geometric_errors_only_give_the_geometric_step_only(rng):
 def test_nominal_arm_gives_nothing(rng):
     d = simulate_arm_data(ROBOT, EffectSet.none(), rng, n=120)
     res = _diagnose(d)
-    assert res.steps == []
+    # a test at level ALPHA names a false effect ALPHA of the time (1 draw in 41 was seen): what it names then is
+    # marginal, its statistic near the threshold (2.5x is a tail below 1e-6 under no effect) and its gain small
+    for st in res.steps:
+        assert st.statistic < 2.5 * st.threshold and st.cv[1] > 0.95 * st.cv[0], (st.term.key, st.statistic,
+                                                                                  st.threshold, st.cv)
+    assert len(res.steps) <= 1
     # the geometric calibration it starts from is not named, and costs the held-out poses little: fitting p ~ 30
     # parameters to the noise of N ~ 270 training coordinates raises the held-out rms by about sqrt(1 + p/N) ~ 1.05;
     # the draw of the 30 held-out poses spreads that ratio by a few percent (1.10 was seen), so 1.2 bounds it
