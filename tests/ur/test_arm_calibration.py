@@ -45,8 +45,8 @@ def _run(cfg, tmp_path, run_id, cell_seed, sel_seed):
                 store.samples(run_id, "points"))
 
 
-def test_ur_calibration_uses_rtde_joints_and_its_deltas_start_the_next(tmp_path):
-    seed = int.from_bytes(os.urandom(4), "little") % 2**31
+def test_ur_calibration_uses_rtde_joints_and_its_deltas_start_the_next(tmp_path, test_seed):
+    seed = test_seed
     print(f"seed {seed}")
     rng = np.random.default_rng(seed)
     cell_seed, sel_seed = int(rng.integers(2**31)), int(rng.integers(2**31))
@@ -85,7 +85,7 @@ def test_ur_calibration_uses_rtde_joints_and_its_deltas_start_the_next(tmp_path)
     assert doc2["test"]["mean_abs_before_mm"] < 0.5 * doc["test"]["mean_abs_before_mm"]
 
 
-def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path):
+def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path, test_seed):
     """``kill -9`` of the station during a UR calibration (the cobot may be mid-program), then resume."""
     import subprocess
     import time
@@ -97,7 +97,7 @@ def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path):
     from tests.ur.test_iso_procedure import _batches, _done_steps, _station
 
     root = Path(__file__).resolve().parents[2]
-    seed = int.from_bytes(os.urandom(4), "little") % 2**31
+    seed = test_seed
     rng = np.random.default_rng(seed)
     with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e") as cell:
         d = cell.config_dict(store_path=str(tmp_path / "k.sqlite"), report_dir=str(tmp_path / "reports"))

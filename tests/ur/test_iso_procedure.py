@@ -36,10 +36,9 @@ TIME_SCALE = 5.0
 UR_ISO = {"cycles": CYCLES, "vap_cycles": VAP, "axis_sweep_deg": [25.0, 20.0]}
 
 
-def _seed() -> int:
-    seed = int.from_bytes(os.urandom(4), "little") % 2**31
-    print(f"world seed {seed}")
-    return seed
+def _seed(test_seed: int) -> int:
+    print(f"world seed {test_seed}")
+    return test_seed
 
 
 def _config_dict(cell, tmp_path, name="s"):
@@ -47,8 +46,8 @@ def _config_dict(cell, tmp_path, name="s"):
                             iso9283=UR_ISO)
 
 
-def test_iso9283_runs_on_the_ur_fake_through_ur_rtde(tmp_path):
-    with FakeStation.start(seed=_seed(), time_scale=TIME_SCALE, robot="ur5e") as cell:
+def test_iso9283_runs_on_the_ur_fake_through_ur_rtde(tmp_path, test_seed):
+    with FakeStation.start(seed=_seed(test_seed), time_scale=TIME_SCALE, robot="ur5e") as cell:
         cfg = config_from_dict(_config_dict(cell, tmp_path))
         assert cfg.devices["controller"].url.startswith("ur://127.")
         plan = plan_from_config(cfg)
@@ -149,13 +148,13 @@ def _batches(db) -> dict:
     return {tuple(r[:4]): r[4] for r in rows}
 
 
-def test_killed_ur_run_resumes_with_nothing_lost(tmp_path):
+def test_killed_ur_run_resumes_with_nothing_lost(tmp_path, test_seed):
     """``kill -9`` of the station at a random step of a UR run (the cobot may be mid-program), then resume."""
     import json
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    seed = _seed()
+    seed = _seed(test_seed)
     rng = np.random.default_rng(seed)
     total_steps = 6 + CYCLES + VAP + 3
     kill_after = int(rng.integers(5, total_steps - 1))
@@ -201,11 +200,11 @@ def test_killed_ur_run_resumes_with_nothing_lost(tmp_path):
     assert store.result("k1", "iso9283")["pose"]["extraction"]["missing"] == []
 
 
-def test_simulate_iso9283_places_the_cube_in_a_urs_workspace(tmp_path):
+def test_simulate_iso9283_places_the_cube_in_a_urs_workspace(tmp_path, test_seed):
     """``station simulate iso9283 --robot ur5e``: the fitted cube's poses, reached, measured and analysable."""
     from fakes.sim.iso_run import simulate_iso9283
 
-    s = simulate_iso9283(tmp_path, robot="ur5e", cycles=2, rate_hz=200.0, seed=_seed())
+    s = simulate_iso9283(tmp_path, robot="ur5e", cycles=2, rate_hz=200.0, seed=_seed(test_seed))
     assert s["n_stops"] == 10 and s["n_invalid"] == 0
     import json
 

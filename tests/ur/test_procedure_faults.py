@@ -10,7 +10,6 @@ with every sample committed before the fault still there.
 
 from __future__ import annotations
 
-import os
 import sqlite3
 import time
 
@@ -56,8 +55,8 @@ def _run(cfg, tmp_path, **kw):
 
 @pytest.mark.parametrize("fault", ["protective_stop_move", "emergency_stop_move", "rtde_drop_after_s",
                                    "refuse_script"])
-def test_a_fault_stops_the_ur_run_safe_and_resumably(tmp_path, fault):
-    seed = int.from_bytes(os.urandom(4), "little") % 2**31
+def test_a_fault_stops_the_ur_run_safe_and_resumably(tmp_path, fault, test_seed):
+    seed = test_seed
     rng = np.random.default_rng(seed)
     value = {
         "protective_stop_move": int(rng.integers(FIRST_CYCLE_MOTION, FIRST_CYCLE_MOTION + 10)),

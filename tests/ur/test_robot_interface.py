@@ -3,7 +3,6 @@ the FTP+Modbus controller fake and through the UR fake (``ur_rtde``), and the ga
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -19,8 +18,8 @@ from station.safety import SafetyGate, default_limits
 
 
 @pytest.fixture(params=["modbus+ftp", "ur"])
-def robot(request):
-    seed = int.from_bytes(os.urandom(4), "little") % 2**31
+def robot(request, test_seed):
+    seed = test_seed
     print(f"seed {seed}")
     world = make_world(robot="ur5e", seed=seed, time_scale=10.0, effects=None)
     fake = start_named("controller" if request.param == "modbus+ftp" else "ur", world)
