@@ -97,6 +97,18 @@ def test_a_robot_whose_stops_scatter_fails_on_repeatability(make_fake_station):
         run.assert_within_limits()
 
 
+def test_a_robot_with_one_pose_out_fails_on_that_pose_alone(make_fake_station):
+    station = make_fake_station(condition="one-pose-out", **SHORT)
+    out = station.prediction["out_pose"]
+    run = station.iso9283()
+    assert run.verdict is Outcome.FAIL and run.exit_code == 1
+    assert run.reasons == [r for r in run.reasons if r.startswith(f"{out} AP_mm = ")] and len(run.reasons) == 1
+    assert run.value(out, "AP_mm") > 5.0
+    assert all(run.value(p, "AP_mm") <= 5.0 for p in run.poses if p != out)
+    with pytest.raises(AssertionError, match=rf"FAIL, outside the limits: {out} AP_mm = [\d.]+ mm > limit 5 mm$"):
+        run.assert_within_limits()
+
+
 @pytest.mark.timeout(400)  # two runs
 def test_fewer_cycles_than_asked_is_not_decided(make_fake_station):
     # the same cell twice: the second time the tracker's beam is broken in the middle of pose cycle 2

@@ -27,7 +27,7 @@ from station.store import RunStore
 from station.verdict import Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
-CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out")
+CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out", "one-pose-out")
 #: a "marginal" robot's worst predicted AP lies within this fraction of the AP limit below it
 MARGINAL_FRACTION = 0.25
 #: an "rp-out" robot's expected RP, in units of the RP limit
@@ -155,6 +155,67 @@ def _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs) -> 
                        "AP_margin_mm": dict(zip(names, (sigmas * rms).tolist()))}
     raise InsufficientDataError(f"no fake cell {condition} among seeds {seed}..{seed + max_tries - 1} "
                                 f"(AP limit {ap_lim}, AD limit {ad_lim}, {sigmas:g} sigma)")
+
+
+#: the flaw of a "one pose out" robot spans at most a sixth of the way to the nearest other joint angle the
+#: run visits (so its offset there is below exp(-18) of its amplitude); angles within this of another pose
+#: count as visited (the vAP pre-points lie 100 mm off their poses: a few degrees at a metre's lever)
+_DEFECT_GUARD_DEG = 6.0
+#: ... and at least this wide (deg): a stop's scatter (thousandths of a degree) stays well inside it
+_DEFECT_MIN_WIDTH_DEG = 0.02
+#: ... and its joint must move the pose by at least this per radian (mm/rad), not a wrist spinning in place
+_DEFECT_MIN_LEVER_MM = 300.0
+
+
+def one_pose_out_defect(config: StationConfig, seed: int, prediction: dict, robot: str = "r1") -> tuple[str, dict]:
+    """``(pose, joint_defect)``: a localised flaw of one joint (:mod:`fakes.sim.joint_defect`) that puts
+    one pose of an in-spec cell (``prediction`` from :func:`fake_robot_prediction`) out of its AP limit by a
+    clear margin and leaves every other pose and sweep point of the run untouched.
+
+    The pose is drawn from ``seed`` (with an AD limit, not P2 or P4: the distance between them is the run's
+    distance accuracy, which the flaw would put out too); the joint is the one whose angle at that pose lies farthest from every
+    other angle the run visits on it (with a lever of at least 300 mm/rad); the amplitude moves the pose by
+    the AP limit plus the pose's predicted AP and its margin, so its AP is over the limit whichever way its
+    own error points.
+    """
+    from procedures.iso9283 import plan_from_config
+    from procedures.iso9283_truth import RunGeometry
+    from station.models import kinematics as kin
+
+    plan = plan_from_config(config, robot)
+    ap_lim = plan.limits.get("AP_mm")
+    if ap_lim is None:
+        raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot one-pose-out")
+    names = list(plan.poses_mm)
+    geo = RunGeometry.of(plan)
+    rng = np.random.default_rng(seed)
+    ad_pair = ("P2", "P4") if plan.limits.get("AD_mm") is not None else ()  # the analysis's distance pair
+    for k in rng.permutation(len(names)):
+        if names[int(k)] in ad_pair:
+            continue
+        qp = geo.q_pose_rad[k]
+        poses = np.delete(geo.q_pose_rad, k, axis=0)
+        best = None
+        for j in range(6):
+            dq = 1e-6
+            q1 = qp.copy()
+            q1[j] += dq
+            lever = float(np.linalg.norm(kin.tool_position(plan.robot.dh_nominal, q1[None])[0]
+                                         - kin.tool_position(plan.robot.dh_nominal, qp[None])[0]) / dq)
+            sep = min(float(np.degrees(np.min(np.abs(poses[:, j] - qp[j])))) - _DEFECT_GUARD_DEG,
+                      float(np.degrees(np.min(np.abs(geo.q_sweep_rad[:, j] - qp[j])))))
+            if lever >= _DEFECT_MIN_LEVER_MM and sep >= 6.0 * _DEFECT_MIN_WIDTH_DEG and (best is None
+                                                                                      or sep > best[1]):
+                best = (j, sep, lever)
+        if best is None:
+            continue
+        j, sep, lever = best
+        name = names[int(k)]
+        shift_mm = 1.1 * (ap_lim + prediction["AP_high_mm"][name] + prediction["AP_margin_mm"][name])
+        return name, {"joint": j + 1, "centre_deg": float(np.degrees(qp[j])), "width_deg": sep / 6.0,
+                      "amplitude_deg": float(np.degrees(shift_mm / lever))}
+    raise InsufficientDataError("no pose of this run has a joint angle apart from every other one it visits: "
+                                "no flaw can put one pose out alone")
 
 
 @dataclass
@@ -340,6 +401,10 @@ class Station:
         ``"marginal"`` (inside, but the worst pose's AP plus its scatter
         margin within :data:`MARGINAL_FRACTION` of its limit) take the first cell from
         ``seed`` on that meets it by a clear margin (:func:`fake_robot_seed`);
+        ``"one-pose-out"`` is an in-spec cell whose arm has a flaw on one joint
+        (a damaged gear tooth, :func:`one_pose_out_defect`) right at one pose:
+        that pose's AP is over its limit, the others are in spec
+        (``self.prediction["out_pose"]`` names it);
         ``"rp-out"`` is the cell of ``seed`` with stops that scatter so that
         the expected RP is twice ``rp_limit_mm`` (:data:`RP_OUT_FACTOR`); its
         AP is not conditioned (a scatter that wide also widens the AP's, so
@@ -368,7 +433,12 @@ class Station:
             fake_options = {"stop_sigma_mm": rp * RP_OUT_FACTOR / _RP_PER_SIGMA}
         prediction = None
         if condition not in ("as-drawn", "rp-out"):
-            seed, prediction = fake_robot_prediction(config, seed, condition)
+            seed, prediction = fake_robot_prediction(config, seed, "in-spec" if condition == "one-pose-out"
+                                                     else condition)
+        if condition == "one-pose-out":
+            pose, defect = one_pose_out_defect(config, seed, prediction)
+            fake_options = {"joint_defect": defect}
+            prediction = {**prediction, "out_pose": pose, "joint_defect": defect}
         station = cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator, store=store,
                       record=record)
         station.condition, station.fake_options, station.prediction = condition, fake_options, prediction

@@ -20,7 +20,7 @@ Fixtures for acceptance scripts:
 
 Conditions (:data:`station.acceptance.CONDITIONS`): ``as-drawn``,
 ``in-spec``, ``out-of-spec`` (AP out), ``marginal``,
-``rp-out``. The cell's seed is printed (shown with a failing test's output):
+``rp-out``, ``one-pose-out`` (one pose's AP out, the rest in). The cell's seed is printed (shown with a failing test's output):
 rerun with ``--station-seed N``. ``--station-store PATH`` points every
 fixture's store at one persistent SQLite store so history spans sessions
 (a plant's central PostgreSQL store is reached by forwarding: ``store_url``

@@ -214,6 +214,9 @@ class SimArm:
         How much past the arm keeps for queries (see module docstring).
     payload_kg : float
         Mass at the TCP (joint compliance).
+    joint_defect : JointDefect, optional
+        A localised flaw of one joint (a damaged gear tooth): off by up to its
+        amplitude over a few degrees, exact elsewhere.
     """
 
     def __init__(
@@ -230,6 +233,7 @@ class SimArm:
         ipo_period_s: float = 0.02,
         history_s: float = 3600.0,
         payload_kg: float = 0.0,
+        joint_defect=None,
     ) -> None:
         if profile not in motion.PROFILE_KINDS:
             raise DataError(f"`profile` must be one of {motion.PROFILE_KINDS}, got {profile!r}")
@@ -246,6 +250,8 @@ class SimArm:
         self.robot = robot
         self.clock = clock
         self.effects = effects
+        #: a localised flaw of one joint (:class:`fakes.sim.joint_defect.JointDefect`), or None
+        self.joint_defect = joint_defect
         self.servo = servo
         self.stop_sigma_rad = sigma
         self.profile = profile
@@ -716,8 +722,12 @@ class SimArm:
         tt, _ = self._times(t)
         q, direction = self._actual(tt)
         if self.effects is None:
-            return np.asarray(self.robot.dh_nominal), q
-        return self.effects.apply(self.robot.dh_nominal, q, self.effect_context(tt, direction))
+            dh, q_true = np.asarray(self.robot.dh_nominal), q
+        else:
+            dh, q_true = self.effects.apply(self.robot.dh_nominal, q, self.effect_context(tt, direction))
+        if self.joint_defect is not None:
+            q_true = self.joint_defect.apply(q, q_true)
+        return dh, q_true
 
     def tool_pose(self, t=None) -> np.ndarray:
         """True TCP pose in the robot base frame.

@@ -19,6 +19,7 @@ import numpy as np
 
 from fakes.sim.arm import SimArm
 from fakes.sim.clock import ManualClock, SimClock
+from fakes.sim.joint_defect import JointDefect
 from fakes.sim.scanner import ScanResult, SimScanner, look_at
 from fakes.sim.tracker import TrackerModel
 from station.errors import ConfigError, StationError
@@ -221,6 +222,7 @@ def make_world(
     jig: CornerJig | None = None,
     base_T_scanner=None,
     start_s: float = 0.0,
+    joint_defect=None,
 ) -> World:
     """Build a simulated cell.
 
@@ -270,6 +272,10 @@ def make_world(
         ``clock`` is given). The cell was built at 0 (the arm's warm-up
         counts from there): a cell started again to resume a run continues
         the time of the one before, so device time never repeats.
+    joint_defect : dict or JointDefect, optional
+        A localised flaw of one joint (``{"joint", "centre_deg", "width_deg",
+        "amplitude_deg"}``, :mod:`fakes.sim.joint_defect`): the "one pose out"
+        robot of the acceptance fixtures.
 
     Returns
     -------
@@ -385,6 +391,7 @@ def make_world(
         profile=profile,
         history_s=history_s,
         payload_kg=payload_kg,
+        joint_defect=None if joint_defect is None else JointDefect.from_dict(joint_defect),
     )
     if clock is None:
         arm.warmup_origin_s = 0.0
