@@ -109,6 +109,16 @@ def test_a_robot_with_one_pose_out_fails_on_that_pose_alone(make_fake_station):
         run.assert_within_limits()
 
 
+def test_a_cobot_model_runs_on_its_own_fake(make_fake_station):
+    """``model=`` picks the arm, its workspace box and its controller's fake (a UR: the UR fake through RTDE)."""
+    station = make_fake_station(model="ur5e", cycles=2, vap_cycles=2, time_scale=8.0)
+    assert station.config.robots["r1"].model == "ur5e"
+    run = station.iso9283()
+    assert run.status == "done", run.output
+    assert run.verdict is Outcome.PASS and run.subject["model"] == "ur5e"
+    assert all(run.value(p, "n_cycles") == 2 for p in run.poses)
+
+
 @pytest.mark.timeout(400)  # two runs
 def test_fewer_cycles_than_asked_is_not_decided(make_fake_station):
     # the same cell twice: the second time the tracker's beam is broken in the middle of pose cycle 2

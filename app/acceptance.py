@@ -416,7 +416,7 @@ class Station:
         workdir = Path(workdir)
         if condition not in CONDITIONS:
             raise ConfigError(f"condition must be one of {', '.join(CONDITIONS)}, got {condition!r}")
-        cfg = demo_config(workdir.resolve(), cycles=int(cycles), vap_cycles=int(vap_cycles), rate_hz=100.0)
+        cfg = demo_config(workdir.resolve(), cycles=int(cycles), vap_cycles=int(vap_cycles), rate_hz=100.0, robot=model)
         r1 = cfg["robots"]["r1"]
         r1.update(serial=serial, model=model, payload_kg=float(payload_kg))
         merged = {**r1["limits"], **dict(limits or {})}
