@@ -12,6 +12,9 @@ from app.web.live import RunHub
 from app.web.state import station_state
 
 
+CUBE = {"P1", "P2", "P3", "P4", "P5"}
+
+
 def test_the_station_page_shows_the_urs_target_while_a_run_moves_it(tmp_path):
     d = demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0, robot="ur5e")
     d["devices"]["controller"]["url"] = "ur://10.0.0.9"  # the configured cobot (a dry run uses the fake cell)
@@ -20,10 +23,14 @@ def test_the_station_page_shows_the_urs_target_while_a_run_moves_it(tmp_path):
     seen = set()
     try:
         run_id = hub.start("iso9283", "r1", seed=3)
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 90  # inside the test's timeout: a run that never gets there says why
         with RunStore(cfg.station.store_file(tmp_path)) as store:
-            while time.monotonic() < deadline and not {"P2", "P3"} <= seen:
+            # the page is polled every 20 ms beside the run: a short stop may go by unseen under load, so two of
+            # the cube's poses (of the 2 pose and 2 vAP cycles) are asked for, and a run that ends stops the wait
+            while time.monotonic() < deadline and len(seen & CUBE) < 2:
                 live = hub.live(run_id)
+                if live.finished:
+                    break
                 if live.operator.prompt is not None:
                     hub.answer(run_id, live.operator.prompt["id"], True)
                 st = station_state(cfg, store, hub)
@@ -35,8 +42,9 @@ def test_the_station_page_shows_the_urs_target_while_a_run_moves_it(tmp_path):
                     html = pages.station_page(st, "csrf", ["iso9283"])
                     assert f"<td class='target'>{dev['controller']['target']}</td>" in html
                 time.sleep(0.02)
+            steps = store.steps(run_id)
         hub.abort(run_id)
     finally:
         hub.close()
-    # the pose cycle's targets went by, in the cube's names
-    assert {"P2", "P3"} <= seen, seen
+    # the cycles' targets went by, in the cube's names
+    assert len(seen & CUBE) >= 2, (seen, live.exit_code, live.error, [(x.name, x.status, x.message) for x in steps])
