@@ -116,6 +116,21 @@ def test_eccentricity_needs_a_joint_swept_a_quarter_turn(rng):
     assert ("encoder_eccentricity", 3) not in res.selected
 
 
+def test_compliance_needs_its_torque_spread_over_half_its_range(rng):
+    """Shoulder and elbow held within a few degrees: joint 2's gravity torque spans a sliver of what it takes over
+    the joint space, so its compliance is not tested (it would be told from geometry over that sliver)."""
+    d = make_case(ROBOT, [], rng, n=40)
+    q = d.q_rad.copy()
+    for j in (1, 2):
+        c = float(rng.uniform(-0.3, 0.3))
+        q[:, j] = c + np.radians(rng.uniform(-5.0, 5.0, q.shape[0]))
+    meas = kin.tool_position(ROBOT.dh_nominal, q) + rng.normal(0, 0.02, (q.shape[0], 3))
+    res = diagnose_arm(ROBOT.dh_nominal, q, meas, robot=ROBOT, alpha=ALPHA)
+    nt = res.to_json()["not_testable"]
+    assert "of its range over the joint space" in nt["joint_compliance[2]"], nt
+    assert ("joint_compliance", 2) not in res.selected
+
+
 def test_other_generator_anisotropic_noise_backlash_found(rng):
     """Data made without the station's effects code: backlash by hand, tracker noise larger along the line of sight."""
     n = 160
