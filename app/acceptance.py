@@ -173,8 +173,8 @@ def one_pose_out_defect(config: StationConfig, seed: int, prediction: dict, robo
     clear margin and leaves every other pose and sweep point of the run untouched.
 
     The pose is drawn from ``seed`` (with an AD limit, not P2 or P4: the distance between them is the run's
-    distance accuracy, which the flaw would put out too); the joint is the one whose angle at that pose lies farthest from every
-    other angle the run visits on it (with a lever of at least 300 mm/rad); the amplitude moves the pose by
+    distance accuracy, which the flaw would put out too); the joint is the one whose angle at that pose lies
+    farthest from every other angle the run visits on it (with a lever of at least 300 mm/rad); the amplitude moves the pose by
     the AP limit plus the pose's predicted AP and its margin, so its AP is over the limit whichever way its
     own error points.
     """
@@ -195,13 +195,10 @@ def one_pose_out_defect(config: StationConfig, seed: int, prediction: dict, robo
             continue
         qp = geo.q_pose_rad[k]
         poses = np.delete(geo.q_pose_rad, k, axis=0)
+        levers = np.linalg.norm(kin.joint_jacobian(plan.robot.dh_nominal, qp)[:3], axis=0)  # mm/rad per joint
         best = None
         for j in range(6):
-            dq = 1e-6
-            q1 = qp.copy()
-            q1[j] += dq
-            lever = float(np.linalg.norm(kin.tool_position(plan.robot.dh_nominal, q1[None])[0]
-                                         - kin.tool_position(plan.robot.dh_nominal, qp[None])[0]) / dq)
+            lever = float(levers[j])
             sep = min(float(np.degrees(np.min(np.abs(poses[:, j] - qp[j])))) - _DEFECT_GUARD_DEG,
                       float(np.degrees(np.min(np.abs(geo.q_sweep_rad[:, j] - qp[j])))))
             if lever >= _DEFECT_MIN_LEVER_MM and sep >= 6.0 * _DEFECT_MIN_WIDTH_DEG and (best is None
@@ -416,7 +413,8 @@ class Station:
         workdir = Path(workdir)
         if condition not in CONDITIONS:
             raise ConfigError(f"condition must be one of {', '.join(CONDITIONS)}, got {condition!r}")
-        cfg = demo_config(workdir.resolve(), cycles=int(cycles), vap_cycles=int(vap_cycles), rate_hz=100.0, robot=model)
+        cfg = demo_config(workdir.resolve(), cycles=int(cycles), vap_cycles=int(vap_cycles), rate_hz=100.0,
+                          robot=model)
         r1 = cfg["robots"]["r1"]
         r1.update(serial=serial, model=model, payload_kg=float(payload_kg))
         merged = {**r1["limits"], **dict(limits or {})}

@@ -685,14 +685,11 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     # next to nothing to it), and it takes no part in the warnings (its change is the prior's to keep small)
     seen = np.array([i for i in free if _name(i) not in held], dtype=np.int64)
     sd = _parameter_sd(J[:, seen], cost, info, method, meas, pairs)
+    sd_seen = dict(zip(seen.tolist(), sd.tolist()))
     sigma = {}
-    for k, i in enumerate(seen):
-        v = float(sd[k])
-        sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
     for i in free:
-        if _name(i) in held:
-            v = prior_sd(_name(i))
-            sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
+        v = prior_sd(_name(i)) if _name(i) in held else float(sd_seen[int(i)])
+        sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
     warnings = parameter_warnings(dh, dh_start_arr, seen, J[:, seen], sigma)
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,

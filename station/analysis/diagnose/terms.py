@@ -112,13 +112,21 @@ def _unit_mass_torques(dh, q_rad, frame_index: int) -> np.ndarray:
     return tau
 
 
-def _spread_poses(robot, q, n: int = 400) -> np.ndarray:
+def _spread_poses(robot, n: int = 400) -> np.ndarray:
     """Poses spread over the joint space (the robot's limits, else a turn), seeded."""
     lo, hi = np.full(6, -np.pi), np.full(6, np.pi)
     if robot is not None:
         lim = np.asarray(robot.joint_limits_rad, dtype=float)
         lo, hi = np.maximum(lim[:, 0], lo), np.minimum(lim[:, 1], hi)
     return np.random.default_rng(0).uniform(lo, hi, (n, 6))
+
+
+def _holding_torques(robot, dh_nominal, q) -> np.ndarray:
+    """Gravity holding torques (N, 6) of the arm's masses (without a mass model: 1 kg at the elbow) and 1 kg at
+    the TCP, N m."""
+    arm = gravity_torques(robot, dh_nominal, q, payload_kg=0.0) if robot is not None else \
+        _unit_mass_torques(dh_nominal, q, 3)
+    return arm + _unit_mass_torques(dh_nominal, q, 7)
 
 
 def joint_terms(dh_nominal, q_rad, last_dir, *, robot=None, load_kg=None) -> tuple[list[Term], dict]:
@@ -138,15 +146,10 @@ def joint_terms(dh_nominal, q_rad, last_dir, *, robot=None, load_kg=None) -> tup
         elbow = _unit_mass_torques(dh_nominal, q, 3)
         basis = [(elbow, "k{j}_elbow_rad_per_kg"), (tcp, "k{j}_tcp_rad_per_kg")]
         basis_note = "1 kg at the elbow + 1 kg at the TCP (no mass model)"
-    # the torque range each joint sees over its whole joint space (poses spread within the limits, seeded)
-    q_all = _spread_poses(robot, q)
-    if robot is not None:
-        full = gravity_torques(robot, dh_nominal, q_all, payload_kg=0.0) + _unit_mass_torques(dh_nominal, q_all, 7)
-        here = base + tcp
-    else:
-        full = _unit_mass_torques(dh_nominal, q_all, 3) + _unit_mass_torques(dh_nominal, q_all, 7)
-        here = elbow + tcp
-    share = np.ptp(here, axis=0) / np.maximum(np.ptp(full, axis=0), 1e-12)
+    # the share of its range over the whole joint space (poses spread within the limits) each joint's
+    # holding torque spans in these poses
+    full = _holding_torques(robot, dh_nominal, _spread_poses(robot))
+    share = np.ptp(_holding_torques(robot, dh_nominal, q), axis=0) / np.maximum(np.ptp(full, axis=0), 1e-12)
     for j in range(6):
         J = j + 1
         const = rng_deg[j] < MIN_JOINT_RANGE_DEG
