@@ -36,7 +36,7 @@ def test_random_splits_hold_out_as_well_as_a_plain_full_fit(test_seed, make, n):
     """Absolute method, random 70/30 splits, no preparation of the file: within 1.05x of the full fit."""
     seed = test_seed
     rng = np.random.default_rng(seed)
-    ours, ref = [], []
+    ours, ref, before, truth = [], [], [], []
     for k in range(8):  # two sets, four random splits each: the acceptance is a mean over random splits
         if k % 4 == 0:
             d = make(rng, n=n)
@@ -46,9 +46,14 @@ def test_random_splits_hold_out_as_well_as_a_plain_full_fit(test_seed, make, n):
         dh, B = plain_fit(d.dh_nominal, d.q_rad[sp.train], d.xyz_mm[sp.train])
         ours.append(cal.test.after_mm.mean())
         ref.append(position_error(dh, B, d.q_rad[sp.test], d.xyz_mm[sp.test]).mean())
+        before.append(cal.test.before_mm.mean())
+        # what the true geometry leaves on the same poses: the hidden effects and the noise
+        truth.append(position_error(d.dh_true, d.base_T, d.q_rad[sp.test], d.xyz_mm[sp.test]).mean())
     assert np.mean(ours) <= 1.05 * np.mean(ref), (seed, ours, ref)
-    # and the calibration removes the mm-size nominal error
-    assert np.mean(ours) < 0.2 * cal.test.before_mm.mean(), seed
+    # and the calibration removes the mm-size nominal error: at least 80 % of what the true geometry removes
+    # (the rest, the hidden effects, is not geometry; on some draws it is 0.4 mm)
+    removed, removable = np.mean(before) - np.mean(ours), np.mean(before) - np.mean(truth)
+    assert np.mean(before) > 0.3 and removed >= 0.8 * removable, (seed, before, ours, truth)
 
 
 def test_fanuc_tail_is_the_j6_sweep_calibrated_without_preparation_and_named(test_seed, tmp_path, capsys):
