@@ -148,15 +148,32 @@ def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *,
 
 
 def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 50,
-               rtol: float = 1e-10):
-    """As :func:`fit`, with the solver's outcome third (``converged``, ``message``, ``iterations``)."""
+               rtol: float = 1e-10, hold_geometry: bool = False):
+    """As :func:`fit`, with the solver's outcome third (``converged``, ``message``, ``iterations``).
+
+    ``hold_geometry``: the geometric term (and the base) stay where they are; only the other terms move."""
     from station.analysis.arm.lm_solver import levenberg_marquardt
+
+    held = np.zeros(0, np.int64)
+    if hold_geometry:
+        off, idx = 6, [np.arange(6)]
+        for t in state.terms:
+            if t.kind == "geometric":
+                idx.append(off + np.arange(t.k))
+            off += t.k
+        held = np.concatenate(idx)
 
     def evaluate(st):
         pred, A, _ = jacobian(st, q, rows)
-        return (meas[rows] - pred).reshape(-1), A.reshape(-1, A.shape[2])
+        M = A.reshape(-1, A.shape[2])
+        if held.size:
+            M = M.copy()
+            M[:, held] = 0.0
+        return (meas[rows] - pred).reshape(-1), M
 
     sol = levenberg_marquardt(evaluate, _apply_step, state, max_iter=max_iter, rtol=rtol)
+    if hold_geometry:
+        return sol.state, sol.cost, sol
     geo = [i for i, t in enumerate(sol.state.terms) if t.kind == "geometric"]
     m = rows.size * 3
     if geo and m > sol.state.n_params:
