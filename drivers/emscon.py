@@ -45,6 +45,10 @@ MAX_RANGE_MM = 200_000.0
 
 _COMMAND_NAMES = {int(c): c.name for c in ec.Command}
 
+#: commands that may be sent again after a lost reply: they read state, set it to a value, or stop (stopping
+#: a stopped measurement is answered OK); Initialize and StartMeasurement are sent once
+IDEMPOTENT = frozenset(int(c) for c in ec.Command) - {int(ec.Command.INITIALIZE), int(ec.Command.START_MEASUREMENT)}
+
 
 def _cmd_name(command: int) -> str:
     return f"{_COMMAND_NAMES.get(command, 'command')} ({command})"
@@ -94,6 +98,11 @@ class EmsconTracker(Tracker):
         self._pending: int | None = None
         self._awaiting_single = False
         self._abandoned: Counter = Counter()
+        #: an idempotent command is sent again when its reply has not come within this (host s); it covers a
+        #: reply swallowed by a truncated packet, which the reader finds after ``stall_s``
+        self.retry_after_s = 1.5
+        #: idempotent commands sent again after a lost reply
+        self.retries = 0
         self._stop = threading.Event()
         self._link_up = threading.Event()
         self._failure: BaseException | None = None
@@ -299,10 +308,19 @@ class EmsconTracker(Tracker):
         return DeviceError(text)
 
     def _command(self, packet: ec.CommandPacket, *, timeout_s: float | None = None) -> ec.CommandReply:
-        """Send one command and wait for its reply (the reader thread pumps inline)."""
+        """Send one command and wait for its reply (the reader thread pumps inline).
+
+        An idempotent command (:data:`IDEMPOTENT`: asking again changes
+        nothing) whose reply is lost, for example swallowed by a truncated
+        data packet just before it, is sent again every ``retry_after_s``
+        while ``timeout_s`` lasts; the surplus late reply is discarded. Other
+        commands (start a measurement, initialise) are sent once and wait the
+        whole ``timeout_s``.
+        """
         timeout_s = self.reply_timeout_s if timeout_s is None else timeout_s
         deadline = Deadline(timeout_s)
         on_reader = threading.current_thread() is self._reader
+        retry = packet.command in IDEMPOTENT
         if self._failure is not None:
             raise ConnectionLost(f"emScon link is down: {self._failure}")
         if not on_reader:
@@ -312,30 +330,25 @@ class EmsconTracker(Tracker):
                 raise ConnectionLost(f"emScon link is down: {self._failure}")
         if not self._cmd_lock.acquire(timeout=deadline.time_left()):
             raise DeviceTimeout(f"{_cmd_name(packet.command)}: another command still waits for its reply")
+        attempts = 0
         try:
             with self._reply_lock:
                 while not self._replies.empty():
                     self._replies.get_nowait()
                 self._pending = packet.command
-            self._write(packet.encode(), deadline.time_left())
-            reply = None
-            while reply is None:
-                try:
-                    if on_reader:
-                        reply = self._replies.get_nowait()
-                    else:
-                        reply = self._replies.get(timeout=max(deadline.time_left(), 0))
-                except queue.Empty:
-                    if on_reader and not deadline.expired():
-                        self._pump(min(0.05, deadline.time_left()))
-                        continue
-                    with self._reply_lock:
-                        try:
-                            reply = self._replies.get_nowait()
-                        except queue.Empty:
-                            self._abandoned[packet.command] += 1
-                            raise DeviceTimeout(f"no reply to {_cmd_name(packet.command)} within "
-                                                f"{timeout_s:g} s") from None
+            while True:
+                self._write(packet.encode(), deadline.time_left())
+                attempts += 1
+                attempt = Deadline(min(self.retry_after_s, deadline.time_left())) if retry else deadline
+                reply = self._await_reply(attempt, on_reader)
+                if reply is not None:
+                    break
+                with self._reply_lock:
+                    self._abandoned[packet.command] += 1  # its reply, should it come after all, is surplus
+                if not retry or deadline.expired():
+                    more = f" ({attempts} attempts)" if attempts > 1 else ""
+                    raise DeviceTimeout(f"no reply to {_cmd_name(packet.command)} within {timeout_s:g} s{more}")
+                self.retries += 1
         finally:
             with self._reply_lock:
                 self._pending = None
@@ -345,6 +358,23 @@ class EmsconTracker(Tracker):
         if isinstance(reply, ec.ErrorPacket) or reply.status != 0:
             raise self._status_error(reply.command, reply.status)
         return reply
+
+    def _await_reply(self, deadline: Deadline, on_reader: bool):
+        """The reply to the pending command, or None when ``deadline`` passed without one."""
+        while True:
+            try:
+                if on_reader:
+                    return self._replies.get_nowait()
+                return self._replies.get(timeout=max(deadline.time_left(), 0))
+            except queue.Empty:
+                if on_reader and not deadline.expired():
+                    self._pump(min(0.05, deadline.time_left()))
+                    continue
+                with self._reply_lock:
+                    try:
+                        return self._replies.get_nowait()
+                    except queue.Empty:
+                        return None
 
     def _write(self, data: bytes, timeout_s: float) -> None:
         transport = self._transport

@@ -34,6 +34,8 @@ counted from the first StartMeasurement the fake receives, unless noted)::
     huge_length      "N"      after the Nth data packet send a header declaring
                               2**31-1 bytes (nothing follows it)
     slow_reply_s     "X"      every command reply is delayed X seconds
+    lose_reply       "C[:N]"  the replies to the first N (default 1) commands with id C
+                              are not sent (emScon only)
     not_ready        "always" or "X"  tracker warming up until X s after the fake
                               started: Initialize fails (SensorNotWarmedUp), nothing measures
     device_buffer_s  "X"      samples the device holds for a slow client (default 2)
@@ -86,6 +88,7 @@ class TrackerFaults:
     truncate_every: int = 0
     huge_length_after: int = 0
     slow_reply_s: float = 0.0
+    lose_reply: dict = field(default_factory=dict)        # {command id: replies still to lose}
     not_ready_s: float = 0.0
     device_buffer_s: float = 2.0
     packet_rate_hz: float = 10.0
@@ -149,6 +152,9 @@ def parse_tracker_faults(faults: dict | None, *, allowed: frozenset, drop_defaul
             plan.huge_length_after = _int(key, text)
         elif key == "slow_reply_s":
             plan.slow_reply_s = _float(key, text)
+        elif key == "lose_reply":
+            cmd, _, count = str(text).partition(":")
+            plan.lose_reply[_int(key, cmd)] = _int(key, count) if count else 1
         elif key == "not_ready":
             plan.not_ready_s = math.inf if str(text).strip().lower() == "always" else _float(key, text)
         elif key == "device_buffer_s":
@@ -172,7 +178,7 @@ def check_loopback(host: str) -> str:
 
 
 EMSCON_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "huge_length",
-                           "slow_reply_s", "not_ready", "device_buffer_s", "packet_rate_hz", "seed"})
+                           "slow_reply_s", "lose_reply", "not_ready", "device_buffer_s", "packet_rate_hz", "seed"})
 
 
 # --- packets --------------------------------------------------------------------------
@@ -235,7 +241,7 @@ class EmsconFake:
         self._listener.listen(4)
         self.endpoint = {"host": host, "port": self._listener.getsockname()[1]}
         self.stats = {"connections": 0, "refused": 0, "commands": 0, "data_packets": 0, "samples_sent": 0,
-                      "samples_dropped": 0, "garbage_bytes": 0, "truncated_packets": 0,
+                      "samples_dropped": 0, "garbage_bytes": 0, "truncated_packets": 0, "lost_replies": 0,
                       "truncated_samples": 0, "truncated_spans": [], "huge_headers": 0, "drops": 0, "protocol_errors": [],
                       "anchor_t": None}
         # tracker state survives client sessions, as a real server's does
@@ -400,6 +406,11 @@ class _Session:
             # clock may have come to a stand meanwhile): the reply tells the client every sample due is ahead of it
             self._send_due()
             reply = self._command(command, params)
+            lose = self.fake._faults.lose_reply
+            if reply is not None and lose.get(command, 0) > 0:
+                lose[command] -= 1
+                self.fake.stats["lost_replies"] += 1
+                reply = None
             if reply is not None:
                 if self.fake._faults.slow_reply_s:
                     self.fake._clock.sleep(self.fake._faults.slow_reply_s)

@@ -163,6 +163,31 @@ def test_truncated_packets_are_rejected_and_their_samples_counted_lost(rig, rng)
     check_stream_invariants(t, xyz, record, world.source.truth, RATE)
 
 
+def test_a_lost_reply_to_stop_is_asked_again_and_the_stream_is_whole(rig):
+    """StopMeasurement is idempotent: its lost reply costs a second request, not the run (issue 21)."""
+    world, fake, tracker = rig(faults={"lose_reply": "52"})
+    tracker.retry_after_s = 0.3
+    tracker.start_stream(RATE)
+    t, xyz, status, events, record = finish(tracker, collect(tracker, 0.5, world.clock))
+    assert fake.stats["lost_replies"] == 1 and tracker.retries == 1
+    assert record.lost == 0 and record.received == fake.stats["samples_sent"]
+    check_stream_invariants(t, xyz, record, world.source.truth, RATE)
+    # the surplus reply of the two, should it come, answers nothing later
+    tracker.set_units("mm")
+    assert np.all(np.isfinite(tracker.measure_stationary(0.1).xyz_mm))
+
+
+def test_a_lost_reply_to_start_is_not_asked_again(rig):
+    """StartMeasurement is not idempotent (a second start may start a second measurement): one request, the
+    whole timeout, a clear error."""
+    world, fake, tracker = rig(faults={"lose_reply": "49"})
+    tracker.retry_after_s = 0.05
+    tracker.reply_timeout_s = 0.5
+    with pytest.raises(DeviceTimeout, match=r"no reply to START_MEASUREMENT \(49\) within 0.5 s$"):
+        tracker.start_stream(RATE)
+    assert tracker.retries == 0 and fake.stats["lost_replies"] == 1
+
+
 def test_huge_declared_length_in_the_stream_is_skipped(rig):
     world, fake, tracker = rig(faults={"huge_length": "3"})
     tracker.start_stream(RATE)
