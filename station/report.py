@@ -13,7 +13,9 @@ procedure decides what to show:
   distance accuracy, posing time);
 * :func:`plot_errors_before_after` — calibration errors before and after;
 * :func:`plot_intervals` — figures with their expanded uncertainty, the
-  limit and each figure's guard band (ISO 14253-1).
+  limit and each figure's guard band (ISO 14253-1);
+* :func:`plot_history` — one robot's figure over its runs against their date,
+  the limit as a band, failures marked, overhauls as events.
 """
 
 from __future__ import annotations
@@ -158,6 +160,53 @@ def plot_intervals(labels: Sequence[str], values: Sequence[float], U: Sequence[f
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     return _svg(fig)
+
+
+def history_figure(t_s: Sequence[float], values: Sequence[float], limits: Sequence[float | None],
+                   failed: Sequence[bool], *, ylabel: str, title: str, events: Sequence[tuple[float, str]] = ()):
+    """The figure of :func:`plot_history` (for a caller that needs the axes)."""
+    import datetime as dt
+
+    import matplotlib.dates as mdates
+
+    fig, (ax,) = _figure(7.0, 2.6)
+    when = [dt.datetime.fromtimestamp(float(t), tz=dt.timezone.utc) for t in t_s]
+    v = np.asarray(values, float)
+    bad = np.asarray(failed, bool)
+    lims = [abs(float(x)) for x in limits if x is not None]
+    if lims:
+        lim = max(lims)
+        low = -lim if (v.size and v.min() < 0) else 0.0
+        ax.axhspan(low, lim, color="C2", alpha=0.12, lw=0, label=f"within the limit {lim:g}")
+        ax.axhline(lim, color="C3", ls="--", lw=0.8)
+        if low < 0:
+            ax.axhline(low, color="C3", ls="--", lw=0.8)
+    ax.plot(when, v, color="0.6", lw=0.8)
+    ax.plot([w for w, b in zip(when, bad) if not b], v[~bad], "o", color="C0", ms=5, label="passed")
+    if bad.any():
+        ax.plot([w for w, b in zip(when, bad) if b], v[bad], "X", color="C3", ms=8, label="failed")
+    for t, label in events:
+        ax.axvline(dt.datetime.fromtimestamp(float(t), tz=dt.timezone.utc), color="k", ls=":", lw=0.8)
+        ax.annotate(label, (dt.datetime.fromtimestamp(float(t), tz=dt.timezone.utc), 1.0),
+                    xycoords=("data", "axes fraction"), fontsize=6, rotation=90, va="top", ha="right")
+    # the axis takes every value and the whole band
+    ymin = min([0.0, *(v.tolist()), *([-max(lims)] if lims and v.size and v.min() < 0 else [])])
+    ymax = max([*(v.tolist()), *lims, 0.0])
+    pad = 0.08 * (ymax - ymin or 1.0)
+    ax.set_ylim(ymin - (pad if ymin < 0 else 0.0), ymax + pad)
+    ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(ax.xaxis.get_major_locator()))
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=6, loc="upper left")
+    return fig
+
+
+def plot_history(t_s: Sequence[float], values: Sequence[float], limits: Sequence[float | None],
+                 failed: Sequence[bool], *, ylabel: str, title: str, events: Sequence[tuple[float, str]] = ()) -> str:
+    """A figure over the runs of one robot against their date (``t_s`` epoch seconds, UTC): the band within
+    the limit (``|value| <= limit``; down to ``-limit`` where a value is negative), passed runs as dots, failed
+    runs marked, recorded ``events`` (overhauls) as vertical lines; the axis takes every value."""
+    return _svg(history_figure(t_s, values, limits, failed, ylabel=ylabel, title=title, events=events))
 
 
 def plot_xy(series: Sequence[tuple[str, np.ndarray, np.ndarray, str]], *, xlabel: str, ylabel: str, title: str) -> str:

@@ -228,7 +228,9 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
     async def robot(request: Request) -> Response:
         serial = request.path_params["serial"]
         history = {name: store.history(serial, name) for name in HISTORY_NAMES}
-        return _html(pages.robot_page(serial, list(HISTORY_NAMES), history, guard.csrf_token))
+        models = store.robot_models(serial)
+        overhauls = store.overhauls(serial=serial) if len(models) == 1 else []
+        return _html(pages.robot_page(serial, list(HISTORY_NAMES), history, guard.csrf_token, overhauls))
 
     routes = [
         Route("/", station), Route("/events", station_events),

@@ -9,6 +9,7 @@ CSRF token.
 from __future__ import annotations
 
 import json
+import time
 from html import escape
 
 _STYLE = """
@@ -98,50 +99,56 @@ def run_page(state: dict, csrf: str) -> str:
     return _page(f"run {state['run_id']}", body, csrf)
 
 
-def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], csrf: str) -> str:
-    """One robot's characteristics across its finished runs, as small plots (inline SVG) and tables."""
+def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], csrf: str,
+               overhauls: list[dict] | None = None) -> str:
+    """One robot's characteristics across its finished runs: a plot against the date per characteristic
+    (matplotlib, :func:`station.report.plot_history`) and its table."""
     parts = [f"<p><a href='/'>&larr; station</a></p><h1>Robot {escape(serial)}</h1>"]
     if not any(history.values()):
         parts.append("<p>No finished runs with results for this robot yet.</p>")
+    events = [(o["at"], f"overhaul: {o['what']}") for o in overhauls or []]
     for name in names:
         rows = history.get(name) or []
         if not rows:
             continue
-        parts.append(f"<h2>{escape(name)}</h2>{_svg_history(rows)}")
+        parts.append(f"<h2>{escape(name)}</h2>{_history(name, rows, events)}")
     return _page(f"robot {serial}", "".join(parts), csrf)
 
 
-def _svg_history(rows: list[dict], w: int = 640, h: int = 180) -> str:
-    """Worst value over poses per run (dots) with the limit (dashed), runs in time order."""
+def worst_per_run(rows: list[dict]) -> list[dict]:
+    """Per finished run (in time order): the value of largest magnitude over its poses (sign kept, as limits
+    bound ``|value|``), its limit, and whether any pose failed."""
     runs: dict[str, dict] = {}
     for r in rows:
         if r["value"] is None:
             continue
-        cur = runs.setdefault(r["run_id"], {"value": r["value"], "limit": r["limit"], "state": r["overhaul_state"]})
-        cur["value"] = max(cur["value"], r["value"])
+        cur = runs.setdefault(r["run_id"], {"run_id": r["run_id"], "created_at": r["created_at"], "value": r["value"],
+                                            "limit": r["limit"], "state": r["overhaul_state"], "failed": False})
+        if abs(r["value"]) > abs(cur["value"]):
+            cur["value"] = r["value"]
+        if r["limit"] is not None and (cur["limit"] is None or r["limit"] > cur["limit"]):
+            cur["limit"] = r["limit"]
+        cur["failed"] = cur["failed"] or r.get("passed") is False
+    return list(runs.values())
+
+
+def _history(name: str, rows: list[dict], events) -> str:
+    from station.report import plot_history
+
+    runs = worst_per_run(rows)
     if not runs:
         return "<p>no values</p>"
-    vals = [v["value"] for v in runs.values()] + [v["limit"] for v in runs.values() if v["limit"] is not None]
-    top = max(vals) * 1.15 or 1.0
-    n = len(runs)
-    pts, labels = [], []
-    for k, (run_id, v) in enumerate(runs.items()):
-        x = 40 + (w - 60) * (k + 0.5) / n
-        y = h - 20 - (h - 40) * v["value"] / top
-        pts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='4' fill='#0b57d0'><title>{escape(run_id)}: "
-                   f"{v['value']:.4g} ({escape(str(v['state']))})</title></circle>")
-        if v["limit"] is not None:
-            yl = h - 20 - (h - 40) * v["limit"] / top
-            pts.append(f"<line x1='{x - 12:.1f}' x2='{x + 12:.1f}' y1='{yl:.1f}' y2='{yl:.1f}' stroke='#b00020' "
-                       "stroke-dasharray='3,2'/>")
-        limit = "" if v["limit"] is None else f"{v['limit']:.4g}"
-        labels.append(f"<tr><td>{escape(run_id)}</td><td>{escape(str(v['state']))}</td><td>{v['value']:.4g}</td>"
-                      f"<td>{limit}</td></tr>")
-    axis = (f"<line x1='40' x2='{w - 20}' y1='{h - 20}' y2='{h - 20}' stroke='#888'/>"
-            f"<line x1='40' x2='40' y1='20' y2='{h - 20}' stroke='#888'/>"
-            f"<text x='2' y='24' font-size='11'>{top:.3g}</text><text x='2' y='{h - 20}' font-size='11'>0</text>")
-    return (f"<svg width='{w}' height='{h}' role='img'>{axis}{''.join(pts)}</svg>"
-            f"<table><tr><th>run</th><th>overhaul</th><th>worst over poses</th><th>limit</th></tr>{''.join(labels)}</table>")
+    svg = plot_history([r["created_at"] for r in runs], [r["value"] for r in runs], [r["limit"] for r in runs],
+                       [r["failed"] for r in runs], ylabel=name, title=f"{name}: worst pose of each run", events=events)
+    lines = []
+    for r in runs:
+        limit = "" if r["limit"] is None else f"{r['limit']:.4g}"
+        verdict = "fail" if r["failed"] else "pass"
+        when = time.strftime("%Y-%m-%d %H:%M", time.gmtime(r["created_at"]))
+        lines.append(f"<tr><td>{escape(r['run_id'])}</td><td>{escape(str(r['state']))}</td><td>{r['value']:.4g}</td>"
+                     f"<td>{limit}</td><td class='{verdict}'>{verdict}</td><td>{when}</td></tr>")
+    return (f"<figure class='history'>{svg}</figure><table><tr><th>run</th><th>overhaul</th>"
+            f"<th>worst over poses</th><th>limit</th><th>verdict</th><th>date (UTC)</th></tr>{''.join(lines)}</table>")
 
 
 def message_page(title: str, message: str, csrf: str = "") -> str:

@@ -24,9 +24,11 @@ def test_robot_history_shows_the_worst_pose_of_each_finished_run(rng, served, cl
     _stored_run(served.store, "run-live", "SN-7", "after", {"P1": 7.0}, status="running")  # unfinished: not shown
     status, _, html = client.get("/robots/SN-7")
     assert status == 200 and "RP_mm" in html
-    assert html.count("<circle") == 4
-    shown = [float(x) for x in re.findall(r"<tr><td>run-\d</td><td>\w+</td><td>([0-9.e-]+)</td>", html)]
-    assert np.allclose(shown, worst, rtol=1e-3)
+    assert html.count("<figure class='history'>") == 1 and html.count("<svg") == 1  # one plot: RP_mm
+    rows = re.findall(r"<tr><td>run-\d</td><td>\w+</td><td>([0-9.e-]+)</td><td>[0-9.]*</td>"
+                      r"<td class='(pass|fail)'>", html)
+    assert np.allclose([float(v) for v, _ in rows], worst, rtol=1e-3)
+    assert [c for _, c in rows] == ["pass" if w <= 0.5 else "fail" for w in worst]
     # the station page lists every run with the verdict of its characteristics
     status, _, page = client.get("/")
     for k, w in enumerate(worst):
@@ -42,3 +44,44 @@ def test_a_run_left_running_by_a_dead_process_is_not_resumed_from_the_page(serve
     status, _, text = client.post("/runs/orphan/resume")
     assert status == 409 and "station run --resume" in text
     assert served.hub.active() is None
+
+
+def test_a_history_plot_is_against_the_date_takes_every_value_and_marks_failures(rng):
+    """A negative AD below the band stays on the chart (the hand-drawn chart lost it under its axis); the limit is
+    a band; failed runs are drawn apart from passed ones; the x axis is a date axis."""
+    import matplotlib.dates as mdates
+
+    from app.web.pages import worst_per_run
+    from station.report import history_figure
+
+    n = int(rng.integers(5, 12))
+    t0 = 1.70e9 + float(rng.uniform(0, 3e7))
+    t = t0 + np.cumsum(rng.uniform(5, 40, n)) * 86400.0
+    limit = float(rng.uniform(0.3, 0.6))
+    rows = []
+    for k in range(n):
+        for p in ("P1", "P2", "P3"):
+            v = float(rng.uniform(-0.8 * limit, 0.8 * limit))
+            rows.append({"run_id": f"r{k}", "created_at": t[k], "overhaul_state": "after", "pose": p, "value": v,
+                         "limit": limit, "passed": abs(v) <= limit})
+    low = int(rng.integers(n))  # one run with a pose far below the band
+    rows[3 * low]["value"], rows[3 * low]["passed"] = -float(rng.uniform(1.2, 2.0)) * limit, False
+    runs = worst_per_run(rows)
+    assert [r["run_id"] for r in runs] == [f"r{k}" for k in range(n)]
+    assert runs[low]["value"] == rows[3 * low]["value"] and runs[low]["failed"]
+    assert sum(r["failed"] for r in runs) == 1
+    fig = history_figure([r["created_at"] for r in runs], [r["value"] for r in runs], [r["limit"] for r in runs],
+                         [r["failed"] for r in runs], ylabel="AD_mm", title="AD", events=[(t[n // 2] - 3600, "o")])
+    ax = fig.axes[0]
+    y0, y1 = ax.get_ylim()
+    assert y0 < min(r["value"] for r in runs) and y1 > limit and y0 < -limit  # every value and the whole band
+    assert isinstance(ax.xaxis.get_major_formatter(), mdates.ConciseDateFormatter)
+    x0, x1 = ax.get_xlim()
+    assert x0 <= mdates.date2num(np.datetime64(int(t[0]), "s")) and x1 >= mdates.date2num(np.datetime64(int(t[-1]), "s"))
+    marks = {ln.get_label(): ln for ln in ax.get_lines()}
+    assert len(marks["failed"].get_xdata()) == 1 and len(marks["passed"].get_xdata()) == n - 1
+    assert marks["failed"].get_ydata()[0] == runs[low]["value"]
+    band = [p for p in ax.patches if p.get_label().startswith("within the limit")]
+    assert len(band) == 1
+    import matplotlib.pyplot as plt
+    plt.close(fig)
