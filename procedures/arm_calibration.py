@@ -594,6 +594,26 @@ def step_diagnose(ctx: StepContext) -> dict:
             "final_heldout_rms": doc["final_heldout_rms"], "noise_floor": doc["noise_floor"]}
 
 
+def selection_text(info: dict | None) -> str:
+    """The pose selection in words, for the report (``info`` as the plan stores it)."""
+    if not info:
+        return "given in the config"
+    parts = [f"{info.get('method', '?')} from {info.get('candidates', '?')} admissible candidate poses"]
+    if info.get("method") == "d-optimal":
+        if info.get("o1") is not None:
+            parts.append(f"observability O1 {info['o1']:.3g}")
+        if info.get("log_det") is not None:
+            parts.append(f"log det {info['log_det']:.4g}")
+        if info.get("swaps") is not None:
+            parts.append(f"{info['swaps']} exchange(s)")
+    if info.get("replaced_after_path_checks"):
+        parts.append(f"{info['replaced_after_path_checks']} pose(s) no safe path reached replaced by the nearest "
+                     "reachable candidate")
+    if info.get("seed") is not None:
+        parts.append(f"seed {info['seed']}")
+    return "; ".join(parts)
+
+
 def step_report(ctx: StepContext) -> dict:
     from procedures.arm_calibration_report import build_report
     from station.report import write_report
@@ -603,7 +623,7 @@ def step_report(ctx: StepContext) -> dict:
     cal = _calibration(ctx, plan)
     run = ctx.store.run(ctx.run_id)
     facts = {"run": ctx.run_id, "overhaul state": str(run.overhaul_state), "instrument": plan.instrument,
-             "pose selection": json.dumps(plan.selection)}
+             "pose selection": selection_text(plan.selection)}
     if sp is not None:
         facts["poses without the jig (left out)"] = "; ".join(f"{k}: {v}" for k, v in sp.failed.items()) or "none"
     report = build_report(cal, title=f"Kinematic calibration of {plan.robot.name} serial {run.serial}",

@@ -12,6 +12,7 @@ never reaches the robot.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -83,6 +84,11 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     err = np.linalg.norm(meas[split.test] - p_tracker, axis=1)
     assert err.mean() == pytest.approx(doc["test"]["mean_abs_after_mm"], abs=1e-6)
     assert (tmp_path / "reports" / "c1.html").exists()
+    # the report says how the poses were chosen in words, not as the plan's raw JSON
+    text = (tmp_path / "reports" / "c1.html").read_text()
+    row = re.search(r"<th class='l'>pose selection</th><td class='l'>([^<]*)</td>", text).group(1)
+    assert row.startswith(f"d-optimal from {plan.selection['candidates']} admissible candidate poses")
+    assert f"seed {sel_seed}" in row and "{" not in row and "&quot;" not in row
     # the run's export is an arm CSV the command that analyses such runs reads (pose, step_idx not measurements)
     from app.cli import main
     from station.readers.arm_csv import read_arm_csv
