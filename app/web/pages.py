@@ -92,7 +92,7 @@ def run_page(state: dict, csrf: str) -> str:
     body = (f"<div id='banner' class='banner' hidden></div><p><a href='/'>&larr; station</a></p><h1>Run {rid}</h1>"
             f"<p id='summary'></p><div class='bar'><div id='bar' style='width:0%'></div></div>"
             "<div id='prompt' hidden></div><p id='controls'></p><p id='error' class='error'></p>"
-            "<h2>Tracker, last seconds</h2><div id='tracker'></div>"
+            "<h2 id='instrument-title'>Instrument</h2><div id='tracker'></div>"
             "<h2>Results</h2><div id='results'></div><h2>Steps</h2><div id='steps'></div><pre id='output' hidden></pre>"
             f"<script id='state' type='application/json'>{_json_for_script(state)}</script>"
             f"<script>{_RUN_JS}</script>")
@@ -248,7 +248,7 @@ _RUN_JS = r"""
            `<td>${x.attempts || ''}</td><td>${x.duration_s == null ? '' : x.duration_s.toFixed(1) + ' s'}</td><td>${esc(x.message || '')}</td></tr>`;
     }
     document.getElementById('steps').innerHTML = s + '</table>';
-    drawTracker(st.tracker);
+    if (st.instrument) drawInstrument(st.instrument); else drawTracker(st.tracker);
     document.body.dataset.status = st.status;
   }
   function chart(id, xs, ys, label, color) {
@@ -263,7 +263,23 @@ _RUN_JS = r"""
       `<line x1="${l}" x2="${w - 8}" y1="${h - b}" y2="${h - b}" stroke="#888"/><line x1="${l}" x2="${l}" y1="4" y2="${h - b}" stroke="#888"/>` +
       `<polyline fill="none" stroke="${color}" stroke-width="1.5" points="${pts}"/></svg>`;
   }
+  function drawInstrument(ins) {
+    document.getElementById('instrument-title').textContent = ins.title;
+    const el = document.getElementById('tracker');
+    if (ins.kind === 'odometry') {
+      el.innerHTML = `<p id="instrument-counters">received <b id="received">${ins.received}</b> samples</p>` +
+        (ins.t.length ? chart('plot-psi', ins.t, ins.psi_deg.map(Math.abs), '|joint angle|, deg', '#0b57d0') +
+          chart('plot-v', ins.t, ins.v_m_s.map(Math.abs), '|speed|, m/s', '#176b2c') : '<p>not streaming yet</p>');
+      return;
+    }
+    const last = ins.last ? ` &mdash; last: pose ${ins.last.pose}` + (ins.last.x == null ? ' (nothing found)' :
+      ` at (${[ins.last.x, ins.last.y, ins.last.z].map(v => v.toFixed(3)).join(', ')}) mm`) : '';
+    const missed = (ins.not_found || []).length ? `; no corner found at pose(s) ${ins.not_found.join(', ')}` : '';
+    el.innerHTML = `<p id="instrument-counters">measured <b id="measured">${ins.measured}</b> of ` +
+      `<b id="planned">${ins.planned}</b> poses${last}${esc(missed)}</p>`;
+  }
   function drawTracker(tr) {
+    document.getElementById('instrument-title').textContent = 'Tracker, last seconds';
     const el = document.getElementById('tracker');
     if (!tr) { el.innerHTML = '<p>not streaming</p>'; return; }
     const rate = tr.rate_hz == null ? '?' : tr.rate_hz.toFixed(0);

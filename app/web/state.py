@@ -66,6 +66,12 @@ def report_path(steps: list[StepRecord]) -> Path | None:
     return None
 
 
+def instrument_view(store: RunStore, run_id: str, procedure: str, params: dict) -> dict | None:
+    from app.web.instrument_view import instrument_view as view
+
+    return view(store, run_id, procedure, params)
+
+
 def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | None = None) -> dict:
     """Everything the run page shows. StoreError if the run is unknown (unless it failed to start here)."""
     import json
@@ -81,7 +87,8 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
                 "live": not live.finished, "paused": False, "prompt": live.operator.prompt,
                 "error": live.error, "output": live.output, "steps": [], "current": None, "n_done": 0,
                 "n_steps": 0, "elapsed_s": now - live.started_at, "remaining_s": None, "results": [],
-                "verdict": None, "report": False, "serial": None, "model": None, "tracker": None}
+                "verdict": None, "report": False, "serial": None, "model": None, "tracker": None,
+                "instrument": None}
     journal = store.steps(run_id)
     names = list(_step_names(rec.procedure, json.dumps(rec.params, sort_keys=True)))
     latest: dict[int, StepRecord] = {}
@@ -131,6 +138,7 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
         "verdict": verdict(store, run_id, journal), "reasons": (decided(store, run_id) or {}).get("reasons", []),
         "report": report_path(journal) is not None,
         "tracker": _tracker(store, run_id, journal, current) if rec.status == "running" else None,
+        "instrument": instrument_view(store, run_id, rec.procedure, rec.params or {}),
     }
 
 
