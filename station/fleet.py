@@ -109,6 +109,19 @@ def _since_last_overhaul(rows: list[dict], last: dict[tuple[str, str], dict]) ->
     return {k: v for k, v in out.items() if v}
 
 
+def parse_when(text: str, what: str = "date") -> float:
+    """``YYYY-MM-DD`` or ``YYYY-MM-DDTHH:MM[:SS]`` (local time) as epoch seconds; ConfigError naming ``what``
+    otherwise (the date of an overhaul as an operator types it)."""
+    from datetime import datetime
+
+    for fmt in ("%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M"):
+        try:
+            return datetime.strptime(str(text).strip(), fmt).timestamp()
+        except ValueError:
+            continue
+    raise ConfigError(f"{what} {text!r} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
+
+
 def since_overhaul(store: RunStore, name: str, *, model: str | None = None) -> list[dict]:
     """Per robot: the first run after its last recorded overhaul (the baseline), its latest run, the change
     between them and the trend per year since (one-sided test for an increase).

@@ -165,24 +165,12 @@ def _exceeding(args) -> int:
     return 1 if rows or undecided else 0
 
 
-def parse_when(text: str) -> float:
-    """``YYYY-MM-DD`` or ``YYYY-MM-DDTHH:MM[:SS]`` (local time) as epoch seconds; ConfigError otherwise."""
-    from datetime import datetime
-
-    from station.errors import ConfigError
-
-    for fmt in ("%Y-%m-%d", "%Y-%m-%dT%H:%M", "%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M"):
-        try:
-            return datetime.strptime(text.strip(), fmt).timestamp()
-        except ValueError:
-            continue
-    raise ConfigError(f"--date {text!r} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
-
-
 def _overhaul(args) -> int:
     from station.config import load_config
 
-    at = parse_when(args.date)
+    from station.fleet import parse_when
+
+    at = parse_when(args.date, "--date")
     station = load_config(args.config).station.name
     with open_store(args.config, args.central) as store:
         if args.model is None:

@@ -232,12 +232,29 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         overhauls = store.overhauls(serial=serial) if len(models) == 1 else []
         return _html(pages.robot_page(serial, list(HISTORY_NAMES), history, guard.csrf_token, overhauls))
 
+    async def record_overhaul(request: Request) -> Response:
+        """An overhaul of the robot recorded from its page (as ``station store overhaul`` does)."""
+        from station.fleet import parse_when
+
+        serial = request.path_params["serial"]
+        form, refused = await _checked_post(request)
+        if refused:
+            return refused
+        try:
+            at = parse_when(form.get("date", ""), "the overhaul's date")
+            model, serial = store.resolve_robot(serial, form.get("model") or None)
+            store.record_overhaul(model, serial, at, form.get("what", ""), ticket=(form.get("ticket") or "").strip()
+                                  or None, station=hub.cfg.station.name)
+        except StationError as exc:
+            return _refused(exc, 400)
+        return RedirectResponse(f"/robots/{serial}", status_code=303)
+
     routes = [
         Route("/", station), Route("/events", station_events),
         Route("/runs", start_run, methods=["POST"]),
         Route("/runs/{run_id}", run), Route("/runs/{run_id}/state", run_json),
         Route("/runs/{run_id}/events", run_events), Route("/runs/{run_id}/report", report),
-        Route("/robots/{serial}", robot),
+        Route("/robots/{serial}", robot), Route("/robots/{serial}/overhauls", record_overhaul, methods=["POST"]),
     ] + [Route(f"/runs/{{run_id}}/{name}", _action(name), methods=["POST"])
          for name in ("answer", "pause", "continue", "abort", "resume")]
     app = Starlette(routes=routes)

@@ -107,12 +107,29 @@ def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], cs
     if not any(history.values()):
         parts.append("<p>No finished runs with results for this robot yet.</p>")
     events = [(o["at"], f"overhaul: {o['what']}") for o in overhauls or []]
+    parts.append(_overhauls(serial, overhauls or [], csrf))
     for name in names:
         rows = history.get(name) or []
         if not rows:
             continue
         parts.append(f"<h2>{escape(name)}</h2>{_history(name, rows, events)}")
     return _page(f"robot {serial}", "".join(parts), csrf)
+
+
+def _overhauls(serial: str, overhauls: list[dict], csrf: str) -> str:
+    """The robot's recorded overhauls and the form that records one (date, what was done, work ticket)."""
+    rows = "".join(f"<tr><td>{time.strftime('%Y-%m-%d %H:%M', time.localtime(o['at']))}</td>"
+                   f"<td>{escape(str(o['what']))}</td><td>{escape(str(o.get('ticket') or ''))}</td>"
+                   f"<td>{escape(str(o.get('station') or ''))}</td></tr>" for o in overhauls)
+    table = (f"<table id='overhauls'><tr><th>date</th><th>what was done</th><th>ticket</th><th>station</th></tr>"
+             f"{rows}</table>" if overhauls else "<p id='overhauls'>No overhaul recorded.</p>")
+    form = (f"<form method='post' action='/robots/{escape(serial)}/overhauls'>"
+            f"<input type='hidden' name='csrf' value='{escape(csrf)}'>"
+            "<label>date <input name='date' type='date' required></label> "
+            "<label>what was done <input name='what' size='40' required></label> "
+            "<label>ticket <input name='ticket' size='12'></label> "
+            "<button type='submit' id='btn-overhaul'>Record overhaul</button></form>")
+    return f"<h2>Overhauls</h2>{table}{form}"
 
 
 def worst_per_run(rows: list[dict]) -> list[dict]:

@@ -1,6 +1,7 @@
 """Pages read from the store: the station's runs with verdicts, a robot's history, a run left by a dead process."""
 
 import re
+import time
 
 import numpy as np
 
@@ -85,3 +86,35 @@ def test_a_history_plot_is_against_the_date_takes_every_value_and_marks_failures
     assert len(band) == 1
     import matplotlib.pyplot as plt
     plt.close(fig)
+
+
+def test_an_overhaul_recorded_on_the_robot_page_is_an_event_the_fleet_counts_from(rng, served, client):
+    from station.fleet import since_overhaul
+
+    days = sorted(rng.choice(np.arange(10, 300), size=3, replace=False).tolist())
+    t0 = 1.70e9
+    for k, d in enumerate(days):  # three runs; the overhaul falls between the first and the second
+        _stored_run(served.store, f"oh-{k}", "SN-5", "after", {"P1": float(rng.uniform(0.05, 0.2))})
+        served.store.backend.execute("UPDATE runs SET created_at=? WHERE run_id=?", (t0 + d * 86400.0, f"oh-{k}"))
+    at = time.strftime("%Y-%m-%d", time.localtime(t0 + (days[0] + days[1]) / 2 * 86400.0))
+    status, _, html = client.get("/robots/SN-5")
+    assert status == 200 and "No overhaul recorded." in html and "id='btn-overhaul'" in html
+    # refused, each with the reason and nothing recorded: a date that is none, nothing said of what was done
+    for fields, why in (({"date": "yesterday", "what": "J2 gearbox"}, "is not YYYY-MM-DD"),
+                        ({"date": at, "what": "  "}, "needs a description")):
+        status, _, text = client.post("/robots/SN-5/overhauls", fields)
+        assert status == 400 and why in text
+    status, _, text = client.post("/robots/SN-5/overhauls", {"date": at, "what": "J2 gearbox <replaced>"},
+                                  csrf=False)
+    assert status == 403  # no CSRF token: refused like every action
+    assert served.store.overhauls(serial="SN-5") == []
+    status, headers, text = client.post("/robots/SN-5/overhauls",
+                                        {"date": at, "what": "J2 gearbox <replaced>", "ticket": "WO-77"})
+    assert status == 303 and headers["location"] == "/robots/SN-5", text
+    (o,) = served.store.overhauls(serial="SN-5")
+    assert o["what"] == "J2 gearbox <replaced>" and o["ticket"] == "WO-77"
+    assert time.strftime("%Y-%m-%d", time.localtime(o["at"])) == at
+    status, _, html = client.get("/robots/SN-5")
+    assert "J2 gearbox &lt;replaced&gt;" in html and "<replaced>" not in html  # listed, escaped
+    (row,) = [r for r in since_overhaul(served.store, "RP_mm") if r["serial"] == "SN-5"]
+    assert row["baseline_run"] == "oh-1" and row["runs_since"] == 2
