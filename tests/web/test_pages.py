@@ -1,5 +1,6 @@
 """Pages read from the store: the station's runs with verdicts, a robot's history, a run left by a dead process."""
 
+import json
 import re
 import time
 
@@ -118,3 +119,31 @@ def test_an_overhaul_recorded_on_the_robot_page_is_an_event_the_fleet_counts_fro
     assert "J2 gearbox &lt;replaced&gt;" in html and "<replaced>" not in html  # listed, escaped
     (row,) = [r for r in since_overhaul(served.store, "RP_mm") if r["serial"] == "SN-5"]
     assert row["baseline_run"] == "oh-1" and row["runs_since"] == 2
+
+
+def test_every_page_escapes_what_it_shows():
+    """The templates escape everything (autoescape): a hostile name anywhere comes out as text."""
+    from app.web import pages
+
+    evil = "<script>alert(1)</script>'\""
+    state = {"station": evil, "armed": False, "active": None,
+             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil}],
+             "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
+             "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
+                       "verdict": evil}]}
+    run = {"run_id": evil, "steps": [], "note": "</script><script>alert(2)</script>"}
+    rows = [{"run_id": evil, "created_at": 1.7e9, "overhaul_state": evil, "pose": "P1", "value": 0.1, "limit": 0.5,
+             "passed": True}]
+    html = [pages.station_page(state, evil, [evil]), pages.run_page(run, evil),
+            pages.robot_page(evil, ["RP_mm"], {"RP_mm": rows}, evil,
+                             [{"at": 1.7e9, "what": evil, "ticket": evil, "station": evil}]),
+            pages.message_page(evil, evil, evil)]
+    # the run's state goes to its script as JSON, inside which "</" is broken up: it cannot close the element
+    head, rest = html[1].split("<script id='state' type='application/json'>", 1)
+    data, tail = rest.split("</script>", 1)
+    assert "</" not in data and json.loads(data)["note"] == run["note"]
+    html[1] = head + tail
+    for h in html:
+        assert "<script>alert" not in h
+    for h in (html[0], html[2], html[3]):
+        assert "&lt;script&gt;alert(1)" in h
