@@ -497,7 +497,8 @@ class Runner:
             self.store.step_ended(run_id, idx, attempt, "aborted", message=str(exc))
             raise
         except Exception as exc:
-            self.store.step_ended(run_id, idx, attempt, "failed", message=f"{type(exc).__name__}: {exc}")
+            self.store.step_ended(run_id, idx, attempt, "failed", output={"error": error_origin(exc)},
+                                  message=f"{type(exc).__name__}: {exc}")
             self.progress.log(f"step {idx + 1} {step.name} failed: {exc}")
             raise
         out.setdefault("n_samples", ctx.n_recorded)
@@ -513,6 +514,20 @@ class Runner:
             self.procedure.safe_state(self.session)
         except Exception as exc:  # the original error matters more; say what else went wrong
             self.progress.log(f"warning: bringing devices to a safe state failed: {exc}")
+
+
+def error_origin(exc: BaseException) -> dict:
+    """What failed a step: the exception's type and the device driver modules its traceback passed through
+    (``drivers``, outermost first: a driver and the transport under it), for the page's device states. The
+    core names the modules only; it imports no driver."""
+    drivers: list[str] = []
+    tb = exc.__traceback__
+    while tb is not None:
+        module = tb.tb_frame.f_globals.get("__name__", "")
+        if (module == "drivers" or module.startswith("drivers.")) and module not in drivers:
+            drivers.append(module)
+        tb = tb.tb_next
+    return {"type": type(exc).__name__, "drivers": drivers}
 
 
 #: a resumed fake cell starts its clock this long after the last stored sample, s (a gap, never a repeat)

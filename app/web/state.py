@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.errors import StationError
 from station.store import RunStore, StepRecord
 from app.web.live import LiveRun, RunHub
 
@@ -181,14 +182,31 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
     moving_to = ""
     if active is not None and active.detail.startswith("->"):
         moving_to = active.detail[2:].strip()
+    faults, last_armed = device_faults(cfg, store)
+    connected = False
+    if active is not None:
+        try:
+            # connected by this session (a resumed run connects again; an earlier session's step does not count)
+            connected = any(s.name.startswith("connect") and s.status == "done" and s.started_at >= active.started_at
+                            for s in store.steps(active.run_id))
+        except StationError:
+            connected = False
     devices = []
     for name, dev in cfg.devices.items():
         scheme = str(dev.url).split("://", 1)[0].lower()
+        fault = faults.get(name)
+        if not hub.arm:
+            state = "not used (runs use the fake cell)"
+        elif active is not None:
+            state = f"{'connected, ' if connected else 'connecting, '}in use by run {active.run_id}"
+        elif fault is not None and fault["run_id"] == last_armed:
+            state = "faulted"
+        else:
+            state = "idle"
         devices.append({
             "name": name, "url": _redact(dev.url),
             "kind": SCHEMES[scheme].description if scheme in SCHEMES else "",
-            "state": (f"in use by run {active.run_id}" if active else "idle") if hub.arm
-            else "not used (runs use the fake cell)",
+            "state": state, "last_fault": fault,
             "target": moving_to if name in robot_devices else ""})
     robots = [{"key": key, "model": r.model, "serial": r.serial, "overhaul_state": r.overhaul_state}
               for key, r in cfg.robots.items()]
@@ -200,6 +218,42 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
                      "live": bool(live and not live.finished), "verdict": verdict(store, rec.run_id)})
     return {"station": cfg.station.name, "armed": hub.arm, "devices": devices, "robots": robots, "runs": runs,
             "active": active.run_id if active else None}
+
+
+def device_faults(cfg, store: RunStore, limit: int = 50) -> tuple[dict[str, dict], str | None]:
+    """``({device name: its last fault}, the newest run on the configured devices)``, from the store.
+
+    A fault is a failed step of one of the ``limit`` newest runs on the configured devices (armed: its
+    plan has no fake cell) whose error came through the driver of the
+    device's URL scheme: ``run_id``, ``step``, ``at`` (epoch s) and
+    ``message``. Dry runs use the fake cell's devices and are not counted.
+    Two configured devices of one driver share its faults.
+    """
+    from station.device_urls import SCHEMES
+
+    module_of = {}
+    for name, dev in cfg.devices.items():
+        row = SCHEMES.get(str(dev.url).split("://", 1)[0].lower())
+        if row is not None and row.driver:
+            module_of[name] = row.driver.split(":", 1)[0]
+    out: dict[str, dict] = {}
+    last_armed = None
+    armed = [rec for rec in reversed(store.runs()) if (rec.params or {}).get("fake") is None][:limit]
+    for rec in armed:
+        last_armed = last_armed or rec.run_id
+        for step in reversed(store.steps(rec.run_id)):
+            err = (step.output or {}).get("error") if step.status == "failed" else None
+            if not err:
+                continue
+            for name, module in module_of.items():
+                if name not in out and module in (err.get("drivers") or []):
+                    at = step.ended_at or step.started_at
+                    out[name] = {"run_id": rec.run_id, "step": step.name, "at": at,
+                                 "when": time.strftime("%Y-%m-%d %H:%M", time.localtime(at)),
+                                 "message": step.message or err.get("type", "")}
+        if len(out) == len(module_of):
+            break
+    return out, last_armed
 
 
 def _redact(url: str) -> str:

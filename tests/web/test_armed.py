@@ -49,5 +49,40 @@ def test_an_armed_run_confirmed_on_the_page_runs_on_the_configured_devices(armed
     assert st["status"] == "running" and st["procedure"] == "iso9283"
     rec = server.store.run(run_id)
     assert "fake" not in rec.params  # the configured devices, not a fake cell of the page's own
+    _, _, page = client.get("/")  # connected by the run, and in use by it
+    assert page.count(f"<td class=''>connected, in use by run {run_id}</td>") == 2
     client.post(f"/runs/{run_id}/abort")
     assert client.wait(run_id, lambda s: not s["live"], 20, "the abort")["status"] == "aborted"
+
+
+def test_the_station_page_says_each_device_s_state_and_its_last_fault(tmp_path, test_seed):
+    """Armed on devices that fault: the controller's FTP refuses the program upload. While the run goes, every
+    device is in use (connecting until the run has connected them); after it, the controller is faulted with
+    the fault and its run, the tracker idle."""
+    with FakeStation.start(seed=test_seed, time_scale=40.0, faults={"controller.ftp_refuse": "stor"}) as cell:
+        cfg = config_from_dict(cell.config_dict(store_path=str(tmp_path / "s.sqlite"),
+                                                report_dir=str(tmp_path / "reports"),
+                                                iso9283={"cycles": 2, "vap_cycles": 2}))
+        server = WebServer(cfg, tmp_path, port=0, arm=True).start()
+        try:
+            client = Client(server.url)
+            _, _, page = client.get("/")
+            assert page.count("<td class=''>idle</td>") == 2 and "<td class='fault'></td>" in page
+            run_id = client.start(seed=0)
+            seen_in_use = False
+            for _ in range(6):  # the run's prompts, until it fails uploading its program
+                st = client.wait(run_id, lambda s: s["prompt"] is not None or not s["live"], 30, "a prompt or the end")
+                if not st["live"]:
+                    break
+                _, _, page = client.get("/")
+                seen_in_use = seen_in_use or page.count(f"in use by run {run_id}") == 2
+                client.post(f"/runs/{run_id}/answer", {"prompt_id": st["prompt"]["id"], "answer": "yes"})
+            assert seen_in_use
+            assert st["status"] == "failed" and "550" in st["error"], st["error"]
+            _, _, page = client.get("/")
+            rows = {r.split("</td>", 1)[0]: r for r in page.split("<tr><td>")[1:]}
+            assert "<td class='fail'>faulted</td>" in rows["controller"] and "550" in rows["controller"]
+            assert f"run <a href='/runs/{run_id}'>{run_id}</a>" in rows["controller"]
+            assert "<td class=''>idle</td>" in rows["tracker"] and "<td class='fault'></td>" in rows["tracker"]
+        finally:
+            server.close()

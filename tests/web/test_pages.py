@@ -127,7 +127,8 @@ def test_every_page_escapes_what_it_shows():
 
     evil = "<script>alert(1)</script>'\""
     state = {"station": evil, "armed": False, "active": None,
-             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil}],
+             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil,
+                          "last_fault": {"run_id": evil, "step": evil, "when": evil, "message": evil}}],
              "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
              "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
                        "verdict": evil}]}
