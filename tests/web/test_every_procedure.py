@@ -47,8 +47,14 @@ def served_all(tmp_path):
         server.close()
 
 
-def test_each_offered_procedure_runs_from_the_page_with_its_instrument(served_all, browser, seed):  # noqa: F811
+def test_each_offered_procedure_runs_from_the_page_with_its_instrument(served_all, browser, seed,  # noqa: F811
+                                                                       tmp_path):
+    from pathlib import Path
+
     from playwright.sync_api import expect
+
+    artefacts = Path(os.environ.get("STATION_TEST_ARTEFACTS", tmp_path))
+    artefacts.mkdir(parents=True, exist_ok=True)
 
     offered = runnable_procedures(served_all.cfg)
     assert set(offered) == {"iso9283", "arm-calibration", "trailer"}
@@ -82,8 +88,14 @@ def test_each_offered_procedure_runs_from_the_page_with_its_instrument(served_al
         expect(page.locator("#banner-verdict")).to_have_text(verdict)
         assert n_chars > 0
         expect(page.locator("#results-table tr")).to_have_count(n_chars + 1)
+        page.screenshot(path=str(artefacts / f"run_page_{name}.png"), full_page=True)
         if name == "arm-calibration":  # every planned pose measured, said on the finished page
             expect(page.locator("#measured")).to_have_text(page.locator("#planned").inner_text())
         if name == "trailer":
             assert int(page.locator("#received").inner_text()) > 300
             expect(page.locator("#plot-psi polyline")).to_have_count(1)
+            # the joint angle swings both ways: the axis takes the negative values, every point inside the plot
+            svg = page.locator("#plot-psi")
+            lo, hi = float(svg.get_attribute("data-lo")), float(svg.get_attribute("data-hi"))
+            ys = [float(p.split(",")[1]) for p in svg.locator("polyline").get_attribute("points").split()]
+            assert lo < 0 < hi and all(0 <= y <= float(svg.get_attribute("height")) for y in ys)

@@ -82,15 +82,21 @@
     document.body.dataset.status = st.status;
   }
   function chart(id, xs, ys, label, color) {
-    const w = 520, h = 120, l = 50, b = 18;
+    // the axis takes every value (signed ones too) and zero; the zero line is drawn where it falls
+    const w = 520, h = 120, l = 50, b = 18, t = 6;
     if (!ys || !ys.length) return '';
-    const x0 = Math.min(...xs), x1 = Math.max(0, ...xs), top = Math.max(...ys) * 1.1 || 1;
-    const px = x => l + (w - l - 8) * (x - x0) / ((x1 - x0) || 1), py = y => h - b - (h - b - 6) * y / top;
+    const x0 = Math.min(...xs), x1 = Math.max(0, ...xs);
+    let lo = Math.min(0, ...ys), hi = Math.max(0, ...ys);
+    const pad = 0.1 * ((hi - lo) || 1); hi += hi > 0 ? pad : 0; lo -= lo < 0 ? pad : 0;
+    if (hi === lo) hi = lo + 1;
+    const px = x => l + (w - l - 8) * (x - x0) / ((x1 - x0) || 1), py = y => t + (h - b - t) * (hi - y) / (hi - lo);
     const pts = xs.map((x, i) => px(x).toFixed(1) + ',' + py(ys[i]).toFixed(1)).join(' ');
-    return `<svg id="${id}" width="${w}" height="${h}" role="img"><text x="2" y="12" font-size="11">${top.toPrecision(3)}</text>` +
-      `<text x="2" y="${h - b}" font-size="11">0</text><text x="${l}" y="${h - 2}" font-size="11">${x0.toFixed(1)} s</text>` +
+    const y0 = py(0).toFixed(1);
+    return `<svg id="${id}" width="${w}" height="${h}" role="img" data-lo="${lo}" data-hi="${hi}">` +
+      `<text x="2" y="12" font-size="11">${hi.toPrecision(3)}</text><text x="2" y="${h - b}" font-size="11">${lo.toPrecision(3)}</text>` +
+      `<text x="${l}" y="${h - 2}" font-size="11">${x0.toFixed(1)} s</text>` +
       `<text x="${w - 40}" y="${h - 2}" font-size="11">now</text><text x="${l + 6}" y="12" font-size="11">${esc(label)}</text>` +
-      `<line x1="${l}" x2="${w - 8}" y1="${h - b}" y2="${h - b}" stroke="#888"/><line x1="${l}" x2="${l}" y1="4" y2="${h - b}" stroke="#888"/>` +
+      `<line x1="${l}" x2="${w - 8}" y1="${y0}" y2="${y0}" stroke="#888"/><line x1="${l}" x2="${l}" y1="${t}" y2="${h - b}" stroke="#888"/>` +
       `<polyline fill="none" stroke="${color}" stroke-width="1.5" points="${pts}"/></svg>`;
   }
   function drawInstrument(ins) {
@@ -98,8 +104,8 @@
     const el = document.getElementById('tracker');
     if (ins.kind === 'odometry') {
       el.innerHTML = `<p id="instrument-counters">received <b id="received">${ins.received}</b> samples</p>` +
-        (ins.t.length ? chart('plot-psi', ins.t, ins.psi_deg.map(Math.abs), '|joint angle|, deg', '#0b57d0') +
-          chart('plot-v', ins.t, ins.v_m_s.map(Math.abs), '|speed|, m/s', '#176b2c') : '<p>not streaming yet</p>');
+        (ins.t.length ? chart('plot-psi', ins.t, ins.psi_deg, 'joint angle, deg', '#0b57d0') +
+          chart('plot-v', ins.t, ins.v_m_s, 'speed, m/s', '#176b2c') : '<p>not streaming yet</p>');
       return;
     }
     const last = ins.last ? ` &mdash; last: pose ${ins.last.pose}` + (ins.last.x == null ? ' (nothing found)' :
