@@ -16,6 +16,7 @@ import numpy as np
 
 from station.errors import StationError
 from station.store import RunStore, StepRecord
+from app.web.instrument_view import instrument_view
 from app.web.live import LiveRun, RunHub
 
 
@@ -65,12 +66,6 @@ def report_path(steps: list[StepRecord]) -> Path | None:
             p = Path(s.output["report"])
             return p if p.is_file() else None
     return None
-
-
-def instrument_view(store: RunStore, run_id: str, procedure: str, params: dict) -> dict | None:
-    from app.web.instrument_view import instrument_view as view
-
-    return view(store, run_id, procedure, params)
 
 
 def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | None = None) -> dict:

@@ -9,8 +9,8 @@ import pytest
 from procedures.registry import runnable_procedures
 from station.store import RunStore
 
-from .conftest import TIME_SCALE
-from .test_browser import ARGS, CHROMIUM, browser  # noqa: F401  (the fixture)
+from tests.web.conftest import TIME_SCALE
+from tests.web.test_browser import CHROMIUM, browser  # noqa: F401  (the fixture: one headless chromium)
 
 pytestmark = pytest.mark.skipif(not os.access(CHROMIUM, os.X_OK) and not os.environ.get("CI"),
                                 reason="no /usr/bin/chromium (scripts/setup installs it as root)")

@@ -694,12 +694,6 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
                 solp, used = cand, keep
                 break
         if solp is not None:
-            hist_states += solp.states[1:]
-            hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / m_data) for st in solp.states[1:]]
-            r_d, J_d = evaluate(solp.state)
-            sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
-                            sol.converged and solp.converged, solp.message if not solp.converged else sol.message,
-                            sol.rms_history, sol.states)
             base_part = (f"base {PRIOR_BASE_MM:g} mm / {PRIOR_BASE_DEG:g} deg from the nominal model's rigid fit"
                          if used.all() and x_base0 is not None else
                          "base free: the nominal model's rigid fit contradicted the data" if x_base0 is not None
@@ -711,11 +705,14 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
             keep = np.array([_name(i) in held for i in pri], dtype=bool)
             if keep.any():  # what the poses cannot see is still held (they add next to nothing to it)
                 solp = with_prior(keep)
-                r_d, J_d = evaluate(solp.state)
-                sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
-                                sol.converged and solp.converged,
-                                solp.message if not solp.converged else sol.message, sol.rms_history, sol.states)
                 prior_note += f"; the parameters the poses cannot see are held by it ({', '.join(sorted(held))})"
+        if solp is not None:
+            hist_states += solp.states[1:]
+            hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / m_data) for st in solp.states[1:]]
+            r_d, J_d = evaluate(solp.state)
+            sol = type(sol)(solp.state, r_d, J_d, float(r_d @ r_d), sol.iterations + solp.iterations,
+                            sol.converged and solp.converged, solp.message if not solp.converged else sol.message,
+                            sol.rms_history, sol.states)
     dh, x_base = sol.state
     J, cost, m = sol.J, sol.cost, sol.r.size
     # uncertainties from the residuals at the solution; a held parameter's is its prior's (the poses add
