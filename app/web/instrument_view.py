@@ -28,8 +28,10 @@ def _finite(x) -> float | None:
 
 def arm_calibration_view(store: RunStore, run_id: str, params: dict) -> dict:
     """Poses measured of those planned, the last one, and (scanner) the corners not found."""
+    from procedures.arm_calibration import SCAN_STREAM, STREAM
+
     scanner = params.get("instrument") == "scanner"
-    stream = "features" if scanner else "points"
+    stream = SCAN_STREAM if scanner else STREAM
     planned = len(params.get("q_deg") or ())
     s = store.samples(run_id, stream, finished_only=False)
     n = 0 if not s else int(s["pose"].size)
