@@ -245,7 +245,11 @@ class TrackerModel:
         """Base-frame points (N, 3) in the tracker frame."""
         p = np.asarray(p_base_mm, dtype=float)
         T = self.tracker_T_base
-        return p @ T[:3, :3].T + T[:3, 3]
+        # element by element, not a matrix product: BLAS rounds a row differently by where it falls in the
+        # batch, and the batches of a stream depend on the host's timing (a resumed run's sample differed by
+        # one ulp under load); each point here is the same whatever batch carries it
+        R = T[:3, :3]
+        return p[:, :1] * R[:, 0] + p[:, 1:2] * R[:, 1] + p[:, 2:3] * R[:, 2] + T[:3, 3]
 
     def epoch_noise(self, t_sim, epoch, epoch_starts, keys: dict) -> np.ndarray:
         """Standard normal noise (N, 3) drawn per epoch and sample index within it.
