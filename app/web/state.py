@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import StationError
 from station.store import RunStore, StepRecord
 from app.web.instrument_view import instrument_view
 from app.web.live import LiveRun, RunHub
@@ -177,15 +176,12 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
     moving_to = ""
     if active is not None and active.detail.startswith("->"):
         moving_to = active.detail[2:].strip()
-    faults, last_armed = device_faults(cfg, store)
-    connected = False
-    if active is not None:
-        try:
-            # connected by this session (a resumed run connects again; an earlier session's step does not count)
-            connected = any(s.name.startswith("connect") and s.status == "done" and s.started_at >= active.started_at
-                            for s in store.steps(active.run_id))
-        except StationError:
-            connected = False
+    stored = store.runs()
+    faults, last_armed = device_faults(cfg, store, stored)
+    # connected by this session (a resumed run connects again; an earlier session's step does not count)
+    connected = active is not None and any(
+        s.name.startswith("connect") and s.status == "done" and s.started_at >= active.started_at
+        for s in store.steps(active.run_id))
     devices = []
     for name, dev in cfg.devices.items():
         scheme = str(dev.url).split("://", 1)[0].lower()
@@ -206,7 +202,7 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
     robots = [{"key": key, "model": r.model, "serial": r.serial, "overhaul_state": r.overhaul_state}
               for key, r in cfg.robots.items()]
     runs = []
-    for rec in reversed(store.runs()[-limit:]):
+    for rec in reversed(stored[-limit:]):
         live = hub.live(rec.run_id)
         runs.append({"run_id": rec.run_id, "procedure": rec.procedure, "serial": rec.serial,
                      "status": rec.status, "created_at": rec.created_at,
@@ -215,8 +211,10 @@ def station_state(cfg, store: RunStore, hub: RunHub, limit: int = 50) -> dict:
             "active": active.run_id if active else None}
 
 
-def device_faults(cfg, store: RunStore, limit: int = 50) -> tuple[dict[str, dict], str | None]:
-    """``({device name: its last fault}, the newest run on the configured devices)``, from the store.
+def device_faults(cfg, store: RunStore, runs: list | None = None,
+                  limit: int = 50) -> tuple[dict[str, dict], str | None]:
+    """``({device name: its last fault}, the newest run on the configured devices)``, from the store (``runs``:
+    its runs, oldest first, when the caller has read them).
 
     A fault is a failed step of one of the ``limit`` newest runs on the configured devices (armed: its
     plan has no fake cell) whose error came through the driver of the
@@ -233,7 +231,8 @@ def device_faults(cfg, store: RunStore, limit: int = 50) -> tuple[dict[str, dict
             module_of[name] = row.driver.split(":", 1)[0]
     out: dict[str, dict] = {}
     last_armed = None
-    armed = [rec for rec in reversed(store.runs()) if (rec.params or {}).get("fake") is None][:limit]
+    runs = store.runs() if runs is None else runs
+    armed = [rec for rec in reversed(runs) if (rec.params or {}).get("fake") is None][:limit]
     for rec in armed:
         last_armed = last_armed or rec.run_id
         for step in reversed(store.steps(rec.run_id)):
