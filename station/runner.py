@@ -157,6 +157,7 @@ class RunControl:
         self._abort = threading.Event()
         self._running = threading.Event()
         self._running.set()
+        self._held = threading.Event()
 
     def abort(self) -> None:
         self._abort.set()
@@ -179,13 +180,27 @@ class RunControl:
         return not self._running.is_set()
 
     @property
+    def held(self) -> bool:
+        """True while the procedure waits at a checkpoint because of a pause (nothing of it moves on).
+
+        Between :meth:`pause` and the procedure's next checkpoint the current
+        move or measurement still ends: ``paused`` and not yet ``held``.
+        """
+        return self._held.is_set()
+
+    @property
     def abort_requested(self) -> bool:
         return self._abort.is_set()
 
     def checkpoint(self) -> None:
-        """Block while paused; raise RunAborted if an abort was requested."""
-        while not self._running.wait(0.1):
-            pass
+        """Block while paused (:attr:`held` meanwhile); raise RunAborted if an abort was requested."""
+        if not self._running.is_set():
+            self._held.set()
+            try:
+                while not self._running.wait(0.1):
+                    pass
+            finally:
+                self._held.clear()
         if self._abort.is_set():
             raise RunAborted("run aborted on request; resume it with `station run --resume RUN_ID`")
 

@@ -79,7 +79,7 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
             raise
         # the front door refused before the run was created (preflight, config): show why
         return {"run_id": run_id, "procedure": None, "status": "not started" if live.finished else "starting",
-                "live": not live.finished, "paused": False, "prompt": live.operator.prompt,
+                "live": not live.finished, "paused": False, "held": False, "prompt": live.operator.prompt,
                 "error": live.error, "output": live.output, "steps": [], "current": None, "n_done": 0,
                 "n_steps": 0, "elapsed_s": now - live.started_at, "remaining_s": None, "results": [],
                 "verdict": None, "report": False, "serial": None, "model": None, "tracker": None,
@@ -123,6 +123,7 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
     return {
         "run_id": run_id, "procedure": rec.procedure, "status": rec.status, "serial": rec.serial,
         "model": rec.model, "live": driven, "paused": bool(driven and live.control.paused),
+        "held": bool(driven and live.control.held),
         "prompt": live.operator.prompt if driven else None,
         "error": (live.error if live else None) or _last_error(journal, rec.status),
         "output": live.output if (live and live.finished) else "",

@@ -132,3 +132,29 @@ def test_prompts_answered_by_script_and_refusal_stops(tmp_path):
 def test_duplicate_step_names_refused():
     with pytest.raises(StationError, match="unique"):
         Procedure("p", [Step("a", lambda c: None), Step("a", lambda c: None)])
+
+
+def test_a_paused_run_is_held_only_while_its_checkpoint_waits():
+    import threading
+
+    control = RunControl()
+    control.checkpoint()  # not paused: passes, never held
+    assert not control.held
+    control.pause()
+    assert control.paused and not control.held  # asked, but the procedure has not reached a checkpoint
+    passed = threading.Event()
+
+    def procedure():
+        control.checkpoint()
+        passed.set()
+
+    t = threading.Thread(target=procedure)
+    t.start()
+    for _ in range(500):  # the thread reaches its checkpoint
+        if control.held:
+            break
+        passed.wait(0.01)
+    assert control.held and not passed.is_set()
+    control.resume()
+    t.join(5)
+    assert passed.is_set() and not control.held and not control.paused

@@ -95,13 +95,13 @@ def test_pause_abort_then_resume_from_the_cli(served, client, seed):
     client.answer_prompts(run_id, 2)
     client.wait(run_id, lambda s: s["n_done"] >= 7, 30, "the first pose cycle")
     assert client.post(f"/runs/{run_id}/pause")[0] == 303
-    time.sleep(0.5)  # a step with no checkpoint left may still end
-    st = client.state(run_id)
+    # the part of a step under way ends; then the procedure waits at its checkpoint, held
+    st = client.wait(run_id, lambda s: s["held"], 30, "the run to hold at a checkpoint")
     assert st["paused"] and st["status"] == "running"
     n_paused = st["n_done"]
-    time.sleep(2.0)  # unpaused, the run would finish a step or more in this time (steps take < 1.5 s here)
+    time.sleep(1.0)
     st = client.state(run_id)
-    assert st["n_done"] == n_paused and st["paused"]
+    assert st["n_done"] == n_paused and st["paused"] and st["held"]
     assert client.post(f"/runs/{run_id}/continue")[0] == 303
     client.wait(run_id, lambda s: s["n_done"] > n_paused, 15, "the run to go on")
     assert client.post(f"/runs/{run_id}/abort")[0] == 303
@@ -115,10 +115,6 @@ def test_pause_abort_then_resume_from_the_cli(served, client, seed):
     assert proc.returncode in (0, 1, 3), proc.stdout + proc.stderr  # done, with its verdict's exit code
     st = client.state(run_id)
     assert st["status"] == "done" and st["n_done"] == st["n_steps"] > n_before
-    # the pause check above means something only if an unpaused step ends well within its 2 s window
-    durations = sorted(x["duration_s"] for x in st["steps"] if x["name"].startswith(("pose", "vAP")))
-    assert durations[0] < 1.0, durations
-
     assert st["verdict"] in ("pass", "fail", "not decided") and st["results"]
     # steps done before the abort were not run again, except the per-session ones
     with RunStore(served.store.path) as store:
