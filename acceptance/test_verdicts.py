@@ -17,8 +17,8 @@ from station.measurements import Measurement
 from station.store import RunStore
 from station.verdict import Outcome
 
-#: a short run, slow enough that a loaded machine does not cost the fakes a stop (until the lockstep clock)
-SHORT = {"cycles": 3, "vap_cycles": 2, "time_scale": 10.0}
+#: a short run (the pace is the suite's --station-time-scale: the lockstep cell gives the same run at any pace)
+SHORT = {"cycles": 3, "vap_cycles": 2}
 
 
 @pytest.mark.timeout(300)
@@ -128,7 +128,7 @@ def test_fewer_cycles_than_asked_is_not_decided(make_fake_station):
         cycle2 = next(s.idx for s in store.steps(whole.run_id) if s.name == "pose cycle 2")
         t = store.samples(whole.run_id, "tracker", steps=[cycle2])["t"]
     span = t.max() - t.min()
-    second = Station.fake(first.workdir, seed=first.seed, **SHORT)
+    second = Station.fake(first.workdir, seed=first.seed, time_scale=first.time_scale, **SHORT)
     second.fake_options = {"beam_breaks": [[t.min() + 0.2 * span, t.max() - 0.2 * span]]}
     run = second.iso9283()
     assert run.status == "done", run.output
@@ -158,15 +158,17 @@ def test_conformance_required_and_not_met_is_not_decided(fake_station):
 
 @pytest.mark.timeout(400)  # a run and its resume
 def test_a_run_stopped_by_its_operator_is_aborted_and_resumes_from_the_api(test_seed, tmp_path, request):
+    pace = request.config.getoption("--station-time-scale")
     answers = tmp_path / "answers.txt"
     answers.write_text("yes\nclear = no\n")
     seed = test_seed  # the session's seed for this test (printed on failure, --seed replays)
     print(f"fake station seed {seed}")
-    stopped = Station.fake(tmp_path, seed=seed, condition="in-spec", operator=answers, **SHORT)
+    stopped = Station.fake(tmp_path, seed=seed, condition="in-spec", operator=answers, time_scale=pace,
+                           **SHORT)
     run = stopped.iso9283(run_id="stop-1")
     assert run.verdict is Outcome.ABORTED and run.exit_code == 5 and run.passed is False
     assert run.reasons and "resume" in run.reasons[0]
-    again = Station.fake(tmp_path, seed=seed, condition="in-spec", **SHORT)  # a script answering yes
+    again = Station.fake(tmp_path, seed=seed, condition="in-spec", time_scale=pace, **SHORT)  # a script answering yes
     resumed = again.resume("stop-1")
     assert resumed.run_id == "stop-1" and resumed.status == "done", resumed.output
     assert resumed.verdict is Outcome.PASS, resumed.reasons

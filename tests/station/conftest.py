@@ -1,6 +1,7 @@
 import pytest
 
 from fakes.station import FakeStation
+from tests.pace import LOCKSTEP
 
 
 @pytest.fixture
@@ -11,6 +12,6 @@ def world_seed(test_seed):
 
 @pytest.fixture
 def fake_cell(world_seed):
-    """A fake cell (simulated arm, emScon tracker, controller) on loopback, 20x real time."""
-    with FakeStation.start(seed=world_seed, time_scale=20.0) as station:
+    """A fake cell (simulated arm, emScon tracker, controller) on loopback, lockstep as fast as it goes."""
+    with FakeStation.start(seed=world_seed, time_scale=LOCKSTEP) as station:
         yield station

@@ -27,8 +27,9 @@ from station.runner import RunControl
 from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
 from tests.station.abort_at import AbortAtStep
+from tests.pace import LOCKSTEP
 
-TIME_SCALE = 100.0
+TIME_SCALE = LOCKSTEP
 
 
 def _cfg(tmp_path, **arm):

@@ -7,6 +7,7 @@ from procedures.iso9283 import plan_from_config
 from procedures.iso9283_truth import predict_static, prediction_scatter
 from app.acceptance import SPEC_SIGMAS, Station, fake_cell_truth, fake_robot_seed
 from station.errors import ConfigError, InsufficientDataError
+from tests.pace import LOCKSTEP
 
 
 def _prediction(station: Station):
@@ -20,8 +21,8 @@ def _prediction(station: Station):
 
 
 def test_in_and_out_of_spec_cells_keep_their_margin(tmp_path, world_seed):
-    good = Station.fake(tmp_path / "a", seed=world_seed, condition="in-spec")
-    bad = Station.fake(tmp_path / "b", seed=world_seed, condition="out-of-spec")
+    good = Station.fake(tmp_path / "a", seed=world_seed, condition="in-spec", time_scale=LOCKSTEP)
+    bad = Station.fake(tmp_path / "b", seed=world_seed, condition="out-of-spec", time_scale=LOCKSTEP)
     assert good.seed >= world_seed and bad.seed >= world_seed and good.seed != bad.seed
     # the scatter is re-estimated here with other draws: allow its Monte Carlo error (50 vs 200 draws)
     plan, pred, ap, rms = _prediction(good)

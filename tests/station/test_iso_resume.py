@@ -30,6 +30,7 @@ from procedures.iso9283 import registration_of
 from tests.person import TYPED_YES
 from station.config import config_from_dict
 from station.store import RunStore
+from tests.pace import LOCKSTEP
 
 ROOT = Path(__file__).resolve().parents[2]
 CYCLES, VAP = 3, 2
@@ -81,7 +82,7 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
     seed = int(rng.integers(0, 2**31))
     total_steps = 6 + CYCLES + VAP + 3
     kill_after = int(rng.integers(5, total_steps - 1))  # somewhere from registration to analysis
-    with FakeStation.start(seed=seed, time_scale=20.0) as cell:
+    with FakeStation.start(seed=seed, time_scale=LOCKSTEP) as cell:
         cfg = _config(cell, tmp_path, "killed")
         db = tmp_path / "killed.sqlite"
         child = subprocess.Popen(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
@@ -128,7 +129,7 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
         assert store.result("k1", "iso9283")["pose"]["extraction"]["missing"] == []
 
     # an uninterrupted run on an identical cell
-    with FakeStation.start(seed=seed, time_scale=20.0) as cell:
+    with FakeStation.start(seed=seed, time_scale=LOCKSTEP) as cell:
         cfg = _config(cell, tmp_path, "ref")
         ref = subprocess.run(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
                                       "--run-id", "r1"), cwd=ROOT, capture_output=True, text=True, timeout=180,

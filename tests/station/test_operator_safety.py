@@ -18,6 +18,7 @@ from station.errors import ConfigError, SafetyError
 from station.runner import AnswerFileOperator
 from station.store import RunStore
 from tests.person import person_typing_yes
+from tests.pace import LOCKSTEP
 
 ISO = {"cycles": 2, "vap_cycles": 2}
 
@@ -83,7 +84,7 @@ def test_an_armed_station_asks_the_person_every_confirmation(fake_cell, tmp_path
 def test_a_dry_run_stops_on_a_no_from_its_answer_file(tmp_path):
     answers = tmp_path / "answers.txt"
     answers.write_text("# first prompt: the reflector; then the cell\nyes\nclear = no\n")
-    station = Station.fake(tmp_path, operator=answers)
+    station = Station.fake(tmp_path, operator=answers, time_scale=LOCKSTEP)
     run = station.iso9283(cycles=2, vap_cycles=2, run_id="dry-no")
     assert run.status == "failed"
     assert run.passed is False
@@ -92,7 +93,7 @@ def test_a_dry_run_stops_on_a_no_from_its_answer_file(tmp_path):
 
 def test_a_dry_run_takes_a_callable_and_logs_its_answers(tmp_path):
     seen = []
-    station = Station.fake(tmp_path, operator=lambda message: seen.append(message) or True)
+    station = Station.fake(tmp_path, operator=lambda message: seen.append(message) or True, time_scale=LOCKSTEP)
     run = station.iso9283(cycles=2, vap_cycles=2, run_id="dry-yes")
     assert run.status == "done", run.output
     assert seen and [m for m, _ in station.operator.asked] == seen

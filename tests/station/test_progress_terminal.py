@@ -20,6 +20,7 @@ import time
 import pyte
 
 from app.cli import main
+from tests.pace import LOCKSTEP
 
 COLS = 80
 
@@ -27,7 +28,7 @@ COLS = 80
 def _station(tmp_path):
     assert main(["init", "--out", str(tmp_path / "station.toml")]) == 0
     return [sys.executable, "-m", "app.cli", "run", "iso9283", "--config", str(tmp_path / "station.toml"),
-            "--time-scale", "20"]
+            "--time-scale", str(LOCKSTEP)]
 
 
 def test_an_80_column_terminal_shows_the_bar_and_the_prompts_cleanly(tmp_path, capsys):

@@ -40,10 +40,11 @@ from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.runner import CallableOperator, ProgressLine, RunControl
 from station.store import RunStore
+from tests.pace import LOCKSTEP
 
 CYCLES, VAP = 3, 2
 #: time scale of these runs: the lockstep clock gives the same figures at any scale
-SCALE = 100.0
+SCALE = LOCKSTEP
 
 
 class Recorder(ProgressLine):

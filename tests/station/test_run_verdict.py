@@ -8,6 +8,7 @@ from pathlib import Path
 from fakes.cells import demo_config
 from app.cli import main
 from station.store import RunStore
+from tests.pace import LOCKSTEP
 
 
 def test_station_run_exits_with_its_verdict_and_says_it_first(test_seed, tmp_path, capsys):
@@ -17,7 +18,7 @@ def test_station_run_exits_with_its_verdict_and_says_it_first(test_seed, tmp_pat
     cfg.write_text(json.dumps(demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0), default=str))
     out = tmp_path / "r.json"
     code = main(["run", "iso9283", "--config", str(cfg), "--yes", "--quiet", "--require-iso", "--run-id", "v1",
-                 "--seed", str(seed), "--time-scale", "10", "--json", str(out)])
+                 "--seed", str(seed), "--time-scale", str(LOCKSTEP), "--json", str(out)])
     doc = json.loads(out.read_text())
     lines = capsys.readouterr().out.splitlines()
     assert doc["status"] == "done"

@@ -10,6 +10,7 @@ from station.config import StationConfig
 from station.store import RunStore
 from station.store_forward import forward_status
 from tests.store.helpers import same_samples
+from tests.pace import LOCKSTEP
 
 
 def _cfg(tmp_path, url):
@@ -22,7 +23,7 @@ def _cfg(tmp_path, url):
 def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
     cfg = _cfg(tmp_path, pg_url)
     out = io.StringIO()
-    code = run_procedure(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=100.0,
+    code = run_procedure(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=LOCKSTEP,
                          seed=int(rng.integers(2**31)), config_dir=tmp_path,
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
     assert code.status == "done"
@@ -44,7 +45,7 @@ def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
 def test_an_unreachable_centre_costs_the_run_nothing(rng, tmp_path):
     cfg = _cfg(tmp_path, "postgresql://station@127.0.0.1:1/plant")
     buf = io.StringIO()
-    code = run_procedure(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=100.0,
+    code = run_procedure(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=LOCKSTEP,
                          seed=int(rng.integers(2**31)), config_dir=tmp_path,
                          plan_overrides={"selection_seed": int(rng.integers(2**31))})
     assert code.status == "done"

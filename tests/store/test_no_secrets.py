@@ -28,6 +28,7 @@ from app.cli import main
 from station.config import config_from_dict, load_config
 from station.errors import ConfigError
 from tests.store.pgserver import PASSWORD_ENV
+from tests.pace import LOCKSTEP
 
 
 def _pg_text(url: str) -> str:
@@ -86,7 +87,7 @@ def test_no_secret_reaches_a_record_a_log_the_page_or_an_export(test_seed, tmp_p
     cfg = load_config(cfg_path)
     caplog.set_level(logging.DEBUG)
     out = io.StringIO()
-    code = run_procedure(cfg, "iso9283", stdout=out, run_id="s1", yes=True, quiet=True, time_scale=40.0,
+    code = run_procedure(cfg, "iso9283", stdout=out, run_id="s1", yes=True, quiet=True, time_scale=LOCKSTEP,
                          seed=seed, config_dir=station_dir)
     assert code.status == "done", out.getvalue()  # its verdict is the drawn cell's (the secrets are the point)
     assert "central store:" in out.getvalue()

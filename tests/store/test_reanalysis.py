@@ -13,13 +13,14 @@ from station.config import config_from_dict
 from app.reanalysis import analysis_version, reanalyze
 from station.store import RunStore
 from tests.seeding import seed_for
+from tests.pace import LOCKSTEP
 
 
 @pytest.fixture(scope="module")
 def iso_store(tmp_path_factory, request):
     """A store with one real ISO 9283 run (3 + 2 cycles) made through the drivers on the fake cell."""
     tmp = tmp_path_factory.mktemp("iso")
-    with FakeStation.start(seed=seed_for(request), time_scale=20.0) as cell:
+    with FakeStation.start(seed=seed_for(request), time_scale=LOCKSTEP) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(tmp / "s.sqlite"), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": 3, "vap_cycles": 2}))
         code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="iso-1", config_dir=tmp)

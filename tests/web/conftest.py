@@ -123,13 +123,19 @@ def seed(test_seed) -> int:
 
 
 @pytest.fixture
-def served(tmp_path):
-    """`station serve` on 127.0.0.1, any free port, over the small demo station in ``tmp_path``."""
+def served(tmp_path, request):
+    """`station serve` on 127.0.0.1, any free port, over the small demo station in ``tmp_path``.
+
+    Its runs go at ``TIME_SCALE`` (slow enough to pause, abort or watch one); a test that only waits
+    for the end marks itself ``@pytest.mark.pace(LOCKSTEP)`` (the same run, as fast as it goes).
+    """
     from station.config import load_config
     from app.web.server import WebServer
 
+    marker = request.node.get_closest_marker("pace")
+    pace = marker.args[0] if marker else TIME_SCALE
     cfg_path = demo_station_config(tmp_path)
-    server = WebServer(load_config(cfg_path), tmp_path, host="127.0.0.1", port=0, time_scale=TIME_SCALE).start()
+    server = WebServer(load_config(cfg_path), tmp_path, host="127.0.0.1", port=0, time_scale=pace).start()
     server.config_path = cfg_path
     try:
         yield server

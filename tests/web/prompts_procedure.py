@@ -11,7 +11,7 @@ from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
 from station.runner import Procedure, Step
 
-N_PROMPTS = 50
+N_PROMPTS = 20
 
 
 class NoCell:

@@ -1,0 +1,13 @@
+"""The pace of the lockstep fake cells in this suite.
+
+The emScon tracker, the controller and the scanner fakes share one lockstep
+:class:`~fakes.sim.clock.SimClock`: a seed gives the same samples, stops and
+figures at any pace (``tests/sim/test_lockstep.py``), so the suite runs them
+as fast as the station and the fakes go. A time scale is only an upper bound
+on that pace; ``1e4`` never binds on this machine. Tests that need wall time
+to act while a run moves (a signal at a random moment, a person's click, a
+real-time client such as ``ur_rtde``) set their own.
+"""
+
+#: simulated seconds per real second at most, for lockstep cells
+LOCKSTEP = 1e4
