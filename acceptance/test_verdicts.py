@@ -16,6 +16,7 @@ from app.acceptance import MARGINAL_FRACTION, Station
 from station.measurements import Measurement
 from station.store import RunStore
 from station.verdict import Outcome
+from tests.pace import UR
 
 #: a short run (the pace is the suite's --station-time-scale: the lockstep cell gives the same run at any pace)
 SHORT = {"cycles": 3, "vap_cycles": 2}
@@ -111,7 +112,7 @@ def test_a_robot_with_one_pose_out_fails_on_that_pose_alone(make_fake_station):
 
 def test_a_cobot_model_runs_on_its_own_fake(make_fake_station):
     """``model=`` picks the arm, its workspace box and its controller's fake (a UR: the UR fake through RTDE)."""
-    station = make_fake_station(model="ur5e", cycles=2, vap_cycles=2, time_scale=8.0)
+    station = make_fake_station(model="ur5e", cycles=2, vap_cycles=2, time_scale=UR)
     assert station.config.robots["r1"].model == "ur5e"
     run = station.iso9283()
     assert run.status == "done", run.output

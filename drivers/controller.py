@@ -192,6 +192,24 @@ class UploadReceipt:
         return self.files[self.main_file].crc32
 
 
+#: the first pause between two status reads, s (it doubles up to the driver's poll interval)
+FIRST_POLL_S = 0.002
+
+
+def poll_pauses(interval_s: float):
+    """Pauses between two status reads: 2, 4, 8 ... ms, doubling up to ``interval_s``, then ``interval_s``.
+
+    A command is acknowledged within one Modbus round trip and the
+    controller's next scan, a short program ends soon after its start; a long
+    one is polled at the steady interval. Latency is a few ms where the
+    answer is quick, the load on the controller that of the steady interval.
+    """
+    pause = min(FIRST_POLL_S, interval_s)
+    while True:
+        yield pause
+        pause = min(2.0 * pause, interval_s)
+
+
 def _enum(enum_cls, value: int):
     try:
         return enum_cls(value)
@@ -217,7 +235,8 @@ class ControllerDriver:
     timeout_s : float
         Timeout of every network call and of each handshake step.
     poll_interval_s : float
-        Status polling interval of the handshake and of :meth:`wait_done`.
+        Steady status polling interval of the handshake and of :meth:`wait_done` (reached by
+        doubling from 2 ms, :func:`poll_pauses`).
     watchdog_ms : int
         Communication watchdog written at start (0 = off).
     ftp_factory : callable, optional
@@ -398,6 +417,7 @@ class ControllerDriver:
         seq = self._seq
         self._write(self.map.command, [int(command), seq])
         deadline = time.monotonic() + self.timeout_s
+        pauses = poll_pauses(self.poll_interval_s)
         while True:
             st = self.status()
             if st.ack_seq == seq:
@@ -407,7 +427,7 @@ class ControllerDriver:
                     f"controller did not acknowledge {command.name} (seq {seq}) within {self.timeout_s:g} s "
                     f"({st.summary()})"
                 )
-            time.sleep(self.poll_interval_s)
+            time.sleep(next(pauses))
         if st.result != Result.OK:
             where = f" at line {st.line}" if st.line else ""
             raise CommandRefused(
@@ -602,6 +622,7 @@ class ControllerDriver:
             After a best-effort STOP (noted in the message).
         """
         deadline = time.monotonic() + float(timeout_s)
+        pauses = poll_pauses(self.poll_interval_s)
         try:
             while True:
                 st = self.status()
@@ -622,7 +643,7 @@ class ControllerDriver:
                     raise CommandRefused(f"program is no longer running ({st.summary()})", int(st.result), st)
                 if time.monotonic() >= deadline:
                     raise DeviceTimeout(f"program did not finish within {timeout_s:g} s ({st.summary()})")
-                time.sleep(self.poll_interval_s)
+                time.sleep(next(pauses))
         except ControllerFault:
             raise
         except CommandRefused:
@@ -689,13 +710,14 @@ class ControllerDriver:
     def wait_settled(self, timeout_s: float) -> ControllerStatus:
         """Until the controller runs no program (it reports a program done only with the arm at rest)."""
         deadline = time.monotonic() + float(timeout_s)
+        pauses = poll_pauses(self.poll_interval_s)
         while True:
             st = self.status()
             if st.state != State.RUNNING:
                 return st
             if time.monotonic() > deadline:
                 raise DeviceTimeout(f"controller still running a program after {timeout_s:g} s ({st.summary()})")
-            time.sleep(self.poll_interval_s)
+            time.sleep(next(pauses))
 
     def joints_rad(self) -> np.ndarray:
         return np.radians(self.status().q_deg)

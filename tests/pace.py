@@ -11,3 +11,7 @@ real-time client such as ``ur_rtde``) set their own.
 
 #: simulated seconds per real second at most, for lockstep cells
 LOCKSTEP = 1e4
+
+#: the UR fake's clock runs paced while ur_rtde (a real-time client) is served, not in lockstep: at 15x its
+#: 500 Hz RTDE stream and the driver's sidecar keep up on a 2-core host beside two busy processes
+UR = 15.0

@@ -176,3 +176,14 @@ def test_no_controller_is_a_clear_connection_error(gate):
     drv = ControllerDriver("127.0.0.1", gate=gate, modbus_port=port, timeout_s=1.0)
     with pytest.raises(ConnectionLost, match=f"127.0.0.1:{port}"):
         drv.connect()
+
+
+def test_status_polls_start_quick_and_settle_at_the_poll_interval():
+    from itertools import islice
+
+    from drivers.controller import poll_pauses
+
+    assert list(islice(poll_pauses(0.02), 7)) == pytest.approx([0.002, 0.004, 0.008, 0.016, 0.02, 0.02, 0.02])
+    assert list(islice(poll_pauses(0.001), 3)) == [0.001] * 3  # never longer than the interval asked for
+    # a long program is polled at the interval: after 5 ramp pauses (2 + 4 + 8 + 16 + 32 ms), 50 ms each
+    assert sum(islice(poll_pauses(0.05), 1000)) == pytest.approx(0.062 + 995 * 0.05, rel=1e-12)

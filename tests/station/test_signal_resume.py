@@ -27,10 +27,11 @@ import pytest
 
 from fakes.cells import demo_config
 from station.store import RunStore
+from tests.pace import LOCKSTEP
 from tests.station.test_resume_anywhere import CYCLES, VAP, _analysis, _tolerance
 
 ROOT = Path(__file__).resolve().parents[2]
-SCALE = "100"
+SCALE = str(LOCKSTEP)  # a pose cycle still takes a few tenths of a second: the signal lands inside steps
 
 
 def _station(*args):

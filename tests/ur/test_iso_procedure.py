@@ -27,13 +27,13 @@ from station.config import config_from_dict
 from station.models import kinematics
 from station.store import RunStore
 from tests.person import TYPED_YES, person_typing_yes
+from tests.pace import UR
 
 CYCLES, VAP = 3, 2
-#: the fakes' accelerated wall clock loses stops when a loaded host falls behind it (it happens on the
-#: controller path too, until the lockstep clock lands); 5x leaves a loaded 2-core host room
-TIME_SCALE = 5.0
-#: the joint-2 circle of the axis registration about a UR5e's P1 stays in its box over +/- 20 deg
-UR_ISO = {"cycles": CYCLES, "vap_cycles": VAP, "axis_sweep_deg": [25.0, 20.0]}
+TIME_SCALE = UR
+#: the joint-2 circle of the axis registration about a UR5e's P1 stays in its box over +/- 20 deg; 5 points
+#: per joint (the fewest the config takes) keep the registration's 12 moves short of the pose cycles' 15+
+UR_ISO = {"cycles": CYCLES, "vap_cycles": VAP, "axis_sweep_deg": [25.0, 20.0], "axis_sweep_points": 5}
 
 
 def _seed(test_seed: int) -> int:

@@ -23,8 +23,9 @@ from station.store import RunStore
 from tests.person import person_typing_yes
 from tests.ur.test_iso_procedure import TIME_SCALE, UR_ISO
 
-#: motions before the pose cycles: home (1) and the axis registration (26 programs, 28 moves)
-FIRST_CYCLE_MOTION = 30
+#: the first motion of the pose cycles, after home (1) and the axis registration (2 joints x N points,
+#: each joint's sweep entered by one approach move)
+FIRST_CYCLE_MOTION = 1 + 2 * (UR_ISO["axis_sweep_points"] + 1) + 1
 
 
 def _batches(db) -> dict:
@@ -61,9 +62,10 @@ def test_a_fault_stops_the_ur_run_safe_and_resumably(tmp_path, fault, test_seed)
     value = {
         "protective_stop_move": int(rng.integers(FIRST_CYCLE_MOTION, FIRST_CYCLE_MOTION + 10)),
         "emergency_stop_move": int(rng.integers(FIRST_CYCLE_MOTION, FIRST_CYCLE_MOTION + 10)),
-        # the first RTDE session starts at "connect devices"; home and registration take ~40 s simulated
-        "rtde_drop_after_s": float(np.round(rng.uniform(45.0, 60.0), 2)),
-        "refuse_script": int(rng.integers(3, 25)),
+        # the first RTDE session starts at "connect devices"; home and registration take ~25 s simulated, the
+        # pose cycles ~80 s more: the drop falls in the registration's end or the pose cycles
+        "rtde_drop_after_s": float(np.round(rng.uniform(20.0, 60.0), 2)),
+        "refuse_script": int(rng.integers(3, 2 * UR_ISO["axis_sweep_points"] + 4)),  # home, registration, cycle 1
     }[fault]
     print(f"seed {seed}: {fault}={value}")
     with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e",
