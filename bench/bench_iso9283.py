@@ -152,8 +152,9 @@ def differing_choices(centers, ex) -> list[tuple[int, int, int]]:
     """``(phase start, transcription's centre, vectorised code's centre)`` of every phase where they differ.
 
     Phases whose stop the vectorised code flagged ``fallback`` (beam break
-    inside, or no horizon at rest) follow a rule the transcription does not
-    have and are left out; so are phases without a stop in either.  The
+    inside, or no horizon at rest) or refused (``failed_phases``: a beam break
+    leaves no window at rest in the dwell) follow a rule the transcription
+    does not have and are left out; so are phases without a stop in either.  The
     vectorised code also centres the horizon in the phase's final rest (after
     its last sample in motion), which the transcription does not: on an
     underdamped servo the two may differ there by a grid step or more.
@@ -161,6 +162,7 @@ def differing_choices(centers, ex) -> list[tuple[int, int, int]]:
     st = ex.stops
     mine = {int(ps): int(c) for ps, c, fb in zip(st.i_phase_start, st.i_center, st.fallback) if not fb}
     skip = {int(ps) for ps, fb in zip(st.i_phase_start, st.fallback) if fb}
+    skip |= {int(f.i_phase_start) for f in ex.failed_phases}
     theirs = {int(ps): int(c) for ps, c in centers if c >= 0 and ps not in skip}
     out = [(ps, theirs.get(ps, -1), mine.get(ps, -1)) for ps in sorted(set(mine) | set(theirs))]
     return [d for d in out if d[1] != d[2]]
