@@ -181,10 +181,12 @@ class RunControl:
 
     @property
     def held(self) -> bool:
-        """True while the procedure waits at a checkpoint because of a pause (nothing of it moves on).
+        """True while the procedure waits at a checkpoint because of a pause: the station sends nothing new.
 
-        Between :meth:`pause` and the procedure's next checkpoint the current
-        move or measurement still ends: ``paused`` and not yet ``held``.
+        Between :meth:`pause` and the procedure's next checkpoint it goes on:
+        ``paused`` and not yet ``held``. A checkpoint may sit in the wait for a
+        program's end, so a program already started on the controller still
+        runs to its end while the station holds.
         """
         return self._held.is_set()
 

@@ -12,9 +12,9 @@
     const base = '/runs/' + encodeURIComponent(st.run_id);
     const cur = st.current ? `step ${st.current.idx + 1}/${st.n_steps}: <b id="current">${esc(st.current.name)}</b>`
       + (st.detail ? ` <span id="detail">${esc(st.detail)}</span>` : '') : '';
-    // paused: asked to; held: the procedure waits at its checkpoint (the current move or measurement has ended)
+    // paused: asked to; held: the procedure waits at a checkpoint and the station sends nothing new
     const paused = !st.paused ? '' : st.held ? ' <b class="aborted" id="paused">PAUSED</b>'
-      : ' <b class="aborted" id="paused">PAUSING (the current step part ends first)</b>';
+      : ' <b class="aborted" id="paused">PAUSING (until the next checkpoint)</b>';
     const verdict = st.verdict ? ` verdict <b id="verdict" class="${esc(st.verdict)}">${esc(st.verdict)}</b>`
       + ((st.reasons || []).length ? ` <span id="reasons">(${esc(st.reasons.join('; '))})</span>` : '') : '';
     document.getElementById('summary').innerHTML =
