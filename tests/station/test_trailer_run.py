@@ -94,7 +94,8 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(rng, tmp_pa
         done.set()
         th.join()
         session.close()
-        assert out.status == "aborted"
+        assert out.status == "aborted", (out.error, [(s.name, s.status, s.message) for s in store.steps("a1")
+                                                     if s.message])
         kept = store.sample_count("a1", "odometry")
         assert kept > store.sample_count("a1", "odometry", finished_only=True)  # the aborted attempt's samples stay
         session = TrailerSession(DeviceSet(urls={"odometry": f"nmea://{fake.endpoint['device']}"}))
