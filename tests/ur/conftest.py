@@ -102,11 +102,14 @@ def run_probe(host: str, frequency_hz: float, duration_s: float, variables=(), t
     return json.loads(lines[-1])
 
 
-def start_probe(host: str, frequency_hz: float, duration_s: float, variables=()) -> subprocess.Popen:
+def start_probe(host: str, frequency_hz: float, duration_s: float, variables=(), min_rows: int = 0) -> subprocess.Popen:
+    """The probe in a child process; ``min_rows``: sample on (up to 10 s) until that many rows and a consecutive
+    pair were seen."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([ROOT, env.get("PYTHONPATH", "")])
     return subprocess.Popen(
-        [sys.executable, PROBE, host, repr(float(frequency_hz)), repr(float(duration_s)), ",".join(variables)],
+        [sys.executable, PROBE, host, repr(float(frequency_hz)), repr(float(duration_s)), ",".join(variables),
+         str(int(min_rows))],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
 
