@@ -32,6 +32,7 @@ def test_ur_rtde_reads_true_joints_and_pose_at_the_requested_rate(world, fake, r
     deadline = time.monotonic() + 20.0
     while fake.packets_sent == 0 and time.monotonic() < deadline:
         time.sleep(0.005)
+    assert fake.packets_sent > 0, "the probe's RTDE stream did not start within 20 s"
     q_goal = world.robot.home_q_rad + rng.uniform(-0.4, 0.4, 6)
     arm.move_joint(q_goal, speed_frac=0.5, accel_frac=1.0)
     report = finish_probe(probe)
