@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from station.analysis.diagnose import diagnose_arm
+from station.analysis.diagnose.model import jacobian
 from app.cli import main
 from station.models import kinematics as kin
 from station.models.effects import EffectSet
@@ -24,9 +25,37 @@ def _diagnose(d, **kw):
     return diagnose_arm(ROBOT.dh_nominal, d.q_rad, d.xyz_mm, t_s=d.t_s, robot=ROBOT, alpha=ALPHA, **kw)
 
 
-def _oracle_rms(d, res) -> float:
-    e = (d.xyz_mm - d.true_points(ROBOT))[res.heldout]
+def _oracle_rms(d, res, rows=None) -> float:
+    """3-D RMS of the truth's residual (the noise) on ``rows`` (default: the held-out poses)."""
+    e = (d.xyz_mm - d.true_points(ROBOT))[res.heldout if rows is None else rows]
     return float(np.sqrt(np.mean(np.sum(e ** 2, axis=1))))
+
+
+def _predicts_like_the_truth(d, res) -> None:
+    """The extended model's held-out mean-square error exceeds the truth's by no more than its own estimation
+    error explains. For a least-squares fit of the final model's parameters to the training poses, with the
+    noise variance the data has (the truth's residual), the excess at the held-out poses is
+    ``|A_ho dtheta|^2 / n + 2 e.A_ho dtheta / n``: its mean and spread follow from the Jacobians of the two
+    pose sets, and the excess stays within 5 of its standard deviations of its mean (over 60 draws of thermal
+    drift and encoder eccentricity: z mean 0.1, sd 1.0, max 2.6). A ratio to the truth's held-out RMS is no
+    bound: the held-out region is a part of the workspace whose noise can be smaller than the rest's (seed
+    925812743: 0.067 mm there against 0.096 mm on the training poses; the ratio 1.20, z = 3.0)."""
+    perm = np.argsort(d.t_s, kind="stable")  # the diagnosis's working order (by time)
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    q = d.q_rad[perm]
+    _, a_tr, _ = jacobian(res.state, q, inv[res.train])
+    _, a_ho, _ = jacobian(res.state, q, inv[res.heldout])
+    p = a_tr.shape[2]
+    a_tr, a_ho = a_tr.reshape(-1, p), a_ho.reshape(-1, p)
+    e2 = np.sum((d.xyz_mm - d.true_points(ROBOT)) ** 2, axis=1)
+    s2 = float(e2.mean()) / 3.0  # per coordinate
+    n_ho = res.heldout.size
+    lam = np.linalg.eigvals(s2 * np.linalg.pinv(a_tr.T @ a_tr) @ (a_ho.T @ a_ho) / n_ho).real
+    mean = float(lam.sum())
+    sd = float(np.sqrt(2.0 * np.sum(lam ** 2) + 4.0 * s2 * mean / n_ho))
+    excess = res.final_heldout_rms ** 2 - float(e2[res.heldout].mean())
+    assert excess < mean + 5.0 * sd, ((excess - mean) / sd, excess, mean, sd, res.final_heldout_rms, res.selected)
 
 
 def _joint(effect, rng):
@@ -45,7 +74,7 @@ def test_hidden_effect_is_named_with_its_joint(rng, effect):
     others = [s for s in res.selected if s not in (("geometric", None), (effect, joint))]
     assert len(others) <= 1, res.selected  # at most one chance discovery (alpha per round)
     # the extended model predicts held-out poses about as well as the truth does
-    assert res.final_heldout_rms < 1.2 * _oracle_rms(d, res)
+    _predicts_like_the_truth(d, res)
     # the step that named it: by its own term, or by a term that explains the same residual
     step = next(s for s in res.steps if (s.term.effect, s.term.joint) == (effect, joint)
                 or any((a["effect"], a["joint"]) == (effect, joint) for a in s.ambiguous_with))
@@ -60,7 +89,7 @@ def test_two_hidden_effects_are_both_named(rng):
     d = make_case(ROBOT, [(str(e1), j1), (str(e2), j2)], rng, strength=(1.0, 1.5))
     res = _diagnose(d)
     assert found(res, str(e1), j1) and found(res, str(e2), j2), (e1, j1, e2, j2, res.selected)
-    assert res.final_heldout_rms < 1.2 * _oracle_rms(d, res)
+    _predicts_like_the_truth(d, res)
 
 
 def test_geometric_errors_only_give_the_geometric_step_only(rng):
@@ -70,7 +99,8 @@ def test_geometric_errors_only_give_the_geometric_step_only(rng):
     assert len(res.selected) <= 2, res.selected
     assert res.gain > 0.5
     # the noise floor is the noise the generator put in (3-D RMS), within the scatter of its estimate
-    assert 0.7 < res.noise_floor / _oracle_rms(d, res) < 1.35  # 40 held-out poses: their RMS scatters ~10 %
+    # the floor comes from the training residual: compared with the truth's on the same poses
+    assert 0.7 < res.noise_floor / _oracle_rms(d, res, rows=res.train) < 1.35
 
 
 def test_nominal_arm_gives_nothing(rng):

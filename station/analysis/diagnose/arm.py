@@ -357,12 +357,14 @@ def _test_round(state: ModelState, q, meas, train, variants: list[Term], alpha: 
         ct.heldout_rms_after = math.sqrt(float(np.mean(e_c)))
         ct.cv_gain = cv_gain(e_now, e_c)
         out.append(ct)
-    # one entry per candidate key: the best variant (thermal drift's tau grid)
+    # one entry per candidate key: the variant that fits the training poses best (thermal drift's tau grid:
+    # the variants have as many parameters, so the largest least-squares reduction is the profile-likelihood
+    # choice of tau; the robust Wald statistic, noisier, only decides whether that variant is named)
     best: dict = {}
     for ct in out:
         cur = best.get(ct.key)
-        score = ct.statistic / ct.threshold if ct.testable else -1.0
-        if cur is None or score > (cur.statistic / cur.threshold if cur.testable else -1.0):
+        score = ct.rss_reduction if ct.testable else -1.0
+        if cur is None or score > (cur.rss_reduction if cur.testable else -1.0):
             best[ct.key] = ct
     return list(best.values()), cv_now
 
