@@ -37,6 +37,11 @@ def _figure(width_in: float = 8.0, height_in: float = 3.2, ncols: int = 1):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, ncols, figsize=(width_in, height_in), squeeze=False)
+    # fixed margins in inches (room for tick labels, an axis label, a title and 45-degree bar labels):
+    # matplotlib's tight_layout measured every text of a figure first, 40 % of a report's plotting time
+    left, right, bottom, top, gap = 0.8, 0.15, 0.75, 0.35, 0.55
+    fig.subplots_adjust(left=left / width_in, right=1.0 - right / width_in, bottom=bottom / height_in,
+                        top=1.0 - top / height_in, wspace=gap * ncols / (width_in - left - right))
     return fig, axes[0]
 
 
@@ -44,7 +49,6 @@ def _svg(fig) -> str:
     import matplotlib.pyplot as plt
 
     buf = io.StringIO()
-    fig.tight_layout()
     fig.savefig(buf, format="svg")
     plt.close(fig)
     text = buf.getvalue()
