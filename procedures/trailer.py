@@ -47,6 +47,7 @@ from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
 from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
+from station.analysis.trailer.setpoints import interval_average, place_unacknowledged
 from station.errors import ConfigError, StationError
 from station.models.trailer import (
     COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,
@@ -191,11 +192,15 @@ class TrailerSession(Session):
     def arrays(self) -> dict[str, np.ndarray]:
         """The record so far as arrays (``segment``, ``phase`` as int), with
         ``kappa_cmd``: the set points in force averaged over each sample's
-        interval (the meaning of the odometry's curvature)."""
+        interval (the meaning of the odometry's curvature); a set point whose
+        acknowledgement was lost is placed by the measured curvature
+        (:func:`~station.analysis.trailer.setpoints.place_unacknowledged`)."""
         out = {c: np.asarray(self.samples[c], dtype=float) for c in COLUMNS}
         out["segment"] = out["segment"].astype(int)
         out["phase"] = out["phase"].astype(int)
         t_sp, v_sp = self.setpoint_timeline()
+        acked = [getattr(sp, "t_applied_s", None) is not None for sp, _ in self.setpoints]
+        t_sp = place_unacknowledged(out["t"], out["kappa"], out["kappa_set"], t_sp, v_sp, acked)
         out["kappa_cmd"] = interval_average(out["t"], t_sp, v_sp, out["kappa_set"])
         return out
 
@@ -455,32 +460,6 @@ def _steady_psi(kappa: np.ndarray, L1: float, L2: float) -> np.ndarray:
     r = np.sqrt(1 + b**2)
     with np.errstate(invalid="ignore"):
         return np.arcsin(c / r) - np.arctan2(b, 1.0)
-
-
-def interval_average(t_s, t_change, values, fallback) -> np.ndarray:
-    """Average over each sample interval ``(t_{k-1}, t_k]`` of the piecewise-constant
-    set point that takes ``values[j]`` from ``t_change[j]`` on (sorted).
-
-    Before the first change, and for the first sample, ``fallback`` (the set
-    point the procedure had in force when it took the sample) is used.
-    Shapes: ``t_s`` (N,), ``t_change``/``values`` (M,) -> (N,).
-    """
-    t = np.asarray(t_s, dtype=float)
-    fb = np.asarray(fallback, dtype=float)
-    if t.size == 0 or len(t_change) == 0:
-        return fb.copy()
-    tc = np.asarray(t_change, dtype=float)
-    vc = np.asarray(values, dtype=float)
-    # cumulative integral of the set point at each change time
-    F_knots = np.concatenate([[0.0], np.cumsum(vc[:-1] * np.diff(tc))])
-    j = np.searchsorted(tc, t, side="right") - 1
-    inside = j >= 0
-    jj = np.clip(j, 0, None)
-    F = np.where(inside, F_knots[jj] + vc[jj] * (t - tc[jj]), np.nan)
-    out = fb.copy()
-    ok = inside[1:] & inside[:-1] & (np.diff(t) > 0)
-    out[1:][ok] = (F[1:][ok] - F[:-1][ok]) / np.diff(t)[ok]
-    return out
 
 
 def _flush(ctx: StepContext, s: TrailerSession, batch: dict) -> None:
