@@ -116,10 +116,19 @@ def test_random_breaks_rate_and_reproducibility(rng):
     parts = [tr.measure(t[i : i + 77777], f) for i in range(0, t.size, 77777)]
     np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), valid)
     np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), xyz)
-    # number of breaks ~ Poisson(rate * 2 h)
-    starts = np.flatnonzero(np.diff(valid.astype(int)) == -1)
+    # the breaks drawn ~ Poisson(rate * 2 h)
     lam = rate_per_h * 2
-    assert stats.poisson.ppf(1e-4, lam) - 5 <= starts.size <= stats.poisson.ppf(1 - 1e-4, lam)
+    drawn = tr.random_breaks(0.0, 7200.0)
+    drawn = drawn[(drawn[:, 0] >= 0.0) & (drawn[:, 0] < 7200.0)]
+    assert stats.poisson.ppf(1e-4, lam) <= len(drawn) <= stats.poisson.ppf(1 - 1e-4, lam)
+    # the samples show one start per break, except where breaks overlap (one longer break) or leave a gap
+    # shorter than a sample interval between them (about 3 % of the starts fall inside another break: the
+    # visible count is not Poisson(rate * 2 h), and seed 66385 saw 1,056 starts of 1,095 breaks drawn)
+    starts = np.flatnonzero(np.diff(valid.astype(int)) == -1)
+    order = drawn[np.argsort(drawn[:, 0])]
+    end_so_far = np.maximum.accumulate(order[:, 1])
+    gap = order[1:, 0] - end_so_far[:-1]
+    assert int(np.sum(gap >= 1.0 / 100.0)) <= starts.size <= int(np.sum(gap > 0.0)) + 1
     frac = 1 - valid.mean()
     assert frac == pytest.approx(lam * 0.2 / 7200.0, rel=0.25)
 
