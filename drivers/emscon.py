@@ -28,7 +28,7 @@ import math
 import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 
 import numpy as np
 
@@ -86,6 +86,8 @@ class EmsconTracker(Tracker):
         self._max_packet = int(max_packet_bytes)
         self._rx = bytearray()
         self._rx_time = 0.0
+        #: the last skipped byte runs as (bytes, reason), newest last: what a garbage count was made of
+        self.rejections: deque = deque(maxlen=32)
         #: quiet time after which received packets are final (host s)
         self.quiet_s = 0.02
         #: time an incomplete packet may wait for its rest before it is skipped (host s)
@@ -476,6 +478,7 @@ class EmsconTracker(Tracker):
                 self._beam_ok = True
             return
         if isinstance(frame, ec.Garbage):
+            self.rejections.append((frame.nbytes, frame.reason))
             self._buffer().count_garbage(frame.nbytes)
 
     def _link_lost(self, exc: BaseException) -> None:

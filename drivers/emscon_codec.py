@@ -35,7 +35,9 @@ multiple of 4, below 12, above ``max_packet_bytes``, unknown type, size wrong
 for the type) or a body that fails validation yields a :class:`Garbage` frame
 covering the bytes up to the next plausible header, so a reader resynchronises
 and counts what it skipped. A huge declared length is refused from its 8
-header bytes: nothing of that size is ever allocated.
+header bytes: nothing of that size is ever allocated. A multi result cut
+short takes its missing tail from what follows it; a valid packet starting
+inside it gives that away, and it is garbage too (:func:`_swallowed_packet`).
 """
 
 from __future__ import annotations
@@ -468,6 +470,14 @@ _FIXED_SIZES = {
 }
 _FIXED_SIZES_INT = tuple((int(k), int(v)) for k, v in _FIXED_SIZES.items())
 _MULTI2_ITEM = 92
+#: fixed packet size by packet type (0: not fixed), for vectorised lookups
+_FIXED_SIZE_BY_TYPE = np.zeros(max(DataType) + 1, dtype=np.int32)
+for _t, _s in _FIXED_SIZES.items():
+    _FIXED_SIZE_BY_TYPE[_t] = _s
+#: command ids of the subset, the only replies a resynchronisation takes
+_SUBSET_COMMANDS = np.array(sorted(PARAM_FORMATS), dtype=np.int32)
+_IS_SUBSET_COMMAND = np.zeros(MAX_COMMAND_ID + 1, dtype=bool)
+_IS_SUBSET_COMMAND[_SUBSET_COMMANDS] = True
 
 
 def _header_problem(size: int, ptype: int, from_server: bool, max_bytes: int) -> str | None:
@@ -567,8 +577,9 @@ def _next_candidate(buf, start: int, from_server: bool, max_bytes: int, *,
     body checks :func:`decode` applies (or, when incomplete, the checks of
     what has arrived), otherwise it is a coincidence inside a body or inside
     garbage. With ``confirm`` the candidate must be complete and followed by
-    a plausible header or the end of ``buf``, or be a multi result whose
-    header fields and samples so far check out.
+    a plausible header or the end of ``buf``, or be a multi result of which
+    24 bytes or more have arrived, its header fields and first sample
+    checking out (it may be cut short itself, whatever follows it).
     """
     n = len(buf)
     # scan windows that double in size: the work is linear in the distance to the next packet, so a
@@ -621,20 +632,72 @@ def _candidate_in(buf, lo: int, hi: int, n: int, from_server: bool, max_bytes: i
         pos = int(pos)
         if pos >= hi or (stop is not None and pos >= stop):
             break
-        size, ptype = HEADER.unpack_from(buf, pos)
-        if ptype in (DataType.COMMAND, DataType.ERROR) and pos + 12 <= n \
-                and _I.unpack_from(buf, pos + 8)[0] not in PARAM_FORMATS:
-            continue  # resynchronise only onto replies to commands of the subset
-        end = pos + size
-        if end <= n:
-            if _decode_body(buf[pos:], size, ptype, from_server)[1] is not None:
-                continue
-            if not confirm or end + HEADER_BYTES > n or _plausible_at(buf, end, from_server, max_bytes):
-                return pos
-        elif _partial_problem(buf[pos:], n - pos, size, ptype) is None and (
-                not confirm or (ptype == DataType.MULTI_MEAS_RESULT and n - pos >= 24)):
+        if _candidate_ok(buf, pos, n, from_server, max_bytes, confirm):
             return pos
     return None
+
+
+def _candidate_ok(buf, pos: int, n: int, from_server: bool, max_bytes: int, confirm: bool) -> bool:
+    """Whether the plausible header at ``pos`` starts a packet: its body (or what has arrived of it) passes
+    the checks of :func:`decode`; with ``confirm`` see :func:`_next_candidate`."""
+    size, ptype = HEADER.unpack_from(buf, pos)
+    if ptype in (DataType.COMMAND, DataType.ERROR) and pos + 12 <= n \
+            and _I.unpack_from(buf, pos + 8)[0] not in PARAM_FORMATS:
+        return False  # resynchronise only onto replies to commands of the subset
+    if confirm and ptype == DataType.MULTI_MEAS_RESULT and n - pos >= 24:
+        # a multi result's header fields and first sample confirm it on their own: what follows it may not, as
+        # it may be truncated itself (a run of cut packets)
+        return _partial_problem(buf[pos:], min(n - pos, MULTI_HEADER_BYTES + MEAS_VALUE_DTYPE.itemsize),
+                                size, ptype) is None
+    end = pos + size
+    if end <= n:
+        if _decode_body(buf[pos:], size, ptype, from_server)[1] is not None:
+            return False
+        return not confirm or end + HEADER_BYTES > n or _plausible_at(buf, end, from_server, max_bytes)
+    return not confirm and _partial_problem(buf[pos:], n - pos, size, ptype) is None
+
+
+def _plausible_starts(buf, lo: int, stop: int, from_server: bool, max_bytes: int) -> list[int]:
+    """Sorted offsets in ``[lo, stop)`` (``stop`` at most ``len(buf) - 7``) where :func:`_plausible_at` holds.
+
+    For scanning the inside of a packet, which is usually clean: a cheap test of the header pair and of
+    the command id of a reply, all four byte alignments as rows of one array, then the full field
+    checks only where it passes.
+    """
+    n = len(buf)
+    stop = min(stop, n - HEADER_BYTES + 1)
+    count = (n - lo - 3) // 4  # words per alignment row
+    found = []
+    if count >= 2:
+        rows = np.lib.stride_tricks.as_strided(np.frombuffer(buf, dtype=np.uint8, count=4 * count + 3, offset=lo),
+                                               shape=(4, 4 * count), strides=(1, 1))
+        w = np.ascontiguousarray(rows).view("<i4")  # (4, count): word j of row r starts at byte lo + r + 4 j
+        size, typ = w[:, :-1], w[:, 1:]
+        cheap = (size >= MIN_PACKET_BYTES) & (size <= max_bytes) & ((size & 3) == 0)
+        cheap &= ((typ >= 0) & (typ <= _T_MAX)) if from_server else (typ == _T_COMMAND)
+        r_hit, j_hit = np.nonzero(cheap)
+        pos = lo + r_hit + 4 * j_hit
+        keep = pos < stop
+        hs, ht = size[r_hit, j_hit], typ[r_hit, j_hit]
+        if from_server:
+            fixed = _FIXED_SIZE_BY_TYPE[ht]
+            keep &= (fixed == 0) | (hs == fixed)
+        # a reply or error packet is only taken for one to a command of the subset (see _candidate_ok)
+        cmd = w[r_hit, np.minimum(j_hit + 2, count - 1)]
+        keep &= ((ht != _T_COMMAND) & (ht != _T_ERROR)) | (j_hit + 2 >= count) \
+            | _IS_SUBSET_COMMAND[np.clip(cmd, 0, MAX_COMMAND_ID)]
+        pos, r_hit, j_hit = pos[keep], r_hit[keep], j_hit[keep]
+        whole = j_hit + 5 < count  # all six words the full check reads are in the rows
+        if whole.any():
+            six = w[r_hit[whole, None], j_hit[whole, None] + np.arange(6)]
+            found.extend(pos[whole][_plausible_mask(six, from_server, max_bytes)[:, 0]].tolist())
+        found.extend(int(p) for p in pos[~whole] if _plausible_at(buf, int(p), from_server, max_bytes))
+    # the last few offsets, whose header the rows do not hold whole
+    for p in range(max(lo, lo + 4 * (count - 1)), stop):
+        size, typ = HEADER.unpack_from(buf, p)
+        if _header_problem(size, typ, from_server, max_bytes) is None and _plausible_at(buf, p, from_server, max_bytes):
+            found.append(p)
+    return sorted(set(found))
 
 
 def _skip(buf, reason: str, from_server: bool, max_bytes: int, *,
@@ -684,8 +747,11 @@ def skip_stalled(buf, *, from_server: bool = True,
     if not len(buf):
         raise ProtocolError("nothing to skip")
     size = HEADER.unpack_from(buf, 0)[0] if len(buf) >= HEADER_BYTES else "?"
-    return _skip(buf, f"packet incomplete ({len(buf)} of {size} bytes) when the link went quiet",
-                 from_server, max_packet_bytes, keep_tail=False)
+    if size != "?" and len(buf) >= size:  # held back by decode: a packet starting inside it never completed
+        reason = f"multi result of {size} bytes held back for a packet inside it that never completed"
+    else:
+        reason = f"packet incomplete ({len(buf)} of {size} bytes)"
+    return _skip(buf, f"{reason} when the link went quiet", from_server, max_packet_bytes, keep_tail=False)
 
 
 def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX_PACKET_BYTES,
@@ -703,11 +769,11 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
         Declared lengths above this are refused from the header alone.
     require_successor : bool
         Hold a complete multi result back (``(0, None)``) until 24 more bytes
-        show what follows it. A multi result followed by an implausible
-        header while a valid packet starts inside it was truncated (its
-        declared length swallowed the next packet's start) and is rejected.
-        A reader sets this while data flows and clears it when the link is
-        quiet.
+        show what follows it. A reader sets this while data flows and clears
+        it when the link is quiet. Either way a multi result inside which a
+        valid packet starts (see :func:`_swallowed_packet`) was truncated -
+        its declared length swallowed what followed it - and is rejected;
+        while that packet has not all arrived the multi result is held back.
 
     Returns
     -------
@@ -736,12 +802,68 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
     if ptype == DataType.MULTI_MEAS_RESULT and from_server:
         if require_successor and n - size < _SUCCESSOR_BYTES:
             return 0, None  # too little follows to tell junk from a swallowed packet
-        if n - size >= HEADER_BYTES and not _plausible_at(buf, size, from_server, max_packet_bytes):
-            inner = _next_candidate(buf, HEADER_BYTES, from_server, max_packet_bytes, stop=size, confirm=True)
-            if inner is not None:
-                return inner, Garbage(inner, f"multi result of {size} bytes is truncated: a packet "
-                                             f"starts inside it at byte {inner}")
+        swallowed = _swallowed_packet(buf, size, from_server, max_packet_bytes)
+        if swallowed is not None:
+            inner, complete = swallowed
+            if not complete:
+                return 0, None  # a packet starts inside it: the rest of that packet will tell
+            return inner, Garbage(inner, f"multi result of {size} bytes is truncated: a packet "
+                                         f"starts inside it at byte {inner}")
     return size, frame
+
+
+#: packet types an emScon server sends this station; a packet swallowed by a truncated multi result is looked
+#: for among these (the others' headers check too few fields to tell them from sample data)
+_SERVER_TYPES = frozenset({_T_COMMAND, _T_ERROR, int(DataType.SYSTEM_STATUS_CHANGE), _T_SINGLE_MEAS_RESULT,
+                           _T_MULTI_MEAS_RESULT})
+
+
+def _swallowed_packet(buf, size: int, from_server: bool, max_bytes: int) -> tuple[int, bool] | None:
+    """``(offset, complete)`` of a packet that the complete multi result at the start of ``buf`` swallowed,
+    or None.
+
+    A multi result cut short at byte ``cut`` takes its missing tail from
+    whatever follows it, and its samples pass every body check when the
+    swallowed bytes land in doubles only. When the tail reaches into the
+    middle of a packet, the bytes after the multi result cannot start a
+    packet (the check of old). When it ends on a packet boundary they are a
+    plausible header or nothing at all: a truncated last packet whose tail is
+    exactly the reply to StopMeasurement (or a status change and the reply),
+    a status change mid-stream, the next data packet whole. And when the
+    bytes arrive in reads that end just after the multi result, the link
+    quiet in between, too little follows to judge. In every case the packet
+    that starts at ``cut`` gives the truncation away: complete and valid (or
+    a multi result whose header and first samples check out), running to a
+    plausible header or to the end of the bytes received (``complete``
+    True); or not all arrived yet, what has arrived plausible (``complete``
+    False: wait for the rest, which confirms or refutes it). Sample data of a
+    real packet holds no such packet (a header in doubles needs subnormal
+    values, one on the time fields a reply to a command of the subset), so
+    nothing a device sent whole is rejected.
+
+    After implausible bytes a swallowed packet may be of any type (the check
+    of old); otherwise it is one of the types a server sends
+    (:data:`_SERVER_TYPES`). It may start in the multi result's last 7 bytes
+    unless a plausible header follows the multi result.
+    """
+    n = len(buf)
+    judged = n - size >= HEADER_BYTES  # a header's worth follows the multi result
+    implausible = judged and not _plausible_at(buf, size, from_server, max_bytes)
+    # a packet starting in the last 7 bytes makes a header that follows implausible; with fewer bytes after the
+    # multi result there is nothing to judge, and a swallowed packet may start there as well
+    stop = size - HEADER_BYTES + 1 if judged and not implausible else size
+    pending = None
+    for pos in _plausible_starts(buf, HEADER_BYTES, stop, from_server, max_bytes):
+        declared, ptype = HEADER.unpack_from(buf, pos)
+        ours = ptype in _SERVER_TYPES
+        if not (implausible or ours):
+            continue
+        if _candidate_ok(buf, pos, n, from_server, max_bytes, confirm=True):
+            return pos, True
+        if pending is None and ours and pos + declared > n \
+                and _candidate_ok(buf, pos, n, from_server, max_bytes, confirm=False):
+            pending = pos
+    return None if pending is None else (pending, False)
 
 
 def _decode_body(buf, size: int, ptype: int, from_server: bool):

@@ -31,6 +31,8 @@ counted from the first StartMeasurement the fake receives, unless noted)::
                      refuse new sessions for REFUSE seconds (default 0)
     garbage          "N"      random 1..64 bytes before every Nth data packet
     truncate         "N"      every Nth data packet is cut short at a random byte
+    truncate_tail    "L"      a packet cut short by ``truncate`` loses exactly its last L
+                              bytes instead (at least 8 bytes are kept)
     huge_length      "N"      after the Nth data packet send a header declaring
                               2**31-1 bytes (nothing follows it)
     slow_reply_s     "X"      every command reply is delayed X seconds
@@ -86,6 +88,7 @@ class TrackerFaults:
     drop_connection: list = field(default_factory=list)   # [(start_s, duration_s)]
     garbage_every: int = 0
     truncate_every: int = 0
+    truncate_tail: int = 0                                # 0: cut at a random byte
     huge_length_after: int = 0
     slow_reply_s: float = 0.0
     lose_reply: dict = field(default_factory=dict)        # {command id: replies still to lose}
@@ -148,6 +151,8 @@ def parse_tracker_faults(faults: dict | None, *, allowed: frozenset, drop_defaul
             plan.garbage_every = _int(key, text)
         elif key == "truncate":
             plan.truncate_every = _int(key, text)
+        elif key == "truncate_tail":
+            plan.truncate_tail = _int(key, text)
         elif key == "huge_length":
             plan.huge_length_after = _int(key, text)
         elif key == "slow_reply_s":
@@ -177,7 +182,7 @@ def check_loopback(host: str) -> str:
     return host
 
 
-EMSCON_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "huge_length",
+EMSCON_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "truncate_tail", "huge_length",
                            "slow_reply_s", "lose_reply", "not_ready", "device_buffer_s", "packet_rate_hz", "seed"})
 
 
@@ -588,7 +593,10 @@ class _Session:
             stats["garbage_bytes"] += len(junk)
             self._send(junk)
         if faults.truncate_every and count % faults.truncate_every == 0:
-            cut = int(fake._rng.integers(8, len(packet)))
+            if faults.truncate_tail:
+                cut = max(8, len(packet) - faults.truncate_tail)
+            else:
+                cut = int(fake._rng.integers(8, len(packet)))
             stats["truncated_packets"] += 1
             stats["truncated_samples"] += int(n_samples)
             stats["truncated_spans"].append((*span_s, int(n_samples)))

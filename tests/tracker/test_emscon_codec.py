@@ -130,8 +130,17 @@ def _stream_frames(rng, n_packets):
 
 def _decode_all(data: bytes, chunk: int | None = None):
     """Feed ``data`` in chunks like the driver's reader; returns (frames, garbage bytes, left)."""
-    buf, frames, garbage = bytearray(), [], 0
     step = chunk or len(data)
+    return _decode_parts([data[i:i + step] for i in range(0, len(data), step)])
+
+
+def _decode_parts(parts, *, quiet_after_each: bool = False):
+    """Feed the byte strings ``parts`` one read each, as the driver's reader does: every read decoded
+    while data flows (a multi result waits for what follows it), then the link goes quiet (what is
+    complete is final), then a packet still waiting for its tail is given up. ``quiet_after_each``:
+    the link also goes quiet (for less than the stall time) after every part. Returns (frames,
+    garbage bytes, left)."""
+    buf, frames, garbage = bytearray(), [], 0
 
     def drain(flowing: bool) -> None:
         nonlocal garbage
@@ -145,9 +154,11 @@ def _decode_all(data: bytes, chunk: int | None = None):
             else:
                 frames.append(frame)
 
-    for i in range(0, len(data), step):
-        buf += data[i:i + step]
+    for part in parts:
+        buf += part
         drain(flowing=True)
+        if quiet_after_each:
+            drain(flowing=False)
     drain(flowing=False)  # the link went quiet: what is complete is final
     while buf:  # and, as the driver does then, a packet still waiting for its tail is given up, the rest read
         consumed, frame = ec.skip_stalled(bytes(buf))
@@ -189,8 +200,10 @@ def test_garbage_between_packets_is_skipped_and_counted_exactly(rng):
 def test_truncated_packet_loses_only_itself(rng):
     """A packet cut short anywhere is rejected; the packets around it survive.
 
-    The one cut no framing without a checksum can see - the missing tail is
-    exactly as long as the next packet, which then fills it - is not drawn.
+    Also the cut whose missing tail is exactly as long as the next packet,
+    which then fills it: that packet starts inside the glued multi result and
+    runs to the next header, which gives the truncation away (it used to be
+    left out of the draw, and the next packet was lost to wrong samples).
     A cut packet whose missing tail is longer than all that follows waits
     until the link goes quiet and is then given up (seed 1146845954).
     """
@@ -202,8 +215,8 @@ def test_truncated_packet_loses_only_itself(rng):
             wire = f.encode()
             if i == victim:
                 lengths = np.arange(8, len(wire))
-                lengths = lengths[len(wire) - lengths != len(frames[i + 1].encode())]
-                wire = wire[: int(rng.choice(lengths))]
+                exact = len(wire) - len(frames[i + 1].encode())
+                wire = wire[: exact if exact >= 8 and rng.random() < 0.25 else int(rng.choice(lengths))]
             data += wire
         got, garbage, left = _decode_all(bytes(data), chunk=int(rng.integers(1, 400)))
         expected = frames[:victim] + frames[victim + 1:]
@@ -226,6 +239,161 @@ def test_flowing_reader_holds_a_multi_result_until_its_successor_shows():
     consumed, frame = ec.decode(wire + nxt, require_successor=True)
     assert consumed == len(wire) and isinstance(frame, ec.MultiMeasResult)
     assert ec.decode(wire, require_successor=False)[0] == len(wire)
+
+
+def _last_packet(n: int = 9) -> ec.MultiMeasResult:
+    """A short data packet as StopMeasurement flushes it: ``n`` samples on the 1 ms grid after 16 s."""
+    t_us = 16_000_000 + 1000 * np.arange(n)
+    a = t_us * 1e-6
+    return ec.MultiMeasResult.from_arrays(t_us, np.column_stack([1800 + 300 * np.cos(a), -250 + 300 * np.sin(a),
+                                                                 420 + 30 * np.sin(2 * a)]))
+
+
+#: how the bytes of "truncated packet, reply" reach the reader: in one read; the truncated packet and the
+#: reply in separate reads; separate reads with the link quiet in between; one byte a read
+_ARRIVALS = {
+    "together": lambda cut, rest: ([cut + rest], False),
+    "apart": lambda cut, rest: ([cut, rest], False),
+    "apart_quiet": lambda cut, rest: ([cut, rest], True),
+    "bytewise": lambda cut, rest: ([bytes([b]) for b in cut + rest], False),
+}
+
+
+@pytest.mark.parametrize("arrival", sorted(_ARRIVALS))
+@pytest.mark.parametrize("missing", range(0, 41))
+def test_truncated_last_packet_is_never_completed_by_the_stop_reply(missing, arrival):
+    """The last data packet of a stream - the one StopMeasurement flushes - cut ``missing`` bytes short,
+    then the reply to StopMeasurement, then nothing: its samples are never delivered, the reply is.
+
+    Why: with 8 to 16 bytes missing the 16-byte reply completed the packet (its bytes land in the last
+    sample's doubles, which no body check can judge) and, nothing following to contradict it, the
+    glued multi result was delivered as if whole - samples the device never sent whole (the e2e
+    truncation test once received 1409 of 1400 samples sent: a 9-sample flush packet cut 8..16 bytes
+    short) - and the swallowed reply cost a StopMeasurement retry. The reply that starts inside the
+    multi result and runs exactly to the end of what arrived gives the truncation away. ``missing`` 0
+    is the whole packet: it is delivered (nothing of a whole packet is lost). The other lengths: the
+    reply leaves bytes that cannot start a packet after the multi result (fewer than 8 missing) or
+    the multi result waits for a tail that never comes and is given up when the link is quiet.
+    """
+    packet = _last_packet().encode()
+    reply = ec.CommandReply(ec.Command.STOP_MEASUREMENT, 0)
+    cut = packet[:len(packet) - missing]
+    parts, quiet = _ARRIVALS[arrival](cut, reply.encode())
+    frames, garbage, left = _decode_parts(parts, quiet_after_each=quiet)
+    assert left == 0
+    _check_last_packet_outcome(missing, cut, reply, frames, garbage)
+
+
+@pytest.mark.parametrize("reply_read", range(8, 16))
+@pytest.mark.parametrize("missing", range(0, 41))
+def test_truncated_last_packet_is_never_completed_by_a_stop_reply_that_arrives_in_two_reads(missing, reply_read):
+    """As above, the reply split over two reads with the link quiet in between, the first read ending
+    ``reply_read`` bytes into it (its header arrived): the cut packet is complete before the reply
+    is, so what follows it cannot be judged yet; the reply's header inside it holds it back until the
+    rest shows the reply whole. (Not covered: a cut in the packet's last 7 bytes and a read that ends
+    before the reply's 8 header bytes have arrived, the link quiet there - nothing to judge by yet.)
+    """
+    packet = _last_packet().encode()
+    reply = ec.CommandReply(ec.Command.STOP_MEASUREMENT, 0)
+    cut = packet[:len(packet) - missing]
+    wire = reply.encode()
+    frames, garbage, left = _decode_parts([cut + wire[:reply_read], wire[reply_read:]], quiet_after_each=True)
+    assert left == 0
+    _check_last_packet_outcome(missing, cut, reply, frames, garbage)
+
+
+def _check_last_packet_outcome(missing, cut, reply, frames, garbage):
+    if missing == 0:
+        assert len(frames) == 2 and _same(frames[0], _last_packet()) and frames[1] == reply
+        assert garbage == 0
+    else:
+        assert frames == [reply]  # no MultiMeasResult: the cut packet's samples are lost, not delivered
+        assert garbage == len(cut)
+
+
+@pytest.mark.parametrize("arrival", ["together", "per_packet", "per_packet_quiet"])
+@pytest.mark.parametrize("filler", ["status_change", "next_packet", "status_change_and_reply"])
+@pytest.mark.parametrize("then", ["more_data", "nothing"])
+def test_truncated_packet_whose_missing_tail_is_exactly_the_next_packets_is_rejected(filler, then, arrival):
+    """A data packet whose missing tail is exactly as long as the packet(s) after it, which then
+    complete it: they are packets again, the cut packet is rejected.
+
+    Why: the status change the beam break sends (12 bytes), a whole next data packet, or a status
+    change and a reply land only in the cut packet's last doubles or in sample slots that happen to
+    check out; the bytes after the glued multi result are a plausible header (the next packet) or
+    nothing, so the check of what follows cannot see it. Before, the cut packet came out whole with
+    wrong values in it and the packet(s) it swallowed were lost (a beam-break event, a reply, a whole
+    packet of samples). The packet that starts inside the multi result and runs to a plausible header
+    or to the end of what arrived shows the truncation, whatever the reads.
+    """
+    first = _last_packet(5)
+    victim = ec.MultiMeasResult.from_arrays(16_005_000 + 1000 * np.arange(40), first.xyz[[0]].repeat(40, 0) + 0.5)
+    fillers = {
+        "status_change": [ec.StatusChangePacket(ec.SystemStatusChange.MEAS_STATUS_NOT_READY)],
+        "next_packet": [ec.MultiMeasResult.from_arrays(16_045_000 + 1000 * np.arange(3), np.ones((3, 3)))],
+        "status_change_and_reply": [ec.StatusChangePacket(ec.SystemStatusChange.MEAS_STATUS_READY),
+                                    ec.CommandReply(ec.Command.GET_SYSTEM_STATUS, 0, tuple(range(10)))],
+    }[filler]
+    after = [ec.MultiMeasResult.from_arrays(16_050_000 + 1000 * np.arange(4), np.full((4, 3), 7.0))] \
+        if then == "more_data" else []
+    missing = sum(len(f.encode()) for f in fillers)
+    wires = [first.encode(), victim.encode()[:-missing], *(f.encode() for f in fillers + after)]
+    if arrival == "together":
+        parts, quiet = [b"".join(wires)], False
+    else:
+        parts, quiet = wires, arrival == "per_packet_quiet"
+    frames, garbage, left = _decode_parts(parts, quiet_after_each=quiet)
+    expected = [first, *fillers, *after]
+    assert left == 0 and garbage == len(wires[1])
+    assert len(frames) == len(expected) and all(_same(a, b) for a, b in zip(expected, frames))
+
+
+@pytest.mark.parametrize("after_end", range(0, 8))
+@pytest.mark.parametrize("missing", [8, 12, 16, 36, 100])
+def test_truncated_packet_read_to_just_past_its_declared_end_while_the_link_pauses_is_rejected(missing, after_end):
+    """A data packet cut ``missing`` bytes short, then the next data packet whole; a read ends
+    ``after_end`` bytes past the end the cut packet declares, and the link pauses there (a busy
+    sender: the reader's quiet decode runs) before the rest arrives. The cut packet is rejected and
+    the next one delivered whole.
+
+    Why: too few bytes followed the glued multi result to judge them as a header, so it was taken as
+    final and its samples delivered - wrong in their last slots - while the next packet was lost as
+    garbage (e2e, every packet cut 16 bytes short, under load: one packet's samples received although
+    none was sent whole). The next packet's header and count inside the glued multi result hold it
+    back until the next packet's rest shows it.
+    """
+    first = _last_packet(5)
+    victim = ec.MultiMeasResult.from_arrays(16_005_000 + 1000 * np.arange(100), first.xyz[[0]].repeat(100, 0) + 0.5)
+    nxt = ec.MultiMeasResult.from_arrays(16_105_000 + 1000 * np.arange(100), np.full((100, 3), 7.0))
+    cut = victim.encode()[:-missing]
+    data = first.encode() + cut + nxt.encode()
+    end = len(first.encode()) + len(victim.encode()) + after_end  # where the cut packet's declared length ends
+    frames, garbage, left = _decode_parts([data[:end], data[end:]], quiet_after_each=True)
+    assert left == 0 and garbage == len(cut)
+    assert len(frames) == 2 and _same(frames[0], first) and _same(frames[1], nxt)
+
+
+@pytest.mark.parametrize("arrival", ["together", "per_packet", "per_packet_quiet"])
+@pytest.mark.parametrize("missing", [8, 16, 40])
+def test_a_run_of_truncated_packets_is_rejected_whole(missing, arrival):
+    """Four data packets in a row each cut ``missing`` bytes short, then the reply to StopMeasurement:
+    none of their samples is delivered, the reply is.
+
+    Why: the packet that starts inside a cut packet is cut short itself, so it is followed by bytes
+    that cannot start a packet; when it had arrived whole before the one before it was judged (a
+    reader that lags behind reads the run at once) it did not count as a packet starting inside, and
+    the first cut packet was delivered (e2e, every packet cut 16 bytes short, under load). A multi
+    result's header and first sample now vouch for it whatever follows.
+    """
+    t0 = 16_000_000
+    wires = [ec.MultiMeasResult.from_arrays(t0 + 1000 * (100 * i + np.arange(100)), np.full((100, 3), float(i + 1)))
+             .encode()[:-missing] for i in range(4)]
+    reply = ec.CommandReply(ec.Command.STOP_MEASUREMENT, 0)
+    wires.append(reply.encode())
+    parts = [b"".join(wires)] if arrival == "together" else wires
+    frames, garbage, left = _decode_parts(parts, quiet_after_each=arrival == "per_packet_quiet")
+    assert left == 0
+    assert frames == [reply] and garbage == sum(len(w) for w in wires[:-1])
 
 
 def test_huge_declared_length_is_refused_from_the_header():
