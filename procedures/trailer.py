@@ -176,7 +176,8 @@ class TrailerSession(Session):
         Set points take effect in the order sent, so one whose acknowledgement
         was lost on the line took effect no later than the next acknowledged
         one: it gets that one's time (at most one tick late); after the last
-        acknowledgement, its intended tick.
+        acknowledgement, its intended tick. :meth:`arrays` then places those
+        by the measured curvature, the intended tick as the earliest.
         """
         if not self.setpoints:
             return np.zeros(0), np.zeros(0)
@@ -199,8 +200,16 @@ class TrailerSession(Session):
         out["segment"] = out["segment"].astype(int)
         out["phase"] = out["phase"].astype(int)
         t_sp, v_sp = self.setpoint_timeline()
-        acked = [getattr(sp, "t_applied_s", None) is not None for sp, _ in self.setpoints]
-        t_sp = place_unacknowledged(out["t"], out["kappa"], out["kappa_set"], t_sp, v_sp, acked)
+        acked = np.array([getattr(sp, "t_applied_s", None) is not None for sp, _ in self.setpoints], dtype=bool)
+        intended = np.array([ti for _, ti in self.setpoints], dtype=float)
+        if acked.size and out["t"].size:
+            # after the last acknowledgement the bound is the end of the record: an intended tick is only the
+            # earliest a set point can have taken effect (the unit runs ahead of what the procedure has read)
+            later = np.flip(np.logical_or.accumulate(np.flip(acked)))
+            tail = ~acked & ~np.concatenate([later[1:], [False]])
+            t_sp[tail] = np.maximum(t_sp[tail], out["t"][-1])
+            t_sp = np.maximum.accumulate(t_sp)
+        t_sp = place_unacknowledged(out["t"], out["kappa"], out["kappa_set"], t_sp, v_sp, acked, intended)
         out["kappa_cmd"] = interval_average(out["t"], t_sp, v_sp, out["kappa_set"])
         return out
 

@@ -58,3 +58,25 @@ def test_nothing_to_place_leaves_the_timeline_as_it_is(rng):
     late = t_sp.copy()
     late[4] = t_sp[5]
     assert place_unacknowledged(t, kappa, fb, late, v_sp, ack)[4] == t_sp[5]
+
+
+def test_a_set_point_after_the_last_acknowledgement_is_placed_at_or_after_its_intended_tick(rng):
+    """Under load the unit runs ahead of what the procedure has read: the tick a set point was meant for is
+    only the earliest it can have taken effect (seen beside other work: the trailer's L2 came out 6-7 of its
+    sigmas long when such set points were taken at their intended ticks)."""
+    t, kappa, fb, t_sp, v_sp = _stream(rng, 10)
+    v_sp[-1] = v_sp[-2] + rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 0.2)  # a step the curvature shows
+    kappa = interval_average(t, t_sp, v_sp, fb) + rng.normal(0.0, NOISE, t.size)
+    ack = np.ones(10, bool)
+    ack[-1] = False
+    lag = float(rng.uniform(1.0, 8.0))  # the unit was this far ahead when the set point was sent
+    intended = t_sp.copy()
+    intended[-1] = max(t_sp[-2] + 0.1, round((t_sp[-1] - lag) * RATE_HZ) / RATE_HZ)
+    bound = t_sp.copy()
+    bound[-1] = t[-1]  # nothing acknowledged after it: the end of the record
+    placed = place_unacknowledged(t, kappa, fb, bound, v_sp, ack, intended)
+    assert abs(placed[-1] - t_sp[-1]) <= 1.0 / RATE_HZ + 1e-9, (placed[-1], t_sp[-1], intended[-1])
+    # before its earliest tick it is never placed, whatever the curvature says
+    too_late = intended.copy()
+    too_late[-1] = t_sp[-1] + 2.0
+    assert place_unacknowledged(t, kappa, fb, bound, v_sp, ack, too_late)[-1] >= too_late[-1] - 1e-9

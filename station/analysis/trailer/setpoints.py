@@ -55,7 +55,7 @@ def interval_average(t_s, t_change, values, fallback) -> np.ndarray:
     return out
 
 
-def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledged) -> np.ndarray:
+def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledged, t_earliest=None) -> np.ndarray:
     """Change times (M,) with the unacknowledged set points moved to the sample ticks of their brackets
     that best explain the measured curvature.
 
@@ -70,9 +70,13 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
     values : array_like, shape (M,)
         The set points (1/m).
     acknowledged : array_like of bool, shape (M,)
+    t_earliest : array_like, shape (M,), optional
+        The earliest tick each set point can have taken effect: the tick after the newest sample the
+        procedure had read when it sent it (the unit was at least there). Under load the unit runs ahead
+        of what the procedure has read, so this is a lower bound, never the tick itself.
 
     A run of consecutive unacknowledged set points took effect, in order, after the acknowledged one before
-    them and each no later than its bound. The unit latches at its ticks, so a set point changes the
+    them, each no earlier than its earliest tick and no later than its bound. The unit latches at its ticks, so a set point changes the
     command of the sample intervals that begin at or after its tick. The run's ticks are chosen together,
     by dynamic programming over the samples of the bracket, to minimise the squared difference between the
     measured curvature and the command (ties keep the later tick, the bound the order of sending gives).
@@ -83,6 +87,8 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
     tc = np.array(t_change, dtype=float)
     vc = np.asarray(values, dtype=float)
     ack = np.asarray(acknowledged, dtype=bool)
+    early = np.full(tc.size, -np.inf) if t_earliest is None else np.nan_to_num(
+        np.asarray(t_earliest, dtype=float), nan=-np.inf)
     if tc.size == 0 or t.size < 2:
         return tc
     lost = np.flatnonzero(~ack)
@@ -110,6 +116,8 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
         # segment j may begin at a sample's start tick after lo; it must have begun once that tick passes
         # set point j's bound (set point j took effect no later than its bound)
         must = np.array([np.searchsorted(start, b, side="left") for b in bounds])  # first sample at or beyond
+        # and segment j cannot be in force at a sample whose interval starts before set point j's earliest tick
+        soon = np.array([np.searchsorted(start, e, side="left") for e in early[i0:i1 + 1]])
         n = ks.size
         dp = np.full((m + 1, n), np.inf)
         arg = np.zeros((m + 1, n), dtype=np.int64)
@@ -120,6 +128,8 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
         for j in range(m):
             if must[j] <= 0:
                 dp[:j + 1, 0] = np.inf
+            if soon[j] > 0:
+                dp[j + 1:, 0] = np.inf
         for s in range(1, n):
             prev = dp[:, s - 1]
             for j in range(m + 1):
@@ -131,11 +141,15 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
                         best, bj = prev[jj], jj
                 dp[j, s] = best + cost[j, s]
                 arg[j, s] = bj
-            for j in range(m):  # beyond set point j+1's bound, segments before it are impossible
-                if s >= must[j]:
+            for j in range(m):  # beyond set point j+1's bound, segments before it are impossible; before its
+                if s >= must[j]:  # earliest tick, it and the segments after it
                     dp[:j + 1, s] = np.inf
+                if s < soon[j]:
+                    dp[j + 1:, s] = np.inf
         # the last sample is in segment m if its start tick passed every bound; else the best segment
         last = dp[:, n - 1]
+        if not np.isfinite(last.min()):
+            continue  # bounds that contradict each other: the times as given
         j = int(np.flatnonzero(last <= last.min() + TIE * abs(last.min()))[0])
         first = np.full(m + 1, n, dtype=np.int64)  # first sample of each segment (n: after the window)
         for s in range(n - 1, 0, -1):
