@@ -122,9 +122,7 @@ def place_unacknowledged(t_s, kappa_1_m, fallback, t_change, values, acknowledge
         dp = np.full((m + 1, n), np.inf)
         arg = np.zeros((m + 1, n), dtype=np.int64)
         dp[0, 0] = cost[0, 0]
-        for j in range(1, m + 1):
-            dp[j, 0] = cost[j, 0]  # all of 1..j at the first sample's start tick
-            arg[j, 0] = 0
+        dp[1:, 0] = cost[1:, 0]  # segment j at the first sample: set points 1..j all at its start tick
         for j in range(m):
             if must[j] <= 0:
                 dp[:j + 1, 0] = np.inf
