@@ -604,16 +604,20 @@ def _next_candidate(buf, start: int, from_server: bool, max_bytes: int, *,
 _LOOKAHEAD_BYTES = 64
 
 
+def _alignment_words(buf, lo: int, count: int) -> np.ndarray:
+    """The four byte alignments from ``lo`` as rows of one array (4, count): word j of row r starts at byte
+    ``lo + r + 4 j`` (``buf`` holds at least ``lo + 4 count + 3`` bytes)."""
+    rows = np.lib.stride_tricks.as_strided(np.frombuffer(buf, dtype=np.uint8, count=4 * count + 3, offset=lo),
+                                           shape=(4, 4 * count), strides=(1, 1))
+    return np.ascontiguousarray(rows).view("<i4")
+
+
 def _candidate_in(buf, lo: int, hi: int, n: int, from_server: bool, max_bytes: int, stop, confirm) -> int | None:
     """The first plausible packet start in ``[lo, hi)``; the words checked reach past ``hi`` so a start near
     the window's end is judged on the same fields as anywhere else."""
     end = min(hi + _LOOKAHEAD_BYTES, n)
     if end < n:
-        # the four byte alignments as rows of one array: word j of row r starts at byte lo + r + 4 j
-        count = (end - lo - 3) // 4
-        rows = np.lib.stride_tricks.as_strided(np.frombuffer(buf, dtype=np.uint8, count=4 * count + 3, offset=lo),
-                                               shape=(4, 4 * count), strides=(1, 1))
-        words = np.ascontiguousarray(rows).view("<i4")  # (4, count)
+        words = _alignment_words(buf, lo, (end - lo - 3) // 4)
         r_hit, j_hit = np.nonzero(_plausible_mask(words, from_server, max_bytes))
         hits_all = [lo + r_hit + 4 * j_hit]
     else:
@@ -669,9 +673,7 @@ def _plausible_starts(buf, lo: int, stop: int, from_server: bool, max_bytes: int
     count = (n - lo - 3) // 4  # words per alignment row
     found = []
     if count >= 2:
-        rows = np.lib.stride_tricks.as_strided(np.frombuffer(buf, dtype=np.uint8, count=4 * count + 3, offset=lo),
-                                               shape=(4, 4 * count), strides=(1, 1))
-        w = np.ascontiguousarray(rows).view("<i4")  # (4, count): word j of row r starts at byte lo + r + 4 j
+        w = _alignment_words(buf, lo, count)
         size, typ = w[:, :-1], w[:, 1:]
         cheap = (size >= MIN_PACKET_BYTES) & (size <= max_bytes) & ((size & 3) == 0)
         cheap &= ((typ >= 0) & (typ <= _T_MAX)) if from_server else (typ == _T_COMMAND)

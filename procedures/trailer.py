@@ -170,25 +170,30 @@ class TrailerSession(Session):
     kappa_cmd: float = 0.0
     max_steady_psi_rad: float = 0.0
 
-    def setpoint_timeline(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(t_applied, value)`` of every curvature set point, device time, in send order.
+    def setpoint_timeline(self, t_end: float = -np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(t_latest, t_earliest, value, acknowledged)`` of every curvature set point, device time, in send
+        order: the bracket in which each took effect.
 
-        Set points take effect in the order sent, so one whose acknowledgement
-        was lost on the line took effect no later than the next acknowledged
-        one: it gets that one's time (at most one tick late); after the last
-        acknowledgement, its intended tick. :meth:`arrays` then places those
-        by the measured curvature, the intended tick as the earliest.
+        An acknowledged set point's bracket is its acknowledged tick. Set points
+        take effect in the order sent, so one whose acknowledgement was lost took
+        effect no later than the next acknowledged one; after the last
+        acknowledgement, no later than the end of the record ``t_end`` (or its
+        intended tick, if later). Its intended tick (the tick after the newest
+        sample the procedure had read) is the earliest: the unit runs ahead of
+        what the procedure has read. :meth:`arrays` places it inside the bracket
+        by the measured curvature.
         """
         if not self.setpoints:
-            return np.zeros(0), np.zeros(0)
+            return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool)
         acked = np.array([np.inf if getattr(sp, "t_applied_s", None) is None else sp.t_applied_s
                           for sp, _ in self.setpoints], dtype=float)
         intended = np.array([ti for _, ti in self.setpoints], dtype=float)
         val = np.array([sp.value for sp, _ in self.setpoints], dtype=float)
         next_acked = np.minimum.accumulate(acked[::-1])[::-1]
-        t = np.where(np.isfinite(acked), acked, np.where(np.isfinite(next_acked), next_acked, intended))
+        t = np.where(np.isfinite(acked), acked,
+                     np.where(np.isfinite(next_acked), next_acked, np.maximum(intended, t_end)))
         t = np.maximum.accumulate(t)  # in send order, never earlier than the one before
-        return t, val
+        return t, intended, val, np.isfinite(acked)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The record so far as arrays (``segment``, ``phase`` as int), with
@@ -199,17 +204,9 @@ class TrailerSession(Session):
         out = {c: np.asarray(self.samples[c], dtype=float) for c in COLUMNS}
         out["segment"] = out["segment"].astype(int)
         out["phase"] = out["phase"].astype(int)
-        t_sp, v_sp = self.setpoint_timeline()
-        acked = np.array([getattr(sp, "t_applied_s", None) is not None for sp, _ in self.setpoints], dtype=bool)
-        intended = np.array([ti for _, ti in self.setpoints], dtype=float)
-        if acked.size and out["t"].size:
-            # after the last acknowledgement the bound is the end of the record: an intended tick is only the
-            # earliest a set point can have taken effect (the unit runs ahead of what the procedure has read)
-            later = np.flip(np.logical_or.accumulate(np.flip(acked)))
-            tail = ~acked & ~np.concatenate([later[1:], [False]])
-            t_sp[tail] = np.maximum(t_sp[tail], out["t"][-1])
-            t_sp = np.maximum.accumulate(t_sp)
-        t_sp = place_unacknowledged(out["t"], out["kappa"], out["kappa_set"], t_sp, v_sp, acked, intended)
+        t_end = float(out["t"][-1]) if out["t"].size else -np.inf
+        t_sp, t_early, v_sp, acked = self.setpoint_timeline(t_end)
+        t_sp = place_unacknowledged(out["t"], out["kappa"], out["kappa_set"], t_sp, v_sp, acked, t_early)
         out["kappa_cmd"] = interval_average(out["t"], t_sp, v_sp, out["kappa_set"])
         return out
 

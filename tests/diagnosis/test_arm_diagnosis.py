@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from station.analysis.diagnose import diagnose_arm
+from station.analysis.diagnose.arm import canonical_order
 from station.analysis.diagnose.model import jacobian
 from app.cli import main
 from station.models import kinematics as kin
@@ -40,7 +41,7 @@ def _predicts_like_the_truth(d, res) -> None:
     drift and encoder eccentricity: z mean 0.1, sd 1.0, max 2.6). A ratio to the truth's held-out RMS is no
     bound: the held-out region is a part of the workspace whose noise can be smaller than the rest's (seed
     925812743: 0.067 mm there against 0.096 mm on the training poses; the ratio 1.20, z = 3.0)."""
-    perm = np.argsort(d.t_s, kind="stable")  # the diagnosis's working order (by time)
+    perm = canonical_order(d.q_rad, d.xyz_mm, d.t_s, False)[0]  # the diagnosis's working order
     inv = np.empty_like(perm)
     inv[perm] = np.arange(perm.size)
     q = d.q_rad[perm]
