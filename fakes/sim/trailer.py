@@ -310,23 +310,33 @@ class SimTrailer:
             return (v * math.cos(th_), v * math.sin(th_), v * k_,
                     v / L2 * (k_ * (L2 + L1 * math.cos(p_)) - math.sin(p_)))
 
+        def rk4(h_, th_, p_, ka, kb_, kd):  # one step with the curvature ka -> kb_ -> kd (start, mid, end)
+            a = rates(th_, p_, ka)
+            b = rates(th_ + 0.5 * h_ * a[2], p_ + 0.5 * h_ * a[3], kb_)
+            c = rates(th_ + 0.5 * h_ * b[2], p_ + 0.5 * h_ * b[3], kb_)
+            d = rates(th_ + h_ * c[2], p_ + h_ * c[3], kd)
+            return tuple(h_ / 6.0 * (a[j] + 2 * b[j] + 2 * c[j] + d[j]) for j in range(4))
+
         for _ in range(n):  # sequential in time: integration
-            # actual curvature: rate-limited towards the target, linear within the step
-            k1 = k + max(-rate * h, min(rate * h, tgt(t + h) - k))
-            if abs(k1 - tgt(t + h)) < 1e-15 and abs(k - tgt(t)) < 1e-15:
-                kb = tgt(t + 0.5 * h)  # tracking: follow the profile exactly
-            else:
-                kb = 0.5 * (k + k1)
-            a = rates(th, p, k)
-            b = rates(th + 0.5 * h * a[2], p + 0.5 * h * a[3], kb)
-            c = rates(th + 0.5 * h * b[2], p + 0.5 * h * b[3], kb)
-            d = rates(th + h * c[2], p + h * c[3], k1)
-            x += h / 6.0 * (a[0] + 2 * b[0] + 2 * c[0] + d[0])
-            y += h / 6.0 * (a[1] + 2 * b[1] + 2 * c[1] + d[1])
-            th += h / 6.0 * (a[2] + 2 * b[2] + 2 * c[2] + d[2])
-            p += h / 6.0 * (a[3] + 2 * b[3] + 2 * c[3] + d[3])
+            # actual curvature: rate-limited towards the target
+            k_end = tgt(t + h)
+            k1 = k + max(-rate * h, min(rate * h, k_end - k))
+            if abs(k1 - k_end) < 1e-15 and abs(k - tgt(t)) < 1e-15:
+                parts = ((h, k, tgt(t + 0.5 * h), k_end),)  # tracking: follow the profile exactly
+            elif self._profile is None and abs(k1 - k_end) < 1e-15:
+                # a set point the steering reaches inside this step: the ramp ends where the rate says
+                # (at once for an unlimited rate), not at the step's end; then the set point holds
+                d_ramp = min(h, abs(k_end - k) / rate)
+                parts = ((d_ramp, k, 0.5 * (k + k_end), k_end), (h - d_ramp, k_end, k_end, k_end))
+            else:  # at the rate limit throughout the step (linear in time)
+                parts = ((h, k, 0.5 * (k + k1), k1),)
+            for hp, ka, kb, kd in parts:
+                if hp <= 0.0:
+                    continue
+                dx, dy, dth, dp = rk4(hp, th, p, ka, kb, kd)
+                x, y, th, p = x + dx, y + dy, th + dth, p + dp
+                k = kd
             t += h
-            k = k1
         self._kappa = k
         self._s = s0 + v * (target - self._t)
         self._x, self._y, self._theta, self._psi, self._t = x, y, th, p, target

@@ -165,6 +165,23 @@ def test_sim_trailer_commands_rate_limit_and_refusals():
         sim.record(np.array([4.0, 5.0]))
 
 
+def test_sim_trailer_steering_ramps_exactly_at_its_rate(rng):
+    """A set point the steering reaches within an integration step: the ramp ends after |dk|/rate, not at the
+    step's end (the odometry's interval average of the path curvature shows the ramp's lag, which biases the
+    dynamic estimator's L2 by v x the lag when the command is its instrument)."""
+    rate = float(rng.uniform(0.1, 0.5))
+    for r in (rate, math.inf):
+        clock = ManualClock()
+        sim = SimTrailer(clock, noise=None, max_curvature_rate=r)
+        dk = float(rng.uniform(0.0005, 0.004)) * float(rng.choice([-1.0, 1.0]))
+        sim.read_sensors(1.0)
+        sim.command_curvature(dk, 1.0)
+        avg = sim.read_sensors(1.1).kappa_1_m
+        ramp_s = abs(dk) / r  # shorter than the max step of 0.02 s: inside one RK4 step
+        assert avg == pytest.approx(dk * (1.0 - 0.5 * ramp_s / 0.1), rel=1e-6, abs=1e-12)
+        assert sim.state(1.1).kappa_1_m == pytest.approx(dk, abs=1e-15)
+
+
 def test_sim_trailer_record_repeats_share_one_truth():
     clock = ManualClock()
     sim = SimTrailer(clock, noise=0.01, rng=np.random.default_rng(0))
