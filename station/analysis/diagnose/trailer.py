@@ -448,7 +448,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
     steps: list[TrailerStep] = []
     rounds: list[list[TrailerTest]] = []
     remaining = list(candidates)
-    prev_sig: list[TrailerTest] = []
+    prev_tests: list[TrailerTest] = []
     chosen_prev: TrailerTest | None = None
     test_name = (f"HAC-robust Wald W/k (Bartlett, bandwidth L from the residual's correlation) against "
                  f"F(k, n_train/L) at 1 - {alpha:g}/m, m the round's candidates (Bonferroni)")
@@ -457,17 +457,24 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
         rounds.append(tests)
         if chosen_prev is not None and steps:
             now = {ct.effect: ct for ct in tests}
-            for ct in prev_sig:
-                if ct.effect == chosen_prev.effect:
+            for ct in prev_tests:
+                if ct.effect == chosen_prev.effect or not ct.testable or \
+                        ct.rss_reduction < AMBIGUITY_SHARE * chosen_prev.rss_reduction:
                     continue
                 later = now.get(ct.effect)
-                if (later is None or not later.significant) and \
-                        ct.rss_reduction >= AMBIGUITY_SHARE * chosen_prev.rss_reduction:
-                    steps[-1].ambiguous_with.append(
-                        {"effect": ct.effect, "joint": None,
-                         "share_of_residual_explained": ct.rss_reduction / chosen_prev.rss_reduction,
-                         "heldout_rms_alone": ct.heldout_rms_after,
-                         "note": "explains the same residual: nothing significant is left of it after this step"})
+                if ct.significant and (later is None or not later.significant):
+                    note = "explains the same residual: nothing significant is left of it after this step"
+                elif later is not None and not later.testable and later.reason.startswith("indistinguishable"):
+                    # not significant alone beside another effect, but the step's parameters now span it:
+                    # the step's residual could as well be this effect's (with the other one's)
+                    note = ("explains much of the same residual and is indistinguishable in these data from "
+                            "this step's parameters")
+                else:
+                    continue
+                steps[-1].ambiguous_with.append(
+                    {"effect": ct.effect, "joint": None,
+                     "share_of_residual_explained": ct.rss_reduction / chosen_prev.rss_reduction,
+                     "heldout_rms_alone": ct.heldout_rms_after, "note": note})
         if len(steps) >= max_steps:
             break
         ho_now = rms((ps - predict(theta, kap, dist))[held])
@@ -500,7 +507,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
                                  best.threshold, test_name, details, resid_before=r_before, resid_after=r_after))
         theta, active = new_theta, new_active
         remaining = [e for e in remaining if e != best.effect]
-        prev_sig = [ct for ct in tests if ct.significant]
+        prev_tests = tests
         chosen_prev = best
     resid_final = ps - predict(theta, kap, dist)
     n_par = len(_idx(active))
