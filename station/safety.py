@@ -40,7 +40,10 @@ outside the workspace box z [800, 2000] mm``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,6 +138,32 @@ class GateReport:
     q_rad: np.ndarray
     tcp_mm: np.ndarray
     peak_tcp_speed_mm_s: float
+
+
+#: inverse kinematics the gates have solved, by their exact inputs (most recent last). A station checks
+#: the same programs again and again (every cycle's upload, from the same reported joints) and
+#: :func:`~station.models.kinematics.ik` is deterministic, so an answer is reused bit for bit.
+_IK_MEMO: OrderedDict = OrderedDict()
+_IK_MEMO_SIZE = 2048
+_IK_MEMO_LOCK = threading.Lock()
+
+
+def _ik(dh, target, q0, limits, **kw) -> kinematics.IKResult:
+    """:func:`~station.models.kinematics.ik` through the memo (the caller gets its own arrays)."""
+    parts = [np.ascontiguousarray(a, dtype=float) for a in (dh, target, q0, limits)]
+    key = (tuple((a.shape, a.tobytes()) for a in parts), tuple(sorted(kw.items())))
+    with _IK_MEMO_LOCK:
+        res = _IK_MEMO.get(key)
+        if res is not None:
+            _IK_MEMO.move_to_end(key)
+    if res is None:
+        res = kinematics.ik(*parts, **kw)
+        with _IK_MEMO_LOCK:
+            _IK_MEMO[key] = res
+            while len(_IK_MEMO) > _IK_MEMO_SIZE:
+                _IK_MEMO.popitem(last=False)
+    return dataclasses.replace(res, **{f.name: getattr(res, f.name).copy() for f in dataclasses.fields(res)
+                                       if isinstance(getattr(res, f.name), np.ndarray)})
 
 
 def _fmt(v) -> str:
@@ -258,7 +287,7 @@ class SafetyGate:
         self.check_position(p, label)
         seed = self.robot.home_q_rad if q_seed is None else self._vector(q_seed, 6, label, "q_seed")
         try:
-            res = kinematics.ik(self.robot.dh_nominal, t, seed, self.joint_limits_rad, tol_mm=self.limits.ik_tol_mm * 0.1)
+            res = _ik(self.robot.dh_nominal, t, seed, self.joint_limits_rad, tol_mm=self.limits.ik_tol_mm * 0.1)
         except DataError as exc:
             raise SafetyError(f"{label}: {exc}") from exc
         q = res.q_rad[0]
@@ -397,7 +426,7 @@ class SafetyGate:
         poses[:, :3, :3] = Slerp([0.0, 1.0], rots)(s).as_matrix()
         poses[:, :3, 3] = pa + s[:, None] * (pb - pa)
         seeds = qa + s[:, None] * (qb - qa)
-        res = kinematics.ik(
+        res = _ik(
             self.robot.dh_nominal, poses, seeds, self.joint_limits_rad, tol_mm=self.limits.ik_tol_mm * 0.1, n_restarts=0
         )
         bad = np.nonzero(~res.success | (res.residual_mm > self.limits.ik_tol_mm))[0]

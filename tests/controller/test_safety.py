@@ -250,3 +250,27 @@ def test_single_motion_checks_for_drivers_without_programs(rng, gate, robot, iso
         gate.check_speed("movej", joint_speed_rad_s=float(lim.min()) * 1.01)
     with pytest.raises(SafetyError, match="joint acceleration"):
         gate.check_speed("movej", joint_accel_rad_s2=float(robot.joint_accel_limits_rad_s2.min()) * 1.5)
+
+
+def test_a_program_checked_again_reuses_the_solved_kinematics_bit_for_bit(gate, robot, iso_poses, monkeypatch):
+    """The gate keeps what it solved: a station checks every cycle's program again from the same joints."""
+    import station.safety as safety
+
+    monkeypatch.setattr(safety, "_IK_MEMO", type(safety._IK_MEMO)())
+    calls = []
+    real_ik = kinematics.ik
+    monkeypatch.setattr(safety.kinematics, "ik", lambda *a, **k: calls.append(1) or real_ik(*a, **k))
+    r = render_rapid(iso_pose_program(robot, iso_poses, cycles=2))
+    first = gate.check_program(r)
+    n_first = len(calls)
+    assert n_first > 0
+    first.q_rad[:] = np.nan  # what a caller does with its report does not reach the memo
+    again = gate.check_program(r)
+    assert len(calls) == n_first
+    fresh = SafetyGate(robot, gate.limits)
+    monkeypatch.setattr(safety, "_IK_MEMO", type(safety._IK_MEMO)())
+    solved = fresh.check_program(r)
+    assert np.array_equal(again.q_rad, solved.q_rad) and np.array_equal(again.tcp_mm, solved.tcp_mm)
+    # another start is another problem
+    gate.check_program(r, q_start=again.q_rad[1])
+    assert len(calls) > 2 * n_first
