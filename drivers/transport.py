@@ -19,6 +19,7 @@ it into :class:`~station.errors.DeviceTimeout`).
 
 from __future__ import annotations
 
+import errno
 import math
 import select
 import socket
@@ -205,6 +206,7 @@ class SerialTransport:
             self._port = port
             self.description = str(getattr(port, "port", port))
         self._timeout: float | None = None
+        self._write_timeout: float | None = None
         self._closed = False
 
     @property
@@ -240,14 +242,30 @@ class SerialTransport:
         if self._closed:
             raise ConnectionLost(f"{self.description} is closed")
         try:
-            self._port.write_timeout = max(0.001, timeout_s)
+            wt = max(0.001, timeout_s)
+            if self._write_timeout != wt:  # pyserial reconfigures the port on every set
+                self._port.write_timeout = wt
+                self._write_timeout = wt
             self._port.write(data)
-            self._port.flush()
+            self._drain(time.monotonic() + wt)
         except Exception as exc:  # pyserial raises SerialTimeoutException or OSError
             if type(exc).__name__ == "SerialTimeoutException":
                 raise DeviceTimeout(f"writing {len(data)} bytes to {self.description} took "
                                     f"longer than {timeout_s} s") from exc
             raise ConnectionLost(f"writing to {self.description} failed: {exc}") from exc
+
+    def _drain(self, deadline: float) -> None:
+        """Wait until the written bytes have left (``tcdrain``), again when a signal interrupts the wait:
+        the terminal call is not restarted by Python (a Ctrl-Z, a window resize or a child's exit would
+        otherwise end the link)."""
+        while True:
+            try:
+                self._port.flush()
+                return
+            except Exception as exc:  # termios.error (errno, text), or OSError
+                code = getattr(exc, "errno", None) or (exc.args[0] if exc.args else None)
+                if code != errno.EINTR or time.monotonic() > deadline:
+                    raise
 
     def close(self) -> None:
         if self._closed:

@@ -89,3 +89,37 @@ def test_deadline():
     assert Deadline(None).time_left() == float("inf")
     with pytest.raises(ConfigError):
         Deadline(-1)
+
+
+def test_serial_write_survives_signals_during_the_drain(rng):
+    """``tcdrain`` is not restarted after a signal (termios raises EINTR); the transport waits again, and
+    another failure of the line is still a lost connection."""
+    import errno
+    import termios
+
+    import serial
+
+    class Interrupted(serial.serial_for_url("loop://", timeout=0).__class__):
+        interrupts = 0
+        drains = 0
+
+        def flush(self):
+            self.drains += 1
+            if self.interrupts:
+                self.interrupts -= 1
+                raise termios.error(errno.EINTR, "Interrupted system call")
+            super().flush()
+
+    port = Interrupted("loop://", timeout=0)
+    n = port.interrupts = int(rng.integers(1, 6))
+    link = SerialTransport(port)
+    link.write(b"$PODOC,0.1*00\r\n", 1.0)
+    assert port.drains == n + 1
+    assert link.read(64, 0.5) == b"$PODOC,0.1*00\r\n"
+
+    class Broken(Interrupted):
+        def flush(self):
+            raise termios.error(errno.EIO, "Input/output error")
+
+    with pytest.raises(ConnectionLost, match="Input/output error"):
+        SerialTransport(Broken("loop://", timeout=0)).write(b"x\r\n", 1.0)
