@@ -56,6 +56,7 @@ from typing import Collection
 import numpy as np
 
 from station.device_urls import parse_device_url
+from station.models.rotation import rotvec_of
 from station.protocols.ur import (SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode, RuntimeState,
                                   SafetyMode)
 from station.errors import (
@@ -329,20 +330,8 @@ def rotvec_to_matrix(rv) -> np.ndarray:
 
 
 def matrix_to_rotvec(R) -> np.ndarray:
-    """Rotation matrix (3, 3) -> rotation vector (3,), robust near 0 and pi."""
-    R = np.asarray(R, dtype=float)
-    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    theta = math.acos(cos)
-    if theta < 1e-9:
-        return np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
-    if math.pi - theta < 1e-6:
-        B = (R + np.eye(3)) / 2.0
-        axis = np.sqrt(np.clip(np.diag(B), 0.0, None))
-        i = int(np.argmax(axis))
-        axis = B[i] / axis[i]
-        return theta * axis / np.linalg.norm(axis)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return theta * w / (2.0 * math.sin(theta))
+    """Rotation matrix (3, 3) -> rotation vector (3,), robust near 0 and pi (through the quaternion)."""
+    return rotvec_of(np.asarray(R, dtype=float).reshape(1, 3, 3))[0]
 
 
 def ur_pose_to_T(pose) -> np.ndarray:
@@ -615,12 +604,15 @@ class URDriver:
 
     @classmethod
     def from_url(cls, url, *, gate, timeout_s: float | None = None, robot=None, **kwargs) -> "URDriver":
-        """Driver for ``ur://HOST``; ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake
-        and a sent program's start."""
+        """Driver for ``ur://HOST[?rtde_hz=F]`` (the RTDE output frequency, default 500 Hz; a CB3 streams
+        at 125); ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake and a sent program's
+        start."""
+        u = parse_device_url(url, scheme="ur")
+        kwargs.setdefault("rtde_frequency_hz", float(u.int_option("rtde_hz")))
         if timeout_s is not None:
             kwargs.setdefault("connect_timeout_s", timeout_s)
             kwargs.setdefault("start_timeout_s", timeout_s)
-        return cls(parse_ur_url(url), robot if robot is not None else gate.robot, gate, **kwargs)
+        return cls(u.host, robot if robot is not None else gate.robot, gate, **kwargs)
 
     # ------------------------------------------------------------------ lifetime
     def connect(self) -> "URDriver":

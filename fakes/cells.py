@@ -43,13 +43,14 @@ WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect")
 
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
     """The simulated arm of the plan's model with its controller and emScon tracker on loopback
-    (``fake``: seed, time scale and any of :data:`WORLD_OPTIONS`)."""
+    (``fake``: seed, time scale, any of :data:`WORLD_OPTIONS`, and for a UR the RTDE frequency its driver
+    asks for, ``rtde_hz``)."""
     from fakes.station import FakeStation
 
     world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
                                 robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
-                                start_s=float(fake.get("start_s", 0.0)), **world)
+                                start_s=float(fake.get("start_s", 0.0)), rtde_hz=fake.get("rtde_hz"), **world)
     return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
                     float(fake["time_scale"]), station.close)
 

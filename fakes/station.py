@@ -65,7 +65,8 @@ def _split_faults(faults: Mapping[str, str] | None) -> tuple[dict, dict]:
 class FakeStation:
     """A running fake cell; ``close()`` stops every server and joins its threads."""
 
-    def __init__(self, world: World, *, host: str | None = None, faults: Mapping[str, str] | None = None) -> None:
+    def __init__(self, world: World, *, host: str | None = None, faults: Mapping[str, str] | None = None,
+                 rtde_hz: int | None = None) -> None:
         t_faults, c_faults = _split_faults(faults)
         # the device buffer is a real-time property of the tracker: in accelerated time a
         # host hiccup of 0.1 s would otherwise overflow a 2 s (simulated) buffer
@@ -85,6 +86,8 @@ class FakeStation:
             raise
         self.tracker_url = url_of("emscon", self.tracker)
         self.controller_url = url_of("ur" if kind == "ur" else "modbus+ftp", self.controller)
+        if kind == "ur" and rtde_hz is not None:  # the driver asks the UR for this RTDE frequency
+            self.controller_url += f"?rtde_hz={int(rtde_hz)}"
         self.endpoint = {
             "robot": world.robot.name,
             "tracker": self.tracker_url,
@@ -94,10 +97,11 @@ class FakeStation:
 
     @classmethod
     def start(cls, *, seed: int = 0, time_scale: float = 20.0, robot: str = "industrial-3100",
-              faults: Mapping[str, str] | None = None, **world_kwargs) -> "FakeStation":
+              faults: Mapping[str, str] | None = None, rtde_hz: int | None = None,
+              **world_kwargs) -> "FakeStation":
         world = make_world(robot=robot, seed=seed, time_scale=time_scale, **world_kwargs)
         try:
-            station = cls(world, faults=faults)
+            station = cls(world, faults=faults, rtde_hz=rtde_hz)
         except BaseException:
             world.close()
             raise

@@ -93,6 +93,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from station.models.rotation import rotvec_of
+
 from fakes import rtde_protocol as rp
 from fakes.sim.clock import keep_running, stop_running
 from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitter, bind_arguments, parse_program
@@ -201,13 +203,13 @@ def T_to_pose(T) -> np.ndarray:
     T = np.asarray(T, dtype=float).reshape(-1, 4, 4)
     out = np.empty((len(T), 6))
     out[:, :3] = T[:, :3, 3] / 1000.0
-    out[:, 3:] = Rotation.from_matrix(T[:, :3, :3]).as_rotvec() if len(T) else np.zeros((0, 3))
+    out[:, 3:] = rotvec_of(T[:, :3, :3])
     return out
 
 
 def _angular_velocity(T_now: np.ndarray, T_prev: np.ndarray, dt: float) -> np.ndarray:
     dR = np.einsum("nij,nkj->nik", T_now[:, :3, :3], T_prev[:, :3, :3])
-    return Rotation.from_matrix(dR).as_rotvec() / dt
+    return rotvec_of(dR) / dt
 
 
 def _vector_query(fn, ts: np.ndarray) -> np.ndarray:

@@ -24,7 +24,8 @@ scheme             device                                      address, defaults
                                                                ``modbus_port`` (502), ``user``
                                                                (anonymous), ``password_env`` or
                                                                ``password_file``, ``dir``
-``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST``; the ports are fixed by ur_rtde
+``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST[?rtde_hz=N]``; the ports are fixed
+                                                               by ur_rtde; RTDE output 500 Hz (a CB3: 125)
 ``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud
 ``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
 ``fake``           a device of the station's own fake set      ``fake://NAME``
@@ -94,6 +95,7 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
            int_options=("modbus_port",),
            driver="drivers.controller:ControllerDriver", fake="controller", fake_module="fakes.controller"),
     Scheme("ur", "controller", "UR-style cobot (ur_rtde)", "host", port_allowed=False,
+           options={"rtde_hz": "500"}, int_options=("rtde_hz",),
            driver="drivers.ur:URDriver", fake="ur", fake_module="fakes.ur"),
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
            options={"baud": "57600"}, int_options=("baud",),

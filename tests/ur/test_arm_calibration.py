@@ -25,8 +25,8 @@ from station.config import StationConfig
 from station.models.arm_model_file import read_ur_calibration
 from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
-
-TIME_SCALE = 20.0
+from tests.pace import UR_AT_RTDE_HZ as TIME_SCALE
+from tests.pace import UR_RTDE_HZ
 
 
 def _cfg(tmp_path, **arm):
@@ -38,7 +38,8 @@ def _cfg(tmp_path, **arm):
 
 def _run(cfg, tmp_path, run_id, cell_seed, sel_seed):
     code = run_procedure(cfg, "arm-calibration", run_id=run_id, yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
+                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
+                         fake_options={"rtde_hz": UR_RTDE_HZ})
     assert code.exit_code == 0
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         return (store.result(run_id, RESULT_KEY), ArmCalPlan.from_params(store.run(run_id).params),
@@ -99,7 +100,7 @@ def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path, test_s
     root = Path(__file__).resolve().parents[2]
     seed = test_seed
     rng = np.random.default_rng(seed)
-    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e") as cell:
+    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e", rtde_hz=UR_RTDE_HZ) as cell:
         d = cell.config_dict(store_path=str(tmp_path / "k.sqlite"), report_dir=str(tmp_path / "reports"))
         d["arm_calibration"] = {"train_poses": 23, "test_poses": 8, "speed_percent": 10.0, "poses_per_step": 4,
                                 "candidates": 600}

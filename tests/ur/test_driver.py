@@ -233,6 +233,14 @@ def test_urls_and_configuration_are_validated(world, gate):
         URDriver("127.0.0.5; rm", world.robot, gate)
     with pytest.raises(ConfigError, match="rtde_frequency_hz"):
         URDriver("127.0.0.5", world.robot, gate, rtde_frequency_hz=1000)
+    # the RTDE frequency by the URL: 500 Hz unless asked (a CB3 streams at 125)
+    assert URDriver.from_url("ur://127.0.0.5", gate=gate).rtde_frequency_hz == 500.0
+    assert URDriver.from_url("ur://127.0.0.5?rtde_hz=125", gate=gate).rtde_frequency_hz == 125.0
+    with pytest.raises(ConfigError, match="rtde_frequency_hz must be in"):
+        URDriver.from_url("ur://127.0.0.5?rtde_hz=1000", gate=gate)
+    for bad in ("0", "fast", "12.5"):
+        with pytest.raises(ConfigError, match="rtde_hz"):
+            URDriver.from_url(f"ur://127.0.0.5?rtde_hz={bad}", gate=gate)
     with pytest.raises(ConfigError, match="register_base"):
         URDriver("127.0.0.5", world.robot, gate, register_base=47)
     # pose conversions against scipy, including rotations near pi

@@ -139,3 +139,4 @@ def test_garbage_gets_a_text_message_and_a_closed_link_and_the_fake_keeps_servin
     assert fake.protocol_errors and "declares size 1" in fake.protocol_errors[0]
     ok = run_probe(host, 125.0, 0.05, ["timestamp", "actual_q", "actual_TCP_pose"])
     assert "error" not in ok and ok["rows"]
+

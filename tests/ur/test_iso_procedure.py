@@ -27,10 +27,10 @@ from station.config import config_from_dict
 from station.models import kinematics
 from station.store import RunStore
 from tests.person import TYPED_YES, person_typing_yes
-from tests.pace import UR
+from tests.pace import UR_AT_RTDE_HZ, UR_RTDE_HZ
 
 CYCLES, VAP = 3, 2
-TIME_SCALE = UR
+TIME_SCALE = UR_AT_RTDE_HZ
 #: the joint-2 circle of the axis registration about a UR5e's P1 stays in its box over +/- 20 deg; 5 points
 #: per joint (the fewest the config takes) keep the registration's 12 moves short of the pose cycles' 15+
 UR_ISO = {"cycles": CYCLES, "vap_cycles": VAP, "axis_sweep_deg": [25.0, 20.0], "axis_sweep_points": 5}
@@ -47,7 +47,7 @@ def _config_dict(cell, tmp_path, name="s"):
 
 
 def test_iso9283_runs_on_the_ur_fake_through_ur_rtde(tmp_path, test_seed):
-    with FakeStation.start(seed=_seed(test_seed), time_scale=TIME_SCALE, robot="ur5e") as cell:
+    with FakeStation.start(seed=_seed(test_seed), time_scale=TIME_SCALE, robot="ur5e", rtde_hz=UR_RTDE_HZ) as cell:
         cfg = config_from_dict(_config_dict(cell, tmp_path))
         assert cfg.devices["controller"].url.startswith("ur://127.")
         plan = plan_from_config(cfg)
@@ -159,7 +159,7 @@ def test_killed_ur_run_resumes_with_nothing_lost(tmp_path, test_seed):
     total_steps = 6 + CYCLES + VAP + 3
     kill_after = int(rng.integers(5, total_steps - 1))
     print(f"kill after {kill_after} steps")
-    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e") as cell:
+    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e", rtde_hz=UR_RTDE_HZ) as cell:
         d = _config_dict(cell, tmp_path, "killed")
         config_from_dict(d)
         cfg = tmp_path / "killed.json"

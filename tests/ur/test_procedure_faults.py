@@ -21,6 +21,7 @@ from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
 from tests.person import person_typing_yes
+from tests.pace import UR_RTDE_HZ
 from tests.ur.test_iso_procedure import TIME_SCALE, UR_ISO
 
 #: the first motion of the pose cycles, after home (1) and the axis registration (2 joints x N points,
@@ -68,7 +69,7 @@ def test_a_fault_stops_the_ur_run_safe_and_resumably(tmp_path, fault, test_seed)
         "refuse_script": int(rng.integers(3, 2 * UR_ISO["axis_sweep_points"] + 4)),  # home, registration, cycle 1
     }[fault]
     print(f"seed {seed}: {fault}={value}")
-    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e",
+    with FakeStation.start(seed=seed, time_scale=TIME_SCALE, robot="ur5e", rtde_hz=UR_RTDE_HZ,
                            faults={f"controller.{fault}": str(value)}) as cell:
         d = cell.config_dict(store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
                              iso9283=UR_ISO)

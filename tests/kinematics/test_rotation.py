@@ -1,0 +1,24 @@
+"""Rotation vectors of rotation matrices (station.models.rotation) against scipy's."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from station.models.rotation import rotvec_of
+
+
+def test_rotation_vectors_of_the_stream_are_scipys(rng):
+    """The rotation vectors of the fake's stream (TCP pose, angular speed) and the driver's moves against scipy's, over random rotations and
+    angles near 0, near the series' switch at 1e-3 rad and near pi, where the quaternion's choice matters."""
+    R = Rotation.random(2000, random_state=int(rng.integers(2**31)))
+    np.testing.assert_allclose(rotvec_of(R.as_matrix()), R.as_rotvec(), atol=1e-13)
+    axis = rng.normal(size=(600, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.concatenate([10.0 ** rng.uniform(-12, -2, 200), 1e-3 * (1 + rng.uniform(-1e-3, 1e-3, 200)),
+                            np.pi - 10.0 ** rng.uniform(-12, -2, 200)])
+    M = Rotation.from_rotvec(axis * angle[:, None]).as_matrix()
+    ours = rotvec_of(M)
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), angle, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(Rotation.from_rotvec(ours).as_matrix(), M, atol=1e-13)
+    assert rotvec_of(np.zeros((0, 3, 3))).shape == (0, 3)
