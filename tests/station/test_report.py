@@ -34,3 +34,31 @@ def test_report_is_self_contained_and_shows_verdicts(rng, tmp_path):
     rows[1]["passed"] = True
     assert Report("x", rows=rows).verdict == "PASS"
     assert Report("x").verdict == "NO LIMITS"
+
+
+def test_a_long_trace_is_drawn_thinned_with_every_extreme(rng):
+    from station.report import decimate_trace
+
+    n = int(rng.integers(20_000, 60_000))
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, n))
+    y = np.abs(rng.normal(0.0, 50.0, n))
+    gap = slice(int(rng.integers(0, n - 500)), None)
+    y[gap.start:gap.start + 400] = np.nan  # a beam break
+    spikes = rng.choice(n, 5, replace=False)
+    y[spikes] = 1e3 * rng.uniform(1.0, 2.0, 5)
+    td, yd = decimate_trace(t, y, 2000)
+    assert td.size <= 2000 and np.all(np.diff(td) > 0) and set(td) <= set(t)
+    assert set(t[spikes][np.isfinite(y[spikes])]) <= set(td)  # every spike is drawn
+    assert np.nanmin(yd) == np.nanmin(y) and np.nanmax(yd) == np.nanmax(y)
+    assert np.any(np.isnan(yd))  # the break stays a gap
+    # the trace is cut into 1,000 runs of equal length: each keeps its own extremes
+    k = -(-n // 1000)
+    for a in range(0, n, k):
+        run = y[a:a + k]
+        if np.any(np.isfinite(run)):
+            kept = yd[(td >= t[a]) & (td <= t[min(a + k, n) - 1])]
+            assert np.nanmax(kept) == np.nanmax(run) and np.nanmin(kept) == np.nanmin(run)
+    assert decimate_trace(t[:4000], y[:4000])[1].size == 4000  # what the figure can show stays whole
+    # the figure of the long trace holds the thinned points, not all of them
+    svg = plot_velocity_windows(t, y, [(t[100], t[200])])
+    assert svg.count("\nL ") < 2 * 2000 + 500  # two lines (speed, moving average); 2 n without thinning
