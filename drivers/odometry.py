@@ -96,7 +96,11 @@ class OdometryDriver:
     ack_timeout_s : float
         Wait for a command's acknowledgement before re-sending it, s.
     command_retries : int
-        Re-sends of a blocking command whose acknowledgement does not come.
+        Re-sends of a blocking command whose acknowledgement does not come, at
+        least; a set point is idempotent (an absolute value), so it is re-sent
+        every ``ack_timeout_s`` until acknowledged or until ``timeout_s`` has
+        passed, whichever allows more copies (a line that loses one sentence in
+        ten each way loses a copy or its acknowledgement one time in five).
 
     Commands come in two kinds: :meth:`command_curvature` /
     :meth:`command_speed` block until acknowledged (start, stop), and
@@ -264,7 +268,10 @@ class OdometryDriver:
     def _command(self, cmd: str, value: float, frame: bytes, timeout_s: float | None) -> float:
         timeout = self.ack_timeout_s if timeout_s is None else timeout_s
         self._raise_refusal()
-        for _ in range(self.command_retries + 1):
+        patience = Deadline(max(self.timeout_s, timeout))  # re-sent until this, at least retries + 1 times
+        attempts = 0
+        while attempts <= self.command_retries or not patience.expired():
+            attempts += 1
             sent = self._send(cmd, value, frame)
             deadline = Deadline(timeout)
             while sent.status is None and not deadline.expired():
@@ -279,8 +286,7 @@ class OdometryDriver:
                 self.command_stats.lost += 1
                 self._unacked = collections.deque(c for c in self._unacked if c is not sent)
         raise DeviceTimeout(f"no acknowledgement of command {cmd}={value:g} from "
-                            f"{self.transport.description} after {self.command_retries + 1} "
-                            f"attempt(s) of {timeout} s")
+                            f"{self.transport.description} after {attempts} attempt(s) of {timeout} s")
 
 
 __all__ = [

@@ -232,6 +232,39 @@ def test_stalled_line_times_out_then_resumes():
         fake.close()
 
 
+def test_a_blocking_set_point_is_resent_until_its_timeout_not_only_its_retries():
+    """The line is dead from 1 to 9 simulated s (0.05-0.45 s real at 20x): a set point sent in it gets no
+    acknowledgement for its first copies; the driver re-sends it every ack timeout (0.05 s) for as long as
+    its reply timeout (1 s) allows, beyond its one retry, and it is applied after the line comes back.
+    With a reply timeout shorter than the dead line it fails, saying how many copies it sent."""
+    clock = SimClock(time_scale=20.0)
+    fake = OdometryFake(SimTrailer(clock, rng=np.random.default_rng(2)), clock, faults={"stall": "1:8"})
+    try:
+        with OdometryDriver.open(fake.endpoint["device"], timeout_s=1.0, ack_timeout_s=0.05,
+                                 command_retries=1) as drv:
+            t0 = fake._t0
+            while drv.read_sample(2.0).t_s < t0 + 0.5:
+                pass
+            while clock.now() < t0 + 1.5:  # into the dead line
+                time.sleep(0.005)
+            t_applied = drv.command_curvature(0.05)
+            assert t_applied >= t0 + 9.0 - 1e-3
+            assert drv.command_stats.lost >= 2  # copies that the dead line ate
+        fake2 = OdometryFake(SimTrailer(clock, rng=np.random.default_rng(3)), clock, faults={"stall": "1:100"})
+        try:
+            with OdometryDriver.open(fake2.endpoint["device"], timeout_s=0.3, ack_timeout_s=0.05,
+                                     command_retries=1) as drv:
+                t0 = fake2._t0
+                while clock.now() < t0 + 1.5:
+                    time.sleep(0.005)
+                with pytest.raises(DeviceTimeout, match=r"after ([3-9]|\d\d) attempt\(s\) of 0.05 s"):
+                    drv.command_speed(0.5)
+        finally:
+            fake2.close()
+    finally:
+        fake.close()
+
+
 @pytest.mark.parametrize("odometry_fake", [{"checksum_rate": "0.2", "drop_rate": "0.1", "seed": "5"}],
                          indirect=True)
 def test_driver_survives_corrupted_lines(odometry):
