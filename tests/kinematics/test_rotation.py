@@ -21,4 +21,8 @@ def test_rotation_vectors_of_the_stream_are_scipys(rng):
     ours = rotvec_of(M)
     np.testing.assert_allclose(np.linalg.norm(ours, axis=1), angle, rtol=0, atol=1e-9)
     np.testing.assert_allclose(Rotation.from_rotvec(ours).as_matrix(), M, atol=1e-13)
+    # a few rows at a time (the stream's batches) go another way: the same vectors
+    edges = np.unique(np.concatenate([[0], np.cumsum(rng.integers(1, 9, 600)), [600]]).clip(0, 600))
+    few = np.concatenate([rotvec_of(M[a:b]) for a, b in zip(edges[:-1], edges[1:])])
+    np.testing.assert_allclose(few, ours, rtol=0, atol=1e-13)
     assert rotvec_of(np.zeros((0, 3, 3))).shape == (0, 3)
