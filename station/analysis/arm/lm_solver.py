@@ -15,9 +15,10 @@ Convergence is a status, never an exception: ``converged`` is True when the
 next full Gauss-Newton step would lower the cost by less than
 ``(step_tol_sigma)^2`` of the residual variance (the step is under that many
 standard deviations of the parameters), or the relative cost change of an
-accepted step falls under ``rtol``. The iteration limit, or damping that
-finds no lower cost while the gradient still points somewhere, is "not
-converged", with the reason in ``message``.
+accepted step falls under ``rtol``, or no damped step lowers the cost while
+the full step is under ``10 step_tol_sigma`` standard deviations. The
+iteration limit, or damping that finds no lower cost while a larger step is
+predicted, is "not converged", with the reason in ``message``.
 """
 
 from __future__ import annotations
@@ -110,9 +111,14 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
                 break
             lam *= 10.0
         if not accepted:
-            # no damped step lowers the cost: a minimum if the predicted gain is at the rounding level
-            if decrease <= 1e-8 * max(cost, 1e-300):
-                converged, message = True, "converged: no step lowers the cost further"
+            # no damped step lowers the cost: a minimum if the predicted gain is at the rounding level, or
+            # if the full step is under a tenth of a standard deviation of the parameters (what is left is
+            # below what the data resolve; the line search fails there when the gain is at the rounding of
+            # the residuals, seen at 0.012 sigma on a FANUC-like pose set)
+            if decrease <= max(1e-8 * max(cost, 1e-300), (10.0 * step_tol_sigma) ** 2 * cost / dof):
+                converged = True
+                message = ("converged: no step lowers the cost further (the next step is "
+                           f"{math.sqrt(max(decrease, 0.0) * dof / max(cost, 1e-300)):.2g} standard deviations)")
             else:
                 message = ("not converged: no damped step lowers the cost although the gradient is not zero "
                            f"(predicted decrease {decrease:.3g} mm^2 of {cost:.3g})")
