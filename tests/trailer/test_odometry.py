@@ -245,8 +245,7 @@ def test_a_blocking_set_point_is_resent_until_its_timeout_not_only_its_retries()
             t0 = fake._t0
             while drv.read_sample(2.0).t_s < t0 + 0.5:
                 pass
-            while clock.now() < t0 + 1.5:  # into the dead line
-                time.sleep(0.005)
+            clock.sleep_until(t0 + 1.5)  # into the dead line
             t_applied = drv.command_curvature(0.05)
             assert t_applied >= t0 + 9.0 - 1e-3
             assert drv.command_stats.lost >= 2  # copies that the dead line ate
@@ -255,8 +254,7 @@ def test_a_blocking_set_point_is_resent_until_its_timeout_not_only_its_retries()
             with OdometryDriver.open(fake2.endpoint["device"], timeout_s=0.3, ack_timeout_s=0.05,
                                      command_retries=1) as drv:
                 t0 = fake2._t0
-                while clock.now() < t0 + 1.5:
-                    time.sleep(0.005)
+                clock.sleep_until(t0 + 1.5)
                 with pytest.raises(DeviceTimeout, match=r"after ([3-9]|\d\d) attempt\(s\) of 0.05 s"):
                     drv.command_speed(0.5)
         finally:
