@@ -1,9 +1,10 @@
 """Benchmark: how the trailer run's link lengths fall about the truth, through the whole path.
 
-Run by hand: ``.venv/bin/python bench/bench_trailer_run_z.py [--seeds 10] [--first 0] [--no-abort]``.
+Run by hand: ``.venv/bin/python bench/bench_trailer_run_z.py [--seeds 10] [--first 0] [--no-abort] [--real-time]``.
 
 The flow of ``tests/station/test_trailer_run.py``: the odometry fake on a pty
-at 20x with a trailer of random true lengths (1.20-1.30 m, 2.40-2.55 m), the
+at 20x (in lockstep with its driver, as a dry run's cell; ``--real-time``: the
+unit runs on whatever the station does) with a trailer of random true lengths (1.20-1.30 m, 2.40-2.55 m), the
 driver, the procedure (two commands, H and C at 0.18 1/m, 15 s settle, 63 s
 each) and the store; by default the run is aborted at a random moment of its
 second command and resumed, so the estimate combines two pieces. Printed per
@@ -35,17 +36,17 @@ from station.store import RunStore
 PLAN = dict(commands=(("H", 0.18), ("C", 0.18)), settle_s=15.0, duration_s=63.0)
 
 
-def one(seed: int, abort: bool) -> dict:
+def one(seed: int, abort: bool, lockstep: bool = True) -> dict:
     rng = np.random.default_rng(seed)
     L1, L2 = float(rng.uniform(1.20, 1.30)), float(rng.uniform(2.40, 2.55))
     tmp = Path(tempfile.mkdtemp(prefix="bench-trailer-"))
     world = make_world(seed=int(rng.integers(2**31)), time_scale=20.0, effects=None)
     world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
-    fake = start_fake(world)
+    fake = start_fake(world, lockstep=lockstep)
     store = RunStore(tmp / "s.sqlite")
     plan = tp.TrailerCalibrationPlan(**PLAN)
     params = {"plan": plan_params(plan), "report_dir": str(tmp / "r")}
-    url = f"nmea://{fake.endpoint['device']}"
+    url = f"nmea://{fake.endpoint['device']}" + ("?lockstep=1" if lockstep else "")
     try:
         control = RunControl()
         session = TrailerSession(DeviceSet(urls={"odometry": url}))
@@ -89,10 +90,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--no-abort", action="store_true", help="one uninterrupted run per seed")
+    ap.add_argument("--real-time", action="store_true", help="the unit runs on, not in lockstep with the driver")
     args = ap.parse_args()
     z = []
     for s in range(args.first, args.first + args.seeds):
-        r = one(s, not args.no_abort)
+        r = one(s, not args.no_abort, not args.real_time)
         z.append((r["z1"], r["z2"]))
         parts = "  ".join(f"[{a:+.2f} {b:+.2f} {inp.split()[0] if inp else '?'}]" for a, b, inp in r["pieces"])
         print(f"seed {s:4d}: z(L1) {r['z1']:+.2f}  z(L2) {r['z2']:+.2f}   pieces {parts}", flush=True)

@@ -103,6 +103,15 @@ def encode_speed_command(v_m_s: float) -> bytes:
     return encode_sentence([f"P{MANUFACTURER}V", _fmt(v_m_s)])
 
 
+def encode_sync(token: str, t_s: float | None, *, end: bool = False) -> bytes:
+    """``$PODOS,<token>,<t_s>*hh`` (simulated unit only): the host ``token`` has every sample up to device
+    time ``t_s`` (empty: none yet) and sent what the next control cycle is to latch; step one cycle.
+    ``end``: ``$PODOS,<token>,END*hh``, the host leaves (the unit holds the clock for nobody)."""
+    if not (token and token.isascii() and token.isalnum()):
+        raise ConfigError(f"a sync token is letters and digits, got {token!r}")
+    return encode_sentence([f"P{MANUFACTURER}S", token, "END" if end else "" if t_s is None else f"{t_s:.3f}"])
+
+
 #: a field's number as NMEA writes it: optional sign, digits, optional fraction, optional exponent (Python's
 #: float() also takes '1_0', ' 8', 'inf', 'nan', which no sentence holds)
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
@@ -254,5 +263,6 @@ class NmeaDecoder:
 
 __all__ = [
     "MANUFACTURER", "MAX_SENTENCE_BYTES", "OdometrySample", "CommandAck", "CommandNak", "LineStats", "checksum",
-    "encode_sentence", "encode_curvature_command", "encode_speed_command", "parse_body", "NmeaDecoder",
+    "encode_sentence", "encode_curvature_command", "encode_speed_command", "encode_sync", "parse_body",
+    "NmeaDecoder",
 ]

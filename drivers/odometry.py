@@ -12,6 +12,8 @@ names the sentence::
     host -> device (same line)
       $PODOC,<kappa_1_m>*hh                          hold this path curvature
       $PODOV,<v_m_s>*hh                              drive at this speed
+      $PODOS,<token>,<t_s>*hh                        simulated unit only (``?lockstep=1``): step
+                                                     one control cycle (below)
 
 Units: s, m/s, 1/m, rad (seed 003).
 
@@ -25,6 +27,21 @@ queued. Every blocking call has a timeout on the monotonic clock
 :class:`~station.errors.DeviceFault`; a command whose acknowledgement is lost
 is re-sent (set points are idempotent).
 
+Lockstep (the simulated unit of a dry run only, ``nmea:///dev/ttyX?lockstep=1``):
+a real unit runs in real time and the station keeps up with it; the
+simulated one instead steps its control cycle only when the host asks, so
+the same seed gives the same samples at any load (the way a
+software-in-the-loop simulator waits for its flight stack's outputs). Before
+it waits for a sample or an acknowledgement, the driver sends
+``$PODOS,<token>,<t_s>``: "driver ``token`` has every sample up to ``t_s``
+(empty: none yet) and has sent what the next cycle is to latch". The unit
+then runs one cycle: it latches the commands it has read, sends the next
+sample and waits again. A sync naming an older sample than the unit's newest
+(that sample or the sync was lost, or the host was slow) makes the unit send
+its newest sample again; the driver drops a sample that is not newer than
+the newest it has. The sync is re-sent every ``ack_timeout_s``. Closing
+sends ``$PODOS,<token>,END``: the unit then holds the clock for nobody.
+
 The codec (:class:`NmeaDecoder`, :func:`encode_sentence`) is pure: bytes in,
 messages out, no I/O; it lives in :mod:`drivers.nmea_codec`.
 """
@@ -32,19 +49,32 @@ messages out, no I/O; it lives in :mod:`drivers.nmea_codec`.
 from __future__ import annotations
 
 import collections
+import itertools
 import math
+import os
 from dataclasses import dataclass
 
 from drivers.nmea_codec import (
     MANUFACTURER, MAX_SENTENCE_BYTES, CommandAck, CommandNak, LineStats, NmeaDecoder, OdometrySample, checksum,
-    encode_curvature_command, encode_sentence, encode_speed_command, parse_body,
+    encode_curvature_command, encode_sentence, encode_speed_command, encode_sync, parse_body,
 )
 from drivers.transport import Deadline, SerialTransport, Transport
 from station.device_urls import SCHEMES, parse_device_url
-from station.errors import ConfigError, DeviceFault, DeviceTimeout
+from station.errors import ConfigError, DeviceFault, DeviceTimeout, StationError
 
 #: default line speed of the unit
 DEFAULT_BAUD = int(SCHEMES["nmea"].options["baud"])
+
+_TOKENS = itertools.count(1)
+
+
+def _lockstep_option(value: str | None, url) -> bool:
+    if value in (None, "0"):
+        return False
+    if value == "1":
+        return True
+    raise ConfigError(f"device URL {url!r}: lockstep must be 0 or 1 (1: the simulated unit of a dry run), "
+                      f"got {value!r}")
 
 
 # ----------------------------------------------------------------------------- driver
@@ -68,6 +98,9 @@ class CommandStats:
     refused: int = 0
     lost: int = 0
     garbled: int = 0
+    #: lockstep: sync sentences sent, and samples dropped because they repeated one already received
+    syncs: int = 0
+    repeats: int = 0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -112,7 +145,7 @@ class OdometryDriver:
     """
 
     def __init__(self, transport: Transport, *, timeout_s: float = 2.0, ack_timeout_s: float = 0.5,
-                 command_retries: int = 2) -> None:
+                 command_retries: int = 2, lockstep: bool = False) -> None:
         for name, value in (("timeout_s", timeout_s), ("ack_timeout_s", ack_timeout_s)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name} must be > 0, got {value!r}")
@@ -127,27 +160,33 @@ class OdometryDriver:
         self._unacked: collections.deque[SentCommand] = collections.deque()
         self._refusals: collections.deque[SentCommand] = collections.deque()
         self.command_stats = CommandStats()
+        self.lockstep = bool(lockstep)
+        self._token = f"{os.getpid():x}x{next(_TOKENS)}"  # this driver, to the unit
+        self._newest_t: float | None = None  # lockstep: the newest sample received
 
     @classmethod
     def from_url(cls, url, *, timeout_s: float | None = None, baudrate: int | None = None,
                  ack_timeout_s: float = 0.5, command_retries: int = 2) -> "OdometryDriver":
-        """``nmea:///dev/ttyX[?baud=N]`` (57600 baud by default; :mod:`station.device_urls`);
-        ``timeout_s``: how long to wait for a sample (2 s when None)."""
+        """``nmea:///dev/ttyX[?baud=N][&lockstep=1]`` (57600 baud by default; :mod:`station.device_urls`;
+        ``lockstep=1``: a simulated unit, stepped cycle by cycle); ``timeout_s``: how long to wait for a
+        sample (2 s when None)."""
         u = parse_device_url(url, scheme="nmea")
+        lockstep = _lockstep_option(u.options.get("lockstep"), url)
         return cls(SerialTransport(u.path, baudrate=baudrate or u.int_option("baud")),
                    timeout_s=2.0 if timeout_s is None else timeout_s,
-                   ack_timeout_s=ack_timeout_s, command_retries=command_retries)
+                   ack_timeout_s=ack_timeout_s, command_retries=command_retries, lockstep=lockstep)
 
     @classmethod
     def open(cls, device: str, *, baudrate: int | None = None, timeout_s: float = 2.0,
-             ack_timeout_s: float = 0.5, command_retries: int = 2) -> "OdometryDriver":
-        """Open a plain serial device path or pyserial URL (an ``nmea://`` URL goes to :meth:`from_url`)."""
+             ack_timeout_s: float = 0.5, command_retries: int = 2, lockstep: bool = False) -> "OdometryDriver":
+        """Open a plain serial device path or pyserial URL (an ``nmea://`` URL goes to :meth:`from_url`, its
+        own ``lockstep`` option)."""
         if isinstance(device, str) and device.lower().startswith("nmea:"):
             return cls.from_url(device, timeout_s=timeout_s, baudrate=baudrate, ack_timeout_s=ack_timeout_s,
                                 command_retries=command_retries)
         port, baud = parse_odometry_url(device)
         return cls(SerialTransport(port, baudrate=baudrate or baud), timeout_s=timeout_s,
-                   ack_timeout_s=ack_timeout_s, command_retries=command_retries)
+                   ack_timeout_s=ack_timeout_s, command_retries=command_retries, lockstep=lockstep)
 
     # -- state ------------------------------------------------------------------------
     @property
@@ -161,6 +200,11 @@ class OdometryDriver:
         return len(self._samples)
 
     def close(self) -> None:
+        if self.lockstep:  # the simulated unit need not wait for this driver any more
+            try:
+                self.transport.write(encode_sync(self._token, None, end=True), self.ack_timeout_s)
+            except StationError:
+                pass  # the line is gone already
         self.transport.close()
 
     def __enter__(self) -> "OdometryDriver":
@@ -177,6 +221,11 @@ class OdometryDriver:
             return False
         for msg in self._decoder.feed(data):
             if isinstance(msg, OdometrySample):
+                if self.lockstep:
+                    if self._newest_t is not None and msg.t_s <= self._newest_t:
+                        self.command_stats.repeats += 1  # sent again after a stale sync: have it already
+                        continue
+                    self._newest_t = msg.t_s
                 self._samples.append(msg)
             elif isinstance(msg, CommandAck):
                 self._settle(msg.cmd, msg.value, "acked", t_applied=msg.t_s)
@@ -227,6 +276,12 @@ class OdometryDriver:
                 raise DeviceTimeout(
                     f"no odometry sample from {self.transport.description} within {timeout} s "
                     f"(line stats: {self.stats.as_dict()})")
+            if self.lockstep:  # ask for the next cycle; again after every ack timeout without a sample
+                self._sync()
+                step = Deadline(min(self.ack_timeout_s, max(deadline.time_left(), 0.0)))
+                while not self._samples and not step.expired():
+                    self._pump(step)
+                continue
             self._pump(deadline)
         self._raise_refusal()
         return self._samples.popleft()
@@ -258,6 +313,10 @@ class OdometryDriver:
         """Send a speed set point and wait for it; return the device time it was applied."""
         return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
 
+    def _sync(self) -> None:
+        self.transport.write(encode_sync(self._token, self._newest_t), self.ack_timeout_s)
+        self.command_stats.syncs += 1
+
     def _send(self, cmd: str, value: float, frame: bytes) -> SentCommand:
         sent = SentCommand(cmd, value)
         self.transport.write(frame, self.ack_timeout_s)
@@ -273,6 +332,8 @@ class OdometryDriver:
         while attempts <= self.command_retries or not patience.expired():
             attempts += 1
             sent = self._send(cmd, value, frame)
+            if self.lockstep:  # the unit latches it at its next cycle
+                self._sync()
             deadline = Deadline(timeout)
             while sent.status is None and not deadline.expired():
                 self._pump(deadline)

@@ -126,7 +126,7 @@ def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
         if fake.get("true_lengths_m"):
             L1, L2 = fake["true_lengths_m"]
             world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
-        handle = start_fake(world)
+        handle = start_fake(world, lockstep=True)  # stepped by its driver: the same seed, the same samples
     except BaseException:
         world.close()
         raise
@@ -137,7 +137,8 @@ def trailer_cell(params: Mapping, fake: Mapping) -> FakeCell:
         finally:
             world.close()
 
-    return FakeCell({"odometry": f"nmea://{handle.endpoint['device']}"}, float(fake["time_scale"]), close)
+    return FakeCell({"odometry": f"nmea://{handle.endpoint['device']}?lockstep=1"}, float(fake["time_scale"]),
+                    close)
 
 
 def demo_config(out: Path, *, cycles: int, vap_cycles: int, rate_hz: float, robot: str = "industrial-3100") -> dict:

@@ -12,6 +12,24 @@ refuses one (reasons: ``BOUND`` beyond eq. (25), ``PSI_LIMIT`` beyond 45 deg,
 ``RANGE`` bad speed, ``CHECKSUM``, ``FORMAT``, ``UNKNOWN``). Every sentence it
 writes parses with pynmea2 (a test checks).
 
+Two ways to run (``lockstep``):
+
+* **real time** (default): the unit keeps the world clock running while it
+  serves, as a real unit runs whatever its host does; a host that lags sets
+  its points late in device time;
+* **lockstep** (the dry run's cells; the driver's ``?lockstep=1``): the unit
+  holds the world clock at its newest sample until the host sends
+  ``$PODOS,<token>,<t_s>*hh`` naming it (the host has it and has sent what the
+  next cycle is to latch); then the clock runs (paced) to the next cycle,
+  which latches the commands read before the sync and sends the next sample.
+  A sync naming an older sample (or none, from a host that has had none of
+  this attachment's samples) gets the newest sample again, without faults;
+  a new token is a new host, which gets the next cycle's sample;
+  ``$PODOS,<token>,END`` says the host leaves. While the line is stalled the
+  unit runs on, unheld (nothing is sent, syncs are lost); with no host, it
+  holds nothing. The same seed then gives
+  the same samples and replies at any load and pace.
+
 Fault injection (``faults``: dict of strings)::
 
     rate_hz        "X"    sample rate (default 10)
@@ -112,10 +130,12 @@ class OdometryFake:
         See the module docstring.
     rng : numpy.random.Generator, optional
         Source of fault randomness (overridden by ``faults["seed"]``).
+    lockstep : bool
+        Step one control cycle per sync of the host (module docstring).
     """
 
     def __init__(self, trailer, clock, *, faults: dict | None = None,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, lockstep: bool = False) -> None:
         self._faults = parse_odometry_faults(faults)
         self.trailer = trailer
         self._clock = clock
@@ -124,15 +144,25 @@ class OdometryFake:
         self._rng = rng if rng is not None else np.random.default_rng()
         self._dt = 1.0 / self._faults["rate_hz"]
         self.stats = {"samples": 0, "sentences": 0, "corrupted": 0, "dropped_chars": 0,
-                      "stalled_samples": 0, "commands": 0, "acks": 0, "naks": 0, "overflow_bytes": 0}
+                      "stalled_samples": 0, "commands": 0, "acks": 0, "naks": 0, "overflow_bytes": 0,
+                      "syncs": 0, "resent_samples": 0}
         self._pending: list[tuple[str, float]] = []
         self._out = bytearray()
         self._port = PtyPort()
         self._master = self._port.master
         self.endpoint = {"device": self._port.device}
         self._t0 = float(clock.now())
-        # the driver steers the trailer in real time from the samples it reads: the clock runs while served
-        self._running = keep_running(clock)
+        self._k = 1  # the next control cycle, at t0 + k / rate
+        self.lockstep = bool(lockstep)
+        # lockstep: the host being served (its token), whether it let the next cycle run, the newest sample
+        # of its attachment (device time as sent, and the sentence without faults)
+        self._host: str | None = None
+        self._granted = False
+        self._newest: tuple[float, bytes] | None = None
+        self._demand = None
+        self._hold = clock.producer("odometry") if self.lockstep else None
+        # real time: the driver steers the trailer from the samples it reads, the clock runs while served
+        self._running = None if self.lockstep else keep_running(clock)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="odometry-fake", daemon=True)
         self._thread.start()
@@ -142,6 +172,7 @@ class OdometryFake:
         self._thread.join(timeout=10.0)
         self._port.close()
         stop_running(self._running)
+        self._detach()
 
     def __enter__(self) -> "OdometryFake":
         return self
@@ -152,13 +183,14 @@ class OdometryFake:
     # ------------------------------------------------------------------ loop
     def _serve(self) -> None:
         buf = bytearray()
-        k = 1
         while not self._stop.is_set():
-            t_next = self._t0 + k * self._dt
+            t_next = self._t0 + self._k * self._dt
             now = self._clock.now()
-            if now >= t_next:
+            if now >= t_next and (self._host is None or self._granted):
                 self._tick(t_next)
-                k += 1
+                self._k += 1
+                if self._host is not None and self._granted:  # stalled: nothing sent, the unit runs on
+                    self._run_to_next()
                 continue
             wait = min(max(self._clock.real_seconds(t_next - now), 0.0005), 0.05)
             ready, writable, _ = select.select([self._master], [self._master] if self._out else [], [], wait)
@@ -168,6 +200,7 @@ class OdometryFake:
                 continue
             data = self._port.read()
             if data is None:  # no driver has the device open at the moment
+                self._detach()
                 self._stop.wait(0.01)
                 continue
             if not data:
@@ -202,7 +235,57 @@ class OdometryFake:
             return
         r = self.trailer.read_sensors(t)
         self.stats["samples"] += 1
-        self._send(f"PODO,{r.t_s:.3f},{r.v_m_s:.4f},{r.kappa_1_m:.6f},{r.psi_rad:.6f}")
+        body = f"PODO,{r.t_s:.3f},{r.v_m_s:.4f},{r.kappa_1_m:.6f},{r.psi_rad:.6f}"
+        self._send(body)
+        if self._host is not None:  # lockstep: held here until the host has it
+            self._newest = (float(f"{r.t_s:.3f}"), _sentence(body))
+            self._granted = False
+            self._hold.hold_until(t)
+
+    # ------------------------------------------------------------------ lockstep
+    def _run_to_next(self) -> None:
+        """Let the clock run (paced) to the next control cycle and no further."""
+        t_next = self._t0 + self._k * self._dt
+        self._hold.hold_until(t_next)
+        if self._demand is not None:
+            self._demand.cancel()
+        self._demand = self._clock.schedule(t_next)
+
+    def _detach(self) -> None:
+        """No host on the line: hold the clock nowhere."""
+        self._host, self._granted, self._newest = None, False, None
+        if self._demand is not None:
+            self._demand.cancel()
+            self._demand = None
+        if self._hold is not None:
+            self._hold.release()
+
+    def _sync(self, fields: list[str]) -> None:
+        """``$PODOS,<token>,<t_s>``: step one cycle, or send the newest sample again (module docstring)."""
+        token, t_text = fields[1], fields[2]
+        if t_text == "END":  # the host leaves
+            if token == self._host:
+                self._detach()
+            return
+        try:
+            t_host = None if t_text == "" else float(t_text)
+        except ValueError:
+            self._nak("S", "FORMAT")
+            return
+        if not token or (t_host is not None and not math.isfinite(t_host)):
+            self._nak("S", "FORMAT")
+            return
+        self.stats["syncs"] += 1
+        if token != self._host:  # a new host: the next cycle is its first sample
+            self._detach()
+            self._host = token
+        elif self._newest is not None and (t_host is None or t_host < self._newest[0] - 5e-4):
+            self.stats["resent_samples"] += 1  # the host lacks the newest sample: again, as it was
+            self._write(self._newest[1])
+            return
+        if not self._granted:
+            self._granted = True
+            self._run_to_next()
 
     def _apply(self, cmd: str, value: float, t: float, *, send: bool) -> None:
         try:
@@ -240,6 +323,9 @@ class OdometryFake:
             self._nak("?", "CHECKSUM")
             return
         fields = body.decode("ascii", "replace").split(",")
+        if fields[0] == "PODOS" and len(fields) == 3 and self.lockstep:
+            self._sync(fields)
+            return
         if fields[0] not in ("PODOC", "PODOV") or len(fields) != 2:
             self._nak("?", "UNKNOWN")
             return
@@ -293,8 +379,9 @@ class OdometryFake:
             del self._out[:n]
 
 
-def start_fake(world, *, host=None, port=None, faults: dict | None = None) -> OdometryFake:
-    """Start the odometry fake on a new pty; see the module docstring for ``faults``."""
+def start_fake(world, *, host=None, port=None, faults: dict | None = None, lockstep: bool = False) -> OdometryFake:
+    """Start the odometry fake on a new pty; see the module docstring for ``faults`` and ``lockstep`` (its
+    driver then needs ``?lockstep=1``)."""
     if host is not None or port is not None:
         raise ConfigError("the odometry fake serves a pty; host and port do not apply")
     getter = getattr(world, "get_trailer", None)
@@ -306,7 +393,7 @@ def start_fake(world, *, host=None, port=None, faults: dict | None = None) -> Od
         trailer = SimTrailer(world.clock, rng=world.rng)
     rng = getattr(world, "rng", None)
     fault_rng = np.random.default_rng(rng.integers(2**63)) if rng is not None else None
-    return OdometryFake(trailer, world.clock, faults=faults, rng=fault_rng)
+    return OdometryFake(trailer, world.clock, faults=faults, rng=fault_rng, lockstep=lockstep)
 
 
 __all__ = ["start_fake", "OdometryFake", "ODOMETRY_FAULTS", "parse_odometry_faults"]

@@ -26,7 +26,8 @@ scheme             device                                      address, defaults
                                                                ``password_file``, ``dir``
 ``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST[?rtde_hz=N]``; the ports are fixed
                                                                by ur_rtde; RTDE output 500 Hz (a CB3: 125)
-``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud
+``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud;
+                                                               ``lockstep=1``: the simulated unit only
 ``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
 ``fake``           a device of the station's own fake set      ``fake://NAME``
 =================  ==========================================  =========================================
@@ -98,7 +99,7 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
            options={"rtde_hz": "500"}, int_options=("rtde_hz",),
            driver="drivers.ur:URDriver", fake="ur", fake_module="fakes.ur"),
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
-           options={"baud": "57600"}, int_options=("baud",),
+           options={"baud": "57600", "lockstep": None}, int_options=("baud",),
            driver="drivers.odometry:OdometryDriver", fake="odometry", fake_module="fakes.odometry"),
     Scheme("ply", "scanner", "3D scanner point clouds (PLY files in a folder)", "path",
            path_what="folder path", path_example="/data/scans",

@@ -65,13 +65,14 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(rng, tmp_pa
     L1, L2 = _truth(rng)
     world = make_world(seed=int(rng.integers(2**31)), time_scale=20.0, effects=None)
     world.trailer = SimTrailer(world.clock, L1_m=L1, L2_m=L2, rng=world.rng)
-    fake = start_fake(world)
+    fake = start_fake(world, lockstep=True)
+    url = f"nmea://{fake.endpoint['device']}?lockstep=1"
     store = RunStore(tmp_path / "s.sqlite")
     plan = tp.TrailerCalibrationPlan(**SHORT)
     params = {"plan": plan_params(plan), "report_dir": str(tmp_path / "r")}
     try:
         control = RunControl()
-        session = TrailerSession(DeviceSet(urls={"odometry": f"nmea://{fake.endpoint['device']}"}))
+        session = TrailerSession(DeviceSet(urls={"odometry": url}))
         runner = Runner(store, build_procedure(plan), control=control, session=session)
         done = threading.Event()
 
@@ -98,7 +99,7 @@ def test_aborted_trailer_run_resumes_and_uses_only_finished_commands(rng, tmp_pa
                                                      if s.message])
         kept = store.sample_count("a1", "odometry")
         assert kept > store.sample_count("a1", "odometry", finished_only=True)  # the aborted attempt's samples stay
-        session = TrailerSession(DeviceSet(urls={"odometry": f"nmea://{fake.endpoint['device']}"}))
+        session = TrailerSession(DeviceSet(urls={"odometry": url}))
         out = Runner(store, build_procedure(plan), session=session).resume("a1")
         session.close()
         assert out.status == "done", out.error

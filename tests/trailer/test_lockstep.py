@@ -1,0 +1,169 @@
+"""The odometry unit in lockstep (a dry run's cell): stepped by its driver's sync sentence, so a seed gives the
+same samples at any load and pace; judged on the wire by pyserial and pynmea2, and through the whole run."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pynmea2
+import pytest
+import serial
+
+from app.assemble import run_procedure
+from drivers.nmea_codec import encode_curvature_command, encode_sync
+from drivers.odometry import OdometryDriver
+from fakes.odometry import OdometryFake
+from fakes.sim.clock import SimClock
+from fakes.sim.trailer import SimTrailer
+from procedures.trailer import COLUMNS
+from station.config import config_from_dict
+from station.errors import ConfigError
+from station.store import RunStore
+
+
+def _fake(rng, *, faults=None, scale=None):
+    clock = SimClock(time_scale=scale or float(rng.uniform(50.0, 400.0)), start=float(rng.uniform(0, 100)),
+                     lockstep=True)
+    trailer = SimTrailer(clock, rng=np.random.default_rng(rng.integers(2**32)))
+    fake = OdometryFake(trailer, clock, faults=faults, rng=np.random.default_rng(rng.integers(2**32)),
+                        lockstep=True)
+    return clock, fake
+
+
+def _line(port) -> bytes:
+    line = port.readline()
+    assert line.endswith(b"\r\n"), line
+    return line
+
+
+def _sample_t(line: bytes) -> float:
+    msg = pynmea2.parse(line.decode("ascii").strip(), check=True)
+    assert isinstance(msg, pynmea2.ProprietarySentence) and msg.manufacturer == "ODO" and msg.data[0] == ""
+    return float(msg.data[1])
+
+
+def test_the_unit_holds_the_clock_at_its_newest_sample_until_the_host_has_it(rng):
+    rate = float(rng.choice([5.0, 10.0, 20.0]))
+    clock, fake = _fake(rng, faults={"rate_hz": str(rate)})
+    t0 = clock.now()
+    port = serial.Serial(fake.endpoint["device"], timeout=5.0)
+    try:
+        time.sleep(0.1)
+        assert clock.now() == t0  # nobody asked: a lockstep world stands still
+        port.write(encode_sync("a1", None))
+        first = _line(port)
+        t1 = _sample_t(first)
+        assert t1 == pytest.approx(t0 + 1 / rate, abs=1e-3)
+        other = clock.schedule(t1 + 5.0)  # another part of the world wants to run on
+        time.sleep(0.2)  # tens of simulated seconds at this pace, were the clock not held
+        assert abs(clock.now() - t1) < 1e-3  # held at the sample (sent to the millisecond)
+        port.write(encode_sync("a1", None))  # the host says it has none: the newest again, as it was
+        assert _line(port) == first
+        port.write(encode_sync("a1", t1))
+        t2 = _sample_t(_line(port))
+        assert t2 == pytest.approx(t1 + 1 / rate, abs=1e-3)
+        port.write(encode_sync("a1", t1))  # stale (a lost sample, or a slow host): sample 2 again
+        assert _sample_t(_line(port)) == t2
+        # a command read before the sync is latched by the next cycle: its reply, then the sample
+        port.write(encode_curvature_command(0.01) + encode_sync("a1", t2))
+        ack = pynmea2.parse(_line(port).decode().strip(), check=True)
+        t3 = _sample_t(_line(port))
+        assert ack.data[:2] == ["A", "C"] and float(ack.data[2]) == t3 == pytest.approx(t2 + 1 / rate, abs=1e-3)
+        # another host (a new token): its first sample is the next cycle's, not a repeat
+        port.write(encode_sync("b2", None))
+        assert _sample_t(_line(port)) == pytest.approx(t3 + 1 / rate, abs=1e-3)
+        assert fake.stats["resent_samples"] == 2
+        time.sleep(0.1)
+        assert clock.now() < t1 + 5.0  # still held for host b2
+        port.write(encode_sync("a1", None, end=True))  # a host that left already: nothing changes
+        time.sleep(0.1)
+        assert clock.now() < t1 + 5.0
+        port.write(encode_sync("b2", None, end=True))
+        # the host is gone: the unit holds nothing and the world runs to what it scheduled
+        assert clock.sleep_until(t1 + 5.0) and clock.now() >= t1 + 5.0
+    finally:
+        port.close()
+    other.cancel()
+    fake.close()
+
+
+@pytest.mark.parametrize("faults", [{"drop_rate": "0.1", "checksum_rate": "0.1"}, {"stall": "STALL"}],
+                         ids=["lossy-line", "stalled-line"])
+def test_every_cycle_reaches_the_driver_once_on_a_lossy_or_stalled_line(rng, faults):
+    """Lost sentences are asked for again and repeats dropped: consecutive cycles, none twice, none missing
+    (but those of the stall, when the line is dead and the unit runs on)."""
+    rate = 10.0
+    stall = None
+    if "stall" in faults:
+        stall = (float(rng.uniform(2.0, 5.0)), float(rng.uniform(1.0, 4.0)))
+        faults = {"stall": f"{stall[0]}:{stall[1]}"}
+    clock, fake = _fake(rng, faults=faults, scale=200.0)
+    t0 = clock.now()
+    drv = OdometryDriver.open(fake.endpoint["device"], timeout_s=5.0, ack_timeout_s=0.1, lockstep=True)
+    try:
+        drv.command_speed(1.0)
+        ts = []
+        for k in range(120):
+            if k == 40:
+                drv.command_curvature(float(rng.uniform(-0.05, 0.05)))
+            ts.append(drv.read_sample().t_s)
+    finally:
+        drv.close()
+        fake.close()
+    ticks = np.rint((np.array(ts) - t0) * rate).astype(int)
+    assert np.allclose(np.array(ts) - t0, ticks / rate, atol=1e-3)
+    expected = np.arange(ticks[0], ticks[0] + 200)
+    if stall is not None:
+        rel = expected / rate
+        expected = expected[(rel < stall[0]) | (rel >= stall[0] + stall[1])]
+    assert ticks.tolist() == expected[:ticks.size].tolist()
+    if stall is None:
+        assert fake.stats["corrupted"] + fake.stats["dropped_chars"] > 0
+        assert fake.stats["resent_samples"] > 0 and drv.command_stats.syncs > ticks.size
+
+
+def test_the_lockstep_option_of_the_device_url_is_checked():
+    with pytest.raises(ConfigError, match="lockstep must be 0 or 1"):
+        OdometryDriver.from_url("nmea:///dev/null?lockstep=yes")
+
+
+def _trailer_run(tmp_path, name, seed, lengths, time_scale):
+    cfg = config_from_dict({
+        "station": {"name": "yard", "store_path": str(tmp_path / f"{name}.sqlite"),
+                    "report_dir": str(tmp_path / name)},
+        "devices": {"odo": {"url": "nmea:///dev/ttyS1"}},
+        "trailer": {"odometry": "odo", "serial": "TR-1", "commands": [["H", 0.18]], "settle_s": 5.0,
+                    "duration_s": 25.0},
+    })
+    out = run_procedure(cfg, "trailer", run_id=name, yes=True, quiet=True, time_scale=time_scale, seed=seed,
+                        fake_options={"true_lengths_m": list(lengths)}, config_dir=tmp_path)
+    with RunStore(tmp_path / f"{name}.sqlite") as store:
+        assert out.status == "done", [s.message for s in store.steps(name) if s.message]
+        return store.samples(name, "odometry"), store.result(name, "trailer")["result"]
+
+
+def test_a_dry_run_gives_the_same_record_at_any_load_and_pace(rng, tmp_path):
+    """The same seed, once nearly unpaced on an idle process, once paced with a thread that holds the interpreter
+    busy: the same samples bit for bit, so the same link lengths."""
+    seed = int(rng.integers(2**31))
+    lengths = (float(rng.uniform(1.2, 1.3)), float(rng.uniform(2.4, 2.55)))
+    a, res_a = _trailer_run(tmp_path, "idle", seed, lengths, 1000.0)
+    stop = threading.Event()
+
+    def busy():
+        while not stop.is_set():
+            sum(i * i for i in range(2000))
+
+    hog = threading.Thread(target=busy, daemon=True)
+    hog.start()
+    try:
+        b, res_b = _trailer_run(tmp_path, "busy", seed, lengths, float(rng.uniform(15.0, 40.0)))
+    finally:
+        stop.set()
+        hog.join()
+    assert a["t"].size > 250
+    for col in COLUMNS:  # what the unit measured, the set points, the phases
+        assert np.array_equal(a[col], b[col]), col
+    assert (res_a["L1_m"], res_a["L2_m"]) == (res_b["L1_m"], res_b["L2_m"])
