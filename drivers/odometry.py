@@ -39,7 +39,8 @@ then runs one cycle: it latches the commands it has read, sends the next
 sample and waits again. A sync naming an older sample than the unit's newest
 (that sample or the sync was lost, or the host was slow) makes the unit send
 its newest sample again; the driver drops a sample that is not newer than
-the newest it has. The sync is re-sent every ``ack_timeout_s``. Closing
+the newest it has, and returns from a blocking command only with the sample
+of the cycle that applied it (so what is queued never depends on timing). The sync is re-sent every ``ack_timeout_s``. Closing
 sends ``$PODOS,<token>,END``: the unit then holds the clock for nobody.
 
 The codec (:class:`NmeaDecoder`, :func:`encode_sentence`) is pure: bytes in,
@@ -313,6 +314,17 @@ class OdometryDriver:
         """Send a speed set point and wait for it; return the device time it was applied."""
         return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
 
+    def _await_sample_at(self, t_s: float, patience: Deadline) -> None:
+        """Lockstep: pump (asking again every ack timeout) until the sample of device time ``t_s`` is in."""
+        while self._newest_t is None or self._newest_t < t_s - 5e-4:
+            if patience.expired():
+                raise DeviceTimeout(f"no odometry sample of t = {t_s:.3f} s from {self.transport.description} "
+                                    f"after its acknowledgement")
+            self._sync()
+            step = Deadline(min(self.ack_timeout_s, max(patience.time_left(), 0.0)))
+            while (self._newest_t is None or self._newest_t < t_s - 5e-4) and not step.expired():
+                self._pump(step)
+
     def _sync(self) -> None:
         self.transport.write(encode_sync(self._token, self._newest_t), self.ack_timeout_s)
         self.command_stats.syncs += 1
@@ -338,6 +350,8 @@ class OdometryDriver:
             while sent.status is None and not deadline.expired():
                 self._pump(deadline)
             if sent.status == "acked":
+                if self.lockstep:  # the cycle that applied it also sent a sample: have it, whatever the timing
+                    self._await_sample_at(sent.t_applied_s, patience)
                 return sent.t_applied_s
             if sent.status == "refused":
                 self._refusals = collections.deque(r for r in self._refusals if r is not sent)

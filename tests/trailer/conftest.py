@@ -15,12 +15,14 @@ from fakes.sim.trailer import SimTrailer
 def odometry_fake(request):
     """A running odometry fake on a SimClock 200x faster than real time.
 
-    Parametrise indirectly with a fault dict to inject faults.
+    Parametrise indirectly with a fault dict to inject faults (``"lockstep": True`` in it: the unit is
+    stepped by its driver, as a dry run's cell is).
     """
-    faults = getattr(request, "param", None) or {}
-    clock = SimClock(time_scale=200.0)
+    faults = dict(getattr(request, "param", None) or {})
+    lockstep = bool(faults.pop("lockstep", False))  # stepped by its driver, as a dry run's (not a fault)
+    clock = SimClock(time_scale=200.0, lockstep=lockstep)
     trailer = SimTrailer(clock, rng=np.random.default_rng(11))
-    fake = OdometryFake(trailer, clock, faults=faults, rng=np.random.default_rng(12))
+    fake = OdometryFake(trailer, clock, faults=faults, rng=np.random.default_rng(12), lockstep=lockstep)
     yield fake
     fake.close()
 
@@ -28,6 +30,7 @@ def odometry_fake(request):
 @pytest.fixture
 def odometry(odometry_fake):
     """``(driver, fake)`` connected over the fake's pty."""
-    drv = OdometryDriver.open(odometry_fake.endpoint["device"], timeout_s=1.0, ack_timeout_s=0.2)
+    drv = OdometryDriver.open(odometry_fake.endpoint["device"], timeout_s=1.0, ack_timeout_s=0.2,
+                              lockstep=odometry_fake.lockstep)
     yield drv, odometry_fake
     drv.close()
