@@ -284,3 +284,36 @@ def test_a_short_pause_on_the_way_never_takes_the_pose_s_stop(rng):
     tgt = prog.target_mm[on_pose]
     assert np.linalg.norm(st.position_mm[a] - tgt, axis=1).max() < 0.5
     assert np.all(st.t_s[a] >= s.t_arrive[on_pose])
+
+
+def test_a_stir_before_the_next_move_does_not_hand_the_stop_to_the_pause(rng):
+    """A pre-point held just long enough for a quiet window yet merged with the next move, and an arm hunting
+    slightly at each pose whose dwell ends with a stir too small to be a move (the next move's onset dipping
+    under the rest threshold once): the stop is sought in the pose's rest, the phase's final rest, not in
+    the quieter pause before the pose."""
+    rate = 100.0
+    prog = iso_cycle_programme(rng, n_cycles=6, offsets_mm=random_offsets(rng), scatter_mm=SCATTER, dwell_s=0.5)
+    for k in range(prog.pose.size - 1, -1, -1):
+        d = rng.normal(size=3)
+        pre = prog.target_mm[k] - 100.0 * d / np.linalg.norm(d)
+        prog = insert_stop(prog, k, pre, float(rng.uniform(0.13, 0.14)))
+    s = render(rng, prog, start_mm=CMD[0], rate_hz=rate, noise_mm=0.002, wn_hz=60.0, zeta=1.0)
+    xyz = s.xyz.copy()
+    on_pose = np.flatnonzero(prog.pose >= 0)
+    for k in on_pose[:-1]:
+        dwell = (s.t >= s.t_arrive[k]) & (s.t < s.t_depart[k])
+        amp, f = float(rng.uniform(0.008, 0.012)), float(rng.uniform(4.0, 6.0))  # hunting, mm and Hz
+        xyz[dwell] += np.outer(amp * np.sin(2 * np.pi * f * s.t[dwell]), [1.0, 0.0, 0.0])
+        lead = float(rng.uniform(0.06, 0.09))  # the stir: 0.2-0.5 mm toward the next target
+        i0, i1 = int(np.searchsorted(s.t, s.t_depart[k] - lead)), int(np.searchsorted(s.t, s.t_depart[k]))
+        toward = prog.target_mm[k + 1] - prog.target_mm[k]
+        step = float(rng.uniform(0.2, 0.5)) * toward / np.linalg.norm(toward)
+        xyz[i0 + 2:i1] += step
+        xyz[i0:i0 + 2] += np.outer([1 / 3, 2 / 3], step)
+    ex = extract_attained_poses(s.t, xyz, CMD, names=NAMES5)
+    st = ex.stops
+    assert not ex.missing, ex.missing
+    a = st.status == STATUS_ASSIGNED
+    assert st.pose[a].tolist() == prog.pose[on_pose].tolist()
+    assert np.linalg.norm(st.position_mm[a] - prog.target_mm[on_pose], axis=1).max() < 0.5
+    assert np.all(st.t_s[a] >= s.t_arrive[on_pose])

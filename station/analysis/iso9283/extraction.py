@@ -26,8 +26,9 @@ pose per stop and assigns it to its commanded pose and cycle, as the seed does:
    window, not the single slowest sample, avoids picking the best point and so
    flattering the repeatability (seed 3.1.3).  The attained pose must be a
    sample at rest (moving average below ``v_rest``).  The horizon is sought in
-   the phase's *final* rest (after the last sample in motion) when that rest
-   holds one (the horizon's centre in it): a pause on the way shorter than the dwell that separates moves
+   the phase's *final* rest (after the last sample of the phase's move; a stir
+   too small to be a move does not end it) when that rest holds one (the
+   horizon's centre in it): a pause on the way shorter than the dwell that separates moves
    (a vAP pre-point held 0.2 s, smoothed to less than ``min_dwell_s``) joins
    the next move, and in a phase holding two rests the quietest window would
    otherwise fall in either one by the noise alone.
@@ -1084,8 +1085,14 @@ def _horizons(t, xyz, smp: _Sampling, opt: ExtractionOptions, mv: _Moves, brk, t
     invalid = np.unique(np.concatenate([np.arange(min(lag, n))] + [np.arange(b + 1, min(b + 1 + lag, n))
                                                                       for b in brk])).astype(np.int64)
     v = sample_velocity(t, xyz, invalid, fill=0.0, lag=lag)
-    # horizons centred in the final rest (their windows may reach M samples back into the motion before it)
-    search_start = np.maximum(phase_start, final_rest_start(u > v_rest, phase_start, phase_end, M + Mp) - M)
+    # horizons centred in the final rest (their windows may reach M samples back into the motion before it):
+    # the rest after the phase's move, judged by the moves themselves: a stir too small to be a move (less
+    # than min_move_mm, e.g. the next move's onset dipping under v_rest once) does not end it early
+    d = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(d, starts, 1)
+    np.add.at(d, ends + 1, -1)
+    in_move = np.cumsum(d[:n]) > 0
+    search_start = np.maximum(phase_start, final_rest_start(in_move, phase_start, phase_end, M + Mp) - M)
     center, wsum = least_velocity_windows(v, M, Mp, search_start, phase_end, invalid)
     if trailing_motion:  # the last move never came to rest: its phase has no stop
         center[-1], wsum[-1] = -1, np.nan
