@@ -15,7 +15,7 @@ import pytest
 
 from fakes.sim.arm_measurements import instrument_frame, measure, random_poses
 from station.analysis.arm.calibration import calibrate_arm, distance_errors, position_errors
-from station.analysis.arm.identification import identify, prior_sd
+from station.analysis.arm.identification import distance_pairs, identify, prior_sd
 from app.cli import main
 from station.errors import ConfigError, InsufficientDataError
 from station.models import kinematics as kin
@@ -79,6 +79,26 @@ def _case(rng, robot: str, truth=None, n=None, noise=None, far_over_noise=None):
     return nom, true_dh, q, B, measure(true_dh, q, B, noise, rng), noise
 
 
+def _objective_rms(method, dh, cal, q, meas, B):
+    """RMS of what the identification minimises on the training poses: all their distances, or the positions
+    after the best rigid frame (for the truth, its own frame B)."""
+    tr = cal.split.train
+    p = kin.tool_position(dh, q[tr])
+    if method == "distance":
+        P = distance_pairs(tr.size)
+        r = (np.linalg.norm(meas[tr][P[:, 1]] - meas[tr][P[:, 0]], axis=1)
+             - np.linalg.norm(p[P[:, 1]] - p[P[:, 0]], axis=1))
+        return float(np.sqrt(np.mean(r ** 2)))
+    base = cal.identification.base_T if dh is cal.identification.dh else B
+    return float(np.sqrt(np.mean(np.sum((meas[tr] - (p @ base[:3, :3].T + base[:3, 3])) ** 2, axis=1))))
+
+
+def _objective_size(method, cal) -> int:
+    """How many residuals the identification minimises: distances of pairs, or 3 coordinates a pose."""
+    n = cal.split.train.size
+    return len(distance_pairs(n)) if method == "distance" else 3 * n
+
+
 @pytest.mark.parametrize("robot, truth", [("rb5-850", "rb5-850-as-built"), ("rb5-850", None), ("ur5e", None),
                                           ("industrial-3100", None)])
 @pytest.mark.parametrize("method", ["distance", "absolute"])
@@ -96,8 +116,14 @@ def test_calibration_reaches_what_the_true_model_reaches(rng, robot, truth, meth
     else:
         true_tr = position_errors(true_dh, B, q, meas, tr)
         true_te = position_errors(true_dh, B, q, meas, te)
-    # the fit may beat the truth on its own data a little (it fits the noise), never by much
-    assert cal.train.after_mm.mean() < 1.3 * true_tr.mean()
+    # on what it minimises (for the distance method every pair of training poses; the seed's eq. (11) figure,
+    # distances to one reference pose, is another sum: a fit was 34 % above the truth on it in one draw) the
+    # fit's minimum lies about p noise variances below the truth's sum of M squares (p parameters fitted):
+    # it may miss that minimum by as much (parameters fixed as redundant hold the truth's share of them),
+    # no more; and it never fits much more than the noise
+    fit_rms, truth_rms = (_objective_rms(method, dh, cal, q, meas, B) for dh in (cal.identification.dh, true_dh))
+    m, p = _objective_size(method, cal), len(cal.identification.sigma)
+    assert fit_rms ** 2 <= truth_rms ** 2 * (1 + p / m) and fit_rms > 0.5 * truth_rms
     assert cal.train.after_mm.mean() > 0.5 * true_tr.mean()
     # on held-out poses it comes close to the truth: what is left is noise plus the parameters' scatter
     assert cal.test.after_mm.mean() < 1.8 * true_te.mean() + 0.5 * noise
