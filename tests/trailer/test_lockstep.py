@@ -3,6 +3,7 @@ same samples at any load and pace; judged on the wire by pyserial and pynmea2, a
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -157,12 +158,15 @@ def test_a_dry_run_gives_the_same_record_at_any_load_and_pace(rng, tmp_path):
             sum(i * i for i in range(2000))
 
     hog = threading.Thread(target=busy, daemon=True)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(0.001)  # the hog yields the interpreter every ms, not every 5: the same load, sooner
     hog.start()
     try:
         b, res_b = _trailer_run(tmp_path, "busy", seed, lengths, float(rng.uniform(15.0, 40.0)))
     finally:
         stop.set()
         hog.join()
+        sys.setswitchinterval(interval)
     assert a["t"].size > 250
     for col in COLUMNS:  # what the unit measured, the set points, the phases
         assert np.array_equal(a[col], b[col]), col
