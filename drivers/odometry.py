@@ -40,7 +40,8 @@ sample and waits again. A sync naming an older sample than the unit's newest
 (that sample or the sync was lost, or the host was slow) makes the unit send
 its newest sample again; the driver drops a sample that is not newer than
 the newest it has, and returns from a blocking command only with the sample
-of the cycle that applied it (so what is queued never depends on timing). The sync is re-sent every ``ack_timeout_s``. Closing
+of the cycle that applied it (so what is queued never depends on timing).
+The sync is sent again after :data:`SYNC_RETRY_S` without the sample. Closing
 sends ``$PODOS,<token>,END``: the unit then holds the clock for nobody.
 
 The codec (:class:`NmeaDecoder`, :func:`encode_sentence`) is pure: bytes in,
@@ -67,15 +68,8 @@ from station.errors import ConfigError, DeviceFault, DeviceTimeout, StationError
 DEFAULT_BAUD = int(SCHEMES["nmea"].options["baud"])
 
 _TOKENS = itertools.count(1)
-
-
-def _lockstep_option(value: str | None, url) -> bool:
-    if value in (None, "0"):
-        return False
-    if value == "1":
-        return True
-    raise ConfigError(f"device URL {url!r}: lockstep must be 0 or 1 (1: the simulated unit of a dry run), "
-                      f"got {value!r}")
+#: lockstep: the longest wait for a cycle's sample before the sync is sent again, s
+SYNC_RETRY_S = 0.05
 
 
 # ----------------------------------------------------------------------------- driver
@@ -162,6 +156,9 @@ class OdometryDriver:
         self._refusals: collections.deque[SentCommand] = collections.deque()
         self.command_stats = CommandStats()
         self.lockstep = bool(lockstep)
+        # lockstep: ask again this soon for a cycle whose sample has not come (lost on the line, or the host
+        # slow: the unit then sends it again, and the copy is dropped); the simulated unit is local
+        self.sync_retry_s = min(self.ack_timeout_s, SYNC_RETRY_S)
         self._token = f"{os.getpid():x}x{next(_TOKENS)}"  # this driver, to the unit
         self._newest_t: float | None = None  # lockstep: the newest sample received
 
@@ -172,7 +169,7 @@ class OdometryDriver:
         ``lockstep=1``: a simulated unit, stepped cycle by cycle); ``timeout_s``: how long to wait for a
         sample (2 s when None)."""
         u = parse_device_url(url, scheme="nmea")
-        lockstep = _lockstep_option(u.options.get("lockstep"), url)
+        lockstep = u.flag_option("lockstep")
         return cls(SerialTransport(u.path, baudrate=baudrate or u.int_option("baud")),
                    timeout_s=2.0 if timeout_s is None else timeout_s,
                    ack_timeout_s=ack_timeout_s, command_retries=command_retries, lockstep=lockstep)
@@ -279,7 +276,7 @@ class OdometryDriver:
                     f"(line stats: {self.stats.as_dict()})")
             if self.lockstep:  # ask for the next cycle; again after every ack timeout without a sample
                 self._sync()
-                step = Deadline(min(self.ack_timeout_s, max(deadline.time_left(), 0.0)))
+                step = Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0)))
                 while not self._samples and not step.expired():
                     self._pump(step)
                 continue
@@ -321,7 +318,7 @@ class OdometryDriver:
                 raise DeviceTimeout(f"no odometry sample of t = {t_s:.3f} s from {self.transport.description} "
                                     f"after its acknowledgement")
             self._sync()
-            step = Deadline(min(self.ack_timeout_s, max(patience.time_left(), 0.0)))
+            step = Deadline(min(self.sync_retry_s, max(patience.time_left(), 0.0)))
             while (self._newest_t is None or self._newest_t < t_s - 5e-4) and not step.expired():
                 self._pump(step)
 

@@ -482,6 +482,22 @@ class URProgramStatus:
         return f"{self.state}, moves {self.moves_done}, cycles {self.cycle_count}"
 
 
+class _RestWatch:
+    """Whether the arm has been at rest for ``hold_s`` of controller time, sample by sample."""
+
+    def __init__(self, hold_s: float) -> None:
+        self.hold_s = hold_s
+        self.since: float | None = None
+
+    def update(self, t_s: float, resting: bool) -> bool:
+        if not resting:
+            self.since = None
+            return False
+        if self.since is None:
+            self.since = t_s
+        return t_s - self.since >= self.hold_s
+
+
 def _with_position(T: np.ndarray, xyz) -> np.ndarray:
     out = np.array(T, dtype=float)
     out[:3, 3] = xyz
@@ -528,12 +544,18 @@ class URDriver:
         Real (host) seconds: handshake; until a sent program reports that it
         started; until it reports done; without a new RTDE sample before the
         link counts as lost; for the arm to settle on its target.
-    q_tol_rad, rest_speed_mm_s : float
+    q_tol_rad, rest_speed_mm_s, rest_hold_s : float
         A move is done when every joint is within ``q_tol_rad`` of the target
-        and the TCP slower than ``rest_speed_mm_s``.
+        and the TCP slower than ``rest_speed_mm_s``, for ``rest_hold_s`` of
+        controller time (an arm still settling passes through zero speed at
+        every swing: one slow sample is not rest).
     status_period_s : float
         While :meth:`run` runs a program, its ``on_status`` is called at most this often (real s) and
         whenever a move is done.
+    lockstep : bool
+        A simulated controller in lockstep with its world (``ur://HOST?lockstep=1``; never a real one): its
+        clock stands still between programs, so a sample is not stale for its age (only a lost link
+        counts), and a move is done when the program has stopped, which it does once the arm rests.
     rtde, dashboard, script : optional
         Injected clients (default: the sidecar, ``DashboardClient``, ``ScriptClient``).
     """
@@ -555,8 +577,10 @@ class URDriver:
         settle_timeout_s: float = 10.0,
         q_tol_rad: float = 1e-3,
         rest_speed_mm_s: float = 1.0,
+        rest_hold_s: float = 0.1,
         max_buffer_samples: int = 200_000,
         status_period_s: float = 0.02,
+        lockstep: bool = False,
         rtde=None,
         dashboard=None,
         script=None,
@@ -570,7 +594,8 @@ class URDriver:
         for name, val in (("tcp_accel_limit_mm_s2", tcp_accel_limit_mm_s2), ("connect_timeout_s", connect_timeout_s),
                           ("start_timeout_s", start_timeout_s), ("motion_timeout_s", motion_timeout_s),
                           ("stale_after_s", stale_after_s), ("settle_timeout_s", settle_timeout_s),
-                          ("q_tol_rad", q_tol_rad), ("rest_speed_mm_s", rest_speed_mm_s)):
+                          ("q_tol_rad", q_tol_rad), ("rest_speed_mm_s", rest_speed_mm_s),
+                          ("rest_hold_s", rest_hold_s)):
             if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
                 raise ConfigError(f"{name} must be a finite number > 0, got {val!r}")
         self.host = host
@@ -587,8 +612,10 @@ class URDriver:
         self.settle_timeout_s = float(settle_timeout_s)
         self.q_tol_rad = float(q_tol_rad)
         self.rest_speed_mm_s = float(rest_speed_mm_s)
+        self.rest_hold_s = float(rest_hold_s)
         self.max_buffer_samples = int(max_buffer_samples)
         self.status_period_s = float(status_period_s)
+        self.lockstep = bool(lockstep)
         self._rtde = rtde
         self._dashboard = dashboard
         self._script = script
@@ -604,11 +631,12 @@ class URDriver:
 
     @classmethod
     def from_url(cls, url, *, gate, timeout_s: float | None = None, robot=None, **kwargs) -> "URDriver":
-        """Driver for ``ur://HOST[?rtde_hz=F]`` (the RTDE output frequency, default 500 Hz; a CB3 streams
-        at 125); ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake and a sent program's
+        """Driver for ``ur://HOST[?rtde_hz=F][&lockstep=1]`` (the RTDE output frequency, default 500 Hz; a
+        CB3 streams at 125; ``lockstep``: a simulated controller, see the class); ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake and a sent program's
         start."""
         u = parse_device_url(url, scheme="ur")
         kwargs.setdefault("rtde_frequency_hz", float(u.int_option("rtde_hz")))
+        kwargs.setdefault("lockstep", u.flag_option("lockstep"))
         if timeout_s is not None:
             kwargs.setdefault("connect_timeout_s", timeout_s)
             kwargs.setdefault("start_timeout_s", timeout_s)
@@ -712,8 +740,8 @@ class URDriver:
             with self._lock:
                 latest, at = self._latest, self._latest_at
             now = time.monotonic()
-            if latest is not None and now - at <= self.stale_after_s:
-                return URState.from_row(latest)
+            if latest is not None and (self.lockstep or now - at <= self.stale_after_s):
+                return URState.from_row(latest)  # lockstep: a standing clock sends no new sample
             if now >= deadline:
                 if latest is None:
                     raise DeviceTimeout(f"RTDE {self.host}: no sample within {timeout_s} s")
@@ -879,11 +907,16 @@ class URDriver:
 
     def _settle(self, q_target: np.ndarray, label: str) -> URState:
         deadline = time.monotonic() + self.settle_timeout_s
+        rest = _RestWatch(self.rest_hold_s)
         while True:
             st = self.state()
             err = float(np.max(np.abs(st.q_rad - q_target)))
             speed = float(np.linalg.norm(st.tcp_speed[:3]))
-            if err <= self.q_tol_rad and speed <= self.rest_speed_mm_s:
+            resting = err <= self.q_tol_rad and speed <= self.rest_speed_mm_s
+            if self.lockstep:  # the simulated program ends once the arm has come to rest: then the clock stands
+                if resting and not st.program_running:
+                    return st
+            elif rest.update(st.t_s, resting):
                 return st
             if st.protective_stopped:
                 raise DeviceFault(f"{label}: protective stop while settling on the target")
@@ -902,11 +935,18 @@ class URDriver:
         except RuntimeError:
             pass
         deadline = time.monotonic() + self.settle_timeout_s
+        rest = _RestWatch(self.rest_hold_s)
         while time.monotonic() < deadline:
             st = self.state()
-            if float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s and not st.program_running:
+            if self._rested(rest, st):
                 return
             time.sleep(0.002)
+
+    def _rested(self, rest: "_RestWatch", st: URState) -> bool:
+        """No program runs and the TCP is slower than ``rest_speed_mm_s``: at once in lockstep (a simulated
+        program ends after its arm rested, and the clock may then stand still), else for ``rest_hold_s``."""
+        resting = not st.program_running and float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s
+        return resting if self.lockstep else rest.update(st.t_s, resting)
 
     def _halt_best_effort(self) -> None:
         try:
@@ -1012,9 +1052,10 @@ class URDriver:
     def wait_settled(self, timeout_s: float) -> URState:
         """Until no program runs and the TCP is slower than ``rest_speed_mm_s``; DeviceTimeout after ``timeout_s``."""
         deadline = time.monotonic() + float(timeout_s)
+        rest = _RestWatch(self.rest_hold_s)
         while True:
             st = self.state()
-            if not st.program_running and float(np.linalg.norm(st.tcp_speed[:3])) <= self.rest_speed_mm_s:
+            if self._rested(rest, st):
                 return st
             if time.monotonic() > deadline:
                 raise DeviceTimeout(f"UR: arm not at rest within {timeout_s:g} s")

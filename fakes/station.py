@@ -80,14 +80,19 @@ class FakeStation:
         kind = robot_fake(world.robot.name)
         try:
             # the UR fake takes a loopback address of its own (ur_rtde fixes its ports)
-            self.controller = start_named(kind, world, host=host if kind != "ur" else None, faults=c_faults)
+            # the UR fake in lockstep with the cell's clock (its programs run it), as the controller's
+            ur = {"lockstep": bool(getattr(world.clock, "lockstep", False))} if kind == "ur" else {}
+            self.controller = start_named(kind, world, host=host if kind != "ur" else None, faults=c_faults, **ur)
         except BaseException:
             self.tracker.close()
             raise
         self.tracker_url = url_of("emscon", self.tracker)
         self.controller_url = url_of("ur" if kind == "ur" else "modbus+ftp", self.controller)
-        if kind == "ur" and rtde_hz is not None:  # the driver asks the UR for this RTDE frequency
-            self.controller_url += f"?rtde_hz={int(rtde_hz)}"
+        if kind == "ur":  # the driver asks the UR for this RTDE frequency, and knows it is in lockstep
+            query = ([f"rtde_hz={int(rtde_hz)}"] if rtde_hz is not None else []) + \
+                (["lockstep=1"] if self.controller.lockstep else [])
+            if query:
+                self.controller_url += "?" + "&".join(query)
         self.endpoint = {
             "robot": world.robot.name,
             "tracker": self.tracker_url,

@@ -73,6 +73,21 @@ the brakes released (robot mode RUNNING); ``power off``, ``power on``,
 ``brake release`` walk POWER_OFF -> IDLE -> RUNNING. One program is stored:
 ``/programs/station_idle.urp`` (sleeps, never moves).
 
+**Lockstep** (``start_fake(world, lockstep=True)``, the fake cells; the
+driver's ``ur://HOST?lockstep=1``): the fake does not keep the world's clock
+running; programs run it. The interpreter waits on the clock for each move,
+dwell and ``sync``, and after a program's last statement (or its abort) for
+the arm to come to rest, :data:`SETTLE_S` after its last motion ends; only
+then is the program stopped. Between programs the clock stands still however
+long the station takes, so every program starts at the same simulated
+instant at any load or pace. While it stands the RTDE stream sends, once, a
+sample at the standing instant (the stopped program included), then repeats
+its newest sample at the output frequency, as a controller at rest sends the
+same state (``ur_rtde`` ends a session that receives nothing). A dashboard
+``pause`` lets the clock run until the halted arm rests. Without lockstep
+(the default, ``station fakes serve ur``) the clock runs while the fake
+serves, as a real controller's.
+
 Test-only controls start with ``sim_``: ``sim_add_program(path, urscript)``
 stores a program for ``load``/``play``; ``sim_drop_rtde()`` resets every RTDE
 connection now. ``packets_sent``, ``scripts_received``, ``script_errors``,
@@ -87,6 +102,7 @@ import select
 import socket
 import struct
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -234,6 +250,10 @@ def _query_with_history(fn, ts: np.ndarray, steps: int) -> np.ndarray:
         return np.concatenate([now] * (steps + 1)) if n else now
 
 
+#: lockstep: simulated seconds the world runs on after the arm's last motion, for it to come to rest
+SETTLE_S = 2.0
+
+
 class _Controller:
     """The controller's state shared by the three servers and the interpreter."""
 
@@ -268,6 +288,7 @@ class _Controller:
         self._listeners: list[deque] = []
         self.rtde_drop_used = False
         self.packets_sent = 0
+        self.lockstep = False  # set by the fake (module docstring)
 
     # ---------------------------------------------------------------- messages
     def subscribe(self) -> deque:
@@ -486,6 +507,11 @@ class _Interpreter:
         """A program is running or accepted by play and about to run (the thread picks it up)."""
         return self.busy or self.pending is not None
 
+    def executing(self) -> bool:
+        """A program is picked up and not yet ended (in lockstep its waits run the clock)."""
+        with self.cond:
+            return self.busy or self.pending is not None
+
     def stoppable(self) -> bool:
         """A program runs (and is not already being stopped) or waits to start."""
         with self.cond:
@@ -537,6 +563,8 @@ class _Interpreter:
                 self.ctl.message(f"Runtime error in program {program.name}: {exc}")
                 _halt(self.ctl.arm)
             finally:
+                if self.ctl.lockstep:  # the program ends when the arm rests (module docstring)
+                    self.ctl.clock.sleep_until(self.ctl.arm.queue_end_s + SETTLE_S, self.stop_all)
                 with self.cond:
                     self.busy = False
                     self.paused = False
@@ -775,6 +803,8 @@ class _RtdeSession(_Session):
         messages = ctl.subscribe()
         clock = ctl.clock
         scale = getattr(clock, "time_scale", 1.0)
+        # lockstep: the newest sample's time and bytes, and when a packet last left (host clock)
+        last_t, last_packet, last_sent = -math.inf, b"", 0.0
         try:
             while not self.stop.is_set():
                 wait = 0.05
@@ -788,18 +818,31 @@ class _RtdeSession(_Session):
                         self.abort()
                         return
                     k_due = math.floor((now - t0) * freq + 1e-9)
+                    ts = None
                     if k_due >= next_k:
                         ks = np.arange(next_k, min(k_due, next_k + MAX_BATCH - 1) + 1)
-                        ts = t0 + ks / freq
-                        cols = ctl.columns(recipe.names, ts)
-                        self.sock.sendall(recipe.encode_batch(cols, len(ts)))
                         next_k = int(ks[-1]) + 1
-                        self.fake.count_sent(len(ks))
+                        ts = t0 + ks / freq
+                        ts = ts[ts > last_t]  # after a sample at a standing instant
+                    elif ctl.lockstep and time.monotonic() - last_sent >= 1.0 / freq:
+                        if now > last_t and clock.idle() and not self.fake.interpreter.executing():
+                            ts = np.array([now])  # the clock stands between programs: its state, once
+                        elif last_packet:
+                            self.sock.sendall(last_packet)  # at rest: the same state again
+                            last_sent = time.monotonic()
+                    if ts is not None and len(ts):
+                        cols = ctl.columns(recipe.names, ts)
+                        data = recipe.encode_batch(cols, len(ts))
+                        self.sock.sendall(data)
+                        last_t, last_packet, last_sent = float(ts[-1]), data[-recipe.packet_size:], time.monotonic()
+                        self.fake.count_sent(len(ts))
                     while messages:
                         text, level = messages.popleft()
                         self.sock.sendall(rp.encode_text_message(text, "Controller", level))
                     left_sim = t0 + next_k / freq - clock.now()
                     wait = 0.0 if left_sim <= 0 else (min(0.05, left_sim / scale) if math.isfinite(scale) else 0.005)
+                    if ctl.lockstep:
+                        wait = min(wait, 1.0 / freq)
                 if not self.readable(wait):
                     continue
                 data = self.sock.recv(65536)
@@ -1013,12 +1056,14 @@ class URFake:
         Every text message the controller emitted.
     """
 
-    def __init__(self, world, host: str, plan: FaultPlan, socks: dict[str, socket.socket]) -> None:
+    def __init__(self, world, host: str, plan: FaultPlan, socks: dict[str, socket.socket], *,
+                 lockstep: bool = False) -> None:
         self.world = world
         self.plan = plan
         self.ctl = _Controller(world, plan)
-        # ur_rtde drives the arm in real time (servo loops, RTDE at 500 Hz): the clock runs while served
-        self._running = keep_running(world.clock)
+        # real time: the clock runs while served, as a real controller's; lockstep: programs run it
+        self.lockstep = self.ctl.lockstep = bool(lockstep)
+        self._running = None if self.lockstep else keep_running(world.clock)
         self.stop_event = threading.Event()
         self.endpoint = {"host": host, **{k: socks[k].getsockname()[1] for k in ("rtde", "dashboard", "script")}}
         self.protocol_errors: list[str] = []
@@ -1164,6 +1209,8 @@ class URFake:
         if ctl.runtime_state != RUNTIME_PLAYING or not self.interpreter.pause():
             return "Failed to execute: pause"
         _halt(ctl.arm)
+        if self.lockstep:  # the halted arm comes to rest while the program is paused
+            ctl.clock.schedule(ctl.arm.queue_end_s + SETTLE_S)
         return "Pausing program"
 
     def _dash_load(self, ctl, line):
@@ -1247,7 +1294,8 @@ class URFake:
         self.close()
 
 
-def start_fake(world, *, host: str | None = None, port: int | None = None, faults: dict | None = None) -> URFake:
+def start_fake(world, *, host: str | None = None, port: int | None = None, faults: dict | None = None,
+               lockstep: bool = False) -> URFake:
     """Start the UR fake on a loopback address of its own.
 
     Parameters
@@ -1261,6 +1309,9 @@ def start_fake(world, *, host: str | None = None, port: int | None = None, fault
         Must be None or 30004: ``ur_rtde`` fixes the ports.
     faults : dict of str, optional
         Fault injection keys (module docstring).
+    lockstep : bool
+        Leave the world's clock to the programs (module docstring); its driver then needs
+        ``?lockstep=1``.
     """
     if port not in (None, PORTS["rtde"]):
         raise ConfigError(f"the UR fake serves the fixed ur_rtde ports {PORTS}; port {port!r} cannot be chosen")
@@ -1271,14 +1322,14 @@ def start_fake(world, *, host: str | None = None, port: int | None = None, fault
             socks = _bind_all(host, PORTS)
         except OSError as exc:
             raise ConfigError(f"cannot bind the UR ports {sorted(PORTS.values())} on {host}: {exc}") from exc
-        return URFake(world, host, plan, socks)
+        return URFake(world, host, plan, socks, lockstep=lockstep)
     for n in range(2, 255):
         candidate = f"127.0.0.{n}"
         try:
             socks = _bind_all(candidate, PORTS)
         except OSError:
             continue
-        return URFake(world, candidate, plan, socks)
+        return URFake(world, candidate, plan, socks, lockstep=lockstep)
     raise ConfigError("no free loopback address 127.0.0.2..254 has the UR ports free")
 
 

@@ -25,7 +25,8 @@ scheme             device                                      address, defaults
                                                                (anonymous), ``password_env`` or
                                                                ``password_file``, ``dir``
 ``ur``             UR-style cobot (RTDE, dashboard, script)    ``ur://HOST[?rtde_hz=N]``; the ports are fixed
-                                                               by ur_rtde; RTDE output 500 Hz (a CB3: 125)
+                                                               by ur_rtde; RTDE output 500 Hz (a CB3: 125);
+                                                               ``lockstep=1``: the simulated controller only
 ``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud;
                                                                ``lockstep=1``: the simulated unit only
 ``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
@@ -96,7 +97,7 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
            int_options=("modbus_port",),
            driver="drivers.controller:ControllerDriver", fake="controller", fake_module="fakes.controller"),
     Scheme("ur", "controller", "UR-style cobot (ur_rtde)", "host", port_allowed=False,
-           options={"rtde_hz": "500"}, int_options=("rtde_hz",),
+           options={"rtde_hz": "500", "lockstep": None}, int_options=("rtde_hz",),
            driver="drivers.ur:URDriver", fake="ur", fake_module="fakes.ur"),
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
            options={"baud": "57600", "lockstep": None}, int_options=("baud",),
@@ -129,6 +130,15 @@ class DeviceURL:
 
     def int_option(self, name: str) -> int:
         return int(self.options[name])
+
+    def flag_option(self, name: str) -> bool:
+        """An option that is ``0`` or ``1`` (absent: 0); ConfigError names anything else."""
+        value = self.options.get(name)
+        if value in (None, "0"):
+            return False
+        if value == "1":
+            return True
+        raise ConfigError(f"device URL {self.raw!r}: {name} must be 0 or 1, got {value!r}")
 
     def password(self) -> str:
         """The password named by ``password_env`` or ``password_file``, read now ("" when neither is given)."""

@@ -278,3 +278,21 @@ def test_script_port_movej_and_movel_with_a_duration(world, fake):
         assert ml.kind == "linear" and abs(ml.duration_s - 2.5) < 0.3, ml.duration_s
     finally:
         sc.disconnect()
+
+
+def test_an_arm_still_swinging_is_not_at_rest_at_its_slow_samples(rng):
+    """A settling arm's speed passes through zero at every swing: rest is the speed under the threshold for a
+    stretch of controller time, not one slow sample (one was taken for rest under load, the arm then moving
+    at 2.4 mm/s)."""
+    from drivers.ur import _RestWatch
+
+    f_hz, tau_s, v0 = rng.uniform(3.0, 8.0), rng.uniform(0.2, 0.5), rng.uniform(20.0, 60.0)  # swing, decay, mm/s
+    t = np.arange(0.0, 4.0, 1 / 125.0)
+    speed = np.abs(v0 * np.exp(-t / tau_s) * np.cos(2 * np.pi * f_hz * t))
+    rest_mm_s, hold_s = 1.0, 0.1
+    settled = t[np.flatnonzero(v0 * np.exp(-t / tau_s) <= rest_mm_s)[0]]  # the swings' envelope under the bar
+    watch = _RestWatch(hold_s)
+    first = next(ti for ti, v in zip(t, speed) if watch.update(ti, v <= rest_mm_s))
+    assert speed[t < settled].min() <= rest_mm_s  # a slow sample long before the arm rests
+    assert first >= settled - 1.0 / (2 * f_hz)  # yet rest is found only once the swings are under the bar
+    assert first <= settled + hold_s + 1 / 125.0
