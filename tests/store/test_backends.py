@@ -45,9 +45,12 @@ def fill(store: RunStore, rng, n_robots: int = 6, n_runs: int = 4) -> dict:
             store.append_samples(run_id, "tracker", 0, att, cols)
             store.step_ended(run_id, 0, att, "done", {"n": 50})
             written[run_id] = cols
+            rp = rng.uniform(0.1, 0.8, 2)
+            if (i, k) in ((0, n_runs - 1), (1, 0)):  # over the limit for sure: robot 0 now, robot 1 once before
+                rp[0] = 0.5 + 0.5 * rp[0]
             store.put_characteristics(run_id, [
-                {"pose": p, "name": "RP_mm", "value": float(rng.uniform(0.1, 0.8)), "unit": "mm", "limit": 0.5,
-                 "passed": None} for p in ("P1", "P2")])
+                {"pose": p, "name": "RP_mm", "value": float(v), "unit": "mm", "limit": 0.5,
+                 "passed": None} for p, v in zip(("P1", "P2"), rp)])
             store.put_result(run_id, "iso9283", {"RP_mm": rng.uniform()})
             store.set_run_status(run_id, "failed" if (i, k) == (2, 3) else "done")
     return written
