@@ -632,8 +632,8 @@ class URDriver:
     @classmethod
     def from_url(cls, url, *, gate, timeout_s: float | None = None, robot=None, **kwargs) -> "URDriver":
         """Driver for ``ur://HOST[?rtde_hz=F][&lockstep=1]`` (the RTDE output frequency, default 500 Hz; a
-        CB3 streams at 125; ``lockstep``: a simulated controller, see the class); ``robot`` defaults to the gate's; ``timeout_s`` bounds the handshake and a sent program's
-        start."""
+        CB3 streams at 125; ``lockstep``: a simulated controller, see the class); ``robot`` defaults to the
+        gate's; ``timeout_s`` bounds the handshake and a sent program's start."""
         u = parse_device_url(url, scheme="ur")
         kwargs.setdefault("rtde_frequency_hz", float(u.int_option("rtde_hz")))
         kwargs.setdefault("lockstep", u.flag_option("lockstep"))

@@ -508,9 +508,10 @@ class _Interpreter:
         return self.busy or self.pending is not None
 
     def executing(self) -> bool:
-        """A program is picked up and not yet ended (in lockstep its waits run the clock)."""
+        """:meth:`_active`, for a caller that does not hold the lock (in lockstep a program's waits run the
+        clock)."""
         with self.cond:
-            return self.busy or self.pending is not None
+            return self._active()
 
     def stoppable(self) -> bool:
         """A program runs (and is not already being stopped) or waits to start."""
