@@ -27,8 +27,8 @@ Two ways to run (``lockstep``):
   a new token is a new host, which gets the next cycle's sample;
   ``$PODOS,<token>,END`` says the host leaves. While the line is stalled the
   unit runs on, unheld (nothing is sent, syncs are lost); with no host, it
-  holds nothing. The same seed then gives
-  the same samples and replies at any load and pace.
+  holds nothing. The same seed then gives the same samples at any load and
+  pace.
 
 Fault injection (``faults``: dict of strings)::
 
