@@ -274,11 +274,8 @@ class OdometryDriver:
                 raise DeviceTimeout(
                     f"no odometry sample from {self.transport.description} within {timeout} s "
                     f"(line stats: {self.stats.as_dict()})")
-            if self.lockstep:  # ask for the next cycle; again after every ack timeout without a sample
-                self._sync()
-                step = Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0)))
-                while not self._samples and not step.expired():
-                    self._pump(step)
+            if self.lockstep:  # ask for the next cycle; again after every retry interval without a sample
+                self._sync_once(lambda: bool(self._samples), deadline)
                 continue
             self._pump(deadline)
         self._raise_refusal()
@@ -312,15 +309,22 @@ class OdometryDriver:
         return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
 
     def _await_sample_at(self, t_s: float, patience: Deadline) -> None:
-        """Lockstep: pump (asking again every ack timeout) until the sample of device time ``t_s`` is in."""
-        while self._newest_t is None or self._newest_t < t_s - 5e-4:
+        """Lockstep: read (asking again every retry interval) until the sample of device time ``t_s`` is in."""
+        def have() -> bool:
+            return self._newest_t is not None and self._newest_t >= t_s - 5e-4
+
+        while not have():
             if patience.expired():
                 raise DeviceTimeout(f"no odometry sample of t = {t_s:.3f} s from {self.transport.description} "
                                     f"after its acknowledgement")
-            self._sync()
-            step = Deadline(min(self.sync_retry_s, max(patience.time_left(), 0.0)))
-            while (self._newest_t is None or self._newest_t < t_s - 5e-4) and not step.expired():
-                self._pump(step)
+            self._sync_once(have, patience)
+
+    def _sync_once(self, done, deadline: Deadline) -> None:
+        """Lockstep: one sync, then read until ``done()`` or the retry interval (or ``deadline``) has passed."""
+        self._sync()
+        step = Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0)))
+        while not done() and not step.expired():
+            self._pump(step)
 
     def _sync(self) -> None:
         self.transport.write(encode_sync(self._token, self._newest_t), self.ack_timeout_s)
