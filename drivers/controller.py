@@ -53,6 +53,7 @@ from __future__ import annotations
 import ftplib
 import hashlib
 import io
+import logging
 import math
 import re
 import socket
@@ -194,6 +195,15 @@ class UploadReceipt:
 
 #: the first pause between two status reads, s (it doubles up to the driver's poll interval)
 FIRST_POLL_S = 0.002
+
+# pymodbus logs a lost reply (with its last frames) at ERROR through the root logger, i.e. onto the
+# operator's terminal across the progress bar; the driver's own errors name the request, the peer and the
+# deadline, and a retried read needs no word. A user who wants pymodbus's frames sets its level again.
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+#: a read (idempotent) whose reply does not come is asked again, on a new connection, this many times in
+#: all within the driver's ``timeout_s`` (writes are not repeated: a command is acted on once)
+READ_ATTEMPTS = 3
 
 
 def poll_pauses(interval_s: float):
@@ -349,26 +359,46 @@ class ControllerDriver:
         self.close()
 
     # ------------------------------------------------------------------ Modbus primitives
-    def _call(self, what: str, fn, *args, **kwargs):
+    def _call(self, what: str, fn, *args, retry: bool = False, **kwargs):
+        """One Modbus request; ``retry``: an idempotent one (a read) whose reply does not come is asked
+        again, on a new connection, up to :data:`READ_ATTEMPTS` times within the same ``timeout_s``."""
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
-        try:
-            rr = fn(*args, device_id=self.map.device_id, **kwargs)
-        except ConnectionException as exc:
-            self._drop()
-            raise ConnectionLost(f"Modbus {what}: connection to {self.host}:{self.modbus_port} lost ({exc})") from exc
-        except ModbusIOException as exc:
-            self._drop()  # a late reply must not be taken for the next one
-            raise DeviceTimeout(f"Modbus {what}: no reply from {self.host}:{self.modbus_port} within {self.timeout_s:g} s") from exc
-        except (OSError, socket.timeout) as exc:
-            self._drop()
-            raise ConnectionLost(f"Modbus {what}: {exc}") from exc
+        deadline = time.monotonic() + self.timeout_s
+        attempts = 0
+        while True:
+            attempts += 1
+            left = deadline - time.monotonic()
+            self._reply_timeout(min(self.timeout_s / READ_ATTEMPTS, left) if retry else self.timeout_s)
+            try:
+                rr = fn(*args, device_id=self.map.device_id, **kwargs)
+            except ConnectionException as exc:
+                self._drop()
+                raise ConnectionLost(f"Modbus {what}: connection to {self.host}:{self.modbus_port} lost ({exc})") from exc
+            except ModbusIOException as exc:
+                self._drop()  # a late reply must not be taken for the next one
+                if retry and attempts < READ_ATTEMPTS and deadline - time.monotonic() > 0:
+                    continue
+                tries = f" ({attempts} attempts)" if attempts > 1 else ""
+                raise DeviceTimeout(
+                    f"Modbus {what}: no reply from {self.host}:{self.modbus_port} within {self.timeout_s:g} s{tries}"
+                ) from exc
+            except (OSError, socket.timeout) as exc:
+                self._drop()
+                raise ConnectionLost(f"Modbus {what}: {exc}") from exc
+            break
         if rr is None:
             raise ProtocolError(f"Modbus {what}: empty reply")
         if rr.isError():
             code = int(getattr(rr, "exception_code", 0) or 0)
             raise ModbusExceptionError(f"Modbus {what}: controller answered exception code {code} ({_exc_name(code)})", code)
         return rr
+
+    def _reply_timeout(self, seconds: float) -> None:
+        """How long the client waits for the next reply (pymodbus keeps it in ``comm_params``)."""
+        params = getattr(self._mb, "comm_params", None)
+        if params is not None:
+            params.timeout_connect = max(float(seconds), 1e-3)
 
     def _drop(self) -> None:
         try:
@@ -377,7 +407,8 @@ class ControllerDriver:
             pass
 
     def _read(self, address: int, count: int) -> list[int]:
-        rr = self._call(f"read of registers {address}..{address + count - 1}", self._mb.read_holding_registers, address, count=count)
+        rr = self._call(f"read of registers {address}..{address + count - 1}", self._mb.read_holding_registers, address,
+                        count=count, retry=True)
         regs = list(getattr(rr, "registers", []) or [])
         if len(regs) != count:
             raise ProtocolError(f"Modbus read of {count} registers at {address} returned {len(regs)}")

@@ -115,6 +115,21 @@ def test_no_reply_is_a_timeout(start_controller, make_driver, world, program):
     assert_safe(fake, world)
 
 
+def test_a_status_read_without_reply_is_asked_again_and_the_program_runs_on(start_controller, make_driver, world,
+                                                                           program):
+    """A status read is idempotent: when its reply does not come (the fake holds it until it closes), the
+    driver asks again on a new connection within its deadline instead of stopping a healthy program."""
+    fake = start_controller({"modbus_silent": "status"})
+    drv = make_driver(fake, timeout_s=1.5)
+    drv.upload(program)
+    drv.select()
+    drv.start()
+    st = drv.wait_done(60.0)
+    assert fake._modbus._silenced  # one reply was held back, and the run went on without it
+    assert st.state == State.FINISHED and st.fault == Fault.NONE
+    assert st.moves_done == len(expected_stops(program.program))
+
+
 def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, program):
     fake = start_controller({"ack_stall": "start"})
     drv = make_driver(fake, timeout_s=0.5)
