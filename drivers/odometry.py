@@ -271,6 +271,8 @@ class OdometryDriver:
         while not self._samples:
             self._raise_refusal()
             if deadline.expired():
+                if self._last_look(lambda: bool(self._samples)):
+                    break
                 raise DeviceTimeout(
                     f"no odometry sample from {self.transport.description} within {timeout} s "
                     f"(line stats: {self.stats.as_dict()})")
@@ -309,15 +311,31 @@ class OdometryDriver:
         return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
 
     def _await_sample_at(self, t_s: float, patience: Deadline) -> None:
-        """Lockstep: read (asking again every retry interval) until the sample of device time ``t_s`` is in."""
+        """Lockstep: read (asking again every retry interval) until the sample of device time ``t_s`` is in.
+
+        The unit sends it right after the acknowledgement, so it is first waited for without a sync (one
+        sent before it arrives would have it sent twice)."""
         def have() -> bool:
             return self._newest_t is not None and self._newest_t >= t_s - 5e-4
 
+        first = Deadline(min(self.sync_retry_s, max(patience.time_left(), 0.0)))
+        while not have() and not first.expired():
+            self._pump(first)
         while not have():
             if patience.expired():
+                if self._last_look(have):
+                    break
                 raise DeviceTimeout(f"no odometry sample of t = {t_s:.3f} s from {self.transport.description} "
                                     f"after its acknowledgement")
             self._sync_once(have, patience)
+
+    def _last_look(self, done) -> bool:
+        """At a deadline: read what is already waiting, without waiting; ``done()`` after it. The deadline
+        is the host's clock: if this thread did not run for a while (a busy host), the reply may have come
+        meanwhile, and a reply that came is no silence of the unit."""
+        if not done():
+            self._pump(Deadline(0.0))
+        return done()
 
     def _sync_once(self, done, deadline: Deadline) -> None:
         """Lockstep: one sync, then read until ``done()`` or the retry interval (or ``deadline``) has passed."""
@@ -350,6 +368,7 @@ class OdometryDriver:
             deadline = Deadline(timeout)
             while sent.status is None and not deadline.expired():
                 self._pump(deadline)
+            self._last_look(lambda: sent.status is not None)
             if sent.status == "acked":
                 if self.lockstep:  # the cycle that applied it also sent a sample: have it, whatever the timing
                     self._await_sample_at(sent.t_applied_s, patience)

@@ -308,6 +308,7 @@ class LineReader:
     def read_line(self, timeout_s: float) -> bytes:
         """Next line without its terminator; DeviceTimeout if none in time."""
         deadline = Deadline(timeout_s)
+        looked = False
         while True:
             idx = self._buf.find(self._term)
             if idx >= 0:
@@ -325,6 +326,10 @@ class LineReader:
                 self._discarding = True
             left = deadline.time_left()
             if left <= 0:
+                if not looked:  # once more, without waiting: what came while this thread did not run (a busy
+                    looked = True  # host) is no silence of the device
+                    self._buf += self.transport.read(4096, 0.0)
+                    continue
                 raise DeviceTimeout(f"no complete line from {self.transport.description} "
                                     f"within {timeout_s} s")
             self._buf += self.transport.read(4096, left)

@@ -68,6 +68,25 @@ def test_line_reader_bounds_lines_and_times_out():
         os.close(slave)
 
 
+def test_a_line_that_came_while_the_reader_did_not_run_is_read_at_its_deadline():
+    """A busy host may not run the reading thread until its deadline has passed; the reply that came
+    meanwhile is read (once, without waiting) before a timeout is reported."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    port = SerialTransport(os.ttyname(slave))
+    try:
+        lines = LineReader(port)
+        os.write(master, b"%R1P,0,0:0\r\n")
+        time.sleep(0.05)  # on the line before the reader looks
+        assert lines.read_line(0.0) == b"%R1P,0,0:0"  # a deadline that has passed already
+        with pytest.raises(DeviceTimeout):
+            lines.read_line(0.0)  # nothing there: the timeout stands
+    finally:
+        port.close()
+        os.close(master)
+        os.close(slave)
+
+
 def test_tracker_urls_open_the_driver_their_scheme_names():
     from drivers.emscon import EmsconTracker
     from drivers.geocom import GeoComTracker

@@ -15,6 +15,7 @@ import serial
 from app.assemble import run_procedure
 from drivers.nmea_codec import encode_curvature_command, encode_sync
 from drivers.odometry import OdometryDriver
+from drivers.transport import SerialTransport
 from fakes.odometry import OdometryFake
 from fakes.sim.clock import SimClock
 from fakes.sim.trailer import SimTrailer
@@ -123,6 +124,43 @@ def test_every_cycle_reaches_the_driver_once_on_a_lossy_or_stalled_line(rng, fau
     if stall is None:
         assert fake.stats["corrupted"] + fake.stats["dropped_chars"] > 0
         assert fake.stats["resent_samples"] > 0 and drv.command_stats.syncs > ticks.size
+
+
+class _HostAway(SerialTransport):
+    """A busy host: right after a sync has gone out, the station's thread does not run for ``away_s``."""
+
+    def __init__(self, port: str, away_s: float, times: int) -> None:
+        super().__init__(port, baudrate=57600)
+        self.away_s, self.left = away_s, times
+
+    def write(self, data: bytes, timeout_s: float) -> None:
+        super().write(data, timeout_s)
+        if data.startswith(b"$PODOS") and b",END*" not in data and self.left > 0:
+            self.left -= 1
+            time.sleep(self.away_s)
+
+
+def test_a_reply_that_came_while_the_host_was_away_is_no_timeout(rng):
+    """The driver's deadlines are the host's wall clock. When its thread does not run for longer than a
+    deadline after a sync (a busy machine), the unit's reply is already waiting when it runs again: the
+    driver reads it instead of reporting a silent unit (a resumed dry run failed this way under load) or
+    sending the command again."""
+    rate = 10.0
+    clock, fake = _fake(rng, faults={"rate_hz": str(rate)}, scale=200.0)
+    timeout_s = float(rng.uniform(0.1, 0.3))
+    away = _HostAway(fake.endpoint["device"], away_s=timeout_s + float(rng.uniform(0.1, 0.3)), times=3)
+    drv = OdometryDriver(away, timeout_s=timeout_s, ack_timeout_s=timeout_s, lockstep=True)
+    try:
+        t_v = drv.command_speed(0.5)  # away after the command's sync: its ack and sample wait on the line
+        ts = [drv.read_sample().t_s for _ in range(3)]  # away after the next two syncs
+    finally:
+        drv.close()
+        fake.close()
+    assert away.left == 0
+    assert ts[0] == pytest.approx(t_v, abs=1e-3)
+    assert np.allclose(np.diff(ts), 1 / rate, atol=1e-3)  # consecutive cycles, each once
+    assert drv.command_stats.lost == 0 and drv.command_stats.sent == 1 and drv.command_stats.syncs == 3
+    assert fake.stats["resent_samples"] == 0 and drv.command_stats.repeats == 0
 
 
 def test_the_lockstep_option_of_the_device_url_is_checked():
