@@ -326,8 +326,10 @@ class LineReader:
                 self._discarding = True
             left = deadline.time_left()
             if left <= 0:
-                if not looked:  # once more, without waiting: what came while this thread did not run (a busy
-                    looked = True  # host) is no silence of the device
+                if not looked:
+                    # once more, without waiting: what came while this thread did not run (a busy host) is
+                    # no silence of the device
+                    looked = True
                     self._buf += self.transport.read(4096, 0.0)
                     continue
                 raise DeviceTimeout(f"no complete line from {self.transport.description} "
