@@ -361,15 +361,20 @@ class ControllerDriver:
     # ------------------------------------------------------------------ Modbus primitives
     def _call(self, what: str, fn, *args, retry: bool = False, **kwargs):
         """One Modbus request; ``retry``: an idempotent one (a read) whose reply does not come is asked
-        again, on a new connection, up to :data:`READ_ATTEMPTS` times within the same ``timeout_s``."""
+        again, on a new connection, up to :data:`READ_ATTEMPTS` times within the same ``timeout_s``.
+
+        An attempt that outlasted its own wait by far says that this process did not run meanwhile (a busy
+        or paused host): the controller's silence was not measured, so that time does not use up the
+        deadline (the next attempt still gets its wait)."""
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
         deadline = time.monotonic() + self.timeout_s
         attempts = 0
         while True:
             attempts += 1
-            left = deadline - time.monotonic()
-            self._reply_timeout(min(self.timeout_s / READ_ATTEMPTS, left) if retry else self.timeout_s)
+            t_sent = time.monotonic()
+            wait_s = min(self.timeout_s / READ_ATTEMPTS, deadline - t_sent) if retry else self.timeout_s
+            self._reply_timeout(wait_s)
             try:
                 rr = fn(*args, device_id=self.map.device_id, **kwargs)
             except ConnectionException as exc:
@@ -377,7 +382,10 @@ class ControllerDriver:
                 raise ConnectionLost(f"Modbus {what}: connection to {self.host}:{self.modbus_port} lost ({exc})") from exc
             except ModbusIOException as exc:
                 self._drop()  # a late reply must not be taken for the next one
-                if retry and attempts < READ_ATTEMPTS and deadline - time.monotonic() > 0:
+                now = time.monotonic()
+                if now - t_sent > 2.0 * max(wait_s, 0.0) + 0.5:  # the host did not run (docstring)
+                    deadline = max(deadline, now + self.timeout_s / READ_ATTEMPTS)
+                if retry and attempts < READ_ATTEMPTS and deadline - now > 0:
                     continue
                 tries = f" ({attempts} attempts)" if attempts > 1 else ""
                 raise DeviceTimeout(

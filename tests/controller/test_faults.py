@@ -6,8 +6,10 @@ import time
 
 import numpy as np
 import pytest
+from pymodbus.client import ModbusTcpClient
 
 from drivers.controller import ControllerFault, ModbusExceptionError, UploadVerificationError
+from station.device_urls import parse_device_url
 from station.errors import ConnectionLost, DeviceError, DeviceTimeout
 from station.programs import expected_stops, iso_pose_program, render_rapid
 from station.protocols.handshake import Fault, State
@@ -128,6 +130,35 @@ def test_a_status_read_without_reply_is_asked_again_and_the_program_runs_on(star
     assert fake._modbus._silenced  # one reply was held back, and the run went on without it
     assert st.state == State.FINISHED and st.fault == Fault.NONE
     assert st.moves_done == len(expected_stops(program.program))
+
+
+class _PausedHost(ModbusTcpClient):
+    """pymodbus's client on a host that stops running this process for ``pause_s`` while the first read
+    waits for its reply (a busy or paused machine)."""
+
+    def __init__(self, *args, pause_s: float, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.pause_s, self.paused = pause_s, 0
+
+    def recv(self, size):
+        if not self.paused:
+            self.paused += 1
+            time.sleep(self.pause_s)
+        return super().recv(size)
+
+
+def test_a_read_whose_wait_the_host_did_not_run_through_is_asked_again(rng, start_controller, make_driver):
+    """The first read gets no reply (the fake holds it), and the host does not run for longer than the whole
+    deadline meanwhile: that silence was not the controller's, so the read is asked again (a soak run failed
+    with 'no reply ... within 5 s' after a single attempt)."""
+    fake = start_controller({"modbus_silent": "any"})  # the first request: connect's status read
+    timeout_s = float(rng.uniform(0.6, 1.2))
+    client = _PausedHost("127.0.0.1", port=parse_device_url(fake.url).int_option("modbus_port"),
+                         timeout=timeout_s, retries=0, reconnect_delay=0,
+                         pause_s=timeout_s + float(rng.uniform(0.2, 0.5)))
+    drv = make_driver(fake, timeout_s=timeout_s, modbus_client=client)  # connect() reads the status
+    assert client.paused == 1 and fake._modbus._silenced
+    assert drv.status().state == State.NO_PROGRAM
 
 
 def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, program):
