@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,10 @@ from station.store.url import PgTarget, parse_pg_url
 
 #: the oldest PostgreSQL server the store's SQL is written for
 MIN_SERVER_VERSION = 120000
+
+#: how long opening a SQLite store waits for another connection that holds it (a station process creating
+#: it, a run writing to it), s
+SQLITE_WAIT_S = 30.0
 
 
 def _why_not_here(path: Path, exc: BaseException) -> str:
@@ -50,12 +55,28 @@ class SqliteBackend:
         except (OSError, ValueError, sqlite3.OperationalError) as exc:
             raise StoreError(f"store {self.name!r}: cannot open it here ({_why_not_here(self.path, exc)})") from None
         try:
-            self._db.execute("PRAGMA journal_mode=WAL")
+            self._wal()
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a usable station store ({exc})") from exc
         self.integrity_errors: tuple[type[BaseException], ...] = (sqlite3.IntegrityError,)
+
+    def _wal(self) -> None:
+        """Put the file in write-ahead-log mode. SQLite refuses the switch at once, without waiting, while
+        another connection holds a write transaction on it (it would deadlock): ask again until that one is
+        done, within :data:`SQLITE_WAIT_S`."""
+        deadline = time.monotonic() + SQLITE_WAIT_S
+        pause = 0.005
+        while True:
+            try:
+                self._db.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+            time.sleep(pause)
+            pause = min(2 * pause, 0.1)
 
     def query(self, sql: str, args: tuple = ()) -> list[tuple]:
         with self._lock, _translated(self.name):

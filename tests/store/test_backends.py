@@ -1,6 +1,8 @@
 """One interface, two backends: same answers, schema versions, migrations, refusals."""
 
 import sqlite3
+import threading
+import time
 
 import numpy as np
 import psycopg
@@ -119,6 +121,27 @@ def _set_version(path, version):
     db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(version),))
     db.commit()
     db.close()
+
+
+def test_a_store_another_connection_is_writing_opens_once_that_write_is_done(rng, tmp_path):
+    """Two station processes open a new store at once (a soak run: the web hub's run and the page's reader):
+    while one holds a write transaction, SQLite refuses the other's switch to WAL at once, without waiting.
+    The store waits for the write instead of calling the file unusable."""
+    path = tmp_path / "s.sqlite"
+    other = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
+    other.execute("BEGIN IMMEDIATE")  # the other process has just begun to make the new store
+    hold_s = float(rng.uniform(0.05, 0.3))
+    timer = threading.Timer(hold_s, lambda: other.execute("COMMIT"))
+    timer.start()
+    try:
+        t0 = time.monotonic()
+        with RunStore(path) as store:
+            assert store.runs() == []
+        assert time.monotonic() - t0 >= hold_s - 0.01  # it did wait for the other's write
+    finally:
+        timer.join()
+        other.close()
+    assert sqlite3.connect(str(path)).execute("PRAGMA journal_mode").fetchone()[0] == "wal"
 
 
 def test_a_store_newer_than_the_code_is_refused(tmp_path, pg_url):
