@@ -77,8 +77,13 @@ def test_coverage_of_ap_and_rp(rng, n):
         # RMS, and so U = 2 u, over-covers (bench: 0.99-0.996 at 5 and 10 cycles); a U of several times the
         # figure would still pass the line above, so the width is bounded by what 5 or 10 stops allow
         assert np.median(rel_rp) < (1.8 if n == 5 else 0.8), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
-    # the Monte Carlo 95 % coverage interval of the measurand
-    assert abs(int_rp.mean() - 0.95) <= tol, f"RP 95 % interval coverage {int_rp.mean():.3f} at n={n}"
+    # the Monte Carlo 95 % coverage interval of the measurand (quantiles of the same draws as U): it too covers
+    # more at few cycles, less so than U (bench, 3000 draws: 0.971 at 5 cycles, 0.963 at 10); a 299 of 300
+    # draw at 5 cycles is then about a 1 % event (a soak run, seed 1186394634), so the bound above is one-sided
+    # there, as for U, whose width is bounded above
+    assert int_rp.mean() >= 0.95 - tol, f"RP 95 % interval coverage {int_rp.mean():.3f} at n={n}"
+    if n >= 30:
+        assert int_rp.mean() <= 0.95 + tol, f"RP 95 % interval coverage {int_rp.mean():.3f} at n={n}"
 
 
 def test_ap_mc_matches_the_first_order_law_away_from_zero(rng):
