@@ -60,7 +60,7 @@ from drivers.nmea_codec import (
     MANUFACTURER, MAX_SENTENCE_BYTES, CommandAck, CommandNak, LineStats, NmeaDecoder, OdometrySample, checksum,
     encode_curvature_command, encode_sentence, encode_speed_command, encode_sync, parse_body,
 )
-from drivers.transport import Deadline, SerialTransport, Transport
+from drivers.transport import Deadline, ListeningDeadline, SerialTransport, Transport
 from station.device_urls import SCHEMES, parse_device_url
 from station.errors import ConfigError, DeviceFault, DeviceTimeout, StationError
 
@@ -70,6 +70,11 @@ DEFAULT_BAUD = int(SCHEMES["nmea"].options["baud"])
 _TOKENS = itertools.count(1)
 #: lockstep: the longest wait for a cycle's sample before the sync is sent again, s
 SYNC_RETRY_S = 0.05
+
+#: the most of one gap between two looks at the line that counts toward a sample's or a command's timeout,
+#: s: the driver looks at least every ack timeout (0.5 s) while it runs, so a longer gap is a host that did
+#: not run, whose unit was not heard (see :class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 1.0
 
 
 # ----------------------------------------------------------------------------- driver
@@ -212,7 +217,7 @@ class OdometryDriver:
         self.close()
 
     # -- reading ----------------------------------------------------------------------
-    def _pump(self, deadline: Deadline) -> bool:
+    def _pump(self, deadline: Deadline | ListeningDeadline) -> bool:
         """Read once (up to the deadline); dispatch messages. True if bytes came."""
         data = self.transport.read(4096, min(deadline.time_left(), 0.25))
         if not data:
@@ -267,7 +272,7 @@ class OdometryDriver:
         Raises DeviceFault first if the unit refused a streamed set point.
         """
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        deadline = Deadline(timeout)
+        deadline = ListeningDeadline(timeout, LISTEN_SLICE_S)
         while not self._samples:
             self._raise_refusal()
             if deadline.expired():
@@ -310,7 +315,7 @@ class OdometryDriver:
         """Send a speed set point and wait for it; return the device time it was applied."""
         return self._command("V", float(v_m_s), encode_speed_command(float(v_m_s)), timeout_s)
 
-    def _await_sample_at(self, t_s: float, patience: Deadline) -> None:
+    def _await_sample_at(self, t_s: float, patience: ListeningDeadline) -> None:
         """Lockstep: read (asking again every retry interval) until the sample of device time ``t_s`` is in.
 
         The unit sends it right after the acknowledgement, so it is first waited for without a sync (one
@@ -337,7 +342,7 @@ class OdometryDriver:
             self._pump(Deadline(0.0))
         return done()
 
-    def _sync_once(self, done, deadline: Deadline) -> None:
+    def _sync_once(self, done, deadline: Deadline | ListeningDeadline) -> None:
         """Lockstep: one sync, then read until ``done()`` or the retry interval (or ``deadline``) has passed."""
         self._sync()
         step = Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0)))
@@ -358,7 +363,8 @@ class OdometryDriver:
     def _command(self, cmd: str, value: float, frame: bytes, timeout_s: float | None) -> float:
         timeout = self.ack_timeout_s if timeout_s is None else timeout_s
         self._raise_refusal()
-        patience = Deadline(max(self.timeout_s, timeout))  # re-sent until this, at least retries + 1 times
+        patience = ListeningDeadline(max(self.timeout_s, timeout), LISTEN_SLICE_S)  # re-sent until this, at least
+        # retries + 1 times
         attempts = 0
         while attempts <= self.command_retries or not patience.expired():
             attempts += 1

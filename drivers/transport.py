@@ -53,6 +53,45 @@ class Deadline:
         return time.monotonic() >= self._end
 
 
+class ListeningDeadline:
+    """A timeout on a device's silence, counted only while the caller could listen.
+
+    Time passes for it between two looks (:meth:`time_left`, :meth:`expired`) up to ``slice_s`` each: a
+    caller that looks at least every ``slice_s`` while it waits counts every second, but a longer gap means
+    the process did not run (a busy or paused host; the device's replies are then not read, and a simulated
+    device in the same process does not run either), and only ``slice_s`` of it counts.
+
+    Parameters
+    ----------
+    timeout_s : float
+        Seconds of silence allowed.
+    slice_s : float
+        The longest the caller blocks between two looks when it runs (> 0).
+    now : callable, optional
+        The clock (default ``time.monotonic``).
+    """
+
+    __slots__ = ("_left", "_slice", "_now", "_last")
+
+    def __init__(self, timeout_s: float, slice_s: float, *, now=time.monotonic) -> None:
+        if not (isinstance(timeout_s, (int, float)) and timeout_s >= 0):
+            raise ConfigError(f"timeout_s must be >= 0, got {timeout_s!r}")
+        if not (isinstance(slice_s, (int, float)) and slice_s > 0):
+            raise ConfigError(f"slice_s must be > 0, got {slice_s!r}")
+        self._left, self._slice, self._now = float(timeout_s), float(slice_s), now
+        self._last = now()
+
+    def time_left(self) -> float:
+        """Seconds of listening left (0.0 once expired)."""
+        t = self._now()
+        self._left -= min(t - self._last, self._slice)
+        self._last = t
+        return max(0.0, self._left)
+
+    def expired(self) -> bool:
+        return self.time_left() <= 0.0
+
+
 @runtime_checkable
 class Transport(Protocol):
     """A bidirectional byte pipe with timeouts on every call."""

@@ -10,7 +10,7 @@ import tty
 
 import pytest
 
-from drivers.transport import Deadline, LineReader, SerialTransport, TcpTransport
+from drivers.transport import Deadline, LineReader, ListeningDeadline, SerialTransport, TcpTransport
 from station.errors import ConfigError, ConnectionLost, DeviceTimeout, ProtocolError
 
 
@@ -85,6 +85,26 @@ def test_a_line_that_came_while_the_reader_did_not_run_is_read_at_its_deadline()
         port.close()
         os.close(master)
         os.close(slave)
+
+
+def test_a_listening_deadline_counts_a_gap_between_looks_only_up_to_its_slice(rng):
+    """Time counts as it passes while the caller looks often; of a gap longer than the slice (the process
+    did not run) only the slice counts."""
+    t = [float(rng.uniform(0, 1e4))]
+    timeout, slice_s = float(rng.uniform(1.0, 3.0)), float(rng.uniform(0.2, 0.5))
+    d = ListeningDeadline(timeout, slice_s, now=lambda: t[0])
+    steps = rng.uniform(0.0, slice_s, 5)
+    for dt in steps:  # looked at often: every second counts
+        t[0] += float(dt)
+        assert d.time_left() == pytest.approx(timeout - steps[:list(steps).index(dt) + 1].sum())
+    left = d.time_left()
+    t[0] += 10 * timeout  # the host did not run
+    assert d.time_left() == pytest.approx(max(0.0, left - slice_s))
+    while not d.expired():
+        t[0] += slice_s / 2
+    assert d.time_left() == 0.0
+    with pytest.raises(ConfigError):
+        ListeningDeadline(1.0, 0.0)
 
 
 def test_tracker_urls_open_the_driver_their_scheme_names():

@@ -14,7 +14,7 @@ import serial
 
 from app.assemble import run_procedure
 from drivers.nmea_codec import encode_curvature_command, encode_sync
-from drivers.odometry import OdometryDriver
+from drivers.odometry import LISTEN_SLICE_S, OdometryDriver
 from drivers.transport import SerialTransport
 from fakes.odometry import OdometryFake
 from fakes.sim.clock import SimClock
@@ -161,6 +161,42 @@ def test_a_reply_that_came_while_the_host_was_away_is_no_timeout(rng):
     assert np.allclose(np.diff(ts), 1 / rate, atol=1e-3)  # consecutive cycles, each once
     assert drv.command_stats.lost == 0 and drv.command_stats.sent == 1 and drv.command_stats.syncs == 3
     assert fake.stats["resent_samples"] == 0 and drv.command_stats.repeats == 0
+
+
+def test_a_process_that_did_not_run_for_longer_than_the_timeout_still_gets_its_sample(rng):
+    """While the driver waits, the whole process (the station and the simulated unit with it) does not run
+    for longer than the sample timeout: a thread holds the interpreter, as a busy host or a long garbage
+    collection would (soak runs failed so). That time is not the unit's silence: of one gap between two
+    looks at the line only LISTEN_SLICE_S counts, and the sample comes when the process runs again."""
+    clock, fake = _fake(rng, faults={"rate_hz": "10"}, scale=1.0)  # a cycle takes 0.1 s
+    timeout_s = LISTEN_SLICE_S + 0.6
+    drv = OdometryDriver.open(fake.endpoint["device"], timeout_s=timeout_s, ack_timeout_s=0.5, lockstep=True)
+    freeze_s = timeout_s + float(rng.uniform(0.3, 0.6))
+
+    def hold_the_interpreter() -> None:
+        time.sleep(0.03)  # the driver is waiting for the next cycle by then
+        old = sys.getswitchinterval()
+        sys.setswitchinterval(freeze_s)
+        try:
+            end = time.monotonic() + freeze_s
+            while time.monotonic() < end:
+                pass
+        finally:
+            sys.setswitchinterval(old)
+
+    try:
+        first = drv.read_sample()
+        hog = threading.Thread(target=hold_the_interpreter)
+        t0 = time.monotonic()
+        hog.start()
+        second = drv.read_sample()
+        waited = time.monotonic() - t0
+        hog.join()
+    finally:
+        drv.close()
+        fake.close()
+    assert waited > timeout_s  # on the wall clock the wait outlasted the timeout
+    assert second.t_s == pytest.approx(first.t_s + 0.1, abs=1e-3)
 
 
 def test_the_lockstep_option_of_the_device_url_is_checked():
