@@ -168,13 +168,14 @@ def test_a_process_that_did_not_run_for_longer_than_the_timeout_still_gets_its_s
     for longer than the sample timeout: a thread holds the interpreter, as a busy host or a long garbage
     collection would (soak runs failed so). That time is not the unit's silence: of one gap between two
     looks at the line only LISTEN_SLICE_S counts, and the sample comes when the process runs again."""
-    clock, fake = _fake(rng, faults={"rate_hz": "10"}, scale=1.0)  # a cycle takes 0.1 s
-    timeout_s = LISTEN_SLICE_S + 0.6
+    clock, fake = _fake(rng, faults={"rate_hz": "2"}, scale=1.0)  # a cycle takes 0.5 s
+    timeout_s = LISTEN_SLICE_S + 1.0  # the gap's slice and a cycle fit
     drv = OdometryDriver.open(fake.endpoint["device"], timeout_s=timeout_s, ack_timeout_s=0.5, lockstep=True)
     freeze_s = timeout_s + float(rng.uniform(0.3, 0.6))
 
     def hold_the_interpreter() -> None:
-        time.sleep(0.03)  # the driver is waiting for the next cycle by then
+        while drv.command_stats.syncs < syncs + 1:  # the driver has asked for the next cycle and waits
+            time.sleep(0.001)
         old = sys.getswitchinterval()
         sys.setswitchinterval(freeze_s)
         try:
@@ -186,6 +187,7 @@ def test_a_process_that_did_not_run_for_longer_than_the_timeout_still_gets_its_s
 
     try:
         first = drv.read_sample()
+        syncs = drv.command_stats.syncs
         hog = threading.Thread(target=hold_the_interpreter)
         t0 = time.monotonic()
         hog.start()
@@ -196,7 +198,7 @@ def test_a_process_that_did_not_run_for_longer_than_the_timeout_still_gets_its_s
         drv.close()
         fake.close()
     assert waited > timeout_s  # on the wall clock the wait outlasted the timeout
-    assert second.t_s == pytest.approx(first.t_s + 0.1, abs=1e-3)
+    assert second.t_s == pytest.approx(first.t_s + 0.5, abs=1e-3)
 
 
 def test_the_lockstep_option_of_the_device_url_is_checked():
