@@ -323,9 +323,7 @@ class OdometryDriver:
         def have() -> bool:
             return self._newest_t is not None and self._newest_t >= t_s - 5e-4
 
-        first = Deadline(min(self.sync_retry_s, max(patience.time_left(), 0.0)))
-        while not have() and not first.expired():
-            self._pump(first)
+        self._pump_until(have, Deadline(min(self.sync_retry_s, max(patience.time_left(), 0.0))))
         while not have():
             if patience.expired():
                 if self._last_look(have):
@@ -345,9 +343,12 @@ class OdometryDriver:
     def _sync_once(self, done, deadline: Deadline | ListeningDeadline) -> None:
         """Lockstep: one sync, then read until ``done()`` or the retry interval (or ``deadline``) has passed."""
         self._sync()
-        step = Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0)))
-        while not done() and not step.expired():
-            self._pump(step)
+        self._pump_until(done, Deadline(min(self.sync_retry_s, max(deadline.time_left(), 0.0))))
+
+    def _pump_until(self, done, deadline: Deadline | ListeningDeadline) -> None:
+        """Read until ``done()`` or ``deadline``."""
+        while not done() and not deadline.expired():
+            self._pump(deadline)
 
     def _sync(self) -> None:
         self.transport.write(encode_sync(self._token, self._newest_t), self.ack_timeout_s)
@@ -372,8 +373,7 @@ class OdometryDriver:
             if self.lockstep:  # the unit latches it at its next cycle
                 self._sync()
             deadline = Deadline(timeout)
-            while sent.status is None and not deadline.expired():
-                self._pump(deadline)
+            self._pump_until(lambda: sent.status is not None, deadline)
             self._last_look(lambda: sent.status is not None)
             if sent.status == "acked":
                 if self.lockstep:  # the cycle that applied it also sent a sample: have it, whatever the timing
