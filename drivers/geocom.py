@@ -38,11 +38,15 @@ from drivers.tracker import (BeamBroken, EventKind, guarded, StationaryMeasureme
 from drivers.geocom_codec import (GeoComReply, INCLINATION_AUTO, MeasureProgram, RC_NAMES, RC_WARNINGS,
                                   REPLY_VALUES, Rpc, encode_request, geocom_error, idempotent, parse_float,
                                   parse_int, parse_reply, rc_name)
-from drivers.transport import (Deadline, LineReader, check_positive, serial_factory,
+from drivers.transport import (Deadline, LineReader, ListeningDeadline, check_positive, serial_factory,
                                transport_or_factory)
 from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady, DeviceTimeout, ProtocolError,
                             StationError)
+
+#: the longest one wait for a reply blocks, s: a longer gap between two looks is a host that did not run, and
+#: only this much of it counts toward a reply's timeout (:class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 0.01
 
 
 class GeoComTracker(Tracker):
@@ -202,7 +206,7 @@ class GeoComTracker(Tracker):
             raise ConnectionLost("GeoCOM tracker is not connected")
         if retry is None:
             retry = idempotent(rpc, params)
-        deadline = Deadline(timeout_s)
+        deadline = ListeningDeadline(timeout_s, LISTEN_SLICE_S)
         if not self._lock.acquire(timeout=max(deadline.time_left(), 0)):
             raise DeviceTimeout(f"rpc {rpc}: the line is busy with another request")
         attempts, damage = 0, None
@@ -212,8 +216,9 @@ class GeoComTracker(Tracker):
                 self._trid = (self._trid + 1) % 2**15
                 self._transport.write(encode_request(rpc, trid, params), max(deadline.time_left(), 1e-3))
                 attempts += 1
-                attempt = Deadline(min(self.reply_timeout_s, deadline.time_left())) if retry else deadline
-                reply = self._await_reply(trid, attempt, damaged_ends=retry)
+                attempt = ListeningDeadline(min(self.reply_timeout_s, deadline.time_left()), LISTEN_SLICE_S) \
+                    if retry else deadline
+                reply = self._await_reply(trid, (attempt, deadline), damaged_ends=retry)
                 if reply is not None:
                     damage = self._shape_problem(rpc, reply) if retry else None
                     if damage is None:
@@ -243,14 +248,20 @@ class GeoComTracker(Tracker):
             return ProtocolError(f"reply to GeoCOM rpc {rpc} carries {len(reply.values)} values, expected {want}")
         return None
 
-    def _await_reply(self, trid: int, deadline: Deadline, *, damaged_ends: bool) -> GeoComReply | None:
-        """The reply with ``trid``; None when ``deadline`` passes first or, with ``damaged_ends``,
-        as soon as a damaged reply shows the answer was lost. Stale replies and garbage are skipped."""
+    def _await_reply(self, trid: int, deadlines: tuple[ListeningDeadline, ...], *,
+                     damaged_ends: bool) -> GeoComReply | None:
+        """The reply with ``trid``; None when one of ``deadlines`` passes first or, with ``damaged_ends``,
+        as soon as a damaged reply shows the answer was lost. Stale replies and garbage are skipped.
+        The line and every deadline are looked at every :data:`LISTEN_SLICE_S` at least, so time this
+        process did not run does not count as the instrument's silence."""
         while True:
+            left = min(d.time_left() for d in deadlines)
             try:
-                line = self._lines.read_line(deadline.time_left())
+                line = self._lines.read_line(min(left, LISTEN_SLICE_S))
             except DeviceTimeout:
-                return None
+                if left <= 0.0:
+                    return None
+                continue
             except ProtocolError:
                 self._sink().count_garbage(0)
                 continue

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import errno
 import math
+import os
 import select
 import socket
 import time
@@ -228,6 +229,11 @@ class SerialTransport:
         import serial  # local: only serial users pay for the import
 
         self._serial_exc = serial.SerialException
+        try:  # a terminal, written through its descriptor (not a pyserial URL's socket or loop)
+            from serial.serialposix import Serial as posix_serial
+        except ImportError:
+            posix_serial = ()
+        self._posix_serial = posix_serial
         #: the line speed asked for, baud
         self.baudrate = baudrate
         if isinstance(port, str):
@@ -280,6 +286,9 @@ class SerialTransport:
     def write(self, data: bytes, timeout_s: float) -> None:
         if self._closed:
             raise ConnectionLost(f"{self.description} is closed")
+        if isinstance(self._port, self._posix_serial):
+            self._write_fd(data, max(0.001, timeout_s))
+            return
         try:
             wt = max(0.001, timeout_s)
             if self._write_timeout != wt:  # pyserial reconfigures the port on every set
@@ -291,6 +300,33 @@ class SerialTransport:
             if type(exc).__name__ == "SerialTimeoutException":
                 raise DeviceTimeout(f"writing {len(data)} bytes to {self.description} took "
                                     f"longer than {timeout_s} s") from exc
+            raise ConnectionLost(f"writing to {self.description} failed: {exc}") from exc
+
+    def _write_fd(self, data: bytes, timeout_s: float) -> None:
+        """Write to a terminal (a device or a pty; pyserial opens it non-blocking): a timeout only when the
+        line has not taken every byte by the deadline, after one more write past it. pyserial's own write
+        timeout also fires when the bytes went out but this thread did not run for the timeout meanwhile (a
+        busy host), which is no fault of the line."""
+        view = memoryview(data)
+        deadline = time.monotonic() + timeout_s
+        try:
+            fd = self._port.fileno()
+            while True:
+                try:
+                    view = view[os.write(fd, view):]
+                except (BlockingIOError, InterruptedError):
+                    pass
+                if not view:
+                    break
+                left = deadline - time.monotonic()
+                if left <= 0:  # a last write came after the deadline and the line still took nothing more
+                    raise DeviceTimeout(f"writing {len(data)} bytes to {self.description} took "
+                                        f"longer than {timeout_s} s ({len(view)} not taken)")
+                select.select([], [fd], [], left)
+            self._drain(deadline)
+        except DeviceTimeout:
+            raise
+        except Exception as exc:  # OSError, termios.error, a port pyserial closed (fileno raises)
             raise ConnectionLost(f"writing to {self.description} failed: {exc}") from exc
 
     def _drain(self, deadline: float) -> None:

@@ -275,3 +275,72 @@ def test_an_exception_in_the_polling_thread_is_an_event_and_an_error(rig):
     record = tracker.stop_stream()
     assert record.received >= 3 and record.error is not None and "RuntimeError" in record.error
     assert any(e.kind is EventKind.DEVICE_ERROR for e in record.events)
+
+
+class _AwayAfterRequest(SerialTransport):
+    """A busy host: once armed (``away_s``), right after a request has gone out the driver's thread does not
+    run for ``away_s``."""
+
+    away_s = 0.0
+
+    def write(self, data: bytes, timeout_s: float) -> None:
+        super().write(data, timeout_s)
+        time.sleep(self.away_s)
+
+
+def test_time_the_host_did_not_run_is_no_silence_of_the_instrument(rng):
+    """The instrument (a script on the pty's other end) answers a little after the driver's host runs again,
+    which took longer than the whole reply timeout: the driver still takes that reply. Counting every host
+    second as the instrument's silence, it timed out (a stream's poll twice in a row on a busy machine, and
+    the line was wrongly called dead and reopened)."""
+    import os
+    import pty
+    import select
+    import threading
+    import tty
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    reply_timeout = float(rng.uniform(0.2, 0.4))
+    late = {"s": 0.0}
+    asked = []
+
+    def lines():
+        buf = b""
+        while True:
+            if b"\n" not in buf:
+                if not select.select([master], [], [], 5.0)[0]:
+                    return
+                try:
+                    buf += os.read(master, 4096)
+                except OSError:  # closed
+                    return
+                continue
+            line, buf = buf.split(b"\n", 1)
+            yield line.strip()
+
+    def instrument() -> None:  # NullProc answered (late once armed), anything else "not implemented"
+        for line in lines():
+            if not line:
+                continue
+            rpc, trid = (int(x) for x in line[len(b"%R1Q,"):].split(b":")[0].split(b","))
+            asked.append(rpc)
+            time.sleep(late["s"] if rpc == 0 else 0.0)
+            os.write(master, b"%%R1P,0,%d:%d\r\n" % (trid, 0 if rpc == 0 else 5))
+
+    answering = threading.Thread(target=instrument, daemon=True)
+    answering.start()
+    link = _AwayAfterRequest(os.ttyname(slave), baudrate=115200)
+    tracker = GeoComTracker(link, reply_timeout_s=reply_timeout)
+    try:
+        tracker.connect(timeout_s=5.0)
+        link.away_s = 2 * reply_timeout
+        late["s"] = link.away_s + float(rng.uniform(0.2, 0.4)) * reply_timeout  # the host runs again first
+        n = len(asked)
+        assert tracker.request(0, retry=False) == ()
+        assert asked[n:] == [0]
+    finally:
+        tracker.close()
+        os.close(master)
+        os.close(slave)

@@ -162,3 +162,41 @@ def test_serial_write_survives_signals_during_the_drain(rng):
 
     with pytest.raises(ConnectionLost, match="Input/output error"):
         SerialTransport(Broken("loop://", timeout=0)).write(b"x\r\n", 1.0)
+
+
+def test_a_serial_write_whose_bytes_went_out_is_no_timeout_however_late_the_thread_ran(rng, monkeypatch):
+    """The host's clock jumps by more than the write timeout between any two looks (a thread that did not
+    run): a frame the terminal took is written, not a timeout (pyserial's write timeout fires then, after
+    writing); a line that takes nothing more is still a timeout, after one more write past its deadline."""
+    import serial.serialutil
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    port = SerialTransport(os.ttyname(slave))
+    timeout = float(rng.uniform(0.05, 0.5))
+    t = [time.monotonic()]
+
+    def away() -> float:
+        t[0] += 3 * timeout
+        return t[0]
+
+    try:
+        frame = b"$PODOS,1a2b," + b"%.3f" % rng.uniform(0, 100) + b"*00\r\n"
+        monkeypatch.setattr(time, "monotonic", away)
+        monkeypatch.setattr(serial.serialutil.Timeout, "TIME", staticmethod(away))  # pyserial's own look at the clock
+        for _ in range(int(rng.integers(3, 8))):
+            port.write(frame, timeout)
+        monkeypatch.undo()
+        got = b""
+        while len(got) < 3 * len(frame):
+            got += os.read(master, 4096)
+        assert got.startswith(frame * 3)
+        with pytest.raises(DeviceTimeout, match=rf"longer than {timeout} s \(\d+ not taken\)"):
+            for _ in range(100_000):  # nobody reads: the terminal's buffer fills
+                port.write(frame, timeout)
+    finally:
+        monkeypatch.undo()
+        port.close()
+        os.close(master)
+        os.close(slave)
