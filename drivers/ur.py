@@ -24,6 +24,9 @@ process (the station's simulated world and its fakes) could never answer. The
 receive interface therefore lives in a small **sidecar process** owned by the
 driver (``multiprocessing`` spawn context): it polls the interface's getters,
 keeps every new timestamp's sample and ships them to the driver on request.
+With a simulated controller in lockstep it also says, through ``ur_rtde``'s IO
+interface, which sample it kept, and is sent the next only then (every sample
+reaches the driver; :data:`station.protocols.ur.LOCKSTEP_STORED_REGISTER`).
 The dashboard and script clients release the GIL and stay in-process.
 
 Errors (:mod:`station.errors`)::
@@ -57,8 +60,8 @@ import numpy as np
 
 from station.device_urls import parse_device_url
 from station.models.rotation import rotvec_of
-from station.protocols.ur import (SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode, RuntimeState,
-                                  SafetyMode)
+from station.protocols.ur import (LOCKSTEP_STORED_REGISTER, SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode,
+                                  RuntimeState, SafetyMode)
 from station.errors import (
     ConfigError,
     ConnectionLost,
@@ -103,16 +106,28 @@ def rtde_variables(register_base: int) -> list[str]:
 # ====================================================================== sidecar
 
 
-def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll_s: float, max_samples: int):
+def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll_s: float, max_samples: int,
+                  stored_register: int | None = None):
     """Child process: own the RTDE receive interface, buffer every new sample.
+
+    ``stored_register``: a simulated controller in lockstep
+    (:data:`~station.protocols.ur.LOCKSTEP_STORED_REGISTER`): after each new
+    sample the child writes its timestamp to that input double register
+    (``ur_rtde``'s IO interface), and the controller sends the next one only then.
 
     Returns the interface (still connected) so that the caller decides when it
     is destroyed (its destructor sleeps 0.5 s).
     """
     parent = os.getppid()
+    io = None
     try:
         import rtde_receive
 
+        if stored_register is not None:  # first: the stream goes one by one from its first package
+            import rtde_io
+
+            io = rtde_io.RTDEIOInterface(host)
+            io.setInputDoubleRegister(stored_register, -1.0)
         rtde = rtde_receive.RTDEReceiveInterface(host, float(frequency_hz), rtde_variables(register_base))
     except Exception as exc:  # noqa: BLE001 - reported to the parent verbatim
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
@@ -147,18 +162,21 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
                 time.sleep(poll_s)
                 continue
             if ts > 0:
-                for _ in range(5):  # the receive thread may update between getters
-                    row = read_row(ts)
+                row = read_row(ts)
+                for _ in range(5):  # the receive thread may update between getters: twice the same, or the last
                     ts2 = rtde.getTimestamp()
-                    if ts2 == ts:
+                    row2 = read_row(ts2)
+                    if row2 == row:
                         break
-                    ts = ts2
+                    ts, row = ts2, row2
                 if len(row) == N_COLUMNS:
                     with lock:
                         if len(buf) >= max_samples:
                             buf.popleft()
                             state["dropped"] += 1
                         buf.append(row)
+                    if io is not None:
+                        io.setInputDoubleRegister(stored_register, ts)
             last = ts
 
     sampler = threading.Thread(target=sample, name="ur-rtde-sampler")
@@ -194,11 +212,12 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
 
 
 def _sidecar_entry() -> None:
-    """``python -c 'import drivers.ur as m; m._sidecar_entry()' FD HOST FREQ BASE POLL MAX``."""
+    """``python -c 'import drivers.ur as m; m._sidecar_entry()' FD HOST FREQ BASE POLL MAX STORED`` (-1: none)."""
     from multiprocessing.connection import Connection
 
-    fd, host, freq, base, poll, max_samples = sys.argv[1:7]
-    rtde = _sidecar_main(Connection(int(fd)), host, float(freq), int(base), float(poll), int(max_samples))
+    fd, host, freq, base, poll, max_samples, stored = sys.argv[1:8]
+    rtde = _sidecar_main(Connection(int(fd)), host, float(freq), int(base), float(poll), int(max_samples),
+                         int(stored) if int(stored) >= 0 else None)
     # leave at once, rtde still referenced: ur_rtde's disconnect() sleeps 0.5 s; the kernel closes the socket
     sys.stdout.flush()
     os._exit(0)
@@ -222,11 +241,15 @@ class RtdeSidecar:
         How often the child polls the interface's timestamp (real seconds).
     max_samples : int
         Samples the child keeps between two drains (older ones are counted as dropped).
+    stored_register : int or None
+        A simulated controller in lockstep: the input double register where the child says which sample it
+        kept (:data:`~station.protocols.ur.LOCKSTEP_STORED_REGISTER`), so that it receives every one.
     """
 
     def __init__(self, host: str, frequency_hz: float = 500.0, register_base: int = 12,
-                 poll_s: float = 2e-4, max_samples: int = 200_000) -> None:
+                 poll_s: float = 2e-4, max_samples: int = 200_000, stored_register: int | None = None) -> None:
         self.host = host
+        self.stored_register = stored_register
         self.frequency_hz = float(frequency_hz)
         self.register_base = int(register_base)
         self.poll_s = float(poll_s)
@@ -246,7 +269,7 @@ class RtdeSidecar:
             proc = subprocess.Popen(
                 [sys.executable, "-c", "import drivers.ur as m; m._sidecar_entry()", str(theirs.fileno()),
                  self.host, repr(self.frequency_hz), str(self.register_base), repr(self.poll_s),
-                 str(self.max_samples)],
+                 str(self.max_samples), str(-1 if self.stored_register is None else int(self.stored_register))],
                 pass_fds=(theirs.fileno(),),
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
@@ -555,7 +578,9 @@ class URDriver:
     lockstep : bool
         A simulated controller in lockstep with its world (``ur://HOST?lockstep=1``; never a real one): its
         clock stands still between programs, so a sample is not stale for its age (only a lost link
-        counts), and a move is done when the program has stopped, which it does once the arm rests.
+        counts), and a move is done when the program has stopped, which it does once the arm rests. The
+        receive process says which sample it kept (:data:`~station.protocols.ur.LOCKSTEP_STORED_REGISTER`),
+        so it gets every one the controller streams and a seed gives the same stored readings.
     rtde, dashboard, script : optional
         Injected clients (default: the sidecar, ``DashboardClient``, ``ScriptClient``).
     """
@@ -650,7 +675,8 @@ class URDriver:
 
         if self._rtde is None:
             self._rtde = RtdeSidecar(self.host, self.rtde_frequency_hz, self.register_base,
-                                     max_samples=self.max_buffer_samples)
+                                     max_samples=self.max_buffer_samples,
+                                     stored_register=LOCKSTEP_STORED_REGISTER if self.lockstep else None)
         self._rtde.start(self.connect_timeout_s)
         try:
             if self._dashboard is None:

@@ -62,6 +62,14 @@ def _split_faults(faults: Mapping[str, str] | None) -> tuple[dict, dict]:
     return tracker, controller
 
 
+#: the RTDE frequency a UR cell's driver asks for in lockstep unless told otherwise: there every data package
+#: waits for the driver to say it kept the one before (:data:`station.protocols.ur.LOCKSTEP_STORED_REGISTER`), a
+#: round trip between processes of about 0.9 ms on an idle host and 2-7 ms on a busy one
+#: (``bench/bench_rtde_lockstep.py``), so the 500 Hz of an e-Series would make a dry run's ~100 simulated
+#: seconds take a minute or more; the procedures read the joints at rest
+LOCKSTEP_RTDE_HZ = 10
+
+
 class FakeStation:
     """A running fake cell; ``close()`` stops every server and joins its threads."""
 
@@ -89,6 +97,8 @@ class FakeStation:
         self.tracker_url = url_of("emscon", self.tracker)
         self.controller_url = url_of("ur" if kind == "ur" else "modbus+ftp", self.controller)
         if kind == "ur":  # the driver asks the UR for this RTDE frequency, and knows it is in lockstep
+            if rtde_hz is None and self.controller.lockstep:
+                rtde_hz = LOCKSTEP_RTDE_HZ
             query = ([f"rtde_hz={int(rtde_hz)}"] if rtde_hz is not None else []) + \
                 (["lockstep=1"] if self.controller.lockstep else [])
             if query:

@@ -80,11 +80,21 @@ dwell and ``sync``, and after a program's last statement (or its abort) for
 the arm to come to rest, :data:`SETTLE_S` after its last motion ends; only
 then is the program stopped. Between programs the clock stands still however
 long the station takes, so every program starts at the same simulated
-instant at any load or pace. While it stands the RTDE stream sends, once, a
-sample at the standing instant (the stopped program included), then repeats
-its newest sample at the output frequency, as a controller at rest sends the
-same state (``ur_rtde`` ends a session that receives nothing). A dashboard
-``pause`` lets the clock run until the halted arm rests. Without lockstep
+instant at any load or pace. Besides the samples at ``t0 + k / f`` the RTDE
+stream sends one at the instant it started and one at each instant a program
+stopped (the clock stands there, and the client must see the program
+stopped); while nothing is due it repeats its newest sample at the output
+frequency, as a controller at rest sends the same state (``ur_rtde`` ends a
+session that receives nothing). While a client owns
+``input_double_register_22``
+(:data:`~station.protocols.ur.LOCKSTEP_STORED_REGISTER`; the driver's receive
+process does) the stream goes **one package at a time**: the next is sent
+only once the client wrote there the timestamp of the last one it kept, and
+the clock is held at the next package's instant until it is sent (a
+producer, as the tracker's stream). A client that keeps only the newest
+package then still sees every one, and a seed gives the same stored readings
+at any load. A dashboard ``pause`` lets the clock run until the halted arm
+rests. Without lockstep
 (the default, ``station fakes serve ur``) the clock runs while the fake
 serves, as a real controller's.
 
@@ -116,7 +126,7 @@ from fakes.sim.clock import keep_running, stop_running
 from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitter, bind_arguments, parse_program
 from station.errors import ConfigError, DataError, ProtocolError
 from station.models import kinematics
-from station.protocols.ur import JointMode, RobotMode, RuntimeState, SafetyMode
+from station.protocols.ur import LOCKSTEP_STORED_REGISTER, JointMode, RobotMode, RuntimeState, SafetyMode
 
 #: the robot a UR fake simulates unless told otherwise (`station fakes serve ur --robot ...`)
 DEFAULT_ROBOT = "ur5e"
@@ -139,6 +149,8 @@ JOINT_POWER_OFF, JOINT_IDLE, JOINT_RUNNING = JointMode.POWER_OFF, JointMode.IDLE
 MAX_DASHBOARD_LINE = 4096
 FD_STEP_S = TICK_S  # backward difference for velocities
 MAX_BATCH = 256  # data packages packed per send
+_STORED_INPUT = f"input_double_register_{LOCKSTEP_STORED_REGISTER}"
+STOP_LOOK_S = 0.002  # lockstep, one package at a time: how often the stream looks for a program's stop, real s
 
 
 # ====================================================================== faults
@@ -280,6 +292,8 @@ class _Controller:
         self.in_double = np.zeros(48)
         self.in_bits = 0
         self.inputs_in_use: set[str] = set()
+        self.inputs_changed = threading.Condition(self.lock)  # an input register written, or given up
+        self.stop_instants: deque = deque(maxlen=64)  # lockstep: when the last programs stopped (simulated s)
         self.script_line = 0
         self.motion_count = 0
         self.scripts_received: list[str] = []
@@ -289,6 +303,32 @@ class _Controller:
         self.rtde_drop_used = False
         self.packets_sent = 0
         self.lockstep = False  # set by the fake (module docstring)
+
+    # ---------------------------------------------------------------- lockstep: when programs stopped
+    def note_stop(self, t_s: float) -> None:
+        """A program stopped at ``t_s``: the stream sends the state of that instant (module docstring)."""
+        with self.lock:
+            self.stop_instants.append(float(t_s))
+
+    def stops_after(self, t_s: float) -> list[float]:
+        """The instants programs stopped at after ``t_s``, in order."""
+        with self.lock:
+            return [t for t in self.stop_instants if t > t_s]
+
+    # ---------------------------------------------------------------- lockstep: what the client kept
+    def stored_register_in_use(self) -> bool:
+        """A client owns the register where it says which sample it kept (:data:`LOCKSTEP_STORED_REGISTER`)."""
+        with self.lock:
+            return _STORED_INPUT in self.inputs_in_use
+
+    def stored_up_to(self, t_s: float) -> bool:
+        """The client kept the sample at ``t_s`` (or a later one), or gave the register up."""
+        with self.lock:
+            return _STORED_INPUT not in self.inputs_in_use or self.in_double[LOCKSTEP_STORED_REGISTER] >= t_s
+
+    def await_stored(self, t_s: float, timeout_s: float) -> bool:
+        with self.lock:
+            return self.inputs_changed.wait_for(lambda: self.stored_up_to(t_s), timeout_s)
 
     # ---------------------------------------------------------------- messages
     def subscribe(self) -> deque:
@@ -572,6 +612,8 @@ class _Interpreter:
                     self.ctl.runtime_state = RUNTIME_STOPPED
                     self.ctl.script_line = 0
                     self.cond.notify_all()
+                if self.ctl.lockstep:
+                    self.ctl.note_stop(self.ctl.clock.now())
 
     def _check(self) -> None:
         """Raise _Abort if told to stop; block while paused."""
@@ -763,6 +805,7 @@ class _Session(threading.Thread):
         self.stop = fake.stop_event
         sock.setblocking(True)
         sock.settimeout(2.0)  # bounds sendall to a client that does not read
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
         self.drop = threading.Event()  # set by sim_drop_rtde: the session thread aborts its link
 
@@ -798,7 +841,7 @@ class _RtdeSession(_Session):
         inputs: dict[int, rp.Recipe] = {}
         owned: set[str] = set()
         streaming = False
-        t0 = 0.0
+        t0 = started_at = 0.0
         next_k = 0
         drop_at: float | None = None
         messages = ctl.subscribe()
@@ -806,6 +849,7 @@ class _RtdeSession(_Session):
         scale = getattr(clock, "time_scale", 1.0)
         # lockstep: the newest sample's time and bytes, and when a packet last left (host clock)
         last_t, last_packet, last_sent = -math.inf, b"", 0.0
+        producer = None  # lockstep, one package at a time: holds the clock at the next unsent sample
         try:
             while not self.stop.is_set():
                 wait = 0.05
@@ -818,32 +862,55 @@ class _RtdeSession(_Session):
                         self.fake.rtde_drops += 1
                         self.abort()
                         return
+                    # lockstep with a client that says what it kept (LOCKSTEP_STORED_REGISTER): one at a time
+                    one_by_one = ctl.lockstep and ctl.stored_register_in_use()
+                    if one_by_one and producer is None:
+                        producer = clock.producer("ur-rtde")
+                    elif not one_by_one and producer is not None:
+                        producer.release()
+                        producer = None
+                    kept = not one_by_one or ctl.stored_up_to(last_t)
                     k_due = math.floor((now - t0) * freq + 1e-9)
+                    # lockstep: the stream's start and the instants programs stopped at are samples too (the
+                    # clock may stand there)
+                    stops = sorted(t for t in ctl.stops_after(last_t) + [started_at] if last_t < t <= now) \
+                        if ctl.lockstep else []
                     ts = None
-                    if k_due >= next_k:
-                        ks = np.arange(next_k, min(k_due, next_k + MAX_BATCH - 1) + 1)
-                        next_k = int(ks[-1]) + 1
-                        ts = t0 + ks / freq
-                        ts = ts[ts > last_t]  # after a sample at a standing instant
-                    elif ctl.lockstep and time.monotonic() - last_sent >= 1.0 / freq:
-                        if now > last_t and clock.idle() and not self.fake.interpreter.executing():
-                            ts = np.array([now])  # the clock stands between programs: its state, once
-                        elif last_packet:
-                            self.sock.sendall(last_packet)  # at rest: the same state again
-                            last_sent = time.monotonic()
+                    if (k_due >= next_k or stops) and kept:
+                        hi = min(k_due, next_k if one_by_one else next_k + MAX_BATCH - 1)
+                        ts = t0 + np.arange(next_k, hi + 1) / freq
+                        due_to = now if hi == k_due else ts[-1]  # every instant up to here goes now
+                        ts = np.union1d(ts, [t for t in stops if t <= due_to])
+                        if one_by_one:
+                            ts = ts[:1]
+                        next_k = max(next_k, math.floor((ts[-1] - t0) * freq + 1e-9) + 1)
+                        ts = ts[ts > last_t]  # grid instants before a stop already sent
+                    elif ctl.lockstep and last_packet and time.monotonic() - last_sent >= 1.0 / freq:
+                        self.sock.sendall(last_packet)  # at rest, or not yet kept: the same state again
+                        last_sent = time.monotonic()
                     if ts is not None and len(ts):
                         cols = ctl.columns(recipe.names, ts)
                         data = recipe.encode_batch(cols, len(ts))
                         self.sock.sendall(data)
                         last_t, last_packet, last_sent = float(ts[-1]), data[-recipe.packet_size:], time.monotonic()
                         self.fake.count_sent(len(ts))
+                    if producer is not None:
+                        producer.hold_until(t0 + next_k / freq)
                     while messages:
                         text, level = messages.popleft()
                         self.sock.sendall(rp.encode_text_message(text, "Controller", level))
-                    left_sim = t0 + next_k / freq - clock.now()
-                    wait = 0.0 if left_sim <= 0 else (min(0.05, left_sim / scale) if math.isfinite(scale) else 0.005)
-                    if ctl.lockstep:
-                        wait = min(wait, 1.0 / freq)
+                    if one_by_one:  # wait for the client to keep the last one, then for the next instant
+                        beat = max(0.0, last_sent + 1.0 / freq - time.monotonic())
+                        if not ctl.stored_up_to(last_t):
+                            ctl.await_stored(last_t, beat)
+                        elif ts is None or not len(ts):  # short: a program may stop meanwhile
+                            clock.wait_for(t0 + next_k / freq, min(beat, STOP_LOOK_S))
+                        wait = 0.0
+                    else:
+                        left_sim = t0 + next_k / freq - clock.now()
+                        wait = 0.0 if left_sim <= 0 else (min(0.05, left_sim / scale) if math.isfinite(scale) else 0.005)
+                        if ctl.lockstep:
+                            wait = min(wait, 1.0 / freq)
                 if not self.readable(wait):
                     continue
                 data = self.sock.recv(65536)
@@ -889,7 +956,8 @@ class _RtdeSession(_Session):
                         self.sock.sendall(rp.encode_start_reply(ok))
                         if ok and recipe is not None and not streaming:
                             streaming = True
-                            t0 = math.ceil(clock.now() / TICK_S) * TICK_S
+                            started_at = clock.now()
+                            t0 = math.ceil(started_at / TICK_S) * TICK_S
                             next_k = 0
                             with ctl.lock:
                                 if ctl.plan.rtde_drop_after_s is not None and not ctl.rtde_drop_used:
@@ -915,14 +983,18 @@ class _RtdeSession(_Session):
         except OSError:
             pass
         finally:
+            if producer is not None:
+                producer.release()
             ctl.unsubscribe(messages)
             with ctl.lock:
                 ctl.inputs_in_use.difference_update(owned)
+                ctl.inputs_changed.notify_all()
             self.close()
 
     def _apply_inputs(self, values: dict) -> None:
         ctl = self.ctl
         with ctl.lock:
+            ctl.inputs_changed.notify_all()
             for name, v in values.items():
                 m = re.match(r"^input_(int|double|bit)_register_(\d+)$", name)
                 if not m:

@@ -9,6 +9,8 @@ to act while a run moves (a signal at a random moment, a person's click, a
 real-time client such as ``ur_rtde``) set their own.
 """
 
+from fakes.station import LOCKSTEP_RTDE_HZ
+
 #: simulated seconds per real second at most, for lockstep cells
 LOCKSTEP = 1e4
 
@@ -16,8 +18,8 @@ LOCKSTEP = 1e4
 #: 500 Hz RTDE stream and the driver's sidecar keep up on a 2-core host beside two busy processes
 UR = 15.0
 
-#: a UR cell whose driver asks for the RTDE stream at 125 Hz (``ur://HOST?rtde_hz=125``, a CB3's rate; the
-#: procedures read the joints at rest) sends a quarter of the packets per simulated second: at 40x that is
-#: 5,000 packets per real second against 7,500 at 500 Hz and 15x
-UR_RTDE_HZ = 125
+#: a UR cell (lockstep) streams RTDE one data package at a time, each waiting for the driver to say it kept the
+#: one before (``fakes.station.LOCKSTEP_RTDE_HZ``, 10 Hz; the procedures read the joints at rest); the stream
+#: holds the clock, so a time scale only bounds the pace
+UR_RTDE_HZ = LOCKSTEP_RTDE_HZ
 UR_AT_RTDE_HZ = 40.0

@@ -14,7 +14,8 @@ software-in-the-loop simulator, only as far as every participant allows:
   cell is scheduled, so nothing changes while the station thinks, uploads a
   program or commits samples, however long the host takes for it;
 * **caps** (:meth:`SimClock.producer`): a fake that produces a stream of
-  simulated time (the tracker's samples) holds the clock at the end of what
+  simulated time (the tracker's samples, the UR's RTDE packages while the
+  driver says which it kept) holds the clock at the end of what
   it has sent plus one packet. A late producer thread, or a consumer that
   stopped reading (the socket's buffers fill and the send blocks), stalls
   simulated time instead of losing samples or shortening a dwell.
@@ -208,6 +209,25 @@ class SimClock:
                 self._demands.pop(key, None)
                 self._cond.notify_all()
 
+    def wait_for(self, t_sim: float, timeout_s: float) -> bool:
+        """Block until the clock is at ``t_sim`` or ``timeout_s`` real seconds passed; True if it is there.
+
+        Unlike :meth:`sleep_until` it asks nothing of the clock: a producer waits so for the instant of its
+        next piece while others run the clock."""
+        t_sim = float(t_sim)
+        end = time.monotonic() + max(0.0, timeout_s)
+        with self._cond:
+            while True:
+                now = self._advance()
+                if now >= t_sim:
+                    return True
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                step = self._limit() - now
+                real = _POLL_S if step <= 0 else min(_POLL_S, step / self._scale)
+                self._cond.wait(min(left, max(real, 1e-4)))
+
     def set_time_scale(self, time_scale: float) -> None:
         """Change the pace without a jump in simulated time."""
         scale = _check_scale(time_scale)
@@ -268,6 +288,9 @@ class ManualClock:
         with self._lock:
             self._t = max(self._t, float(t_sim))
         return True
+
+    def wait_for(self, t_sim: float, timeout_s: float) -> bool:
+        return self._t >= float(t_sim)
 
     def schedule(self, t_sim: float) -> Demand:
         return Demand(self, 0)

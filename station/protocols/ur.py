@@ -47,3 +47,11 @@ class JointMode(IntEnum):
 #: bits of ``safety_status_bits``
 SAFETY_BIT_PROTECTIVE = 1 << 2
 SAFETY_BITS_EMERGENCY = (1 << 5) | (1 << 6) | (1 << 7)
+
+#: A simulated controller in lockstep with its world (the station's fake cells) streams RTDE one data package
+#: at a time while a client owns ``input_double_register_{LOCKSTEP_STORED_REGISTER}``: the client writes there
+#: the ``timestamp`` of the newest package it has kept, and the next one is sent (and the simulated clock let
+#: past it) only then. So a client that keeps only the newest package (``ur_rtde``'s receive interface) still
+#: sees every one, and which packages a run stores does not depend on the host. 22: the last register of
+#: ``ur_rtde``'s ``RTDEIOInterface`` lower range (18-22). A real controller has no such rule.
+LOCKSTEP_STORED_REGISTER = 22
