@@ -306,16 +306,14 @@ def test_time_the_host_did_not_run_is_no_silence_of_the_instrument(rng):
     late = {"s": 0.0}
     asked = []
 
+    done = threading.Event()  # set before the pty is closed: the script stops looking at it first
+
     def lines():
         buf = b""
-        while True:
+        while not done.is_set():
             if b"\n" not in buf:
-                if not select.select([master], [], [], 5.0)[0]:
-                    return
-                try:
+                if select.select([master], [], [], 0.05)[0]:
                     buf += os.read(master, 4096)
-                except OSError:  # closed
-                    return
                 continue
             line, buf = buf.split(b"\n", 1)
             yield line.strip()
@@ -329,7 +327,7 @@ def test_time_the_host_did_not_run_is_no_silence_of_the_instrument(rng):
             time.sleep(late["s"] if rpc == 0 else 0.0)
             os.write(master, b"%%R1P,0,%d:%d\r\n" % (trid, 0 if rpc == 0 else 5))
 
-    answering = threading.Thread(target=instrument, daemon=True)
+    answering = threading.Thread(target=instrument)
     answering.start()
     link = _AwayAfterRequest(os.ttyname(slave), baudrate=115200)
     tracker = GeoComTracker(link, reply_timeout_s=reply_timeout)
@@ -342,5 +340,7 @@ def test_time_the_host_did_not_run_is_no_silence_of_the_instrument(rng):
         assert asked[n:] == [0]
     finally:
         tracker.close()
+        done.set()
+        answering.join(5.0)
         os.close(master)
         os.close(slave)
