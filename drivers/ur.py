@@ -127,7 +127,6 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
             import rtde_io
 
             io = rtde_io.RTDEIOInterface(host)
-            io.setInputDoubleRegister(stored_register, -1.0)
         rtde = rtde_receive.RTDEReceiveInterface(host, float(frequency_hz), rtde_variables(register_base))
     except Exception as exc:  # noqa: BLE001 - reported to the parent verbatim
         conn.send(("error", f"{type(exc).__name__}: {exc}"))

@@ -866,6 +866,7 @@ class _RtdeSession(_Session):
                     one_by_one = ctl.lockstep and ctl.stored_register_in_use()
                     if one_by_one and producer is None:
                         producer = clock.producer("ur-rtde")
+                        producer.hold_until(t0 + next_k / freq)
                     elif not one_by_one and producer is not None:
                         producer.release()
                         producer = None
@@ -888,14 +889,14 @@ class _RtdeSession(_Session):
                     elif ctl.lockstep and last_packet and time.monotonic() - last_sent >= 1.0 / freq:
                         self.sock.sendall(last_packet)  # at rest, or not yet kept: the same state again
                         last_sent = time.monotonic()
+                    if producer is not None:  # before the package leaves: the client may ask the world on at once
+                        producer.hold_until(t0 + next_k / freq)
                     if ts is not None and len(ts):
                         cols = ctl.columns(recipe.names, ts)
                         data = recipe.encode_batch(cols, len(ts))
                         self.sock.sendall(data)
                         last_t, last_packet, last_sent = float(ts[-1]), data[-recipe.packet_size:], time.monotonic()
                         self.fake.count_sent(len(ts))
-                    if producer is not None:
-                        producer.hold_until(t0 + next_k / freq)
                     while messages:
                         text, level = messages.popleft()
                         self.sock.sendall(rp.encode_text_message(text, "Controller", level))
@@ -950,6 +951,8 @@ class _RtdeSession(_Session):
                                 inputs[rid] = rp.Recipe(rid, names, types)
                                 owned.update(names)
                                 ctl.inputs_in_use.update(names)
+                                if _STORED_INPUT in names:  # a new owner has kept nothing yet
+                                    ctl.in_double[LOCKSTEP_STORED_REGISTER] = -math.inf
                         self.sock.sendall(rp.encode_setup_reply(c, rid, types))
                     elif c == rp.CMD_START:
                         ok = recipe is not None or bool(inputs)
@@ -965,6 +968,9 @@ class _RtdeSession(_Session):
                                     drop_at = t0 + ctl.plan.rtde_drop_after_s
                     elif c == rp.CMD_PAUSE:
                         streaming = False
+                        if producer is not None:  # a paused stream holds the clock no more
+                            producer.release()
+                            producer = None
                         self.sock.sendall(rp.encode_pause_reply(True))
                     elif c == rp.CMD_DATA_PACKAGE:
                         rid = rp.data_recipe_id(pkt.payload)

@@ -44,3 +44,73 @@ def test_a_ur_run_gives_the_same_samples_and_figures_at_any_pace_and_load(tmp_pa
     periods = np.round(np.diff(robot_a["t"]) * UR_RTDE_HZ)
     assert np.all(periods <= 1), "a package of the stream is missing"  # a stop's instant lies between two
     assert chars_a == chars_b
+
+
+def test_the_stream_holds_the_clock_until_the_client_says_it_kept_a_package(rng):
+    """On the wire (the project's RTDE codec as the client): while the client owns input register 22, the
+    lockstep stream sends a new package only after the client wrote there the last one's timestamp, and the
+    world's clock waits at the next package's instant meanwhile; a paused stream holds nothing."""
+    import socket
+    import struct
+
+    from fakes import rtde_protocol as rp
+    from fakes.sim.clock import SimClock
+    from fakes.sim.world import make_world
+    from fakes.ur import start_fake
+    from station.protocols.ur import LOCKSTEP_STORED_REGISTER
+
+    hz = float(rng.choice([5.0, 10.0, 25.0]))
+    world = make_world(robot="ur5e", seed=int(rng.integers(2**31)), clock=SimClock(1e4, lockstep=True))
+    fake = start_fake(world, lockstep=True)
+    s = socket.create_connection((fake.endpoint["host"], 30004), timeout=5)
+    buf = bytearray()
+    out = rp.Recipe(1, ["timestamp"], ["DOUBLE"])
+    kept = rp.Recipe(1, [f"input_double_register_{LOCKSTEP_STORED_REGISTER}"], ["DOUBLE"])
+
+    def packets(until):
+        """Packages (timestamps) and replies as they come, up to the first ``until`` command."""
+        got = []
+        while True:
+            n, p = rp.decode(buf)
+            if not n:
+                buf.extend(s.recv(65536))
+                continue
+            del buf[:n]
+            if p.command == rp.CMD_DATA_PACKAGE:
+                got.append(out.decode(p.payload)["timestamp"])
+                if until == rp.CMD_DATA_PACKAGE:
+                    return got
+            elif p.command == until:
+                return got
+
+    try:
+        for cmd, payload in ((rp.CMD_REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2)),
+                             (rp.CMD_SETUP_OUTPUTS, struct.pack(">d", hz) + b"timestamp"),
+                             (rp.CMD_SETUP_INPUTS, kept.names[0].encode())):
+            s.sendall(rp.encode(cmd, payload))
+            packets(cmd)
+        s.sendall(rp.encode(rp.CMD_START))
+        packets(rp.CMD_START)
+        t_first = packets(rp.CMD_DATA_PACKAGE)[-1]
+        t_end = t_first + float(rng.uniform(1.0, 2.0))
+        world.clock.schedule(t_end)  # something in the world wants the clock to run on
+        assert not world.clock.wait_for(t_end, 0.3)  # not kept: held at the next package's instant
+        assert world.clock.now() <= t_first + 1.0 / hz + 1e-9
+        stamps = [t_first]
+        while stamps[-1] < t_end - 1.0 / hz:
+            s.sendall(kept.encode({kept.names[0]: stamps[-1]}))
+            new = [t for t in packets(rp.CMD_DATA_PACKAGE) if t > stamps[-1]]
+            while not new:  # repeats of the last one first
+                new = [t for t in packets(rp.CMD_DATA_PACKAGE) if t > stamps[-1]]
+            assert len(new) == 1  # one at a time
+            stamps += new
+        np.testing.assert_allclose(np.diff(stamps), 1.0 / hz, rtol=0, atol=1e-9)  # none skipped
+        s.sendall(rp.encode(rp.CMD_PAUSE))
+        packets(rp.CMD_PAUSE)
+        t_on = world.clock.now() + float(rng.uniform(1.0, 3.0))
+        world.clock.schedule(t_on)
+        assert world.clock.wait_for(t_on, 5.0)  # paused: the stream holds the clock no more
+    finally:
+        s.close()
+        fake.close()
+        world.close()
