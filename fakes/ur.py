@@ -1000,7 +1000,7 @@ class _RtdeSession(_Session):
     def _apply_inputs(self, values: dict) -> None:
         ctl = self.ctl
         with ctl.lock:
-            ctl.inputs_changed.notify_all()
+            ctl.inputs_changed.notify_all()  # its waiters look once this lock is released, values written
             for name, v in values.items():
                 m = re.match(r"^input_(int|double|bit)_register_(\d+)$", name)
                 if not m:

@@ -155,6 +155,12 @@ class SimClock:
         self._wall = wall
         return self._t
 
+    def _look_again_s(self, now: float) -> float:
+        """Host seconds a waiter sleeps before it looks at the clock again (caller holds the lock): until
+        the clock can be at its limit at full pace, at most :data:`_POLL_S`."""
+        step = self._limit() - now
+        return max(1e-4, _POLL_S if step <= 0 else min(_POLL_S, step / self._scale))
+
     def _set(self, table: str, key: int, value: float) -> None:
         with self._cond:
             self._advance()  # time passed so far is credited under the old limits
@@ -202,9 +208,7 @@ class SimClock:
                         return True
                     if stop is not None and stop.is_set():
                         return False
-                    step = self._limit() - now
-                    real = _POLL_S if step <= 0 else min(_POLL_S, step / self._scale)
-                    self._cond.wait(max(real, 1e-4))
+                    self._cond.wait(self._look_again_s(now))
             finally:
                 self._demands.pop(key, None)
                 self._cond.notify_all()
@@ -224,9 +228,7 @@ class SimClock:
                 left = end - time.monotonic()
                 if left <= 0:
                     return False
-                step = self._limit() - now
-                real = _POLL_S if step <= 0 else min(_POLL_S, step / self._scale)
-                self._cond.wait(min(left, max(real, 1e-4)))
+                self._cond.wait(min(left, self._look_again_s(now)))
 
     def set_time_scale(self, time_scale: float) -> None:
         """Change the pace without a jump in simulated time."""
