@@ -874,8 +874,9 @@ class _RtdeSession(_Session):
                     k_due = math.floor((now - t0) * freq + 1e-9)
                     # lockstep: the stream's start and the instants programs stopped at are samples too (the
                     # clock may stand there)
-                    stops = sorted(t for t in ctl.stops_after(last_t) + [started_at] if last_t < t <= now) \
-                        if ctl.lockstep else []
+                    # (never one before the stream started: a new client sees no state older than itself)
+                    stops = sorted(t for t in ctl.stops_after(last_t) + [started_at]
+                                   if last_t < t <= now and t >= started_at) if ctl.lockstep else []
                     ts = None
                     if (k_due >= next_k or stops) and kept:
                         hi = min(k_due, next_k if one_by_one else next_k + MAX_BATCH - 1)

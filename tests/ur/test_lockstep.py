@@ -114,3 +114,68 @@ def test_the_stream_holds_the_clock_until_the_client_says_it_kept_a_package(rng)
         s.close()
         fake.close()
         world.close()
+
+
+def test_a_new_client_gets_no_state_older_than_its_stream(rng):
+    """A client that starts streaming after a program stopped (a resumed station's new session) gets packages
+    from its start on, not the older program-stop instants the stream keeps for the client that saw them: its
+    first reading is where the arm stands now."""
+    import socket
+    import struct
+
+    from fakes import rtde_protocol as rp
+    from fakes.sim.clock import SimClock
+    from fakes.sim.world import make_world
+    from fakes.ur import start_fake
+    from station.protocols.ur import LOCKSTEP_STORED_REGISTER
+
+    world = make_world(robot="ur5e", seed=int(rng.integers(2**31)), clock=SimClock(1e4, lockstep=True))
+    fake = start_fake(world, lockstep=True)
+    host = fake.endpoint["host"]
+    try:
+        q0 = world.robot.home_q_rad + rng.uniform(-0.2, 0.2, 6)
+        with socket.create_connection((host, 30003), timeout=5) as script:
+            script.sendall(("movej([" + ", ".join(f"{v:.6f}" for v in q0) + "], a=1.0, v=0.5)\n").encode())
+        with socket.create_connection((host, 29999), timeout=5) as dash:
+            f = dash.makefile("rw")
+            f.readline()  # greeting
+            running = True
+            for _ in range(2000):
+                f.write("running\n")
+                f.flush()
+                running = f.readline().strip().endswith("true")
+                if not running and fake.ctl.arm.queue_end_s > 0:
+                    break
+            assert not running
+        t_on = world.clock.now() + float(rng.uniform(1.0, 3.0))  # the world runs on after the stop
+        world.clock.schedule(t_on)
+        assert world.clock.wait_for(t_on, 5.0)
+
+        s = socket.create_connection((host, 30004), timeout=5)
+        buf = bytearray()
+        out = rp.Recipe(1, ["timestamp", "actual_q"], ["DOUBLE", "VECTOR6D"])
+
+        def reply(until):
+            while True:
+                n, p = rp.decode(buf)
+                if not n:
+                    buf.extend(s.recv(65536))
+                    continue
+                del buf[:n]
+                if p.command == until:
+                    return p
+
+        with s:
+            for cmd, payload in ((rp.CMD_REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2)),
+                                 (rp.CMD_SETUP_OUTPUTS, struct.pack(">d", 10.0) + b"timestamp,actual_q"),
+                                 (rp.CMD_SETUP_INPUTS, f"input_double_register_{LOCKSTEP_STORED_REGISTER}".encode())):
+                s.sendall(rp.encode(cmd, payload))
+                reply(cmd)
+            t_start = world.clock.now()
+            s.sendall(rp.encode(rp.CMD_START))
+            first = out.decode(reply(rp.CMD_DATA_PACKAGE).payload)
+        assert first["timestamp"] >= t_start
+        np.testing.assert_allclose(first["actual_q"], q0, atol=1e-3)
+    finally:
+        fake.close()
+        world.close()
