@@ -26,7 +26,9 @@ Tracker runs:
    joint moving in + for its last degrees (one side of the backlash, as the
    seed's hand-taught poses are), a dwell, and a stationary tracker
    measurement committed to the store at once; a killed run resumes at the
-   batch it was in and keeps every measured pose;
+   batch it was in and keeps every measured pose (an arm the stop left
+   inside the batch is first taken back over the batch's own moves to the
+   pose before it, :func:`retrace_program`);
 5. ``identify`` - seed 002's identification on the training poses
    (:func:`station.analysis.arm_calibration.calibrate_arm`), validated on
    test poses drawn apart from them; the identified model is written as a
@@ -69,7 +71,8 @@ from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
 from station.analysis.arm.jig_features import feature_point
-from station.analysis.arm.pose_planning import PRE_DEG, _path_ok, candidate_poses, order_poses, scanner_candidate_poses
+from station.analysis.arm.pose_planning import (PRE_DEG, _path_ok, candidate_poses, order_poses, retrace,
+                                                scanner_candidate_poses)
 from station.analysis.arm.pose_selection import select_poses
 from station.device_urls import parse_device_url
 from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
@@ -259,6 +262,60 @@ def pose_program(plan: ArmCalPlan, k: int) -> Program:
     )
 
 
+#: how far (deg, any joint) from a batch's path an arm stopped inside the batch may stand and be on it: a
+#: controlled stop keeps a joint move's path to within the servo lag, tenths of a degree at most. Only whether
+#: to go back depends on it: every move, the way back's first one included, is gated from where the arm stands
+ON_PATH_DEG = 0.5
+
+
+def batch_path_deg(plan: ArmCalPlan, k: int) -> tuple[np.ndarray, list[str]]:
+    """The joint path batch ``k`` drives, as the plan's gate checked it: the pose before the batch (home for the
+    first), then each pose's pre-position and pose (M, 6) deg; and the waypoints' names."""
+    idx = plan.batch(k)
+    first = idx[0]
+    start = np.degrees(plan.robot.home_q_rad) if first == 0 else np.asarray(plan.q_deg[first - 1], float)
+    w, names = [start], ["home" if first == 0 else f"C{first}"]
+    for i in idx:
+        q = np.asarray(plan.q_deg[i], float)
+        w += [q - PRE_DEG, q]
+        names += [f"C{i + 1}_pre", f"C{i + 1}"]
+    return np.array(w), names
+
+
+def retrace_program(plan: ArmCalPlan, k: int, q_now_deg) -> tuple[Program | None, list[str]]:
+    """The way back to the start of batch ``k`` for an arm a stopped run left inside it (a resumed batch is
+    measured again from its start, and its first program was checked from there only).
+
+    The arm goes back over the path it came by (:func:`retrace`): no joint path the plan's gate did not check
+    is driven. None when the arm already stands at the start, or stands on no move of the batch (then the
+    controller's gate judges the first pose program from where it stands, as for any start).
+    """
+    w, names = batch_path_deg(plan, k)
+    back = retrace(w, q_now_deg, ON_PATH_DEG)
+    if back is None or not len(back):
+        return None, []
+    j = len(back) - 1  # back[-1] is w[0]; back[i] is w[len(back) - 1 - i]
+    labels = [names[j - i] for i in range(len(back))]
+    moves = tuple(Move(JointTarget(f"R{i + 1}", tuple(float(v) for v in q), label=f"back to {labels[i]}"),
+                       "joint", plan.speed_frac) for i, q in enumerate(back))
+    return Program(name=f"ST_BACK{k}", robot_name=plan.robot.name,
+                   rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s), statements=moves, accel_frac=0.5,
+                   title=f"station: back to the start of batch {k}",
+                   rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot)), labels
+
+
+def _to_batch_start(ctx: StepContext, plan: ArmCalPlan, k: int, controller) -> list[str]:
+    """Drive the arm back over its path to the start of batch ``k`` if a stopped run left it inside; the
+    waypoints passed (empty when it stood at the start)."""
+    program, labels = retrace_program(plan, k, np.degrees(controller.joints_rad()))
+    if program is None:
+        return []
+    ctx.progress(f"back to {labels[-1]}")
+    controller.run(render_rapid(program), timeout_s=_timeout(ctx, 60.0 * len(labels)),
+                   on_status=lambda st: ctx.checkpoint())
+    return labels
+
+
 def check_programs(plan: ArmCalPlan) -> list[str]:
     """Every pose program through the gate, each from the pose before it (home first); the problems."""
     gate = plan.gate()
@@ -340,6 +397,8 @@ def step_measure_scanner(k: int):
         plan = _plan(ctx)
         scanner, controller = ctx.session.scanner, ctx.session.controller
         done, failed = [], {}
+        ctx.checkpoint()
+        back = _to_batch_start(ctx, plan, k, controller)
         for i in plan.batch(k):
             ctx.checkpoint()
             ctx.progress(f"pose C{i + 1}")
@@ -357,7 +416,7 @@ def step_measure_scanner(k: int):
                 "sigma_x": sig[:1], "sigma_y": sig[1:2], "sigma_z": sig[2:3],
                 "points": np.array([cloud.shape[0]], float), "found": np.array([found])})
             done.append(i + 1)
-        return {"poses": done, "failed": failed}
+        return {"poses": done, "failed": failed, **({"retraced": back} if back else {})}
     return run
 
 
@@ -366,6 +425,8 @@ def step_measure(k: int):
         plan = _plan(ctx)
         tracker, controller = ctx.session.tracker, ctx.session.controller
         done = []
+        ctx.checkpoint()
+        back = _to_batch_start(ctx, plan, k, controller)
         for i in plan.batch(k):
             ctx.checkpoint()
             ctx.progress(f"pose C{i + 1}")
@@ -386,7 +447,7 @@ def step_measure(k: int):
             row["q_measured"] = np.array([0.0 if q_meas is None else 1.0])
             ctx.record(STREAM, row)
             done.append(i + 1)
-        return {"poses": done}
+        return {"poses": done, **({"retraced": back} if back else {})}
     return run
 
 

@@ -6,13 +6,14 @@ from station.runner import ProgressLine, RunControl
 
 
 class AbortAtStep(ProgressLine):
-    """A progress line that asks ``control`` to abort when step ``name`` reports progress."""
+    """A progress line that asks ``control`` to abort when step ``name`` reports progress (``detail``, when
+    given: that progress of the step, e.g. ``"pose C7"``)."""
 
-    def __init__(self, control: RunControl, name: str) -> None:
+    def __init__(self, control: RunControl, name: str, detail: str | None = None) -> None:
         super().__init__(None)
-        self.control, self.name = control, name
+        self.control, self.name, self.detail = control, name, detail
 
     def update(self, idx: int, step, detail: str = "") -> None:
         super().update(idx, step, detail)
-        if step.name == self.name:
+        if step.name == self.name and (self.detail is None or detail == self.detail):
             self.control.abort()

@@ -134,6 +134,52 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
 
 
+def test_a_run_stopped_inside_a_batch_goes_back_over_its_path_before_it_measures_the_batch_again(rng, tmp_path):
+    """Abort inside a batch as the arm moves to one of its later poses; the same cell (the arm stays where the
+    stop left it) resumes. The resumed batch's first program was gated from the pose before the batch only, so
+    the arm is first taken back over the batch's own moves to there; then the batch is measured again and every
+    point measured before the abort is kept."""
+    from fakes.station import FakeStation
+    from procedures.devices import DeviceSet
+    from station.config import config_from_dict
+
+    cell_seed, sel_seed = _seeds(rng)
+    stop_after = int(rng.integers(1, 5))  # whole batches measured before the abort
+    into = int(rng.integers(1, 5))  # poses of the next batch measured before it (the abort comes on the next)
+    first = 5 * stop_after
+    print(f"abort in batch {stop_after + 1} after {into} of its poses")
+    control = RunControl()
+    with FakeStation.start(seed=cell_seed, time_scale=TIME_SCALE) as cell:
+        d = cell.config_dict(store_path=str(tmp_path / "b.sqlite"), report_dir=str(tmp_path / "reports"))
+        d["arm_calibration"] = {"train_poses": 23, "test_poses": 7, "poses_per_step": 5}
+        cfg = config_from_dict(d)
+        devices = DeviceSet(urls={"tracker": cell.tracker_url, "controller": cell.controller_url},
+                            time_scale=TIME_SCALE)
+        code = run_procedure(cfg, "arm-calibration", run_id="b1", yes=True, quiet=True, config_dir=tmp_path,
+                             devices=devices, plan_overrides={"selection_seed": sel_seed}, control=control,
+                             progress=AbortAtStep(control, f"measure {stop_after + 1}", f"pose C{first + into + 1}"))
+        assert code.status == "aborted"
+        db = cfg.station.store_file(tmp_path)
+        with RunStore(db) as store:
+            before = store.samples("b1", "points", finished_only=False)
+        assert before["pose"].size == first + into
+        code = run_procedure(cfg, None, resume="b1", yes=True, quiet=True, config_dir=tmp_path, devices=devices)
+        assert code.status == "done", code.error
+    with RunStore(db) as store:
+        after = store.samples("b1", "points", finished_only=False)
+        redone = [s for s in store.steps("b1") if s.name == f"measure {stop_after + 1}" and s.status == "done"]
+    # back from where the stop left it (on the last program's moves: C(m) -> C(m+1)_pre -> C(m+1), with m the
+    # last pose measured) over the batch's own moves to the pose before the batch (C(first); the first is
+    # C(first + 1)), each waypoint once
+    m = first + into
+    full = [f"C{m + 1}", f"C{m + 1}_pre"] + [f"C{i}{s}" for i in range(m, first, -1) for s in ("", "_pre")] + [f"C{first}"]
+    assert redone[-1].output["retraced"] in (full[1:], full[2:], full[3:]), redone[-1].output
+    for k in range(before["pose"].size):  # every point measured before the abort is still there, unchanged
+        i = np.flatnonzero(after["pose"] == before["pose"][k])
+        assert any(np.allclose([after[c][j] for c in "xyz"], [before[c][k] for c in "xyz"]) for j in i)
+    assert set(after["pose"].astype(int)) == set(range(30))
+
+
 def test_a_pose_outside_the_workspace_is_refused_before_anything_moves(rng, tmp_path):
     cfg = _cfg(tmp_path)
     # a plan edited to reach below the box: preflight names the pose, nothing connects

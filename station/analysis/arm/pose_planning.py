@@ -20,7 +20,7 @@ from station.programs.builders import TOOL_DOWN
 from station.safety import SafetyGate
 
 __all__ = ["PRE_DEG", "candidate_poses", "scanner_frame", "in_scanner_field", "scanner_candidate_poses",
-           "order_poses"]
+           "order_poses", "retrace"]
 
 #: every pose is approached with each joint moving in + for its last degrees
 PRE_DEG = 2.0
@@ -162,3 +162,49 @@ def order_poses(gate: SafetyGate, q_start: np.ndarray, q: np.ndarray) -> tuple[l
             # no pose is reachable from here along a safe joint path: leave the nearest out
             dropped.append(left.pop(int(np.argmin(d))))
     return order, dropped
+
+
+def retrace(waypoints: np.ndarray, q_now: np.ndarray, tol: float) -> np.ndarray | None:
+    """The way back along a chain of joint-interpolated moves to its first waypoint.
+
+    A run stopped inside a batch of pose programs leaves the arm somewhere on
+    that batch's gated path ``W[0] -> W[1] -> ... -> W[M-1]`` (each move
+    linear in joint space); a resumed batch starts again from ``W[0]``.
+    This gives the waypoints that take the arm back over the path it came
+    by, so that no joint path the plan did not check is ever driven.
+
+    Parameters
+    ----------
+    waypoints : array_like, shape (M, 6)
+        The chain, in the order the arm drove it (rad, or any unit shared with ``q_now`` and ``tol``).
+    q_now : array_like, shape (6,)
+        Where the arm stands.
+    tol : float
+        How far (largest joint difference) from the chain the arm may stand and still be on it.
+
+    Returns
+    -------
+    ndarray, shape (K, 6), or None
+        ``W[j], W[j-1], ..., W[0]`` for the move ``W[j] -> W[j+1]`` nearest
+        to the arm (the earlier of two it is equally near: it stands at a
+        waypoint), without a leading waypoint it already stands at
+        (empty when it stands at ``W[0]``); None when the arm is on no move
+        of the chain.
+    """
+    w = np.asarray(waypoints, dtype=float).reshape(-1, 6)
+    q = np.asarray(q_now, dtype=float).reshape(6)
+    if not len(w):
+        return None
+    if np.max(np.abs(q - w[0])) <= tol:
+        return w[:0]
+    dist = np.full(max(len(w) - 1, 0), np.inf)
+    for j in range(len(w) - 1):
+        d = w[j + 1] - w[j]
+        dd = float(d @ d)
+        s = 0.0 if dd == 0.0 else float(np.clip((q - w[j]) @ d / dd, 0.0, 1.0))
+        dist[j] = np.max(np.abs(w[j] + s * d - q))
+    if not len(dist) or dist.min() > tol:
+        return None
+    j = int(np.flatnonzero(dist <= dist.min() + 1e-9)[0])  # the nearest; of equals (a waypoint), the earlier
+    back = w[j::-1]
+    return back[1:] if np.max(np.abs(q - back[0])) <= tol else back
