@@ -15,6 +15,29 @@ from tests.person import person_typing_yes
 from tests.ur.test_iso_procedure import UR_ISO
 
 
+class _Wire:
+    """The project's RTDE codec as a bare client of a socket: what arrives, in order."""
+
+    def __init__(self, sock) -> None:
+        self.sock, self.buf = sock, bytearray()
+
+    def until(self, command) -> tuple[list, object]:
+        """The data packages that arrive before the first ``command`` packet, and that packet."""
+        from fakes import rtde_protocol as rp
+
+        data = []
+        while True:
+            n, p = rp.decode(self.buf)
+            if not n:
+                self.buf.extend(self.sock.recv(65536))
+                continue
+            del self.buf[:n]
+            if p.command == command:
+                return data, p
+            if p.command == rp.CMD_DATA_PACKAGE:
+                data.append(p)
+
+
 def _run(tmp_path, name, seed, time_scale):
     with FakeStation.start(seed=seed, time_scale=time_scale, robot="ur5e", rtde_hz=UR_RTDE_HZ) as cell:
         assert cell.controller_url.endswith("lockstep=1") and cell.controller.lockstep
@@ -63,25 +86,14 @@ def test_the_stream_holds_the_clock_until_the_client_says_it_kept_a_package(rng)
     world = make_world(robot="ur5e", seed=int(rng.integers(2**31)), clock=SimClock(1e4, lockstep=True))
     fake = start_fake(world, lockstep=True)
     s = socket.create_connection((fake.endpoint["host"], 30004), timeout=5)
-    buf = bytearray()
+    wire = _Wire(s)
     out = rp.Recipe(1, ["timestamp"], ["DOUBLE"])
     kept = rp.Recipe(1, [f"input_double_register_{LOCKSTEP_STORED_REGISTER}"], ["DOUBLE"])
 
     def packets(until):
-        """Packages (timestamps) and replies as they come, up to the first ``until`` command."""
-        got = []
-        while True:
-            n, p = rp.decode(buf)
-            if not n:
-                buf.extend(s.recv(65536))
-                continue
-            del buf[:n]
-            if p.command == rp.CMD_DATA_PACKAGE:
-                got.append(out.decode(p.payload)["timestamp"])
-                if until == rp.CMD_DATA_PACKAGE:
-                    return got
-            elif p.command == until:
-                return got
+        """Package timestamps as they come, up to the first ``until`` command (a package: up to that one)."""
+        data, last = wire.until(until)
+        return [out.decode(p.payload)["timestamp"] for p in data + ([last] if until == rp.CMD_DATA_PACKAGE else [])]
 
     try:
         for cmd, payload in ((rp.CMD_REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2)),
@@ -152,28 +164,18 @@ def test_a_new_client_gets_no_state_older_than_its_stream(rng):
         assert world.clock.wait_for(t_on, 5.0)
 
         s = socket.create_connection((host, 30004), timeout=5)
-        buf = bytearray()
+        wire = _Wire(s)
         out = rp.Recipe(1, ["timestamp", "actual_q"], ["DOUBLE", "VECTOR6D"])
-
-        def reply(until):
-            while True:
-                n, p = rp.decode(buf)
-                if not n:
-                    buf.extend(s.recv(65536))
-                    continue
-                del buf[:n]
-                if p.command == until:
-                    return p
 
         with s:
             for cmd, payload in ((rp.CMD_REQUEST_PROTOCOL_VERSION, struct.pack(">H", 2)),
                                  (rp.CMD_SETUP_OUTPUTS, struct.pack(">d", 10.0) + b"timestamp,actual_q"),
                                  (rp.CMD_SETUP_INPUTS, f"input_double_register_{LOCKSTEP_STORED_REGISTER}".encode())):
                 s.sendall(rp.encode(cmd, payload))
-                reply(cmd)
+                wire.until(cmd)
             t_start = world.clock.now()
             s.sendall(rp.encode(rp.CMD_START))
-            first = out.decode(reply(rp.CMD_DATA_PACKAGE).payload)
+            first = out.decode(wire.until(rp.CMD_DATA_PACKAGE)[1].payload)
         assert first["timestamp"] >= t_start
         np.testing.assert_allclose(first["actual_q"], q0, atol=1e-3)
     finally:
