@@ -91,12 +91,13 @@ def test_a_listening_deadline_counts_a_gap_between_looks_only_up_to_its_slice(rn
     """Time counts as it passes while the caller looks often; of a gap longer than the slice (the process
     did not run) only the slice counts."""
     t = [float(rng.uniform(0, 1e4))]
-    timeout, slice_s = float(rng.uniform(1.0, 3.0)), float(rng.uniform(0.2, 0.5))
-    d = ListeningDeadline(timeout, slice_s, now=lambda: t[0])
+    slice_s = float(rng.uniform(0.2, 0.5))
     steps = rng.uniform(0.0, slice_s, 5)
-    for dt in steps:  # looked at often: every second counts
+    timeout = float(steps.sum() + rng.uniform(1.0, 3.0))  # still time left after the looks below
+    d = ListeningDeadline(timeout, slice_s, now=lambda: t[0])
+    for k, dt in enumerate(steps):  # looked at often: every second counts
         t[0] += float(dt)
-        assert d.time_left() == pytest.approx(timeout - steps[:list(steps).index(dt) + 1].sum())
+        assert d.time_left() == pytest.approx(timeout - steps[:k + 1].sum())
     left = d.time_left()
     t[0] += 10 * timeout  # the host did not run
     assert d.time_left() == pytest.approx(max(0.0, left - slice_s))
