@@ -28,6 +28,7 @@ from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
 from tests.station.abort_at import AbortAtStep
 from tests.pace import LOCKSTEP
+from tests.calibration.judge import assert_calibrated
 
 TIME_SCALE = LOCKSTEP
 
@@ -61,7 +62,7 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     assert diag["final_heldout_rms"] < 0.3 * diag["simulation_heldout_rms"]
     # the fake arm's geometric errors are mm; what is left is the tracker's noise and the non-geometric effects
     assert doc["test"]["mean_abs_before_mm"] > 0.3
-    assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
+    assert_calibrated(doc, 0.2)
     assert doc["train"]["n"] == 31 and doc["test"]["n"] == 9
     # the calibration's characteristics, the test poses' mean error after it judged against its limit
     with RunStore(cfg.station.store_file(tmp_path)) as store:
@@ -131,7 +132,7 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
         i = np.flatnonzero(after["pose"] == before["pose"][k])
         assert any(np.allclose([after[c][j] for c in "xyz"], [before[c][k] for c in "xyz"]) for j in i)
     assert set(after["pose"].astype(int)) == set(range(40))
-    assert doc["test"]["mean_abs_after_mm"] < 0.2 * doc["test"]["mean_abs_before_mm"]
+    assert_calibrated(doc, 0.2)
 
 
 def test_a_run_stopped_inside_a_batch_goes_back_over_its_path_before_it_measures_the_batch_again(rng, tmp_path):

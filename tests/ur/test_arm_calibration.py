@@ -27,6 +27,7 @@ from station.store import RunStore
 from tests.calibration.test_arm_calibration import independent_fk
 from tests.pace import UR_AT_RTDE_HZ as TIME_SCALE
 from tests.pace import UR_RTDE_HZ
+from tests.calibration.judge import assert_calibrated
 
 
 def _cfg(tmp_path, **arm):
@@ -64,7 +65,7 @@ def test_ur_calibration_uses_rtde_joints_and_its_deltas_start_the_next(tmp_path,
     assert all(abs(j["beta_deg"]) < 1e-9 for j in model["joints"])
     # (a UR5e's drawn errors are a few tenths of a mm at the tool, the tracker's noise a few um)
     assert doc["test"]["mean_abs_before_mm"] > 0.05
-    assert doc["test"]["mean_abs_after_mm"] < 0.3 * doc["test"]["mean_abs_before_mm"]
+    assert_calibrated(doc, 0.3)
     # the exported model at the measured joints, by an independent FK, gives the reported test errors
     split = plan.split()
     p = independent_fk(model, q_meas[split.test])
@@ -138,4 +139,4 @@ def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path, test_s
     assert set(s["pose"].astype(int)) == set(range(len(plan.q_deg)))  # every pose measured, none lost
     assert np.all(np.isfinite([s[f"q{j}"] for j in range(1, 7)]))
     assert doc["joints"] == "measured"
-    assert doc["test"]["mean_abs_after_mm"] < 0.3 * doc["test"]["mean_abs_before_mm"]
+    assert_calibrated(doc, 0.3)
