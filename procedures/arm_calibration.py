@@ -26,9 +26,10 @@ Tracker runs:
    joint moving in + for its last degrees (one side of the backlash, as the
    seed's hand-taught poses are), a dwell, and a stationary tracker
    measurement committed to the store at once; a killed run resumes at the
-   batch it was in and keeps every measured pose (an arm the stop left
-   inside the batch is first taken back over the batch's own moves to the
-   pose before it, :func:`retrace_program`);
+   batch it was in and keeps every measured pose (an arm that stands
+   elsewhere on the plan's path, inside the batch or at home, is first
+   taken along that path to the pose before the batch,
+   :func:`to_batch_start_program`);
 5. ``identify`` - seed 002's identification on the training poses
    (:func:`station.analysis.arm_calibration.calibrate_arm`), validated on
    test poses drawn apart from them; the identified model is written as a
@@ -71,7 +72,7 @@ from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
 from station.analysis.arm.jig_features import feature_point
-from station.analysis.arm.pose_planning import (PRE_DEG, _path_ok, candidate_poses, order_poses, retrace,
+from station.analysis.arm.pose_planning import (PRE_DEG, _path_ok, along_chain, candidate_poses, order_poses,
                                                 scanner_candidate_poses)
 from station.analysis.arm.pose_selection import select_poses
 from station.device_urls import parse_device_url
@@ -262,55 +263,54 @@ def pose_program(plan: ArmCalPlan, k: int) -> Program:
     )
 
 
-#: how far (deg, any joint) from a batch's path an arm stopped inside the batch may stand and be on it: a
-#: controlled stop keeps a joint move's path to within the servo lag, tenths of a degree at most. Only whether
-#: to go back depends on it: every move, the way back's first one included, is gated from where the arm stands
+#: how far (deg, any joint) from the plan's path an arm may stand and be on it: a controlled stop keeps a joint
+#: move's path to within the servo lag, tenths of a degree at most. Only whether the arm is taken along the path
+#: depends on it: every move, the first one included, is gated from where the arm stands
 ON_PATH_DEG = 0.5
 
 
-def batch_path_deg(plan: ArmCalPlan, k: int) -> tuple[np.ndarray, list[str]]:
-    """The joint path batch ``k`` drives, as the plan's gate checked it: the pose before the batch (home for the
-    first), then each pose's pre-position and pose (M, 6) deg; and the waypoints' names."""
-    idx = plan.batch(k)
-    first = idx[0]
-    start = np.degrees(plan.robot.home_q_rad) if first == 0 else np.asarray(plan.q_deg[first - 1], float)
-    w, names = [start], ["home" if first == 0 else f"C{first}"]
-    for i in idx:
-        q = np.asarray(plan.q_deg[i], float)
+def plan_path_deg(plan: ArmCalPlan) -> tuple[np.ndarray, list[str]]:
+    """The joint path of the whole plan as its gate checked it (:func:`check_programs`): home, then each pose's
+    pre-position and pose (2N + 1, 6) deg; and the waypoints' names. Pose ``i`` (0-based) is waypoint 2i + 2."""
+    w, names = [np.degrees(plan.robot.home_q_rad)], ["home"]
+    for i, q in enumerate(plan.q_deg):
+        q = np.asarray(q, float)
         w += [q - PRE_DEG, q]
         names += [f"C{i + 1}_pre", f"C{i + 1}"]
     return np.array(w), names
 
 
-def retrace_program(plan: ArmCalPlan, k: int, q_now_deg) -> tuple[Program | None, list[str]]:
-    """The way back to the start of batch ``k`` for an arm a stopped run left inside it (a resumed batch is
-    measured again from its start, and its first program was checked from there only).
+def to_batch_start_program(plan: ArmCalPlan, k: int, q_now_deg) -> tuple[Program | None, list[str]]:
+    """The way to the start of batch ``k`` (the pose before it; home for the first) for an arm that does not
+    stand there: a run stopped inside the batch left it on a later move, or it stands at home (re-homed, a new
+    simulated cell). The batch's first program was gated from its start only.
 
-    The arm goes back over the path it came by (:func:`retrace`): no joint path the plan's gate did not check
-    is driven. None when the arm already stands at the start, or stands on no move of the batch (then the
-    controller's gate judges the first pose program from where it stands, as for any start).
+    The arm goes along the plan's own path (:func:`along_chain`), back or forward: no joint path the plan's
+    gate did not check is driven. None when the arm already stands at the start, or stands on no move of the
+    plan (then the controller's gate judges the first pose program from where it stands, as for any start).
     """
-    w, names = batch_path_deg(plan, k)
-    back = retrace(w, q_now_deg, ON_PATH_DEG)
-    if back is None or not len(back):
+    w, names = plan_path_deg(plan)
+    goal = 2 * plan.batch(k)[0]
+    way = along_chain(w, q_now_deg, goal, ON_PATH_DEG)
+    if way is None or not len(way):
         return None, []
-    j = len(back) - 1  # back[-1] is w[0]; back[i] is w[len(back) - 1 - i]
-    labels = [names[j - i] for i in range(len(back))]
-    moves = tuple(Move(JointTarget(f"R{i + 1}", tuple(float(v) for v in q), label=f"back to {labels[i]}"),
-                       "joint", plan.speed_frac) for i, q in enumerate(back))
-    return Program(name=f"ST_BACK{k}", robot_name=plan.robot.name,
+    index = {tuple(v): n for v, n in zip(map(tuple, w), names)}
+    labels = [index[tuple(q)] for q in way]
+    moves = tuple(Move(JointTarget(f"R{i + 1}", tuple(float(v) for v in q), label=f"to {labels[i]}"),
+                       "joint", plan.speed_frac) for i, q in enumerate(way))
+    return Program(name=f"ST_TO{k}", robot_name=plan.robot.name,
                    rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s), statements=moves, accel_frac=0.5,
-                   title=f"station: back to the start of batch {k}",
+                   title=f"station: along the plan to the start of batch {k}",
                    rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot)), labels
 
 
 def _to_batch_start(ctx: StepContext, plan: ArmCalPlan, k: int, controller) -> list[str]:
-    """Drive the arm back over its path to the start of batch ``k`` if a stopped run left it inside; the
+    """Drive the arm along the plan's path to the start of batch ``k`` when it stands elsewhere on it; the
     waypoints passed (empty when it stood at the start)."""
-    program, labels = retrace_program(plan, k, np.degrees(controller.joints_rad()))
+    program, labels = to_batch_start_program(plan, k, np.degrees(controller.joints_rad()))
     if program is None:
         return []
-    ctx.progress(f"back to {labels[-1]}")
+    ctx.progress(f"to {labels[-1]}")
     controller.run(render_rapid(program), timeout_s=_timeout(ctx, 60.0 * len(labels)),
                    on_status=lambda st: ctx.checkpoint())
     return labels
@@ -416,7 +416,7 @@ def step_measure_scanner(k: int):
                 "sigma_x": sig[:1], "sigma_y": sig[1:2], "sigma_z": sig[2:3],
                 "points": np.array([cloud.shape[0]], float), "found": np.array([found])})
             done.append(i + 1)
-        return {"poses": done, "failed": failed, **({"retraced": back} if back else {})}
+        return {"poses": done, "failed": failed, **({"approach": back} if back else {})}
     return run
 
 
@@ -447,7 +447,7 @@ def step_measure(k: int):
             row["q_measured"] = np.array([0.0 if q_meas is None else 1.0])
             ctx.record(STREAM, row)
             done.append(i + 1)
-        return {"poses": done, **({"retraced": back} if back else {})}
+        return {"poses": done, **({"approach": back} if back else {})}
     return run
 
 

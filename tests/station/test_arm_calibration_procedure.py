@@ -48,7 +48,7 @@ def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng
     cfg = _cfg(tmp_path, test_error_limit_mm=0.1)
     code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
                          seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
-    assert code.status == "done"
+    assert code.status == "done", code.error
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         doc = store.result("c1", RESULT_KEY)
         plan = ArmCalPlan.from_params(store.run("c1").params)
@@ -122,11 +122,15 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     n_before = before["pose"].size
     assert n_before >= 5 * stop_after
     code = run_procedure(cfg, None, resume="c2", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
-    assert code.status == "done"
+    assert code.status == "done", code.error
     with RunStore(db) as store:
         after = store.samples("c2", "points")
         assert store.run("c2").params["q_deg"] == first_q  # the same poses
         doc = store.result("c2", RESULT_KEY)
+        redone = [s for s in store.steps("c2") if s.name == f"measure {stop_after + 1}" and s.status == "done"]
+    # the resumed session's cell is a new one, its arm at home: taken forward along the plan's own path to
+    # the pose before the batch (each earlier pose's pre-position and pose, unmeasured)
+    assert redone[-1].output["approach"] == [f"C{i}{s}" for i in range(1, 5 * stop_after + 1) for s in ("_pre", "")]
     # every point measured before the abort is still there, unchanged
     for k in range(n_before):
         i = np.flatnonzero(after["pose"] == before["pose"][k])
@@ -174,7 +178,7 @@ def test_a_run_stopped_inside_a_batch_goes_back_over_its_path_before_it_measures
     # C(first + 1)), each waypoint once
     m = first + into
     full = [f"C{m + 1}", f"C{m + 1}_pre"] + [f"C{i}{s}" for i in range(m, first, -1) for s in ("", "_pre")] + [f"C{first}"]
-    assert redone[-1].output["retraced"] in (full[1:], full[2:], full[3:]), redone[-1].output
+    assert redone[-1].output["approach"] in (full[1:], full[2:], full[3:]), redone[-1].output
     for k in range(before["pose"].size):  # every point measured before the abort is still there, unchanged
         i = np.flatnonzero(after["pose"] == before["pose"][k])
         assert any(np.allclose([after[c][j] for c in "xyz"], [before[c][k] for c in "xyz"]) for j in i)

@@ -20,7 +20,7 @@ from station.programs.builders import TOOL_DOWN
 from station.safety import SafetyGate
 
 __all__ = ["PRE_DEG", "candidate_poses", "scanner_frame", "in_scanner_field", "scanner_candidate_poses",
-           "order_poses", "retrace"]
+           "order_poses", "along_chain"]
 
 #: every pose is approached with each joint moving in + for its last degrees
 PRE_DEG = 2.0
@@ -164,38 +164,40 @@ def order_poses(gate: SafetyGate, q_start: np.ndarray, q: np.ndarray) -> tuple[l
     return order, dropped
 
 
-def retrace(waypoints: np.ndarray, q_now: np.ndarray, tol: float) -> np.ndarray | None:
-    """The way back along a chain of joint-interpolated moves to its first waypoint.
+def along_chain(waypoints: np.ndarray, q_now: np.ndarray, goal: int, tol: float) -> np.ndarray | None:
+    """The way to waypoint ``goal`` of a chain of joint-interpolated moves, along the chain itself.
 
-    A run stopped inside a batch of pose programs leaves the arm somewhere on
-    that batch's gated path ``W[0] -> W[1] -> ... -> W[M-1]`` (each move
-    linear in joint space); a resumed batch starts again from ``W[0]``.
-    This gives the waypoints that take the arm back over the path it came
-    by, so that no joint path the plan did not check is ever driven.
+    A plan's path ``W[0] -> W[1] -> ... -> W[M-1]`` (each move linear in
+    joint space) was checked move by move. An arm left somewhere on it (a
+    run stopped inside a batch; an arm at home, where the path begins) is
+    taken to ``W[goal]`` over those moves only, back or forward, so that no
+    joint path the plan did not check is driven.
 
     Parameters
     ----------
     waypoints : array_like, shape (M, 6)
-        The chain, in the order the arm drove it (rad, or any unit shared with ``q_now`` and ``tol``).
+        The chain, in the order it is driven (rad, or any unit shared with ``q_now`` and ``tol``).
     q_now : array_like, shape (6,)
         Where the arm stands.
+    goal : int
+        The waypoint to reach (0 <= goal < M).
     tol : float
         How far (largest joint difference) from the chain the arm may stand and still be on it.
 
     Returns
     -------
     ndarray, shape (K, 6), or None
-        ``W[j], W[j-1], ..., W[0]`` for the move ``W[j] -> W[j+1]`` nearest
-        to the arm (the earlier of two it is equally near: it stands at a
-        waypoint), without a leading waypoint it already stands at
-        (empty when it stands at ``W[0]``); None when the arm is on no move
-        of the chain.
+        The waypoints to drive through, in order, ending at ``W[goal]``: from
+        the move nearest to the arm (the earlier of two it is equally near:
+        it stands at a waypoint), that move's end towards the goal first,
+        without a leading waypoint the arm already stands at; empty when it
+        stands at ``W[goal]``; None when it is on no move of the chain.
     """
     w = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     q = np.asarray(q_now, dtype=float).reshape(6)
-    if not len(w):
-        return None
-    if np.max(np.abs(q - w[0])) <= tol:
+    if not 0 <= goal < len(w):
+        raise ValueError(f"goal {goal} is no waypoint of a chain of {len(w)}")
+    if np.max(np.abs(q - w[goal])) <= tol:
         return w[:0]
     dist = np.full(max(len(w) - 1, 0), np.inf)
     for j in range(len(w) - 1):
@@ -206,5 +208,5 @@ def retrace(waypoints: np.ndarray, q_now: np.ndarray, tol: float) -> np.ndarray 
     if not len(dist) or dist.min() > tol:
         return None
     j = int(np.flatnonzero(dist <= dist.min() + 1e-9)[0])  # the nearest; of equals (a waypoint), the earlier
-    back = w[j::-1]
-    return back[1:] if np.max(np.abs(q - back[0])) <= tol else back
+    way = w[j + 1:goal + 1] if j < goal else w[goal:j + 1][::-1]
+    return way[1:] if np.max(np.abs(q - way[0])) <= tol else way
