@@ -121,7 +121,10 @@ def run_state(store: RunStore, run_id: str, live: LiveRun | None, now: float | N
     remaining = mean_step * pending if (mean_step is not None and rec.status == "running") else None
     finished = rec.status in ("done", "failed", "aborted")
     return {
-        "run_id": run_id, "procedure": rec.procedure, "status": rec.status, "serial": rec.serial,
+        # a run this server drives is done once its verdict is stored too (the front door stores it after the
+        # last step): until then the page says running, so that a "done" always comes with its verdict
+        "run_id": run_id, "procedure": rec.procedure,
+        "status": "running" if driven and rec.status == "done" else rec.status, "serial": rec.serial,
         "model": rec.model, "live": driven, "paused": bool(driven and live.control.paused),
         "held": bool(driven and live.control.held),
         "prompt": live.operator.prompt if driven else None,
