@@ -80,3 +80,31 @@ def test_an_iso_run_keeps_the_tracker_s_own_view(tmp_path):
     _run(store, "i1", "iso9283", {})
     assert instrument_view(store, "i1", "iso9283", {}) is None
     store.close()
+
+
+def test_a_run_this_server_drives_is_done_on_the_page_only_with_its_verdict(rng, tmp_path):
+    """The runner marks the run done after its last step; the front door stores the verdict after that. While
+    this server's thread is still at it the page says running, so that "done" always comes with its verdict."""
+    import threading
+
+    from app.web.live import LiveRun, WebOperator
+    from station.runner import RunControl
+
+    store = RunStore(tmp_path / "v.sqlite")
+    _run(store, "v1", "iso9283", {})
+    control = RunControl()
+    live = LiveRun("v1", control, WebOperator(control))
+    deciding = threading.Event()
+    live.thread = threading.Thread(target=deciding.wait, args=(30.0,), daemon=True)
+    live.thread.start()
+    store.set_run_status("v1", "done")  # the last step is done; the verdict is not stored yet
+    st = run_state(store, "v1", live)
+    assert st["status"] == "running" and st["verdict"] is None
+    verdict = str(rng.choice(["PASS", "FAIL"]))
+    store.put_result("v1", "verdict", {"verdict": verdict, "reasons": ["drawn"], "conformant": True, "exit_code": 0})
+    deciding.set()
+    live.thread.join(5.0)
+    st = run_state(store, "v1", live)
+    assert st["status"] == "done" and st["verdict"] == verdict.lower() and st["reasons"] == ["drawn"]
+    assert run_state(store, "v1", None)["status"] == "done"  # a run no thread of this server drives: the store's
+    store.close()
