@@ -199,12 +199,10 @@ def along_chain(waypoints: np.ndarray, q_now: np.ndarray, goal: int, tol: float)
         raise ValueError(f"goal {goal} is no waypoint of a chain of {len(w)}")
     if np.max(np.abs(q - w[goal])) <= tol:
         return w[:0]
-    dist = np.full(max(len(w) - 1, 0), np.inf)
-    for j in range(len(w) - 1):
-        d = w[j + 1] - w[j]
-        dd = float(d @ d)
-        s = 0.0 if dd == 0.0 else float(np.clip((q - w[j]) @ d / dd, 0.0, 1.0))
-        dist[j] = np.max(np.abs(w[j] + s * d - q))
+    d = np.diff(w, axis=0)  # the moves
+    dd = np.einsum("ij,ij->i", d, d)
+    s = np.clip(np.einsum("ij,ij->i", q - w[:-1], d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
+    dist = np.max(np.abs(w[:-1] + s[:, None] * d - q), axis=1)  # to the nearest point of each move
     if not len(dist) or dist.min() > tol:
         return None
     j = int(np.flatnonzero(dist <= dist.min() + 1e-9)[0])  # the nearest; of equals (a waypoint), the earlier
