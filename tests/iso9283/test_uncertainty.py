@@ -218,7 +218,7 @@ def test_guarded_rule_on_the_command_exit_codes(tmp_path, files, capsys):
     assert "decision rule: guarded" in out
     rp, U, pose = v["value"], v["U_mm"], v["subject"]
 
-    def at(limit, rule):
+    def at(limit, rule, pose=pose):
         rc, out, err = _run(capsys, "--stream", S, "--poses", P, "--limit", f"RP_mm={limit:.7f}", "--mc-trials",
                             "4000", "--decision-rule", rule, "--json", tmp_path / "x.json")
         x = json.loads((tmp_path / "x.json").read_text())
@@ -235,9 +235,15 @@ def test_guarded_rule_on_the_command_exit_codes(tmp_path, files, capsys):
     # inside the conformance zone, and beyond the guard band
     rc, _, _, mine = at(rp + 1.5 * U, "guarded")
     assert mine["outcome"] == PASS and rc in (0, 3)  # another pose may sit in its own guard band
-    assert U < rp, (U, rp)  # at 15 cycles U is about 0.4 RP: a limit below figure - U exists
-    rc, _, err, mine = at(rp - 1.5 * U if rp > 1.5 * U else 0.5 * (rp - U), "guarded")
-    assert rc == 1 and mine["outcome"] == FAIL and f"RP_mm {pose} = " in err
+    # below the guard band: a fail. A limit below figure - U exists where U < RP; at 15 cycles U is about
+    # 0.4 RP at most poses, but at the pose of the largest RP it may exceed RP (a high figure drawn from a
+    # wide scatter: its sampling uncertainty is wide too), so the pose of the smallest U / RP is taken (over
+    # 150 drawn streams that ratio was 0.29-0.53; at the pose of the largest RP up to 1.09)
+    w = min(rps, key=lambda x: x["U_mm"] / x["value"])
+    rp_w, U_w = w["value"], w["U_mm"]
+    assert U_w < rp_w, (U_w, rp_w)
+    rc, _, err, mine = at(rp_w - 1.5 * U_w if rp_w > 1.5 * U_w else 0.5 * (rp_w - U_w), "guarded", w["subject"])
+    assert rc == 1 and mine["outcome"] == FAIL and f"RP_mm {w['subject']} = " in err
 
 
 def test_simple_rule_with_a_budget_changes_no_verdict(tmp_path, files, capsys):
