@@ -644,9 +644,12 @@ class ControllerDriver:
         Parameters
         ----------
         timeout_s : float
-            Host seconds to wait at most.
+            Host seconds to wait at most, not counting the time ``on_status`` takes.
         on_status : callable, optional
-            Called with every status read (progress for the caller's journal).
+            Called with every status read (progress for the caller's journal). The time it takes is the
+            caller's own work (committing samples to a disk that may stall in a sync for many seconds): it
+            does not count against ``timeout_s``, and the status it saw is read again before a timeout is
+            declared, so a program that finished meanwhile is reported finished.
 
         Returns
         -------
@@ -666,7 +669,9 @@ class ControllerDriver:
             while True:
                 st = self.status()
                 if on_status is not None:
+                    called = time.monotonic()
                     on_status(st)
+                    deadline += time.monotonic() - called
                 if st.state == State.FINISHED:
                     self._running = False
                     return st

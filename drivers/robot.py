@@ -106,7 +106,8 @@ class Robot(Protocol):
     def run(self, program, *, timeout_s: float, on_status: Callable[[Any], None] | None = None) -> Any:
         """Gate, send and run a :class:`~station.programs.model.Program` (or a rendered one) whole; block until
         the arm rests on its last target. ``on_status`` gets the progress (``moves_done``, ``cycle_count``,
-        ``line``) while it runs. Returns the final status."""
+        ``line``) while it runs; the time it takes (the caller's journal, a disk stalled in a sync) does not count
+        against ``timeout_s``. Returns the final status."""
 
     def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
                 timeout_s: float = 60.0) -> Any:

@@ -895,12 +895,15 @@ class URDriver:
         timeout_s = self.motion_timeout_s if timeout_s is None else float(timeout_s)
         self._send_script(text, label)
         t_sent = time.monotonic()
+        in_caller = 0.0  # the time on_state took: the caller's own work, not the motion's (see the timeout)
         started = False
         try:
             while True:
                 st = self.state()
                 if on_state is not None and started:
+                    called = time.monotonic()
                     on_state(st)
+                    in_caller += time.monotonic() - called
                 if st.protective_stopped or st.emergency_stopped:
                     self._after_fault(label)
                     raise DeviceFault(
@@ -921,7 +924,7 @@ class URDriver:
                     self._after_fault(label)
                     raise DeviceError(f"{label}: program {name} stopped before its motion finished "
                                       f"({st.register_moves} moves done); the robot is at rest")
-                if time.monotonic() - t_sent > timeout_s:
+                if time.monotonic() - t_sent - in_caller > timeout_s:
                     self.stop_motion()
                     raise DeviceTimeout(f"{label}: motion not done within {timeout_s:g} s; robot stopped")
                 time.sleep(0.001)

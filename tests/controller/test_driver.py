@@ -56,6 +56,30 @@ def test_iso_cycle_end_to_end(rng, start_controller, make_driver, world, robot, 
     assert np.allclose(final.q_deg, np.degrees(world.arm.actual_q_rad(world.clock.now())), atol=2e-3)
 
 
+def test_the_time_a_caller_spends_on_a_status_is_not_the_programs(rng, start_controller, make_driver, world, robot,
+                                                                   iso_poses):
+    """The caller's journal write blocks (a disk stalled in a sync, seen in a soak: 30 s in one COMMIT) past the
+    program's timeout while the program finishes: the driver reports it finished, not "did not finish"."""
+    fake = start_controller()
+    drv = make_driver(fake)
+    r = render_rapid(iso_pose_program(robot, iso_poses, cycles=1, speed_frac=0.5))
+    timeout_s = float(rng.uniform(0.5, 1.5))
+    blocked = []
+
+    def on_status(st):
+        if st.state == State.RUNNING and not blocked:
+            t0 = time.monotonic()
+            # held until the program has ended on the controller and the timeout has passed (at most 60 s)
+            while (fake.core.state != State.FINISHED or time.monotonic() - t0 < 1.5 * timeout_s) \
+                    and time.monotonic() - t0 < 60.0:
+                time.sleep(0.01)
+            blocked.append(time.monotonic() - t0)
+
+    final = drv.run(r, timeout_s=timeout_s, on_status=on_status)
+    assert blocked and blocked[0] > timeout_s
+    assert final.state == State.FINISHED and final.cycle_count == 1
+
+
 def test_the_tracker_sees_the_run(start_controller, make_driver, world, robot, iso_poses):
     """The world's tracker measures the stops of a vAP run at the commanded poses."""
     fake = start_controller()

@@ -3,6 +3,7 @@ the FTP+Modbus controller fake and through the UR fake (``ur_rtde``), and the ga
 
 from __future__ import annotations
 
+import time
 
 import numpy as np
 import pytest
@@ -70,3 +71,30 @@ def test_the_same_calls_move_the_arm_through_either_connection(robot):
     np.testing.assert_allclose(drv.joints_rad(), q_before, atol=1e-4)  # (the Modbus report is in 0.001 deg)
     drv.stop()
     assert drv.fault_state() is None
+
+
+def test_the_time_the_caller_spends_on_a_status_is_not_the_programs(robot):
+    """The caller's journal write blocks (a disk stalled in a sync, seen in a soak: 30 s in one COMMIT) past the
+    program's timeout while the program finishes: either connection reports it finished, not timed out."""
+    drv, world, rng = robot
+    drv.take_over()
+    q0 = drv.joints_rad()
+    a = JointTarget("A", tuple(np.degrees(q0 + rng.uniform(-0.1, 0.1, 6))))
+    prog = Program(name="ST_SLOW_HOST", robot_name=world.robot.name, rated_tcp_speed_mm_s=1000.0, accel_frac=0.5,
+                   statements=(Move(a, "joint", 0.2), Dwell(0.2)))
+    timeout_s = float(rng.uniform(1.0, 2.0))
+    blocked = []
+
+    def on_status(st):
+        if not blocked:
+            t0 = time.monotonic()
+            # held until the arm's last motion has ended on the world's clock and the timeout has passed
+            while (world.clock.now() < world.arm.queue_end_s + 1.0 or time.monotonic() - t0 < 1.5 * timeout_s) \
+                    and time.monotonic() - t0 < 60.0:
+                time.sleep(0.01)
+            blocked.append(time.monotonic() - t0)
+
+    final = drv.run(prog, timeout_s=timeout_s, on_status=on_status)
+    assert blocked and blocked[0] > timeout_s
+    assert final.moves_done == 1
+    np.testing.assert_allclose(drv.joints_rad(), np.radians(a.q_deg), atol=2e-3)
