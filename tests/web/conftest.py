@@ -13,6 +13,11 @@ import pytest
 #: small runs: 2 pose + 2 vAP cycles at 40x real time finish in ~10 s
 CYCLES, VAP_CYCLES, TIME_SCALE = 2, 2, 40.0
 
+#: the longest a browser's page may take to show what the server holds, ms (Playwright's waits): generous, because
+#: this host's disk can hold one commit of the server's store for tens of seconds under load (a soak saw 20-30 s);
+#: a page that never shows it (a lost press, a dead live update) fails all the same, only later
+PAGE_MS = 90_000
+
 
 def demo_station_config(out: Path) -> Path:
     from fakes.cells import demo_config
@@ -36,7 +41,7 @@ class Client:
         self.cookie = f"station_access_{self.port}={token}" if (token and access) else None
 
     def request(self, method: str, path: str, body: dict | None = None, headers: dict | None = None):
-        con = http.client.HTTPConnection(self.host, self.port, timeout=10)
+        con = http.client.HTTPConnection(self.host, self.port, timeout=PAGE_MS / 1000)  # a commit may stall
         try:
             data = urlencode(body).encode() if body is not None else None
             hdrs = {"Content-Type": "application/x-www-form-urlencoded"} if data is not None else {}
