@@ -17,6 +17,7 @@ scratch_dir() {
   free_kb="$(df -Pk /dev/shm | awk 'NR == 2 {print $4}')"
   [ "${free_kb:-0}" -ge $((4 * 1024 * 1024)) ] || return 0
   SCRATCH="$(mktemp -d /dev/shm/station-tests.XXXXXX)"
+  chmod 1777 "$SCRATCH"  # as /tmp: the private PostgreSQL runs as the postgres user and makes its folder here
   export TMPDIR="$SCRATCH"
 }
 # scratch_done RC: remove the scratch of a run that passed; keep (and name) the one of a run that failed
