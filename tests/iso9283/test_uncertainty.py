@@ -70,13 +70,13 @@ def test_coverage_of_ap_and_rp(rng, n):
     tol = _band(0.95, T)
     assert abs(hit_ap.mean() - 0.95) <= tol, f"AP coverage {hit_ap.mean():.3f} at n={n}"
     assert hit_rp.mean() >= 0.95 - tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
-    if n >= 30:
-        assert hit_rp.mean() <= 0.95 + tol, f"RP coverage {hit_rp.mean():.3f} at n={n}"
-    else:
-        # at few cycles the measurand's PDF is skewed to the right (the scatter's scale is poorly known): its
-        # RMS, and so U = 2 u, over-covers (bench: 0.99-0.996 at 5 and 10 cycles); a U of several times the
-        # figure would still pass the line above, so the width is bounded by what 5 or 10 stops allow
-        assert np.median(rel_rp) < (1.8 if n == 5 else 0.8), f"median U/RP {np.median(rel_rp):.2f} at n={n}"
+    # the measurand's PDF is skewed to the right (the scatter's scale is estimated from the stops): its RMS, and
+    # so U = 2 u, over-covers (bench: 0.99-0.996 at 5 and 10 cycles; at 30 cycles 0.973 over 100 x 300 draws,
+    # and a run of 300 above the binomial band of 0.95 in about 1 % of runs: soak seed 827657788, 0.997); a U
+    # of several times the figure would still pass the line above, so instead of an upper bound on the coverage
+    # the width is bounded by what 5, 10 or 30 stops allow (median U / RP per run of 300, 40 runs: 0.54-0.60 at
+    # 10 cycles, 0.27-0.31 at 30)
+    assert np.median(rel_rp) < {5: 1.8, 10: 0.8, 30: 0.4}[n], f"median U/RP {np.median(rel_rp):.2f} at n={n}"
     # the Monte Carlo 95 % coverage interval of the measurand (quantiles of the same draws as U): it too covers
     # more at few cycles, less so than U (bench, 3000 draws: 0.971 at 5 cycles, 0.963 at 10); a 299 of 300
     # draw at 5 cycles is then about a 1 % event (a soak run, seed 1186394634), so the bound above is one-sided
