@@ -48,6 +48,11 @@ def test_noise_drift_and_window_figure_against_the_truth(rng):
     assert r.RP_mm == pytest.approx(rp_ref(means), abs=1e-9)
 
 
+#: two figures of one value, each rounded to 1e-6 in its JSON, differ by up to one unit (a value on a rounding
+#: edge: soak seed 295195688, RP 0.010807 and 0.010806); the half unit more absorbs the float subtraction
+TWO_ROUNDED = 1.5e-6
+
+
 def test_hold_cli_in_two_formats(tmp_path, rng, capsys):
     t, xyz, drift, sig = hold(rng, 100.0, 60.0)
     S = write_stream_csv(tmp_path / "H.csv", t, xyz)
@@ -63,7 +68,7 @@ def test_hold_cli_in_two_formats(tmp_path, rng, capsys):
     out = capsys.readouterr().out
     assert rc == 0 and "sample index / 100 Hz" in out
     d2 = json.loads((tmp_path / "p.json").read_text())
-    assert d2["noise_mm"] == pytest.approx(d["noise_mm"], abs=1e-6)
+    assert d2["noise_mm"] == pytest.approx(d["noise_mm"], abs=TWO_ROUNDED)
     # 1 s time stamps: the rate estimated from them (100 samples in every whole second), said so
     stamps = [f"2024-01-01 00:{int(x) // 60:02d}:{int(x) % 60:02d}" for x in t]
     A = write_sa(tmp_path / "H.sa", xyz, stamps=stamps)
@@ -72,7 +77,7 @@ def test_hold_cli_in_two_formats(tmp_path, rng, capsys):
     assert rc == 0 and "ESTIMATED from the coarse stamps" in out and "rest on the rate estimated" in out
     d3 = json.loads((tmp_path / "a.json").read_text())
     assert d3["time_base"]["source"] == "estimated_rate" and d3["time_base"]["rate_hz"] == pytest.approx(100.0)
-    assert d3["windows"]["RP_mm"] == pytest.approx(d2["windows"]["RP_mm"], abs=1e-6)
+    assert d3["windows"]["RP_mm"] == pytest.approx(d2["windows"]["RP_mm"], abs=TWO_ROUNDED)
 
 
 def test_a_stream_with_a_move_is_not_a_hold(rng, tmp_path, capsys):
