@@ -9,7 +9,7 @@ import pytest
 from procedures.registry import runnable_procedures
 from station.store import RunStore
 
-from tests.web.conftest import TIME_SCALE
+from tests.web.conftest import PAGE_MS, TIME_SCALE
 from tests.web.test_browser import CHROMIUM, browser  # noqa: F401  (the fixture: one headless chromium)
 
 pytestmark = pytest.mark.skipif(not os.access(CHROMIUM, os.X_OK) and not os.environ.get("CI"),
@@ -75,7 +75,10 @@ def test_each_offered_procedure_runs_from_the_page_with_its_instrument(served_al
             if page.locator("#banner").is_visible():
                 break
             if page.locator("#btn-yes").is_visible():
-                page.click("#btn-yes")
+                # the button posts a form: wait for the run page it leads back to, or the next look may press
+                # the old page's button again (soak seed 1192631951: a second answer to the prompt, refused)
+                with page.expect_navigation(timeout=PAGE_MS):
+                    page.click("#btn-yes")
             title = page.locator("#instrument-title").inner_text()
             if TITLES[name] in title and page.locator("#instrument-counters, #tracker-counters").count():
                 seen_title = True
