@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
+from tests.calibration.judge import assert_calibrated
 
 
 @pytest.fixture
@@ -36,9 +37,11 @@ def test_simulated_arm_is_calibrated_down_to_its_noise(tmp_path, seed, capsys):
     truth = json.loads((tmp_path / "truth.json").read_text())
     assert main(["calibrate", "arm", "--robot", truth["robot"], "--data", str(tmp_path / "arm.csv"), "--json",
                  str(tmp_path / "cal.json")]) == 0
-    test = json.loads((tmp_path / "cal.json").read_text())["test"]
-    # geometric errors of mm before; after, what is left is noise and stopping scatter (a few hundredths)
-    assert test["mean_abs_before_mm"] > 10 * test["mean_abs_after_mm"]
+    doc = json.loads((tmp_path / "cal.json").read_text())
+    test = doc["test"]
+    # geometric errors of mm before; after, what is left is noise and stopping scatter (a few hundredths); an arm
+    # drawn near its nominal geometry (soak seed 173538517: 0.67 mm before, 0.086 after) is judged on that floor
+    assert_calibrated(doc, 0.1)
     assert test["mean_abs_after_mm"] < 10 * truth["noise_mm"]
     raw = np.array(truth["true_points_mm"])
     assert raw.shape == (truth["n_poses"], 3)
