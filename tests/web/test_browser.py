@@ -30,7 +30,7 @@ def browser():
 
     from playwright.sync_api import expect
 
-    expect.set_options(timeout=PAGE_MS)  # every expect without a timeout of its own
+    expect.set_options(timeout=PAGE_MS)  # every expect of the browser tests (tests/web/conftest.py says why)
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
         try:
@@ -52,25 +52,25 @@ def test_the_demo_run_from_the_page(served, browser, seed, tmp_path):
     watcher = browser.new_page()  # another browser: it opens the page with the token (then holds its cookie)
     watcher.goto(f"{page.url}?token={served.guard.access_token}")
     for expected in ("reflector", "clear the robot cell"):
-        expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=PAGE_MS)
-        expect(watcher.locator("#prompt-text")).to_contain_text(expected, ignore_case=True, timeout=PAGE_MS)
+        expect(page.locator("#prompt-text")).to_contain_text(expected, ignore_case=True)
+        expect(watcher.locator("#prompt-text")).to_contain_text(expected, ignore_case=True)
         page.click("#btn-yes")
     # the watcher sees the steps advance without reloading (server-sent events)
-    expect(watcher.locator("#current")).to_contain_text("pose cycle", timeout=PAGE_MS)
-    expect(watcher.locator("#plot-speed polyline")).to_have_count(1, timeout=PAGE_MS)
+    expect(watcher.locator("#current")).to_contain_text("pose cycle")
+    expect(watcher.locator("#plot-speed polyline")).to_have_count(1)
     first = int(watcher.locator("#received").inner_text())
-    expect(watcher.locator("#received")).not_to_have_text(str(first), timeout=PAGE_MS)  # the plot follows the stream
+    expect(watcher.locator("#received")).not_to_have_text(str(first))  # the plot follows the stream
     expect(watcher.locator("#plot-dist polyline")).to_have_count(1)
     artefacts = Path(os.environ.get("STATION_TEST_ARTEFACTS", tmp_path))
     artefacts.mkdir(parents=True, exist_ok=True)
     watcher.screenshot(path=str(artefacts / "run_page_live.png"), full_page=True)
-    expect(watcher.locator("#current")).to_contain_text("vAP cycle", timeout=PAGE_MS)
-    expect(page.locator("#status")).to_have_text("done", timeout=PAGE_MS)
+    expect(watcher.locator("#current")).to_contain_text("vAP cycle")
+    expect(page.locator("#status")).to_have_text("done")
     with RunStore(served.store.path) as store:
         chars = store.characteristics(run_id)
         verdict = store.result(run_id, "verdict")["verdict"].lower()  # the run's one verdict
     expect(page.locator("#verdict")).to_have_text(verdict)
-    expect(watcher.locator("#verdict")).to_have_text(verdict, timeout=PAGE_MS)
+    expect(watcher.locator("#verdict")).to_have_text(verdict)
     expect(page.locator("#results-table tr")).to_have_count(len(chars) + 1)
     expect(page.locator("#steps-table tr[data-state=done]")).to_have_count(len(store_steps(served, run_id)))
     shot = artefacts / "run_page_done.png"

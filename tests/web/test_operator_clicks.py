@@ -18,7 +18,6 @@ import pytest
 from procedures.registry import REGISTRY
 from station.store import RunStore
 from tests.pace import LOCKSTEP
-from tests.web.conftest import PAGE_MS
 from tests.web.prompts_procedure import N_PROMPTS
 from tests.web.test_browser import CHROMIUM, browser  # noqa: F401  (the fixture: one headless chromium)
 
@@ -50,10 +49,10 @@ def test_prompt_buttons_pressed_like_a_person_are_never_lost(served, browser, mo
     run_id = page.url.rsplit("/", 1)[1]
     for k in range(1, N_PROMPTS + 1):
         # a press that was lost leaves the previous prompt standing: this waits in vain and fails
-        expect(page.locator("#prompt-text")).to_contain_text(f"Prompt {k} of {N_PROMPTS}", timeout=PAGE_MS)
+        expect(page.locator("#prompt-text")).to_contain_text(f"Prompt {k} of {N_PROMPTS}")
         page.wait_for_timeout(float(rng.uniform(0, 300)))  # anywhere between two live updates
         _press(page, "#btn-yes", float(rng.uniform(120, 150)))
-    expect(page.locator("#status")).to_have_text("done", timeout=PAGE_MS)
+    expect(page.locator("#status")).to_have_text("done")
     with RunStore(served.store.path) as store:
         answered = [s.output["confirmed"] for s in store.steps(run_id) if s.status == "done"]
     assert answered == [f"Prompt {k} of {N_PROMPTS}: ready?" for k in range(1, N_PROMPTS + 1)]
