@@ -780,7 +780,11 @@ class RapidRun:
         for kind, at in self.fault_at_move.items():
             if at == self._queued_moves:
                 self._fault_mid[self._queued_moves] = (kind, 0.5 * (float(mv.t_start) + float(mv.t_end)))
-        self._t_last = float(mv.t_end)
+        # a fine stop point: the program goes on when the arm is in position, not when its command arrived
+        t_in = self.arm.in_position_s()
+        if t_in > mv.t_end:
+            self.arm.dwell(t_in - float(mv.t_end), kind="settle")
+        self._t_last = max(float(mv.t_end), t_in)
         return self._t_last
 
     def _finish(self, ins, t_end: float, cycle: int) -> None:

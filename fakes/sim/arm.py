@@ -60,6 +60,9 @@ __all__ = ["Move", "SimArm", "ARM_STATES"]
 ARM_STATES = ("idle", "moving", "protective_stop")
 
 _N = 6
+#: in-position band of a stop point ("fine"), rad: every axis's servo error, and its rate over the axis's
+#: bandwidth, within it (about 0.01 mm at a metre; below the arm's repeatability scatter)
+IN_POSITION_RAD = 1e-5
 _CHUNK = 32768  # samples per FK chunk (bounds peak memory of queries)
 
 
@@ -70,7 +73,7 @@ class Move:
     Attributes
     ----------
     kind : str
-        ``"joint"``, ``"linear"``, ``"dwell"`` or ``"stop"``.
+        ``"joint"``, ``"linear"``, ``"dwell"``, ``"settle"`` (in position at a stop point) or ``"stop"``.
     t_start, t_end : float
         Simulated start and end of the commanded profile, s.
     q_target_rad : ndarray, shape (6,)
@@ -313,6 +316,21 @@ class SimArm:
         with self._lock:
             return list(self._moves)
 
+    def in_position_s(self, tol_rad: float = IN_POSITION_RAD, step_s: float = 0.002, horizon_s: float = 2.0) -> float:
+        """Simulated time at which the arm, holding its queue's last target, is in position: every axis's servo
+        error ``e`` and ``|de/dt| / omega`` within ``tol_rad`` (S1), as a controller's fine stop point waits for
+        before the program goes on. The queue's end with an ideal servo; at most ``horizon_s`` after it."""
+        with self._lock:
+            t_end = float(self._t_end)
+            if self.servo is None:
+                return t_end
+            omega = np.asarray(self.servo.omega_rad_s, dtype=float)
+            for k in range(int(horizon_s / step_s) + 1):
+                st = self._state_at(t_end + k * step_s)
+                if np.all(np.hypot(st["e"], st["ed"] / omega) < tol_rad):
+                    return t_end + k * step_s
+            return t_end + horizon_s
+
     # ---------------------------------------------------------------- queueing
     def _check_ready(self) -> None:
         if self._protective:
@@ -532,8 +550,11 @@ class SimArm:
             traj_srv = motion.spline_trajectory(plan.t_knots, q_srv)
             return self._append(t_start, plan.trajectory, traj_srv, "linear", noise_key)
 
-    def dwell(self, seconds: float) -> Move:
-        """Queue a pause of ``seconds`` at the current target."""
+    def dwell(self, seconds: float, *, kind: str = "dwell") -> Move:
+        """Queue a pause of ``seconds`` at the current target (``kind="settle"``: a controller's wait for the arm
+        to come in position at a stop point, not a pause the program asked for)."""
+        if kind not in ("dwell", "settle"):
+            raise DataError(f"`kind` must be 'dwell' or 'settle', got {kind!r}")
         d = float(seconds)
         if not (math.isfinite(d) and d >= 0):
             raise DataError(f"`seconds` must be finite and >= 0, got {seconds!r}")
@@ -541,7 +562,7 @@ class SimArm:
             self._check_ready()
             t_start = self._start_time()
             self._t_end = t_start + d
-            move = Move("dwell", t_start, t_start + d, self._q_cmd_end.copy(), self._next_id)
+            move = Move(kind, t_start, t_start + d, self._q_cmd_end.copy(), self._next_id)
             self._next_id += 1
             self._moves.append(move)
             return move

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.controller import CommandRefused, ControllerDriver
+from fakes.sim.arm import IN_POSITION_RAD
 from station.errors import ConfigError, ConnectionLost, SafetyError
 from station.programs import iso_pose_program, render_krl, render_rapid, vap_program
 from station.protocols.handshake import Result, State
@@ -78,6 +79,22 @@ def test_the_time_a_caller_spends_on_a_status_is_not_the_programs(rng, start_con
     final = drv.run(r, timeout_s=timeout_s, on_status=on_status)
     assert blocked and blocked[0] > timeout_s
     assert final.state == State.FINISHED and final.cycle_count == 1
+
+
+def test_a_program_ends_with_the_arm_in_position(rng, start_controller, make_driver, world):
+    """A fine stop point (RAPID's ``fine`` zone): the controller reports the move done, and its program finished,
+    once the arm is in position, not when the command arrived; the servo's lag then (~1e-3 rad after a move of
+    a tenth of a radian) is gone. The move's size, direction and speed are drawn."""
+    fake = start_controller()
+    drv = make_driver(fake)
+    q0 = drv.joints_rad()
+    target = q0 + rng.choice([-1.0, 1.0], 6) * rng.uniform(0.03, 0.1, 6)
+    final = drv.move_to(target, speed_frac=float(rng.uniform(0.1, 0.5)))
+    assert final.state == State.FINISHED and final.moves_done == 1
+    t_done = world.arm.queue_end_s  # where the controller's program ended
+    q_done, q_rest = world.arm.actual_q_rad(np.array([t_done, t_done + 5.0]))
+    assert np.max(np.abs(q_done - q_rest)) < 1.5 * IN_POSITION_RAD, np.abs(q_done - q_rest)
+    np.testing.assert_allclose(q_rest, target, atol=1e-3)  # the arm's own stop scatter: none in this world
 
 
 def test_the_tracker_sees_the_run(start_controller, make_driver, world, robot, iso_poses):
