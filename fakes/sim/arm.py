@@ -324,12 +324,13 @@ class SimArm:
             t_end = float(self._t_end)
             if self.servo is None:
                 return t_end
-            omega = np.asarray(self.servo.omega_rad_s, dtype=float)
-            for k in range(int(horizon_s / step_s) + 1):
-                st = self._state_at(t_end + k * step_s)
-                if np.all(np.hypot(st["e"], st["ed"] / omega) < tol_rad):
-                    return t_end + k * step_s
-            return t_end + horizon_s
+            seg = self._seg
+            k = seg.n - 1  # the hold after the queue's last move
+            dt = np.arange(int(horizon_s / step_s) + 1) * step_s
+            e, ed = motion.servo_step(seg.E[k : k + 1], seg.Ed[k : k + 1], -2.0 * seg.c_srv[k : k + 1, 2],
+                                      -6.0 * seg.c_srv[k : k + 1, 3], t_end - seg.t0[k] + dt, self.servo)
+            inside = np.all(np.hypot(e, ed / np.asarray(self.servo.omega_rad_s)) < tol_rad, axis=1)
+            return t_end + float(dt[np.argmax(inside)] if inside.any() else horizon_s)
 
     # ---------------------------------------------------------------- queueing
     def _check_ready(self) -> None:
