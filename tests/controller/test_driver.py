@@ -89,7 +89,7 @@ def test_a_program_ends_with_the_arm_in_position(rng, start_controller, make_dri
     drv = make_driver(fake)
     q0 = drv.joints_rad()
     target = q0 + rng.choice([-1.0, 1.0], 6) * rng.uniform(0.03, 0.1, 6)
-    final = drv.move_to(target, speed_frac=float(rng.uniform(0.1, 0.5)))
+    final = drv.move_to(target, speed_frac=float(rng.uniform(0.05, 0.25)))  # under the gate's TCP speed cap
     assert final.state == State.FINISHED and final.moves_done == 1
     t_done = world.arm.queue_end_s  # where the controller's program ended
     q_done, q_rest = world.arm.actual_q_rad(np.array([t_done, t_done + 5.0]))
