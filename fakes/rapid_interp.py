@@ -781,10 +781,9 @@ class RapidRun:
             if at == self._queued_moves:
                 self._fault_mid[self._queued_moves] = (kind, 0.5 * (float(mv.t_start) + float(mv.t_end)))
         # a fine stop point: the program goes on when the arm is in position, not when its command arrived
-        t_in = self.arm.in_position_s()
-        if t_in > mv.t_end:
-            self.arm.dwell(t_in - float(mv.t_end), kind="settle")
-        self._t_last = max(float(mv.t_end), t_in)
+        self._t_last = self.arm.in_position_s()  # never before the move's end
+        if self._t_last > mv.t_end:
+            self.arm.dwell(self._t_last - float(mv.t_end), kind="settle")
         return self._t_last
 
     def _finish(self, ins, t_end: float, cycle: int) -> None:
