@@ -449,6 +449,11 @@ class EmsconTracker(Tracker):
                     self._singles.put(frame)
                 elif self._pending == frame.command:
                     self._replies.put(frame)
+                    # answered: a frame for the same command from now on is not this reply. A stationary
+                    # measurement's error follows StartMeasurement's own reply; in one read with it, it came
+                    # before the caller had cleared the pending command, was taken for a second reply and
+                    # lost, and the measurement timed out (soak seed 2715888335)
+                    self._pending = None
                 elif self._abandoned[frame.command] > 0:
                     self._abandoned[frame.command] -= 1  # late reply to a timed-out command
                 elif isinstance(frame, ec.ErrorPacket):

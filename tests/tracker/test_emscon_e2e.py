@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import threading
 
 import numpy as np
 import pytest
@@ -124,6 +125,89 @@ def test_stationary_measurement_without_target_raises_beam_broken(rig):
     world, fake, tracker = rig(faults={"beam_break": "0:100"})
     with pytest.raises(BeamBroken, match="10004"):
         tracker.measure_stationary(0.1)
+
+
+class _StartReplyWithResult:
+    """A loopback relay between the driver and the fake that holds StartMeasurement's reply back until the
+    fake's next packet and sends both in one segment, as a tracker whose short measurement ends at once may.
+    ``joined`` counts the replies so sent."""
+
+    def __init__(self, endpoint: dict) -> None:
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.upstream = socket.create_connection((endpoint["host"], endpoint["port"]), timeout=5)
+        self.joined = 0
+        self.threads = [threading.Thread(target=self._serve, daemon=True)]
+        self.threads[0].start()
+
+    def _serve(self) -> None:
+        client, _ = self.listener.accept()
+        self.client = client
+        up = threading.Thread(target=self._copy, args=(client, self.upstream), daemon=True)
+        up.start()
+        self.threads.append(up)
+        buf, held = b"", b""
+        while data := self._recv(self.upstream):
+            buf += data
+            while True:
+                consumed, frame = ec.decode(buf, from_server=True)
+                if not consumed:
+                    break
+                packet, buf = buf[:consumed], buf[consumed:]
+                if isinstance(frame, ec.CommandReply) and frame.command == ec.Command.START_MEASUREMENT:
+                    held = packet
+                    continue
+                if held:
+                    self.joined += 1
+                try:
+                    client.sendall(held + packet)
+                except OSError:  # the driver has gone
+                    return
+                held = b""
+        client.close()
+
+    @staticmethod
+    def _recv(sock: socket.socket) -> bytes:
+        try:
+            return sock.recv(65536)
+        except OSError:
+            return b""
+
+    def _copy(self, src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while data := self._recv(src):
+                dst.sendall(data)
+            dst.shutdown(socket.SHUT_WR)
+        except OSError:  # the relay is closing
+            pass
+
+    def close(self) -> None:
+        for sock in (self.listener, self.upstream, getattr(self, "client", None)):
+            if sock is not None:
+                sock.close()
+        for t in self.threads:
+            t.join(5)
+
+
+def test_a_stationary_error_in_one_read_with_the_start_reply_is_the_measurement_result():
+    """The error that ends a stationary measurement may come in the same read as StartMeasurement's OK reply
+    (soak seed 2715888335: on a busy host it did, the driver took it for a second reply to the start and the
+    measurement timed out after 10 s). Each of three measurements raises BeamBroken, none a timeout."""
+    world = CircleWorld()
+    fake = start_fake(world, faults={"beam_break": "0:100"})
+    relay = _StartReplyWithResult(fake.endpoint)
+    tracker = EmsconTracker(tcp_factory("127.0.0.1", relay.port))
+    try:
+        tracker.connect(timeout_s=10)
+        for _ in range(3):
+            with pytest.raises(BeamBroken, match="10004"):
+                tracker.measure_stationary(0.1, timeout_s=5.0)
+        assert relay.joined == 3
+    finally:
+        tracker.close()
+        relay.close()
+        fake.close()
+        world.close()
 
 
 def test_dropped_connection_reconnects_with_backoff_and_counts_the_loss(rig):
