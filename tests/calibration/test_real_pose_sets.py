@@ -30,14 +30,22 @@ def _files(tmp_path, d, name="nom.json", dh=None):
     return str(tmp_path / name), str(tmp_path / "a.csv")
 
 
-@pytest.mark.timeout(600)  # eight finite-difference reference fits: slow on a shared machine
+#: random splits of the acceptance's mean (four sets, four splits each). A random split of sweeps holds out
+#: sweep ends beyond the training range, where either fit may extrapolate the hidden effects luckily: a single
+#: split's ratio reached 1.46. With 8 splits the mean ratio of the FANUC-like set exceeded 1.05 for 1 of 300
+#: seeds (and for soak seed 1014864616: one split at 1.46, the seven others 0.97-1.01); median 0.94. With 16
+#: it did for none of 300 other seeds (largest 1.032, median 0.934). bench/bench_calibration_split_ratio.py.
+SPLITS = 16
+
+
+@pytest.mark.timeout(600)  # sixteen reference fits: slow on a shared machine
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
 def test_random_splits_hold_out_as_well_as_a_plain_full_fit(test_seed, make, n):
     """Absolute method, random 70/30 splits, no preparation of the file: within 1.05x of the full fit."""
     seed = test_seed
     rng = np.random.default_rng(seed)
     ours, ref, before, truth = [], [], [], []
-    for k in range(8):  # two sets, four random splits each: the acceptance is a mean over random splits
+    for k in range(SPLITS):  # a set every four random splits: the acceptance is a mean over random splits
         if k % 4 == 0:
             d = make(rng, n=n)
         sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
