@@ -49,8 +49,11 @@ def ratio_of_means(make, n: int, seed: int, splits: int) -> tuple[float, list[fl
         out_ours += list(e_ours[outside])
         out_ref += list(e_ref[outside])
     per_split = list(np.array(ours) / np.array(ref))
-    mean_or_nan = (lambda v: float(np.mean(v)) if v else float("nan"))
-    return float(np.mean(ours) / np.mean(ref)), per_split, mean_or_nan(out_ours), mean_or_nan(out_ref)
+    return float(np.mean(ours) / np.mean(ref)), per_split, _mean(out_ours), _mean(out_ref)
+
+
+def _mean(values: list) -> float:
+    return float(np.mean(values)) if values else float("nan")
 
 
 def main(argv=None) -> int:
