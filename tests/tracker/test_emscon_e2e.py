@@ -136,6 +136,7 @@ class _StartReplyWithResult:
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port = self.listener.getsockname()[1]
         self.upstream = socket.create_connection((endpoint["host"], endpoint["port"]), timeout=5)
+        self.client: socket.socket | None = None  # the driver's connection, once accepted
         self.joined = 0
         self.threads = [threading.Thread(target=self._serve, daemon=True)]
         self.threads[0].start()
@@ -182,7 +183,7 @@ class _StartReplyWithResult:
             pass
 
     def close(self) -> None:
-        for sock in (self.listener, self.upstream, getattr(self, "client", None)):
+        for sock in (self.listener, self.upstream, self.client):
             if sock is not None:
                 sock.close()
         for t in self.threads:
