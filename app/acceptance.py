@@ -311,16 +311,16 @@ class AcceptanceRun:
 def make_operator(operator, arm: bool):
     """The operator of a scripted run.
 
-    ``operator`` is an object with ``confirm(message) -> bool`` (and ``human``),
+    ``operator`` is an object with ``confirm(message) -> bool``,
     a callable ``message -> bool``, or the path of an answer file
     (:class:`~station.runner.AnswerFileOperator`). Without one, a dry run on
     the fakes answers yes to every prompt (logged) and an armed run asks on
     the terminal. With ``arm`` the operator must be a person: a callable, an
-    answer file or any operator not marked ``human`` is refused
+    answer file or any operator that is not a person (the terminal on a tty, the page) is refused
     (:class:`~station.errors.SafetyError`) before anything is recorded or
     moves, so no script answers the confirmations that guard real motion.
     """
-    from app.assemble import require_human
+    from app.assemble import require_person
     from station.runner import AnswerFileOperator, CallableOperator, InteractiveOperator, ScriptedOperator
 
     if operator is None:
@@ -332,7 +332,7 @@ def make_operator(operator, arm: bool):
             raise ConfigError(f"operator must be an Operator, a callable or an answer file, got {operator!r}")
         operator = CallableOperator(operator)
     if arm:
-        require_human(operator)
+        require_person(operator)
     return operator
 
 

@@ -28,6 +28,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from app.page_operator import WebOperator
 from procedures.devices import DeviceSet, configured_devices
 from procedures.execute import execute, prepare, preflight
 from station.errors import ConfigError, SafetyError
@@ -41,13 +42,26 @@ def operator_for(yes: bool, quiet: bool):
     return ScriptedOperator(True, stream=None if quiet else sys.stderr) if yes else InteractiveOperator()
 
 
-def require_human(operator) -> None:
-    """Refuse an operator that is not a person for a run on armed devices (real motion): scripted answers
-    (``--yes``, a script's callable, a file of answers) may only drive the fakes."""
-    if not getattr(operator, "human", False):
-        raise SafetyError("an armed run needs a person to answer its confirmations (the terminal or the "
-                          "operator's page); scripted answers (--yes, a script, an answer file) are for dry "
-                          "runs on the fakes only; nothing moved")
+def require_person(operator) -> None:
+    """Refuse, before anything is recorded or moves, an operator that is not a person for a run on armed
+    devices (real motion).
+
+    A person is the terminal operator with both its streams on a terminal
+    (``isatty``: ``yes | station run --arm`` is a pipe, not a person) or the
+    operator's page, whose answers come only from its button behind the
+    token and CSRF check. The class is checked exactly, never an attribute
+    an object sets about itself: a subclass, a callable, an answer file or
+    ``--yes`` is a script, and scripts drive the fakes only.
+    """
+    if type(operator) is WebOperator:
+        return
+    if type(operator) is InteractiveOperator:
+        operator.require_terminal()
+        return
+    raise SafetyError("an armed run needs a person to answer its confirmations (the terminal or the "
+                      "operator's page); scripted answers (--yes, a script, an answer file, an operator "
+                      f"object of its own: {type(operator).__name__}) are for dry runs on the fakes only; "
+                      "nothing moved")
 
 
 def start_fake_cell(spec, params: dict, fake: dict):
@@ -127,7 +141,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     (result ``"verdict"``) and written at the top level of ``json_out``.
 
     With armed devices (``arm``: the configured URLs, real hardware) the
-    ``operator`` must be a person (:func:`require_human`): ``yes`` or a
+    ``operator`` must be a person (:func:`require_person`): ``yes`` or a
     scripted operator is refused with :class:`SafetyError` before anything
     moves, and the armed-run confirmation is always asked.
 
@@ -152,7 +166,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             acceptance["measurements"] = [m.to_dict() for m in parse_measurements(declared, "measurements")]
     operator = operator or operator_for(yes, quiet)
     if arm:  # refused before the run is even recorded
-        require_human(operator)
+        require_person(operator)
     with ExitStack() as stack:
         store = stack.enter_context(RunStore(cfg.station.store_file(base)))
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
@@ -170,7 +184,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         # every reason the devices cannot run the plan, before anything moves
         preflight(prepared, cfg, devices)
         if devices.armed:
-            require_human(operator)
+            require_person(operator)
             if not operator.confirm(f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
                 raise SafetyError("armed run not confirmed by the operator; nothing moved")
         forwarder = _start_forwarding(cfg, base, stack)
@@ -279,4 +293,4 @@ def stored_procedure(cfg, run_id: str, base: Path) -> str:
         return store.run(run_id).procedure
 
 
-__all__ = ["run_procedure", "ProcedureOutcome", "VERDICT_KEY", "operator_for", "require_human", "start_fake_cell", "stored_procedure", "ConfigError"]
+__all__ = ["run_procedure", "ProcedureOutcome", "VERDICT_KEY", "operator_for", "require_person", "start_fake_cell", "stored_procedure", "ConfigError"]

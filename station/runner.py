@@ -38,7 +38,7 @@ from typing import Any, Protocol, TextIO
 
 import numpy as np
 
-from station.errors import RunStateError, StationError
+from station.errors import RunStateError, SafetyError, StationError
 from station.store import RunStore
 from station.numeric import json_default
 
@@ -49,19 +49,15 @@ class RunAborted(StationError):
 
 
 class Operator(Protocol):
-    """Who answers a run's prompts. ``human`` is True only where a person answers (the terminal, the
-    operator's page): a run on armed devices refuses any other operator, so no script can answer the
-    confirmations that guard real motion."""
-
-    human: bool
+    """Who answers a run's prompts. A run on armed devices takes only a person
+    (:func:`app.assemble.require_person`): the terminal operator on a real
+    terminal, or the operator's page. No attribute an object sets makes it one."""
 
     def confirm(self, message: str) -> bool: ...
 
 
 class ScriptedOperator:
     """Answers every prompt with ``answer`` (``--yes``) and logs it: dry runs on the fakes only."""
-
-    human = False
 
     def __init__(self, answer: bool = True, stream: TextIO | None = None) -> None:
         self.answer = answer
@@ -77,9 +73,7 @@ class ScriptedOperator:
 
 class CallableOperator:
     """A script's own answers: ``answer(message) -> bool`` for each prompt, logged in ``asked``. Dry runs on
-    the fakes only (not ``human``)."""
-
-    human = False
+    the fakes only."""
 
     def __init__(self, answer: Callable[[str], bool]) -> None:
         self._answer = answer
@@ -92,12 +86,10 @@ class CallableOperator:
 
 
 class AnswerFileOperator:
-    """Scripted answers from a file, for dry runs only (not ``human``): one answer per prompt in order,
+    """Scripted answers from a file, for dry runs only: one answer per prompt in order,
     each line ``yes`` or ``no``, optionally ``TEXT = yes|no`` where ``TEXT`` must occur in the prompt;
     blank lines and ``#`` comments are skipped. A prompt with no answer left, or not matching its line,
     is refused (:class:`~station.errors.ConfigError`) rather than guessed."""
-
-    human = False
 
     def __init__(self, path: str | Path) -> None:
         from station.errors import ConfigError
@@ -135,19 +127,50 @@ class AnswerFileOperator:
 
 
 class InteractiveOperator:
-    """Asks on the terminal; anything but y/yes is a no. A person answers: ``human``."""
+    """Asks on the terminal; anything but y/yes is a no.
 
-    human = True
+    A person answers only where both streams are a terminal: a pipe or a file
+    on either (``yes | station run --arm``) answers nothing of an armed run.
+    :meth:`require_terminal` checks that once (before anything is recorded)
+    and makes every later :meth:`confirm` check it again, so a stream swapped
+    for a pipe afterwards is refused too.
+    """
 
     def __init__(self, stdin: TextIO = sys.stdin, stdout: TextIO = sys.stderr) -> None:
         self.stdin, self.stdout = stdin, stdout
+        self._terminal_required = False
+
+    def not_a_terminal(self) -> list[str]:
+        """The names of the streams that are not a terminal (empty where a person can answer)."""
+        return [name for name, stream in (("standard input", self.stdin), ("the prompt's output", self.stdout))
+                if not _is_terminal(stream)]
+
+    def require_terminal(self) -> None:
+        """:class:`~station.errors.SafetyError` unless both streams are a terminal; from now on each
+        prompt checks it again."""
+        missing = self.not_a_terminal()
+        if missing:
+            raise SafetyError(f"an armed run needs a person to answer its confirmations at a terminal: "
+                              f"{' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not a terminal "
+                              "(a pipe or a file cannot confirm real motion); nothing moved")
+        self._terminal_required = True
 
     def confirm(self, message: str) -> bool:
+        if self._terminal_required:
+            self.require_terminal()
         with _PausedDisplay():  # the progress bar steps aside: the prompt has a line of its own
             self.stdout.write(f"? {message} [y/N] ")
             self.stdout.flush()
             line = self.stdin.readline()
         return line.strip().lower() in ("y", "yes")
+
+
+def _is_terminal(stream) -> bool:
+    """True where ``stream`` is an open terminal (a tty); a closed or file-less stream is not."""
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False
 
 
 class RunControl:

@@ -27,7 +27,7 @@ import pytest
 
 from fakes.station import FakeStation
 from procedures.iso9283 import registration_of
-from tests.person import TYPED_YES
+from tests.person import Terminal, run_at_terminal
 from station.config import config_from_dict
 from station.store import RunStore
 from tests.pace import LOCKSTEP
@@ -85,11 +85,10 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
     with FakeStation.start(seed=seed, time_scale=LOCKSTEP) as cell:
         cfg = _config(cell, tmp_path, "killed")
         db = tmp_path / "killed.sqlite"
+        term = Terminal()  # the person at the terminal answers the armed run's prompts
         child = subprocess.Popen(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
                                           "--run-id", "k1"), cwd=ROOT, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE, stdin=subprocess.PIPE)
-        child.stdin.write(TYPED_YES.encode())  # the person at the terminal answers the armed run's prompts
-        child.stdin.close()
+                                 **term.child_streams())
         deadline = time.monotonic() + 120
         while _done_steps(db) < kill_after and child.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -97,12 +96,11 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
         time.sleep(float(rng.uniform(0, 0.3)))
         os.kill(child.pid, signal.SIGKILL)
         child.wait(timeout=10)
-        err = child.stderr.read().decode()
-        child.stderr.close()
+        err = term.close()
         before = _batches(db)
         assert RunStore(db).run("k1").status in ("running", "done"), err
-        resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
-                                 cwd=ROOT, capture_output=True, text=True, timeout=180, input=TYPED_YES)
+        resumed = run_at_terminal(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
+                                  cwd=ROOT, timeout=180)
         assert resumed.returncode in (0, 1, 2, 3), resumed.stderr  # the verdict's code (2: done already)
         store = RunStore(db)
         if store.run("k1").status != "done":
@@ -131,9 +129,8 @@ def test_killed_run_resumes_with_nothing_lost(rng, tmp_path, trial):
     # an uninterrupted run on an identical cell
     with FakeStation.start(seed=seed, time_scale=LOCKSTEP) as cell:
         cfg = _config(cell, tmp_path, "ref")
-        ref = subprocess.run(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
-                                      "--run-id", "r1"), cwd=ROOT, capture_output=True, text=True, timeout=180,
-                             input=TYPED_YES)
+        ref = run_at_terminal(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
+                                       "--run-id", "r1"), cwd=ROOT, timeout=180)
         assert ref.returncode in (0, 1, 3), ref.stderr  # done: the verdict's exit code (5 would be unfinished)
     ref_store = RunStore(tmp_path / "ref.sqlite")
     ref_res = _pose_table(ref_store, "r1")

@@ -8,16 +8,20 @@ the fakes may be answered by a script: yes to all, a callable, or an answer
 file, whose "no" stops the run.
 """
 
+import io
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from app.acceptance import Station
 from app.cli import main
 from station.errors import ConfigError, SafetyError
-from station.runner import AnswerFileOperator
+from station.runner import AnswerFileOperator, InteractiveOperator
 from station.store import RunStore
-from tests.person import person_typing_yes
+from tests.person import TYPED_YES, Terminal, person_typing_yes
 from tests.pace import LOCKSTEP
 
 ISO = {"cycles": 2, "vap_cycles": 2}
@@ -64,6 +68,68 @@ def test_station_run_refuses_yes_and_answers_with_arm(fake_cell, tmp_path, capsy
     _nothing_moved(fake_cell, tmp_path)
 
 
+def test_a_pipe_does_not_answer_an_armed_run(fake_cell, tmp_path):
+    """``yes | station run iso9283 --arm``: standard input is a pipe, not a person; refused, nothing moved."""
+    cfg = _config_file(fake_cell, tmp_path)
+    root = Path(__file__).resolve().parents[2]
+    argv = [sys.executable, "-m", "app.cli", "run", "iso9283", "--config", str(cfg), "--arm", "--quiet"]
+    piped = subprocess.run(argv, cwd=root, input=TYPED_YES, capture_output=True, text=True, timeout=120)
+    assert piped.returncode == 2, piped.stderr
+    assert "standard input" in piped.stderr and "not a terminal" in piped.stderr
+    _nothing_moved(fake_cell, tmp_path)
+    # the prompts on a terminal while the answers come from a file: still not a person
+    with Terminal() as term:
+        answers = tmp_path / "yes.txt"
+        answers.write_text(TYPED_YES)
+        with answers.open() as stdin:
+            filed = subprocess.run(argv, cwd=root, stdin=stdin, stderr=term.slave, stdout=subprocess.PIPE,
+                                   timeout=120)
+        shown = term.close()
+    assert filed.returncode == 2 and "standard input is not a terminal" in shown, shown
+    _nothing_moved(fake_cell, tmp_path)
+
+
+def test_an_armed_station_refuses_an_operator_that_says_it_is_a_person(fake_cell, tmp_path):
+    """No attribute or subclass makes a script a person: only the terminal operator on a tty, or the page."""
+    cfg = _config_file(fake_cell, tmp_path)
+
+    class SaysHuman:
+        human = True
+
+        def confirm(self, message):
+            return True
+
+    class TerminalLookalike(InteractiveOperator):
+        human = True
+
+        def confirm(self, message):
+            return True
+
+    with Terminal() as term:  # even on a real terminal, a subclass's own confirm is a script
+        lookalike = TerminalLookalike(stdin=open(term.slave, closefd=False), stdout=open(term.slave, "w", closefd=False))
+        for operator in (SaysHuman(), lookalike):
+            with pytest.raises(SafetyError, match="needs a person"):
+                Station.from_config(cfg, arm=True, operator=operator)
+    # the terminal operator reading from a file or writing to one (a pipe, a log) is not at a terminal
+    for stdin, stdout in ((io.StringIO(TYPED_YES), io.StringIO()), (io.StringIO(TYPED_YES), sys.__stderr__)):
+        with pytest.raises(SafetyError, match="not a terminal"):
+            Station.from_config(cfg, arm=True, operator=InteractiveOperator(stdin=stdin, stdout=stdout))
+    _nothing_moved(fake_cell, tmp_path)
+
+
+def test_a_terminal_swapped_for_a_pipe_mid_run_answers_nothing():
+    """After the armed check, each prompt checks the terminal again: a stream swapped later is refused."""
+    with Terminal() as term:
+        person = term.operator()
+        person.require_terminal()
+        assert person.confirm("mount the reflector?") is True  # the typed yes, read on the terminal
+        person.stdin = io.StringIO(TYPED_YES)
+        with pytest.raises(SafetyError, match="standard input is not a terminal"):
+            person.confirm("is the cell clear?")
+        shown = term.close()  # joins the reader: everything the terminal showed
+    assert "mount the reflector?" in shown and "cell clear" not in shown
+
+
 @pytest.mark.slow
 def test_an_armed_station_asks_the_person_every_confirmation(fake_cell, tmp_path):
     cfg = _config_file(fake_cell, tmp_path)
@@ -71,7 +137,7 @@ def test_an_armed_station_asks_the_person_every_confirmation(fake_cell, tmp_path
     station = Station.from_config(cfg, arm=True, operator=person)
     run = station.iso9283(cycles=2, vap_cycles=2, run_id="armed-1")
     assert run.status == "done", run.output
-    asked = person.stdout.getvalue()
+    asked = person.terminal.output()
     # the armed-run confirmation and the procedure's own (reflector, cell clear) reached the person
     assert "ARMED: real devices will move" in asked
     assert "clear" in asked.lower()

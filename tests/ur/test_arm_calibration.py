@@ -95,7 +95,7 @@ def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path, test_s
 
     from fakes.station import FakeStation
     from station.config import config_from_dict
-    from tests.person import TYPED_YES
+    from tests.person import Terminal, run_at_terminal
     from tests.ur.test_iso_procedure import _batches, _done_steps, _station
 
     root = Path(__file__).resolve().parents[2]
@@ -112,23 +112,21 @@ def test_killed_ur_calibration_resumes_with_every_measured_pose(tmp_path, test_s
         # steps: check programs, prompts, connect, 8 measuring batches, identify, diagnose, report
         kill_after = int(rng.integers(5, 11))
         print(f"seed {seed}, kill after {kill_after} steps")
+        term = Terminal()  # the person at the terminal answers the armed run's prompts
         child = subprocess.Popen(_station("run", "arm-calibration", "--config", str(cfg), "--arm", "--quiet",
                                           "--run-id", "k1"), cwd=root, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE, stdin=subprocess.PIPE)
-        child.stdin.write(TYPED_YES.encode())
-        child.stdin.close()
+                                 **term.child_streams())
         deadline = time.monotonic() + 240
         while _done_steps(db) < kill_after and child.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
         time.sleep(float(rng.uniform(0, 0.5)))
         os.kill(child.pid, 9)
         child.wait(timeout=10)
-        err = child.stderr.read().decode()
-        child.stderr.close()
+        err = term.close()
         before = _batches(db)
         assert RunStore(db).run("k1").status in ("running", "done"), err
-        resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
-                                 cwd=root, capture_output=True, text=True, timeout=300, input=TYPED_YES)
+        resumed = run_at_terminal(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
+                                  cwd=root, timeout=300)
         store = RunStore(db)
         assert store.run("k1").status == "done", f"{resumed.stdout} {resumed.stderr}"
     after = _batches(db)

@@ -26,7 +26,7 @@ from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.models import kinematics
 from station.store import RunStore
-from tests.person import TYPED_YES, person_typing_yes
+from tests.person import Terminal, person_typing_yes, run_at_terminal
 from tests.pace import UR_AT_RTDE_HZ, UR_RTDE_HZ
 
 CYCLES, VAP = 3, 2
@@ -165,23 +165,21 @@ def test_killed_ur_run_resumes_with_nothing_lost(tmp_path, test_seed):
         cfg = tmp_path / "killed.json"
         cfg.write_text(json.dumps(d))
         db = tmp_path / "killed.sqlite"
+        term = Terminal()  # the person at the terminal answers the armed run's prompts
         child = subprocess.Popen(_station("run", "iso9283", "--config", str(cfg), "--arm", "--quiet",
                                           "--run-id", "k1"), cwd=root, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE, stdin=subprocess.PIPE)
-        child.stdin.write(TYPED_YES.encode())
-        child.stdin.close()
+                                 **term.child_streams())
         deadline = time.monotonic() + 180
         while _done_steps(db) < kill_after and child.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
         time.sleep(float(rng.uniform(0, 0.3)))
         os.kill(child.pid, signal.SIGKILL)
         child.wait(timeout=10)
-        err = child.stderr.read().decode()
-        child.stderr.close()
+        err = term.close()
         before = _batches(db)
         assert RunStore(db).run("k1").status in ("running", "done"), err
-        resumed = subprocess.run(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
-                                 cwd=root, capture_output=True, text=True, timeout=240, input=TYPED_YES)
+        resumed = run_at_terminal(_station("run", "--resume", "k1", "--config", str(cfg), "--arm", "--quiet"),
+                                  cwd=root, timeout=240)
         store = RunStore(db)
         assert store.run("k1").status == "done", f"{resumed.stdout} {resumed.stderr}"
     after = _batches(db)
