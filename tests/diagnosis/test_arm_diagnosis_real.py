@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from fakes.sim.real_like_arms import fanuc_like, rokae_like
-from station.analysis.arm.calibration import calibrate_arm, split_poses
+from station.analysis.arm.calibration import split_poses
 from station.analysis.diagnose import diagnose_arm
 from app.cli import main
 from station.models import kinematics as kin
 from station.models.arm_extended import motion_directions
 from station.models.arm_model_file import model_to_json, resolve_arm
 from station.readers.arm_csv import write_arm_csv
+from tests.calibration.reference_fit import plain_fit, position_error
 
 
 def _extended_error(res, d, test) -> float:
@@ -36,12 +37,22 @@ def _arm_from(doc):
         return resolve_arm(str(p)).extended()
 
 
-@pytest.mark.timeout(600)  # six diagnoses and calibrations: slow on a shared machine
-@pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
-def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_seed, make, n):
+def _issue_like_fanuc(rng, n):
+    """The public FANUC set's shape as issue 43 measured it: one-joint sweeps, about 1.3 mm nominal error and
+    0.15-0.25 mm noise per reflector (a plain fit predicts unseen poses at about 0.3 mm)."""
+    return fanuc_like(rng, n=n, noise_mm=float(rng.uniform(0.15, 0.25)), nominal_mm=(1.1, 1.5))
+
+
+@pytest.mark.timeout(900)  # six diagnoses and plain fits: slow on a shared machine
+@pytest.mark.parametrize("make, n", [(fanuc_like, 36), (_issue_like_fanuc, 36), (rokae_like, 30), (rokae_like, 50)])
+def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_fit(test_seed, make, n):
+    """Issue 43: geometry is named on every split, judged by the calibration against the nominal model on poses
+    the folds held out (interpolation folds on sweeps, said so); the written model predicts the 30 % it never saw
+    within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of six splits: a single split's sweep ends
+    beyond the training range make either fit extrapolate luckily)."""
     seed = test_seed
     rng = np.random.default_rng(seed)
-    ext, geo = [], []
+    ext, ref = [], []
     for k in range(6):
         if k % 3 == 0:
             d = make(rng, n=n)
@@ -49,20 +60,60 @@ def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_see
         tr, te = sp.train, sp.test
         res = diagnose_arm(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr], t_s=d.t_s[tr])
         assert res.converged, (seed, res.fits)
-        if make is rokae_like:  # spread poses: geometry is named
-            assert res.selected[:1] == [("geometric", None)], (seed, res.selected)
-        else:  # sweeps: an inner fold that takes a sweep's end away may not confirm it; it is then adopted
-            assert res.selected[:1] == [("geometric", None)] or (
-                res.geometry.get("adopted") and "cross-validated" in res.geometry["why_not"]), (seed, res.geometry)
+        assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
+        cv = res.geometry["cross_validation"]
+        assert cv["rms_geometry_mm"] < cv["rms_nominal_mm"], (seed, cv)
+        if d.name == "fanuc-like":
+            assert cv["kind"] == "interpolation" and "interpolation only" in cv["statement"], (seed, cv)
+            assert cv["extrapolation"]["held_out_poses"] > 0, (seed, cv)
+        else:
+            assert cv["kind"] == "random" and "extrapolation" not in cv, (seed, cv)
         # no step without gain: each chose itself by a lower cross-validated error, with a non-zero estimate
         for s in res.steps:
             assert s.cv[1] < s.cv[0] and any(v != 0.0 for v in s.params.values()), (seed, s.term.key)
         # the noise floor is the geometric fit's residual (no repeats), within 2x of it
         assert 0.5 < res.noise_floor / res.fit_residual_floor < 2.0
         ext.append(_extended_error(res, d, te))
-        cal = calibrate_arm(d.dh_nominal, d.q_rad, d.xyz_mm, method="absolute", split=sp, alternative=False)
-        geo.append(float(cal.test.after_mm.mean()))
-    assert np.mean(ext) <= 1.02 * np.mean(geo), (seed, ext, geo)
+        dh, B = plain_fit(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr])
+        ref.append(float(position_error(dh, B, d.q_rad[te], d.xyz_mm[te]).mean()))
+    assert np.mean(ext) <= 1.02 * np.mean(ref), (seed, ext, ref)
+
+
+def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not_reach_unseen_poses(test_seed):
+    """Issue 43 item 2: a backlash-like offset present in the training poses only is named, but the effect does
+    not predict the held-out poses: the written model is the calibration of every pose alone, and says so."""
+    from station.analysis.arm.identification import identify
+    from station.analysis.arm.split import workspace_split
+
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    for _ in range(5):  # a draw whose held-out poses the offset does not move (the split is on q and x,y,z)
+        d = rokae_like(rng, n=60, noise_mm=0.05, hidden=False)
+        order = np.argsort(d.t_s)
+        q, t = d.q_rad[order], d.t_s[order]
+        _, heldout = workspace_split(q, d.xyz_mm[order], 0.25)
+        dirs = motion_directions(q)
+        b = float(rng.uniform(0.9e-3, 1.3e-3))
+        dq = -b * dirs * np.eye(6)[1]
+        dq[heldout] = 0.0
+        meas = kin.tool_position(d.dh_true, q + dq) @ d.base_T[:3, :3].T + d.base_T[:3, 3]
+        meas = meas + rng.normal(0, d.noise_mm, meas.shape)
+        if np.array_equal(workspace_split(q, meas, 0.25)[1], heldout):
+            break
+    else:
+        pytest.fail(f"seed {seed}: the offset moved the held-out split in five draws")
+    res = diagnose_arm(d.dh_nominal, q, meas, t_s=t)
+    assert ("backlash", 2) in res.selected, (seed, res.selected)
+    w = res.to_json()["written_model"]
+    assert w["effects_written"] is False, (seed, w)
+    assert w["heldout_rms_with_effects_mm"] > w["heldout_rms_calibration_mm"], (seed, w)
+    assert "calibration alone" in w["note"], (seed, w)
+    doc = res.extended_model(joint_limits_rad=d.joint_limits_rad)
+    assert doc["effects"] == [], (seed, doc["effects"])
+    # the written model is the calibration of every pose, to the solvers' tolerance
+    cal = identify(d.dh_nominal, q, meas, method="absolute")
+    p_cal = kin.tool_position(cal.dh, q) @ cal.base_T[:3, :3].T + cal.base_T[:3, 3]
+    assert np.max(np.linalg.norm(_arm_from(doc).predict(q) - p_cal, axis=1)) < 1e-3, seed
 
 
 def test_rokae_like_from_the_nominal_model_names_geometry_and_reaches_the_noise(test_seed):
@@ -242,6 +293,7 @@ def test_the_written_model_keeps_the_calibration_s_geometry_and_adds_the_effects
     # the same geometry as the calibration of those poses, to the solvers' tolerance (<< the noise)
     assert np.max(np.linalg.norm(geometry.predict(q[tr]) - at(cal.dh, cal.base_T, tr), axis=1)) < 1e-3, seed
     assert "backlash" in [e["effect"] for e in doc["effects"]]
+    assert res.written["effects_written"] is True and "are written" in res.written["note"], (seed, res.written)
     # with the effects, the poses never seen are predicted better than by the calibration alone
     ext = _arm_from(doc).predict(q[te], last_dir=dirs[te], t_s=d.t_s[te])
     e_ext = np.linalg.norm(ext - meas[te], axis=1).mean()
