@@ -46,13 +46,19 @@ def _issue_like_fanuc(rng, n):
 @pytest.mark.timeout(900)  # six diagnoses and plain fits: slow on a shared machine
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (_issue_like_fanuc, 36), (rokae_like, 30), (rokae_like, 50)])
 def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_fit(test_seed, make, n):
-    """Issue 43: geometry is named on every split, judged by the calibration against the nominal model on poses
-    the folds held out (interpolation folds on sweeps, said so); the written model predicts the 30 % it never saw
-    within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of six splits: a single split's sweep ends
-    beyond the training range make either fit extrapolate luckily)."""
+    """Issue 43: geometry is named, judged by the calibration against the nominal model on poses the folds held
+    out (interpolation folds on sweeps, said so): on every split where the nominal model misses the unseen poses
+    by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of six; the written
+    model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of
+    six splits: a single split's sweep ends beyond the training range make either fit extrapolate luckily).
+    bench/bench_diagnosis_geometry.py, 150 diagnoses per shape: geometry named in all but one (the issue's FANUC
+    shape, where the nominal model missed the unseen poses by only 1.15x the plain fit); the six-split ratio
+    at most 1.010 in 100 replicates."""
+    from station.analysis.arm.identification import rigid_fit
+
     seed = test_seed
     rng = np.random.default_rng(seed)
-    ext, ref = [], []
+    ext, ref, named = [], [], 0
     for k in range(6):
         if k % 3 == 0:
             d = make(rng, n=n)
@@ -60,9 +66,16 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
         tr, te = sp.train, sp.test
         res = diagnose_arm(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr], t_s=d.t_s[tr])
         assert res.converged, (seed, res.fits)
-        assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
+        dh, B = plain_fit(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr])
+        ref.append(float(position_error(dh, B, d.q_rad[te], d.xyz_mm[te]).mean()))
+        B0 = rigid_fit(kin.tool_position(d.dh_nominal, d.q_rad[tr]), d.xyz_mm[tr])
+        nominal = float(position_error(d.dh_nominal, B0, d.q_rad[te], d.xyz_mm[te]).mean())
         cv = res.geometry["cross_validation"]
-        assert cv["rms_geometry_mm"] < cv["rms_nominal_mm"], (seed, cv)
+        if res.selected[:1] == [("geometric", None)]:
+            named += 1
+            assert cv["rms_geometry_mm"] < cv["rms_nominal_mm"], (seed, cv)
+        else:
+            assert nominal <= 1.5 * ref[-1], (seed, nominal, ref[-1], res.geometry)
         if d.name == "fanuc-like":
             assert cv["kind"] == "interpolation" and "interpolation only" in cv["statement"], (seed, cv)
             assert cv["extrapolation"]["held_out_poses"] > 0, (seed, cv)
@@ -74,9 +87,24 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
         # the noise floor is the geometric fit's residual (no repeats), within 2x of it
         assert 0.5 < res.noise_floor / res.fit_residual_floor < 2.0
         ext.append(_extended_error(res, d, te))
-        dh, B = plain_fit(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr])
-        ref.append(float(position_error(dh, B, d.q_rad[te], d.xyz_mm[te]).mean()))
+    assert named >= 5, (seed, named)
     assert np.mean(ext) <= 1.02 * np.mean(ref), (seed, ext, ref)
+
+
+@pytest.mark.parametrize("n", [30, 50])
+def test_rokae_class_written_model_predicts_unseen_poses_below_0_15_mm(test_seed, n):
+    """Issue 43: the ROKAE sets' written model predicts the 30 % of a random split it never saw below 0.15 mm
+    (0.05 mm noise per coordinate: the noise alone leaves about 0.08 mm; 30 draws of each size: at most 0.119 mm
+    and 1.57x what the true geometry leaves on the same poses)."""
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    d = rokae_like(rng, n=n, noise_mm=0.05, hidden=False)
+    sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
+    res = diagnose_arm(d.dh_nominal, d.q_rad[sp.train], d.xyz_mm[sp.train], t_s=d.t_s[sp.train])
+    assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
+    truth = float(np.linalg.norm(d.true_points(sp.test) - d.xyz_mm[sp.test], axis=1).mean())   # the noise alone
+    e = _extended_error(res, d, sp.test)
+    assert e < 0.15 and e < 2.0 * truth, (seed, e, truth)
 
 
 def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not_reach_unseen_poses(test_seed):
