@@ -274,6 +274,25 @@ def test_cli_model_out_predict_and_compensate(test_seed, tmp_path, capsys):
     assert not (tmp_path / "pb.csv").exists()
 
 
+def test_cli_says_when_the_poses_allow_only_interpolation(test_seed, tmp_path, capsys):
+    """One-joint sweeps: the geometry's cross-validation is interpolation only, said in the output and the JSON,
+    with the sweep ends' extrapolation figure beside it; spread poses say neither."""
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    for make, sweeps in ((fanuc_like, True), (rokae_like, False)):
+        d = make(rng, n=36)
+        (tmp_path / "nom.json").write_text(json.dumps(model_to_json(d.dh_nominal, name=d.name)))
+        write_arm_csv(tmp_path / "a.csv", np.degrees(d.q_rad), d.xyz_mm, t=d.t_s)
+        assert main(["diagnose", "arm", "--robot", str(tmp_path / "nom.json"), "--data", str(tmp_path / "a.csv"),
+                     "--json", str(tmp_path / "d.json")]) == 0, seed
+        out = capsys.readouterr().out
+        cv = json.loads((tmp_path / "d.json").read_text())["geometry"]["cross_validation"]
+        assert "geometry cross-validated on" in out and cv["folds"] >= 2, (seed, out)
+        assert ("interpolation only" in out) == sweeps and ("extrapolation (the sweeps' ends" in out) == sweeps, out
+        assert cv["kind"] == ("interpolation" if sweeps else "random"), (seed, cv)
+        assert ("one-joint sweeps" in cv["poses"]) == sweeps, (seed, cv)
+
+
 def test_extended_model_file_is_checked():
     from station.errors import ConfigError
     from station.models.arm_extended import terms_from_json
