@@ -35,7 +35,7 @@ def test_sweeps_are_found_in_any_row_order_with_their_ends(rng):
         assert np.all(np.ptp(np.delete(moved, s.joint, axis=1), axis=0) == 0)
         assert np.all(np.diff(moved[:, s.joint]) > 0)
     assert st.ends.size == 12
-    assert "one-joint sweeps" in st.describe()
+    assert st.describe() == f"{q.shape[0]} poses on one-joint sweeps: " + ", ".join(f"J{j} ({n_per})" for j in range(1, 7))
 
 
 def test_folds_of_sweeps_never_hold_out_an_end_and_cover_the_rest(rng):
@@ -69,6 +69,24 @@ def test_a_joint_moved_by_a_single_pose_is_never_held_out(rng):
     st = pose_structure(q)
     assert q.shape[0] - 1 in lone_extremes(q) and q.shape[0] - 1 in st.ends
     assert all(q.shape[0] - 1 not in f for f in structured_folds(st, 5, seed=0))
+
+
+def test_when_every_pose_ends_a_sweep_no_fold_is_made(rng):
+    """Pairs of poses moving one joint from several homes: every pose is a sweep's end, nothing can be held out
+    without extrapolating."""
+    rows = []
+    homes = int(rng.integers(2, 5))
+    for _ in range(homes):
+        home = rng.uniform(-40, 40, 6)
+        for j in range(6):
+            for v in (-rng.uniform(5, 40), rng.uniform(5, 40)):
+                q = home.copy()
+                q[j] += v
+                rows.append(q)
+    st = pose_structure(np.radians(np.array(rows)))
+    assert st.kind == "sweeps" and st.ends.size == len(rows)
+    assert structured_folds(st, 5, seed=0) == []
+    assert all(f"J{j} ({homes} sweeps, {2 * homes})" in st.describe() for j in range(1, 7)), st.describe()
 
 
 def test_spread_poses_take_random_folds(rng):

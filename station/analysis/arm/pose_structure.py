@@ -67,8 +67,12 @@ class PoseStructure:
     def describe(self) -> str:
         if self.kind != "sweeps":
             return f"{self.n_poses} poses spread over the joint space"
-        joints = ", ".join(f"J{s.joint + 1} ({s.rows.size})" for s in self.sweeps)
-        return f"{self.n_poses} poses on one-joint sweeps: {joints}"
+        parts = []
+        for j in sorted({s.joint for s in self.sweeps}):
+            sw = [s for s in self.sweeps if s.joint == j]
+            n = sum(s.rows.size for s in sw)
+            parts.append(f"J{j + 1} ({n})" if len(sw) == 1 else f"J{j + 1} ({len(sw)} sweeps, {n})")
+        return f"{self.n_poses} poses on one-joint sweeps: {', '.join(parts)}"
 
 
 def sweeps(q_rad: np.ndarray, tol_rad: float = SAME_ANGLE_RAD) -> list[Sweep]:
@@ -128,6 +132,8 @@ def structured_folds(structure: PoseStructure, k: int, seed: int) -> list[np.nda
     n = structure.n_poses
     keep = structure.ends if structure.kind == "sweeps" else np.zeros(0, dtype=np.int64)
     pool = np.setdiff1d(np.arange(n), keep)
+    if pool.size == 0:
+        return []   # every pose ends a sweep: none can be held out without extrapolating
     perm = np.random.default_rng(seed).permutation(pool)
     return [np.sort(f) for f in np.array_split(perm, min(k, perm.size)) if f.size]
 

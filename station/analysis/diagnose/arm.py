@@ -677,6 +677,10 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             geometry["named"] = True
         else:
             geometry["why_not"] = ("not significant" if not ct.significant else
+                                   "significant, but every training pose ends a sweep: none can be held out without "
+                                   "extrapolating, not cross-validated" if not cv_doc.get("folds") else
+                                   "significant, but no fold of the training poses could be calibrated without its "
+                                   "poses (too few): not cross-validated" if not cv_doc.get("held_out_poses") else
                                    "significant, but the calibration does not predict the poses the folds held out "
                                    "better than the nominal model (cross-validated)")
             # not named, but the diagnosis still starts from the geometric calibration (it costs nothing
