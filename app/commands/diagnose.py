@@ -18,6 +18,13 @@
     ``noise_floor`` (mm) and ``noise_floor_source``, ``selection``,
     ``geometry``, ``stop_reason``, ``remaining_structure``,
     ``not_testable``, ``rejected``, ``fits`` (each fit's convergence),
+    ``geometry.cross_validation`` (the calibration against the nominal
+    model on poses each fold held out; on one-joint sweeps the folds keep
+    every sweep's ends in training and say the test is interpolation only,
+    with the sweep ends' extrapolation figure beside it), ``written_model``
+    (whether the effects were written: only when, added to the calibration
+    of the training poses, they predict the held-out poses no worse than
+    the calibration alone),
     ``extended_model`` (the model file ``--model-out`` writes: the chosen
     effects refitted on every pose, read by ``station predict arm`` and
     ``station compensate arm``). Exit code 3: a fit did not converge (the
@@ -163,6 +170,25 @@ def _print_trailer(doc: dict) -> None:
         print(f"not testable: {key}: {why}")
 
 
+def _mm(v) -> str:
+    return "n/a" if v is None else f"{v:.4f} mm"
+
+
+def _print_geometry_cv(cv: dict) -> None:
+    """How geometry was judged: the calibration against the nominal model on poses the folds held out."""
+    if not cv:
+        return
+    print(f"geometry cross-validated on {cv['poses']}: the calibration fitted without each of {cv['folds']} folds "
+          f"predicts its {cv['held_out_poses']} poses at {_mm(cv['rms_geometry_mm'])} RMS, the nominal model at "
+          f"{_mm(cv['rms_nominal_mm'])}")
+    if cv["kind"] == "interpolation":
+        print(f"  {cv['statement']}")
+    ex = cv.get("extrapolation")
+    if ex:
+        print(f"  extrapolation (the sweeps' ends held out, {ex['held_out_poses']} poses; reported, not judged): "
+              f"calibration {_mm(ex['rms_geometry_mm'])}, nominal {_mm(ex['rms_nominal_mm'])} RMS")
+
+
 def _print(doc: dict) -> None:
     print(f"simulation held-out RMS {doc['simulation_heldout_rms']:.4f} mm "
           f"({doc['n_poses']['train']} training, {doc['n_poses']['heldout']} held-out poses)")
@@ -181,8 +207,11 @@ def _print(doc: dict) -> None:
           f"noise floor {doc['noise_floor']:.4f} mm (from {doc['noise_floor_source']})")
     if doc.get("stop_reason"):
         print(f"stopped: {doc['stop_reason']}")
+    _print_geometry_cv(doc.get("geometry", {}).get("cross_validation") or {})
     for w in doc.get("geometry", {}).get("warnings", []):
         print(f"warning (geometry): {w['message']}")
+    if doc.get("written_model"):
+        print(f"model written: {doc['written_model']['note']}")
     left = [c for c in doc["remaining_structure"] if c.get("significant")]
     if left:
         print("significant but not lowering the cross-validated error of the training poses: "

@@ -171,13 +171,16 @@ def _sweeps(home_deg, limits_deg, n, rng, joint_order=(0, 1, 2, 3, 4, 5)) -> np.
     return np.radians(np.array(rows))
 
 
-def fanuc_like(rng, *, n: int = 36, noise_mm: float | None = None, hidden: bool = True) -> LookalikeSet:
-    """One joint at a time from a home pose, J1 to J6 (the J6 sweep last), three reflectors on the flange."""
+def fanuc_like(rng, *, n: int = 36, noise_mm: float | None = None, hidden: bool = True,
+               nominal_mm: tuple = (2.0, 3.0)) -> LookalikeSet:
+    """One joint at a time from a home pose, J1 to J6 (the J6 sweep last), three reflectors on the flange;
+    ``nominal_mm``: range of the nominal model's RMS miss after a rigid fit."""
     dh_nom = kin.dh_from_degrees(FANUC_LIKE_DEG)
     lim = np.radians(FANUC_LIMITS_DEG)
     home = np.array([0.0, 10.0, 10.0, 0.0, -45.0, 0.0]) + rng.normal(0, 5, 6)
     q = _sweeps(home, FANUC_LIMITS_DEG, n, rng)
-    return _finish("fanuc-like", dh_nom, lim, q, rng, noise_mm, "three reflectors", hidden, motion_order=True)
+    return _finish("fanuc-like", dh_nom, lim, q, rng, noise_mm, "three reflectors", hidden, motion_order=True,
+                   nominal_mm=nominal_mm)
 
 
 def rokae_like(rng, *, n: int = 50, noise_mm: float | None = None, hidden: bool = True) -> LookalikeSet:

@@ -46,6 +46,7 @@ __all__ = [
     "fk",
     "tool_position",
     "param_jacobian",
+    "param_jacobian_from_frames",
     "fk_and_param_jacobian",
     "joint_jacobian",
     "pose_error",
@@ -387,6 +388,13 @@ def param_jacobian(dh, q_rad) -> np.ndarray:
     F = _frames(dh, q)
     J = _param_jacobian_from_frames(dh, q, F)
     return J[0] if single else J
+
+
+def param_jacobian_from_frames(dh, q_rad, F: np.ndarray) -> np.ndarray:
+    """:func:`param_jacobian` from the frames :func:`frames` already gave for the same ``dh`` and ``q_rad``
+    (N, 8, 4, 4): a residual and its Jacobian share one forward pass."""
+    dh, q, _ = _prepare(dh, q_rad)
+    return _param_jacobian_from_frames(dh, q, F)
 
 
 def fk_and_param_jacobian(dh, q_rad):

@@ -38,3 +38,42 @@ def test_no_lower_cost_within_a_tenth_of_a_sigma_is_converged_and_beyond_it_is_n
     evaluate, apply, start = _plateau(rng, float(rng.uniform(0.11, 2.0)))
     out = levenberg_marquardt(evaluate, apply, start, step_tol_sigma=0.01)
     assert not out.converged and "no damped step lowers the cost" in out.message, out.message
+
+
+def test_a_lazy_jacobian_is_computed_only_for_accepted_states_and_changes_nothing(rng):
+    """A sine fit from a start that overshoots (rejected trial steps): the Jacobian given as a function is called
+    once per accepted state and never for a rejected one, the path is the eager one's, and a given start is not
+    evaluated again."""
+    t = np.linspace(0.0, 3.0, int(rng.integers(20, 60)))
+    truth = np.array([rng.uniform(1, 3), rng.uniform(0.5, 2.0)])
+    y = truth[0] * np.sin(truth[1] * t) + rng.normal(0, 0.01, t.size)
+    calls = {"r": 0, "J": 0}
+
+    def residual(x):
+        return y - x[0] * np.sin(x[1] * t)
+
+    def jac(x):
+        return np.column_stack([np.sin(x[1] * t), x[0] * t * np.cos(x[1] * t)])   # J s = r: -dr/dx
+
+    def eager(x):
+        return residual(x), jac(x)
+
+    def lazy(x):
+        calls["r"] += 1
+
+        def J():
+            calls["J"] += 1
+            return jac(x)
+
+        return residual(x), J
+
+    start = np.array([0.2 * truth[0], 0.7 * truth[1]])
+    a = levenberg_marquardt(eager, lambda x, s: x + s, start, keep_states=True)
+    b = levenberg_marquardt(lazy, lambda x, s: x + s, start, keep_states=True)
+    assert a.converged and b.converged
+    assert np.array_equal(a.state, b.state) and a.iterations == b.iterations and np.array_equal(a.J, b.J)
+    assert calls["J"] == len(b.states) and calls["r"] > calls["J"]  # rejected trials cost the residual only
+    calls["r"] = calls["J"] = 0
+    c = levenberg_marquardt(lazy, lambda x, s: x + s, b.state, start=(b.r, b.J), keep_states=True)
+    assert calls["J"] == len(c.states) - 1   # the start's Jacobian was given
+    assert c.converged and np.allclose(c.state, b.state, rtol=1e-6)

@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from fakes.sim.real_like_arms import fanuc_like, rokae_like
-from station.analysis.arm.calibration import calibrate_arm, split_poses
+from station.analysis.arm.calibration import split_poses
 from station.analysis.diagnose import diagnose_arm
 from app.cli import main
 from station.models import kinematics as kin
 from station.models.arm_extended import motion_directions
 from station.models.arm_model_file import model_to_json, resolve_arm
 from station.readers.arm_csv import write_arm_csv
+from tests.calibration.reference_fit import plain_fit, position_error
 
 
 def _extended_error(res, d, test) -> float:
@@ -36,12 +37,28 @@ def _arm_from(doc):
         return resolve_arm(str(p)).extended()
 
 
-@pytest.mark.timeout(600)  # six diagnoses and calibrations: slow on a shared machine
-@pytest.mark.parametrize("make, n", [(fanuc_like, 36), (rokae_like, 30), (rokae_like, 50)])
-def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_seed, make, n):
+def _issue_like_fanuc(rng, n):
+    """The public FANUC set's shape as issue 43 measured it: one-joint sweeps, about 1.3 mm nominal error and
+    0.15-0.25 mm noise per reflector (a plain fit predicts unseen poses at about 0.3 mm)."""
+    return fanuc_like(rng, n=n, noise_mm=float(rng.uniform(0.15, 0.25)), nominal_mm=(1.1, 1.5))
+
+
+@pytest.mark.timeout(900)  # six diagnoses and plain fits: slow on a shared machine
+@pytest.mark.parametrize("make, n", [(fanuc_like, 36), (_issue_like_fanuc, 36), (rokae_like, 30), (rokae_like, 50)])
+def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_fit(test_seed, make, n):
+    """Issue 43: geometry is named, judged by the calibration against the nominal model on poses the folds held
+    out (interpolation folds on sweeps, said so): on every split where the nominal model misses the unseen poses
+    by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of six; the written
+    model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of
+    six splits: a single split's sweep ends beyond the training range make either fit extrapolate luckily).
+    bench/bench_diagnosis_geometry.py, 150 diagnoses per shape: geometry named in all but one (the issue's FANUC
+    shape, where the nominal model missed the unseen poses by only 1.15x the plain fit); the six-split ratio
+    at most 1.010 in 100 replicates."""
+    from station.analysis.arm.identification import rigid_fit
+
     seed = test_seed
     rng = np.random.default_rng(seed)
-    ext, geo = [], []
+    ext, ref, named = [], [], 0
     for k in range(6):
         if k % 3 == 0:
             d = make(rng, n=n)
@@ -49,20 +66,82 @@ def test_trained_on_70_percent_predicts_the_rest_no_worse_than_geometry(test_see
         tr, te = sp.train, sp.test
         res = diagnose_arm(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr], t_s=d.t_s[tr])
         assert res.converged, (seed, res.fits)
-        if make is rokae_like:  # spread poses: geometry is named
-            assert res.selected[:1] == [("geometric", None)], (seed, res.selected)
-        else:  # sweeps: an inner fold that takes a sweep's end away may not confirm it; it is then adopted
-            assert res.selected[:1] == [("geometric", None)] or (
-                res.geometry.get("adopted") and "cross-validated" in res.geometry["why_not"]), (seed, res.geometry)
+        dh, B = plain_fit(d.dh_nominal, d.q_rad[tr], d.xyz_mm[tr])
+        ref.append(float(position_error(dh, B, d.q_rad[te], d.xyz_mm[te]).mean()))
+        B0 = rigid_fit(kin.tool_position(d.dh_nominal, d.q_rad[tr]), d.xyz_mm[tr])
+        nominal = float(position_error(d.dh_nominal, B0, d.q_rad[te], d.xyz_mm[te]).mean())
+        cv = res.geometry["cross_validation"]
+        if res.selected[:1] == [("geometric", None)]:
+            named += 1
+            assert cv["rms_geometry_mm"] < cv["rms_nominal_mm"], (seed, cv)
+        else:
+            assert nominal <= 1.5 * ref[-1], (seed, nominal, ref[-1], res.geometry)
+        if d.name == "fanuc-like":
+            assert cv["kind"] == "interpolation" and "interpolation only" in cv["statement"], (seed, cv)
+            assert cv["extrapolation"]["held_out_poses"] > 0, (seed, cv)
+        else:
+            assert cv["kind"] == "random" and "extrapolation" not in cv, (seed, cv)
         # no step without gain: each chose itself by a lower cross-validated error, with a non-zero estimate
         for s in res.steps:
             assert s.cv[1] < s.cv[0] and any(v != 0.0 for v in s.params.values()), (seed, s.term.key)
         # the noise floor is the geometric fit's residual (no repeats), within 2x of it
         assert 0.5 < res.noise_floor / res.fit_residual_floor < 2.0
         ext.append(_extended_error(res, d, te))
-        cal = calibrate_arm(d.dh_nominal, d.q_rad, d.xyz_mm, method="absolute", split=sp, alternative=False)
-        geo.append(float(cal.test.after_mm.mean()))
-    assert np.mean(ext) <= 1.02 * np.mean(geo), (seed, ext, geo)
+    assert named >= 5, (seed, named)
+    assert np.mean(ext) <= 1.02 * np.mean(ref), (seed, ext, ref)
+
+
+@pytest.mark.parametrize("n", [30, 50])
+def test_rokae_class_written_model_predicts_unseen_poses_below_0_15_mm(test_seed, n):
+    """Issue 43: the ROKAE sets' written model predicts the 30 % of a random split it never saw below 0.15 mm
+    (0.05 mm noise per coordinate: the noise alone leaves about 0.08 mm; 30 draws of each size: at most 0.119 mm
+    and 1.57x what the true geometry leaves on the same poses)."""
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    d = rokae_like(rng, n=n, noise_mm=0.05, hidden=False)
+    sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
+    res = diagnose_arm(d.dh_nominal, d.q_rad[sp.train], d.xyz_mm[sp.train], t_s=d.t_s[sp.train])
+    assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
+    truth = float(np.linalg.norm(d.true_points(sp.test) - d.xyz_mm[sp.test], axis=1).mean())   # the noise alone
+    e = _extended_error(res, d, sp.test)
+    assert e < 0.15 and e < 2.0 * truth, (seed, e, truth)
+
+
+def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not_reach_unseen_poses(test_seed):
+    """Issue 43 item 2: a backlash-like offset present in the training poses only is named, but the effect does
+    not predict the held-out poses: the written model is the calibration of every pose alone, and says so."""
+    from station.analysis.arm.identification import identify
+    from station.analysis.arm.split import workspace_split
+
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    for _ in range(5):  # a draw whose held-out poses the offset does not move (the split is on q and x,y,z)
+        d = rokae_like(rng, n=60, noise_mm=0.05, hidden=False)
+        order = np.argsort(d.t_s)
+        q, t = d.q_rad[order], d.t_s[order]
+        _, heldout = workspace_split(q, d.xyz_mm[order], 0.25)
+        dirs = motion_directions(q)
+        b = float(rng.uniform(0.9e-3, 1.3e-3))
+        dq = -b * dirs * np.eye(6)[1]
+        dq[heldout] = 0.0
+        meas = kin.tool_position(d.dh_true, q + dq) @ d.base_T[:3, :3].T + d.base_T[:3, 3]
+        meas = meas + rng.normal(0, d.noise_mm, meas.shape)
+        if np.array_equal(workspace_split(q, meas, 0.25)[1], heldout):
+            break
+    else:
+        pytest.fail(f"seed {seed}: the offset moved the held-out split in five draws")
+    res = diagnose_arm(d.dh_nominal, q, meas, t_s=t)
+    assert ("backlash", 2) in res.selected, (seed, res.selected)
+    w = res.to_json()["written_model"]
+    assert w["effects_written"] is False, (seed, w)
+    assert w["heldout_rms_with_effects_mm"] > w["heldout_rms_calibration_mm"], (seed, w)
+    assert "calibration alone" in w["note"], (seed, w)
+    doc = res.extended_model(joint_limits_rad=d.joint_limits_rad)
+    assert doc["effects"] == [], (seed, doc["effects"])
+    # the written model is the calibration of every pose, to the solvers' tolerance
+    cal = identify(d.dh_nominal, q, meas, method="absolute")
+    p_cal = kin.tool_position(cal.dh, q) @ cal.base_T[:3, :3].T + cal.base_T[:3, 3]
+    assert np.max(np.linalg.norm(_arm_from(doc).predict(q) - p_cal, axis=1)) < 1e-3, seed
 
 
 def test_rokae_like_from_the_nominal_model_names_geometry_and_reaches_the_noise(test_seed):
@@ -195,6 +274,25 @@ def test_cli_model_out_predict_and_compensate(test_seed, tmp_path, capsys):
     assert not (tmp_path / "pb.csv").exists()
 
 
+def test_cli_says_when_the_poses_allow_only_interpolation(test_seed, tmp_path, capsys):
+    """One-joint sweeps: the geometry's cross-validation is interpolation only, said in the output and the JSON,
+    with the sweep ends' extrapolation figure beside it; spread poses say neither."""
+    seed = test_seed
+    rng = np.random.default_rng(seed)
+    for make, sweeps in ((fanuc_like, True), (rokae_like, False)):
+        d = make(rng, n=36)
+        (tmp_path / "nom.json").write_text(json.dumps(model_to_json(d.dh_nominal, name=d.name)))
+        write_arm_csv(tmp_path / "a.csv", np.degrees(d.q_rad), d.xyz_mm, t=d.t_s)
+        assert main(["diagnose", "arm", "--robot", str(tmp_path / "nom.json"), "--data", str(tmp_path / "a.csv"),
+                     "--json", str(tmp_path / "d.json")]) == 0, seed
+        out = capsys.readouterr().out
+        cv = json.loads((tmp_path / "d.json").read_text())["geometry"]["cross_validation"]
+        assert "geometry cross-validated on" in out and cv["folds"] >= 2, (seed, out)
+        assert ("interpolation only" in out) == sweeps and ("extrapolation (the sweeps' ends" in out) == sweeps, out
+        assert cv["kind"] == ("interpolation" if sweeps else "random"), (seed, cv)
+        assert ("one-joint sweeps" in cv["poses"]) == sweeps, (seed, cv)
+
+
 def test_extended_model_file_is_checked():
     from station.errors import ConfigError
     from station.models.arm_extended import terms_from_json
@@ -242,6 +340,7 @@ def test_the_written_model_keeps_the_calibration_s_geometry_and_adds_the_effects
     # the same geometry as the calibration of those poses, to the solvers' tolerance (<< the noise)
     assert np.max(np.linalg.norm(geometry.predict(q[tr]) - at(cal.dh, cal.base_T, tr), axis=1)) < 1e-3, seed
     assert "backlash" in [e["effect"] for e in doc["effects"]]
+    assert res.written["effects_written"] is True and "are written" in res.written["note"], (seed, res.written)
     # with the effects, the poses never seen are predicted better than by the calibration alone
     ext = _arm_from(doc).predict(q[te], last_dir=dirs[te], t_s=d.t_s[te])
     e_ext = np.linalg.norm(ext - meas[te], axis=1).mean()

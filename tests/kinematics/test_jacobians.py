@@ -147,3 +147,11 @@ def test_beta_adds_an_identifiable_direction_for_parallel_axes(rng):
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
     resid = np.linalg.norm(b - A @ coef) / np.linalg.norm(b)
     assert resid > 0.05, resid
+
+
+def test_parameter_jacobian_from_given_frames_is_the_parameter_jacobian(rng):
+    from station.models import kinematics as kin
+
+    dh = get_robot("rb5-850").dh_nominal + rng.normal(0, 1e-3, (7, 5))
+    q = rng.uniform(-3, 3, (int(rng.integers(1, 50)), 6))
+    np.testing.assert_array_equal(kin.param_jacobian_from_frames(dh, q, kin.frames(dh, q)), kin.param_jacobian(dh, q))

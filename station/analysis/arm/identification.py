@@ -197,24 +197,36 @@ def _base_T(x_base: np.ndarray) -> np.ndarray:
     return T
 
 
-def _absolute_problem(dh, x_base, q, meas):
-    T, J = kin.fk_and_param_jacobian(dh, q)
-    p = T[:, :3, 3]
+def _absolute_problem(dh, x_base, q, meas, *, lazy: bool = False, frames=None):
+    """``(r, J)`` of the absolute formulation; ``lazy``: ``J`` is a function that computes it from the same
+    frames (the solver calls it only for a state it accepts); ``frames``: :func:`kin.frames` of ``dh, q``
+    when the caller has them."""
+    F = kin.frames(dh, q) if frames is None else frames
+    p = F[:, -1, :3, 3]
     B = _base_T(x_base)
     R = B[:3, :3]
     pw = p @ R.T + B[:3, 3]
     r = (meas - pw).reshape(-1)
+
+    def jac():
+        return _absolute_jacobian(dh, q, F, p, R)
+
+    return (r, jac) if lazy else (r, jac())
+
+
+def _absolute_jacobian(dh, q, F, p, R):
+    J = kin.param_jacobian_from_frames(dh, q, F)
     n = q.shape[0]
-    Jk = np.einsum("ab,nbj->naj", R, J)  # (n, 3, 35)
-    Jb = np.zeros((n, 3, 6))
+    out = np.zeros((n, 3, kin.N_PARAMS + 6))
+    np.matmul(R, J, out=out[:, :, :kin.N_PARAMS])   # (n, 3, 35) in the instrument frame
     # a small rotation w applied on the left: d(R p) = w x (R p)
     Rp = p @ R.T
+    Jb = out[:, :, kin.N_PARAMS:]
     Jb[:, 0, 1], Jb[:, 0, 2] = Rp[:, 2], -Rp[:, 1]
     Jb[:, 1, 0], Jb[:, 1, 2] = -Rp[:, 2], Rp[:, 0]
     Jb[:, 2, 0], Jb[:, 2, 1] = Rp[:, 1], -Rp[:, 0]
-    Jb[:, :, 3:] = np.eye(3)
-    Jfull = np.concatenate([Jk, Jb], axis=2).reshape(3 * n, -1)
-    return r, Jfull
+    Jb[:, 0, 3] = Jb[:, 1, 4] = Jb[:, 2, 5] = 1.0
+    return out.reshape(3 * n, -1)
 
 
 def _update_base(x_base: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -565,9 +577,11 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         order = _kin_order()
     else:
         n_p = kin.N_PARAMS + 6
-        B0 = rigid_fit(model_positions(dh, q), meas) if base_T_start is None else np.asarray(base_T_start, float)
+        F_start = kin.frames(dh, q)
+        p_start = F_start[:, -1, :3, 3]
+        B0 = rigid_fit(p_start, meas) if base_T_start is None else np.asarray(base_T_start, float)
         x_base = np.concatenate([Rotation.from_matrix(B0[:3, :3]).as_rotvec(), B0[:3, 3]])
-        r, J = _absolute_problem(dh, x_base, q, meas)
+        r, J = _absolute_problem(dh, x_base, q, meas, frames=F_start)
         order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
     dh_ideal = ideal_structure(dh)
     if not np.array_equal(dh_ideal, dh):
@@ -614,7 +628,8 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
 
     def evaluate(st):
         dh_, xb_ = st
-        return _distance_problem(dh_, q, meas, pairs) if method == "distance" else _absolute_problem(dh_, xb_, q, meas)
+        return (_distance_problem(dh_, q, meas, pairs) if method == "distance" else
+                _absolute_problem(dh_, xb_, q, meas, lazy=True))
 
     def apply(st, full):
         dh_, xb_ = st
@@ -630,14 +645,16 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     state = (dh, x_base)
     hist_states, hist_rms = [state], [math.sqrt(float(r @ r) / r.size)]
     it1 = 0
+    at_state = (r, J)   # each fit starts where the last ended, with its residual and Jacobian
     if 0 < stage1.size < free.size:
         s1 = levenberg_marquardt(evaluate, apply, state, free=stage1, max_iter=max_iter, rtol=tol,
-                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
         state, it1 = s1.state, s1.iterations
+        at_state = (s1.r, s1.J)
         hist_states += s1.states[1:]
         hist_rms += s1.rms_history[1:]
     sol = levenberg_marquardt(evaluate, apply, state, free=free, max_iter=max_iter, rtol=tol,
-                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
     hist_states += sol.states[1:]
     hist_rms += sol.rms_history[1:]
     prior_note = None
@@ -652,8 +669,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
             # the nominal model's rigid fit places the base only as well as the nominal model fits: its
             # misfit over the spread of the points bounds the rotation, the misfit itself the translation
             B0 = _base_T(x_base0)
-            miss = math.sqrt(float(np.mean(np.sum((meas - model_positions(dh_start_arr, q) @ B0[:3, :3].T
-                                                   - B0[:3, 3]) ** 2, axis=1))))
+            miss = math.sqrt(float(np.mean(np.sum((meas - p_start @ B0[:3, :3].T - B0[:3, 3]) ** 2, axis=1))))
             spread = math.sqrt(float(np.mean(np.sum((meas - meas.mean(axis=0)) ** 2, axis=1))))
             for k, i in enumerate(pri):
                 if i >= kin.N_PARAMS:
@@ -667,15 +683,18 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         def with_prior(keep: np.ndarray):
             idx, w = pri[keep], s_noise / psd[keep]
 
-            def evaluate_prior(st):
-                r_, J_ = evaluate(st)
+            def rows(st, r_, J_):
                 rp = w * (x_start[idx] - flat(st)[idx])
-                Jp = np.zeros((idx.size, J_.shape[1]))
+                Jp = np.zeros((idx.size, sol.J.shape[1]))
                 Jp[np.arange(idx.size), idx] = w
-                return np.concatenate([r_, rp]), np.concatenate([J_, Jp])
+                return np.concatenate([r_, rp]), lambda: np.concatenate([J_() if callable(J_) else J_, Jp])
+
+            def evaluate_prior(st):
+                return rows(st, *evaluate(st))
 
             return levenberg_marquardt(evaluate_prior, apply, sol.state, free=free, max_iter=max_iter, rtol=tol,
-                                       step_tol_sigma=STEP_TOL_SIGMA, keep_states=True)
+                                       step_tol_sigma=STEP_TOL_SIGMA, keep_states=True,
+                                       start=rows(sol.state, sol.r, sol.J))
 
         # a weak prior costs the data little: beyond the chi-square bound of its own degrees of freedom it
         # contradicts the data. The base's prior (the nominal model's rigid fit) is the one that can: over a
@@ -689,7 +708,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         solp, used = None, None
         for keep in tries:
             cand = with_prior(keep)
-            r_c = evaluate(cand.state)[0]
+            r_c = cand.r[:m_data]   # the data's part of its residual
             if float(r_c @ r_c) - sol.cost <= chi2.isf(PRIOR_CONSISTENCY_P, int(keep.sum())) * s_noise ** 2:
                 solp, used = cand, keep
                 break
@@ -709,7 +728,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         if solp is not None:
             hist_states += solp.states[1:]
             hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / m_data) for st in solp.states[1:]]
-            r_d, J_d = evaluate(solp.state)
+            r_d, J_d = solp.r[:m_data], solp.J[:m_data]
             # the solution is the fit with the prior: it converged or not. The fit without it is its start and
             # the reference of the chi-square check; along directions the poses barely see it may wander
             # without end (36 poses, joint 4 moved 15 deg: a3 crept 3.7 mm per 20 steps at 1e-6 relative gain

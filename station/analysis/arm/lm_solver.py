@@ -47,9 +47,13 @@ class LMResult:
     states: list = field(default_factory=list)        # accepted states (first: the start)
 
 
+def _jac(J) -> np.ndarray:
+    return J() if callable(J) else J
+
+
 def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None, max_iter: int = 100,
                         rtol: float = 1e-10, step_tol_sigma: float = 0.01, lam0: float = 1e-3,
-                        keep_states: bool = False) -> LMResult:
+                        keep_states: bool = False, start=None) -> LMResult:
     """Minimise ``||r||^2`` from ``state``.
 
     Parameters
@@ -57,12 +61,17 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
     evaluate : callable
         ``evaluate(state) -> (r (m,), J (m, n))``; ``J = dr/dx`` with the sign of ``-d prediction``
         folded in by the caller so that the step solves ``J s = r`` (the measured minus the modelled).
+        ``J`` may be a function of no arguments that returns it: it is then called only for a state the
+        solver accepts (a rejected trial step costs the residual alone).
     apply : callable
         ``apply(state, step (n,)) -> state``.
     free : array_like of int, optional
         Columns of ``J`` that move (default all); the step of the others is 0.
+    start : tuple, optional
+        ``(r, J)`` at ``state`` when the caller has them (the end of a previous fit): not evaluated again.
     """
-    r, J = evaluate(state)
+    r, J = evaluate(state) if start is None else start
+    J = _jac(J)
     n = J.shape[1]
     free = np.arange(n) if free is None else np.asarray(free, dtype=np.int64)
     m = r.size
@@ -124,7 +133,7 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
                            f"(predicted decrease {decrease:.3g} mm^2 of {cost:.3g})")
             break
         rel = (cost - c_c) / max(cost, 1e-300)
-        state, r, J, cost = cand, r_c, J_c, c_c
+        state, r, J, cost = cand, r_c, _jac(J_c), c_c
         hist.append(math.sqrt(cost / max(m, 1)))
         if keep_states:
             states.append(state)

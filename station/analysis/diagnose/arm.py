@@ -10,8 +10,15 @@
    (:func:`station.analysis.arm_identification.identify`, the shared
    Levenberg-Marquardt solver) is the start of everything else. It is
    *named* when a partial F test of its columns against the simulation's
-   residual passes and it lowers the cross-validated error inside the
-   training poses. When geometry cannot be tested, nothing else is named.
+   residual passes and the calibration, fitted without each fold of the
+   training poses, predicts that fold better than the nominal model does
+   (:mod:`.geometry_cv`: the question the user asks, with the calibration
+   itself rather than a linearised refit). The folds respect the poses'
+   layout (:mod:`station.analysis.arm.pose_structure`): on one-joint sweeps
+   every sweep's ends stay in training, the test is then interpolation only
+   and says so, and the sweep ends held out give an extrapolation figure
+   that is reported, never judged. When geometry cannot be tested, nothing
+   else is named.
 4. Every other candidate term (:mod:`.terms`) is tested against the
    residual left by the current model: the part of its Jacobian columns the
    model cannot already produce (Frisch-Waugh), least squares, and a
@@ -28,6 +35,12 @@
 6. Ambiguity: a candidate that was significant in the round another one was
    chosen, explained at least half as much of the residual alone, and is no
    longer significant after it, explains the same residual: the step names it.
+
+The model written out (:meth:`ArmDiagnosis.extended_model`) is the
+calibration of every pose with the named effects fitted on it held; the
+effects are written only when the same construction on the training poses
+predicts the held-out poses no worse than the calibration alone
+(``written_model`` says which, with both figures).
 
 The noise floor is the pooled scatter of repeated measurements of the same
 joint angles when there are any, otherwise the geometric fit's training
@@ -55,7 +68,9 @@ from station.numeric import finite_or_none
 
 from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
 from .block_test import model_basis, wald_block
+from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split
+from .geometry_cv import beats_nominal, fold_errors
 from .summary_json import core_json
 from .terms import Term, joint_terms, last_motion_direction, thermal_terms
 
@@ -165,6 +180,7 @@ class ArmDiagnosis:
     fits: list = field(default_factory=list)
     selection: str = ""
     rejected: dict = field(default_factory=dict)   # significant and cross-validated, but implausible: not named
+    written: dict = field(default_factory=dict)    # the check of the written model's effects (see _check_effects_on_heldout)
 
     @property
     def converged(self) -> bool:
@@ -223,6 +239,7 @@ class ArmDiagnosis:
             "selection": self.selection,
             "fits": self.fits,
             "rejected": self.rejected,
+            "written_model": self.written,
             "converged": self.converged,
             "units": "rms and noise_floor: mm (3-D position error); params: mm, rad, rad per N m, 1/K as named",
             "elapsed_s": self.elapsed_s,
@@ -276,6 +293,40 @@ def _with_geometry(state: ModelState, geo: Term, res, dh) -> ModelState:
     st.theta[-1] = (res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
     st.R, st.t = res.base_T[:3, :3].copy(), res.base_T[:3, 3].copy()
     return st
+
+
+def _on_calibration(state: ModelState, dh, geo: Term, res) -> ModelState:
+    """``state`` (which has a geometric term) with that term and the base at the calibration ``res``."""
+    gi = next(i for i, t in enumerate(state.terms) if t.kind == "geometric")
+    out = state.copy()
+    out.terms[gi] = geo
+    out.dh_nominal = _held_at_calibration(dh, res)
+    out.theta[gi] = (res.dh.reshape(-1) - dh.reshape(-1))[geo.index].copy()
+    out.R, out.t = res.base_T[:3, :3].copy(), res.base_T[:3, 3].copy()
+    return out
+
+
+def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, geo: Term, res) -> dict:
+    """The written model's construction (the calibration, and the named effects fitted with it held) made on the
+    training poses, against that calibration alone, on the held-out poses: the effects are written only when
+    they predict those poses no worse (issue 43: the written model is never worse than its own calibration on
+    poses that did not choose it). RMS of the 3-D error, mm."""
+    st, _, sol = fit_report(_on_calibration(state, dh, geo, res), q, meas, train, hold_geometry=True)
+    p_geo = kin.tool_position(res.dh, q[heldout]) @ res.base_T[:3, :3].T + res.base_T[:3, 3]
+    rms_geo = _rms(meas[heldout] - p_geo)
+    rms_eff = _rms(meas[heldout] - predict(st, q, heldout))
+    ok = bool(sol.converged and rms_eff <= rms_geo)
+    names = [t.key for t in state.terms if t.kind != "geometric"]
+    note = (f"the effects ({', '.join(names)}) are written: added to the calibration of the training poses they "
+            f"predict the {heldout.size} held-out poses at {rms_eff:.4g} mm RMS, the calibration alone at "
+            f"{rms_geo:.4g} mm" if ok else
+            f"the written model is the calibration alone: the effects ({', '.join(names)}) added to the calibration "
+            f"of the training poses predict the {heldout.size} held-out poses at {rms_eff:.4g} mm RMS, worse than "
+            f"the calibration alone ({rms_geo:.4g} mm)" if sol.converged else
+            "the written model is the calibration alone: the effects could not be fitted on it "
+            f"({sol.message})")
+    return {"effects_written": ok, "heldout_rms_with_effects_mm": finite_or_none(rms_eff),
+            "heldout_rms_calibration_mm": finite_or_none(rms_geo), "note": note}
 
 
 def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
@@ -369,37 +420,59 @@ def _test_round(state: ModelState, q, meas, train, variants: list[Term], alpha: 
     return list(best.values()), cv_now
 
 
-def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float, folds) -> tuple[CandidateTest, float]:
-    """The geometric candidate's test: a classical partial F on every coordinate (the robust covariance of
-    the joint effects needs more poses than a table of 20-30 parameters leaves on a 30-pose set)."""
+def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float) -> CandidateTest:
+    """The geometric candidate's significance: a classical partial F on every coordinate (the robust covariance
+    of the joint effects needs more poses than a table of 20-30 parameters leaves on a 30-pose set). Whether it
+    predicts poses that did not choose it is :func:`.geometry_cv.fold_errors`' question."""
     pred, A, extra = jacobian(state, q, train, [geo])
     r3 = meas[train] - pred
     r = r3.reshape(-1)
     B = extra[0][1]
     m, p, k = r.size, A.shape[2], geo.k
     ct = CandidateTest(geo.key, geo.effect, None, True, k=k, variant=geo)
-    e_now = cv_errors(A, r3, folds)
-    cv_now = math.sqrt(float(np.mean(e_now)))
     dof = m - p - k
     if dof < max(3.0, k / 2.0):
         ct.testable, ct.reason = False, (f"{train.size} training poses give {m} coordinates for {p + k} parameters "
                                          f"(base transform and geometry): {dof} to spare, the test needs "
                                          f"{max(3, int(math.ceil(k / 2)))}")
-        return ct, cv_now
+        return ct
     Q = model_basis(A.reshape(-1, p))
     bt = wald_block(B.reshape(-1, k), r, Q, lambda X, res: np.eye(X.shape[1]))
     if bt.why is not None:
         ct.testable, ct.reason = False, "it does not move the measured point in these poses"
-        return ct, cv_now
+        return ct
     rss0 = float(r @ r)
     rss1 = max(rss0 - bt.rss_reduction, 1e-300)
     ct.rss_reduction = bt.rss_reduction
     ct.statistic = (bt.rss_reduction / k) / (rss1 / dof)
     ct.threshold = float(stats.f.isf(alpha, k, dof))
-    e_c = cv_errors(A, r3, folds, B)
-    ct.heldout_rms_after = math.sqrt(float(np.mean(e_c)))
-    ct.cv_gain = cv_gain(e_now, e_c)
-    return ct, cv_now
+    return ct
+
+
+def _geometry_cv(dh, q, meas, train, ct: CandidateTest, structure, folds) -> tuple[float, dict]:
+    """The calibration and the nominal model, each fitted without a fold, predicting it (interpolation folds on
+    sweeps); on sweeps the sweep ends held out give the extrapolation figure, reported only. Sets ``ct``'s
+    cross-validated RMS and gain; ``(nominal's cross-validated RMS, the JSON of both)``."""
+    qt, mt = q[train], meas[train]
+    fe = fold_errors(dh, qt, mt, folds)
+    ct.heldout_rms_after = fe.rms_geometry
+    ct.cv_gain = beats_nominal(fe)
+    how = ("interpolation only: the poses are one-joint sweeps and every sweep's ends stay in training, so each "
+           "held-out pose lies inside the range of the poses that calibrate it; beyond a sweep's range the model "
+           "extrapolates and these folds do not test it" if structure.interpolation_only else
+           "random folds of poses spread over the joint space")
+    doc = {"poses": structure.describe(), "folds": len(folds), "held_out_poses": int(fe.rows.size),
+           "kind": "interpolation" if structure.interpolation_only else "random", "statement": how,
+           "rms_nominal_mm": finite_or_none(fe.rms_nominal), "rms_geometry_mm": finite_or_none(fe.rms_geometry),
+           "folds_not_calibrated": fe.failed}
+    if structure.interpolation_only:
+        ex = fold_errors(dh, qt, mt, sweep_end_folds(structure))
+        doc["extrapolation"] = {
+            "what": "every sweep's low ends, then its high ends, held out and predicted from the other poses "
+                    "(reported, not used to judge)",
+            "held_out_poses": int(ex.rows.size), "rms_nominal_mm": finite_or_none(ex.rms_nominal),
+            "rms_geometry_mm": finite_or_none(ex.rms_geometry)}
+    return fe.rms_nominal, doc
 
 
 #: a joint effect whose fit moves a joint by more than this is not named (5 arcmin)
@@ -540,6 +613,8 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     t_w, temp_w, load_w = take(t_s), take(temperature_c), take(load_kg)
     train, heldout = workspace_split(q, meas, heldout_fraction, seed=seed)
     folds_tr = inner_folds(train.size, int(folds), seed)
+    structure = pose_structure(q[train])
+    folds_geo = structured_folds(structure, int(folds), seed)
     last_dir = last_motion_direction(q)
     not_testable: dict = {}
     th_terms, why = thermal_terms(t_w, temp_w)
@@ -572,17 +647,20 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         not_testable["geometric"] = why
         stop_why = f"geometry cannot be tested ({why}): nothing else is named, it could stand in for geometric error"
     else:
-        ct, cv_now = _geometry_test(state, q, meas, train, geo, alpha, folds_tr)
+        ct = _geometry_test(state, q, meas, train, geo, alpha)
         rounds.append([ct])
-        geometry.update(statistic=finite_or_none(ct.statistic), threshold=finite_or_none(ct.threshold), cv_rms_before=cv_now,
-                        cv_rms_after=finite_or_none(ct.heldout_rms_after), converged=geo_res.converged,
+        cv_now, cv_doc = (_geometry_cv(dh, q, meas, train, ct, structure, folds_geo) if ct.testable
+                          else (math.nan, {}))
+        geometry.update(statistic=finite_or_none(ct.statistic), threshold=finite_or_none(ct.threshold),
+                        cv_rms_before=finite_or_none(cv_now), cv_rms_after=finite_or_none(ct.heldout_rms_after),
+                        cross_validation=cv_doc, converged=geo_res.converged,
                         message=geo_res.message, warnings=geo_res.extra.get("warnings", []))
         if not ct.testable:
             not_testable["geometric"] = ct.reason
             stop_why = f"geometry cannot be tested ({ct.reason}): nothing else is named"
-        elif ct.significant and ct.heldout_rms_after < cv_now:
-            # geometry is the base of everything else: a lower cross-validated error suffices (the one-SE
-            # rule of the joint effects would drop it where a fold takes a whole sweep away)
+        elif ct.significant and ct.cv_gain:
+            # geometry is the base of everything else: the calibration predicting the poses each fold held out
+            # better than the nominal model suffices (see .geometry_cv)
             st = _with_geometry(state, geo, geo_res, dh)
             st, _, sol = fit_report(st, q, meas, train)
             fits.append(("geometric", sol))
@@ -590,15 +668,21 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             r_before, r_after = resid_sim, meas - predict(st, q, all_rows)
             steps.append(Step(geo, params, ci, sim_ho, _rms(r_after[heldout]), ct.statistic, ct.threshold,
                               f"partial F of the {ct.k} geometric parameters against F({ct.k}, 3n-p) at 1 - {alpha:g}; "
-                              f"{len(folds_tr)}-fold cross-validated RMS inside the training poses "
-                              f"{cv_now:.4g} -> {ct.heldout_rms_after:.4g} mm",
+                              f"the calibration fitted without each of {len(folds_geo)} folds of the training poses "
+                              f"predicts them at {ct.heldout_rms_after:.4g} mm RMS, the nominal model at "
+                              f"{cv_now:.4g} mm ({cv_doc['kind']})",
                               resid_before=r_before, resid_after=r_after))
             steps[-1].cv = (cv_now, ct.heldout_rms_after)
             state = st
             geometry["named"] = True
         else:
             geometry["why_not"] = ("not significant" if not ct.significant else
-                                   "significant but does not lower the cross-validated error")
+                                   "significant, but every training pose ends a sweep: none can be held out without "
+                                   "extrapolating, not cross-validated" if not cv_doc.get("folds") else
+                                   "significant, but no fold of the training poses could be calibrated without its "
+                                   "poses (too few): not cross-validated" if not cv_doc.get("held_out_poses") else
+                                   "significant, but the calibration does not predict the poses the folds held out "
+                                   "better than the nominal model (cross-validated)")
             # not named, but the diagnosis still starts from the geometric calibration (it costs nothing
             # where the table is right, and joint effects must not stand in for a geometry left out)
             st = _with_geometry(state, geo, geo_res, dh)
@@ -675,17 +759,22 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     # geometry extrapolates worse than the calibration did: FANUC-like sets, 6 random 70/30 splits each, the
     # mean held-out error against geometry alone was above 1.02x in 7 draws of 60 with the joint refit, in none
     # held (worst 1.010; mean 0.972)
-    start_all = state
-    if geometry["named"] or geometry.get("adopted"):
+    on_calibration = geometry["named"] or geometry.get("adopted")
+    start_all, res_all = state, None
+    if on_calibration:
         # the geometry of the written model is the calibration of every pose (its own identifiable set)
         geo_all, res_all, _ = _geometric_term(dh, q, meas, all_rows)
         if geo_all is not None:
-            gi = next(i for i, t in enumerate(state.terms) if t.kind == "geometric")
-            start_all = state.copy()
-            start_all.terms[gi] = geo_all
-            start_all.dh_nominal = _held_at_calibration(dh, res_all)
-            start_all.theta[gi] = (res_all.dh.reshape(-1) - dh.reshape(-1))[geo_all.index].copy()
-            start_all.R, start_all.t = res_all.base_T[:3, :3].copy(), res_all.base_T[:3, 3].copy()
+            start_all = _on_calibration(state, dh, geo_all, res_all)
+    written = _check_effects_on_heldout(state, dh, q, meas, train, heldout, geo, geo_res) if (
+        on_calibration and len(state.terms) > 1) else None
+    if written is not None and not written["effects_written"] and start_all is not state:
+        # the effects, added to the calibration of the training poses, predicted the held-out poses worse than
+        # that calibration alone: the written model is the calibration, and says so
+        start_all = start_all.copy()
+        keep = [i for i, t in enumerate(start_all.terms) if t.kind == "geometric"]
+        start_all.terms = [start_all.terms[i] for i in keep]
+        start_all.theta = [start_all.theta[i] for i in keep]
     if start_all is not state and len(start_all.terms) == 1:
         # geometry alone: the written model is that calibration itself (a refit under the diagnosis's own
         # prior would extrapolate differently beyond the poses' range)
@@ -709,6 +798,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     out.stop_reason = stop_why
     out.row_order = order_how
     out.state_all = state_all
+    out.written = written or {}
     out.refs = {"t0_s": float(np.min(t_s)) if t_s is not None else None,
                 "reference_temperature_c": float(np.min(temperature_c)) if temperature_c is not None else None}
     out.fits = [{"fit": name, "converged": s.converged, "iterations": s.iterations, "message": s.message}
