@@ -96,7 +96,6 @@ def _refused(si) -> str:
     if si.refused:
         return si.refused
     if si.jumps:
-        where = ", ".join(str(int(si.points.line[j.row])) for j in si.jumps)
-        return (f"the clock jumps at line(s) {where} ({'; '.join(j.text() for j in si.jumps)}): a drift per minute "
-                "across a jump is not a measurement")
+        return ("; ".join(f"line {int(si.points.line[j.row])}: {j.text()}" for j in si.jumps)
+                + "; a drift per minute across a jump is not a measurement")
     return ""

@@ -67,7 +67,7 @@ def lab_lookalike(rng, *, cycles=3, wait_s=2.0, speed=1.0) -> LabLookalike:
     t_end = rest0 + 2 * cycles * T + waits.sum()
     t = np.arange(int(t_end * RATE_HZ)) / RATE_HZ
     frac = np.zeros(t.size)  # 0 at P1, 1 at P2
-    scatter = rng.normal(0.0, 0.004, (2 * cycles + 1, 3))  # where each stop ends, about the pose, mm
+    scatter = rng.normal(0.0, 0.008, (2 * cycles + 1, 3))  # where each stop ends, about the pose, mm
     stop_off = np.tile(scatter[0], (t.size, 1))
     t0 = rest0
     for m in range(2 * cycles):
@@ -81,7 +81,7 @@ def lab_lookalike(rng, *, cycles=3, wait_s=2.0, speed=1.0) -> LabLookalike:
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     off = np.array([3400.0, rng.uniform(-500, 500), rng.uniform(-800, -200)])
     clean = tool_points(q) @ R.T + off + stop_off
-    sigma = rng.uniform(0.5e-3, 2e-3)
+    sigma = rng.uniform(0.3e-3, 1e-3)
     xyz = clean + rng.normal(0.0, sigma, clean.shape)
     cmd = tool_points(np.stack([q1, q1 + dq])) @ R.T + off + rng.uniform(-0.05, 0.05, (2, 3))
     # the PC's stamps: 1 s apart, each on a burst of 66-444 samples, most bursts small (the logger falls behind)

@@ -46,10 +46,10 @@ MOVE_SPREAD_FRACTION = 0.02
 STAMP_TOLERANCE_FRACTION = 0.02
 #: a dwell lasts the program's wait minus at most this (s) ...
 DWELL_SHORT_S = 0.05
-#: ... and plus at most this fraction of the wait plus this (s): the approach and departure inside the rest
-#: radius and the controller's overhead
-DWELL_LONG_FRACTION = 0.15
-DWELL_LONG_S = 0.1
+#: ... and plus at most this fraction of the wait (a controller's timer) plus this (s): the approach and the
+#: departure inside the rest radius and the controller's overhead, which do not grow with the wait
+DWELL_LONG_FRACTION = 0.02
+DWELL_LONG_S = 0.4
 #: emScon sampling rates are EMSCON_BASE_HZ / k, k = 1 .. EMSCON_MAX_K
 EMSCON_BASE_HZ = 1000.0
 EMSCON_MAX_K = 100
