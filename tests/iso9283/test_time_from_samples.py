@@ -32,10 +32,10 @@ def run(capsys, *argv):
     return rc, cap.out, cap.err
 
 
-@pytest.fixture
-def lab(tmp_path, rng):
-    la = lab_lookalike(rng)
-    f = write_lab_export(tmp_path / "ur_100pct.txt", la)
+@pytest.fixture(params=[1.0, 0.5], ids=["100pct", "50pct"])
+def lab(tmp_path, rng, request):
+    la = lab_lookalike(rng, speed=request.param)
+    f = write_lab_export(tmp_path / f"ur_{request.param:.0%}.txt", la)
     P = write_poses(tmp_path / "P.csv", ["P1", "P2"], la.poses_mm)
     return la, f, P
 

@@ -287,7 +287,7 @@ def rate_from_dwells(dwell_samples, wait_s: float) -> DwellRate:
     interval, or none at all: no rate, with the reason.
     """
     if not (isinstance(wait_s, (int, float)) and math.isfinite(wait_s) and wait_s > DWELL_SHORT_S):
-        raise DataError(f"the program's wait must be a number > {DWELL_SHORT_S:g} s, got {wait_s!r}")
+        raise DataError(f"the program's wait (--dwell-s) must be a number > {DWELL_SHORT_S:g} s, got {wait_s!r}")
     D = np.asarray(dwell_samples, dtype=float)
     w = float(wait_s)
     if D.size == 0:
