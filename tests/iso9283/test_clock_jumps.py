@@ -204,3 +204,20 @@ def test_a_hold_across_a_daylight_saving_jump_states_no_drift(tmp_path, rng, cap
     d = json.loads((tmp_path / "h.json").read_text())
     assert d["drift_mm_per_min"] is None and d["duration_s"] is None
     assert math.isfinite(d["noise_3d_mm"])
+
+
+def test_a_leap_second_is_counted_and_a_rounded_sixtieth_second_is_not():
+    from station.readers.date_time import parse_stamp, stamps_to_seconds
+
+    leap = ["2016-12-31 23:59:59.50", "2016-12-31 23:59:60.00", "2016-12-31 23:59:60.50", "2017-01-01 00:00:00.00",
+            "2017-01-01 00:00:00.50"]
+    r = stamps_to_seconds([parse_stamp(x) for x in leap])
+    assert r.t_s == pytest.approx([0.0, 0.5, 1.0, 1.5, 2.0]) and r.leap_rows == (3,)
+    # whole seconds: the leap second's samples keep their own second
+    r = stamps_to_seconds([parse_stamp(x) for x in ("12/31/16 23:59:59", "12/31/16 23:59:60", "12/31/16 23:59:60",
+                                                     "01/01/17 00:00:00")], date_order="mdy")
+    assert r.t_s == pytest.approx([0.0, 1.0, 1.0, 2.0])
+    # a logger that writes 59.9996 s as 60.000 and goes on with the next minute: nothing to count
+    r = stamps_to_seconds([parse_stamp(x) for x in ("2025-03-11 14:07:59.99", "2025-03-11 14:07:60.00",
+                                                     "2025-03-11 14:08:00.01")])
+    assert r.t_s == pytest.approx([0.0, 0.01, 0.02]) and r.leap_rows == ()

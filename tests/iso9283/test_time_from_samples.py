@@ -98,14 +98,15 @@ def test_the_programs_wait_gives_the_rate_within_its_stated_uncertainty_and_mpt_
     ref = json.loads((tmp_path / "true.json").read_text())
     mpt = [m["MPT_s"] for m in d["MPT"]]
     assert mpt == pytest.approx([m["MPT_s"] for m in ref["MPT"]], rel=3 * CLOCK_REL_U)
-    for m in mpt:  # never the 14 s of the stamps' clock: the move, then settling within the dwell
-        assert la.move_s - 0.05 < m < la.move_s + la.dwell_s.max()
+    for m in mpt:  # never the 14 s of the stamps' clock: the move (less its ends inside the bands), then settling
+        assert 0.95 * la.move_s < m < la.move_s + la.dwell_s.max()
     assert all(m["on_estimated_rate"] for m in d["MPT"])
 
 
 def test_a_wait_that_fits_no_rate_is_refused_not_used(tmp_path, lab, capsys):
     la, f, P = lab
-    rc, _, err = run(capsys, "iso9283", "--stream", f, "--poses", P, "--dwell-s", 1.0, "--json", tmp_path / "r.json")
+    # 1.5 s: the dwells (about 2.05 s at 1000/3 Hz) fit 354-470 Hz with it, no emScon rate and too wide a range
+    rc, _, err = run(capsys, "iso9283", "--stream", f, "--poses", P, "--dwell-s", 1.5, "--json", tmp_path / "r.json")
     assert rc == 3
     assert "the dwells give no rate" in err and "too wide to use" in err
     d = json.loads((tmp_path / "r.json").read_text())
@@ -131,9 +132,9 @@ def test_moves_and_dwells_are_found_in_samples(rng):
     for g in groups:
         assert g.spread <= 3
         assert 0.9 * la.move_s * RATE_HZ < g.samples.min() <= la.move_s * RATE_HZ
-    # a dwell is the wait and overhead plus the parts of the ramps inside the rest radius
-    assert np.all(mv.dwell_rows >= np.floor(la.dwell_s * RATE_HZ))
-    assert np.all(mv.dwell_rows <= la.dwell_s * RATE_HZ + 0.2 * RATE_HZ)
+    # a dwell is the wait and overhead the tool stands still, give or take the ends of the ramps
+    assert mv.dwell_rows.size == la.n_moves - 1
+    assert np.all(np.abs(mv.dwell_rows - la.dwell_s * RATE_HZ) <= 0.1 * RATE_HZ)
 
 
 def test_dwells_that_fit_several_emscon_rates_give_no_rate(rng):
@@ -149,7 +150,7 @@ def test_dwells_that_fit_several_emscon_rates_give_no_rate(rng):
 
 def test_dwells_off_every_emscon_rate_give_the_middle_when_narrow(rng):
     rate = float(rng.uniform(1100.0, 1300.0))  # a tracker above every emScon rate
-    wait = 5.0
+    wait = 10.0  # long enough for the overhead's allowance to leave a narrow interval
     D = np.floor(rate * (wait + rng.uniform(0.0, 0.05, 5)))
     dr = rate_from_dwells(D, wait)
     lo, hi = dr.interval_hz

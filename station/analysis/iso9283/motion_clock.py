@@ -66,9 +66,9 @@ class Moves:
     ``centres_mm`` (S, 3) the rest positions; ``leave_row``/``arrive_row`` (K,)
     the last row inside the start rest's radius and the first inside the end
     rest's; ``from_rest``/``to_rest`` (K,) indices into ``centres_mm``;
-    ``dwell_rows`` (K-1,) rows from each arrival to the next leave (the stop
-    between two moves); ``noise_mm`` the 3-D noise per sample, ``radius_mm``
-    the rest radius.
+    ``still_rows`` (K,) the rows the tool stood still at the rest each move
+    reaches (up to the next move; -1 where no move follows); ``noise_mm`` the
+    3-D noise per sample, ``radius_mm`` the rest radius.
     """
 
     centres_mm: np.ndarray
@@ -78,6 +78,7 @@ class Moves:
     to_rest: np.ndarray
     noise_mm: float
     radius_mm: float
+    still_rows: np.ndarray | None = None
 
     @property
     def samples(self) -> np.ndarray:
@@ -86,7 +87,11 @@ class Moves:
 
     @property
     def dwell_rows(self) -> np.ndarray:
-        return self.leave_row[1:] - self.arrive_row[:-1]
+        """Rows the tool stands still at each stop between two moves (the program's wait and its overhead)."""
+        if self.still_rows is None or self.still_rows.size < 2:
+            return np.zeros(0, np.int64)
+        d = self.still_rows[:-1]
+        return d[d >= 0]
 
 
 def noise_3d_mm(p: np.ndarray) -> float:
@@ -145,8 +150,8 @@ def find_moves(xyz_mm, valid=None) -> Moves:
             seq[-1] = (k, seq[-1][1], b)
         else:
             seq.append((k, a, b))
-    leave, arrive, fr, to = [], [], [], []
-    for (ka, a0, a1), (kb, b0, _) in zip(seq[:-1], seq[1:]):
+    leave, arrive, fr, to, reached = [], [], [], [], []
+    for j, ((ka, a0, a1), (kb, b0, _)) in enumerate(zip(seq[:-1], seq[1:])):
         seg = np.arange(a0, b0 + 1)
         d_a = np.linalg.norm(p[seg] - centres[ka], axis=1)
         d_b = np.linalg.norm(p[seg] - centres[kb], axis=1)
@@ -161,8 +166,13 @@ def find_moves(xyz_mm, valid=None) -> Moves:
         arrive.append(int(rows[seg[first_b]]))
         fr.append(ka)
         to.append(kb)
+        reached.append(j + 1)
+    # the still run at a rest starts STILL_HALF samples after the tool stopped and ends as many before it moves
+    still = [int(rows[seq[j][2]] - rows[seq[j][1]]) + 1 + 2 * L if nxt == j else -1
+             for j, nxt in zip(reached, [r - 1 for r in reached[1:]] + [-1])]
     arr = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
-    return Moves(np.array(centres).reshape(-1, 3), arr(leave), arr(arrive), arr(fr), arr(to), sig, radius)
+    return Moves(np.array(centres).reshape(-1, 3), arr(leave), arr(arrive), arr(fr), arr(to), sig, radius,
+                 arr(still))
 
 
 @dataclass(frozen=True)
