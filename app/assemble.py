@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import shlex
 import signal
 import sys
 from contextlib import ExitStack
@@ -102,13 +103,15 @@ class ProcedureOutcome:
     #: the plant's measurements as judged (station.measurements.evaluate rows)
     measurements: list[dict] = field(default_factory=list)
 
-    def lines(self) -> list[str]:
-        """The console's presentation: the verdict first, then why, then the results."""
+    def lines(self, config: str | Path | None = None) -> list[str]:
+        """The console's presentation: the verdict first, then why, then the results; an unfinished run
+        ends its reasons with the command that resumes it (``config``: the config file it was run with)."""
         head = f"{self.verdict}: run {self.run_id} ({self.procedure}) {self.status}"
         out = [head + (f" ({self.error})" if self.error and self.status != "done" else "")]
         out += [f"  {r}" for r in self.reasons]
         if self.status != "done":
-            out.append(f"resume with: station run --resume {self.run_id} --config <config>")
+            out.append(f"resume with: station run --resume {self.run_id}"
+                       + (f" --config {shlex.quote(str(config))}" if config else ""))
         out += self.summary
         for m in self.measurements:
             val = "not computed" if m["value"] is None else f"{m['value']:.4g} {m['unit']}"

@@ -25,7 +25,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="group", metavar="COMMAND")
     for name in GROUPS:
         importlib.import_module(f"app.commands.{name}").register(sub)
+    _describe_from_help(sub)
     return parser
+
+
+def _describe_from_help(sub: argparse._SubParsersAction) -> None:
+    """A command registered with a one-line help and no description shows that line under its own --help."""
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    for name, p in sub.choices.items():
+        if not p.description and helps.get(name):
+            p.description = helps[name][0].upper() + helps[name][1:] + "."
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                _describe_from_help(a)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -49,8 +49,7 @@ class WebOperator:
             try:
                 while self._answer is None:
                     if self._control.abort_requested:
-                        raise RunAborted("run aborted while waiting for the operator; resume it with "
-                                         "`station run --resume RUN_ID`")
+                        raise RunAborted("run aborted while waiting for the operator (resumable)")
                     self._cond.wait(_POLL_S)
                 answer = self._answer
             finally:

@@ -2,7 +2,7 @@
 
 Fixtures for acceptance scripts:
 
-* ``fake_station`` — a :class:`station.acceptance.Station` whose devices are
+* ``fake_station`` — a :class:`app.acceptance.Station` whose devices are
   the fake cell (a fresh simulated world per run, seed from ``--station-seed``
   or random), with its store in the test's temporary directory. Its robot is
   one that passed its overhaul: drawn with realistic errors, but inside the
@@ -18,7 +18,7 @@ Fixtures for acceptance scripts:
   serial="NA8608-0042", limits={"rp_limit_mm": 0.3}, cycles=5)``, as many
   stations as a test needs, each printed with its seed.
 
-Conditions (:data:`station.acceptance.CONDITIONS`): ``as-drawn``,
+Conditions (:data:`app.acceptance.CONDITIONS`): ``as-drawn``,
 ``in-spec``, ``out-of-spec`` (AP out), ``marginal``,
 ``rp-out``, ``one-pose-out`` (one pose's AP out, the rest in). The cell's seed is printed (shown with a failing test's output):
 rerun with ``--station-seed N``. ``--station-store PATH`` points every

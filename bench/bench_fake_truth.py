@@ -15,7 +15,7 @@ expects (rms length of the attained-position error) and in units of the
 run's own registration uncertainty (jackknife, at each pose), and the largest
 RP, vAP and PST seen.
 
-These figures back ``station.acceptance.SPEC_SIGMAS``, how many scatters a
+These figures back ``app.acceptance.SPEC_SIGMAS``, how many scatters a
 fake robot drawn "in spec" or "out of spec" keeps from its limits.
 """
 

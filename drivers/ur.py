@@ -123,6 +123,8 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
     try:
         import rtde_receive
 
+        # the interpreter is up and has imported what it needs: from here on the time is the device's
+        conn.send(("started", None))
         if stored_register is not None:  # first: the stream goes one by one from its first package
             import rtde_io
 
@@ -222,6 +224,11 @@ def _sidecar_entry() -> None:
     os._exit(0)
 
 
+#: the longest a fresh receive process may take to start and import ``ur_rtde`` (real s): the host's time, not the
+#: device's; an idle host takes about 0.3 s, one loaded by two busy processes per core several seconds
+SIDECAR_START_S = 120.0
+
+
 class RtdeSidecar:
     """``ur_rtde``'s receive interface in a child process (see module docstring).
 
@@ -280,17 +287,25 @@ class RtdeSidecar:
             raise DeviceNotReady(f"RTDE {self.host}: cannot start the receive process: {exc}") from exc
         theirs.close()
         self._proc, self._conn = proc, Connection(ours.detach())
-        if not self._conn.poll(timeout_s):
-            self._kill()
-            raise DeviceTimeout(f"RTDE {self.host}:30004: no handshake within {timeout_s} s")
-        try:
-            kind, info = self._conn.recv()
-        except (EOFError, OSError) as exc:
-            self._kill()
-            raise ConnectionLost(f"RTDE {self.host}:30004: receive process ended during the handshake") from exc
+        # two waits: the start of a fresh interpreter is this host's time (seconds on a loaded host), bounded
+        # apart; the device's handshake gets timeout_s from the moment the process is ready to connect
+        kind, info = self._handshake_message(SIDECAR_START_S, "the receive process did not start")
+        if kind == "started":
+            kind, info = self._handshake_message(timeout_s, "no handshake")
         if kind != "ready":
             self._kill()
             raise ConnectionLost(f"RTDE {self.host}:30004: ur_rtde could not connect: {info}")
+
+    def _handshake_message(self, timeout_s: float, what: str):
+        """The receive process's next message during the start, or the process killed and an error."""
+        if not self._conn.poll(timeout_s):
+            self._kill()
+            raise DeviceTimeout(f"RTDE {self.host}:30004: {what} within {timeout_s} s")
+        try:
+            return self._conn.recv()
+        except (EOFError, OSError) as exc:
+            self._kill()
+            raise ConnectionLost(f"RTDE {self.host}:30004: receive process ended during the handshake") from exc
 
     def drain(self, timeout_s: float = 5.0) -> tuple[np.ndarray, int, bool]:
         """``(rows (N, 34), dropped, connected)`` since the last drain."""

@@ -37,7 +37,10 @@ Fault injection (``faults``: dict of strings)::
     drop_rate      "P"    fraction of sentences that lose one character
                           (sometimes the line end: two lines run together)
     stall          "T0:DUR[,T0:DUR...]"  the line goes silent (no samples, no
-                          replies) from T0 for DUR simulated seconds after start
+                          replies) from T0 for DUR simulated seconds after start;
+                          "drive+T0:DUR": T0 after the first set point that sets
+                          the trailer moving (a speed other than 0), an event of
+                          the unit's own, whenever the host sends it
     seed           "N"    seed of the fault randomness (default: from the world)
 
 ``start_fake(world, host=None, port=None, faults=None)`` -> handle with
@@ -102,14 +105,15 @@ def parse_odometry_faults(faults: dict | None) -> dict:
     out["rate_hz"] = rate
     stalls = []
     for item in filter(None, (s.strip() for s in faults.get("stall", "").split(","))):
-        start, sep, dur = item.partition(":")
+        origin = "drive" if item.startswith("drive+") else "start"
+        start, sep, dur = item.removeprefix("drive+").partition(":")
         try:
             s0, d = float(start), float(dur)
         except ValueError as exc:
-            raise ConfigError(f"stall must be T0:DURATION[,...] in seconds, got {item!r}") from exc
-        if not sep or s0 < 0 or d <= 0:
+            raise ConfigError(f"stall must be [drive+]T0:DURATION[,...] in seconds, got {item!r}") from exc
+        if not sep or not (s0 >= 0 and d > 0 and math.isfinite(s0 + d)):
             raise ConfigError(f"stall must be T0:DURATION with T0 >= 0 and DURATION > 0, got {item!r}")
-        stalls.append((s0, d))
+        stalls.append((origin, s0, d))
     out["stall"] = stalls
     seed = faults.get("seed")
     if seed is not None and not str(seed).lstrip("-").isdigit():
@@ -152,6 +156,8 @@ class OdometryFake:
         self._master = self._port.master
         self.endpoint = {"device": self._port.device}
         self._t0 = float(clock.now())
+        #: device time of the first set point that set the trailer moving (None: not yet)
+        self._t_drive: float | None = None
         self._k = 1  # the next control cycle, at t0 + k / rate
         self.lockstep = bool(lockstep)
         # lockstep: the host being served (its token), whether it let the next cycle run, the newest sample
@@ -220,13 +226,15 @@ class OdometryFake:
                 self._command_line(line)
 
     def _stalled(self, t: float) -> bool:
-        rel = t - self._t0
-        return any(s <= rel < s + d for s, d in self._faults["stall"])
+        origins = {"start": self._t0, "drive": self._t_drive}
+        return any(origins[o] is not None and s <= t - origins[o] < s + d for o, s, d in self._faults["stall"])
 
     def _tick(self, t: float) -> None:
         """One control cycle at device time ``t``: latch commands, then sample."""
         stalled = self._stalled(t)
         pending, self._pending = self._pending, []
+        if self._t_drive is None and any(cmd == "V" and value != 0.0 for cmd, value in pending):
+            self._t_drive = t  # the trailer is set moving: a "drive+" stall counts from here
         for cmd, value in pending:
             self._apply(cmd, value, t, send=not stalled)
         if stalled:

@@ -69,6 +69,10 @@ def _split_faults(faults: Mapping[str, str] | None) -> tuple[dict, dict]:
 #: seconds take a minute or more; the procedures read the joints at rest
 LOCKSTEP_RTDE_HZ = 10
 
+#: the time scale of a dry run nobody watches: the lockstep cells give the same samples and figures at any
+#: pace (tests/sim/test_lockstep.py), so it only bounds the pace, and never binds on a 2-core host
+FULL_PACE = 1e4
+
 
 class FakeStation:
     """A running fake cell; ``close()`` stops every server and joins its threads."""

@@ -249,15 +249,33 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
 # --------------------------------------------------------------------------
 # programs
 # --------------------------------------------------------------------------
-def pose_program(plan: ArmCalPlan, k: int) -> Program:
-    """Pose ``k``: to a pre-position ``PRE_DEG`` below on every joint, then the pose, then a dwell."""
+#: a joint move's speed is chosen so that its estimated peak TCP speed stays this fraction of the gate's cap
+SPEED_CAP_MARGIN = 0.95
+
+
+def move_speed_frac(plan: ArmCalPlan, gate: SafetyGate, qa_deg, qb_deg) -> float:
+    """The speed fraction of the joint move ``qa_deg -> qb_deg``: the plan's, or less where the move's
+    estimated peak TCP speed at the plan's speed would pass the gate's TCP speed cap (a long move of a
+    small arm whose joints turn fast), so the plan keeps within the cap instead of being refused."""
+    v = gate.joint_move_peak_tcp_speed(np.radians(qa_deg), np.radians(qb_deg), plan.speed_frac)
+    cap = SPEED_CAP_MARGIN * gate.max_tcp_speed_mm_s
+    return plan.speed_frac if v <= cap else plan.speed_frac * cap / v
+
+
+def pose_program(plan: ArmCalPlan, k: int, gate: SafetyGate | None = None) -> Program:
+    """Pose ``k``: to a pre-position ``PRE_DEG`` below on every joint, then the pose, then a dwell; each move
+    from the plan's waypoint before it at the plan's speed or less (:func:`move_speed_frac`)."""
+    gate = gate or plan.gate()
+    w, _ = plan_path_deg(plan)
     q = plan.q_deg[k]
     name = f"C{k + 1}"
     pre = JointTarget(f"{name}_pre", tuple(v - PRE_DEG for v in q), label=f"{name} pre-position")
     target = JointTarget(name, tuple(q), label=name)
+    s_pre = move_speed_frac(plan, gate, w[2 * k], w[2 * k + 1])
+    s_pose = move_speed_frac(plan, gate, w[2 * k + 1], w[2 * k + 2])
     return Program(
         name=f"ST_{name}", robot_name=plan.robot.name, rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
-        statements=(Move(pre, "joint", plan.speed_frac), Move(target, "joint", plan.speed_frac), Dwell(plan.dwell_s)),
+        statements=(Move(pre, "joint", s_pre), Move(target, "joint", s_pose), Dwell(plan.dwell_s)),
         accel_frac=0.5, title=f"station: calibration pose {name}",
         rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot),
     )
@@ -296,8 +314,10 @@ def to_batch_start_program(plan: ArmCalPlan, k: int, q_now_deg) -> tuple[Program
         return None, []
     index = {tuple(v): n for v, n in zip(map(tuple, w), names)}
     labels = [index[tuple(q)] for q in way]
+    gate = plan.gate()
+    starts = [np.asarray(q_now_deg, float)] + [np.asarray(q, float) for q in way[:-1]]
     moves = tuple(Move(JointTarget(f"R{i + 1}", tuple(float(v) for v in q), label=f"to {labels[i]}"),
-                       "joint", plan.speed_frac) for i, q in enumerate(way))
+                       "joint", move_speed_frac(plan, gate, qa, q)) for i, (qa, q) in enumerate(zip(starts, way)))
     return Program(name=f"ST_TO{k}", robot_name=plan.robot.name,
                    rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s), statements=moves, accel_frac=0.5,
                    title=f"station: along the plan to the start of batch {k}",
@@ -323,7 +343,7 @@ def check_programs(plan: ArmCalPlan) -> list[str]:
     q_prev = plan.robot.home_q_rad
     for k in range(len(plan.q_deg)):
         try:
-            gate.check_program(pose_program(plan, k), q_start=q_prev)
+            gate.check_program(pose_program(plan, k, gate), q_start=q_prev)
         except StationError as exc:
             problems.append(f"pose C{k + 1}: {exc}")
         q_prev = np.radians(plan.q_deg[k])

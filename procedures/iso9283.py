@@ -155,18 +155,40 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
     rc = cfg.robots[robot_name]
     iso = cfg.iso9283
     robot = get_robot(rc.model)
-    given = iso.model_fields_set
-    inset_mm, vap_offset_mm = iso.inset_mm, iso.vap_offset_mm
     if iso.cube_corners_mm:
-        corners = np.asarray(iso.cube_corners_mm, dtype=float)
-    else:
-        # seed 000 Table 1 -> Table 2 placed in this arm's workspace (scale 1 for the Table 1 arm); the
-        # inset and the vAP approach scale alike unless the config gives them
+        return _plan_on_cube(cfg, robot_name, np.asarray(iso.cube_corners_mm, dtype=float), iso.inset_mm,
+                             iso.vap_offset_mm, overrides)
+    # seed 000 Table 1 -> Table 2 placed in this arm's reach and the configured workspace box (scale 1 for the
+    # Table 1 arm); the inset and the vAP approach scale alike unless the config gives them. The fit checks
+    # the commanded points; the gate checks the paths between them (a straight approach may cross a
+    # configuration change): a cube it refuses is laid out again a shrink smaller
+    given = iso.model_fields_set
+    for k in range(_LAYOUT_TRIES):
         cube = fit_cube_to_reach(robot.dh_nominal, robot.joint_limits_rad, robot.home_q_rad, TOOL_DOWN,
-                                 inset_mm=iso.inset_mm, approach_mm=iso.vap_offset_mm)
-        corners = cube.corners_mm
-        inset_mm = iso.inset_mm if "inset_mm" in given else cube.inset_mm
-        vap_offset_mm = iso.vap_offset_mm if "vap_offset_mm" in given else cube.approach_mm
+                                 inset_mm=iso.inset_mm, approach_mm=iso.vap_offset_mm,
+                                 box_min_mm=rc.workspace.min_mm, box_max_mm=rc.workspace.max_mm, first_shrinks=k)
+        plan = _plan_on_cube(cfg, robot_name, cube.corners_mm,
+                             iso.inset_mm if "inset_mm" in given else cube.inset_mm,
+                             iso.vap_offset_mm if "vap_offset_mm" in given else cube.approach_mm, overrides)
+        try:
+            gate = plan.gate()
+            for kind in ("pose cycle", "vAP cycle"):
+                gate.check_program(cycle_program(plan, kind, 1).program, q_start=None)
+        except StationError:
+            if k == _LAYOUT_TRIES - 1:
+                return plan  # the gate says why at the procedure's check of its programs
+            continue
+        return plan
+
+
+#: how many times :func:`plan_from_config` lays the fitted cube out a shrink smaller when the gate refuses a path
+_LAYOUT_TRIES = 6
+
+
+def _plan_on_cube(cfg, robot_name: str, corners, inset_mm: float, vap_offset_mm: float, overrides) -> IsoPlan:
+    rc = cfg.robots[robot_name]
+    iso = cfg.iso9283
+    robot = get_robot(rc.model)
     tp = cube_test_poses(corners, inset_mm=inset_mm)
     poses = {n: tuple(float(v) for v in p) for n, p in zip(tp.names, tp.positions_mm)}
     centre = corners.mean(axis=0)

@@ -227,7 +227,7 @@ class RunControl:
             finally:
                 self._held.clear()
         if self._abort.is_set():
-            raise RunAborted("run aborted on request; resume it with `station run --resume RUN_ID`")
+            raise RunAborted("run aborted on request (resumable)")
 
 
 @dataclass(frozen=True)

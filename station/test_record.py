@@ -56,7 +56,7 @@ def measurement_rows(characteristics: list[dict], measurements: list[dict]) -> l
 
 
 def build(run) -> dict:
-    """The record of ``run`` (a :class:`station.acceptance.AcceptanceRun` or anything with its attributes)."""
+    """The record of ``run`` (a :class:`app.acceptance.AcceptanceRun` or anything with its attributes)."""
     subject = dict(getattr(run, "subject", {}) or {})
     who = {"robot": {k: subject.get(k) for k in ("model", "serial", "overhaul_state")},
            "station": subject.get("station"), **dict(getattr(run, "record", {}) or {})}

@@ -102,8 +102,10 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("--assign-tol-mm", type=float, default=None,
                    help="largest distance from a stop to its commanded pose, mm (default 4 x (AP + RP limits) "
                         "within 5-25 with an AP limit, else 25)")
-    s.add_argument("--initial-rest", choices=("count", "skip"), default="count",
-                   help="the rest before the first move: a stop of the pose it stands at (count, default) or not")
+    s.add_argument("--initial-rest", choices=("count", "skip"), default="skip",
+                   help="the rest before the first move: left out (skip, default: the seed's method, and the "
+                        "files `station simulate` and `station run` write) or a stop of the pose it stands at "
+                        "(count: a lab program that starts at rest at its first pose)")
     s.add_argument("--allow-other-stops", action="store_true",
                    help="stops far from every commanded pose are expected (via points): listed, not an error")
     s.add_argument("--require-iso", action="store_true",

@@ -35,10 +35,13 @@ def parse_faults(items: list[str]) -> dict[str, str]:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fakes", help="run simulated devices on loopback")
     fsub = p.add_subparsers(dest="fakes_cmd", metavar="ACTION")
-    s = fsub.add_parser("serve", help="start one fake and serve until interrupted")
+    s = fsub.add_parser("serve", help="start one fake and serve until interrupted",
+                        description="Start one simulator-backed fake (or the whole station's) on loopback and "
+                                    "serve until interrupted; the device URLs it prints go into a config, so the "
+                                    "station (with --arm) drives it as it would the real device.")
     from fakes.registry import SERVABLE
 
-    s.add_argument("name", choices=sorted(SERVABLE))
+    s.add_argument("name", choices=sorted(SERVABLE), help="which fake (station: the whole cell)")
     s.add_argument("--host", default=None, help="loopback address to bind (default: the fake's own)")
     s.add_argument("--port", type=int, default=None, help="port (default: the fake's own or 0)")
     s.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second")

@@ -32,8 +32,12 @@ from station.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="run a procedure (fakes by default; --arm for real hardware)")
-    p.add_argument("procedure", nargs="?", choices=procedure_names())
+    p = sub.add_parser("run", help="run a procedure (fakes by default; --arm for real hardware)",
+                       description="Run a procedure of the config, or resume a stopped run. Without --arm the "
+                                   "procedure's fake cell is started on loopback and nothing real moves; with "
+                                   "--arm the configured devices are used and a person at the terminal answers "
+                                   "every confirmation. The first line printed is the verdict.")
+    p.add_argument("procedure", nargs="?", choices=procedure_names(), help="the procedure to run")
     p.add_argument("--config", required=True, help="station config (TOML or JSON)")
     p.add_argument("--robot", default="r1", help="robot key in the config (default r1)")
     p.add_argument("--resume", metavar="RUN_ID", help="resume this run from its last finished step")
@@ -44,7 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--answers", metavar="FILE",
                    help="scripted answers, one 'yes'/'no' (or 'TEXT = yes|no') per prompt in order "
                         "(dry runs on the fakes only; refused with --arm)")
-    p.add_argument("--time-scale", type=float, default=20.0, help="fake cell: simulated s per real s (default 20)")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help="fake cell: simulated s per real s at most (default: full pace; the same figures at any "
+                        "pace)")
     p.add_argument("--seed", type=int, default=0, help="fake cell: seed of the simulated world")
     p.add_argument("--json", metavar="OUT", help="write the verdict and the results as JSON")
     p.add_argument("--require-iso", action="store_true",
@@ -55,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from app.assemble import run_procedure
+    from fakes.station import FULL_PACE
     from station.config import load_config
 
     if not args.resume and not args.procedure:
@@ -66,10 +73,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("give --yes or --answers, not both")
     operator = AnswerFileOperator(args.answers) if args.answers else None
     outcome = run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
-                            arm=args.arm, yes=args.yes, operator=operator, time_scale=args.time_scale,
+                            arm=args.arm, yes=args.yes, operator=operator,
+                            time_scale=FULL_PACE if args.time_scale is None else args.time_scale,
                             seed=args.seed, json_out=args.json, quiet=args.quiet,
                             config_dir=Path(args.config).resolve().parent,
                             acceptance={"require_conformance": True} if args.require_iso else None)
-    for line in outcome.lines():
+    for line in outcome.lines(config=args.config):
         print(line)
     return outcome.exit_code

@@ -19,7 +19,11 @@ from station.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("serve", help="the operator's page: watch and steer runs from a browser")
+    p = sub.add_parser("serve", help="the operator's page: watch and steer runs from a browser",
+                       description="Serve the operator's page on this host: start, watch, pause, abort and resume "
+                                   "runs, answer their prompts and read their reports from a browser. Dry runs "
+                                   "use the fake cell; with --arm the configured devices move and the page's "
+                                   "button is the person's answer.")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--config", help="station config (TOML or JSON)")
     src.add_argument("--demo", action="store_true", help="serve the demo station (fake cell, as `station demo`)")

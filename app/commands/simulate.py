@@ -38,7 +38,11 @@ def _parse_break(text: str) -> tuple[float, float]:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="offline data of the simulated cell, with the truth beside")
     ssub = p.add_subparsers(dest="simulate_cmd", metavar="RUN")
-    s = ssub.add_parser("iso9283", help="ISO 9283 cycles P1..P5 (seed 000) -> tracker stream CSV")
+    s = ssub.add_parser("iso9283", help="ISO 9283 cycles P1..P5 (seed 000) -> tracker stream CSV",
+                        description="Simulate the ISO 9283 pose cycles of seed 000 (P2, P3, P4, P5, P1 from a wait "
+                                    "at P1) on the simulated cell, offline, and write DIR/stream.csv (t s, x,y,z "
+                                    "mm, tracker frame), DIR/poses.csv (the commanded poses, tracker frame) and "
+                                    "DIR/truth.json (the true stops and their AP and RP, the drawn world).")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     s.add_argument("--cycles", type=int, default=3, help="number of cycles P2,P3,P4,P5,P1 (default 3)")
     s.add_argument("--dwell", type=float, default=0.5, help="dwell at each pose, s (default 0.5)")

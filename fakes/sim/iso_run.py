@@ -79,6 +79,25 @@ def commanded_joints(robot, positions_mm: np.ndarray):
     return targets, sol.q_rad
 
 
+def true_figures(names, commanded_tracker_mm, stops) -> dict:
+    """The figures a run of these true stops states, for a person to hold the analysis against: per pose
+    AP and RP (seed eqs. (1), (2)) of the true attained positions in the tracker frame (no tracker noise),
+    with the number of stops; the measured figures differ from these by the tracker's noise and the
+    extraction's window, which the analysis's uncertainty states."""
+    from station.analysis.iso9283.characteristics import position_accuracy, position_repeatability
+
+    out = {}
+    for name, cmd in zip(names, commanded_tracker_mm):
+        pts = np.array([s["true_tracker_mm"] for s in stops if s["pose"] == name], dtype=float).reshape(-1, 3)
+        if len(pts) == 0:
+            continue
+        fig = {"n_stops": int(len(pts)), "AP_mm": round(position_accuracy(pts, cmd).AP_mm, 6)}
+        if len(pts) >= 2:
+            fig["RP_mm"] = round(position_repeatability(pts).RP_mm, 6)
+        out[name] = fig
+    return out
+
+
 def simulate_iso9283(
     out_dir,
     *,
@@ -238,6 +257,7 @@ def simulate_iso9283(
                 for i, name in enumerate(names)
             },
             "stops": stops,
+            "figures": true_figures(names, cmd_trk, stops),
             "world": world.describe(),
         }
         truth_path = out / "truth.json"

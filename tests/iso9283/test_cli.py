@@ -54,13 +54,13 @@ def test_files_in_table_and_json_out(tmp_path, stream, capsys):
     xyz = np.round(s.xyz, 6)
     ref = analyze_iso9283(np.round(s.t, 6), np.where(s.valid[:, None], xyz, 0.0), TABLE2_POSES_MM, names=NAMES5,
                           valid=s.valid, order=["P2", "P3", "P4", "P5", "P1"], band_mm=0.5, limits={"RP_mm": 0.5},
-                          extraction=dict(initial_rest_stop=True))  # as the command
+                          extraction=dict(initial_rest_stop=False))  # as the command (--initial-rest skip)
     for n in NAMES5:
         assert d["poses"][n]["RP_mm"] == pytest.approx(ref.poses[n].repeatability.RP_mm, abs=1e-6)
         assert d["poses"][n]["AP_mm"] == pytest.approx(ref.poses[n].accuracy.AP_mm, abs=1e-6)
         assert d["poses"][n]["band_source"] == "limit" and d["poses"][n]["band_mm"] == 0.5
-        # P1 also stands still before the first move: its stop of the cycle before the first
-        assert d["poses"][n]["n_cycles"] == 4 + (n == "P1")
+        # P1 also stands still before the first move: left out by default (the seed's method)
+        assert d["poses"][n]["n_cycles"] == 4
         # attained rows are data rows of the file: its line is row + 2
         rows = d["poses"][n]["attained"]["row"]
         assert np.allclose(xyz[rows, 0], d["poses"][n]["attained"]["x_mm"], atol=1e-6)

@@ -37,7 +37,7 @@ def test_lab_program_starting_at_rest_gets_every_stop_and_the_first_posing_time(
     S = write_stream_csv(tmp_path / "S.csv", s.t, s.xyz)
     P = write_poses(tmp_path / "P.csv", NAMES5, CMD)
     rc = main(["analyze", "iso9283", "--stream", str(S), "--poses", str(P), "--order", "P1,P2,P3,P4,P5",
-               "--limit", "MPT_s=100", "--json", str(tmp_path / "r.json")])
+               "--initial-rest", "count", "--limit", "MPT_s=100", "--json", str(tmp_path / "r.json")])
     out = capsys.readouterr().out
     assert rc == 0
     d = json.loads((tmp_path / "r.json").read_text())

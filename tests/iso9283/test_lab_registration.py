@@ -22,12 +22,13 @@ from .synth import NAMES5, iso_stream, random_offsets
 
 CMD = np.array(TABLE2_POSES_MM)
 SERVO = dict(wn_hz=10.0, zeta=0.8)
-#: the command counts the rest before the first move; the library leaves it out unless told
+#: these lab programs start at rest at their first pose and count that rest as its stop (the command's
+#: `--initial-rest count`; the library's `initial_rest_stop`)
 COUNT = dict(initial_rest_stop=True)
 
 
 def run(capsys, *argv):
-    rc = main(["analyze", "iso9283", *map(str, argv)])
+    rc = main(["analyze", "iso9283", "--initial-rest", "count", *map(str, argv)])
     cap = capsys.readouterr()
     return rc, cap.out, cap.err
 

@@ -52,19 +52,14 @@ def check_against_truth(truth, res):
         p = res["poses"][name]
         att = np.column_stack([p["attained"]["x_mm"], p["attained"]["y_mm"], p["attained"]["z_mm"]])
         cyc = p["attained"]["cycle"]
-        # the simulator numbers cycles from 1, the analysis from 0; the wait at P1 before the first move
-        # is P1's stop of the cycle before the first (-1): the truth has no entry for it
-        start = [-1] if name == "P1" else []
-        assert cyc == start + [s["cycle"] - 1 for s in stops]
-        if start:
-            assert p["attained"]["t_s"][0] < min(res["poses"]["P2"]["attained"]["t_s"])
-        moved = np.array(cyc) >= 0
+        # the simulator numbers cycles from 1, the analysis from 0; the wait at P1 before the first move is
+        # left out (the seed's method, `--initial-rest skip` by default): the truth has no entry for it either
+        assert cyc == [s["cycle"] - 1 for s in stops]
         sig = tracker_sigma(truth, tru.mean(axis=0))
-        err = np.linalg.norm(att[moved] - tru, axis=1)
+        err = np.linalg.norm(att - tru, axis=1)
         assert err.max() < chi3_q(1e-6) * sig + slack, (name, err, sig, slack)
         cmd = np.array(truth["commanded"][name]["tracker_mm"])
-        # AP over every counted stop; the wait's own truth is its measurement (noise sig / (n + 1) in the mean)
-        ap_true = np.linalg.norm(np.vstack([att[~moved], tru]).mean(axis=0) - cmd)
+        ap_true = np.linalg.norm(tru.mean(axis=0) - cmd)
         assert abs(p["AP_mm"] - ap_true) < chi3_q(1e-6) * sig / math.sqrt(len(stops)) + slack
 
 
@@ -72,8 +67,9 @@ def test_simulated_run_against_truth(tmp_path, capsys, rng):
     seed = int(rng.integers(0, 2**31))
     truth, res = run(tmp_path, capsys, "a", cycles=4, rate_hz=float(rng.choice([200.0, 1000.0])), seed=seed,
                      wait_s=1.0)
-    assert res["extraction"]["missing"] == [] and res["extraction"]["n_assigned"] == 4 * 5 + 1
-    assert all(res["poses"][n]["n_cycles"] == 4 + (n == "P1") for n in ORDER)
+    assert res["extraction"]["missing"] == [] and res["extraction"]["n_assigned"] == 4 * 5
+    assert all(res["poses"][n]["n_cycles"] == 4 for n in ORDER)
+    assert res["extraction"]["initial_rest"]["counted"] is False
     check_against_truth(truth, res)
 
 
@@ -90,7 +86,7 @@ def test_simulated_beam_break_inside_a_dwell(tmp_path, capsys, rng):
     assert len(gaps) == 1 and gaps[0]["beam_break"]
     assert gaps[0]["t_end_s"] - gaps[0]["t_start_s"] == pytest.approx(0.3, abs=2 / 200.0)
     assert res["stream"]["n_invalid"] > 0.25 * 200
-    assert res["extraction"]["missing"] == [] and res["extraction"]["n_assigned"] == 15 + 1
+    assert res["extraction"]["missing"] == [] and res["extraction"]["n_assigned"] == 15
     check_against_truth(truth, res)
 
 

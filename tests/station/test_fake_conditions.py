@@ -1,4 +1,4 @@
-"""Fake cells drawn in or out of the robot's limits (station.acceptance.fake_robot_seed)."""
+"""Fake cells drawn in or out of the robot's limits (app.acceptance.fake_robot_seed)."""
 
 import numpy as np
 import pytest

@@ -160,7 +160,8 @@ def test_corrupted_checksums_are_what_pynmea2_rejects(odometry_fake):
 
 
 def test_fake_faults_are_validated():
-    assert parse_odometry_faults({"stall": "1:2,5:0.5"})["stall"] == [(1.0, 2.0), (5.0, 0.5)]
+    assert parse_odometry_faults({"stall": "1:2,5:0.5"})["stall"] == [("start", 1.0, 2.0), ("start", 5.0, 0.5)]
+    assert parse_odometry_faults({"stall": "drive+3:1"})["stall"] == [("drive", 3.0, 1.0)]
     with pytest.raises(ConfigError, match="unknown odometry fault"):
         parse_odometry_faults({"beam_break": "1"})
     with pytest.raises(ConfigError, match="checksum_rate"):
@@ -228,6 +229,29 @@ def test_stalled_line_times_out_then_resumes():
             after = drv.read_sample(3.0)
             assert after.t_s >= t0 + 25.0 - 1e-3
             assert fake.stats["stalled_samples"] >= 190
+    finally:
+        fake.close()
+
+
+def test_a_drive_stall_counts_from_the_first_set_point_that_moves_the_trailer(rng):
+    """``drive+T0:DUR``: the line stays up however long the host waits before driving, and goes silent T0
+    after the speed set point, for DUR (simulated s; 20x). The wait before driving is drawn."""
+    clock = SimClock(time_scale=20.0)
+    fake = OdometryFake(SimTrailer(clock, rng=np.random.default_rng(4)), clock, faults={"stall": "drive+4:10"})
+    try:
+        with OdometryDriver.open(fake.endpoint["device"], timeout_s=1.0) as drv:
+            t0 = fake._t0
+            wait_s = float(rng.uniform(8.0, 30.0))  # longer than T0 from the start: a start-counted stall
+            last = drv.read_sample(2.0)
+            while last.t_s < t0 + wait_s:  # no stall while standing, however long
+                last = drv.read_sample(0.5)
+            t_drive = drv.command_speed(0.3)
+            with pytest.raises(DeviceTimeout, match="no odometry sample"):
+                while last.t_s < t_drive + 20.0:  # bounded: a stall that never comes fails below
+                    last = drv.read_sample(0.3)
+            assert t_drive + 4.0 - 0.5 < last.t_s < t_drive + 4.0 + 1e-3, (t_drive, last.t_s)
+            after = drv.read_sample(3.0)
+            assert after.t_s >= t_drive + 14.0 - 0.5
     finally:
         fake.close()
 

@@ -93,12 +93,13 @@ def test_plan_check_refuses_before_anything_moves(odometry, tmp_path):
         TrailerCalibrationPlan(v_m_s=-1.0)
 
 
-@pytest.mark.parametrize("odometry_fake", [{"stall": "200:240"}], indirect=True)
+@pytest.mark.parametrize("odometry_fake", [{"stall": "drive+200:240"}], indirect=True)
 def test_a_failed_step_leaves_the_trailer_stopped(odometry_fake, tmp_path):
-    """The line goes silent in the middle of a long command (the fake's stall fault: from 200 simulated s,
-    1 s after the fake started at 200x, for 240 s, 1.2 s): the sample read times out after 0.5 s, the run
-    fails, and its safe state stops the trailer once the line answers again (set points are re-sent until
-    acknowledged: 11 attempts of 0.2 s)."""
+    """The line goes silent in the middle of a long command (the fake's stall fault: 200 simulated s after
+    the trailer was set moving, 1 s at 200x, for 240 s, 1.2 s; counted from the unit's own event, so a
+    loaded host that starts the run late still meets it mid-command): the sample read times out after
+    0.5 s, the run fails, and its safe state stops the trailer once the line answers again (set points are
+    re-sent until acknowledged: 11 attempts of 0.2 s)."""
     drv = OdometryDriver.open(odometry_fake.endpoint["device"], timeout_s=1.0, ack_timeout_s=0.2, command_retries=10)
     plan = TrailerCalibrationPlan(**{**SHORT, "commands": (("H", 0.2),), "duration_s": 2000.0}, sample_timeout_s=0.5)
     try:

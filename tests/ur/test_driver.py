@@ -296,3 +296,27 @@ def test_an_arm_still_swinging_is_not_at_rest_at_its_slow_samples(rng):
     assert speed[t < settled].min() <= rest_mm_s  # a slow sample long before the arm rests
     assert first >= settled - 1.0 / (2 * f_hz)  # yet rest is found only once the swings are under the bar
     assert first <= settled + hold_s + 1 / 125.0
+
+
+def test_a_slow_start_of_the_receive_process_is_not_the_devices_handshake(fake, tmp_path, monkeypatch):
+    """The RTDE receive process is a fresh interpreter: on a loaded host its start takes seconds, which
+    is this host's time, not the controller's. Here every start of it is held 1.5 s (a ``sitecustomize``
+    on its path) against a handshake timeout of 1 s: it still connects and streams (before, the start
+    counted against the device's timeout and the driver said "no handshake within 1.0 s")."""
+    from drivers.ur import RtdeSidecar
+
+    slow = tmp_path / "slow_start"
+    slow.mkdir()
+    (slow / "sitecustomize.py").write_text("import time\ntime.sleep(1.5)\n")
+    monkeypatch.setenv("PYTHONPATH", str(slow))
+    side = RtdeSidecar(fake.endpoint["host"], frequency_hz=125.0)
+    side.start(timeout_s=1.0)
+    try:
+        rows, dropped, connected = side.drain()
+        deadline = time.monotonic() + 10.0
+        while len(rows) == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+            rows, dropped, connected = side.drain()
+        assert connected and len(rows) > 0
+    finally:
+        side.close()

@@ -21,7 +21,7 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-net
         "--disable-component-update", "--no-first-run", "--disable-sync"]
 
 pytestmark = pytest.mark.skipif(not os.access(CHROMIUM, os.X_OK) and not os.environ.get("CI"),
-                                reason="no /usr/bin/chromium (scripts/setup installs it as root)")
+                                reason="no /usr/bin/chromium (scripts/setup --tests installs it as root)")
 
 
 #: installed in the watcher's page: records each new text of ``#current`` and ``#received`` and which plots had a

@@ -268,9 +268,14 @@ def cube_for_robot(dh, inset_mm: float = 100.0, *, home_q_rad=None, reference_dh
     return ScaledCube(corners_mm=corners, inset_mm=float(inset_mm) * scale, scale=scale, approach_mm=100.0 * scale)
 
 
+#: how far inside the workspace box :func:`fit_cube_to_reach` keeps every commanded point, mm
+BOX_CLEARANCE_MM = 1.0
+
+
 def fit_cube_to_reach(dh, joint_limits_rad, home_q_rad, tool_rotation, *, inset_mm: float = 100.0,
                       approach_mm: float = 100.0, vap_poses=("P1", "P2", "P4"), shrink: float = 0.95,
-                      max_shrinks: int = 20) -> ScaledCube:
+                      max_shrinks: int = 20, box_min_mm=None, box_max_mm=None,
+                      first_shrinks: int = 0) -> ScaledCube:
     """:func:`cube_for_robot`, shrunk about its centre until the arm reaches every point the ISO 9283
     procedure commands with the tool held at ``tool_rotation`` (3, 3).
 
@@ -282,6 +287,13 @@ def fit_cube_to_reach(dh, joint_limits_rad, home_q_rad, tool_rotation, *, inset_
     is the largest of the seed's shape and place the arm reaches (sec. 2.1:
     the largest volume allowed). The arm the table was laid out for gets
     Table 1 unchanged. ConfigError after ``max_shrinks``.
+
+    ``box_min_mm``/``box_max_mm`` (3,): the safety gate's workspace box. Every
+    commanded point must also lie inside it: the cube is moved into the box
+    where its points fit (the least move) and shrunk where they do not, so a
+    plan is never laid out for a place the gate will refuse. ``first_shrinks``:
+    start that many shrinks smaller (a caller whose own check of the laid-out
+    paths refused the larger cube).
     """
     from station.models import kinematics
 
@@ -289,14 +301,35 @@ def fit_cube_to_reach(dh, joint_limits_rad, home_q_rad, tool_rotation, *, inset_
     approach = float(approach_mm) * cube.scale
     R = np.asarray(tool_rotation, dtype=float)
     corners, inset = cube.corners_mm, cube.inset_mm
-    for _ in range(max_shrinks + 1):
+    centre0 = corners.mean(axis=0)
+    corners = centre0 + shrink ** first_shrinks * (corners - centre0)
+    inset *= shrink ** first_shrinks
+    # a point on the box's face may round outside it in a program's text: keep BOX_CLEARANCE_MM inside
+    box = None if box_min_mm is None or box_max_mm is None else (
+        np.asarray(box_min_mm, dtype=float) + BOX_CLEARANCE_MM, np.asarray(box_max_mm, dtype=float) - BOX_CLEARANCE_MM)
+
+    def commanded_points(corners, inset):
         tp = cube_test_poses(corners, inset_mm=inset)
         centre = corners.mean(axis=0)
         points = [tp.positions_mm, corners - np.sign(corners - centre) * inset]
         for name in vap_poses:
             p = tp.positions_mm[tp.names.index(name)]
             points.append(p - approach * np.eye(3))
-        pts = np.vstack(points)
+        return np.vstack(points)
+
+    for _ in range(max_shrinks + 1):
+        pts = commanded_points(corners, inset)
+        centre = corners.mean(axis=0)
+        if box is not None:
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            if np.any(hi - lo > box[1] - box[0]):  # larger than the box: smaller first
+                corners = centre + shrink * (corners - centre)
+                inset *= shrink
+                approach *= shrink
+                continue
+            move = np.maximum(box[0] - lo, 0.0) + np.minimum(box[1] - hi, 0.0)  # the least move into it
+            corners, pts = corners + move, pts + move
+            centre = corners.mean(axis=0)
         T = np.repeat(np.eye(4)[None], len(pts), axis=0)
         T[:, :3, :3] = R
         T[:, :3, 3] = pts
@@ -307,5 +340,6 @@ def fit_cube_to_reach(dh, joint_limits_rad, home_q_rad, tool_rotation, *, inset_
                 return ScaledCube(corners_mm=corners, inset_mm=inset, scale=cube.scale, approach_mm=approach)
         corners = centre + shrink * (corners - centre)
         inset *= shrink
-    raise ConfigError(f"no test cube of the seed's shape in front of this arm is reachable with the tool "
+    where = " inside the workspace box" if box is not None else ""
+    raise ConfigError(f"no test cube of the seed's shape in front of this arm is reachable{where} with the tool "
                       f"orientation given (shrunk {max_shrinks} times by {shrink})")
