@@ -2,8 +2,10 @@
 
 The stream in any format ``analyze iso9283`` reads (sniffed, ``--format``,
 ``--group``), with its time stamps or ``--rate-hz``. Prints noise, drift and
-the RP-style window figure; ``--json`` writes them. Exit 0, or 2 on bad input
-(a stream with a move in it included).
+the RP-style window figure; ``--json`` writes them. Exit 0, 2 on bad input
+(a stream with a move in it included), or 3 when the clock failed its check
+(coarse stamps that disagree among themselves) or jumped during the hold:
+drift per minute and the windows are then refused, with the reason.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 
 import numpy as np
 
@@ -40,21 +43,27 @@ def run_hold(args: argparse.Namespace) -> int:
     xyz = ps.xyz_mm.copy()
     xyz[~ps.valid] = 0.0  # flagged rows: never used
     res = analyze_hold(si.t_s, xyz, ps.valid, window_s=args.window_s)
+    refused = _refused(si)
     ax = "xyz"
-    lines = [f"held pose in {ps.source}: {res.n} samples over {res.duration_s:.3f} s "
-             f"({int((~ps.valid).sum())} flagged invalid)", si.time_note]
+    span = "samples" if refused else f"samples over {res.duration_s:.3f} s"
+    lines = [f"held pose in {ps.source}: {res.n} {span} ({int((~ps.valid).sum())} flagged invalid)", si.time_note]
     lines += [f"note: {x}" for x in si.notes]
     lines += [
         "mean        " + "  ".join(f"{a} {v:.4f}" for a, v in zip(ax, res.mean_mm)) + " mm",
         "noise       " + "  ".join(f"{a} {v:.4f}" for a, v in zip(ax, res.noise_mm))
         + f" mm;  3-D {res.noise_3d_mm:.4f} mm (about the drift line)",
-        "drift       " + "  ".join(f"{a} {v:+.4f}+/-{s:.4f}" for a, v, s in
-                                   zip(ax, res.drift_mm_per_min, res.drift_sd_mm_per_min))
-        + f" mm/min;  3-D {res.drift_3d_mm_per_min:.4f} mm/min",
-        f"windows     {res.l_mm.size} of {res.window_s:g} s: RP-style l_bar + 3 S_l = {res.RP_mm:.4f} mm "
-        f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
-        + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
     ]
+    if refused:
+        lines += [f"drift       REFUSED: {refused}", "windows     REFUSED: they are windows of time on the same clock"]
+    else:
+        lines += [
+            "drift       " + "  ".join(f"{a} {v:+.4f}+/-{s:.4f}" for a, v, s in
+                                       zip(ax, res.drift_mm_per_min, res.drift_sd_mm_per_min))
+            + f" mm/min;  3-D {res.drift_3d_mm_per_min:.4f} mm/min",
+            f"windows     {res.l_mm.size} of {res.window_s:g} s: RP-style l_bar + 3 S_l = {res.RP_mm:.4f} mm "
+            f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
+            + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
+        ]
     if si.estimated_rate:
         lines.append("drift per minute and the windows rest on the rate estimated from the stamps")
     print("\n".join(lines))
@@ -62,13 +71,31 @@ def run_hold(args: argparse.Namespace) -> int:
         d = res.to_dict()
         d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "units": ps.units, "notes": si.notes,
                       "n_invalid": int(np.count_nonzero(~ps.valid))}
-        d["time_base"] = si.time_base
+        d["time_base"] = dict(si.time_base)
         if si.estimated_rate:
             d["time_base"]["estimated_figures"] = ["drift", "windows"]
+        if refused:
+            for k in ("duration_s", "drift_mm_per_min", "drift_sd_mm_per_min", "drift_3d_mm_per_min", "windows"):
+                d[k] = None
+            d["time_base"]["refused_figures"] = ["duration_s", "drift", "windows"]
+            d["time_base"]["refused"] = refused
         tmp = f"{args.json}.tmp"
         with open(tmp, "w", encoding="utf-8") as f:
             json.dump(d, f, indent=1, allow_nan=False)  # never NaN/Infinity in a JSON file
             f.write("\n")
         os.replace(tmp, args.json)
         print(f"results written to {args.json}")
+    if refused:
+        print(f"station: exit 3: drift per minute and the windows refused: {refused}", file=sys.stderr)
+        return 3
     return 0
+
+
+def _refused(si) -> str:
+    """Why no time figure of the hold may be stated: a clock that failed its check, or one that jumped."""
+    if si.refused:
+        return si.refused
+    if si.jumps:
+        return ("; ".join(f"line {int(si.points.line[j.row])}: {j.text()}" for j in si.jumps)
+                + "; a drift per minute across a jump is not a measurement")
+    return ""

@@ -44,14 +44,20 @@ class StreamInput:
     time_base: dict
     notes: list[str] = field(default_factory=list)
     time_note: str = ""
+    #: why no time figure may be stated (the clock failed its check); "" when they may
+    refused: str = ""
+    #: where the clock jumped (station.analysis.iso9283.clock_jumps.ClockJump): time figures across are refused
+    jumps: tuple = ()
 
     @property
     def estimated_rate(self) -> bool:
-        return self.time_base.get("source") == "estimated_rate"
+        return self.time_base.get("source") in ("estimated_rate", "motion_rate")
 
 
-def load_stream(path, fmt=None, group=None, rate_hz=None, date_order=None, *, command: str = "analyze") -> StreamInput:
-    """Read a stream in any known format and fix its time base (:func:`station.analysis.lab_files.stream_time_base`).
+def load_stream(path, fmt=None, group=None, rate_hz=None, date_order=None, *, command: str = "analyze",
+                wait_s: float | None = None) -> StreamInput:
+    """Read a stream in any known format and fix its time base (:func:`station.analysis.lab_files.stream_time_base`,
+    the clock checked against the stream's motion; ``wait_s`` the program's wait at each stop, ``--dwell-s``).
 
     A per-pose reflector list given as a stream is refused (:func:`refuse_reflector_list`, ``command`` names
     the command in the message).
@@ -60,11 +66,13 @@ def load_stream(path, fmt=None, group=None, rate_hz=None, date_order=None, *, co
     from station.readers.sniff import read_stream_file
 
     check_positive(rate_hz, "--rate-hz")
+    check_positive(wait_s, "--dwell-s")
     ps = read_stream_file(path, fmt, group=group, date_order=date_order)
     refuse_reflector_list(ps, command)
     tb = stream_time_base(ps.t_s, ps.n, rate_hz, line=ps.line, source=ps.source,
-                          tcol="date time" if ps.fmt == "sa" else "t")
-    return StreamInput(ps, tb.t_s, tb.info, list(ps.notes) + tb.notes, tb.note)
+                          tcol="date time" if ps.fmt == "sa" else "t", xyz_mm=ps.xyz_mm, valid=ps.valid,
+                          wait_s=wait_s)
+    return StreamInput(ps, tb.t_s, tb.info, list(ps.notes) + tb.notes, tb.note, tb.refused, tb.jumps)
 
 
 def refuse_reflector_list(ps, command: str) -> None:

@@ -4,7 +4,12 @@ Inputs (see ``README.md``, "Analysing files you already have"):
 
 * ``--stream S``: the project's CSV, a SpatialAnalyzer point export or a plain
   point list, chosen by sniffing (``--format`` overrides, ``--group`` picks an
-  SA group); ``--rate-hz R`` makes the sample index the time base;
+  SA group); ``--rate-hz R`` makes the sample index the time base; stamps
+  coarser than the samples are checked against the motion
+  (:func:`station.analysis.iso9283.lab_files.coarse_clock`): on a clock that
+  fails, ``--dwell-s W`` (the program's wait) gives the rate from the dwells,
+  or else PST and MPT are refused (exit 3); so are those across a jump of
+  the clock (:mod:`station.analysis.iso9283.clock_jumps`);
 * ``--stops S.csv``: a stop list ``pose,cycle,x,y,z[,reflector][,approach]``; or
   ``--stops P1.txt P2.txt ...``: per-pose reflector lists ``reflector,x,y,z``
   (:mod:`station.readers.reflector_list`), the pose from the file name or ``--pose``;
@@ -38,7 +43,7 @@ from app.commands.analyze_inputs import (
     read_frame,
     window_parameters,
 )
-from app.commands.analyze_outcome import decide
+from app.commands.analyze_outcome import EXIT_NOT_ISO, EXIT_PASS, EXIT_UNDECIDED, decide
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
 from station.readers.date_time import DATE_ORDERS
@@ -74,6 +79,10 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
                         "limit when larger)")
     s.add_argument("--rate-hz", type=float, default=None,
                    help="sample rate, Hz: the sample index / rate is the time base (the file's stamps are not used)")
+    s.add_argument("--dwell-s", type=float, default=None, metavar="W",
+                   help="the program's wait at each stop, s: where the stamps are coarser than the samples and fail "
+                        "their check against the motion, the dwells give the sample rate (emScon rates 1000/k Hz "
+                        "preferred); --rate-hz overrides")
     s.add_argument("--window-samples", type=int, default=None,
                    help="with --rate-hz: horizon 2M+1 in samples (and every other sample count from it)")
     s.add_argument("--limit-mm", type=float, default=None,
@@ -179,12 +188,16 @@ def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
     return res, (js, lines)
 
 
-def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
+def _finish(res, d: dict, args, far: list[str], unc=None, time_refused: str = "") -> int:
     if unc is not None:
         print("\n".join(unc[1]))
         d.pop("uncertainty_figures", None)  # the same figures, in the block with the budget and the rule
         d["uncertainty"] = unc[0]
     out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
+    if time_refused:  # a time figure on a clock that failed its check is not stated: not decided
+        out.reasons.append(time_refused)
+        if out.code in (EXIT_PASS, EXIT_NOT_ISO):
+            out.code = EXIT_UNDECIDED
     d["exit"] = out.to_dict()
     if args.json is not None:
         _write_json(args.json, d)
@@ -225,7 +238,7 @@ def _run_stream(args, limits, band) -> int:
                       assign_tol_mm=_tolerance(args, limits), initial_rest_stop=args.initial_rest == "count")
     extraction.update(window_parameters(args.window_samples, args.rate_hz))
     si = load_stream(args.stream, args.format, args.group, args.rate_hz, args.date_order,
-                     command="analyze iso9283 --stream")
+                     command="analyze iso9283 --stream", wait_s=args.dwell_s)
     ps = si.points
     xyz = ps.xyz_mm.copy()
     valid = ps.valid
@@ -248,16 +261,43 @@ def _run_stream(args, limits, band) -> int:
         limits=limits, band_mm=args.limit_mm if band == "limit" else None, distance_pairs=_pairs(args),
         linear_paths=bool(args.linear_paths), extraction=extraction,
     )
-    res, unc = _uncertainty(args, lab.result, reg, xyz, lab.result.extraction.params.rate_hz)
-    print(format_table(res, ps.source, si.time_note, si.notes, estimated_rate=si.estimated_rate))
+    res, refused, why = _refuse_on_clock(lab.result, si)
+    res, unc = _uncertainty(args, res, reg, xyz, None if si.refused else res.extraction.params.rate_hz)
+    res, _, _ = _refuse_on_clock(res, si)  # the verdicts the uncertainty decided again: refused still
+    print(format_table(res, ps.source, si.time_note, si.notes, estimated_rate=si.estimated_rate,
+                       clock_refused=bool(si.refused)))
     d = res.to_dict()
     d["input"] = {"file": ps.source, "format": ps.fmt, "group": ps.group, "frame": ps.frame, "units": ps.units,
                   "notes": si.notes}
-    d["time_base"] = si.time_base
+    d["time_base"] = dict(si.time_base)
     if si.estimated_rate:
         mark_estimated_times(d)
+    if why:
+        d["time_base"]["refused_figures"] = refused
+        if si.refused:
+            d["time_base"]["times_provisional"] = ("every t_s in this file is on the provisional rate that found "
+                                                   "the stops, not a measured time")
     d["registration"] = reg_js
-    return _finish(res, d, args, lab.far, unc)
+    return _finish(res, d, args, lab.far, unc, why)
+
+
+def _refuse_on_clock(res, si):
+    """PST and MPT refused on a clock that failed its check (every one) or across a jump of the clock.
+
+    Returns ``(result, refused figures, reason for the exit code or "")``.
+    """
+    from station.analysis.iso9283.time_refusal import refuse_time_figures
+
+    if si.refused:
+        res, refused = refuse_time_figures(res, si.refused, short="the clock failed its check (see the time base)")
+        return res, refused, f"time figures refused (PST, MPT): {si.refused}"
+    if si.jumps:
+        rows = [j.row for j in si.jumps]
+        why = "; ".join(f"line {int(si.points.line[j.row])}: {j.text()}" for j in si.jumps) + \
+            "; a time figure across a jump is not a measurement"
+        res, refused = refuse_time_figures(res, why, jump_rows=rows, short="across a jump of the clock")
+        return res, refused, (f"{', '.join(refused)} refused: {why}" if refused else "")
+    return res, [], ""
 
 
 def mark_estimated_times(d: dict) -> None:
@@ -310,7 +350,7 @@ def _read_stops(args):
 def _run_stops(args, limits) -> int:
     from station.analysis.iso9283.lab_files import analyze_stops, reflector_repeatability, stop_scatter_mm
 
-    for opt in ("format", "group", "rate_hz", "window_samples", "order", "linear_paths", "date_order"):
+    for opt in ("format", "group", "rate_hz", "dwell_s", "window_samples", "order", "linear_paths", "date_order"):
         if getattr(args, opt) not in (None, False):
             raise ConfigError(f"--{opt.replace('_', '-')} applies to --stream, not to --stops")
     sl = _read_stops(args)

@@ -27,7 +27,7 @@ def _pose_rows(res, estimated_rate: bool = False) -> list[str]:
     return lines
 
 
-def _tail(res, estimated_rate: bool = False) -> list[str]:
+def _tail(res, estimated_rate: bool = False, clock_refused: bool = False) -> list[str]:
     """Distances, orientation, verdicts, the overall line, left-out stops, warnings, conformance."""
     from station.analysis.iso9283.characteristics import conformance_text
 
@@ -63,7 +63,7 @@ def _tail(res, estimated_rate: bool = False) -> list[str]:
         iso = "ISO 9283 conformant" if res.iso_conformant else "NOT ISO 9283 conformant (see below)"
         lines.append(f"overall: {word} on the limits asked; {iso}")
     for x in res.left_out[:SHOW]:
-        where = f"row {x.row}" + ("" if not math.isfinite(x.t_s) else f" ({x.t_s:.3f} s)")
+        where = f"row {x.row}" + ("" if clock_refused or not math.isfinite(x.t_s) else f" ({x.t_s:.3f} s)")
         cyc = f" cycle {x.cycle}" if x.cycle != -1 or x.statistics != "all" else ""
         lines.append(f"left out: {where} {x.pose}{cyc} from {x.statistics}: {x.reason}")
     if len(res.left_out) > SHOW:
@@ -77,14 +77,16 @@ def _tail(res, estimated_rate: bool = False) -> list[str]:
 
 
 def format_table(res, stream_name="stream", time_note: str | None = None, notes=(),
-                 estimated_rate: bool = False) -> str:
+                 estimated_rate: bool = False, clock_refused: bool = False) -> str:
     """Human-readable summary of an :class:`~station.analysis.iso9283.Iso9283Result`; ``estimated_rate``
-    marks PST and MPT (``*``) as resting on a rate estimated from the stamps."""
+    marks PST and MPT (``*``) as resting on a rate estimated from the stamps or inferred from the motion;
+    ``clock_refused``: the clock failed its check, no rate or time is shown."""
     ex = res.extraction
     st = ex.stops
+    rate = "an unknown rate (the clock refused)" if clock_refused else f"{ex.params.rate_hz:.1f} Hz"
     lines = [
         f"ISO 9283 analysis of {stream_name}: {ex.n_rows} rows ({ex.n_rows - ex.n_used} flagged invalid) at "
-        f"{ex.params.rate_hz:.1f} Hz, {ex.n_cycles} cycles, {st.n} stops, {len(ex.missing)} missing, "
+        f"{rate}, {ex.n_cycles} cycles, {st.n} stops, {len(ex.missing)} missing, "
         f"{ex.gaps.n} gaps ({int(ex.gaps.splits.sum())} beam breaks)",
         f"window 2M+1 = {2 * ex.params.M + 1} samples, step Mp = {ex.params.Mp}; order "
         f"{','.join(ex.names[k] for k in ex.order)}; assignment tolerance {ex.params.assign_tol_mm:g} mm",
@@ -95,8 +97,9 @@ def format_table(res, stream_name="stream", time_note: str | None = None, notes=
     lines.append("")
     lines += _pose_rows(res, estimated_rate)
     if estimated_rate:
-        lines.append("* PST and MPT on the sample rate ESTIMATED from the stamps (see the time base above)")
-    tail = _tail(res, estimated_rate)
+        lines.append("* PST and MPT on a sample rate ESTIMATED from the stamps or INFERRED from the motion (see the "
+                     "time base above)")
+    tail = _tail(res, estimated_rate, clock_refused)
     k = next((i for i, line in enumerate(tail) if line.startswith(("left out:", "warning:", "PARTIAL", "ISO 9283"))),
              len(tail))
     miss = [f"missing: cycle {m.cycle} {m.pose}: {m.reason}" for m in ex.missing[:SHOW]]

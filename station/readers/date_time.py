@@ -6,7 +6,9 @@ Forms read (a stamp is a date, a space or ``T``, and a time of day):
   month order the form does not say (``MM/DD`` in US exports, ``DD/MM`` elsewhere);
   ``DD.MM.YYYY`` or ``DD.MM.YY`` (day first); ``DD-MM-YYYY``;
 * times: ``HH:MM:SS`` with or without a fraction of a second, 24 h, or 12 h with
-  ``AM``/``PM``; a trailing ``Z`` is accepted (the stamps are all in one zone).
+  ``AM``/``PM``; a trailing ``Z`` is accepted (the stamps are all in one zone);
+  ``23:59:60`` (a UTC leap second) is the 61st second of its minute, and the
+  stamps after it count it.
 
 Two-digit years are 2000-2068 / 1969-1999 as C's ``strptime`` reads them.
 
@@ -48,6 +50,8 @@ class Stamp:
     b: int
     year: int
     day_s: float
+    #: the 61st second of a minute (``23:59:60``): a leap second
+    leap: bool = False
 
 
 def _year(text: str) -> int:
@@ -71,9 +75,10 @@ def parse_stamp(text: str) -> Stamp | None:
             h = h % 12 + (12 if m["ampm"].lower() == "pm" else 0)
         if h > 23 or mi > 59 or sec >= 61.0:
             return None
+        day_s, leap = h * 3600.0 + mi * 60.0 + sec, sec >= 60.0
         if form == "ymd":
-            return Stamp("ymd", int(m["b"]), int(m["c"]), int(m["a"]), h * 3600.0 + mi * 60.0 + sec)
-        return Stamp(form, int(m["a"]), int(m["b"]), _year(m["c"]), h * 3600.0 + mi * 60.0 + sec)
+            return Stamp("ymd", int(m["b"]), int(m["c"]), int(m["a"]), day_s, leap)
+        return Stamp(form, int(m["a"]), int(m["b"]), _year(m["c"]), day_s, leap)
     return None
 
 
@@ -105,6 +110,8 @@ class DateReading:
     t_s: list[float]
     order: str | None
     settled_by: str | None
+    #: indices of the stamps after which a leap second was counted (the first stamp past each ``:60``)
+    leap_rows: tuple[int, ...] = ()
 
 
 def stamps_to_seconds(stamps: list[Stamp], *, date_order: str | None = None, where=None) -> DateReading:
@@ -162,4 +169,24 @@ def stamps_to_seconds(stamps: list[Stamp], *, date_order: str | None = None, whe
     d0 = days[(stamps[0].form, stamps[0].a, stamps[0].b, stamps[0].year)]
     s0 = stamps[0].day_s
     t = [(days[(s.form, s.a, s.b, s.year)] - d0) * 86400.0 + (s.day_s - s0) for s in stamps]
-    return DateReading(t, order, settled)
+    leap_rows = _count_leap_seconds(stamps, t) if any(s.leap for s in stamps) else ()
+    return DateReading(t, order, settled, leap_rows)
+
+
+def _count_leap_seconds(stamps: list[Stamp], t: list[float]) -> tuple[int, ...]:
+    """Add the leap second to every stamp after a ``:60`` second (in place); the first row after each.
+
+    ``23:59:60.5`` read as seconds of the day is ``00:00:00.5`` of the next:
+    the stamps after the leap second would go back (or repeat, in whole
+    seconds). A ``:60`` stamp followed by one that reads no later is a leap
+    second: one second more is counted from there on. A ``:60`` stamp followed
+    by later ones (a logger that rounds ``59.9996`` up) is left as it reads.
+    """
+    rows = []
+    offset = 0.0
+    for i in range(len(stamps)):
+        t[i] += offset
+        if stamps[i].leap and i + 1 < len(stamps) and not stamps[i + 1].leap and t[i + 1] + offset <= t[i]:
+            offset += 1.0
+            rows.append(i + 1)
+    return tuple(rows)

@@ -187,6 +187,9 @@ def read_sa_points(path, group: str | None = None, *, whole_file: bool = False,
                "one date": "every stamp has the same date, so the order does not change the intervals",
                "either": "the intervals are the same in either order"}[reading.settled_by]
         notes.append(f"dates A/B/Y read as {'month/day' if reading.order == 'mdy' else 'day/month'} ({why})")
+    for i in () if reading is None else reading.leap_rows:
+        notes.append(f"line {rows[i][6]}: a leap second (:60) before this line is counted: the stamps from here on "
+                     "are one second later than their time of day")
     if whole_file:
         keep = range(len(rows))
         chosen = None

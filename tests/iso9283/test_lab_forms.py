@@ -180,23 +180,42 @@ def test_coarse_stamps_give_a_rate_estimated_from_them_said_and_marked(tmp_path,
     assert_truth(d, off, sig)
 
 
-def test_a_rate_that_varies_is_warned_where_it_varies(tmp_path, rng, capsys):
+def test_samples_lost_in_a_move_fail_the_check_against_the_motion_and_every_time_figure_is_refused(
+        tmp_path, rng, capsys):
     rate = 200.0
     s, _, _ = stream_and_truth(rng, rate)
     sec = np.floor(s.t).astype(int)
-    k = int(rng.integers(3, sec.max() - 2))  # in this second the logger lost a quarter of the samples
-    lost = np.flatnonzero(sec == k)[: int(rate) // 4]
-    keep = np.setdiff1d(np.arange(s.t.size), lost)
+    j = int(rng.integers(2, s.t_move_start.size - 1))  # in this move the logger lost a quarter second of samples
+    first = int(np.searchsorted(s.t, s.t_move_start[j] + 0.3 * (s.t_arrive[j] - s.t_move_start[j])))
+    n_lost = int(rate) // 4
+    keep = np.setdiff1d(np.arange(s.t.size), np.arange(first, first + n_lost))
     t0 = datetime(2025, 3, 11, 9, 0, 0)
     stamps = [(t0 + timedelta(seconds=int(sec[i]))).strftime("%d.%m.%Y %H:%M:%S") for i in keep]
     f = write_sa(tmp_path / "lossy.txt", s.xyz[keep], stamps=stamps)
     P = write_poses(tmp_path / "P.csv", NAMES5, CMD)
     rc, out, err = run(capsys, "iso9283", "--stream", f, "--poses", P, "--json", tmp_path / "r.json")
-    first_row_of_k = int(np.flatnonzero(sec[keep] == k)[0])
-    line = first_row_of_k + SA_HEADER_LINES + 1
+    assert rc == 3, err
+    # the stamp interval holding the loss is named where it starts
+    k = int(sec[first])
+    line = int(np.flatnonzero(sec[keep] == k)[0]) + SA_HEADER_LINES + 1
     assert f"note: line {line}, column 'date time': the rate varies here" in out
     d = json.loads((tmp_path / "r.json").read_text())
-    assert d["time_base"]["varying_rows"] == [line]
+    tb = d["time_base"]
+    assert tb["source"] == "refused" and line in tb["varying_rows"]
+    # the move that lost the samples is short of its twins by the samples lost
+    groups = tb["motion_check"]["identical_moves"]
+    spread = max(g["spread_samples"] for g in groups)
+    assert abs(spread - n_lost) <= 3 and not all(g["steady"] for g in groups)
+    assert "identical moves" in err and "not evenly spaced" in err and "time figures refused" in err
+    assert all(p["PST_s"] is None for p in d["poses"].values()) and all(m["MPT_s"] is None for m in d["MPT"])
+    assert "PST_s P1" in tb["refused_figures"] and d["exit"]["code"] == 3
+    assert "Hz" not in out.splitlines()[0]  # no rate stated on a clock that failed
+    # AP and RP do not rest on the clock: as on the sample index at the true rate
+    rc, _, err = run(capsys, "iso9283", "--stream", f, "--poses", P, "--rate-hz", rate, "--json", tmp_path / "k.json")
+    assert rc == 0, err
+    dk = json.loads((tmp_path / "k.json").read_text())
+    for n in NAMES5:
+        assert d["poses"][n]["RP_mm"] == pytest.approx(dk["poses"][n]["RP_mm"], abs=0.01)
 
 
 def test_the_sample_export_with_two_digit_years_and_180_samples_per_stamp(tmp_path, capsys):

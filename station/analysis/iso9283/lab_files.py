@@ -28,34 +28,49 @@ from station.errors import DataError
 COARSE_REPEAT_FRACTION = 0.5
 #: places where the estimated rate varies, named one by one before "... more"
 SHOW_VARYING = 5
+#: coarse stamps of a stream without moves pass when at most this fraction of their intervals hold another rate
+MAX_VARYING_FRACTION = 0.05
+#: the provisional rate that finds the stops on a refused clock is kept within the extraction's range, Hz
+RATE_FLOOR_HZ, RATE_CEIL_HZ = 10.0, 3000.0
 
 
 @dataclass
 class TimeBase:
-    """``t_s`` (N,) and how it was made: ``info`` (JSON), ``note`` (one console line), ``notes`` (warnings)."""
+    """``t_s`` (N,) and how it was made: ``info`` (JSON), ``note`` (one console line), ``notes`` (warnings).
+
+    ``refused``: why no time figure may be stated on this clock ("" when they may; ``t_s`` is then a
+    provisional time base for finding the stops only); ``jumps``: rows where the clock jumped (time figures
+    across them are refused).
+    """
 
     t_s: np.ndarray
     info: dict
     note: str
     notes: list[str] = field(default_factory=list)
+    refused: str = ""
+    jumps: tuple = ()
 
     @property
     def estimated(self) -> bool:
-        """Times rest on a rate estimated from the stamps (PST, MPT and drift are marked so)."""
-        return self.info.get("source") == "estimated_rate"
+        """Times rest on a rate estimated from the stamps or inferred from the motion (PST, MPT, drift marked so)."""
+        return self.info.get("source") in ("estimated_rate", "motion_rate")
 
 
 def stream_time_base(t_stamps, n: int, rate_hz: float | None = None, *, line=None, source: str = "",
-                     tcol: str = "t") -> TimeBase:
+                     tcol: str = "t", xyz_mm=None, valid=None, wait_s: float | None = None) -> TimeBase:
     """The time base of a stream of ``n`` samples whose stamps are ``t_stamps`` (N,) s or None.
 
     * ``rate_hz`` given: the sample index / rate (a note when the stamps step otherwise);
-    * stamps that can be the time base (:func:`~station.analysis.time_base.check_time_stamps`): the stamps;
-    * stamps that repeat on most rows (a clock coarser than the sampling): the sample index / a rate
-      estimated from them, said so, with a warning for every place where the rate varies;
+    * stamps that can be the time base (:func:`~station.analysis.time_base.check_time_stamps`): the stamps,
+      with the places where the clock jumped (:func:`~station.analysis.iso9283.clock_jumps.clock_jumps`,
+      needs ``xyz_mm``);
+    * stamps that repeat on most rows (a clock coarser than the sampling): checked against the motion
+      ``xyz_mm`` (:func:`coarse_clock`); the sample index / the rate the stamps give when they pass, or the
+      rate the dwells give with the program's wait ``wait_s``, or else a provisional time base with every time
+      figure refused (``refused``);
     * otherwise a DataError naming the row (``line`` (N,) gives file lines) and asking for ``--rate-hz``.
     """
-    from station.analysis.iso9283.time_base import check_time_stamps, estimate_rate_from_stamps, sample_index_time
+    from station.analysis.iso9283.time_base import check_time_stamps, sample_index_time
 
     where = (lambda r: f"line {int(line[r])}, ") if line is not None else (lambda r: f"row {r + 1}, ")
     notes: list[str] = []
@@ -77,34 +92,138 @@ def stream_time_base(t_stamps, n: int, rate_hz: float | None = None, *, line=Non
         return TimeBase(t_stamps, {"source": "stamps", "rate_hz": None}, "time base: the file's time stamps")
     chk = check_time_stamps(t_stamps)
     if chk.ok:
-        return TimeBase(t_stamps, {"source": "stamps", "rate_hz": None}, "time base: the file's time stamps")
+        return _fine_stamps(t_stamps, xyz_mm, valid, where, tcol)
     if not chk.n_backwards and chk.n_repeats >= COARSE_REPEAT_FRACTION * (n - 1):
-        try:
-            est = estimate_rate_from_stamps(t_stamps)
-        except DataError as exc:
-            raise DataError(f"{source}: column {tcol!r}: the stamps repeat ({chk.n_repeats} of {n} rows) and "
-                            f"{exc}; give the sample rate with --rate-hz R") from None
-        r = est.rate_hz
-        for k in est.varies[:SHOW_VARYING]:
-            row = int(est.first_row[k])
-            notes.append(f"{where(row)}column {tcol!r}: the rate varies here: {est.per_interval_hz[k]:.4g} "
-                         f"samples/s in the stamp interval starting at this row, against {r:.4g} Hz overall")
-        if est.varies.size > SHOW_VARYING:
-            notes.append(f"the rate varies in {est.varies.size - SHOW_VARYING} more stamp interval(s) (see the JSON)")
-        info = {"source": "estimated_rate", "rate_hz": r, "estimate": est.to_dict(),
-                "varying_rows": [int(line[est.first_row[k]]) if line is not None else int(est.first_row[k])
-                                 for k in est.varies]}
-        note = (f"time base: sample index / {r:.4f} Hz, the rate ESTIMATED from the coarse stamps ({chk.n_repeats} "
-                f"of {n} stamps repeat; {est.n_intervals} whole interval(s) of {est.resolution_s:g} s, "
-                f"{r:.4f} +/- {est.spread_hz:.3g} Hz); PST, MPT and every time rest on this estimate "
-                "(give --rate-hz R when the rate is known)")
-        return TimeBase(sample_index_time(n, r), info, note, notes)
+        return coarse_clock(t_stamps, chk.n_repeats, xyz_mm, valid, wait_s, where=where, line=line,
+                            source=source, tcol=tcol)
     msgs = []
     for prob in chk.problems:
         w = where(prob.row) if prob.row is not None else ""
         msgs.append(f"{source}: {w}column {tcol!r}: {prob.text}")
     raise DataError("; ".join(msgs) + "; these time stamps cannot be the time base: give the sample rate "
                     "with --rate-hz R to take the sample index instead")
+
+
+def _fine_stamps(t_stamps, xyz_mm, valid, where, tcol) -> TimeBase:
+    """Stamps that can be the time base, with the jumps of the clock the motion shows."""
+    from station.analysis.iso9283.clock_jumps import clock_jumps
+
+    jumps = () if xyz_mm is None else clock_jumps(t_stamps, xyz_mm, valid)
+    info = {"source": "stamps", "rate_hz": None}
+    notes = []
+    if jumps:
+        info["jumps"] = [j.to_dict() for j in jumps]
+        notes = [f"{where(j.row)}column {tcol!r}: {j.text()}; PST and MPT across it are refused" for j in jumps]
+    return TimeBase(t_stamps, info, "time base: the file's time stamps", notes, jumps=jumps)
+
+
+def coarse_clock(t_stamps, n_repeats: int, xyz_mm, valid, wait_s, *, where, line, source, tcol) -> TimeBase:
+    """The time base of stamps coarser than the samples, checked against the motion.
+
+    The rate the stamps give (samples per stamp second,
+    :func:`~station.analysis.time_base.estimate_rate_from_stamps`) is used when
+    the stamps agree with the motion: every move and dwell lasts, by the
+    stamps, its sample count at that rate
+    (:func:`~station.analysis.iso9283.motion_clock.stamps_against_moves`);
+    with no move in the stream (a held pose), when at most
+    :data:`MAX_VARYING_FRACTION` of the stamp intervals hold another rate.
+    Identical moves must take the same number of samples (evenly spaced
+    samples) for any rate to be used. When the stamps fail, the program's wait
+    ``wait_s`` gives the rate from the dwells
+    (:func:`~station.analysis.iso9283.motion_clock.rate_from_dwells`); without
+    it every time figure is refused.
+    """
+    from station.analysis.iso9283.motion_clock import (
+        find_moves,
+        identical_moves,
+        rate_from_dwells,
+        stamps_against_moves,
+    )
+    from station.analysis.iso9283.time_base import estimate_rate_from_stamps, sample_index_time
+
+    n = t_stamps.size
+
+    def lines_of(a, b):
+        return f"lines {int(line[a])}-{int(line[b])}" if line is not None else f"rows {a + 1}-{b + 1}"
+
+    try:
+        est = estimate_rate_from_stamps(t_stamps)
+    except DataError as exc:
+        raise DataError(f"{source}: column {tcol!r}: the stamps repeat ({n_repeats} of {n} rows) and "
+                        f"{exc}; give the sample rate with --rate-hz R") from None
+    r = est.rate_hz
+    span = est.span_s
+    moves = find_moves(xyz_mm, valid) if xyz_mm is not None else None
+    groups = identical_moves(moves, t_stamps) if moves is not None else []
+    check = {"n_moves": 0 if moves is None else int(moves.leave_row.size),
+             "identical_moves": [g.to_dict() for g in groups]}
+    unsteady = [g for g in groups if not g.steady]
+    info = {"stamp_estimate": est.to_dict(), "motion_check": check}
+    varying = [int(line[est.first_row[k]]) if line is not None else int(est.first_row[k]) for k in est.varies]
+    info["varying_rows"] = varying
+    notes = []
+    for k in est.varies[:SHOW_VARYING]:
+        row = int(est.first_row[k])
+        notes.append(f"{where(row)}column {tcol!r}: the rate varies here: {est.per_interval_hz[k]:.4g} "
+                     f"samples/s in the stamp interval starting at this row, against {r:.4g} Hz overall")
+    if est.varies.size > SHOW_VARYING:
+        notes.append(f"the rate varies in {est.varies.size - SHOW_VARYING} more stamp interval(s) (see the JSON)")
+    if moves is not None and moves.leave_row.size:
+        ev = stamps_against_moves(t_stamps, moves, r, est.resolution_s)
+        check["stamps_against_moves"] = ev.to_dict()
+        stamps_ok = ev.ok
+        why_not = "" if stamps_ok else (
+            f"the stamps disagree with the motion: {ev.n_off} of {ev.n_events} moves and dwells last another time "
+            f"by the stamps than their samples give at the stamps' {r:.4g} Hz (worst: a {ev.worst['kind']} of "
+            f"{ev.worst['samples']} samples, {lines_of(ev.worst['row_from'], ev.worst['row_to'])}, "
+            f"{ev.worst['stamp_duration_s']:.3g} s by the stamps, {ev.worst['duration_at_rate_s']:.3g} s at the rate)")
+    else:
+        stamps_ok = est.varies.size <= MAX_VARYING_FRACTION * est.n_intervals
+        why_not = "" if stamps_ok else (
+            f"{est.varies.size} of {est.n_intervals} stamp intervals hold another rate than {r:.4g} Hz "
+            f"({est.per_interval_hz.min():.4g}-{est.per_interval_hz.max():.4g} samples/s) and no move in the "
+            "stream can check the stamps")
+    if unsteady:
+        g = unsteady[0]
+        why_not = (f"identical moves (rest {g.from_rest} -> rest {g.to_rest}) take {g.samples.min()}-"
+                   f"{g.samples.max()} samples: the samples are not evenly spaced in time, no rate holds for them")
+    evidence = "; ".join(f"{g.samples.size} identical moves rest {g.from_rest} -> rest {g.to_rest} take "
+                         f"{g.samples.min()}-{g.samples.max()} samples (spread {g.spread})"
+                         + ("" if g.stamp_s is None else f", {g.stamp_s.min():g}-{g.stamp_s.max():g} s by the stamps")
+                         for g in groups)
+    if stamps_ok and not unsteady:
+        # whole intervals give the rate to a sample over their span; intervals that disagree (samples lost in
+        # one, a stalled logger) move it by their spread over the square root of their number
+        u = max(1.0 / span, est.spread_hz / math.sqrt(est.n_intervals)) if span > 0 else math.inf
+        info.update({"source": "estimated_rate", "rate_hz": r, "u_rate_hz": u, "estimate": est.to_dict()})
+        note = (f"time base: sample index / {r:.4f} Hz, the rate ESTIMATED from the coarse stamps ({n_repeats} "
+                f"of {n} stamps repeat; {est.n_intervals} whole interval(s) of {est.resolution_s:g} s, "
+                f"{r:.4f} +/- {u:.2g} Hz), checked against the motion"
+                + (f" ({evidence}; every move and dwell agrees)" if groups else
+                   f" ({check['n_moves']} move(s) agree)" if check["n_moves"] else " (no move: the stamp intervals "
+                   "agree among themselves)")
+                + "; PST, MPT and every time rest on this estimate (give --rate-hz R when the rate is known)")
+        return TimeBase(sample_index_time(n, r), info, note, notes)
+    if wait_s is not None and not unsteady and moves is not None:
+        dr = rate_from_dwells(moves.dwell_rows, wait_s)
+        info["dwell_rate"] = dr.to_dict()
+        if dr.rate_hz is not None:
+            info.update({"source": "motion_rate", "rate_hz": dr.rate_hz, "u_rate_hz": dr.u_rate_hz})
+            note = (f"time base: sample index / {dr.rate_hz:.4f} +/- {dr.u_rate_hz:.2g} Hz, the rate INFERRED from "
+                    f"the motion: {dr.basis}" + (f"; {evidence}" if evidence else "")
+                    + f". The stamps were not used: {why_not}")
+            return TimeBase(sample_index_time(n, dr.rate_hz), info, note, notes)
+        why_not += f"; the dwells give no rate: {dr.reason}"
+    reason = (f"the clock failed its check against the motion: {why_not}"
+              + (f" ({evidence})" if evidence and not unsteady else "")
+              + "; give the sample rate with --rate-hz R"
+              + ("" if unsteady or moves is None or not moves.leave_row.size
+                 else ", or the program's wait at each stop with --dwell-s W"))
+    info.update({"source": "refused", "rate_hz": None, "provisional_rate_hz": r, "refused": reason})
+    note = (f"time base: NONE for time figures; the stops found on the sample index / {r:.4g} Hz (the stamps' "
+            "rate, provisional); PST, MPT and drift per minute are refused")
+    return TimeBase(sample_index_time(n, min(max(r, RATE_FLOOR_HZ), RATE_CEIL_HZ)), info, note, notes,
+                    refused=reason)
 
 
 def rest_noise_mm(t, xyz) -> float:

@@ -19,6 +19,7 @@ divided by the rate becomes the time base, and the figures say so.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,12 +151,14 @@ class RateEstimate:
     per_interval_hz: np.ndarray
     first_row: np.ndarray
     varies: np.ndarray
+    #: seconds the whole intervals span (the rate is good to about one sample over it)
+    span_s: float = math.nan
 
     def to_dict(self) -> dict:
         return {"rate_hz": float(self.rate_hz), "spread_hz": float(self.spread_hz),
                 "stamp_resolution_s": float(self.resolution_s), "n_intervals": int(self.n_intervals),
                 "min_hz": float(self.per_interval_hz.min()), "max_hz": float(self.per_interval_hz.max()),
-                "n_varying": int(self.varies.size)}
+                "n_varying": int(self.varies.size), "span_s": float(self.span_s)}
 
 
 def estimate_rate_from_stamps(t_s) -> RateEstimate:
@@ -187,4 +190,5 @@ def estimate_rate_from_stamps(t_s) -> RateEstimate:
     expect = rate * secs
     varies = np.flatnonzero(np.abs(counts - expect) > np.maximum(1.0 + 1e-9, RATE_VARIES_FRACTION * expect))
     return RateEstimate(rate_hz=rate, spread_hz=spread, resolution_s=res, n_intervals=int(counts.size),
-                        per_interval_hz=rates, first_row=change[:-1].astype(np.int64), varies=varies)
+                        per_interval_hz=rates, first_row=change[:-1].astype(np.int64), varies=varies,
+                        span_s=float(secs.sum()))
