@@ -185,12 +185,12 @@ def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
         d.pop("uncertainty_figures", None)  # the same figures, in the block with the budget and the rule
         d["uncertainty"] = unc[0]
     out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
-    d["exit"] = out.to_dict()
+    d["exit"] = {"code": out.exit_code, "reasons": list(out.reasons)}
     if args.json is not None:
         _write_json(args.json, d)
     for r in out.reasons:
-        print(f"station: exit {out.code}: {r}", file=sys.stderr)
-    return out.code
+        print(f"station: exit {out.exit_code}: {r}", file=sys.stderr)
+    return out.exit_code
 
 
 def run_iso9283(args: argparse.Namespace) -> int:
