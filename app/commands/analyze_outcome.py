@@ -38,9 +38,9 @@ def decide(res, *, require_iso: bool, far_stops: list[str], allow_far: bool = Fa
     (via points), listed but not a reason.
     """
     failed = [f"{v.characteristic} {v.subject} = {_g(v.value)} exceeds the limit {v.limit:g}"
-              for v in res.verdicts if v.passed is False]
+              for v in res.verdicts if v.outcome is Outcome.FAIL]
     undecided = [f"{v.characteristic} {v.subject} not decided" + (f" ({v.note})" if v.note else "")
-                 for v in res.verdicts if v.passed is None]
+                 for v in res.verdicts if v.outcome is Outcome.NOT_DECIDED]
     not_computed = sorted(set(res.limits) - {v.characteristic for v in res.verdicts})
     if not_computed:
         undecided.append("limit(s) given for characteristics this analysis did not compute: " + ", ".join(not_computed))

@@ -39,16 +39,16 @@ from station.analysis.iso9283.characteristics import (
     ApproachGroup,
     DistanceAR,
     LeftOut,
+    LimitCheck,
     MultiDirectional,
     OrientationAR,
     PoseResult,
-    Verdict,
     _verdicts,
     check_limits,
     distance_to_dict,
     left_out_to_dict,
     multidirectional_accuracy,
-    overall_passed,
+    overall_outcome,
     pose_to_dict,
     position_accuracy,
     position_repeatability,
@@ -57,6 +57,7 @@ from station.analysis.iso9283.characteristics import (
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.numeric import finite_list, finite_or_none
+from station.verdict import Outcome
 
 #: characteristics a stop list cannot give (they need the motion between stops)
 STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
@@ -69,7 +70,7 @@ class StopListResult:
 
     poses: dict[str, PoseResult]
     distances: tuple[DistanceAR, ...]
-    verdicts: tuple[Verdict, ...]
+    verdicts: tuple[LimitCheck, ...]
     limits: dict[str, float]
     warnings: tuple[str, ...]
     partial: bool
@@ -89,8 +90,12 @@ class StopListResult:
     assign_tol_mm: float = math.nan
 
     @property
+    def outcome(self) -> Outcome | None:
+        return overall_outcome(self.verdicts)
+
+    @property
     def passed(self) -> bool | None:
-        return overall_passed(self.verdicts)
+        return None if self.outcome is None else self.outcome.passed
 
     @property
     def n_far(self) -> int:
@@ -327,14 +332,16 @@ def analyze_stop_list(
         partial = True
     verdicts = []
     for v in _verdicts(lim, poses, dists, [], []):
-        if v.passed is None and v.characteristic in STREAM_ONLY:
-            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs a stream: a stop list has one "
-                        "point per stop" if not v.characteristic.startswith("AP") else
-                        "needs the reflectors' nominal positions on the tool")
-        elif v.passed is None and v.characteristic in ("AP_mm", "AD_mm") and cmd is None:
-            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs the commanded poses (--poses)")
+        if v.outcome is Outcome.NOT_DECIDED and v.characteristic in STREAM_ONLY:
+            v = LimitCheck(v.characteristic, v.subject, None, v.limit, Outcome.NOT_DECIDED,
+                           "needs a stream: a stop list has one "
+                           "point per stop" if not v.characteristic.startswith("AP") else
+                           "needs the reflectors' nominal positions on the tool")
+        elif v.outcome is Outcome.NOT_DECIDED and v.characteristic in ("AP_mm", "AD_mm") and cmd is None:
+            v = LimitCheck(v.characteristic, v.subject, None, v.limit, Outcome.NOT_DECIDED,
+                           "needs the commanded poses (--poses)")
         verdicts.append(v)
-    if any(v.passed is None for v in verdicts):
+    if any(v.outcome is Outcome.NOT_DECIDED for v in verdicts):
         partial = True
     reasons = _conformance(poses, primary, cyc, far, verdicts, lim)
     left.sort(key=lambda x: (x.row, x.statistics))
@@ -394,7 +401,7 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
     if far.any():
         reasons.append(f"{int(far.sum())} stop(s) far from their commanded pose")
     undecided = [f"{v.characteristic} {v.subject}" + (f" ({v.note})" if v.note else "")
-                 for v in verdicts if v.passed is None]
+                 for v in verdicts if v.outcome is Outcome.NOT_DECIDED]
     if undecided:
         reasons.append("limit(s) not decided: " + "; ".join(undecided))
     unevaluated = sorted(set(limits) - {v.characteristic for v in verdicts})
