@@ -296,8 +296,24 @@ class PoseResult:
         return int(self.attained_row.size)
 
 
+class Judged:
+    """A result whose ``verdicts`` (:class:`LimitCheck`) judge it: their one outcome, and as ``passed``."""
+
+    verdicts: tuple[LimitCheck, ...]
+
+    @property
+    def outcome(self) -> Outcome | None:
+        """The outcome of every limit asked (None: no limits given)."""
+        return overall_outcome(self.verdicts)
+
+    @property
+    def passed(self) -> bool | None:
+        """All verdicts passed (None: no limits given, or one could not be evaluated)."""
+        return None if self.outcome is None else self.outcome.passed
+
+
 @dataclass(frozen=True)
-class Iso9283Result:
+class Iso9283Result(Judged):
     """The results of one ISO 9283 analysis; :meth:`to_dict` gives the JSON."""
 
     poses: dict[str, PoseResult]
@@ -317,16 +333,6 @@ class Iso9283Result:
     left_out: tuple[LeftOut, ...] = ()
     #: {(characteristic, subject): FigureUncertainty} when a budget was stated (station.analysis.iso9283.uncertainty)
     uncertainties: dict = field(default_factory=dict)
-
-    @property
-    def outcome(self) -> Outcome | None:
-        """The outcome of every limit asked (None: no limits given)."""
-        return overall_outcome(self.verdicts)
-
-    @property
-    def passed(self) -> bool | None:
-        """All verdicts passed (None: no limits given, or one could not be evaluated)."""
-        return None if self.outcome is None else self.outcome.passed
 
     def to_dict(self) -> dict:
         """JSON-able dict with stable keys (units in the key names: mm, s, deg)."""

@@ -37,6 +37,7 @@ import numpy as np
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
     ApproachGroup,
+    Judged,
     DistanceAR,
     LeftOut,
     LimitCheck,
@@ -48,7 +49,6 @@ from station.analysis.iso9283.characteristics import (
     distance_to_dict,
     left_out_to_dict,
     multidirectional_accuracy,
-    overall_outcome,
     pose_to_dict,
     position_accuracy,
     position_repeatability,
@@ -65,7 +65,7 @@ STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
 
 
 @dataclass(frozen=True)
-class StopListResult:
+class StopListResult(Judged):
     """Characteristics of a stop list; :meth:`to_dict` gives the JSON (keys of the stream analysis)."""
 
     poses: dict[str, PoseResult]
@@ -88,14 +88,6 @@ class StopListResult:
     stop_far: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     reflectors: tuple[str, ...] = ()
     assign_tol_mm: float = math.nan
-
-    @property
-    def outcome(self) -> Outcome | None:
-        return overall_outcome(self.verdicts)
-
-    @property
-    def passed(self) -> bool | None:
-        return None if self.outcome is None else self.outcome.passed
 
     @property
     def n_far(self) -> int:
