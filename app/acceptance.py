@@ -24,7 +24,7 @@ import numpy as np
 from station.config import StationConfig, config_from_dict, load_config
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.store import RunStore
-from station.verdict import Outcome
+from station.verdict import EXIT_ABORTED, Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
 CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out", "one-pose-out")
@@ -238,7 +238,7 @@ class AcceptanceRun:
     #: ISO 9283 conformance of the run (None where the procedure has none)
     conformant: bool | None = None
     #: the command's exit code for this outcome (0 PASS, 1 FAIL, 3 NOT DECIDED, 4 not conformant, 5 ABORTED)
-    exit_code: int = 5
+    exit_code: int = EXIT_ABORTED
     #: the fake cell's seed (None on armed devices)
     seed: int | None = None
     #: the HTML report, when the run wrote one

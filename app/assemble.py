@@ -76,10 +76,9 @@ class ProcedureOutcome:
     """What one run through :func:`run_procedure` came to; the command and the page each present it.
 
     ``verdict`` and ``reasons`` are :func:`procedures.decision.decide`'s (the
-    same the report, ``--json`` and the page show); ``exit_code`` follows
-    ``station analyze``'s table (0 PASS, 1 FAIL, 3 NOT DECIDED, 4 not
-    conformant with conformance required) plus 5 for a run that did not
-    finish (ABORTED: resumable).
+    same the report, ``--json`` and the page show); ``exit_code`` is
+    :func:`station.verdict.exit_code`'s (0 PASS, 1 FAIL, 3 NOT DECIDED, 4 not
+    conformant with conformance required, 5 ABORTED: resumable).
     """
 
     run_id: str

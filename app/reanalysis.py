@@ -37,6 +37,7 @@ from procedures.registry import module_of, reanalysable
 from station.errors import ConfigError, DataError
 from station.store import RunStore
 from station.numeric import json_default
+from station.verdict import outcome_of
 
 def analysis_version() -> str:
     """``<package version>+<sha1 of the analysis sources, 12 hex>``."""
@@ -103,8 +104,8 @@ def reanalyze_run(target, run_id: str, version: str, force: bool = False) -> Rea
             if _finite(old["value"]) and _finite(r["value"]):
                 changes.append(abs(float(r["value"]) - float(old["value"])))
             if old["passed"] is not None and r["passed"] is not None and bool(old["passed"]) != bool(r["passed"]):
-                flips.append(f"{r['pose']} {r['name']}: {'pass' if old['passed'] else 'FAIL'} -> "
-                             f"{'pass' if r['passed'] else 'FAIL'}")
+                flips.append(f"{r['pose']} {r['name']}: {outcome_of(old['passed']).cell} -> "
+                             f"{outcome_of(r['passed']).cell}")
         out.n_values, out.max_change = len(rows), max(changes, default=0.0)
         out.verdict_changes = tuple(flips)
     out.seconds = time.perf_counter() - t0

@@ -16,8 +16,8 @@ cannot disagree.
 * Plant measurements (:mod:`station.measurements`) stored with the run
   count like characteristics.
 
-Exit codes follow ``station analyze``'s table, plus one for a run that did
-not finish: 0 PASS, 1 FAIL, 3 NOT DECIDED, 4 NOT DECIDED only because
+Exit codes are :func:`station.verdict.exit_code`'s (the one table of every
+command): 0 PASS, 1 FAIL, 3 NOT DECIDED, 4 NOT DECIDED only because
 conformance was required and not met, 5 ABORTED (2, bad input, is the
 command's: nothing ran).
 """
@@ -26,9 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from station.verdict import Outcome, Verdict, combine, outcome_of
-
-EXIT_PASS, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_UNDECIDED, EXIT_NOT_CONFORMANT, EXIT_ABORTED = 0, 1, 2, 3, 4, 5
+from station.verdict import Outcome, Verdict, combine, row_outcome
 
 
 @dataclass(frozen=True)
@@ -48,8 +46,6 @@ class RunDecision:
 
     verdict: Verdict
     conformant: bool | None = None
-    #: NOT DECIDED only because conformance was required and the run is not conformant
-    conformance_only: bool = False
     #: per judged row: (pose, name) -> outcome
     outcomes: dict = field(default_factory=dict)
 
@@ -63,17 +59,10 @@ class RunDecision:
 
     @property
     def exit_code(self) -> int:
-        return exit_code(self.outcome, self.conformance_only)
+        return self.verdict.exit_code
 
     def to_dict(self) -> dict:
         return {**self.verdict.to_dict(), "conformant": self.conformant, "exit_code": self.exit_code}
-
-
-def exit_code(outcome: Outcome, conformance_only: bool = False) -> int:
-    """The command's exit code of a run's outcome (module docstring)."""
-    if outcome is Outcome.NOT_DECIDED:
-        return EXIT_NOT_CONFORMANT if conformance_only else EXIT_UNDECIDED
-    return {Outcome.PASS: EXIT_PASS, Outcome.FAIL: EXIT_FAIL, Outcome.ABORTED: EXIT_ABORTED}[outcome]
 
 
 def _g(x) -> str:
@@ -94,15 +83,6 @@ def row_reason(r: dict, outcome: Outcome) -> str:
     if outcome is Outcome.NOT_DECIDED:
         return f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
     return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} <= limit {_g(r['limit'])}{u}"
-
-
-def row_outcome(r: dict) -> Outcome | None:
-    """A stored row's outcome: its ``outcome`` where stored, else from ``passed``; None when not judged."""
-    if r.get("outcome"):
-        return Outcome.parse(r["outcome"])
-    if r.get("limit") is None and r.get("passed") is None:
-        return None
-    return outcome_of(r.get("passed"))
 
 
 def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
@@ -138,7 +118,7 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
     elif require and checks.conformant is None:
         reasons.append(f"conformance required, but a {rec.procedure} run has no conformance to check")
         found.append(Outcome.NOT_DECIDED)
-    return RunDecision(Verdict(combine(found), tuple(reasons)), checks.conformant, conformance_only,
+    return RunDecision(Verdict(combine(found), tuple(reasons), conformance_only), checks.conformant,
                        {k: o for k, (o, _) in outcomes.items()})
 
 

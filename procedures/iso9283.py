@@ -55,6 +55,7 @@ from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Pr
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
+from station.verdict import Outcome
 from procedures.decision import Checks, decide, record_measurements
 from procedures.cell import CellSession, connect_cell, record_robot_readings, robot_subject, prompt_step, stop_cell
 from procedures.preflight import report_dir_problems, tracker_rate_problems
@@ -626,17 +627,6 @@ def characteristic_rows(main, vap) -> list[dict]:
     return rows
 
 
-def run_decision(main, vap) -> str | None:
-    """The decision over every verdict that carries one: "fail" if one failed, else "not decided" if one is in
-    its guard band (or could not be computed), else "pass"; None without verdicts or without a rule."""
-    vs = list(main.verdicts) + ([v for v in vap.verdicts if v.characteristic == "vAP_mm"] if vap is not None else [])
-    if not vs or all(v.rule is None for v in vs):
-        return None
-    if any(v.passed is False for v in vs):
-        return "fail"
-    return "not decided" if any(v.passed is None for v in vs) else "pass"
-
-
 def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
     streams = ctx.session.streams
@@ -693,12 +683,12 @@ def step_analyse(ctx: StepContext) -> dict:
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
     ctx.store.put_result(ctx.run_id, "iso9283", result)
     ctx.session.analysis = (main, vap)
-    judged = [r["passed"] for r in rows if r["passed"] is not None]
-    out = {"passed": (all(judged) if judged else None), "partial": bool(main.partial),
+    # no verdict here: the run's one verdict is decided from the stored rows (procedures.decision.decide)
+    out = {"partial": bool(main.partial),
            "warnings": list(main.warnings) + (list(vap.warnings) if vap is not None else []),
            "n_rows": len(rows)}
     if plan.uncertainty is not None:
-        out.update(decision_rule=plan.decision_rule, decision=run_decision(main, vap))
+        out.update(decision_rule=plan.decision_rule)
     return out
 
 
@@ -721,7 +711,7 @@ def step_report(ctx: StepContext) -> dict:
     report = build_report(ctx, plan, run, rows, main, vap, streams=measured_streams(ctx, plan),
                           reg=registration_of(ctx.outputs), vap_poses=VAP_POSES)
     decision = decide(SPEC, ctx.store, ctx.run_id, finished=True)
-    report.outcome, report.reasons = str(decision.outcome), list(decision.reasons)
+    report.outcome, report.reasons = decision.outcome, list(decision.reasons)
     report.notes += marginal
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     # the registered frame beside the report, in the form `station analyze iso9283 --frame` reads
@@ -851,13 +841,13 @@ def _decision_lines(store, run_id: str) -> list[str]:
         return []
     lines = [f"decision rule: {', '.join(sorted(rules))} (ISO 14253-1); U = k u with k = 2"]
     for v in vs:
-        if v.get("outcome") == "not decided":
+        if v.get("outcome") and Outcome.parse(v["outcome"]) is Outcome.NOT_DECIDED:
             unit = v["characteristic"].rsplit("_", 1)[-1]
             U = v.get(f"U_{unit}")
-            lines.append(f"NOT DECIDED {v['characteristic']} {v['subject']}: {v['value']:.4g} +/- {U:.2g} against "
-                         f"{v['limit']:g} (guard band {v['guard_band'][0]:.4g}..{v['guard_band'][1]:.4g})"
-                         if U is not None and v.get("guard_band") else
-                         f"NOT DECIDED {v['characteristic']} {v['subject']}: {v.get('note', '')}")
+            head = f"{Outcome.NOT_DECIDED} {v['characteristic']} {v['subject']}: "
+            lines.append(head + (f"{v['value']:.4g} +/- {U:.2g} against {v['limit']:g} (guard band "
+                                 f"{v['guard_band'][0]:.4g}..{v['guard_band'][1]:.4g})"
+                                 if U is not None and v.get("guard_band") else v.get("note", "")))
     return lines
 
 

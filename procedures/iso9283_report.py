@@ -89,8 +89,7 @@ def _with_decisions(rows, main, vap) -> list[dict]:
         if v is not None and v.rule is not None:
             fu = v.uncertainty
             r.update(rule=v.rule, U=None if fu is None else float(fu.U),
-                     decision=None if v.value is None else
-                     ("pass" if v.passed else ("fail" if v.passed is False else "not decided")))
+                     outcome=None if v.value is None else v.outcome)
         out.append(r)
     return out
 

@@ -30,6 +30,7 @@ import numpy as np
 from station.errors import ConfigError
 from station.fleet_trend import benjamini_hochberg, trends
 from station.store import RunStore, StoreError
+from station.verdict import Outcome
 
 YEAR_S = 365.25 * 86400.0
 
@@ -211,8 +212,8 @@ def limit_decisions_now(store: RunStore, name: str | None = None) -> dict[str, l
     A run analysed with a decision rule stored each verdict's outcome and U in its ``iso9283`` result: a
     failed one is non-conformance proven (under ``guarded``: figure - U beyond the limit), a figure in its
     guard band is not decided.  A run without a rule is judged as :func:`over_limits_now` does (value over
-    the limit: proven, rule ``None``).  Rows as :func:`over_limits_now` plus ``rule``, ``decision`` and
-    ``U`` (k = 2, the figure's unit).
+    the limit: proven, rule ``None``).  Rows as :func:`over_limits_now` plus ``rule``, ``decision`` (a
+    :class:`station.verdict.Outcome`, read from the stored verdict's text) and ``U`` (k = 2, the figure's unit).
     """
     rows = _latest_limited(store, name, "c.value IS NOT NULL")
     verdicts: dict[str, dict] = {}
@@ -223,14 +224,21 @@ def limit_decisions_now(store: RunStore, name: str | None = None) -> dict[str, l
         v = verdicts[r["run_id"]].get((r["name"], r["pose"]))
         if v is not None and v.get("rule") is not None:
             unit = r["name"].rsplit("_", 1)[-1]
-            r.update(rule=v["rule"], decision=v.get("outcome"), U=v.get(f"U_{unit}"))
+            r.update(rule=v["rule"], decision=Outcome.parse(v["outcome"]) if v.get("outcome") else None,
+                     U=v.get(f"U_{unit}"))
         else:
-            r.update(rule=None, decision="fail" if r["value"] > r["limit"] else "pass", U=None)
-        if r["decision"] == "fail":
+            r.update(rule=None, decision=Outcome.FAIL if r["value"] > r["limit"] else Outcome.PASS, U=None)
+        if r["decision"] is Outcome.FAIL:
             out["proven"].append(r)
-        elif r["decision"] == "not decided":
+        elif r["decision"] is Outcome.NOT_DECIDED:
             out["not_decided"].append(r)
     return out
+
+
+def decisions_as_json(rows: list[dict]) -> list[dict]:
+    """Rows of :func:`limit_decisions_now` as the commands' JSON gives them: each ``decision`` in its stored
+    lower-case word (:attr:`station.verdict.Outcome.word`)."""
+    return [{**r, "decision": r["decision"] and r["decision"].word} if "decision" in r else r for r in rows]
 
 
 def _stored_verdicts(store: RunStore, run_id: str) -> dict:

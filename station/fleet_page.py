@@ -14,6 +14,7 @@ import numpy as np
 from station.fleet import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
 from station.report import Report, plot_xy, render_html
 from station.store import RunStore
+from station.verdict import Outcome
 
 
 def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: int = 30) -> Report:
@@ -37,9 +38,9 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
     for r in over + undecided:
         row = {"pose": f"{r['serial']} ({r['model']}, {r['station'] or '-'}) {r['pose']}", "name": r["name"],
                "value": r["value"], "unit": r["unit"], "limit": r["limit"],
-               "passed": False if r["decision"] == "fail" else None}
+               "passed": False if r["decision"] is Outcome.FAIL else None}
         if r["rule"] is not None:
-            row.update(U=r["U"], decision=r["decision"])
+            row.update(U=r["U"], rule=r["rule"], outcome=r["decision"])
         rep.rows.append(row)
     # every other robot's latest run: its worst pose against its limit (the page's verdict is the fleet's)
     over_robots = {(r["model"], r["serial"]) for r in over + undecided}

@@ -121,7 +121,7 @@ def evaluate(measurements: Iterable[Measurement], rows: Iterable[Mapping]) -> li
             out.append({"pose": pose, "name": m.name, "of": m.of, "value": value, "unit": m.unit,
                         "low": m.low, "high": m.high, "limit": m.high if m.high is not None else m.low,
                         "marginal": marginal, "outcome": outcome.value,
-                        "passed": None if outcome is Outcome.NOT_DECIDED else outcome is Outcome.PASS,
+                        "passed": outcome.passed,
                         "description": m.description})
     return out
 

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from station.verdict import Outcome, combine, outcome_of
+
 
 #: titles sit at the top of their axes (``set_title(y=...)``): matplotlib then skips measuring every tick
 #: label to lift a title over top ticks, which these figures do not have (15 % of a cluster figure's time)
@@ -279,19 +281,24 @@ def plot_errors_before_after(before: np.ndarray, after: np.ndarray, *, ylabel: s
     return _svg(fig)
 
 
+#: a report's banner when none of its rows is judged (it has no verdict)
+NO_LIMITS = "NO LIMITS"
+
+
 @dataclass
 class Report:
     """What goes into a run's HTML report."""
 
     title: str
     facts: dict[str, str] = field(default_factory=dict)
-    #: rows with pose, name, value, unit, limit, passed
+    #: rows with pose, name, value, unit, limit, passed; a row decided by a rule also has ``rule``, ``U`` and
+    #: ``outcome`` (a :class:`station.verdict.Outcome`, or its stored text), which then says its verdict
     rows: list[Mapping] = field(default_factory=list)
     figures: list[tuple[str, str]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    #: the run's verdict (PASS, FAIL, NOT DECIDED, ABORTED; :mod:`station.verdict`) when it was decided
-    #: beyond these rows (cycles found, conformance, plant measurements); else judged from the rows
-    outcome: str | None = None
+    #: the run's verdict (:mod:`station.verdict`) when it was decided beyond these rows (cycles found,
+    #: conformance, plant measurements); else judged from the rows
+    outcome: Outcome | None = None
     #: why (one sentence each)
     reasons: list[str] = field(default_factory=list)
 
@@ -299,13 +306,20 @@ class Report:
     def verdict(self) -> str:
         if self.outcome is not None:
             return str(self.outcome)
-        judged = [r.get("passed") for r in self.rows if r.get("passed") is not None]
-        undecided = any(r.get("decision") == "not decided" for r in self.rows)
-        if not judged and not undecided:
-            return "NO LIMITS"
-        if not all(judged):
-            return "FAIL"
-        return "NOT DECIDED" if undecided else "PASS"
+        shown = [o for o in map(shown_outcome, self.rows) if o is not None]
+        return str(combine(shown)) if shown else NO_LIMITS
+
+
+def shown_outcome(row: Mapping) -> Outcome | None:
+    """The verdict a report row shows: its ``outcome`` when it has one, else its ``passed`` (None: no cell)."""
+    if row.get("outcome"):
+        return Outcome.parse(row["outcome"])
+    return None if row.get("passed") is None else outcome_of(row["passed"])
+
+
+def _cell_class(o: Outcome) -> str:
+    """The CSS class of a row's verdict cell (``.pass``, ``.fail``, ``.und``)."""
+    return o.word if o in (Outcome.PASS, Outcome.FAIL) else "und"
 
 
 _CSS = """
@@ -333,7 +347,7 @@ def render_html(report: Report) -> str:
     parts.append("<table>")
     for k, v in report.facts.items():
         parts.append(f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>")
-    with_u = any(r.get("U") is not None or r.get("decision") is not None for r in report.rows)
+    with_u = any(r.get("U") is not None or (r.get("rule") is not None and r.get("outcome")) for r in report.rows)
     parts.append("</table><h2>Results</h2><table><tr><th>pose</th><th>characteristic</th><th>value</th>"
                  + ("<th>U (k=2)</th><th>interval</th>" if with_u else "")
                  + "<th>unit</th><th>limit</th><th>verdict</th></tr>")
@@ -341,12 +355,8 @@ def render_html(report: Report) -> str:
         v = r.get("value")
         val = "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.4g}"
         lim = "" if r.get("limit") is None else f"{r['limit']:.4g}"
-        passed = r.get("passed")
-        verdict = "" if passed is None else ("<span class='pass'>pass</span>" if passed else "<span class='fail'>FAIL</span>")
-        if r.get("outcome"):
-            verdict = f"<span class='{'pass' if r['outcome'] == 'PASS' else 'fail'}'>{e(str(r['outcome']))}</span>"
-        if r.get("decision") == "not decided":
-            verdict = "<span class='und'>not decided</span>"
+        o = shown_outcome(r)
+        verdict = "" if o is None else f"<span class='{_cell_class(o)}'>{o.cell}</span>"
         unc = ""
         if with_u:
             U = r.get("U")

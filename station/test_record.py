@@ -26,7 +26,7 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from station.verdict import Outcome, outcome_of
+from station.verdict import Outcome, row_outcome
 
 SCHEMA = "station-test-record/1"
 
@@ -47,10 +47,10 @@ def measurement_rows(characteristics: list[dict], measurements: list[dict]) -> l
                          "low": _num(m["low"]), "high": _num(m["high"]), "outcome": m["outcome"],
                          "marginal": bool(m["marginal"]), "of": m.get("of"), "source": "plant"})
             continue
-        judged = c.get("limit") is not None or c.get("passed") is not None
+        o = row_outcome(c)
         rows.append({"pose": c["pose"], "name": c["name"], "value": _num(c["value"]), "unit": c["unit"],
                      "low": None, "high": _num(c.get("limit")),
-                     "outcome": outcome_of(c.get("passed")).value if judged else "", "marginal": False,
+                     "outcome": "" if o is None else o.value, "marginal": False,
                      "of": None, "source": "procedure"})
     return rows
 

@@ -86,8 +86,10 @@ def run_hold(args: argparse.Namespace) -> int:
         os.replace(tmp, args.json)
         print(f"results written to {args.json}")
     if refused:
-        print(f"station: exit 3: drift per minute and the windows refused: {refused}", file=sys.stderr)
-        return 3
+        from station.verdict import EXIT_UNDECIDED
+
+        print(f"station: exit {EXIT_UNDECIDED}: drift per minute and the windows refused: {refused}", file=sys.stderr)
+        return EXIT_UNDECIDED
     return 0
 
 

@@ -43,10 +43,11 @@ from app.commands.analyze_inputs import (
     read_frame,
     window_parameters,
 )
-from app.commands.analyze_outcome import EXIT_NOT_ISO, EXIT_PASS, EXIT_UNDECIDED, decide
+from app.commands.analyze_outcome import decide
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
 from station.readers.date_time import DATE_ORDERS
+from station.verdict import Outcome, Verdict
 
 
 def add_arguments(s: argparse.ArgumentParser) -> None:
@@ -195,15 +196,14 @@ def _finish(res, d: dict, args, far: list[str], unc=None, time_refused: str = ""
         d["uncertainty"] = unc[0]
     out = decide(res, require_iso=args.require_iso, far_stops=far, allow_far=args.allow_other_stops)
     if time_refused:  # a time figure on a clock that failed its check is not stated: not decided
-        out.reasons.append(time_refused)
-        if out.code in (EXIT_PASS, EXIT_NOT_ISO):
-            out.code = EXIT_UNDECIDED
-    d["exit"] = out.to_dict()
+        out = Verdict(out.outcome if out.outcome is Outcome.FAIL else Outcome.NOT_DECIDED,
+                      tuple(out.reasons) + (time_refused,))
+    d["exit"] = {"code": out.exit_code, "reasons": list(out.reasons)}
     if args.json is not None:
         _write_json(args.json, d)
     for r in out.reasons:
-        print(f"station: exit {out.code}: {r}", file=sys.stderr)
-    return out.code
+        print(f"station: exit {out.exit_code}: {r}", file=sys.stderr)
+    return out.exit_code
 
 
 def run_iso9283(args: argparse.Namespace) -> int:

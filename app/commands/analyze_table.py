@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from station.verdict import Outcome
+
 #: lines of a list (missing, left out) shown before "... more (see the JSON)"
 SHOW = 20
 
@@ -52,14 +54,14 @@ def _tail(res, estimated_rate: bool = False, clock_refused: bool = False) -> lis
     if res.verdicts:
         lines.append("")
         for v in res.verdicts:
-            mark = "PASS" if v.passed else ("FAIL" if v.passed is False else "N/A ")
+            mark = str(v.outcome)
+            if v.outcome is Outcome.NOT_DECIDED:  # in the guard band, or not computed
+                mark = "UND " if v.value is not None and getattr(v, "rule", None) == "guarded" else "N/A "
             fu = getattr(v, "uncertainty", None)
-            if v.passed is None and v.value is not None and getattr(v, "rule", None) == "guarded":
-                mark = "UND "  # not decided: in the guard band
             unc = "" if fu is None else f" +/- {fu.U:.2g} (k={fu.k:g})"
             lines.append(f"{mark} {v.characteristic:<8} {v.subject:<8} {_n(v.value, '{:.4f}'):>9}{unc} <= {v.limit:g}"
                          + (f"  ({v.note})" if v.note else ""))
-        word = "PASS" if res.passed else ("FAIL" if res.passed is False else "not decided")
+        word = res.outcome.word if res.outcome is Outcome.NOT_DECIDED else str(res.outcome)
         iso = "ISO 9283 conformant" if res.iso_conformant else "NOT ISO 9283 conformant (see below)"
         lines.append(f"overall: {word} on the limits asked; {iso}")
     for x in res.left_out[:SHOW]:

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from app.commands.store_open import CENTRAL_HELP, CONFIG_HELP, JSON_HELP, open_store
+from station.verdict import Outcome, outcome_of
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -130,7 +131,7 @@ def _history(args) -> int:
         print(f"no values of {args.name} for serial {args.serial}" + (f" at {args.pose}" if args.pose else "")
               + " (is the serial right? station store runs lists the runs)")
     for r in rows:
-        verdict = "" if r["passed"] is None else ("pass" if r["passed"] else "FAIL")
+        verdict = "" if r["passed"] is None else outcome_of(r["passed"]).cell
         print(f"{_ts(r['created_at'])}  {r['run_id']:<34} {r['overhaul_state'] or '-':<10} {r['pose']:<8} "
               f"{args.name} = {r['value']:.4g}  {verdict}")
     return 0
@@ -150,7 +151,9 @@ def _exceeding(args) -> int:
             undecided = [{k: r[k] for k in ("model", "serial", "run_id", "created_at", "pose", "value", "limit", "U",
                                             "rule", "decision")} for r in d["not_decided"]]
     if args.json:
-        print(json.dumps(rows + undecided, indent=2))
+        from station.fleet import decisions_as_json
+
+        print(json.dumps(rows + decisions_as_json(undecided), indent=2))
         return 0
     if not rows and not undecided:
         print(f"no robot over its {args.name} limit ("
@@ -161,7 +164,7 @@ def _exceeding(args) -> int:
     for r in undecided:
         u = "" if r["U"] is None else f" +/- {r['U']:.2g}"
         print(f"{r['model']:<18} {r['serial']:<14} {r['run_id']:<34} {r['pose']:<8} "
-              f"{args.name} = {r['value']:.4g}{u} against {r['limit']:g}: NOT DECIDED (guard band)")
+              f"{args.name} = {r['value']:.4g}{u} against {r['limit']:g}: {Outcome.NOT_DECIDED} (guard band)")
     return 1 if rows or undecided else 0
 
 

@@ -17,6 +17,7 @@ import json
 import time
 
 from app.commands.store_open import CENTRAL_HELP, CONFIG_HELP, JSON_HELP
+from station.verdict import Outcome
 
 
 def register(s) -> None:
@@ -111,18 +112,20 @@ def _since(args) -> int:
 
 
 def _over(args) -> int:
-    from station.fleet import limit_decisions_now
+    from station.fleet import decisions_as_json, limit_decisions_now
 
     with _open(args) as store:
         d = limit_decisions_now(store, args.name)
     # non-conformance proven first (the line of old), then the figures left in their guard band
     rows = d["proven"] + d["not_decided"]
+    if args.json:
+        rows = decisions_as_json(rows)
 
     def line(r):
         head = f"{r['model']:<18} {r['serial']:<14} {r['station'] or '-':<10} {r['run_id']:<34} {r['pose']:<6} "
-        if r["decision"] == "not decided":
+        if r["decision"] is Outcome.NOT_DECIDED:
             u = "" if r["U"] is None else f" +/- {r['U']:.2g}"
-            return head + f"{r['name']} = {r['value']:.4g}{u} against {r['limit']:g}: NOT DECIDED (guard band)"
+            return head + f"{r['name']} = {r['value']:.4g}{u} against {r['limit']:g}: {Outcome.NOT_DECIDED} (guard band)"
         return head + f"{r['name']} = {r['value']:.4g} > {r['limit']:g}" + (
             f" (proven: - U {r['U']:.2g}, {r['rule']} rule)" if r["rule"] == "guarded" and r["U"] is not None else "")
 

@@ -14,7 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from station.report import NO_LIMITS
 from station.store import RunStore, StepRecord
+from station.verdict import Outcome, combine, outcome_of
 from app.web.instrument_view import instrument_view
 from app.web.live import LiveRun, RunHub
 
@@ -41,21 +43,28 @@ def decided(store: RunStore, run_id: str) -> dict | None:
 
 
 def verdict(store: RunStore, run_id: str, steps: list[StepRecord] | None = None) -> str | None:
-    """'pass', 'fail', 'not decided', 'aborted' or None (nothing judged): the run's stored verdict, else the
-    report's, else the characteristics' one."""
+    """The run's verdict as the page shows it (:attr:`station.verdict.Outcome.word`: 'pass', 'fail', 'not decided',
+    'aborted') or None (nothing judged): its stored verdict, else its report's, else its characteristics' one
+    (runs stored before verdicts were)."""
+    return None if (o := run_outcome(store, run_id, steps)) is None else o.word
+
+
+def run_outcome(store: RunStore, run_id: str, steps: list[StepRecord] | None = None) -> Outcome | None:
+    """The run's stored :class:`Outcome` (``verdict`` result, else the report step's, else its rows'; None: nothing
+    judged); an aborted or failed run without a stored verdict is ABORTED."""
     d = decided(store, run_id)
     if d and d.get("verdict"):
-        return str(d["verdict"]).lower()
+        return Outcome.parse(d["verdict"])
     rec = store.run(run_id)
     if rec.status in ("failed", "aborted"):
-        return "aborted"
+        return Outcome.ABORTED
     for s in reversed(steps if steps is not None else store.steps(run_id)):
         if s.name == "report" and s.status == "done" and s.output and s.output.get("verdict"):
-            return str(s.output["verdict"]).lower()
+            if s.output["verdict"] == NO_LIMITS:
+                break  # nothing judged (its rows say the same)
+            return Outcome.parse(s.output["verdict"])
     judged = [c["passed"] for c in store.characteristics(run_id) if c["passed"] is not None]
-    if not judged:
-        return None
-    return "pass" if all(judged) else "fail"
+    return combine(map(outcome_of, judged)) if judged else None
 
 
 def report_path(steps: list[StepRecord]) -> Path | None:

@@ -7,10 +7,10 @@ The limits of ISO 9283 figures are upper limits (``|figure| <= limit``).
 * ``guarded``: conformance is proven only when ``|figure| + U <= limit``,
   non-conformance only when ``|figure| - U > limit``; in between the figure
   lies inside the guard band ``(limit - U, limit + U]`` and the outcome is
-  "not decided".
+  NOT DECIDED.
 
-Outcomes are the strings :data:`PASS`, :data:`FAIL`, :data:`NOT_DECIDED` (the
-run's one verdict combines them elsewhere).
+The outcome is a :class:`station.verdict.Outcome` (PASS, FAIL, NOT_DECIDED;
+the run's one verdict combines them elsewhere).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import math
 from dataclasses import dataclass
 
 from station.errors import ConfigError
+from station.verdict import Outcome
 
-PASS, FAIL, NOT_DECIDED = "pass", "fail", "not decided"
 RULES = ("simple", "guarded")
 
 
@@ -28,7 +28,7 @@ RULES = ("simple", "guarded")
 class Decision:
     """The outcome of one figure; ``guard_band`` = (acceptance limit, rejection limit) under ``guarded``."""
 
-    outcome: str
+    outcome: Outcome
     rule: str
     value: float
     limit: float
@@ -37,17 +37,17 @@ class Decision:
 
     @property
     def passed(self) -> bool | None:
-        """As a verdict's ``passed``: True, False, or None (not decided)."""
-        return {PASS: True, FAIL: False}.get(self.outcome)
+        """As the store's ``passed``: True, False, or None (not decided)."""
+        return self.outcome.passed
 
     def explain(self) -> str:
         """One sentence: why this outcome."""
         v = abs(self.value)
         if self.rule == "simple" or self.U is None:
-            return f"{v:.4g} {'<=' if self.outcome == PASS else '>'} {self.limit:g}"
-        if self.outcome == PASS:
+            return f"{v:.4g} {'<=' if self.outcome is Outcome.PASS else '>'} {self.limit:g}"
+        if self.outcome is Outcome.PASS:
             return f"{v:.4g} + U {self.U:.2g} <= {self.limit:g}: conformance proven"
-        if self.outcome == FAIL:
+        if self.outcome is Outcome.FAIL:
             return f"{v:.4g} - U {self.U:.2g} > {self.limit:g}: non-conformance proven"
         lo, hi = self.guard_band
         return (f"{v:.4g} lies in the guard band {lo:.4g}..{hi:.4g} (limit {self.limit:g} -/+ U {self.U:.2g}): "
@@ -63,7 +63,7 @@ def check_rule(rule: str) -> str:
 def decide(value: float, limit: float, U: float | None = None, rule: str = "simple") -> Decision:
     """The decision on ``|value| <= limit`` under ``rule`` with the expanded uncertainty ``U``.
 
-    Under ``guarded`` a missing ``U`` decides nothing (:data:`NOT_DECIDED`).
+    Under ``guarded`` a missing ``U`` decides nothing (:data:`Outcome.NOT_DECIDED`).
     """
     check_rule(rule)
     v, L = float(value), float(limit)
@@ -71,17 +71,17 @@ def decide(value: float, limit: float, U: float | None = None, rule: str = "simp
         raise ValueError(f"decide: value and limit must be finite, got {value!r}, {limit!r}")
     a = abs(v)
     if rule == "simple":
-        return Decision(PASS if a <= L else FAIL, rule, v, L, U, None)
+        return Decision(Outcome.PASS if a <= L else Outcome.FAIL, rule, v, L, U, None)
     if U is None or not math.isfinite(U):
-        return Decision(NOT_DECIDED, rule, v, L, None, None)
+        return Decision(Outcome.NOT_DECIDED, rule, v, L, None, None)
     U = float(U)
     if U < 0:
         raise ValueError(f"decide: U must be >= 0, got {U!r}")
     band = (L - U, L + U)
     if a + U <= L:
-        out = PASS
+        out = Outcome.PASS
     elif a - U > L:
-        out = FAIL
+        out = Outcome.FAIL
     else:
-        out = NOT_DECIDED
+        out = Outcome.NOT_DECIDED
     return Decision(out, rule, v, L, U, band)

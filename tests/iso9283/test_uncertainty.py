@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fakes.sim.iso_stops import simulate_pose_test
-from station.analysis.decision import FAIL, NOT_DECIDED, PASS, decide
+from station.analysis.decision import decide
 from station.analysis.iso9283.poses import TABLE2_POSES_MM
 from station.analysis.uncertainty import (
     Budget,
@@ -26,6 +26,7 @@ from station.analysis.uncertainty import (
 )
 from app.cli import main
 from station.errors import ConfigError
+from station.verdict import Outcome
 
 from .conftest import rp_population
 from .labfiles import write_poses, write_stream_csv
@@ -148,17 +149,17 @@ def test_guarded_rule_three_outcomes(rng):
         inside = rng.uniform(0.0, L - U)  # figure + U within the limit
         across = rng.uniform(L - U + 1e-9 * L, L + U)  # in the guard band
         beyond = rng.uniform(L + U + 1e-9 * L, L + 3 * U)
-        assert decide(inside, L, U, "guarded").outcome == PASS
+        assert decide(inside, L, U, "guarded").outcome is Outcome.PASS
         d = decide(across, L, U, "guarded")
-        assert d.outcome == NOT_DECIDED and d.passed is None
+        assert d.outcome is Outcome.NOT_DECIDED and d.passed is None
         assert d.guard_band == pytest.approx((L - U, L + U))
-        assert decide(beyond, L, U, "guarded").outcome == FAIL
+        assert decide(beyond, L, U, "guarded").outcome is Outcome.FAIL
         # signed figures (AD) by their magnitude
-        assert decide(-beyond, L, U, "guarded").outcome == FAIL
+        assert decide(-beyond, L, U, "guarded").outcome is Outcome.FAIL
         # the simple rule: today's comparison whatever U
-        assert decide(across, L, U, "simple").outcome == (PASS if across <= L else FAIL)
-    assert decide(1.0, 1.0, 0.0, "guarded").outcome == PASS  # no uncertainty: the simple comparison
-    assert decide(0.5, 1.0, None, "guarded").outcome == NOT_DECIDED  # no U: nothing proven
+        assert decide(across, L, U, "simple").outcome is (Outcome.PASS if across <= L else Outcome.FAIL)
+    assert decide(1.0, 1.0, 0.0, "guarded").outcome is Outcome.PASS  # no uncertainty: the simple comparison
+    assert decide(0.5, 1.0, None, "guarded").outcome is Outcome.NOT_DECIDED  # no U: nothing proven
     with pytest.raises(ConfigError):
         decide(0.5, 1.0, 0.1, "lenient")
 
@@ -227,14 +228,14 @@ def test_guarded_rule_on_the_command_exit_codes(tmp_path, files, capsys):
 
     # on the limit: in the guard band -> not decided (exit 3) under guarded, pass (exit 0) under simple
     rc, out, err, mine = at(rp + 1e-6, "guarded")
-    assert rc == 3 and mine["outcome"] == NOT_DECIDED and f"RP_mm {pose} not decided" in err
+    assert rc == 3 and mine["outcome"] == "not decided" and f"RP_mm {pose} not decided" in err
     assert "guard band" in err and "UND  RP_mm" in out
     assert mine["guard_band"] == pytest.approx([mine["limit"] - U, mine["limit"] + U], abs=2e-6)
     rc, out, err, mine = at(rp + 1e-6, "simple")  # the JSON rounds to 1e-6
     assert rc == 0 and mine["passed"] is True
     # inside the conformance zone, and beyond the guard band
     rc, _, _, mine = at(rp + 1.5 * U, "guarded")
-    assert mine["outcome"] == PASS and rc in (0, 3)  # another pose may sit in its own guard band
+    assert mine["outcome"] == "pass" and rc in (0, 3)  # another pose may sit in its own guard band
     # below the guard band: a fail. A limit below figure - U exists where U < RP; at 15 cycles U is about
     # 0.4 RP at most poses, but at the pose of the largest RP it may exceed RP (a high figure drawn from a
     # wide scatter: its sampling uncertainty is wide too), so the pose of the smallest U / RP is taken (over
@@ -243,7 +244,7 @@ def test_guarded_rule_on_the_command_exit_codes(tmp_path, files, capsys):
     rp_w, U_w = w["value"], w["U_mm"]
     assert U_w < rp_w, (U_w, rp_w)
     rc, _, err, mine = at(rp_w - 1.5 * U_w if rp_w > 1.5 * U_w else 0.5 * (rp_w - U_w), "guarded", w["subject"])
-    assert rc == 1 and mine["outcome"] == FAIL and f"RP_mm {w['subject']} = " in err
+    assert rc == 1 and mine["outcome"] == "fail" and f"RP_mm {w['subject']} = " in err
 
 
 def test_simple_rule_with_a_budget_changes_no_verdict(tmp_path, files, capsys):

@@ -6,12 +6,15 @@ code is 3; with enough cycles (6: one stop lost on a loaded machine leaves 5) an
 passes with every verdict carrying u, U and k.
 """
 
+import json
+
 from procedures.iso9283 import plan_from_config
 from station.fleet import limit_decisions_now, over_limits_now
 from station.fleet_page import fleet_report
 from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
+from station.verdict import Outcome
 from tests.person import person_typing_yes
 
 
@@ -37,7 +40,9 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
          if x["characteristic"] == "RP_mm" and x["value"] is not None]
     assert v and all(x["outcome"] == "not decided" and x["U_mm"] is None for x in v)
     an = next(s for s in store.steps("u1") if s.name == "analyse")
-    assert an.output["decision"] == "not decided" and an.output["decision_rule"] == "guarded"
+    # the analysis states the rule, not a verdict of its own: the run has one, decided from the stored rows
+    assert an.output["decision_rule"] == "guarded" and "decision" not in an.output and "passed" not in an.output
+    assert store.result("u1", "verdict")["verdict"] == "NOT DECIDED"
     rep = next(s for s in store.steps("u1") if s.name == "report").output
     html = open(rep["report"], encoding="utf-8").read()
     assert rep["verdict"] == "NOT DECIDED" and "not decided" in html and "decision rule (ISO 14253-1)" in html
@@ -45,7 +50,7 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     d = limit_decisions_now(store, "RP_mm")
     assert d["proven"] == [] and over_limits_now(store, "RP_mm") == []
     assert {r["pose"] for r in d["not_decided"]} == {x["subject"] for x in v}
-    assert all(r["rule"] == "guarded" and r["decision"] == "not decided" for r in d["not_decided"])
+    assert all(r["rule"] == "guarded" and r["decision"] is Outcome.NOT_DECIDED for r in d["not_decided"])
     from app.cli import main
 
     cfg = tmp_path / "c.toml"
@@ -54,10 +59,13 @@ def test_guarded_run_without_uncertainty_is_not_decided(fake_cell, tmp_path, cap
     assert main(["store", "exceeding", "--config", str(cfg), "--name", "RP_mm"]) == 1
     lines = capsys.readouterr().out.splitlines()
     assert lines and all("NOT DECIDED (guard band)" in line for line in lines)
+    # the JSON keeps a figure's outcome in the stored word, as before
+    assert main(["store", "exceeding", "--config", str(cfg), "--name", "RP_mm", "--json"]) == 0
+    assert {r["decision"] for r in json.loads(capsys.readouterr().out)} == {"not decided"}
     page = fleet_report(store, "RP_mm")
     assert page.facts["robots over a limit now"] == "0"
     assert page.facts["robots not decided now (a figure in its guard band, ISO 14253-1)"] == "1"
-    assert [r["decision"] for r in page.rows] == ["not decided"] * len(v) and page.verdict == "NOT DECIDED"
+    assert [r["outcome"] for r in page.rows] == [Outcome.NOT_DECIDED] * len(v) and page.verdict == "NOT DECIDED"
 
 
 def test_guarded_run_far_inside_the_limit_passes_with_u_and_U(fake_cell, tmp_path, capsys):

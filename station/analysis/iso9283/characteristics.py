@@ -41,6 +41,7 @@ from station.analysis.iso9283.extraction import (
 )
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.numeric import finite_list, finite_or_none
+from station.verdict import Outcome, combine
 
 #: ISO 9283 prescribes 30 cycles for AP and RP
 ISO_CYCLES = 30
@@ -250,19 +251,27 @@ class LeftOut:
 
 
 @dataclass(frozen=True)
-class Verdict:
+class LimitCheck:
+    """One characteristic of one subject judged against its limit (its outcome a :class:`station.verdict.Outcome`)."""
+
     characteristic: str  # a LIMIT_KEYS key
     subject: str  # pose name, "P2-P4", "P1->P2"
     value: float | None
     limit: float
-    passed: bool | None  # None: not computed (or, under the guarded rule, not decided)
+    #: PASS, FAIL, or NOT_DECIDED (not computed, or, under the guarded rule, in the guard band)
+    outcome: Outcome
     note: str = ""
     #: the figure's uncertainty (:class:`station.analysis.uncertainty.FigureUncertainty`) when one was asked
     uncertainty: object | None = None
-    #: the decision rule that set ``passed`` ("simple" or "guarded"; None: the plain comparison, no budget)
+    #: the decision rule that set ``outcome`` ("simple" or "guarded"; None: the plain comparison, no budget)
     rule: str | None = None
     #: under "guarded": (limit - U, limit + U)
     guard_band: tuple[float, float] | None = None
+
+    @property
+    def passed(self) -> bool | None:
+        """As the JSON's and the store's ``passed``: True, False, None (not decided)."""
+        return self.outcome.passed
 
 
 @dataclass(frozen=True)
@@ -287,8 +296,24 @@ class PoseResult:
         return int(self.attained_row.size)
 
 
+class Judged:
+    """A result whose ``verdicts`` (:class:`LimitCheck`) judge it: their one outcome, and as ``passed``."""
+
+    verdicts: tuple[LimitCheck, ...]
+
+    @property
+    def outcome(self) -> Outcome | None:
+        """The outcome of every limit asked (None: no limits given)."""
+        return overall_outcome(self.verdicts)
+
+    @property
+    def passed(self) -> bool | None:
+        """All verdicts passed (None: no limits given, or one could not be evaluated)."""
+        return None if self.outcome is None else self.outcome.passed
+
+
 @dataclass(frozen=True)
-class Iso9283Result:
+class Iso9283Result(Judged):
     """The results of one ISO 9283 analysis; :meth:`to_dict` gives the JSON."""
 
     poses: dict[str, PoseResult]
@@ -296,7 +321,7 @@ class Iso9283Result:
     posing_times: tuple[PosingTime, ...]
     paths: tuple[PathAR, ...]
     extraction: Extraction
-    verdicts: tuple[Verdict, ...]
+    verdicts: tuple[LimitCheck, ...]
     limits: dict[str, float]
     warnings: tuple[str, ...]
     partial: bool
@@ -308,11 +333,6 @@ class Iso9283Result:
     left_out: tuple[LeftOut, ...] = ()
     #: {(characteristic, subject): FigureUncertainty} when a budget was stated (station.analysis.iso9283.uncertainty)
     uncertainties: dict = field(default_factory=dict)
-
-    @property
-    def passed(self) -> bool | None:
-        """All verdicts passed (None: no limits given, or one could not be evaluated)."""
-        return overall_passed(self.verdicts)
 
     def to_dict(self) -> dict:
         """JSON-able dict with stable keys (units in the key names: mm, s, deg)."""
@@ -779,7 +799,7 @@ def analyze_iso9283(
     _stage_extraction_problems(run)
     left_out = _stage_left_out(run, pose_info, settle, dists)
     verdicts = _verdicts(lim, poses, dists, mts, paths)
-    if any(v.passed is None for v in verdicts):
+    if any(v.outcome is Outcome.NOT_DECIDED for v in verdicts):
         run.partial = True
     reasons = iso_conformance_reasons(poses, ex, verdicts, lim)
     return Iso9283Result(
@@ -1198,7 +1218,7 @@ def iso_conformance_reasons(poses: dict, ex: Extraction, verdicts, limits: dict 
     if ex.failed_phases:
         reasons.append(f"{len(ex.failed_phases)} deceleration phase(s) gave no attained pose")
     undecided = [f"{v.characteristic} {v.subject}" + (f" ({v.note})" if v.note else "")
-                 for v in verdicts if v.passed is None]
+                 for v in verdicts if v.outcome is Outcome.NOT_DECIDED]
     if undecided:
         reasons.append("limit(s) not decided: " + "; ".join(undecided))
     unevaluated = sorted(set(limits or {}) - {v.characteristic for v in verdicts})
@@ -1219,8 +1239,8 @@ def _verdict(key, subject, value, lim, why=""):
     if key not in lim:
         return None
     if value is None:
-        return Verdict(key, subject, None, lim[key], None, why or "not computed")
-    return Verdict(key, subject, float(value), lim[key], bool(abs(value) <= lim[key]))
+        return LimitCheck(key, subject, None, lim[key], Outcome.NOT_DECIDED, why or "not computed")
+    return LimitCheck(key, subject, float(value), lim[key], Outcome.PASS if abs(value) <= lim[key] else Outcome.FAIL)
 
 
 def _verdicts(lim, poses, dists, mts, paths):
@@ -1333,7 +1353,7 @@ def distance_to_dict(d: DistanceAR) -> dict:
             "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)}
 
 
-def verdict_to_dict(v: Verdict) -> dict:
+def verdict_to_dict(v: LimitCheck) -> dict:
     d = {"characteristic": v.characteristic, "subject": v.subject, "value": finite_or_none(v.value, 6), "limit": finite_or_none(v.limit, 6),
          "passed": v.passed, "note": v.note}
     if v.rule is not None:
@@ -1348,16 +1368,9 @@ def left_out_to_dict(x: LeftOut) -> dict:
             "reason": x.reason}
 
 
-def overall_passed(verdicts) -> bool | None:
-    """All verdicts passed (None: no verdict, or one could not be evaluated; False: one failed)."""
-    if not verdicts:
-        return None
-    vals = [v.passed for v in verdicts]
-    if any(v is False for v in vals):
-        return False
-    if any(v is None for v in vals):
-        return None
-    return True
+def overall_outcome(verdicts) -> Outcome | None:
+    """The outcome of all checks (:func:`station.verdict.combine`: FAIL over NOT DECIDED over PASS); None without any."""
+    return combine(v.outcome for v in verdicts) if verdicts else None
 
 
 def _result_to_dict(r: Iso9283Result) -> dict:

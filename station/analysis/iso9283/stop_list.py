@@ -37,18 +37,18 @@ import numpy as np
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
     ApproachGroup,
+    Judged,
     DistanceAR,
     LeftOut,
+    LimitCheck,
     MultiDirectional,
     OrientationAR,
     PoseResult,
-    Verdict,
     _verdicts,
     check_limits,
     distance_to_dict,
     left_out_to_dict,
     multidirectional_accuracy,
-    overall_passed,
     pose_to_dict,
     position_accuracy,
     position_repeatability,
@@ -57,6 +57,7 @@ from station.analysis.iso9283.characteristics import (
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.numeric import finite_list, finite_or_none
+from station.verdict import Outcome
 
 #: characteristics a stop list cannot give (they need the motion between stops)
 STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
@@ -64,12 +65,12 @@ STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
 
 
 @dataclass(frozen=True)
-class StopListResult:
+class StopListResult(Judged):
     """Characteristics of a stop list; :meth:`to_dict` gives the JSON (keys of the stream analysis)."""
 
     poses: dict[str, PoseResult]
     distances: tuple[DistanceAR, ...]
-    verdicts: tuple[Verdict, ...]
+    verdicts: tuple[LimitCheck, ...]
     limits: dict[str, float]
     warnings: tuple[str, ...]
     partial: bool
@@ -87,10 +88,6 @@ class StopListResult:
     stop_far: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     reflectors: tuple[str, ...] = ()
     assign_tol_mm: float = math.nan
-
-    @property
-    def passed(self) -> bool | None:
-        return overall_passed(self.verdicts)
 
     @property
     def n_far(self) -> int:
@@ -327,14 +324,16 @@ def analyze_stop_list(
         partial = True
     verdicts = []
     for v in _verdicts(lim, poses, dists, [], []):
-        if v.passed is None and v.characteristic in STREAM_ONLY:
-            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs a stream: a stop list has one "
-                        "point per stop" if not v.characteristic.startswith("AP") else
-                        "needs the reflectors' nominal positions on the tool")
-        elif v.passed is None and v.characteristic in ("AP_mm", "AD_mm") and cmd is None:
-            v = Verdict(v.characteristic, v.subject, None, v.limit, None, "needs the commanded poses (--poses)")
+        if v.outcome is Outcome.NOT_DECIDED and v.characteristic in STREAM_ONLY:
+            v = LimitCheck(v.characteristic, v.subject, None, v.limit, Outcome.NOT_DECIDED,
+                           "needs a stream: a stop list has one "
+                           "point per stop" if not v.characteristic.startswith("AP") else
+                           "needs the reflectors' nominal positions on the tool")
+        elif v.outcome is Outcome.NOT_DECIDED and v.characteristic in ("AP_mm", "AD_mm") and cmd is None:
+            v = LimitCheck(v.characteristic, v.subject, None, v.limit, Outcome.NOT_DECIDED,
+                           "needs the commanded poses (--poses)")
         verdicts.append(v)
-    if any(v.passed is None for v in verdicts):
+    if any(v.outcome is Outcome.NOT_DECIDED for v in verdicts):
         partial = True
     reasons = _conformance(poses, primary, cyc, far, verdicts, lim)
     left.sort(key=lambda x: (x.row, x.statistics))
@@ -394,7 +393,7 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
     if far.any():
         reasons.append(f"{int(far.sum())} stop(s) far from their commanded pose")
     undecided = [f"{v.characteristic} {v.subject}" + (f" ({v.note})" if v.note else "")
-                 for v in verdicts if v.passed is None]
+                 for v in verdicts if v.outcome is Outcome.NOT_DECIDED]
     if undecided:
         reasons.append("limit(s) not decided: " + "; ".join(undecided))
     unevaluated = sorted(set(limits) - {v.characteristic for v in verdicts})

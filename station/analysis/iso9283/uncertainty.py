@@ -5,9 +5,9 @@
 analysis (:class:`~station.analysis.stop_list.StopListResult`) and gives each
 figure it can its :class:`~station.analysis.uncertainty.FigureUncertainty`;
 :func:`apply_rule` puts them on the verdicts and decides each one by the rule
-(:mod:`station.analysis.decision`).  Under ``simple`` every ``passed`` is what
-it was; under ``guarded`` a figure in its guard band is not decided
-(``passed = None``, the note says why).
+(:mod:`station.analysis.decision`).  Under ``simple`` every outcome is what
+it was; under ``guarded`` a figure in its guard band is NOT DECIDED (the
+note says why).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from station.analysis.decision import NOT_DECIDED, check_rule, decide
+from station.analysis.decision import check_rule, decide
 from station.analysis.uncertainty import (
     Budget,
     FigureUncertainty,
@@ -31,6 +31,7 @@ from station.analysis.uncertainty import (
     three_s_uncertainty_stats,
     vap_uncertainty,
 )
+from station.verdict import Outcome
 
 Key = tuple[str, str]
 
@@ -136,9 +137,9 @@ def apply_rule(res, uncertainties: dict[Key, FigureUncertainty], rule: str):
         if rule == "guarded":
             if fu is None:
                 note = "no uncertainty for this figure: not decided under the guarded rule"
-            elif d.outcome == NOT_DECIDED:
+            elif d.outcome is Outcome.NOT_DECIDED:
                 note = d.explain()
-        new.append(replace(v, passed=d.passed, note=note, uncertainty=fu, rule=rule, guard_band=d.guard_band))
+        new.append(replace(v, outcome=d.outcome, note=note, uncertainty=fu, rule=rule, guard_band=d.guard_band))
     extra = {"uncertainties": dict(uncertainties)} if hasattr(res, "uncertainties") else {}
     return replace(res, verdicts=tuple(new), **extra)
 
@@ -152,8 +153,7 @@ def verdict_uncertainty_dict(v) -> dict:
     unit = unit_of(v.characteristic)
     fu = v.uncertainty
     r = _r
-    outcome = None if v.value is None else ("pass" if v.passed else ("fail" if v.passed is False else NOT_DECIDED))
-    d = {"rule": v.rule, "outcome": outcome,
+    d = {"rule": v.rule, "outcome": None if v.value is None else v.outcome.word,
          f"u_{unit}": None if fu is None else r(fu.u), f"U_{unit}": None if fu is None else r(fu.U),
          "k": None if fu is None else fu.k,
          "guard_band": None if v.guard_band is None else [r(v.guard_band[0]), r(v.guard_band[1])]}
