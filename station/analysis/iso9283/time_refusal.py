@@ -17,6 +17,8 @@ import dataclasses
 
 import numpy as np
 
+from station.verdict import Outcome
+
 
 def _touched(res, jump_rows) -> tuple[set, set]:
     """(poses whose PST, moves whose MPT) a jump at ``jump_rows`` (stream rows) lies in."""
@@ -72,8 +74,8 @@ def refuse_time_figures(res, reason: str, jump_rows=None, *, short: str = ""):
             refused.append(f"MPT_s {m.from_pose}->{m.to_pose}")
         mts.append(m)
     subjects = {("PST_s", p) for p in poses} | {("MPT_s", f"{a}->{b}") for a, b in moves}
-    verdicts = tuple(dataclasses.replace(v, value=None, passed=None, note=f"refused: {short or reason}", uncertainty=None,
-                                         guard_band=None)
+    verdicts = tuple(dataclasses.replace(v, value=None, outcome=Outcome.NOT_DECIDED, note=f"refused: {short or reason}",
+                                         uncertainty=None, guard_band=None)
                      if (v.characteristic, v.subject) in subjects else v for v in res.verdicts)
     res = dataclasses.replace(res, poses=new_poses, posing_times=tuple(mts), verdicts=verdicts)
     if not refused:  # nothing (more) to refuse: the verdicts only (decided again by a later stage)
