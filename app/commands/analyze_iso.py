@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 
 import numpy as np
@@ -152,11 +151,9 @@ def _tolerance(args, limits) -> float:
 
 
 def _write_json(path, d) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(d, f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    from station.readers.out_files import write_output
+
+    write_output(path, json.dumps(d, indent=1) + "\n", "--json")
     print(f"results written to {path}")
 
 
@@ -194,6 +191,9 @@ def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
 
 
 def run_iso9283(args: argparse.Namespace) -> int:
+    from station.readers.out_files import check_outputs
+
+    check_outputs(args, json="--json")
     limits, band = _limits(args)
     if args.stops is not None:
         return _run_stops(args, limits)

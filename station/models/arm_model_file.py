@@ -238,7 +238,9 @@ def write_ur_calibration(path, deltas: dict) -> None:
     for k in _UR_KEYS:
         lines.append(f"{k} = [ " + ", ".join(repr(float(v)) for v in deltas[k]) + " ]")
     lines.append("calibration_status = 2")
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    from station.readers.out_files import write_output
+
+    write_output(path, "\n".join(lines) + "\n", "--ur-deltas")
 
 
 def read_ur_calibration(path, dh_nominal) -> np.ndarray:

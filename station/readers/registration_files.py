@@ -113,11 +113,9 @@ def write_frame_json(path, frame: dict) -> Path:
         raise DataError(f"{p}: a frame needs R (3x3) and t_mm (3), got shapes {R.shape} and {t.shape}")
     obj = {"R": R.tolist(), "t_mm": t.tolist(), "convention": "p_tracker = R @ p_base + t_mm",
            **{k: v for k, v in frame.items() if k not in ("R", "t_mm")}}
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=_plain) + "\n", encoding="utf-8")
-    tmp.replace(p)
-    return p
+    from station.readers.out_files import write_output
+
+    return write_output(p, json.dumps(obj, indent=1, default=_plain) + "\n", "frame file")
 
 
 def _plain(x):

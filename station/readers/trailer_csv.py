@@ -71,7 +71,9 @@ def write_trailer_csv(path, t, kappa, psi, v=None, kappa_cmd=None) -> None:
             header.append(name)
     if len({c.shape for c in cols}) != 1 or cols[0].ndim != 1:
         raise DataError("t, kappa, psi (and v) must be 1-D arrays of one length")
-    with Path(path).open("w", newline="") as fh:
+    from station.readers.out_files import output_file
+
+    with output_file(path, newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         w.writerows(zip(*(c.tolist() for c in cols)))
