@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 
 import numpy as np
@@ -193,7 +194,12 @@ def _finish(res, d: dict, args, far: list[str], unc=None) -> int:
 def run_iso9283(args: argparse.Namespace) -> int:
     from station.readers.out_files import check_outputs
 
+    from station.analysis.uncertainty import MAX_TEMPERATURE_U_K
+
     check_outputs(args, json="--json")
+    u_K = args.temperature_u_k
+    if not (math.isfinite(u_K) and 0.0 <= u_K <= MAX_TEMPERATURE_U_K):
+        raise ConfigError(f"--temperature-u-k must be within 0-{MAX_TEMPERATURE_U_K:g} K, got {u_K:g}")
     limits, band = _limits(args)
     if args.stops is not None:
         return _run_stops(args, limits)

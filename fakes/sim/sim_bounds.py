@@ -25,7 +25,10 @@ SEED_MAX = 2**32 - 1
 
 def shown(value) -> str:
     """``value`` as a short text (a 4,000-digit integer or a long string is cut, with its length)."""
-    text = repr(value)
+    try:
+        text = repr(value)
+    except ValueError:  # an integer too long to print
+        return "an integer of thousands of digits"
     return text if len(text) <= 24 else f"{text[:16]}... ({len(text)} characters)"
 
 
