@@ -165,6 +165,19 @@ def test_a_regular_file_is_read_where_it_lies(tmp_path):
         assert real == f and shown == str(f)
 
 
+@pytest.mark.parametrize("argv", [["run", "iso9283", "--config", "/dev/zero"], ["store", "runs", "--config", "/dev/zero"]])
+def test_dev_zero_as_a_config_is_refused_after_a_bounded_read(capsys, argv):
+    _refused(capsys, argv, "/dev/zero: larger than")
+
+
+def test_dev_zero_as_an_answer_file_is_refused(tmp_path, capsys):
+    from station.errors import ConfigError
+    from station.runner import AnswerFileOperator
+
+    with pytest.raises(ConfigError, match="answer file /dev/zero: cannot read it .*larger than"):
+        AnswerFileOperator("/dev/zero")
+
+
 # -- item 2: output paths ----------------------------------------------------------------------------------
 def _output_cases(tmp: Path):
     """(argv with OUT in the place of the output path, option): every output path option of the command line."""
@@ -536,3 +549,4 @@ def test_fuzz_every_simulate_option_beyond_its_range_is_refused_by_name(data):
     assert "Traceback" not in err.getvalue()
     assert opt in err.getvalue(), err.getvalue()
     assert not out.exists()
+
