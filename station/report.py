@@ -365,7 +365,7 @@ def render_html(report: Report) -> str:
     return "\n".join(parts)
 
 
-def write_report(report: Report, path: str | Path, option: str = "--report") -> Path:
+def write_report(report: Report, path: str | Path, option: str = "report") -> Path:
     """The HTML page of ``report`` at ``path``, written only over a regular file (:mod:`station.readers.out_files`)."""
     from station.readers.out_files import write_output
 

@@ -105,7 +105,7 @@ def _arm(args: argparse.Namespace) -> int:
     if deltas is not None:
         write_ur_calibration(args.ur_deltas, deltas)
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print(doc)
     converged = doc["converged"] and doc.get("cross_validation", {}).get("all_converged", True)
     if not converged:

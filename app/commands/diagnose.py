@@ -112,7 +112,7 @@ def _arm(args: argparse.Namespace) -> int:
     if args.model_out:
         write_output(args.model_out, json.dumps(doc["extended_model"], indent=2), "--model-out")
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print(doc)
     if not doc["converged"]:
         bad = "; ".join(f"{f['fit']}: {f['message']}" for f in doc["fits"] if not f["converged"])
@@ -141,7 +141,7 @@ def _trailer(args: argparse.Namespace) -> int:
     if args.json:
         write_output(args.json, json.dumps(doc, indent=2), "--json")
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print_trailer(doc)
     return 0
 

@@ -113,8 +113,9 @@ def _run_hold(args: argparse.Namespace) -> int:
     rate = check_real(args.rate, "--rate", 10.0, 3000.0, " Hz")
     check_seed(args.seed)
     check_samples(duration * rate + 1, f"--duration {duration:g} s at --rate {rate:g} Hz")
-    out = _out_dir(args.out)
+    _out_dir(args.out, create=False)
     cols, truth = simulate_hold(seed=args.seed, duration_s=duration, rate_hz=rate)
+    out = _out_dir(args.out)
     with output_file(out / "stream.csv", "--out", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t", "x", "y", "z"])
@@ -127,10 +128,10 @@ def _run_hold(args: argparse.Namespace) -> int:
     return 0
 
 
-def _out_dir(text: str) -> Path:
+def _out_dir(text: str, *, create: bool = True) -> Path:
     from station.readers.out_files import output_dir
 
-    return output_dir(text, "--out")
+    return output_dir(text, "--out", create=create)
 
 
 def _write_truth(path: Path, truth: dict) -> None:
@@ -147,8 +148,9 @@ def _run_arm(args: argparse.Namespace) -> int:
 
     check_int(args.poses, "--poses", 10, MAX_ARM_POSES)
     check_seed(args.seed)
-    out = _out_dir(args.out)
+    _out_dir(args.out, create=False)
     cols, truth = simulate_arm(args.robot, n=args.poses, effects=args.effects, seed=args.seed)
+    out = _out_dir(args.out)
     write_arm_csv(out / "arm.csv", cols["q_deg"], cols["xyz_mm"], t=cols["t"], temperature=cols["temperature"],
                   load=cols["load"])
     _write_truth(out / "truth.json", truth)
@@ -165,8 +167,9 @@ def _run_trailer(args: argparse.Namespace) -> int:
 
     duration = check_real(args.duration, "--duration", 30.0, MAX_TRAILER_S, " s")
     check_seed(args.seed)
-    out = _out_dir(args.out)
+    _out_dir(args.out, create=False)
     cols, truth = simulate_trailer(hidden=tuple(dict.fromkeys(args.hidden)), seed=args.seed, duration_s=duration)
+    out = _out_dir(args.out)
     write_trailer_csv(out / "trailer.csv", cols["t"], cols["kappa"], cols["psi"], v=cols["v"])
     _write_truth(out / "truth.json", truth)
     print(f"wrote {out / 'trailer.csv'} ({cols['t'].size} samples over {args.duration:g} s)")

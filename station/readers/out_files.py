@@ -154,14 +154,17 @@ def write_output(path, text: str, option: str = "output") -> Path:
     return Path(path)
 
 
-def output_dir(path, option: str = "--out") -> Path:
-    """``path`` as an existing directory (created with its parents if missing); ConfigError naming what is there."""
+def output_dir(path, option: str = "--out", *, create: bool = True) -> Path:
+    """``path`` as an existing directory (created with its parents if missing, unless ``create`` is false: a check
+    before anything is computed); ConfigError naming what is there."""
     p = Path(path)
     _check_names(p, option, file=False)
     try:
         st = os.stat(p)
     except (FileNotFoundError, NotADirectoryError):
         _first_existing_ancestor(p, option)
+        if not create:
+            return p
         try:
             p.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

@@ -550,3 +550,22 @@ def test_fuzz_every_simulate_option_beyond_its_range_is_refused_by_name(data):
     assert opt in err.getvalue(), err.getvalue()
     assert not out.exists()
 
+
+
+@FUZZ
+@given(cmd=st.sampled_from(["iso9283", "arm"]),
+       robot=st.text(min_size=1, max_size=30).filter(lambda t: not t.startswith("-") and "\x00" not in t))
+def test_fuzz_simulate_robot_names_are_a_library_robot_or_refused(cmd, robot):
+    import contextlib
+    import io
+
+    from station.models.robots import ROBOT_NAMES
+
+    if robot in ROBOT_NAMES:
+        return
+    err = io.StringIO()
+    out = _DIR / "sim-robot"
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["simulate", cmd, "--out", str(out), "--robot", robot])
+    assert code == 2 and "unknown robot" in err.getvalue() and "Traceback" not in err.getvalue(), err.getvalue()
+    assert not out.exists()
