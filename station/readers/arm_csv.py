@@ -49,7 +49,7 @@ class ArmData:
         return int(self.q_deg.shape[0])
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_arm_csv(path) -> ArmData:
     """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
     p = Path(path)

@@ -6,10 +6,12 @@ wraps a reader so that such an input is read once, into a private temporary
 file the reader then opens as often as it needs; messages name the input as
 the user gave it (``<stdin>`` for ``-``). Regular files are passed through.
 
-The copy is bounded as every input is: at most :data:`MAX_COPY_BYTES`, and a
+The copy is bounded as every input is: at most :data:`MAX_COPY_BYTES` (16 MiB), and a
 line longer than the readers take (:data:`~station.readers.text.MAX_LINE_CHARS`)
 ends it at once (``/dev/zero`` is refused after 16 KB, not after filling the
-disk). The temporary file has no name from the moment it is created (it is
+disk). A reader that reads its input once, front to back
+(``@reads_once(one_pass=True)``), gets the pipe itself: no copy at all. The
+temporary file has no name from the moment it is created (it is
 unlinked and read through ``/proc/self/fd``), so nothing is left behind however
 the process ends, killed included. Small inputs read whole (model files, UR
 calibration files) need no copy: :func:`read_bytes` reads at most a bound.
@@ -26,12 +28,12 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from station.errors import DataError
-from station.readers.text import MAX_LINE_CHARS
+from station.readers.text import MAX_LINE_CHARS, MAX_PIPE_BYTES, pipe_too_long
 
 STDIN = "-"
 STDIN_NAME = "<stdin>"
 #: most bytes copied from standard input or a pipe (a regular file is read where it lies: give the file itself)
-MAX_COPY_BYTES = 256 << 20
+MAX_COPY_BYTES = MAX_PIPE_BYTES
 #: bytes read at a time
 _CHUNK = 1 << 20
 
@@ -96,8 +98,7 @@ def copy_bounded(src, dst, shown: str, max_bytes: int) -> int:
             return total
         total += len(chunk)
         if total > max_bytes:
-            raise DataError(f"{shown}: more than {max_bytes >> 20} MiB from a pipe or standard input "
-                            f"(give the file itself)")
+            raise pipe_too_long(shown, max_bytes)
         first = chunk.find(b"\n")
         if first < 0:
             run += len(chunk)
@@ -147,20 +148,48 @@ def read_bytes(path, max_bytes: int, what: str) -> bytes:
     return data
 
 
-def reads_once(reader):
-    """Wrap ``reader(path, ...)`` so that stdin (``-``) and pipes work and messages name the input given."""
+def reads_once(reader=None, *, one_pass: bool = False):
+    """Wrap ``reader(path, ...)`` so that stdin (``-``) and pipes work and messages name the input given.
+
+    ``@reads_once(one_pass=True)``: the reader reads its input once, front to
+    back, with its own bounds on lines and rows; a pipe or a device is then
+    handed to it as it is (standard input as ``/proc/self/fd/0``), without a
+    copy on the disk. Otherwise the input is copied (:func:`regular_file`).
+    """
+    if reader is None:
+        return functools.partial(reads_once, one_pass=one_pass)
 
     @functools.wraps(reader)
     def wrapper(path, *args, **kwargs):
+        direct = _direct_path(path) if one_pass else None
+        if direct is not None:
+            return _as_given(reader, direct, shown_name(path), args, kwargs)
         with regular_file(path) as (real, shown):
             if real is path:
                 return reader(path, *args, **kwargs)
-            try:
-                return _renamed(reader(real, *args, **kwargs), str(real), shown)
-            except DataError as exc:
-                raise DataError(str(exc).replace(str(real), shown)) from None
+            return _as_given(reader, str(real), shown, args, kwargs)
 
     return wrapper
+
+
+def _as_given(reader, real: str, shown: str, args, kwargs):
+    """``reader(real, ...)`` with ``real`` named as ``shown`` in its result and its messages."""
+    try:
+        return _renamed(reader(real, *args, **kwargs), real, shown)
+    except DataError as exc:
+        raise DataError(str(exc).replace(real, shown)) from None
+
+
+def _direct_path(path) -> str | None:
+    """A path that opens a pipe or device input where it is, or None (a regular file, or no such path)."""
+    if str(path) != STDIN:
+        return str(path) if _needs_copy(path) else None
+    try:
+        fd = sys.stdin.fileno()  # no descriptor (a stand-in for stdin): copied instead
+    except (AttributeError, ValueError, OSError):
+        return None
+    proc = f"/proc/self/fd/{fd}"
+    return proc if os.path.exists(proc) else None
 
 
 def _renamed(result, real: str, shown: str):

@@ -31,7 +31,7 @@ MAX_PAIRS = 10_000
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
@@ -82,7 +82,7 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return R, t, obj
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)

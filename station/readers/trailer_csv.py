@@ -29,7 +29,7 @@ MAX_ROWS = 30_000_000
 LIMITS = {"t": MAX_ABS_S, "kappa": 1.0e3, "psi": 2.0 * math.pi, "v": 100.0, "kappa_cmd": 1.0e3}
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_trailer_csv(path) -> dict[str, np.ndarray]:
     """Read a trailer CSV (``t,kappa,psi`` [+ ``v``, ``kappa_cmd``]); DataError names the file, line and column.
 

@@ -62,11 +62,12 @@ def private_tmp(tmp_path, monkeypatch) -> Path:
     return d
 
 
-def _writer(target: str, data: bytes) -> subprocess.Popen:
-    """A child writing ``data`` (a short unit, repeated to 64 KB) into ``target`` (a FIFO) until killed."""
+def _writer(target: str, data: bytes, head: bytes = b"") -> subprocess.Popen:
+    """A child writing ``head``, then ``data`` (a short unit, repeated to 64 KB) into ``target`` (a FIFO) until killed."""
     code = ("import sys\nout = open(sys.argv[1], 'wb', buffering=0)\nb = bytes.fromhex(sys.argv[2]) * 65536\n"
-            "try:\n    while True:\n        out.write(b)\nexcept BrokenPipeError:\n    pass\n")
-    return subprocess.Popen([sys.executable, "-c", code, target, data.hex()], stderr=subprocess.DEVNULL)
+            "try:\n    out.write(bytes.fromhex(sys.argv[3]))\n    while True:\n        out.write(b)\n"
+            "except BrokenPipeError:\n    pass\n")
+    return subprocess.Popen([sys.executable, "-c", code, target, data.hex(), head.hex()], stderr=subprocess.DEVNULL)
 
 
 def _kill(child: subprocess.Popen) -> None:
@@ -85,6 +86,28 @@ def test_an_endless_pipe_is_refused_within_the_bound_and_leaves_no_copy(tmp_path
     child = _writer(str(fifo), payload)
     try:
         _refused(capsys, ["analyze", "hold", "--stream", str(fifo), "--rate-hz", "100"], f"{fifo}: ", needle)
+    finally:
+        _kill(child)
+    assert list(private_tmp.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, head, row, needle", [
+    (["calibrate", "trailer", "--data"], b"t,kappa,psi\n", b"0.5,0.01,0.02\n", "more than 1 MiB from a pipe"),
+    (["calibrate", "arm", "--robot", "rb5-850", "--data"], b"q1,q2,q3,q4,q5,q6,x,y,z\n", b"1,2,3,4,5,6,100,200,300\n",
+     ":20002: more than 20000 poses"),
+    (["analyze", "iso9283", "--stream", "/dev/null", "--poses"], b"", b"\0", "line 1: longer than 4096")])
+def test_a_reader_that_reads_once_reads_the_pipe_itself_within_the_bound(tmp_path, capsys, private_tmp, monkeypatch,
+                                                                        argv, head, row, needle):
+    """No copy at all: an endless pipe of good rows ends at the byte bound (or the reader's row bound) first."""
+    from station.readers import text
+
+    monkeypatch.setattr(text, "MAX_PIPE_BYTES", 1 << 20)
+    monkeypatch.setattr(once, "MAX_COPY_BYTES", 0)  # a copy would be refused at its first byte
+    fifo = tmp_path / "data.fifo"
+    os.mkfifo(fifo)
+    child = _writer(str(fifo), row, head)
+    try:
+        _refused(capsys, argv + [str(fifo)], str(fifo), needle)
     finally:
         _kill(child)
     assert list(private_tmp.iterdir()) == []
@@ -156,6 +179,20 @@ def _wait_for_copy(pid: int) -> bool:
                 continue
         time.sleep(0.05)
     return False
+
+
+@pytest.mark.parametrize("chunk", [7, 4096, 1 << 20])
+def test_the_copy_names_the_first_overlong_line_however_the_bytes_arrive(monkeypatch, rng, chunk):
+    import io
+
+    monkeypatch.setattr(once, "_CHUNK", chunk)
+    good = int(rng.integers(1, 3000))
+    data = b"1,0,0,0\n" * good + b"x" * (4 * 4096 + 10)
+    with pytest.raises(StationError, match=rf"^<in>: line {good + 1}: longer than 4096 characters$"):
+        once.copy_bounded(io.BytesIO(data), io.BytesIO(), "<in>", 1 << 30)
+    whole = b"1,0,0,0\n" * good + b"y" * 4000 + b"\n"
+    out = io.BytesIO()
+    assert once.copy_bounded(io.BytesIO(whole), out, "<in>", 1 << 30) == len(whole) and out.getvalue() == whole
 
 
 def test_a_regular_file_is_read_where_it_lies(tmp_path):
