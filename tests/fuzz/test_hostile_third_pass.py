@@ -63,10 +63,13 @@ def private_tmp(tmp_path, monkeypatch) -> Path:
 
 
 def _writer(target: str, data: bytes, head: bytes = b"") -> subprocess.Popen:
-    """A child writing ``head``, then ``data`` (a short unit, repeated to 64 KB) into ``target`` (a FIFO) until killed."""
-    code = ("import sys\nout = open(sys.argv[1], 'wb', buffering=0)\nb = bytes.fromhex(sys.argv[2]) * 65536\n"
-            "try:\n    out.write(bytes.fromhex(sys.argv[3]))\n    while True:\n        out.write(b)\n"
-            "except BrokenPipeError:\n    pass\n")
+    """A child writing ``head``, then ``data`` (a short unit, repeated to 64 KB) into ``target`` (a FIFO) until killed.
+
+    With no ``data`` it keeps the pipe open after the head without writing more (a reader waits on it).
+    """
+    code = ("import sys, time\nout = open(sys.argv[1], 'wb', buffering=0)\nb = bytes.fromhex(sys.argv[2]) * 65536\n"
+            "try:\n    out.write(bytes.fromhex(sys.argv[3]))\n    while b:\n        out.write(b)\n"
+            "    time.sleep(3600)\nexcept BrokenPipeError:\n    pass\n")
     return subprocess.Popen([sys.executable, "-c", code, target, data.hex(), head.hex()], stderr=subprocess.DEVNULL)
 
 
@@ -140,10 +143,10 @@ def test_endless_standard_input_is_refused_and_a_killed_copy_leaves_nothing(tmp_
     finally:
         _kill(child)
     assert r.returncode == 2 and "<stdin>: larger than" in r.stderr and "Traceback" not in r.stderr, r.stderr
-    # a stream from standard input, killed while it is being copied
+    # a stream from standard input, killed while it is being copied (the pipe stays open: the copy waits on it)
     os.unlink(fifo)
     os.mkfifo(fifo)
-    child = _writer(str(fifo), b"1,0,0,0\n")
+    child = _writer(str(fifo), b"", b"t,x,y,z\n" + b"1,0,0,0\n" * 1000)
     try:
         with open(fifo, "rb") as src:
             proc = subprocess.Popen(STATION + ["analyze", "hold", "--stream", "-", "--rate-hz", "100"], stdin=src,
