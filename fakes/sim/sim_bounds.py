@@ -13,23 +13,15 @@ import math
 from numbers import Integral, Real
 
 from station.errors import ConfigError
+from station.numeric import short_repr as shown
 
-__all__ = ["MAX_SAMPLES", "SEED_MAX", "shown", "check_int", "check_real", "check_seed", "check_samples"]
+__all__ = ["MAX_SAMPLES", "SEED_MAX", "check_int", "check_real", "check_seed", "check_samples"]
 
 #: most samples of one simulated stream: some 40-70 MB of CSV, written in about 10-25 s (a 30-cycle ISO 9283
 #: run at 1000 Hz with 2 s dwells has half a million; at 3000 Hz it needs dwells under 0.3 s)
 MAX_SAMPLES = 1_000_000
 #: largest seed: 32 bits, as every seed the station prints
 SEED_MAX = 2**32 - 1
-
-
-def shown(value) -> str:
-    """``value`` as a short text (a 4,000-digit integer or a long string is cut, with its length)."""
-    try:
-        text = repr(value)
-    except ValueError:  # an integer too long to print
-        return "an integer of thousands of digits"
-    return text if len(text) <= 24 else f"{text[:16]}... ({len(text)} characters)"
 
 
 def check_int(value, option: str, lo: int, hi: int, unit: str = "") -> int:

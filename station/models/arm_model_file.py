@@ -241,16 +241,12 @@ def _read_json_model(path, shown: str):
     """The JSON of a model file (a file, ``-``, a pipe), bounded in size and depth; ConfigError naming the file."""
     import re
 
-    from station.readers.once import read_bytes
+    from station.readers.once import read_text
 
     try:
-        raw = read_bytes(path, MAX_MODEL_BYTES, "a model file is a few kilobytes")
-        text = raw.decode("utf-8-sig")
+        text = read_text(path, MAX_MODEL_BYTES, "a model file is a few kilobytes")
     except DataError as exc:
         raise ConfigError(str(exc)) from None
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise ConfigError(f"{shown}: line {line}: not UTF-8 text") from None
     depth = 0
     for m in re.finditer(r'"(?:[^"\\]|\\.)*"|[\[{]|[\]}]', text):  # brackets outside strings
         c = m.group()[0]
@@ -314,18 +310,14 @@ def read_ur_calibration(path, dh_nominal) -> np.ndarray:
     half turn, lengths within a metre); a refusal names the file, the line and
     the key.
     """
-    from station.readers.once import STDIN, STDIN_NAME, read_bytes
+    from station.readers.once import read_text, shown_name
     from station.readers.text import MAX_LINE_CHARS
 
-    p = Path(STDIN_NAME if str(path) == STDIN else path)
+    p = Path(shown_name(path))
     try:
-        raw = read_bytes(path, MAX_UR_BYTES, "a UR calibration file is a few hundred bytes")
-        text = raw.decode("utf-8-sig")
+        text = read_text(path, MAX_UR_BYTES, "a UR calibration file is a few hundred bytes")
     except DataError as exc:
         raise ConfigError(str(exc)) from None
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise ConfigError(f"{p}:{line}: not UTF-8 text") from None
     section, values = None, {}
     for lineno, raw_line in enumerate(text.splitlines(), 1):
         if len(raw_line) > MAX_LINE_CHARS:

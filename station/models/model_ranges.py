@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from station.errors import ConfigError
+from station.numeric import short_repr as _short
 
 __all__ = ["LIMITS", "number_in", "MAX_EFFECTS"]
 
@@ -59,11 +60,3 @@ def number_in(value, where: str, kind: str) -> float:
         raise ConfigError(f"{where} = {_short(value)} {unit} is beyond what an arm has ({lo:g} to {hi:g} {unit}; "
                           "units? export error?)")
     return v
-
-
-def _short(value) -> str:
-    try:
-        text = repr(value)
-    except ValueError:  # an integer too long to print
-        return "an integer of thousands of digits"
-    return text if len(text) <= 40 else f"{text[:30]}... ({len(text)} characters)"

@@ -148,6 +148,16 @@ def read_bytes(path, max_bytes: int, what: str) -> bytes:
     return data
 
 
+def read_text(path, max_bytes: int, what: str) -> str:
+    """:func:`read_bytes` decoded as UTF-8 (a BOM allowed); DataError naming the line of a bad byte."""
+    raw = read_bytes(path, max_bytes, what)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataError(f"{shown_name(path)}: line {line}: not UTF-8 text") from None
+
+
 def reads_once(reader=None, *, one_pass: bool = False):
     """Wrap ``reader(path, ...)`` so that stdin (``-``) and pipes work and messages name the input given.
 

@@ -72,6 +72,17 @@ def _first_existing_ancestor(path: Path, option: str) -> Path:
     return Path(path.anchor or os.sep)
 
 
+def _lookup(p: Path, option: str):
+    """``os.stat(p)``, or None when nothing is there (then its nearest existing ancestor must be a directory)."""
+    try:
+        return os.stat(p)
+    except (FileNotFoundError, NotADirectoryError):
+        _first_existing_ancestor(p, option)
+        return None
+    except OSError as exc:
+        raise _refuse(option, p, f"cannot look at it ({exc.strerror})") from None
+
+
 def check_output(path, option: str = "output") -> Path:
     """``path`` as a Path if a file may be written there; ConfigError naming ``option`` and what is there otherwise.
 
@@ -79,13 +90,9 @@ def check_output(path, option: str = "output") -> Path:
     """
     p = Path(path)
     _check_names(p, option)
-    try:
-        st = os.stat(p)
-    except (FileNotFoundError, NotADirectoryError):
-        _first_existing_ancestor(p, option)
+    st = _lookup(p, option)
+    if st is None:
         return p
-    except OSError as exc:
-        raise _refuse(option, p, f"cannot look at it ({exc.strerror})") from None
     if not stat.S_ISREG(st.st_mode):
         raise _refuse(option, p, f"is {what_is_there(st.st_mode)}; only a regular file is replaced")
     return p
@@ -159,19 +166,14 @@ def output_dir(path, option: str = "--out", *, create: bool = True) -> Path:
     before anything is computed); ConfigError naming what is there."""
     p = Path(path)
     _check_names(p, option, file=False)
-    try:
-        st = os.stat(p)
-    except (FileNotFoundError, NotADirectoryError):
-        _first_existing_ancestor(p, option)
-        if not create:
-            return p
-        try:
-            p.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise _refuse(option, p, f"cannot create the directory ({exc.strerror})") from None
+    st = _lookup(p, option)
+    if st is None:
+        if create:
+            try:
+                p.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise _refuse(option, p, f"cannot create the directory ({exc.strerror})") from None
         return p
-    except OSError as exc:
-        raise _refuse(option, p, f"cannot look at it ({exc.strerror})") from None
     if not stat.S_ISDIR(st.st_mode):
         raise _refuse(option, p, f"is {what_is_there(st.st_mode)}, not a directory")
     return p

@@ -32,6 +32,7 @@ from station.models.arm_model_file import MAX_MODEL_BYTES, model_to_json, read_u
 from station.models.robots import get_robot
 from station.readers import once
 from station.readers.out_files import output_file
+from tests.hostile import refused as _refused
 
 FUZZ = settings()  # the budget comes from the loaded profile (tests/fuzz/conftest.py)
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,16 +41,6 @@ STOPS = "pose,cycle,x,y,z\n" + "".join(f"P{p},{c},{100 * p + 0.01 * c},{50 * p},
                                        for c in range(1, 4) for p in range(1, 4))
 
 
-def _refused(capsys, argv, *needles) -> str:
-    """``main(argv)`` exits 2 with one ``station: error:`` line holding every needle, no traceback."""
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert err.startswith("station: error:") and "Traceback" not in err, err
-    for n in needles:
-        assert n in err, (n, err)
-    assert len(err) < 600, err
-    return err
 
 
 @pytest.fixture
