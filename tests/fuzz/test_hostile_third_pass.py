@@ -10,10 +10,12 @@ capped by construction (the copy bound is lowered to a few MiB where a pipe is r
 
 from __future__ import annotations
 
+import atexit
 import copy
 import json
 import math
 import os
+import shutil
 import stat
 import subprocess
 import sys
@@ -462,7 +464,8 @@ def test_init_refuses_paths_it_cannot_write(tmp_path, capsys, monkeypatch, out, 
 
 
 # -- fuzz: model files, UR files, simulate options ------------------------------------------------------------
-_DIR = Path(tempfile.mkdtemp(prefix="fuzz-hostile-"))
+_DIR = Path(tempfile.mkdtemp(prefix="fuzz-hostile-"))  # one folder for the properties' many runs, removed at exit
+atexit.register(shutil.rmtree, _DIR, True)
 _ROBOT = get_robot("industrial-3100")
 _Q = np.radians(np.random.default_rng(7).uniform(-90, 90, (8, 6)))
 _ANY = st.recursive(st.none() | st.booleans() | st.integers(-10**40, 10**40) | st.floats(allow_nan=True)
