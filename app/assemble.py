@@ -287,7 +287,9 @@ def _write_json(store, outcome: ProcedureOutcome, json_out, result_key: str) -> 
         payload["results"] = store.result(outcome.run_id, result_key)
     except Exception:
         payload["results"] = None
-    Path(json_out).write_text(json.dumps(payload, indent=2, default=float))
+    from station.readers.out_files import write_output
+
+    write_output(json_out, json.dumps(payload, indent=2, default=float), "--json")
 
 
 def stored_procedure(cfg, run_id: str, base: Path) -> str:

@@ -606,9 +606,10 @@ def step_identify(ctx: StepContext) -> dict:
     run = ctx.store.run(ctx.run_id)
     doc["robot"] = {"model": plan.robot.name, "serial": run.serial, "overhaul_state": run.overhaul_state}
     doc["selection"] = plan.selection
-    model_path = Path(plan.report_dir) / f"{ctx.run_id}-model.json"
-    model_path.parent.mkdir(parents=True, exist_ok=True)
-    model_path.write_text(json.dumps(doc["model"], indent=2), encoding="utf-8")
+    from station.readers.out_files import write_output
+
+    model_path = write_output(Path(plan.report_dir) / f"{ctx.run_id}-model.json", json.dumps(doc["model"], indent=2),
+                              "report_dir")
     doc["model_file"] = str(model_path.resolve())
     if plan.is_ur:
         from station.models.arm_model_file import ur_deltas, write_ur_calibration

@@ -23,7 +23,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from station.errors import ConfigError
+from station.errors import ConfigError, DataError
 from station.protocols.handshake import RegisterMap
 
 # the device-URL grammar is one table, shared with the drivers
@@ -403,14 +403,14 @@ def config_from_dict(data: dict, source: str = "config") -> StationConfig:
 
 def load_config(path: str | Path) -> StationConfig:
     """Read a TOML or JSON station config; ConfigError names the file and field."""
+    from station.readers.once import read_bytes
+
     path = Path(path)
-    try:
-        text = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from exc
+    try:  # one bounded read: a pipe or a device (/dev/zero) given as the config is not read for ever
+        text = read_bytes(path, MAX_CONFIG_BYTES, "not a station config")
+    except DataError as exc:
+        raise ConfigError(str(exc).replace("cannot read", "cannot read config")) from None
     kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
-    if len(text) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: {len(text)} bytes is not a station config (at most {MAX_CONFIG_BYTES})")
     try:
         if kind == "JSON":
             data = json.loads(text)

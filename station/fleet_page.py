@@ -93,6 +93,7 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
 
 def write_fleet_page(store: RunStore, path: str | Path, name: str = "RP_mm", **kw) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(render_html(fleet_report(store, name, **kw)), encoding="utf-8")
+    from station.readers.out_files import write_output
+
+    write_output(path, render_html(fleet_report(store, name, **kw)), "--out")
     return path

@@ -20,6 +20,15 @@ from station.errors import ConfigError
 _REAL = (int, float, np.integer, np.floating)
 
 
+def short_repr(value, most: int = 40) -> str:
+    """``value`` as a message shows it: cut after ``most`` characters (with the length), never thousands of digits."""
+    try:
+        text = repr(value)
+    except ValueError:  # an integer too long to print
+        return "an integer of thousands of digits"
+    return text if len(text) <= most else f"{text[:most - 8]}... ({len(text)} characters)"
+
+
 def finite_number(value, name: str, *, positive: bool = False, nonneg: bool = False, hi: float | None = None,
                   integer: bool = False, error: type[Exception] = ConfigError):
     """``value`` as a float (an int with ``integer``) after checking it; ``error`` naming ``name`` otherwise.

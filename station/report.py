@@ -375,8 +375,8 @@ def render_html(report: Report) -> str:
     return "\n".join(parts)
 
 
-def write_report(report: Report, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(render_html(report), encoding="utf-8")
-    return path
+def write_report(report: Report, path: str | Path, option: str = "report") -> Path:
+    """The HTML page of ``report`` at ``path``, written only over a regular file (:mod:`station.readers.out_files`)."""
+    from station.readers.out_files import write_output
+
+    return write_output(path, render_html(report), option)

@@ -94,10 +94,13 @@ class AnswerFileOperator:
     def __init__(self, path: str | Path) -> None:
         from station.errors import ConfigError
 
+        from station.errors import DataError
+        from station.readers.once import read_bytes
+
         self.path = Path(path)
-        try:
-            text = self.path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
+        try:  # one bounded read (a pipe or /dev/zero is not read for ever)
+            text = read_bytes(path, 1 << 20, "an answer file holds a line per prompt").decode("utf-8")
+        except (DataError, UnicodeDecodeError) as exc:
             raise ConfigError(f"answer file {self.path}: cannot read it ({exc})") from None
         self._answers: list[tuple[int, str, bool]] = []
         for lineno, raw in enumerate(text.splitlines(), 1):

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 
 import numpy as np
@@ -36,7 +35,10 @@ def add_arguments(h: argparse.ArgumentParser) -> None:
 def run_hold(args: argparse.Namespace) -> int:
     from station.analysis.iso9283.hold import analyze_hold
 
+    from station.readers.out_files import check_outputs
+
     check_positive(args.window_s, "--window-s")
+    check_outputs(args, json="--json")
     si = load_stream(args.stream, args.format, args.group, args.rate_hz, args.date_order,
                      command="analyze hold")
     ps = si.points
@@ -79,11 +81,9 @@ def run_hold(args: argparse.Namespace) -> int:
                 d[k] = None
             d["time_base"]["refused_figures"] = ["duration_s", "drift", "windows"]
             d["time_base"]["refused"] = refused
-        tmp = f"{args.json}.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(d, f, indent=1, allow_nan=False)  # never NaN/Infinity in a JSON file
-            f.write("\n")
-        os.replace(tmp, args.json)
+        from station.readers.out_files import write_output
+
+        write_output(args.json, json.dumps(d, indent=1, allow_nan=False) + "\n", "--json")  # never NaN in JSON
         print(f"results written to {args.json}")
     if refused:
         from station.verdict import EXIT_UNDECIDED

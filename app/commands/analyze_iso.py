@@ -31,7 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
+import math
 import sys
 
 import numpy as np
@@ -162,11 +162,9 @@ def _tolerance(args, limits) -> float:
 
 
 def _write_json(path, d) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(d, f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    from station.readers.out_files import write_output
+
+    write_output(path, json.dumps(d, indent=1) + "\n", "--json")
     print(f"results written to {path}")
 
 
@@ -207,6 +205,14 @@ def _finish(res, d: dict, args, far: list[str], unc=None, time_refused: str = ""
 
 
 def run_iso9283(args: argparse.Namespace) -> int:
+    from station.readers.out_files import check_outputs
+
+    from station.analysis.uncertainty import MAX_TEMPERATURE_U_K
+
+    check_outputs(args, json="--json")
+    u_K = args.temperature_u_k
+    if not (math.isfinite(u_K) and 0.0 <= u_K <= MAX_TEMPERATURE_U_K):
+        raise ConfigError(f"--temperature-u-k must be within 0-{MAX_TEMPERATURE_U_K:g} K, got {u_K:g}")
     limits, band = _limits(args)
     if args.stops is not None:
         return _run_stops(args, limits)

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from station.analysis.trailer.estimate import estimate_trailer
 from station.errors import ConfigError, DataError
@@ -70,6 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _trailer(args: argparse.Namespace) -> int:
+    from station.readers.out_files import check_outputs
+
+    check_outputs(args, json="--json")
     data = read_trailer_csv(args.data)
     method = args.method
     if method == "auto":
@@ -83,10 +85,9 @@ def _trailer(args: argparse.Namespace) -> int:
     if args.json:
         out = est.to_json()
         out["data"] = str(args.data)
-        try:
-            Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
-        except OSError as exc:
-            raise DataError(f"cannot write {args.json}: {exc.strerror or exc}") from exc
+        from station.readers.out_files import write_output
+
+        write_output(args.json, json.dumps(out, indent=2) + "\n", "--json")
     return 0
 
 

@@ -13,7 +13,6 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
 
 #: exit code of a fit that did not converge (the result is still printed and written, marked "converged": false)
@@ -68,6 +67,9 @@ def _arm(args: argparse.Namespace) -> int:
     from station.readers.arm_csv import read_arm_csv
     from station.report import write_report
 
+    from station.readers.out_files import check_outputs, write_output
+
+    check_outputs(args, json="--json", report="--report", ur_deltas="--ur-deltas")
     arm = resolve_arm(args.robot)
     name, dh0, limits = arm.name, arm.dh, arm.joint_limits_rad
     if args.ur_calibration:
@@ -99,11 +101,11 @@ def _arm(args: argparse.Namespace) -> int:
                           facts={"data": str(args.data), "robot": str(args.robot)}) if args.report else None
     # everything computed: now write
     if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        write_output(args.json, json.dumps(doc, indent=2), "--json")
     if deltas is not None:
         write_ur_calibration(args.ur_deltas, deltas)
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print(doc)
     converged = doc["converged"] and doc.get("cross_validation", {}).get("all_converged", True)
     if not converged:

@@ -45,6 +45,9 @@ def _arm(args: argparse.Namespace) -> int:
     from station.models.arm_model_file import resolve_arm
     from station.readers.arm_columns_csv import CONTEXT_COLS, Q_COLS, XYZ_COLS, read_columns_csv, write_columns_csv
 
+    from station.readers.out_files import check_outputs
+
+    check_outputs(args, out="--out")
     arm = resolve_arm(args.model).extended()
     cols = read_columns_csv(args.targets, XYZ_COLS, Q_COLS + CONTEXT_COLS)
     tgt = np.column_stack([cols[c] for c in XYZ_COLS])

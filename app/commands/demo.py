@@ -47,8 +47,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from fakes.station import FULL_PACE
     from station.config import config_from_dict
 
-    out = Path(args.out) if args.out else Path.cwd() / "demo-runs"
-    out.mkdir(parents=True, exist_ok=True)
+    from station.readers.out_files import check_outputs, output_dir
+
+    check_outputs(args, json="--json")
+    out = output_dir(args.out if args.out else Path.cwd() / "demo-runs", "--out")
     cfg = config_from_dict(demo_config(out.resolve(), cycles=args.cycles, vap_cycles=args.vap_cycles,
                                        rate_hz=args.rate, robot=args.robot), "demo config")
     if args.time_scale is not None and not 0 < args.time_scale <= FULL_PACE:

@@ -47,7 +47,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -97,6 +96,9 @@ def _arm(args: argparse.Namespace) -> int:
     from station.readers.arm_csv import read_arm_csv
     from station.report import write_report
 
+    from station.readers.out_files import check_outputs, write_output
+
+    check_outputs(args, json="--json", report="--report", model_out="--model-out")
     arm = resolve_arm(args.robot)
     data = read_arm_csv(args.data)
     from station.analysis.arm.screen import screen_arm_poses
@@ -113,11 +115,11 @@ def _arm(args: argparse.Namespace) -> int:
                                                joint_limits_rad=arm.joint_limits_rad)
     report = build_report(res, title=f"Diagnosis of {arm.name}", facts={"data": str(args.data)}) if args.report else None
     if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        write_output(args.json, json.dumps(doc, indent=2), "--json")
     if args.model_out:
-        Path(args.model_out).write_text(json.dumps(doc["extended_model"], indent=2), encoding="utf-8")
+        write_output(args.model_out, json.dumps(doc["extended_model"], indent=2), "--model-out")
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print(doc)
     if not doc["converged"]:
         bad = "; ".join(f"{f['fit']}: {f['message']}" for f in doc["fits"] if not f["converged"])
@@ -132,6 +134,9 @@ def _trailer(args: argparse.Namespace) -> int:
     from station.readers.trailer_csv import read_trailer_csv
     from station.report import write_report
 
+    from station.readers.out_files import check_outputs, write_output
+
+    check_outputs(args, json="--json", report="--report")
     data = read_trailer_csv(args.data)
     res = diagnose_trailer(data["t"], data["kappa"], data["psi"], L1_m=args.l1, L2_m=args.l2,
                            v_m_s=data.get("v"), kappa_cmd=data.get("kappa_cmd"),
@@ -141,9 +146,9 @@ def _trailer(args: argparse.Namespace) -> int:
     report = build_trailer_report(res, title="Diagnosis of the trailer model",
                                   facts={"data": str(args.data)}) if args.report else None
     if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        write_output(args.json, json.dumps(doc, indent=2), "--json")
     if report is not None:
-        write_report(report, args.report)
+        write_report(report, args.report, "--report")
     _print_trailer(doc)
     return 0
 

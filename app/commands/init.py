@@ -10,6 +10,7 @@ use. An existing file is never overwritten (``--force`` to replace it).
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
 from station.errors import ConfigError
@@ -81,19 +82,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _init(args: argparse.Namespace) -> int:
     from station.config import load_config
+    from station.readers.out_files import check_output, output_file
 
-    out = Path(args.out)
+    out = check_output(args.out, "--out")  # nothing but a regular file is replaced, and that only with --force
     if out.exists() and not args.force:
         raise ConfigError(f"{out} exists; not overwritten (--force replaces it)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(TEMPLATE, encoding="utf-8")
-    try:
-        load_config(tmp)  # the template is a valid config (guards it against the schema)
-    except Exception:
-        tmp.unlink()
-        raise
-    tmp.replace(out)
+    with tempfile.TemporaryDirectory(prefix="station-init-") as d:
+        probe = Path(d) / "station.toml"
+        probe.write_text(TEMPLATE, encoding="utf-8")
+        load_config(probe)  # the template is a valid config (guards it against the schema)
+    with output_file(out, "--out") as fh:
+        fh.write(TEMPLATE)
     print(f"wrote {out}: the fake cell (tracker, controller, odometry simulated)")
     print(f"next: station run iso9283 --config {out}   (or trailer, arm-calibration)")
     return 0

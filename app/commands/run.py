@@ -68,6 +68,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"name a procedure ({', '.join(procedure_names())}) or --resume RUN_ID")
     from station.runner import AnswerFileOperator
 
+    from station.readers.out_files import check_outputs
+
+    check_outputs(args, json="--json")
     cfg = load_config(args.config)
     if args.yes and args.answers:
         raise ConfigError("give --yes or --answers, not both")

@@ -56,8 +56,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
         if args.arm:
             raise ConfigError("--demo runs on the fake cell; --arm makes no sense with it")
-        out = (Path(args.out) if args.out else Path.cwd() / "demo-runs").resolve()
-        out.mkdir(parents=True, exist_ok=True)
+        from station.readers.out_files import output_dir
+
+        out = output_dir(args.out if args.out else Path.cwd() / "demo-runs", "--out").resolve()
         cfg = config_from_dict(demo_config(out, cycles=args.cycles, vap_cycles=args.vap_cycles, rate_hz=args.rate),
                                "demo config")
         base = out

@@ -29,9 +29,9 @@ def _parse_break(text: str) -> tuple[float, float]:
     try:
         a, b = (float(x) for x in text.split(":"))
     except ValueError:
-        raise ConfigError(f"--beam-break must be START:END in seconds after the recording starts, got {text!r}") from None
+        raise ConfigError(f"--beam-break must be START:END in seconds after the recording starts, got {text[:40]!r}") from None
     if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
-        raise ConfigError(f"--beam-break needs 0 <= START < END, got {text!r}")
+        raise ConfigError(f"--beam-break needs 0 <= START < END, got {text[:40]!r}")
     return a, b
 
 
@@ -44,12 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "mm, tracker frame), DIR/poses.csv (the commanded poses, tracker frame) and "
                                     "DIR/truth.json (the true stops and their AP and RP, the drawn world).")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    s.add_argument("--cycles", type=int, default=3, help="number of cycles P2,P3,P4,P5,P1 (default 3)")
-    s.add_argument("--dwell", type=float, default=0.5, help="dwell at each pose, s (default 0.5)")
+    s.add_argument("--cycles", type=int, default=3, help="number of cycles P2,P3,P4,P5,P1, 1-100 (default 3)")
+    s.add_argument("--dwell", type=float, default=0.5, help="dwell at each pose, s, 0-60 (default 0.5)")
     s.add_argument("--rate", type=float, default=1000.0, help="tracker rate, Hz, 10-3000 (default 1000)")
-    s.add_argument("--seed", type=int, default=0, help="seed of the simulated world (default 0)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the simulated world, 0-4294967295 (default 0)")
     s.add_argument("--robot", default="industrial-3100", help="robot model (default industrial-3100)")
-    s.add_argument("--wait", type=float, default=4.0, help="initial wait at P1 while measuring, s (default 4)")
+    s.add_argument("--wait", type=float, default=4.0, help="initial wait at P1 while measuring, s, 0-600 (default 4)")
     s.add_argument("--move", choices=("joint", "linear"), default="joint", help="move type between poses")
     s.add_argument("--effects", choices=("realistic", "none"), default="realistic",
                    help="error effects of the true arm (default realistic)")
@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "the noise and the noise-free points).")
     a.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     a.add_argument("--robot", default="industrial-3100", help="library robot model (default industrial-3100)")
-    a.add_argument("--poses", type=int, default=80, help="number of measured poses (default 80)")
+    a.add_argument("--poses", type=int, default=80, help="number of measured poses, 10-20000 (default 80)")
     a.add_argument("--effects", choices=("geometric", "realistic", "none"), default="geometric",
                    help="errors of the true arm: geometric only (what calibrate arm identifies, default), "
                         "realistic (also compliance, backlash, thermal drift, encoder eccentricity: what diagnose "
@@ -79,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    choices=("link_lengths", "hitch_angle_offset", "curvature_gain", "hitch_dynamics"),
                    help="an effect drawn into the record (repeatable): link_lengths, hitch_angle_offset, "
                         "curvature_gain, hitch_dynamics")
-    t.add_argument("--duration", type=float, default=180.0, help="length of the record, s (default 180)")
+    t.add_argument("--duration", type=float, default=180.0, help="length of the record, s, 30-1800 (default 180)")
     t.add_argument("--seed", type=int, default=0, help="seed of the drawn record (default 0)")
     t.set_defaults(func=_run_trailer)
     h = ssub.add_parser("hold", help="a held pose measured by the tracker -> stream CSV for analyze hold",
@@ -87,25 +87,36 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "slowly (the arm warming up) and the tracker adds its noise. Writes DIR/stream.csv "
                         "(t s, x,y,z mm) and DIR/truth.json (position, drift, noise).")
     h.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    h.add_argument("--duration", type=float, default=60.0, help="length of the hold, s (default 60)")
+    h.add_argument("--duration", type=float, default=60.0, help="length of the hold, s, 3-14400 (default 60)")
     h.add_argument("--rate", type=float, default=100.0, help="tracker rate, Hz, 10-3000 (default 100)")
     h.add_argument("--seed", type=int, default=0, help="seed of the drawn hold (default 0)")
     h.set_defaults(func=_run_hold)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
+#: longest simulated hold, s (a warm-up is watched for an hour or two)
+MAX_HOLD_S = 4 * 3600.0
+#: most poses of a simulated arm measurement (what the arm CSV reader takes)
+MAX_ARM_POSES = 20_000
+#: longest simulated trailer record, s (calibrate and diagnose trailer use minutes)
+MAX_TRAILER_S = 1800.0
+
+
 def _run_hold(args: argparse.Namespace) -> int:
     import csv
 
     from fakes.sim.offline_files import simulate_hold
+    from fakes.sim.sim_bounds import check_real, check_samples, check_seed
+    from station.readers.out_files import output_file
 
-    if not (math.isfinite(args.duration) and args.duration >= 3.0):
-        raise ConfigError(f"--duration must be at least 3 s, got {args.duration!r}")
-    if not (math.isfinite(args.rate) and 10.0 <= args.rate <= 3000.0):
-        raise ConfigError(f"--rate must be within 10-3000 Hz, got {args.rate!r}")
-    cols, truth = simulate_hold(seed=args.seed, duration_s=args.duration, rate_hz=args.rate)
+    duration = check_real(args.duration, "--duration", 3.0, MAX_HOLD_S, " s")
+    rate = check_real(args.rate, "--rate", 10.0, 3000.0, " Hz")
+    check_seed(args.seed)
+    check_samples(duration * rate + 1, f"--duration {duration:g} s at --rate {rate:g} Hz")
+    _out_dir(args.out, create=False)
+    cols, truth = simulate_hold(seed=args.seed, duration_s=duration, rate_hz=rate)
     out = _out_dir(args.out)
-    with open(out / "stream.csv", "w", encoding="utf-8", newline="") as fh:
+    with output_file(out / "stream.csv", "--out", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t", "x", "y", "z"])
         for t, p in zip(cols["t"], cols["xyz_mm"]):
@@ -117,22 +128,27 @@ def _run_hold(args: argparse.Namespace) -> int:
     return 0
 
 
-def _out_dir(text: str) -> Path:
-    out = Path(text)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+def _out_dir(text: str, *, create: bool = True) -> Path:
+    from station.readers.out_files import output_dir
+
+    return output_dir(text, "--out", create=create)
 
 
 def _write_truth(path: Path, truth: dict) -> None:
-    path.write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
+    from station.readers.out_files import write_output
+
+    write_output(path, json.dumps(truth, indent=1) + "\n", "--out")
 
 
 def _run_arm(args: argparse.Namespace) -> int:
     from fakes.sim.offline_files import simulate_arm
     from station.readers.arm_csv import write_arm_csv
 
-    if args.poses < 10:
-        raise ConfigError(f"--poses must be at least 10, got {args.poses}")
+    from fakes.sim.sim_bounds import check_int, check_seed
+
+    check_int(args.poses, "--poses", 10, MAX_ARM_POSES)
+    check_seed(args.seed)
+    _out_dir(args.out, create=False)
     cols, truth = simulate_arm(args.robot, n=args.poses, effects=args.effects, seed=args.seed)
     out = _out_dir(args.out)
     write_arm_csv(out / "arm.csv", cols["q_deg"], cols["xyz_mm"], t=cols["t"], temperature=cols["temperature"],
@@ -147,10 +163,12 @@ def _run_trailer(args: argparse.Namespace) -> int:
     from fakes.sim.offline_files import simulate_trailer
     from app.commands.calibrate import write_trailer_csv
 
-    if not (math.isfinite(args.duration) and args.duration >= 30.0):
-        raise ConfigError(f"--duration must be at least 30 s, got {args.duration!r}")
-    cols, truth = simulate_trailer(hidden=tuple(dict.fromkeys(args.hidden)), seed=args.seed,
-                                   duration_s=args.duration)
+    from fakes.sim.sim_bounds import check_real, check_seed
+
+    duration = check_real(args.duration, "--duration", 30.0, MAX_TRAILER_S, " s")
+    check_seed(args.seed)
+    _out_dir(args.out, create=False)
+    cols, truth = simulate_trailer(hidden=tuple(dict.fromkeys(args.hidden)), seed=args.seed, duration_s=duration)
     out = _out_dir(args.out)
     write_trailer_csv(out / "trailer.csv", cols["t"], cols["kappa"], cols["psi"], v=cols["v"])
     _write_truth(out / "truth.json", truth)

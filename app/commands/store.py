@@ -201,6 +201,9 @@ def _overhauls(args) -> int:
 
 
 def _export(args) -> int:
+    from station.readers.out_files import output_dir
+
+    output_dir(args.out, "--out")
     with open_store(args.config, args.central) as store:
         paths = store.export(args.run_id, args.out, args.format)
     for p in paths:

@@ -148,6 +148,9 @@ def _drifting(args) -> int:
 def _page(args) -> int:
     from station.fleet_page import write_fleet_page
 
+    from station.readers.out_files import check_outputs
+
+    check_outputs(args, out="--out")
     with _open(args) as store:
         path = write_fleet_page(store, args.out, args.name, q_max=args.q)
     print(path)

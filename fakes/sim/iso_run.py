@@ -25,12 +25,12 @@ Files written to DIR:
 from __future__ import annotations
 
 import json
-import math
 import re
 from pathlib import Path
 
 import numpy as np
 
+from fakes.sim.sim_bounds import check_int, check_real, check_samples, check_seed
 from station.errors import ConfigError
 
 __all__ = ["simulate_iso9283", "commanded_joints", "CYCLE_ORDER", "STATUS_VALID", "STATUS_BEAM_BROKEN"]
@@ -42,17 +42,26 @@ STATUS_BEAM_BROKEN = 1
 CYCLE_ORDER = ("P2", "P3", "P4", "P5", "P1")
 
 
-def _check(cycles, dwell_s, rate_hz, seed, wait_s, move, effects) -> None:
-    if isinstance(cycles, bool) or not isinstance(cycles, (int, np.integer)) or cycles < 1:
-        raise ConfigError(f"--cycles must be an integer >= 1, got {cycles!r}")
-    if not (math.isfinite(dwell_s) and dwell_s >= 0):
-        raise ConfigError(f"--dwell must be finite and >= 0 s, got {dwell_s!r}")
-    if not (math.isfinite(rate_hz) and 10.0 <= rate_hz <= 3000.0):
-        raise ConfigError(f"--rate must be within 10-3000 Hz, got {rate_hz!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ConfigError(f"--seed must be a non-negative integer, got {seed!r}")
-    if not (math.isfinite(wait_s) and wait_s >= 0):
-        raise ConfigError(f"--wait must be finite and >= 0 s, got {wait_s!r}")
+#: most cycles of one simulated run (ISO 9283 asks for 30; more is a soak test, not one file)
+MAX_CYCLES = 100
+#: longest dwell at a pose, s (ISO 9283 test dwells are seconds)
+MAX_DWELL_S = 60.0
+#: longest initial wait at P1, s
+MAX_WAIT_S = 600.0
+
+
+def _check(cycles, dwell_s, rate_hz, seed, wait_s, move, effects, beam_breaks=()) -> None:
+    check_int(cycles, "--cycles", 1, MAX_CYCLES)
+    check_real(dwell_s, "--dwell", 0.0, MAX_DWELL_S, " s")
+    check_real(rate_hz, "--rate", 10.0, 3000.0, " Hz")
+    check_seed(seed)
+    check_real(wait_s, "--wait", 0.0, MAX_WAIT_S, " s")
+    # the dwells and the wait alone (the moves come on top; counted while the stream is written)
+    check_samples(float(rate_hz) * (float(wait_s) + 5 * int(cycles) * float(dwell_s)),
+                  f"--rate {float(rate_hz):g} Hz over --wait {float(wait_s):g} s and {int(cycles)} --cycles of 5 "
+                  f"--dwell {float(dwell_s):g} s")
+    for _start, end in beam_breaks:
+        check_real(end, "--beam-break END", 0.0, 1e6, " s")  # far beyond any run these bounds allow
     if move not in ("joint", "linear"):
         raise ConfigError(f"--move must be 'joint' or 'linear', got {move!r}")
     if effects not in ("realistic", "none"):
@@ -145,7 +154,7 @@ def simulate_iso9283(
     dict
         Paths, sample counts and the stop list.
     """
-    _check(cycles, float(dwell_s), float(rate_hz), seed, float(wait_s), move, effects)
+    _check(cycles, dwell_s, rate_hz, seed, wait_s, move, effects, beam_breaks)
     from fakes.sim.clock import ManualClock
     from fakes.sim.world import make_world
     from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
@@ -160,8 +169,9 @@ def simulate_iso9283(
     clock = ManualClock()
     world = make_world(robot=robot, seed=seed, clock=clock, effects="realistic" if effects == "realistic" else None,
                        tracker_rate_hz=rate_hz)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    from station.readers.out_files import output_dir, output_file, write_output
+
+    out = output_dir(out_dir, "--out")
     try:
         targets, q_cmd = commanded_joints(world.robot, positions)
         arm = world.arm
@@ -183,11 +193,10 @@ def simulate_iso9283(
             tracker.add_beam_break(t_rec + a, t_rec + b)
 
         stream_path = out / "stream.csv"
-        tmp = stream_path.with_name(stream_path.name + ".tmp")
         n_samples = n_invalid = 0
         t_written = t_rec
         stops = []
-        with open(tmp, "w", encoding="ascii", newline="\n") as fh:
+        with output_file(stream_path, "--out", newline="\n") as fh:
             fh.write("t,x,y,z,status\n")
 
             def flush(t_upto: float) -> None:
@@ -198,6 +207,8 @@ def simulate_iso9283(
                     t_written = t1
                     if t.size == 0:
                         continue
+                    check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
+                                  f"(the moves included)")
                     xyz, valid = source.measure(t)
                     status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
                     rows = np.column_stack([source.device_time(t), xyz, status])
@@ -214,8 +225,12 @@ def simulate_iso9283(
                     stops.append({"cycle": c, "pose": name, "t_start_s": m.t_start, "t_end_s": m.t_end,
                                   "t_leave_s": m.t_end + float(dwell_s)})
                 arm.wait_idle()
+                if c == 1:  # the first cycle's moves are simulated, nothing sampled yet: the whole run's size
+                    cycle_s = float(clock.now()) - t_rec - float(wait_s)
+                    check_samples(float(rate_hz) * (float(wait_s) + cycles * cycle_s),
+                                  f"--rate {float(rate_hz):g} Hz over {cycles} --cycles of {cycle_s:.1f} s "
+                                  f"(moves and dwells) after --wait {float(wait_s):g} s")
                 flush(float(clock.now()))
-        tmp.replace(stream_path)
 
         # true attained positions: the settled pose late in each dwell
         t_att = np.array([s["t_end_s"] + 0.9 * float(dwell_s) for s in stops])
@@ -232,7 +247,7 @@ def simulate_iso9283(
         # registration (measuring known points), with its own uncertainty.
         cmd_trk = tracker.to_tracker_frame(positions)
         poses_path = out / "poses.csv"
-        with open(poses_path, "w", encoding="ascii", newline="\n") as fh:
+        with output_file(poses_path, "--out", newline="\n") as fh:
             fh.write("name,x,y,z\n")
             for name, p in zip(names, cmd_trk):
                 fh.write(f"{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}\n")
@@ -264,7 +279,7 @@ def simulate_iso9283(
         text = json.dumps(truth, indent=1)
         # one line per list of numbers, so a person can read the file
         text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
-        truth_path.write_text(text)
+        write_output(truth_path, text, "--out")
     finally:
         world.close()
     return {

@@ -76,6 +76,12 @@ _N_DIRS = 256
 # --------------------------------------------------------------------------
 
 
+#: largest instrument uncertainty term accepted, um (or um/m): 10 mm, far beyond any tracker's MPE
+MAX_INSTRUMENT_UM = 10_000.0
+#: largest uncertainty of the air temperature accepted, K (a tracker's weather station is good to a few tenths)
+MAX_TEMPERATURE_U_K = 50.0
+
+
 @dataclass(frozen=True)
 class Budget:
     """The stated inputs of the uncertainty (units in the names).
@@ -107,10 +113,11 @@ class Budget:
     k: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("instrument_a_um", "instrument_b_um_per_m", "temperature_u_K", "angle_sd_deg"):
+        for name, most in (("instrument_a_um", MAX_INSTRUMENT_UM), ("instrument_b_um_per_m", MAX_INSTRUMENT_UM),
+                           ("temperature_u_K", MAX_TEMPERATURE_U_K), ("angle_sd_deg", 90.0)):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"uncertainty budget: {name} must be finite and >= 0, got {v!r}")
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= most):
+                raise ConfigError(f"uncertainty budget: {name} must be within 0-{most:g}, got {v!r}")
         if self.instrument_kind not in ("mpe", "sd"):
             raise ConfigError(f"uncertainty budget: instrument_kind must be 'mpe' or 'sd', got {self.instrument_kind!r}")
         if not (isinstance(self.trials, (int, np.integer)) and 200 <= self.trials <= 10_000_000):

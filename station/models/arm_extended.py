@@ -25,7 +25,6 @@ angles rad inside; the JSON schema is in :mod:`station.models.arm_model_file`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -221,40 +220,71 @@ _EFFECTS = ("encoder_eccentricity", "backlash", "joint_compliance", "thermal_dri
 _EXTRA = ("tau_s", "t0_s", "reference_temperature_c")
 
 
+#: the screen (:data:`station.models.model_ranges.LIMITS`) of each effect parameter, by the end of its name
+_PARAM_KINDS = (("_rad_per_Nm", "compliance"), ("_rad_per_kg", "compliance"), ("_rad", "joint_offset_rad"),
+                ("alpha_per_K", "alpha_per_K"), ("dT_max_K", "dT_max_K"))
+
+
+def _param_names(effect: str, joint) -> set | None:
+    """The parameter names an effect of ``joint`` may have (None: thermal drift, checked on its own)."""
+    if effect == "encoder_eccentricity":
+        return {f"s{joint}_rad", f"c{joint}_rad"}
+    if effect == "backlash":
+        return {f"b{joint}_rad"}
+    if effect == "joint_compliance":
+        return {f"c{joint}_rad_per_Nm", f"k{joint}_tcp_rad_per_kg", f"k{joint}_elbow_rad_per_kg"}
+    return None
+
+
 def terms_from_json(data, source: str) -> list:
-    """The ``effects`` list of an extended model file, checked (file and field named on error)."""
+    """The ``effects`` list of an extended model file, checked (file and field named on error).
+
+    Each effect at most once (per joint), each parameter a number within what
+    an arm has (:mod:`station.models.model_ranges`).
+    """
+    from station.models.model_ranges import MAX_EFFECTS, number_in
+
     if not isinstance(data, list):
         raise ConfigError(f"{source}: 'effects' must be a list of objects")
-    out = []
+    if len(data) > MAX_EFFECTS:
+        raise ConfigError(f"{source}: 'effects' lists {len(data)} effects; at most {MAX_EFFECTS} (each joint effect "
+                          "once per joint, one thermal drift)")
+    out, seen = [], {}
     for k, d in enumerate(data):
         where = f"{source}: effects[{k}]"
-        if not isinstance(d, dict) or d.get("effect") not in _EFFECTS:
+        if not isinstance(d, dict) or not isinstance(d.get("effect"), str) or d["effect"] not in _EFFECTS:
             raise ConfigError(f"{where}: 'effect' must be one of {', '.join(_EFFECTS)}")
-        unknown = sorted(set(d) - {"effect", "joint", "params", *_EXTRA})
+        unknown = sorted(str(u)[:40] for u in set(d) - {"effect", "joint", "params", *_EXTRA})
         if unknown:
             raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}")
         joint = d.get("joint")
-        if d["effect"] != "thermal_drift" and (isinstance(joint, bool) or joint not in range(1, 7)):
-            raise ConfigError(f"{where}: 'joint' must be 1..6, got {joint!r}")
+        if d["effect"] != "thermal_drift" and (isinstance(joint, bool) or not isinstance(joint, int)
+                                               or joint not in range(1, 7)):
+            raise ConfigError(f"{where}: 'joint' must be 1..6, got {str(joint)[:40]}")
+        key = (d["effect"], joint if d["effect"] != "thermal_drift" else None)
+        if key in seen:
+            raise ConfigError(f"{where}: {d['effect']}" + (f" of joint {joint}" if key[1] else "")
+                              + f" is listed twice (also effects[{seen[key]}])")
+        seen[key] = k
         params = d.get("params")
         if not isinstance(params, dict) or not params:
             raise ConfigError(f"{where}: 'params' must be an object of named numbers")
+        allowed = _param_names(d["effect"], joint)
+        if allowed is not None and not set(params) <= allowed:
+            bad = sorted(str(n)[:40] for n in set(params) - allowed)
+            raise ConfigError(f"{where}: {d['effect']} of joint {joint} has the param{'s' if len(allowed) > 1 else ''} "
+                              f"{', '.join(sorted(allowed))}, not {', '.join(bad)}")
+        if allowed is None and not set(params) <= {"alpha_per_K", "dT_max_K"}:
+            raise ConfigError(f"{where}: thermal_drift has the params alpha_per_K or dT_max_K")
+        values = {}
         for name, v in params.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"{where}.params.{name} must be a finite number, got {v!r}")
-        extra = {}
-        for key in _EXTRA:
-            if key in d:
-                if isinstance(d[key], bool) or not isinstance(d[key], (int, float)) or not math.isfinite(d[key]):
-                    raise ConfigError(f"{where}.{key} must be a finite number")
-                extra[key] = float(d[key])
+            kind = next(kd for end, kd in _PARAM_KINDS if name.endswith(end))
+            values[name] = number_in(v, f"{where}.params.{name}", kind)
+        extra = {key_: number_in(d[key_], f"{where}.{key_}", key_) for key_ in _EXTRA if key_ in d}
         if d["effect"] == "thermal_drift" and not ("alpha_per_K" in params or ("dT_max_K" in params
                                                                                and "tau_s" in extra)):
             raise ConfigError(f"{where}: thermal_drift needs params.alpha_per_K, or params.dT_max_K with tau_s")
-        if d["effect"] == "encoder_eccentricity" and set(params) != {f"s{joint}_rad", f"c{joint}_rad"}:
+        if d["effect"] == "encoder_eccentricity" and set(params) != allowed:
             raise ConfigError(f"{where}: encoder_eccentricity of joint {joint} has params s{joint}_rad, c{joint}_rad")
-        if d["effect"] == "backlash" and set(params) != {f"b{joint}_rad"}:
-            raise ConfigError(f"{where}: backlash of joint {joint} has the param b{joint}_rad")
-        out.append(EffectTerm(d["effect"], joint if d["effect"] != "thermal_drift" else None,
-                              {n: float(v) for n, v in params.items()}, extra))
+        out.append(EffectTerm(d["effect"], joint if d["effect"] != "thermal_drift" else None, values, extra))
     return out

@@ -48,6 +48,7 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.models import kinematics as kin
+from station.models.model_ranges import number_in
 from station.models.robots import RobotSpec, get_robot
 
 __all__ = ["model_to_json", "model_from_json", "load_arm", "resolve_arm", "ResolvedArm", "ur_deltas",
@@ -58,6 +59,12 @@ _TOOL_KEYS = ("x_mm", "y_mm", "z_mm")
 _TOP_KEYS = {"joints", "tool", "base", "joint_limits_deg", "name", "description", "effects", "gravity_model"}
 #: angles in a model file beyond this (deg) are not plausible: written in radians, or a typo
 _MAX_OFFSET_DEG = 360.0
+#: largest model file read, bytes (a model is a few kilobytes; the whole output of `diagnose arm --json`, tens)
+MAX_MODEL_BYTES = 4 << 20
+#: deepest nesting of a model file (a model nests four levels; the whole output of a command a few more)
+MAX_MODEL_DEPTH = 32
+#: largest UR calibration file read, bytes (a [mounting] section is a few hundred)
+MAX_UR_BYTES = 1 << 20
 
 
 def model_to_json(dh, base_T=None, *, name: str | None = None, joint_limits_rad=None) -> dict:
@@ -84,6 +91,30 @@ def _number(value, where: str) -> float:
     return float(value)
 
 
+def _matrix(value, rows: int, cols: int | None, where: str, kind: str) -> np.ndarray:
+    """A list of ``rows`` lists of ``cols`` numbers (a list of ``rows`` numbers when ``cols`` is None), screened."""
+    shape = f"{rows} numbers" if cols is None else f"{rows} lists of {cols} numbers"
+    if not isinstance(value, list) or len(value) != rows:
+        raise ConfigError(f"{where} must be {shape}")
+    if cols is None:
+        return np.array([number_in(v, f"{where}[{i}]", kind) for i, v in enumerate(value)])
+    out = np.zeros((rows, cols))
+    for i, row in enumerate(value):
+        if not isinstance(row, list) or len(row) != cols:
+            raise ConfigError(f"{where} must be {shape} (row {i} is not)")
+        out[i] = [number_in(v, f"{where}[{i}][{j}]", kind) for j, v in enumerate(row)]
+    return out
+
+
+def _text(data: dict, key: str, source: str, most: int) -> None:
+    v = data.get(key)
+    if v is not None and (not isinstance(v, str) or len(v) > most):
+        raise ConfigError(f"{source}: '{key}' must be a text of at most {most} characters, got "
+                          f"{type(v).__name__ if not isinstance(v, str) else f'{len(v)} characters'}")
+    if isinstance(v, str) and any(ord(c) < 32 and c not in "\t\n" or ord(c) == 127 for c in v):
+        raise ConfigError(f"{source}: '{key}' holds a control character")
+
+
 def _keys(obj, expected, where: str) -> None:
     if not isinstance(obj, dict):
         raise ConfigError(f"{where} must be an object with {', '.join(expected)}")
@@ -107,6 +138,10 @@ def model_from_json(data: dict, source: str = "model") -> tuple[np.ndarray, np.n
     if not isinstance(joints, list) or len(joints) != 6:
         raise ConfigError(f"{source}: 'joints' must be a list of six objects, got "
                           f"{type(joints).__name__ if not isinstance(joints, list) else f'{len(joints)} entries'}")
+    _text(data, "name", source, 200)
+    _text(data, "description", source, 10_000)
+    if data.get("gravity_model") is not None and not isinstance(data["gravity_model"], str):
+        raise ConfigError(f"{source}: 'gravity_model' must be the name of a library robot")
     dh = np.zeros((7, 5))
     for i, j in enumerate(joints):
         where = f"{source}: joints[{i}]"
@@ -115,26 +150,26 @@ def model_from_json(data: dict, source: str = "model") -> tuple[np.ndarray, np.n
         for k, v in (("alpha_deg", al), ("theta_deg", th), ("beta_deg", be)):
             if abs(v) > _MAX_OFFSET_DEG:
                 raise ConfigError(f"{where}.{k} = {v:g} deg is beyond +-{_MAX_OFFSET_DEG:g} deg")
+        for k, v in (("a_mm", a), ("d_mm", d)):
+            number_in(v, f"{where}.{k}", "length_mm")
         dh[i] = [a, math.radians(al), d, math.radians(th), math.radians(be)]
     _keys(data.get("tool"), _TOOL_KEYS, f"{source}: tool")
-    x, y, z = (_number(data["tool"][k], f"{source}: tool.{k}") for k in _TOOL_KEYS)
+    x, y, z = (number_in(data["tool"][k], f"{source}: tool.{k}", "tool_mm") for k in _TOOL_KEYS)
     dh[6] = [math.hypot(x, y), 0.0, z, math.atan2(y, x) if (x or y) else 0.0, 0.0]
     base = None
     if data.get("base") is not None:
         b = data["base"]
         _keys(b, ("rotation_matrix", "translation_mm"), f"{source}: base")
-        R = np.asarray(b["rotation_matrix"], dtype=float)
-        t = np.asarray(b["translation_mm"], dtype=float)
-        if R.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-            raise ConfigError(f"{source}: base needs a finite 3x3 rotation_matrix and 3 translation_mm")
+        R = _matrix(b["rotation_matrix"], 3, 3, f"{source}: base.rotation_matrix", "rotation")
+        t = _matrix(b["translation_mm"], 3, None, f"{source}: base.translation_mm", "base_mm")
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise ConfigError(f"{source}: base.rotation_matrix is not a rotation")
         base = np.eye(4)
         base[:3, :3], base[:3, 3] = R, t
     limits = None
     if data.get("joint_limits_deg") is not None:
-        lim = np.asarray(data["joint_limits_deg"], dtype=float)
-        if lim.shape != (6, 2) or not np.all(np.isfinite(lim)) or np.any(lim[:, 0] >= lim[:, 1]):
+        lim = _matrix(data["joint_limits_deg"], 6, 2, f"{source}: joint_limits_deg", "joint_limit_deg")
+        if np.any(lim[:, 0] >= lim[:, 1]):
             raise ConfigError(f"{source}: joint_limits_deg must be six [low, high] pairs with low < high")
         limits = np.radians(lim)
     return dh, base, limits
@@ -173,19 +208,15 @@ def resolve_arm(robot: str) -> ResolvedArm:
     """
     from station.models.arm_extended import terms_from_json
 
-    from station.readers.once import STDIN, STDIN_NAME, regular_file
+    from station.readers.once import STDIN, STDIN_NAME
 
     p = Path(robot)
     if robot == STDIN or p.suffix.lower() == ".json" or (p.exists() and not p.is_dir()):
         # a file, standard input (``-``) or a pipe, read once
         p = Path(STDIN_NAME) if robot == STDIN else p
-        with regular_file(robot) as (real, _):
-            if not Path(real).is_file():
-                raise ConfigError(f"--robot {robot}: no such model file")
-            try:
-                data = json.loads(Path(real).read_text(encoding="utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise ConfigError(f"{p}: not a JSON model ({exc})") from None
+        if robot != STDIN and not p.exists():
+            raise ConfigError(f"--robot {robot}: no such model file")
+        data = _read_json_model(robot, str(p))
         if isinstance(data, dict) and "joints" not in data:
             if isinstance(data.get("extended_model"), dict):
                 data = data["extended_model"]  # the whole output of `station diagnose arm --json`
@@ -204,6 +235,34 @@ def resolve_arm(robot: str) -> ResolvedArm:
         return ResolvedArm(str(data.get("name") or p.stem), dh, limits, base, spec, effects, str(p))
     spec = get_robot(robot)
     return ResolvedArm(spec.name, spec.dh_nominal.copy(), spec.joint_limits_rad.copy(), None, spec, (), robot)
+
+
+def _read_json_model(path, shown: str):
+    """The JSON of a model file (a file, ``-``, a pipe), bounded in size and depth; ConfigError naming the file."""
+    import re
+
+    from station.readers.once import read_text
+
+    try:
+        text = read_text(path, MAX_MODEL_BYTES, "a model file is a few kilobytes")
+    except DataError as exc:
+        raise ConfigError(str(exc)) from None
+    depth = 0
+    for m in re.finditer(r'"(?:[^"\\]|\\.)*"|[\[{]|[\]}]', text):  # brackets outside strings
+        c = m.group()[0]
+        if c in "[{":
+            depth += 1
+            if depth > MAX_MODEL_DEPTH:
+                raise ConfigError(f"{shown}: nested more than {MAX_MODEL_DEPTH} levels deep; a model nests four")
+        elif c in "]}":
+            depth -= 1
+    try:
+        # an integer of more than 30 digits is read as a float (then refused as too large), not parsed for minutes
+        return json.loads(text, parse_int=lambda d: int(d) if len(d) <= 30 else float(d))
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{shown}: line {exc.lineno}: not a JSON model ({exc.msg})") from None
+    except (ValueError, RecursionError) as exc:
+        raise ConfigError(f"{shown}: not a JSON model ({str(exc)[:80]})") from None
 
 
 def load_arm(robot: str) -> tuple[str, np.ndarray, np.ndarray, np.ndarray | None]:
@@ -238,24 +297,32 @@ def write_ur_calibration(path, deltas: dict) -> None:
     for k in _UR_KEYS:
         lines.append(f"{k} = [ " + ", ".join(repr(float(v)) for v in deltas[k]) + " ]")
     lines.append("calibration_status = 2")
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    from station.readers.out_files import write_output
+
+    write_output(path, "\n".join(lines) + "\n", "--ur-deltas")
 
 
 def read_ur_calibration(path, dh_nominal) -> np.ndarray:
-    """The UR nominal ``dh_nominal`` (7, 5) plus the deltas of a ``calibration.conf`` file."""
-    from station.readers.once import STDIN, STDIN_NAME, regular_file
+    """The UR nominal ``dh_nominal`` (7, 5) plus the deltas of a ``calibration.conf`` file.
 
-    p = Path(STDIN_NAME if str(path) == STDIN else path)
+    Each delta is six numbers (not booleans) within what a UR arm's
+    calibration holds (:mod:`station.models.model_ranges`: angles within a
+    half turn, lengths within a metre); a refusal names the file, the line and
+    the key.
+    """
+    from station.readers.once import read_text, shown_name
+    from station.readers.text import MAX_LINE_CHARS
+
+    p = Path(shown_name(path))
     try:
-        with regular_file(path) as (real, _):  # a file, ``-`` or a pipe, read once
-            text = Path(real).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read the UR calibration ({exc})") from None
+        text = read_text(path, MAX_UR_BYTES, "a UR calibration file is a few hundred bytes")
     except DataError as exc:
         raise ConfigError(str(exc)) from None
     section, values = None, {}
-    for lineno, raw in enumerate(text.splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
+    for lineno, raw_line in enumerate(text.splitlines(), 1):
+        if len(raw_line) > MAX_LINE_CHARS:
+            raise ConfigError(f"{p}:{lineno}: longer than {MAX_LINE_CHARS} characters")
+        line = raw_line.split("#", 1)[0].strip()
         if not line:
             continue
         if line.startswith("[") and line.endswith("]"):
@@ -265,14 +332,7 @@ def read_ur_calibration(path, dh_nominal) -> np.ndarray:
             continue
         key, _, val = (s.strip() for s in line.partition("="))
         if key in _UR_KEYS:
-            try:
-                arr = ast.literal_eval(val)
-            except (ValueError, SyntaxError):
-                raise ConfigError(f"{p}:{lineno}: {key} is not a list of numbers") from None
-            arr = np.asarray(arr, dtype=float) if isinstance(arr, (list, tuple)) else np.zeros(0)
-            if arr.shape != (6,) or not np.all(np.isfinite(arr)):
-                raise ConfigError(f"{p}:{lineno}: {key} must be six finite numbers")
-            values[key] = arr
+            values[key] = _ur_values(val, f"{p}:{lineno}: {key}", key)
     missing = [k for k in _UR_KEYS if k not in values]
     if missing:
         raise ConfigError(f"{p}: no [mounting] {', '.join(missing)}")
@@ -282,3 +342,15 @@ def read_ur_calibration(path, dh_nominal) -> np.ndarray:
     dh[:6, 2] += values["delta_d"] * 1000.0
     dh[:6, 1] += values["delta_alpha"]
     return dh
+
+
+def _ur_values(text: str, where: str, key: str) -> np.ndarray:
+    """Six numbers of one UR delta (``[ v1, ..., v6 ]``), screened; ConfigError naming ``where``."""
+    try:
+        arr = ast.literal_eval(text)
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        raise ConfigError(f"{where} is not a list of numbers") from None
+    if not isinstance(arr, (list, tuple)) or len(arr) != 6:
+        raise ConfigError(f"{where} must be six numbers")
+    kind = "delta_length_m" if key in ("delta_a", "delta_d") else "delta_angle_rad"
+    return np.array([number_in(v, f"{where}[{i}]", kind) for i, v in enumerate(arr)])

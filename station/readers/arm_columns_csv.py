@@ -80,7 +80,9 @@ def write_columns_csv(path, columns: dict) -> None:
     """Write ``{name: (N,) array}`` as a CSV (columns in the dict's order)."""
     names = list(columns)
     data = np.column_stack([np.asarray(columns[k], dtype=float) for k in names])
-    with open(path, "w", encoding="utf-8", newline="") as fh:
+    from station.readers.out_files import output_file
+
+    with output_file(path, newline="") as fh:
         w = csv.writer(fh)
         w.writerow(names)
         for row in data:

@@ -49,7 +49,7 @@ class ArmData:
         return int(self.q_deg.shape[0])
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_arm_csv(path) -> ArmData:
     """Read an arm measurement CSV; DataError naming file, line and column on anything wrong."""
     p = Path(path)
@@ -129,7 +129,9 @@ def write_arm_csv(path, q_deg, xyz_mm, **optional) -> None:
         if optional.get(name) is not None:
             cols.append(name)
             data.append(np.asarray(optional[name], dtype=float))
-    with open(path, "w", encoding="utf-8", newline="") as fh:
+    from station.readers.out_files import output_file
+
+    with output_file(path, newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for row in np.column_stack(data):

@@ -50,7 +50,7 @@ def _columns_from_header(cells: list[str], p, ln: int) -> dict[str, int]:
     return cols
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_point_list(path) -> PointStream:
     """Read a plain point list; DataError naming file, line and column for anything malformed."""
     p = Path(path)

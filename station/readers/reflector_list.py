@@ -57,7 +57,7 @@ def _order(ids) -> list[str]:
     return sorted(ids, key=lambda r: (0, int(r), r) if r.lstrip("+-").isdigit() else (1, 0, r))
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_reflector_list(path, pose: str) -> StopList:
     """One pose's reflector list as a :class:`StopList` of one stop per cycle; DataError naming file and line."""
     p = Path(path)

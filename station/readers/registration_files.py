@@ -31,7 +31,7 @@ MAX_PAIRS = 10_000
 PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", "tracker_z")
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
@@ -82,7 +82,7 @@ def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return R, t, obj
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_registration_csv(path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``(names, base (N,3) mm, tracker (N,3) mm)``; DataError naming file, line and column; N >= 3."""
     p = Path(path)
@@ -113,11 +113,9 @@ def write_frame_json(path, frame: dict) -> Path:
         raise DataError(f"{p}: a frame needs R (3x3) and t_mm (3), got shapes {R.shape} and {t.shape}")
     obj = {"R": R.tolist(), "t_mm": t.tolist(), "convention": "p_tracker = R @ p_base + t_mm",
            **{k: v for k, v in frame.items() if k not in ("R", "t_mm")}}
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=_plain) + "\n", encoding="utf-8")
-    tmp.replace(p)
-    return p
+    from station.readers.out_files import write_output
+
+    return write_output(p, json.dumps(obj, indent=1, default=_plain) + "\n", "frame file")
 
 
 def _plain(x):

@@ -85,7 +85,7 @@ def parse_axes_line(text: str, path, ln: int) -> tuple[str, float]:
     return unit, UNITS_MM[unit.lower()]
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_sa_points(path, group: str | None = None, *, whole_file: bool = False,
                    date_order: str | None = None) -> PointStream:
     """Read a SpatialAnalyzer point export into a :class:`PointStream`.

@@ -58,7 +58,7 @@ def _stop_name(pose: str, cycle: int, approach: str | None) -> str:
     return f"pose {pose} cycle {cycle}" + ("" if approach is None else f" approach {approach}")
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_stop_list(path) -> StopList:
     """Read a stop list CSV; DataError naming file, line and column for anything malformed."""
     p = Path(path)

@@ -153,7 +153,7 @@ def read_stream_csv(path) -> PointStream:
                        abc_deg=abc_deg, fmt="csv", source=str(path))
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
     """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None.
 

@@ -22,6 +22,16 @@ MAX_ROWS = 20_000_000
 MAX_ABS_MM = 1.0e6
 #: largest time stamp accepted, s: the year 2286 in Unix time (stamps relative to a start are far smaller)
 MAX_ABS_S = 1.0e10
+#: most bytes read from a pipe, a device or standard input: some 400,000 rows, read in seconds and some 100 MB
+#: (a reader keeps every row, so an endless pipe of good rows must end well before time and memory do); a
+#: larger input is given as the file itself
+MAX_PIPE_BYTES = 16 << 20
+
+
+def pipe_too_long(shown, limit: int) -> DataError:
+    """The refusal of a pipe (or stdin, a device) that gives more than ``limit`` bytes."""
+    return DataError(f"{shown}: more than {limit / (1 << 20):g} MiB from a pipe or standard input "
+                     "(give the file itself)")
 
 
 def numbered_lines(path) -> Iterator[tuple[int, str]]:
@@ -30,13 +40,18 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
     Every line is bounded (:data:`MAX_LINE_CHARS`) and decoded on its own, so
     a bad byte is named on its own line and byte.
     """
+    import os
+    import stat
+
     p = Path(path)
     try:
         fh = open(p, "rb")
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
     with fh:
-        ln = 0
+        # a pipe or a device is read where it is (no copy): bounded in bytes too, as a copy would be
+        limit = None if stat.S_ISREG(os.fstat(fh.fileno()).st_mode) else MAX_PIPE_BYTES
+        ln = total = 0
         while True:
             ln += 1
             try:
@@ -45,6 +60,9 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
                 raise DataError(f"{p}: line {ln}: cannot read ({exc.strerror})") from None
             if not raw:
                 return
+            total += len(raw)
+            if limit is not None and total > limit:
+                raise pipe_too_long(p, limit)
             if ln == 1 and raw.startswith(b"\xef\xbb\xbf"):
                 raw = raw[3:]
             ended = raw.endswith(b"\n")

@@ -29,7 +29,7 @@ MAX_ROWS = 30_000_000
 LIMITS = {"t": MAX_ABS_S, "kappa": 1.0e3, "psi": 2.0 * math.pi, "v": 100.0, "kappa_cmd": 1.0e3}
 
 
-@reads_once
+@reads_once(one_pass=True)  # read front to back once: a pipe needs no copy
 def read_trailer_csv(path) -> dict[str, np.ndarray]:
     """Read a trailer CSV (``t,kappa,psi`` [+ ``v``, ``kappa_cmd``]); DataError names the file, line and column.
 
@@ -71,7 +71,9 @@ def write_trailer_csv(path, t, kappa, psi, v=None, kappa_cmd=None) -> None:
             header.append(name)
     if len({c.shape for c in cols}) != 1 or cols[0].ndim != 1:
         raise DataError("t, kappa, psi (and v) must be 1-D arrays of one length")
-    with Path(path).open("w", newline="") as fh:
+    from station.readers.out_files import output_file
+
+    with output_file(path, newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         w.writerows(zip(*(c.tolist() for c in cols)))

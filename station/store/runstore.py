@@ -574,8 +574,9 @@ class RunStore:
         if fmt not in ("csv", "parquet"):
             raise StoreError(f"export format must be 'csv' or 'parquet', got {fmt!r}")
         self.run(run_id)  # raises for an unknown run
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        from station.readers.out_files import output_dir
+
+        out = output_dir(out_dir, "--out")
         tables: dict[str, dict[str, list | np.ndarray]] = {}
         for stream in self.streams(run_id):
             tables[f"samples_{stream}"] = self.samples(run_id, stream, finished_only=False)
@@ -596,7 +597,11 @@ class RunStore:
                 import pyarrow as pa
                 import pyarrow.parquet as pq
 
-                pq.write_table(pa.table({k: list(v) if not isinstance(v, np.ndarray) else v for k, v in cols.items()}), path)
+                from station.readers.out_files import output_file
+
+                with output_file(path, "--out", binary=True) as fh:
+                    pq.write_table(pa.table({k: list(v) if not isinstance(v, np.ndarray) else v
+                                             for k, v in cols.items()}), fh)
             written.append(path)
         return written
 
@@ -604,7 +609,9 @@ class RunStore:
 def _write_csv(path: Path, cols: Mapping[str, Iterable]) -> None:
     names = list(cols)
     columns = [list(cols[n]) for n in names]
-    with open(path, "w", newline="") as fh:
+    from station.readers.out_files import output_file
+
+    with output_file(path, "--out", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(names)
         for row in zip(*columns):

@@ -20,6 +20,7 @@ from procedures.preflight import report_dir_problems
 from station.analysis.arm.calibration import check_joint_limits
 from station.analysis.registration import fit_rigid
 from app.cli import main
+from tests.hostile import refused as _refused
 from station.errors import DataError
 from station.models.robots import get_robot
 from station.readers.arm_csv import write_arm_csv
@@ -32,16 +33,6 @@ POSES = "name,x,y,z\n" + "".join(f"P{p},{100 * p},{50 * p},20\n" for p in range(
 PAIRS_HEAD = "name,base_x,base_y,base_z,tracker_x,tracker_y,tracker_z\n"
 
 
-def _refused(capsys, argv, *needles):
-    """``main(argv)`` exits 2 with a one-line error holding every needle, no traceback."""
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert err.startswith("station: error:") and "Traceback" not in err, err
-    for n in needles:
-        assert n in err, (n, err)
-    assert max(len(w) for w in err.split()) < 400  # no 309-digit numbers, no 100,000-character cells
-    return err
 
 
 def _stops(tmp_path) -> list[str]:
