@@ -15,7 +15,9 @@ import pytest
 
 
 def test_iso9283_after_overhaul(fake_station):
-    run = fake_station.iso9283(cycles=5, vap_cycles=2)
+    # a short check (5 cycles, for the example's speed): an acceptance runs 30 and requires ISO 9283
+    # conformance, the default; require_iso=False says this PASS is not one
+    run = fake_station.iso9283(cycles=5, vap_cycles=2, require_iso=False)
     assert run.status == "done", run.output
     assert run.poses == ["P1", "P2", "P3", "P4", "P5"]
     for pose in run.poses:

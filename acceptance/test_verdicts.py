@@ -35,7 +35,7 @@ def test_a_marginal_robot_passes_and_its_plant_measurement_says_marginal(make_fa
     near = Measurement("AP_worst_plant", of="AP_mm", unit="mm", high=lim, marginal=lim - lowest + 1e-9,
                        pose=worst, description="worst pose of the marginal robot")
     rp = Measurement("RP_plant", of="RP_mm", unit="mm", high=0.5, pose="each")
-    run = station.iso9283(measurements=[near, rp])
+    run = station.iso9283(measurements=[near, rp], require_iso=False)  # a short check: its PASS is not conformant
     assert run.verdict is Outcome.PASS, run.reasons
     assert run.passed is True and run.exit_code == 0
     assert f"{worst} AP_worst_plant" in run.marginal
@@ -101,7 +101,7 @@ def test_a_robot_whose_stops_scatter_fails_on_repeatability(make_fake_station):
 def test_a_robot_with_one_pose_out_fails_on_that_pose_alone(make_fake_station):
     station = make_fake_station(condition="one-pose-out", **SHORT)
     out = station.prediction["out_pose"]
-    run = station.iso9283()
+    run = station.iso9283(require_iso=False)  # a short check: the pose's failure is the only reason
     assert run.verdict is Outcome.FAIL and run.exit_code == 1
     assert run.reasons == [r for r in run.reasons if r.startswith(f"{out} AP_mm = ")] and len(run.reasons) == 1
     assert run.value(out, "AP_mm") > 5.0
@@ -114,7 +114,7 @@ def test_a_cobot_model_runs_on_its_own_fake(make_fake_station):
     """``model=`` picks the arm, its workspace box and its controller's fake (a UR: the UR fake through RTDE)."""
     station = make_fake_station(model="ur5e", cycles=2, vap_cycles=2, time_scale=UR)
     assert station.config.robots["r1"].model == "ur5e"
-    run = station.iso9283()
+    run = station.iso9283(require_iso=False)
     assert run.status == "done", run.output
     assert run.verdict is Outcome.PASS and run.subject["model"] == "ur5e"
     assert all(run.value(p, "n_cycles") == 2 for p in run.poses)
@@ -147,7 +147,7 @@ def test_conformance_required_and_not_met_is_not_decided(fake_station):
     limits = fake_station.config.robots["r1"].limits  # merged: the AP, vAP and AD limits are kept
     assert limits.rp_limit_mm == 0.45 and limits.ap_limit_mm == 5.0 and limits.vap_limit_mm == 2.0
     assert limits.ad_limit_mm == 2.0
-    run = fake_station.iso9283(require_iso=True)  # 3 cycles: never ISO 9283 conformant (30)
+    run = fake_station.iso9283()  # an acceptance requires conformance by default; 3 cycles never are (30)
     assert run.conformant is False
     assert run.verdict is Outcome.NOT_DECIDED, run.reasons
     assert any(r.startswith("not conformant (required)") for r in run.reasons), run.reasons
@@ -166,7 +166,7 @@ def test_a_run_stopped_by_its_operator_is_aborted_and_resumes_from_the_api(test_
     print(f"fake station seed {seed}")
     stopped = Station.fake(tmp_path, seed=seed, condition="in-spec", operator=answers, time_scale=pace,
                            **SHORT)
-    run = stopped.iso9283(run_id="stop-1")
+    run = stopped.iso9283(run_id="stop-1", require_iso=False)
     assert run.verdict is Outcome.ABORTED and run.exit_code == 5 and run.passed is False
     assert run.reasons and "resume" in run.reasons[0]
     again = Station.fake(tmp_path, seed=seed, condition="in-spec", time_scale=pace, **SHORT)  # a script answering yes
@@ -199,3 +199,18 @@ def test_history_spans_sessions_in_a_persistent_plant_store(make_fake_station, t
     assert [h["run_id"] for h in hist] == [ra.run_id, rb.run_id]
     assert [h["value"] for h in hist] == pytest.approx([ra.value("P1", "RP_mm"), rb.value("P1", "RP_mm")])
     assert all(h["limit"] == 0.4 for h in hist)
+
+
+def test_an_acceptance_of_a_few_cycles_is_not_decided_by_default_and_a_short_check_says_it(make_fake_station):
+    """The acceptance API requires ISO 9283 conformance unless told otherwise: 3 cycles of an in-spec robot
+    are NOT DECIDED (the reason names the cycles of each characteristic); the same run as a short check
+    is a PASS whose line says it is not conformant."""
+    station = make_fake_station(condition="in-spec", **SHORT)
+    run = station.iso9283()
+    assert run.verdict is Outcome.NOT_DECIDED and run.conformant is False and run.passed is False
+    (why,) = [r for r in run.reasons if r.startswith("not conformant (required)")]
+    assert "fewer than 30 cycles" in why and f"vAP: {SHORT['vap_cycles']} of 30" in why
+    check = station.iso9283(require_iso=False)
+    assert check.verdict is Outcome.PASS and check.conformant is False
+    head = check.output.splitlines()[0]
+    assert head.startswith("PASS") and "not ISO 9283 conformant: fewer than 30 cycles" in head, head

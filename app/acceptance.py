@@ -449,15 +449,18 @@ class Station:
     fake_options: dict | None = None
 
     def run(self, procedure: str, robot: str = "r1", *, run_id: str | None = None,
-            plan_overrides: dict | None = None, require_conformance: bool = False,
+            plan_overrides: dict | None = None, require_conformance: bool = True,
             measurements: list | None = None, record: dict | None = None) -> AcceptanceRun:
         """Run procedure ``procedure`` (``"iso9283"``, ``"arm-calibration"``, ``"trailer"``) and return
         its :class:`AcceptanceRun`; prompts go to :attr:`operator`.
 
         ``measurements`` (:class:`station.measurements.Measurement` or tables)
         are judged with the run, after the config's; ``record`` adds to the
-        station's test-record fields for this run; ``require_conformance``
-        makes a run that is not conformant to its standard NOT DECIDED.
+        station's test-record fields for this run; an acceptance requires
+        conformance to the procedure's standard (``require_conformance``,
+        default True): a run that is not conformant (ISO 9283: fewer than 30
+        cycles) is NOT DECIDED; False for a short check, whose PASS is then
+        said to be not conformant.
         """
         from app.assemble import run_procedure
         from station.measurements import parse
@@ -465,9 +468,8 @@ class Station:
         self._n += 1
         subject = self.config.robots[robot].serial if robot in self.config.robots else procedure
         run_id = run_id or f"{subject}-{time.strftime('%Y%m%d-%H%M%S')}-{self._n}-{secrets.token_hex(2)}"
-        acceptance = {"record": {**self.record, **dict(record or {})}}
-        if require_conformance:
-            acceptance["require_conformance"] = True
+        acceptance = {"record": {**self.record, **dict(record or {})},
+                      "require_conformance": bool(require_conformance)}
         if measurements:
             acceptance["measurements"] = [m.to_dict() for m in parse(list(measurements), "measurements")]
         outcome = run_procedure(self.config, procedure, robot=robot, run_id=run_id, arm=self.arm,
@@ -477,12 +479,13 @@ class Station:
         return self._read(outcome)
 
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
-                run_id: str | None = None, require_iso: bool = False, measurements: list | None = None,
+                run_id: str | None = None, require_iso: bool = True, measurements: list | None = None,
                 record: dict | None = None) -> AcceptanceRun:
         """Run the ISO 9283 procedure and return its results; prompts go to :attr:`operator`.
 
-        Fewer cycles found than ``cycles`` is NOT DECIDED; with
-        ``require_iso`` so is a run that is not ISO 9283 conformant.
+        Fewer cycles found than ``cycles`` is NOT DECIDED; so is a run that
+        is not ISO 9283 conformant (fewer than 30 cycles) unless
+        ``require_iso=False`` (a short check, not an acceptance).
         """
         overrides = {}
         if cycles is not None:

@@ -101,11 +101,15 @@ class ProcedureOutcome:
     forwarding: str | None = None
     #: the plant's measurements as judged (station.measurements.evaluate rows)
     measurements: list[dict] = field(default_factory=list)
+    #: why the run is not conformant to its standard (empty where it is or has none)
+    conformance_reasons: list[str] = field(default_factory=list)
 
     def lines(self, config: str | Path | None = None) -> list[str]:
         """The console's presentation: the verdict first, then why, then the results; an unfinished run
         ends its reasons with the command that resumes it (``config``: the config file it was run with)."""
         head = f"{self.verdict}: run {self.run_id} ({self.procedure}) {self.status}"
+        if self.conformant is False and self.verdict is Outcome.PASS:  # a short run's PASS says what it is not
+            head += f"; not {_STANDARD.get(self.procedure, 'standard')} conformant: " + "; ".join(self.conformance_reasons)
         out = [head + (f" ({self.error})" if self.error and self.status != "done" else "")]
         out += [f"  {r}" for r in self.reasons]
         if self.status != "done":
@@ -124,7 +128,8 @@ class ProcedureOutcome:
     def to_dict(self) -> dict:
         return {"run_id": self.run_id, "procedure": self.procedure, "status": self.status,
                 "verdict": str(self.verdict), "reasons": list(self.reasons), "exit_code": self.exit_code,
-                "conformant": self.conformant, "error": self.error, "report": self.report, "fake": self.fake,
+                "conformant": self.conformant, "conformance_reasons": list(self.conformance_reasons),
+                "error": self.error, "report": self.report, "fake": self.fake,
                 "forwarding": self.forwarding, "measurements": list(self.measurements)}
 
 
@@ -169,6 +174,9 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
     operator = operator or operator_for(yes, quiet)
     if arm:  # refused before the run is even recorded
         require_person(operator)
+    if arm and procedure is not None and not resume and "require_conformance" not in (acceptance or {}):
+        # real hardware is an acceptance: a run that is not conformant to its standard is not a PASS
+        acceptance = {**(acceptance or {}), "require_conformance": True}
     with ExitStack() as stack:
         store = stack.enter_context(RunStore(cfg.station.store_file(base)))
         fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
@@ -204,6 +212,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         outcome = ProcedureOutcome(
             prepared.run_id, spec.name, ran.status, decision.outcome, list(decision.reasons), decision.exit_code,
             decision.conformant, ran.error, lines, _report_path(store, prepared.run_id), prepared.fake,
+            conformance_reasons=list(decision.conformance_reasons),
             measurements=measured)
         if forwarder is not None:  # after the verdict is stored: the centre gets it too
             outcome.forwarding = _last_push(cfg, base, forwarder, prepared.run_id)
@@ -214,6 +223,9 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             print(line, file=stdout)
     return outcome
 
+
+#: the standard a procedure's conformance is to, as the verdict line names it
+_STANDARD = {"iso9283": "ISO 9283"}
 
 #: the result entry a finished run's verdict is stored under
 VERDICT_KEY = "verdict"

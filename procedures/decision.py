@@ -48,6 +48,8 @@ class RunDecision:
     conformant: bool | None = None
     #: per judged row: (pose, name) -> outcome
     outcomes: dict = field(default_factory=dict)
+    #: why the run is not conformant to its standard (empty where it is, or has none)
+    conformance_reasons: tuple[str, ...] = ()
 
     @property
     def outcome(self) -> Outcome:
@@ -119,7 +121,8 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
         reasons.append(f"conformance required, but a {rec.procedure} run has no conformance to check")
         found.append(Outcome.NOT_DECIDED)
     return RunDecision(Verdict(combine(found), tuple(reasons), conformance_only), checks.conformant,
-                       {k: o for k, (o, _) in outcomes.items()})
+                       {k: o for k, (o, _) in outcomes.items()},
+                       tuple(checks.conformance_reasons) if checks.conformant is False else ())
 
 
 #: the result entry of a run's evaluated plant measurements

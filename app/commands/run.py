@@ -53,8 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "pace)")
     p.add_argument("--seed", type=int, default=0, help="fake cell: seed of the simulated world")
     p.add_argument("--json", metavar="OUT", help="write the verdict and the results as JSON")
-    p.add_argument("--require-iso", action="store_true",
-                   help="a run that is not ISO 9283 conformant is NOT DECIDED (exit 4), not PASS")
+    p.add_argument("--require-iso", action=argparse.BooleanOptionalAction, default=None,
+                   help="a run that is not ISO 9283 conformant is NOT DECIDED (exit 4), not PASS (default: required "
+                        "with --arm, an acceptance; a dry run's PASS says it is not conformant)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=_cmd_run)
 
@@ -80,7 +81,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                             time_scale=FULL_PACE if args.time_scale is None else args.time_scale,
                             seed=args.seed, json_out=args.json, quiet=args.quiet,
                             config_dir=Path(args.config).resolve().parent,
-                            acceptance={"require_conformance": True} if args.require_iso else None)
+                            acceptance=None if args.require_iso is None else {"require_conformance": args.require_iso})
     for line in outcome.lines(config=args.config):
         print(line)
     return outcome.exit_code
