@@ -318,22 +318,44 @@ def _memory(theta: np.ndarray, ctx: dict) -> int:
     return int(math.ceil(MEMORY_SPANS * span)) + 2 * ctx["half_window"] + 1
 
 
-def _robust(resid_train: np.ndarray, ctx: dict, theta: np.ndarray) -> tuple[int, float]:
+def _rows(theta: np.ndarray, ctx: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Training rows past the model's start-up, and the contiguous stretch of each.
+
+    The record starts wherever the joint angle is; the model starts it at
+    the steady state of the first sample. With a relaxation the difference
+    dies out over the travel of ``MEMORY_SPANS`` relaxations (to e^-4):
+    the rows before that are left out of fits and tests (a start-up error
+    would otherwise pull the relaxation by up to a millimetre).
+    """
+    settled = ctx["travel"][ctx["train"]] >= MEMORY_SPANS * float(theta[4])
+    if settled.all():
+        return ctx["train"], ctx["seg"]
+    rows = ctx["train"][settled]
+    return rows, segments(rows)
+
+
+def _robust(resid_train: np.ndarray, seg: np.ndarray, ctx: dict, theta: np.ndarray) -> tuple[int, float]:
     """HAC bandwidth (samples) for this residual and the degrees of freedom it leaves."""
-    L = max(hac_bandwidth(resid_train, ctx["seg"], ctx["max_lag"]), min(_memory(theta, ctx), ctx["max_lag"]))
-    return L, ctx["train"].size / L
+    L = max(hac_bandwidth(resid_train, seg, ctx["max_lag"]), min(_memory(theta, ctx), ctx["max_lag"]))
+    return L, resid_train.size / L
 
 
-def _params_ci(theta, active, effect, kappa, dist, psi, ctx, speed_known) -> tuple[dict, dict, dict, float]:
-    """The effect's parameters, their 95 % intervals, standard deviations and the t distribution's dof."""
-    train = ctx["train"]
+def _cov(theta, active, ctx) -> tuple[list, np.ndarray, float]:
+    """``(indices, covariance, dof)`` of the active parameters (HAC-robust, the refit's curvature and rows)."""
+    train, seg = _rows(theta, ctx)
     idx = _idx(active)
-    J = columns(theta, kappa, dist, idx)[train]
-    r = (psi - predict(theta, kappa, dist))[train]
-    L, dof = _robust(r, ctx, theta)
-    cov = hac_cov(J, r, ctx["seg"], L)
-    tq = float(stats.t.ppf(0.975, max(dof, 1.0)))
-    params, ci, sds = {}, {}, {}
+    kappa = _fit_input(theta, ctx)
+    J = columns(theta, kappa, ctx["dist"], idx)[train]
+    r = (ctx["psi"] - predict(theta, kappa, ctx["dist"]))[train]
+    L, dof = _robust(r, seg, ctx, theta)
+    return idx, hac_cov(J, r, seg, L), max(dof, 1.0)
+
+
+def _params_ci(theta, active, effect, ctx, speed_known) -> tuple[dict, dict]:
+    """The effect's parameters and their 95 % intervals."""
+    idx, cov, dof = _cov(theta, active, ctx)
+    tq = float(stats.t.ppf(0.975, dof))
+    params, ci = {}, {}
     for j, i in enumerate(idx):
         if i not in EFFECT_PARAMS[effect]:
             continue
@@ -341,12 +363,21 @@ def _params_ci(theta, active, effect, kappa, dist, psi, ctx, speed_known) -> tup
         sd = math.sqrt(max(float(cov[j, j]), 0.0))
         params[name] = float(theta[i])
         ci[name] = [float(theta[i] - tq * sd), float(theta[i] + tq * sd)]
-        sds[name] = sd
-    return params, ci, sds, max(dof, 1.0)
+    return params, ci
 
 
-def _ideal_trailer(theta, sd: float, dof: float, alpha: float) -> dict:
-    """Is a fitted relaxation the ideal trailer's (eq. (D): it relaxes over L2)? A two-sided t test at ``alpha``."""
+def _ideal_trailer(theta, active, ctx, alpha: float) -> dict:
+    """Is the fitted relaxation the ideal trailer's (eq. (D): it relaxes over L2)? A two-sided t test at ``alpha``.
+
+    Of the final model: ``relaxation - L2`` with the covariance of both
+    when the link lengths are fitted too.
+    """
+    idx, cov, dof = _cov(theta, active, ctx)
+    g = np.zeros(len(idx))
+    g[idx.index(4)] = 1.0
+    if 1 in idx:
+        g[idx.index(1)] = -1.0
+    sd = math.sqrt(max(float(g @ cov @ g), 0.0))
     ell, L2 = float(theta[4]), float(theta[1])
     t_stat = abs(ell - L2) / sd if sd > 0 else math.inf
     ideal = bool(t_stat <= float(stats.t.ppf(1.0 - alpha / 2.0, dof)))
@@ -361,11 +392,12 @@ def _ideal_trailer(theta, sd: float, dof: float, alpha: float) -> dict:
 
 # ----------------------------------------------------------------------------- structure tests
 def _test_round(theta, active, remaining, ctx, alpha) -> list[TrailerTest]:
-    kap, ks, ksr, dist, v, psi, train, held, seg = (ctx[k] for k in (
-        "kappa", "kappa_s", "kappa_rate", "dist", "v", "psi", "train", "heldout", "seg"))
+    kap, ks, ksr, dist, v, psi, held = (ctx[k] for k in ("kappa", "kappa_s", "kappa_rate", "dist", "v", "psi",
+                                                          "heldout"))
+    train, seg = _rows(theta, ctx)
     r = psi - predict(theta, kap, dist)
     rt, rh = r[train], r[held]
-    L, dof = _robust(rt, ctx, theta)
+    L, dof = _robust(rt, seg, ctx, theta)
     idx = _idx(active)
     M = columns(theta, ks, dist, idx, kappa_rate=ksr, v_m_s=v)
     Mt, Mh = M[train], M[held]
@@ -410,9 +442,11 @@ def _refit(theta, ct: TrailerTest, new_active, ctx) -> np.ndarray:
     start[pidx] += ct.start
     if ct.effect == "hitch_dynamics":
         start[4] = max(float(start[4]), _ELL_START)
-    th = _fit(start, new_active, ctx["kappa_s"], ctx["dist"], ctx["psi"], ctx["train"])
-    if _fit_input(th, ctx) is not ctx["kappa_s"]:
-        th = _fit(th, new_active, ctx["kappa"], ctx["dist"], ctx["psi"], ctx["train"])
+    rows = _rows(start, ctx)[0]
+    th = _fit(start, new_active, ctx["kappa_s"], ctx["dist"], ctx["psi"], rows)
+    now = _rows(th, ctx)[0]
+    if _fit_input(th, ctx) is not ctx["kappa_s"] or now.size != rows.size:
+        th = _fit(th, new_active, _fit_input(th, ctx), ctx["dist"], ctx["psi"], now)
     return th
 
 
@@ -508,6 +542,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
     sensor_noise = {"psi_sigma_rad": float(noise_sigma(ps)), "kappa_sigma_1_m": float(noise_sigma(kap))}
     kap = stamp_curvature(t, kap, sampling)  # the curvature the model is driven by, at the stamps
     ctx = {"kappa": kap, "kappa_s": ks, "kappa_rate": ksr, "dist": dist, "v": vv, "psi": ps, "train": train,
+           "travel": np.cumsum(dist) - dist[0],
            "dist_median": max(float(np.median(dist[1:])), 1e-9), "half_window": half,
            "heldout": held, "seg": segments(train),
            "max_lag": max(5, min(int(MAX_CORRELATION_S / float(np.median(dt))), train.size // (2 * MIN_DOF)))}
@@ -572,22 +607,20 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
                          "it does")
         r_before = ps - predict(theta, kap, dist)
         r_after = ps - predict(new_theta, kap, dist)
-        params, ci, sds, dof = _params_ci(new_theta, new_active, best.effect, _fit_input(new_theta, ctx), dist,
-                                          ps, ctx, speed_known)
+        params, ci = _params_ci(new_theta, new_active, best.effect, ctx, speed_known)
         details = {"selected_as_pair": pair_note} if pair_note else {}
-        if best.effect == "hitch_dynamics":
-            if speed_known:
-                details |= _ideal_trailer(new_theta, sds["relaxation_m"], dof, alpha)
-            else:
-                details |= {"relaxation_expected_m": None, "ideal_trailer": None,
-                            "note": "no v column: constant speed of 1 m/s assumed, the relaxation is a time "
-                                    "constant and cannot be held against L2"}
+        if best.effect == "hitch_dynamics" and not speed_known:
+            details |= {"relaxation_expected_m": None, "ideal_trailer": None,
+                        "note": "no v column: constant speed of 1 m/s assumed, the relaxation is a time "
+                                "constant and cannot be held against L2"}
         steps.append(TrailerStep(best.effect, params, ci, ho_now, rms(r_after[held]), best.statistic,
                                  best.threshold, test_name, details, resid_before=r_before, resid_after=r_after))
         theta, active = new_theta, new_active
         remaining = [e for e in remaining if e != best.effect]
         prev_tests = tests
         chosen_prev = best
+    if speed_known and "hitch_dynamics" in active:  # held against the final model's L2
+        next(s for s in steps if s.effect == "hitch_dynamics").details.update(_ideal_trailer(theta, active, ctx, alpha))
     resid_final = ps - predict(theta, kap, dist)
     n_par = len(_idx(active))
     noise_floor = math.sqrt(float(resid_final[train] @ resid_final[train]) / max(train.size - n_par, 1))
