@@ -31,13 +31,18 @@
     results are still written, marked). Nothing is written unless
     everything succeeded.
 
-``station diagnose trailer --l1 L1 --l2 L2 --data T.csv [--json OUT] [--report OUT.html]``
+``station diagnose trailer --l1 L1 --l2 L2 --data T.csv [--sampling S] [--json OUT] [--report OUT.html]``
     The trailer CSV (``t,kappa,psi``, optional ``v``, ``kappa_cmd``) is
     predicted by the patent's static model (seed 003 eq. (23)) from the
     nominal link lengths (m), split by time blocks spanning the record, and
     ``link_lengths``, ``hitch_angle_offset``, ``curvature_gain`` and
     ``hitch_dynamics`` are selected one by one while a test against the
     noise finds structure (see :mod:`station.analysis.diagnose.trailer`).
+    Curvature and speed are averages over the interval ending at ``t``, as
+    odometry reports them (``--sampling point`` for instantaneous values).
+    An ideal trailer relaxes over L2 (eq. (D)), which the static model
+    leaves out: a ``hitch_dynamics`` step consistent with L2 says so
+    (``details.ideal_trailer``) and is no effect beyond the ideal trailer.
     Same JSON keys as the arm; RMS and ``noise_floor`` in rad of the joint
     angle, ``extended_model`` the fitted lengths, offset, gain and relaxation.
 """
@@ -74,6 +79,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--l1", required=True, type=float, metavar="L1", help="nominal front link length, m")
     t.add_argument("--l2", required=True, type=float, metavar="L2", help="nominal rear link length, m")
     t.add_argument("--data", required=True, metavar="CSV", help="t,kappa,psi (s, 1/m, rad), optional v,kappa_cmd")
+    t.add_argument("--sampling", default="interval", choices=("interval", "point"),
+                   help="curvature/speed rows are averages over the interval ending at t "
+                        "(odometry, default) or instantaneous values")
     t.add_argument("--heldout-fraction", type=float, default=0.25, help="share of the record held out (default 0.25)")
     t.add_argument("--alpha", type=float, default=0.05, help="false-discovery rate of each selection round")
     t.add_argument("--json", metavar="OUT", help="write the result as JSON")
@@ -139,7 +147,7 @@ def _trailer(args: argparse.Namespace) -> int:
     check_outputs(args, json="--json", report="--report")
     data = read_trailer_csv(args.data)
     res = diagnose_trailer(data["t"], data["kappa"], data["psi"], L1_m=args.l1, L2_m=args.l2,
-                           v_m_s=data.get("v"), kappa_cmd=data.get("kappa_cmd"),
+                           v_m_s=data.get("v"), kappa_cmd=data.get("kappa_cmd"), sampling=args.sampling,
                            heldout_fraction=args.heldout_fraction, alpha=args.alpha)
     doc = res.to_json()
     doc["nominal"], doc["data"] = {"L1_m": args.l1, "L2_m": args.l2}, str(args.data)
@@ -164,6 +172,12 @@ def _print_trailer(doc: dict) -> None:
         print(f"{k:>2}. {s['effect']} ({par}): held-out {s['heldout_rms_before']:.5f} -> "
               f"{s['heldout_rms_after']:.5f} rad ({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > "
               f"{s['threshold']:.1f}{amb}")
+        ideal = s.get("details", {}).get("ideal_trailer")
+        if s["effect"] == "hitch_dynamics" and ideal is not None:
+            L2 = s["details"]["relaxation_expected_m"]
+            print(f"    {'consistent with' if ideal else 'unlike'} the ideal trailer's relaxation over L2 = {L2:.4f} m "
+                  f"(eq. (D)): " + ("its own dynamics, which the static model of eq. (23) leaves out; not an effect "
+                                    "beyond the ideal trailer" if ideal else "the hitch's own dynamics"))
     if not doc["steps"]:
         print("nothing significant: the static model explains the data to the noise")
     print(f"extended model held-out RMS {doc['final_heldout_rms']:.5f} rad ({doc['gain_percent']:.1f} % less); "

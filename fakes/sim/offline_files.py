@@ -50,6 +50,9 @@ def simulate_arm(robot: str, *, n: int, effects: str, seed: int) -> tuple[dict, 
 #: the record is simulated this many times finer than it is written; curvature and speed are then averaged over
 #: each written interval, as odometry reports them (``calibrate trailer``'s default ``--sampling interval``)
 OVERSAMPLE = 10
+#: weights of the fine samples ``end - OVERSAMPLE .. end`` in a written interval's average: the trapezoid, the
+#: exact average of the inputs the integrator drives the trailer with (linear between fine samples)
+_INTERVAL_WEIGHTS = np.concatenate([[0.5], np.ones(OVERSAMPLE - 1), [0.5]]) / OVERSAMPLE
 
 
 def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz: float = 20.0) -> tuple[dict, dict]:
@@ -59,6 +62,12 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
     (relaxation over L2) unless ``hitch_dynamics`` is hidden (then its drawn
     relaxation length). ``kappa`` and ``v`` are averages over the interval
     ending at ``t``; ``psi`` the angle at ``t``.
+
+    The truth states what ``diagnose trailer`` (a static baseline, eq. (23))
+    should find beside the hidden effects: the ideal trailer's own
+    relaxation over L2 (``baseline_dynamics``), or with ``hitch_dynamics``
+    hidden the drawn relaxation; ``relaxation_m`` is the relaxation the
+    diagnosis's interval should contain either way.
     """
     from fakes.sim.trailer_diagnosis_data import make_trailer_case
 
@@ -67,17 +76,28 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
         raise ValueError(f"unknown trailer effect(s) {', '.join(bad)} (known: {', '.join(TRAILER_EFFECTS)})")
     rng = np.random.default_rng(seed)
     L2 = 2.48
-    kw = {} if "hitch_dynamics" in hidden else {"relaxation_m": L2}
-    rec = make_trailer_case(list(hidden), rng, L2_m=L2, duration_s=duration_s, rate_hz=rate_hz * OVERSAMPLE, **kw)
+    rec = make_trailer_case(list(hidden), rng, L2_m=L2, ideal=True, duration_s=duration_s,
+                            rate_hz=rate_hz * OVERSAMPLE)
     n = (rec["t"].size - 1) // OVERSAMPLE
     end = np.arange(1, n + 1) * OVERSAMPLE  # the fine sample at each written t
-    blocks = end[:, None] - np.arange(OVERSAMPLE)[None, :]  # the fine samples of the interval ending there
-    cols = {"t": rec["t"][end], "kappa": rec["kappa"][blocks].mean(axis=1), "psi": rec["psi"][end],
-            "v": rec["v"][blocks].mean(axis=1)}
-    truth = {"seed": seed, "hidden": list(hidden), "relaxation_m": kw.get("relaxation_m"),
+    blocks = end[:, None] - np.arange(OVERSAMPLE, -1, -1)[None, :]  # the fine samples spanning the interval
+    cols = {"t": rec["t"][end], "kappa": rec["kappa"][blocks] @ _INTERVAL_WEIGHTS, "psi": rec["psi"][end],
+            "v": rec["v"][blocks] @ _INTERVAL_WEIGHTS}
+    ideal = "hitch_dynamics" not in hidden
+    baseline = {"model": "the ideal trailer of eq. (D): the joint angle relaxes over L2",
+                "relaxation_m": float(rec["truth"]["L2_m"]) if ideal else None,
+                "diagnose_trailer": ("names hitch_dynamics with a relaxation consistent with L2 and says it is the "
+                                     "ideal trailer's own (the static model of eq. (23) leaves it out): not an effect "
+                                     "beyond the ideal trailer" if ideal else
+                                     "names hitch_dynamics with the drawn relaxation (relaxation_m), unlike L2's")}
+    truth = {"seed": seed, "hidden": list(hidden),
              **{k: float(v) for k, v in rec["truth"].items()},
+             "relaxation_m": float(rec["truth"]["relaxation_m"]),
+             # the curvature's interval averaging is modelled by the diagnosis: it fits the relaxation itself
+             "expected_fitted_relaxation_m": float(rec["truth"]["relaxation_m"]),
+             "baseline_dynamics": baseline,
              "psi_sigma_rad": float(rec["psi_sigma"]),
-             "kappa_sigma_per_m": float(rec["kappa_sigma"]) / np.sqrt(OVERSAMPLE),
+             "kappa_sigma_per_m": float(rec["kappa_sigma"]) * float(np.linalg.norm(_INTERVAL_WEIGHTS)),
              "duration_s": duration_s, "rate_hz": rate_hz,
              "sampling": "kappa and v: averages over the interval ending at t; psi: at t"}
     return cols, truth

@@ -101,18 +101,22 @@ def _effect_kwargs(effect: str, size: float, direction: float, L1: float, L2: fl
 
 
 def make_trailer_case(hidden, rng: np.random.Generator, *, strength=(0.2, 0.35), L1_m: float = 1.25,
-                      L2_m: float = 2.48, **record_kw) -> dict:
+                      L2_m: float = 2.48, ideal: bool = False, **record_kw) -> dict:
     """A record with the effects ``hidden`` (names of the diagnosis's candidates) switched on.
 
     Each effect's own change of the joint angle has an RMS of ``U(strength)``
     times the RMS of the noise the static model sees (joint-angle noise plus
     the curvature noise through eq. (23)); a link-length error points in a
     random direction of (L1, L2) (not along L1 = -L2, which eq. (23) hardly
-    sees), an offset or gain error has a random sign. Returns the record of
+    sees), an offset or gain error has a random sign. ``ideal``: the trailer
+    relaxes over its own (true) ``L2`` as the ideal trailer of eq. (D) does,
+    unless ``hitch_dynamics`` is hidden. Returns the record of
     :func:`simulate_trailer_record` plus ``truth`` (its keyword arguments)
     and ``noise_rms``.
     """
     seed = int(rng.integers(2 ** 32))
+    if ideal and "hitch_dynamics" not in hidden:
+        record_kw = dict(record_kw, relaxation_m=L2_m)
     probe = simulate_trailer_record(np.random.default_rng(seed), L1_m=L1_m, L2_m=L2_m, **record_kw)
     k = probe["kappa_true"]
     r = np.sqrt(1.0 + (k * L1_m) ** 2)
@@ -135,12 +139,16 @@ def make_trailer_case(hidden, rng: np.random.Generator, *, strength=(0.2, 0.35),
         kw = _effect_kwargs(effect, unit, direction, L1_m, L2_m)
         args = dict(quiet, L1_m=L1_m, L2_m=L2_m)
         args.update(kw)
+        if ideal and "hitch_dynamics" not in hidden:
+            args["relaxation_m"] = args["L2_m"]
         moved = static_residual(simulate_trailer_record(np.random.default_rng(seed), **args))
         eff_rms = math.sqrt(float(np.mean((moved - base) ** 2)))
         size = unit * rng.uniform(*strength) * noise_rms / eff_rms
         truth.update(_effect_kwargs(effect, size, direction, L1_m, L2_m))
     rec_kw = dict(record_kw)
     rec_kw.update(truth)
+    if ideal and "hitch_dynamics" not in hidden:
+        rec_kw["relaxation_m"] = truth["relaxation_m"] = truth["L2_m"]
     rec = simulate_trailer_record(np.random.default_rng(seed), **rec_kw)
     rec["truth"] = truth
     rec["noise_rms"] = noise_rms

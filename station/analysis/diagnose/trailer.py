@@ -1,7 +1,13 @@
 """Trailer diagnosis: where the patent's static model disagrees with a measured record, and why.
 
 1. The simulation predicts the joint angle: the steady state of eq. (23)
-   (seed 003) at the measured curvature, nominal ``L1``, ``L2``.
+   (seed 003) at the measured curvature, nominal ``L1``, ``L2``. Odometry's
+   curvature is the average over the interval ending at each stamp
+   (``sampling="interval"``, the default, as ``calibrate trailer`` takes
+   it): the curvature at the stamp is taken between the intervals'
+   midpoints (:func:`.trailer_model.stamp_curvature`), so the record's
+   half-interval lag is not mistaken for a lag of the trailer (nor, at the
+   ideal trailer's relaxation, for a curvature gain).
 2. Train / held-out split by time blocks spanning the record: the record is
    cut into ``n_blocks`` equal stretches of time and every fourth one (for a
    quarter held out) is held out, so held-out data sit all along the record.
@@ -11,7 +17,10 @@
 3. Candidates (:mod:`.trailer_model`): ``link_lengths`` (L1, L2),
    ``hitch_angle_offset`` (the joint-angle sensor's zero),
    ``curvature_gain`` (the curvature sensor's scale), ``hitch_dynamics``
-   (the joint angle's relaxation of eq. (D) that the static model ignores).
+   (the joint angle's relaxation of eq. (D) that the static model ignores;
+   an ideal trailer relaxes over ``L2``, and a selected relaxation is
+   tested against ``L2`` at ``alpha``: one consistent with it is the ideal
+   trailer's own dynamics, not an effect beyond the ideal trailer).
    Each is tested against the residual of the current model: the part of
    its columns the model cannot already produce (Frisch-Waugh), least
    squares, and a Wald statistic ``W`` with a heteroscedasticity- and
@@ -33,10 +42,13 @@
    is left. When significant candidates are left but none lowers the
    held-out RMS alone, one that does so together with a second candidate
    (significant after it) is added, and its step says so: an offset and a
-   curvature gain of opposite effect can cancel on the held-out blocks. The refit is driven by the same leave-one-out curvature: driven
+   curvature gain of opposite effect can cancel on the held-out blocks. The refit is driven by the same leave-out curvature: driven
    by the measured one, a lag would be fitted long because filtering the
    curvature noise lowers the residual (errors in variables; +2 to 3 cm at
-   a relaxation of a few cm). Held-out RMS values are always of the model
+   a relaxation of a few cm). A relaxation longer than the smoothing
+   window's travel filters the noise itself and is refitted driven by the
+   measured curvature (:func:`_fit_input`); the robust covariance then spans
+   at least the relaxation's memory (:func:`_memory`). Held-out RMS values are always of the model
    driven by the measured curvature, as the station runs it.
 5. Ambiguity: a candidate significant in the round another was chosen, that
    explained at least half as much of the residual alone and is no longer
@@ -68,8 +80,8 @@ from station.numeric import finite_or_none
 
 from .block_test import model_basis, refit_step, wald_block
 from .summary_json import core_json
-from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, columns, hac_bandwidth, hac_cov, loo_smooth, null_params,
-                            predict, rms, segments)
+from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, SAMPLINGS, columns, hac_bandwidth, hac_cov, loo_smooth,
+                            null_params, predict, rms, segments, stamp_curvature)
 
 __all__ = ["TrailerDiagnosis", "TrailerStep", "TrailerTest", "diagnose_trailer", "EFFECTS", "MIN_SAMPLES"]
 
@@ -82,6 +94,8 @@ MAX_CORRELATION_S = 20.0
 MIN_DOF = 10
 #: smallest relative size of the part of a candidate's columns the model cannot already produce
 AMBIGUITY_SHARE = 0.5
+#: the relaxation's time constants the robust covariance's bandwidth spans at least (see :func:`_memory`)
+MEMORY_SPANS = 4
 #: half-width of the curvature smoothing window, s
 SMOOTH_HALF_WINDOW_S = 0.25
 #: the relaxation's start when a lag is first fitted, m (or s without speed)
@@ -168,6 +182,7 @@ class TrailerDiagnosis:
     variables: dict
     sensor_noise: dict
     alpha: float
+    sampling: str = "interval"
     elapsed_s: float = 0.0
 
     @property
@@ -198,6 +213,7 @@ class TrailerDiagnosis:
                           "extended": _structure(self, self.resid_final)},
             "n_samples": {"train": int(self.train.size), "heldout": int(self.heldout.size)},
             "alpha": self.alpha,
+            "sampling": self.sampling,
             "extended_model": self.extended_model(),
             "units": "rms and noise_floor: rad (joint angle); params: m, rad, 1 (gain), m (relaxation; s as "
                      "relaxation_tau_s without a v column); structure bins: 1/m, 1/(m s), s",
@@ -286,20 +302,59 @@ def _fit(theta: np.ndarray, active: list, kappa, dist, psi, train) -> np.ndarray
     return out
 
 
-def _robust(resid_train: np.ndarray, ctx: dict) -> tuple[int, float]:
+def _memory(theta: np.ndarray, ctx: dict) -> int:
+    """Samples over which the model's residual is correlated by construction, at least.
+
+    The model is driven by a noisy curvature: its prediction carries that
+    noise through the smoothing window (both sides) and through the joint
+    angle's relaxation (``relaxation / v dt`` samples, an exponential memory
+    whose tail the Bartlett weights reach to about three quarters at
+    ``MEMORY_SPANS`` spans). Small in variance beside the joint-angle
+    noise, so the residual's own autocorrelation does not show it, but at
+    the low frequencies of the columns it is as large as the curvature
+    noise times the slope of eq. (23).
+    """
+    span = float(theta[4]) / ctx["dist_median"]
+    return int(math.ceil(MEMORY_SPANS * span)) + 2 * ctx["half_window"] + 1
+
+
+def _rows(theta: np.ndarray, ctx: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Training rows past the model's start-up, and the contiguous stretch of each.
+
+    The record starts wherever the joint angle is; the model starts it at
+    the steady state of the first sample. With a relaxation the difference
+    dies out over the travel of ``MEMORY_SPANS`` relaxations (to e^-4):
+    the rows before that are left out of fits and tests (a start-up error
+    would otherwise pull the relaxation by up to a millimetre).
+    """
+    settled = ctx["travel"][ctx["train"]] >= MEMORY_SPANS * float(theta[4])
+    if settled.all():
+        return ctx["train"], ctx["seg"]
+    rows = ctx["train"][settled]
+    return rows, segments(rows)
+
+
+def _robust(resid_train: np.ndarray, seg: np.ndarray, ctx: dict, theta: np.ndarray) -> tuple[int, float]:
     """HAC bandwidth (samples) for this residual and the degrees of freedom it leaves."""
-    L = hac_bandwidth(resid_train, ctx["seg"], ctx["max_lag"])
-    return L, ctx["train"].size / L
+    L = max(hac_bandwidth(resid_train, seg, ctx["max_lag"]), min(_memory(theta, ctx), ctx["max_lag"]))
+    return L, resid_train.size / L
 
 
-def _params_ci(theta, active, effect, kappa, dist, psi, ctx, speed_known) -> tuple[dict, dict]:
-    train = ctx["train"]
+def _cov(theta, active, ctx) -> tuple[list, np.ndarray, float]:
+    """``(indices, covariance, dof)`` of the active parameters (HAC-robust, the refit's curvature and rows)."""
+    train, seg = _rows(theta, ctx)
     idx = _idx(active)
-    J = columns(theta, kappa, dist, idx)[train]
-    r = (psi - predict(theta, kappa, dist))[train]
-    L, dof = _robust(r, ctx)
-    cov = hac_cov(J, r, ctx["seg"], L)
-    tq = float(stats.t.ppf(0.975, max(dof, 1.0)))
+    kappa = _fit_input(theta, ctx)
+    J = columns(theta, kappa, ctx["dist"], idx)[train]
+    r = (ctx["psi"] - predict(theta, kappa, ctx["dist"]))[train]
+    L, dof = _robust(r, seg, ctx, theta)
+    return idx, hac_cov(J, r, seg, L), max(dof, 1.0)
+
+
+def _params_ci(theta, active, effect, ctx, speed_known) -> tuple[dict, dict]:
+    """The effect's parameters and their 95 % intervals."""
+    idx, cov, dof = _cov(theta, active, ctx)
+    tq = float(stats.t.ppf(0.975, dof))
     params, ci = {}, {}
     for j, i in enumerate(idx):
         if i not in EFFECT_PARAMS[effect]:
@@ -311,13 +366,38 @@ def _params_ci(theta, active, effect, kappa, dist, psi, ctx, speed_known) -> tup
     return params, ci
 
 
+def _ideal_trailer(theta, active, ctx, alpha: float) -> dict:
+    """Is the fitted relaxation the ideal trailer's (eq. (D): it relaxes over L2)? A two-sided t test at ``alpha``.
+
+    Of the final model: ``relaxation - L2`` with the covariance of both
+    when the link lengths are fitted too.
+    """
+    idx, cov, dof = _cov(theta, active, ctx)
+    g = np.zeros(len(idx))
+    g[idx.index(4)] = 1.0
+    if 1 in idx:
+        g[idx.index(1)] = -1.0
+    sd = math.sqrt(max(float(g @ cov @ g), 0.0))
+    ell, L2 = float(theta[4]), float(theta[1])
+    t_stat = abs(ell - L2) / sd if sd > 0 else math.inf
+    ideal = bool(t_stat <= float(stats.t.ppf(1.0 - alpha / 2.0, dof)))
+    return {"relaxation_expected_m": L2, "ideal_trailer": ideal,
+            "ideal_trailer_t": finite_or_none(t_stat),
+            "note": ("the ideal trailer of eq. (D) relaxes over L2: a relaxation consistent with L2 (t test at "
+                     f"{alpha:g}) is its own dynamics, which the static model of eq. (23) leaves out, not an "
+                     "effect beyond the ideal trailer" if ideal else
+                     f"the relaxation differs from L2, the ideal trailer's (eq. (D); t test at {alpha:g}): "
+                     "the hitch's own dynamics")}
+
+
 # ----------------------------------------------------------------------------- structure tests
 def _test_round(theta, active, remaining, ctx, alpha) -> list[TrailerTest]:
-    kap, ks, ksr, dist, v, psi, train, held, seg = (ctx[k] for k in (
-        "kappa", "kappa_s", "kappa_rate", "dist", "v", "psi", "train", "heldout", "seg"))
+    kap, ks, ksr, dist, v, psi, held = (ctx[k] for k in ("kappa", "kappa_s", "kappa_rate", "dist", "v", "psi",
+                                                          "heldout"))
+    train, seg = _rows(theta, ctx)
     r = psi - predict(theta, kap, dist)
     rt, rh = r[train], r[held]
-    L, dof = _robust(rt, ctx)
+    L, dof = _robust(rt, seg, ctx, theta)
     idx = _idx(active)
     M = columns(theta, ks, dist, idx, kappa_rate=ksr, v_m_s=v)
     Mt, Mh = M[train], M[held]
@@ -362,7 +442,28 @@ def _refit(theta, ct: TrailerTest, new_active, ctx) -> np.ndarray:
     start[pidx] += ct.start
     if ct.effect == "hitch_dynamics":
         start[4] = max(float(start[4]), _ELL_START)
-    return _fit(start, new_active, ctx["kappa_s"], ctx["dist"], ctx["psi"], ctx["train"])
+    rows = _rows(start, ctx)[0]
+    th = _fit(start, new_active, ctx["kappa_s"], ctx["dist"], ctx["psi"], rows)
+    now = _rows(th, ctx)[0]
+    if _fit_input(th, ctx) is not ctx["kappa_s"] or now.size != rows.size:
+        th = _fit(th, new_active, _fit_input(th, ctx), ctx["dist"], ctx["psi"], now)
+    return th
+
+
+def _fit_input(theta: np.ndarray, ctx: dict) -> np.ndarray:
+    """The curvature a refit is driven by: the leave-out smoothing, or the measured one behind a long relaxation.
+
+    Driven by the measured curvature, a short relaxation is fitted long
+    (it filters the curvature noise: errors in variables, see the module's
+    notes). A relaxation longer than the smoothing window's travel filters
+    that noise itself (the bias falls as ``v dt / l^2``), while the
+    smoothing's own low-pass (its second moment times the curvature's
+    second derivative) would shorten the fitted relaxation by a few
+    millimetres at the ideal trailer's ``L2``: there the measured curvature
+    drives the fit.
+    """
+    window_m = (2 * ctx["half_window"] + 1) * ctx["dist_median"]
+    return ctx["kappa"] if float(theta[4]) > window_m else ctx["kappa_s"]
 
 
 def _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now):
@@ -384,8 +485,8 @@ def _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now):
 
 
 def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, kappa_cmd=None,
-                     heldout_fraction: float = 0.25, alpha: float = 0.05, n_blocks: int = 40,
-                     max_steps: int = 4) -> TrailerDiagnosis:
+                     sampling: str = "interval", heldout_fraction: float = 0.25, alpha: float = 0.05,
+                     n_blocks: int = 40, max_steps: int = 4) -> TrailerDiagnosis:
     """Diagnose the patent's static trailer model against a measured record.
 
     Parameters
@@ -394,6 +495,9 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
         Strictly increasing sample times, s.
     kappa : array_like, shape (N,)
         Measured path curvature, 1/m (odometry: the average over the interval ending at ``t``).
+    sampling : {"interval", "point"}
+        ``kappa`` and ``v_m_s`` are averages over the interval ending at
+        each stamp (odometry; default) or values at the stamp.
     psi : array_like, shape (N,)
         Measured joint angle, rad.
     L1_m, L2_m : float
@@ -419,19 +523,27 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
     if t.ndim != 1:
         raise DataError(f"`t_s` must be 1-D, got shape {t.shape}")
     _check(t, kap, ps, v, cmd)
+    if sampling not in SAMPLINGS:
+        raise DataError(f"`sampling` must be one of {', '.join(SAMPLINGS)}, got {sampling!r}")
     if not (0.0 < alpha < 0.5):
         raise DataError(f"`alpha` must be in (0, 0.5), got {alpha!r}")
     train, held, _ = _split(t, heldout_fraction, n_blocks)
     speed_known = v is not None
     vv = v if speed_known else np.ones_like(t)
     dt = np.diff(t)
-    dist = vv * np.concatenate([[float(np.median(dt))], dt])
+    dt_all = np.concatenate([[float(np.median(dt))], dt])
+    # distance over the interval ending at each stamp: an interval's average speed times its length, or the
+    # trapezoid between the speeds at its ends
+    dist = vv * dt_all if sampling == "interval" else np.concatenate([[vv[0]], 0.5 * (vv[1:] + vv[:-1])]) * dt_all
     half = max(2, int(round(SMOOTH_HALF_WINDOW_S / float(np.median(dt)))))
-    ks, ksr = loo_smooth(t, kap, half)
+    ks, ksr = loo_smooth(t, kap, half, sampling)
     from station.analysis.trailer.least_squares import noise_sigma
 
     sensor_noise = {"psi_sigma_rad": float(noise_sigma(ps)), "kappa_sigma_1_m": float(noise_sigma(kap))}
+    kap = stamp_curvature(t, kap, sampling)  # the curvature the model is driven by, at the stamps
     ctx = {"kappa": kap, "kappa_s": ks, "kappa_rate": ksr, "dist": dist, "v": vv, "psi": ps, "train": train,
+           "travel": np.cumsum(dist) - dist[0],
+           "dist_median": max(float(np.median(dist[1:])), 1e-9), "half_window": half,
            "heldout": held, "seg": segments(train),
            "max_lag": max(5, min(int(MAX_CORRELATION_S / float(np.median(dt))), train.size // (2 * MIN_DOF)))}
     not_testable: dict = {}
@@ -495,24 +607,24 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
                          "it does")
         r_before = ps - predict(theta, kap, dist)
         r_after = ps - predict(new_theta, kap, dist)
-        params, ci = _params_ci(new_theta, new_active, best.effect, ks, dist, ps, ctx, speed_known)
+        params, ci = _params_ci(new_theta, new_active, best.effect, ctx, speed_known)
         details = {"selected_as_pair": pair_note} if pair_note else {}
-        if best.effect == "hitch_dynamics":
-            half_interval = float(np.median(dist[1:])) / 2.0
-            details |= {"relaxation_expected_m": float(new_theta[1]) - half_interval if speed_known else None,
-                       "note": ("eq. (D) relaxes over L2; with curvature averaged over each interval the fitted "
-                                "relaxation is about L2 - v dt / 2" if speed_known else
-                                "no v column: constant speed of 1 m/s assumed, the relaxation is a time constant")}
+        if best.effect == "hitch_dynamics" and not speed_known:
+            details |= {"relaxation_expected_m": None, "ideal_trailer": None,
+                        "note": "no v column: constant speed of 1 m/s assumed, the relaxation is a time "
+                                "constant and cannot be held against L2"}
         steps.append(TrailerStep(best.effect, params, ci, ho_now, rms(r_after[held]), best.statistic,
                                  best.threshold, test_name, details, resid_before=r_before, resid_after=r_after))
         theta, active = new_theta, new_active
         remaining = [e for e in remaining if e != best.effect]
         prev_tests = tests
         chosen_prev = best
+    if speed_known and "hitch_dynamics" in active:  # held against the final model's L2
+        next(s for s in steps if s.effect == "hitch_dynamics").details.update(_ideal_trailer(theta, active, ctx, alpha))
     resid_final = ps - predict(theta, kap, dist)
     n_par = len(_idx(active))
     noise_floor = math.sqrt(float(resid_final[train] @ resid_final[train]) / max(train.size - n_par, 1))
     variables = {"t": t, "kappa": kap, "kappa_rate": ksr, "v": v, "kappa_cmd": cmd}
     return TrailerDiagnosis(steps, rounds, not_testable, train, held, sim_ho, rms(resid_final[held]), noise_floor,
                             theta, active, speed_known, resid_sim, resid_final, variables, sensor_noise, alpha,
-                            time.perf_counter() - t0)
+                            sampling, time.perf_counter() - t0)

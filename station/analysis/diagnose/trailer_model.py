@@ -33,15 +33,24 @@ the slope of (D) there, taken as the secant between the state and the
 equilibrium (exact for the linearised (D), stable for any ``l``; within
 a few 1e-4 rad of an RK4 integration of (D) at the seed's lag of 0.1 rad). The state starts at the steady state of the first sample.
 Odometry's curvature is an average over the interval ending at its time
-stamp, half a sample late: a fitted ``l`` is shorter than the physical
-relaxation by about ``v dt / 2``.
+stamp (``sampling="interval"``): it is the curvature of the interval's
+midpoint, half a sample late. Taken as the curvature at the stamp, that
+half-interval lag is a relaxation of ``-v dt / 2`` only to first order: a
+fitted ``l`` comes out shorter than the physical one by about ``v dt / 2``,
+and at the ideal trailer's relaxation (``l = L2``) the second-order
+remainder, ``l (v dt / 2) d^2 psi / ds^2``, looks like a curvature gain
+below 1 (about -0.1 %, a false find on a 3-minute record). The curvature at
+each stamp is therefore taken between the midpoints of the intervals
+(:func:`stamp_curvature`); the steady state of eq. (23) and the relaxation
+are then those of the physical trailer. ``sampling="point"``: the
+curvature is the value at the stamp.
 
 Errors in the input: the measured curvature carries noise, and a column
 built from it shares that noise with the residual of the same sample (a
 regression on it is biased towards the noise). The columns the structure
-tests use are therefore built from a leave-one-out local-linear smoothing of
-the curvature (:func:`loo_smooth`): every sample's curvature is estimated
-from its neighbours only.
+tests use are therefore built from a leave-out local-linear smoothing of
+the curvature (:func:`loo_smooth`): every stamp's curvature is estimated
+from the samples its own value is not made of.
 
 Units: m, rad, 1/m, s, m/s.
 """
@@ -52,8 +61,8 @@ import math
 
 import numpy as np
 
-__all__ = ["PARAM_NAMES", "EFFECT_PARAMS", "null_params", "predict", "lag_column", "columns", "loo_smooth",
-           "segments", "hac_cov", "hac_bandwidth"]
+__all__ = ["PARAM_NAMES", "EFFECT_PARAMS", "SAMPLINGS", "null_params", "predict", "lag_column", "columns",
+           "stamp_curvature", "sample_positions", "loo_smooth", "segments", "hac_cov", "hac_bandwidth"]
 
 PARAM_NAMES = ("L1_m", "L2_m", "offset_rad", "gain", "relaxation_m")
 #: candidate effect -> indices of its parameters
@@ -61,6 +70,8 @@ EFFECT_PARAMS = {"link_lengths": (0, 1), "hitch_angle_offset": (2,), "curvature_
                  "hitch_dynamics": (4,)}
 #: steps of the finite-difference columns (m, m, rad, 1, m)
 _FD_STEP = np.array([1e-4, 1e-4, 1e-5, 1e-5, 1e-3])
+#: what a curvature sample stands for: the average over the interval ending at its stamp, or the value at it
+SAMPLINGS = ("interval", "point")
 #: arcsine argument kept inside this bound (curvature beyond eq. (25) for trial parameters)
 _ASIN_CLIP = 0.999999
 
@@ -153,24 +164,68 @@ def columns(theta: np.ndarray, kappa: np.ndarray, dist_m: np.ndarray, which, *, 
     return np.column_stack(cols) if cols else np.zeros((base.size, 0))
 
 
-def loo_smooth(t_s: np.ndarray, x: np.ndarray, half_window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Leave-one-out local-linear level and slope of ``x`` at each sample, from its neighbours.
+def sample_positions(t_s: np.ndarray, sampling: str) -> np.ndarray:
+    """Time each curvature sample stands for, s: its stamp, or the midpoint of the interval ending there.
+
+    The first sample's interval is taken as long as the median interval.
+    """
+    if sampling not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {sampling!r}")
+    if sampling == "point":
+        return np.asarray(t_s, dtype=float)
+    dt = np.diff(t_s)
+    return t_s - 0.5 * np.concatenate([[float(np.median(dt))], dt])
+
+
+def stamp_curvature(t_s: np.ndarray, kappa: np.ndarray, sampling: str) -> np.ndarray:
+    """Curvature at each time stamp, 1/m, shape (N,).
+
+    ``"point"``: the samples themselves. ``"interval"``: the line between the
+    midpoints of the intervals ending at and after the stamp (each sample is
+    the average over its interval, i.e. the curvature at the interval's
+    midpoint to second order); the last stamp is extrapolated from the last
+    two midpoints.
+    """
+    if sampling == "point":
+        return np.asarray(kappa, dtype=float)
+    m = sample_positions(t_s, sampling)
+    out = np.empty_like(kappa, dtype=float)
+    w = (t_s[:-1] - m[:-1]) / (m[1:] - m[:-1])
+    out[:-1] = kappa[:-1] + w * (kappa[1:] - kappa[:-1])
+    w_end = (t_s[-1] - m[-1]) / (m[-1] - m[-2])
+    out[-1] = kappa[-1] + w_end * (kappa[-1] - kappa[-2])
+    return out
+
+
+def loo_smooth(t_s: np.ndarray, x: np.ndarray, half_window: int, sampling: str = "point"
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Local-linear level and slope of ``x`` at each time stamp, from the samples that do not enter it.
 
     The line through the ``half_window`` samples on each side (fewer at the
-    ends), the sample itself left out, evaluated at its time. Returns
-    ``(level, slope)``, each shape (N,), slope in units of x per second.
+    ends), placed at :func:`sample_positions`, evaluated at the stamp. Left
+    out are the samples the stamp's own value is made of
+    (:func:`stamp_curvature`): the sample itself (``"point"``), or it and the
+    next one (``"interval"``), so a column built from the level shares no
+    noise with the residual of the same stamp. Returns ``(level, slope)``,
+    each shape (N,), slope in units of x per second.
     """
     n = x.size
-    u = t_s - t_s.mean()
+    pos = sample_positions(t_s, sampling)
+    leave = 2 if sampling == "interval" else 1
+    centre = pos.mean()
+    u = pos - centre
+    ue = t_s - centre  # where each estimate is wanted
     cs = [np.concatenate([[0.0], np.cumsum(a)]) for a in (np.ones(n), u, u * u, x, u * x)]
-    lo = np.maximum(np.arange(n) - half_window, 0)
-    hi = np.minimum(np.arange(n) + half_window + 1, n)
-    S = [c[hi] - c[lo] - a for c, a in zip(cs, (np.ones(n), u, u * u, x, u * x))]
+    k = np.arange(n)
+    lo = np.maximum(k - half_window, 0)
+    hi = np.minimum(k + leave + half_window, n)
+    ex_hi = np.minimum(k + leave, n)
+    S = [c[hi] - c[lo] - (c[ex_hi] - c[k]) for c in cs]
     n0, s1, s2, sx, sux = S
-    # centred on each sample's own time
-    su = s1 - n0 * u
-    suu = s2 - 2 * u * s1 + n0 * u * u
-    suxc = sux - u * sx
+    # centred on the stamp
+    su = s1 - n0 * ue
+    suu = s2 - 2 * ue * s1 + n0 * ue * ue
+    suxc = sux - ue * sx
     det = n0 * suu - su * su
     ok = det > 1e-12 * np.maximum(n0 * suu, 1e-300)
     slope = np.where(ok, (n0 * suxc - su * sx) / np.where(ok, det, 1.0), 0.0)
