@@ -106,19 +106,42 @@ def _ts(t: float | None) -> str:
 
 
 def _runs(args) -> int:
+    from station.config import load_config
     from station.store_forward import forward_status
 
+    forwarding = not args.central and bool(load_config(args.config).station.store_url)
     with open_store(args.config, args.central) as store:
-        fwd = {} if args.central else forward_status(store)
+        fwd = forward_status(store) if forwarding else {}
         runs = store.runs()
         if not runs:
             print(f"no runs in {'the central store' if args.central else 'the store'}")
-        for r in runs:
-            f = fwd.get(r.run_id)
-            centre = "" if f is None else f"centre: {f['in_centre']} ({f['batches_forwarded']}/{f['batches_local']} batches)"
-            print(f"{r.run_id:<34} {r.procedure:<10} {r.serial or '-':<14} {r.overhaul_state or '-':<10} "
-                  f"{r.status:<8} {_ts(r.created_at)}  {r.station or '-':<10} {centre}")
+            return 0
+        rows = [(r.run_id, r.procedure, r.serial or "-", r.overhaul_state or "-", r.status,
+                 _run_verdict(store, r), _ts(r.created_at), r.station or "-") for r in runs]
+        head = ("run", "procedure", "serial", "overhaul", "status", "verdict", "created", "station")
+        widths = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
+        for r, row in zip([None] + runs, [head] + rows):
+            line = "  ".join(f"{str(v):<{w}}" for v, w in zip(row, widths))
+            f = fwd.get(r.run_id) if r is not None else None
+            if forwarding:  # only with a central store configured: what of the run reached it
+                line += "  " + ("centre" if r is None else "-" if f is None else
+                                f"{f['in_centre']} ({f['batches_forwarded']}/{f['batches_local']} batches)")
+            print(line.rstrip())
     return 0
+
+
+def _run_verdict(store, run) -> str:
+    """A run's stored verdict (its words as ``station run`` prints them); ``-`` before the run decided one."""
+    from station.verdict import Outcome
+
+    try:
+        stored = store.result(run.run_id, "verdict")
+    except Exception:  # noqa: BLE001 - no verdict stored (not finished, or an old run)
+        return "-"
+    try:
+        return str(Outcome.parse(stored.get("verdict") if isinstance(stored, dict) else stored))
+    except Exception:  # noqa: BLE001 - an unreadable stored verdict is shown as unknown, not guessed
+        return "?"
 
 
 def _history(args) -> int:

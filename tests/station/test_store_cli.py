@@ -35,3 +35,27 @@ def test_history_exceeding_and_export_from_the_command_line(tmp_path, capsys):
     assert main(["store", "export", "a1", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 0
     assert (tmp_path / "x" / "characteristics.csv").read_text().count("RP_mm") == 1
     assert main(["store", "export", "zz", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 2
+
+
+def test_store_runs_lists_each_runs_verdict_in_aligned_columns(tmp_path, capsys):
+    """`station store runs`: a header, each run's stored verdict (a NOT DECIDED run does not read 'done'
+    alone), columns that hold an arm-calibration's name, and no central-store column without a centre."""
+    cfg = _cfg(tmp_path)
+    store = RunStore(tmp_path / "s.sqlite")
+    cases = (("r-pass", "iso9283", "PASS"), ("r-nd", "iso9283", "NOT DECIDED"), ("r-cal", "arm-calibration", "FAIL"),
+             ("r-open", "trailer", None))
+    for run_id, proc, verdict in cases:
+        store.create_run(run_id, proc, model="industrial-3100", serial="SN-A", overhaul_state="after", config={},
+                         params={})
+        if verdict is not None:
+            store.put_result(run_id, "verdict", {"verdict": verdict, "reasons": [], "conformant": None,
+                                                 "exit_code": 0})
+            store.set_run_status(run_id, "done")
+    store.close()
+    assert main(["store", "runs", "--config", str(cfg)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:6] == ["run", "procedure", "serial", "overhaul", "status", "verdict"]
+    col = lines[0].index("verdict")
+    shown = {ln.split()[0]: ln[col:].split("  ")[0].strip() for ln in lines[1:]}
+    assert shown == {"r-pass": "PASS", "r-nd": "NOT DECIDED", "r-cal": "FAIL", "r-open": "-"}
+    assert "centre" not in "\n".join(lines)  # no central store configured
