@@ -81,7 +81,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                             time_scale=FULL_PACE if args.time_scale is None else args.time_scale,
                             seed=args.seed, json_out=args.json, quiet=args.quiet,
                             config_dir=Path(args.config).resolve().parent,
-                            acceptance=None if args.require_iso is None else {"require_conformance": args.require_iso})
+                            # with --arm a run is an acceptance of real hardware: conformance required unless told not
+                            acceptance={"require_conformance": args.arm if args.require_iso is None else args.require_iso})
     for line in outcome.lines(config=args.config):
         print(line)
     return outcome.exit_code

@@ -165,6 +165,8 @@ class RunHub:
     def _drive(self, live: LiveRun, procedure: str | None, kwargs: dict) -> None:
         from app.assemble import run_procedure
 
+        if self.arm:  # real hardware from the page is an acceptance: its standard's conformance is required
+            kwargs = {"acceptance": {"require_conformance": True}, **kwargs}
         try:
             outcome = run_procedure(
                 self.cfg, procedure, arm=self.arm, yes=False, time_scale=self.time_scale, quiet=True,
