@@ -28,6 +28,7 @@ from station.protocols.handshake import RegisterMap
 
 # the device-URL grammar is one table, shared with the drivers
 from station.device_urls import DeviceURL, parse_device_url
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 
 class _Strict(BaseModel):
@@ -150,7 +151,7 @@ class ISOProcedureConfig(_Strict):
     cycles: int = Field(30, ge=2, le=1000)
     dwell_s: float = Field(0.5, gt=0, le=60)
     speed_percent: float = Field(100.0, ge=MIN_SPEED_PERCENT, le=100)
-    tracker_rate_hz: float = Field(100.0, ge=10, le=3000)
+    tracker_rate_hz: float = Field(100.0, ge=TRACKER_RATE_RANGE_HZ[0], le=TRACKER_RATE_RANGE_HZ[1])
     vap_cycles: int = Field(30, ge=2, le=1000)
     vap_offset_mm: float = Field(100.0, gt=0, le=1000)
     distance_cycles: int = Field(10, ge=2, le=1000)

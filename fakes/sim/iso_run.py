@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 
 from fakes.sim.sim_bounds import check_int, check_real, check_samples, check_seed
 from station.errors import ConfigError
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 __all__ = ["simulate_iso9283", "commanded_joints", "CYCLE_ORDER", "STATUS_VALID", "STATUS_BEAM_BROKEN"]
 
@@ -53,7 +53,7 @@ MAX_WAIT_S = 600.0
 def _check(cycles, dwell_s, rate_hz, seed, wait_s, move, effects, beam_breaks=()) -> None:
     check_int(cycles, "--cycles", 1, MAX_CYCLES)
     check_real(dwell_s, "--dwell", 0.0, MAX_DWELL_S, " s")
-    check_real(rate_hz, "--rate", 10.0, 3000.0, " Hz")
+    check_real(rate_hz, "--rate", *TRACKER_RATE_RANGE_HZ, " Hz")
     check_seed(seed)
     check_real(wait_s, "--wait", 0.0, MAX_WAIT_S, " s")
     # the dwells and the wait alone (the moves come on top; counted while the stream is written)

@@ -38,11 +38,12 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.numeric import finite_number
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 __all__ = ["TrackerModel", "RATE_RANGE_HZ"]
 
 #: supported output rates, Hz
-RATE_RANGE_HZ = (10.0, 3000.0)
+RATE_RANGE_HZ = TRACKER_RATE_RANGE_HZ
 
 _NOISE_BLOCK = 65536  # grid samples per noise block
 _BREAK_BLOCK_S = 60.0  # seconds per random-break block

@@ -29,6 +29,7 @@ from station.models.jig import CornerJig
 from station.models.motion import PROFILE_KINDS, ServoParams
 from station.models.robots import RobotSpec, get_robot
 from station.numeric import finite_number
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 __all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM"]
 
@@ -305,8 +306,9 @@ def make_world(
     if not (isinstance(effects, EffectSet) or effects is None or effects == "realistic"):
         raise ConfigError(f"`effects` must be 'realistic', an EffectSet or None, got {effects!r}")
     tracker_rate_hz = finite_number(tracker_rate_hz, "tracker_rate_hz", positive=True)
-    if not (10.0 <= tracker_rate_hz <= 3000.0):
-        raise ConfigError(f"`tracker_rate_hz` must be within 10-3000 Hz, got {tracker_rate_hz!r}")
+    lo, hi = TRACKER_RATE_RANGE_HZ
+    if not (lo <= tracker_rate_hz <= hi):
+        raise ConfigError(f"`tracker_rate_hz` must be within {lo:g}-{hi:g} Hz, got {tracker_rate_hz!r}")
     if not (isinstance(servo, ServoParams) or servo is None or servo == "realistic"):
         raise ConfigError(f"`servo` must be 'realistic', a ServoParams or None, got {servo!r}")
     if stop_sigma_mm in ("auto", "realistic") or stop_sigma_mm is None:

@@ -64,6 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from station.errors import DataError, InsufficientDataError
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 #: stop status codes (``Stops.status``)
 class StopStatus(IntEnum):
@@ -84,7 +85,7 @@ STATUS_INITIAL_REST = StopStatus.INITIAL_REST
 STATUS_NAMES = tuple(s.name.lower() for s in StopStatus)
 
 #: accepted sampling rates, Hz (with a little slack for clock jitter)
-RATE_RANGE_HZ = (10.0, 3000.0)
+RATE_RANGE_HZ = TRACKER_RATE_RANGE_HZ
 #: the assignment tolerance is at least this many times the tracker's noise
 ASSIGN_NOISE_FACTOR = 20.0
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from station.errors import DataError
+from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 #: stamps repeat on at least this fraction of the rows: the clock is coarser than the sampling
 COARSE_REPEAT_FRACTION = 0.5
@@ -31,7 +32,7 @@ SHOW_VARYING = 5
 #: coarse stamps of a stream without moves pass when at most this fraction of their intervals hold another rate
 MAX_VARYING_FRACTION = 0.05
 #: the provisional rate that finds the stops on a refused clock is kept within the extraction's range, Hz
-RATE_FLOOR_HZ, RATE_CEIL_HZ = 10.0, 3000.0
+RATE_FLOOR_HZ, RATE_CEIL_HZ = TRACKER_RATE_RANGE_HZ
 
 
 @dataclass
