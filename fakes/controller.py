@@ -70,7 +70,7 @@ from urllib.parse import quote
 
 import numpy as np
 
-from fakes.rapid_interp import RapidError, RapidRun, RapidSafetyError, RunAborted, compile_rapid
+from fakes.rapid_interp import RapidError, RapidRun, RapidSafetyError, ProgramStopped, compile_rapid
 from station.errors import ConfigError, SafetyError
 from station.protocols.handshake import (
     Command,
@@ -408,7 +408,7 @@ class ControllerCore:
     def _execute(self, run: RapidRun) -> None:
         try:
             run.run()
-        except RunAborted:
+        except ProgramStopped:
             return  # whoever stopped the run set the state
         except Exception as exc:  # noqa: BLE001 - any runtime error faults the program safely
             if run.stop_event.is_set():

@@ -671,8 +671,8 @@ def compile_rapid(text: str | bytes, robot, gate=None, q_start=None) -> Compiled
 
 
 # ---------------------------------------------------------------------- execution
-class RunAborted(Exception):
-    """Internal: the run was stopped (command, fault or watchdog)."""
+class ProgramStopped(Exception):
+    """Internal: the interpreted program was stopped (command, fault or watchdog); not the station's RunAborted."""
 
 
 @dataclass
@@ -795,16 +795,16 @@ class RapidRun:
         if fault is not None:
             kind, t_mid = fault
             if not self.clock.sleep_until(t_mid, self.stop_event):
-                raise RunAborted()
+                raise ProgramStopped()
             if kind == "emergency_stop" and hasattr(self.arm, "emergency_stop"):
                 self.arm.emergency_stop()
             else:
                 self.arm.protective_stop()
             if self.on_fault is not None:
                 self.on_fault(kind, ins.source_line or 0)
-            raise RunAborted()
+            raise ProgramStopped()
         if not self.clock.sleep_until(t_end, self.stop_event) or self.stop_event.is_set():
-            raise RunAborted()
+            raise ProgramStopped()
         if isinstance(ins, Move):
             self.progress.moves_done += 1
         elif isinstance(ins, CycleMark):
@@ -822,19 +822,19 @@ class RapidRun:
                 yield s, 0
 
     def run(self) -> None:
-        """Execute to the end; raises RunAborted when stopped, SafetyError on a refused move."""
+        """Execute to the end; raises ProgramStopped when stopped, SafetyError on a refused move."""
         # the program starts on the controller's next interpolation tick: on a tracker's sample grid too
         # (20 ms is a whole number of 1, 2, 4, 5, 10 or 20 ms sample periods), so the stream samples
         # every run of a program at the same phase of its motion, whenever it starts
         t0 = math.ceil(float(self.clock.now()) / IPO_TICK_S - 1e-9) * IPO_TICK_S
         if not self.clock.sleep_until(t0, self.stop_event):
-            raise RunAborted()
+            raise ProgramStopped()
         self._t_last = float(self.clock.now())
         self._fault_mid: dict[int, tuple[str, float]] = {}
         pending: deque = deque()  # queued on the arm, not yet finished
         for index, item in enumerate(self._stream()):
             if self.stop_event.is_set():
-                raise RunAborted()
+                raise ProgramStopped()
             n_faults = len(self._fault_mid)
             pending.append((item[0], self._queue(item[0], (*self._key, item[1], index)), item[1]))
             # an injected fault move is queued: stop planning ahead so that nothing
