@@ -26,6 +26,7 @@ from collections.abc import Mapping
 from fakes.registry import start_named, url_of
 from fakes.sim.world import World, make_world
 from station.analysis.iso9283.poses import fit_cube_to_reach
+from station.models.robots import get_robot
 from station.programs.builders import TOOL_DOWN
 
 #: cube of seed 000 Table 1 (mm, robot base frame) grown by this much gives the workspace box
@@ -37,7 +38,7 @@ SEED_CUBE_MAX = (600.0, 2300.0, 2000.0)
 
 def robot_fake(robot_name: str) -> str:
     """The fake (by name, :mod:`fakes.registry`) of the controller an arm of this model has."""
-    return "ur" if robot_name.lower().startswith("ur") else "controller"
+    return "ur" if get_robot(robot_name).controller == "ur" else "controller"
 
 
 def workspace_box(robot) -> tuple[list[float], list[float]]:

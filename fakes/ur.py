@@ -1338,7 +1338,7 @@ class URFake:
         return "Protective stop releasing"
 
     def _dash_robot_model(self, ctl, line):
-        return ctl.robot.name.upper().rstrip("E") if ctl.robot.name.lower().startswith("ur") else "UR5"
+        return ctl.robot.name.upper().rstrip("E") if ctl.robot.controller == "ur" else "UR5"
 
     def _dash_shutdown(self, ctl, line):
         self.interpreter.abort("shutdown")

@@ -122,7 +122,7 @@ class ArmCalPlan:
     @property
     def is_ur(self) -> bool:
         """A UR: identified as plain DH (no beta) so that the result is written as UR calibration deltas."""
-        return self.robot.name.lower().startswith("ur")
+        return self.robot.controller == "ur"
 
     def gate(self) -> SafetyGate:
         return SafetyGate(self.robot, SafetyLimits(

@@ -36,6 +36,7 @@ from station.models.kinematics import (
 __all__ = [
     "GRAVITY_M_S2",
     "RobotSpec",
+    "CONTROLLER_KINDS",
     "ROBOT_NAMES",
     "get_robot",
     "robot_from_table",
@@ -66,6 +67,10 @@ def _vec(x, name: str, shape: tuple, *, positive=False, nonneg=False) -> np.ndar
     return arr
 
 
+#: the kinds of controller the station drives (:attr:`RobotSpec.controller`)
+CONTROLLER_KINDS = ("program-upload", "ur")
+
+
 @dataclass(frozen=True, eq=False)
 class RobotSpec:
     """Everything the station knows about one arm (validated at construction).
@@ -90,6 +95,11 @@ class RobotSpec:
         A safe, non-singular home pose inside the limits.
     description : str
         Where the numbers come from.
+    controller : {"program-upload", "ur"}
+        The kind of controller the arm's maker ships, which decides how the
+        station drives it (:data:`CONTROLLER_KINDS`): a program file uploaded
+        (FTP) and started and watched (Modbus TCP), or a UR controller (RTDE,
+        dashboard, URScript; calibration written as UR deltas).
 
     Raises
     ------
@@ -110,10 +120,13 @@ class RobotSpec:
     link_com_mm: np.ndarray
     home_q_rad: np.ndarray
     description: str = field(default="", compare=False)
+    controller: str = "program-upload"
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name.strip():
             raise ConfigError(f"`name` must be a non-empty string, got {self.name!r}")
+        if self.controller not in CONTROLLER_KINDS:
+            raise ConfigError(f"`controller` must be one of {', '.join(CONTROLLER_KINDS)}, got {self.controller!r}")
         dh = validate_dh(self.dh_nominal, name="dh_nominal", error=ConfigError)
         if dh.ndim != 2:
             raise ConfigError(f"`dh_nominal` must have shape (7, 5), got {dh.shape}")
@@ -350,6 +363,7 @@ def _ur(name: str) -> RobotSpec:
         link_com_mm=1000.0 * np.array(com_m),
         home_q_rad=_D([0.0, -90.0, 90.0, -90.0, -90.0, 0.0]),
         description=f"Universal Robots {name.upper()} nominal DH and dynamics table (public)",
+        controller="ur",
     )
 
 

@@ -215,3 +215,25 @@ def test_gravity_bad_input():
         gravity_torques(r, None, np.zeros((2, 5)))
     with pytest.raises(DataError, match="dh"):
         gravity_torques(r, np.zeros((7, 3)), np.zeros(6))
+
+
+def test_the_controller_kind_is_the_arms_not_its_name():
+    """What drives an arm (program upload, or a UR controller) is a field of its spec, checked on construction;
+    the station's choices (the fake controller, UR calibration deltas) read it, not the name's first letters."""
+    import dataclasses
+
+    from fakes.station import robot_fake
+    from procedures.arm_calibration import ArmCalPlan
+    from station.errors import ConfigError
+    from station.models.robots import CONTROLLER_KINDS, ROBOT_NAMES, get_robot
+
+    kinds = {n: get_robot(n).controller for n in ROBOT_NAMES}
+    assert set(kinds.values()) <= set(CONTROLLER_KINDS)
+    assert kinds["ur5e"] == kinds["ur10e"] == "ur" and kinds["industrial-3100"] == "program-upload"
+    assert {n: robot_fake(n) for n in ROBOT_NAMES} == {n: "ur" if k == "ur" else "controller" for n, k in kinds.items()}
+    # an arm named "ur..." that is not driven as a UR is not calibrated as one
+    urchin = dataclasses.replace(get_robot("ur5e"), name="urchin-1", controller="program-upload")
+    assert ArmCalPlan.is_ur.fget(type("P", (), {"robot": urchin})()) is False
+    assert ArmCalPlan.is_ur.fget(type("P", (), {"robot": get_robot("ur10e")})()) is True
+    with pytest.raises(ConfigError, match="`controller` must be one of"):
+        dataclasses.replace(get_robot("ur5e"), controller="kuka")
