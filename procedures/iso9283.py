@@ -816,6 +816,13 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
     for r in rows:
         if r["name"] == "n_cycles" and (r["value"] or 0) < asked:
             undecided.append(f"{r['pose']}: {0 if r['value'] is None else int(r['value'])} of {asked} pose cycles found")
+    # every characteristic of the plan is stated, or the run is not decided (a resumed run must state what the
+    # run left alone states; a figure the stream could not give is not a PASS by its absence)
+    # (a figure with a limit says so in its own reason: not computed)
+    unstated = [f"{r['name']} {r['pose']}" for r in rows
+                if r["value"] is None and r["limit"] is None and r["name"] != "n_cycles"]
+    if unstated:
+        undecided.append("not stated (the stream could not give them): " + ", ".join(unstated))
     try:
         res = store.result(run_id, "iso9283")
     except Exception:  # noqa: BLE001 - no analysis stored: nothing of it can be decided

@@ -166,3 +166,19 @@ def test_the_junit_xml_of_a_failed_run_carries_every_number(rng):
     props = {p.get("name"): p.get("value") for p in cases[0].find("properties")}
     assert props["P1/AP_mm"] == "6.2" and props["P1/POS_mm.outcome"] == "" and props["P1/AP_mm.high"] == "5.0"
     json.dumps(record)
+
+
+def test_a_characteristic_the_run_could_not_state_is_not_a_pass(tmp_path, rng):
+    """A figure the plan's analysis states but this run's stream could not give (no limit on it; e.g. a posing
+    time lost across a gap) makes the run NOT DECIDED, naming it; a figure with a limit says so once, in its own
+    reason."""
+    pair = f"{rng.choice(POSES)}->{rng.choice(POSES)}"
+    with RunStore(tmp_path / "s.sqlite") as store:
+        stated = _rows(rng) + [{"pose": pair, "name": "MPT_s", "value": float(rng.uniform(0.5, 2.0)), "unit": "s",
+                                "limit": None, "passed": None}]
+        _run(store, "stated", rows=stated)
+        assert decide(ISO, store, "stated").outcome is Outcome.PASS
+        _run(store, "lost", rows=_rows(rng) + [{**stated[-1], "value": None}])
+        d = decide(ISO, store, "lost")
+        assert d.outcome is Outcome.NOT_DECIDED and d.exit_code == 3
+        assert d.reasons == (f"not stated (the stream could not give them): MPT_s {pair}",)

@@ -13,8 +13,9 @@ Checked against the uninterrupted run:
 * the resumed run is done, every step once (plus the session steps), each
   prompt asked once in all, and the analysed stream's time never repeats
   or goes back;
-* the cycle counts are those of the uninterrupted run, and the attained
-  poses of the cycles before the cut are the same;
+* the cycle counts are those of the uninterrupted run, every characteristic
+  it states is stated (a posing time across the resume's gap among them),
+  and the attained poses of the cycles before the cut are the same;
 * AP and RP differ by no more than the tracker noise allows: after a
   resume, a stop's attained pose may be a neighbouring sample of the same
   rest (the extraction's statistics see another stream), i.e. another draw
@@ -166,6 +167,10 @@ def test_a_run_cut_anywhere_resumes_as_if_never_interrupted(test_seed, tmp_path)
             assert a.keys() == b.keys(), s.name
             for col in a:
                 np.testing.assert_array_equal(a[col], b[col], err_msg=f"{run_id} {s.name} {col}")
+        # the resumed run states every characteristic the run left alone states (a posing time across the
+        # resume's gap is measured after it, from the rest the arm was brought back to)
+        stated = lambda rid: {(c["pose"], c["name"]) for c in store.characteristics(rid) if c["value"] is not None}
+        assert stated(run_id) == stated("ref"), (sorted(stated("ref") - stated(run_id)), sorted(stated(run_id) - stated("ref")))
         cut = _analysis(store, run_id)
         pose_done = sum(1 for s in finished_before if s.name.startswith("pose cycle"))
         sigma = float(ref.extraction.params.noise_mm)

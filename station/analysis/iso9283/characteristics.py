@@ -793,7 +793,7 @@ def analyze_iso9283(
     settle = _stage_settling(run, pose_info, bands)
     poses = _stage_pose_results(run, pose_info, settle, ori, cori, drift_block)
     dists = _stage_distances(run, pose_info, distance_pairs)
-    k0, k1 = _consecutive_stops(run)
+    k0, k1 = _consecutive_stops(run, settle)
     mts = _stage_posing_times(run, settle, k0, k1, mpt_repeats)
     paths = _stage_paths(run, k0, k1, linear_paths, n_planes)
     _stage_extraction_problems(run)
@@ -925,7 +925,13 @@ def _stage_settling(run: _Stages, pose_info: dict, bdict: dict) -> dict:
     reg = _BandRegion(t, xyz, st.i_phase_start, t.size - 1, st.position_mm, band_k) if st.n else None
     os_ = reg.approach(kb, st.i_phase_start[kb], st.i_center[kb]) if st.n else None
     brk_i = run.breaks
-    inc = (np.searchsorted(brk_i, st.i_center[kb]) - np.searchsorted(brk_i, st.i_phase_start[kb])) > 0
+    first_brk = np.searchsorted(brk_i, st.i_phase_start[kb])
+    inc = (np.searchsorted(brk_i, st.i_center[kb]) - first_brk) > 0
+    if st.n and inc.any():
+        # a break after the tool settled in the band lies inside the rest (the tool is in the band from the
+        # settling to the attained pose): the approach was seen whole (a resumed run's stream starts again there)
+        k = np.flatnonzero(inc)
+        inc[k] = brk_i[first_brk[k]] < os_["i_settled"][k]
     noapp = st.initial[kb]  # the rest before the first move: no approach to judge
     settled_i = np.full(st.n, -1, np.int64)
     if st.n:
@@ -1029,15 +1035,28 @@ def _stage_distances(run: _Stages, pose_info: dict, distance_pairs) -> list:
     return dists
 
 
-def _consecutive_stops(run: _Stages) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs of assigned stops consecutive in the commanded order and in time, no beam break between."""
+def _consecutive_stops(run: _Stages, settle: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of assigned stops consecutive in the commanded order and in time, with no beam break between them
+    but inside a rest (with ``settle``, :func:`_stage_settling`'s): in the first stop's rest before the tool
+    leaves its band, or in the second's after the tool settled in its band. Such a break hides no part of the
+    move: a dwell the beam missed part of, or a resumed run's stream, which starts again at the pose its last
+    finished cycle ended at (the arm brought back there, unmeasured, before the cycle is redone)."""
     st = run.st
     ka = np.flatnonzero(st.status == STATUS_ASSIGNED)
     kseq = ka[np.argsort(st.seq[ka], kind="stable")]
     consec = np.flatnonzero((np.diff(st.seq[kseq]) == 1) & (np.diff(kseq) == 1))
     k0, k1 = kseq[consec], kseq[consec + 1]
-    nobrk = (np.searchsorted(run.breaks, st.i_center[k1]) - np.searchsorted(run.breaks, st.i_center[k0])) == 0
-    return k0[nobrk], k1[nobrk]
+    brk = run.breaks
+    ok = (np.searchsorted(brk, st.i_center[k1]) - np.searchsorted(brk, st.i_center[k0])) == 0
+    across = np.flatnonzero(~ok)
+    if settle is not None and settle["region"] is not None and across.size:
+        c0, c1 = st.i_center[k0[across]], st.i_center[k1[across]]
+        left = settle["region"].leave(c0, c1)  # the last sample in the first pose's band before the tool leaves it
+        arrived = settle["settled_i"][k1[across]]  # the tool settled in the second pose's band (-1: not seen)
+        lo, hi = np.where(left >= 0, left, c0), np.where(arrived >= 0, arrived, c1)
+        # no break in the move itself: between leaving the first band and settling in the second
+        ok[across] = (left >= 0) & (hi >= lo) & (np.searchsorted(brk, hi) == np.searchsorted(brk, lo))
+    return k0[ok], k1[ok]
 
 
 def _stage_posing_times(run: _Stages, settle: dict, k0, k1, mpt_repeats: int) -> list:
