@@ -262,11 +262,12 @@ def move_speed_frac(plan: ArmCalPlan, gate: SafetyGate, qa_deg, qb_deg) -> float
     return plan.speed_frac if v <= cap else plan.speed_frac * cap / v
 
 
-def pose_program(plan: ArmCalPlan, k: int, gate: SafetyGate | None = None) -> Program:
+def pose_program(plan: ArmCalPlan, k: int, gate: SafetyGate | None = None, path_deg=None) -> Program:
     """Pose ``k``: to a pre-position ``PRE_DEG`` below on every joint, then the pose, then a dwell; each move
-    from the plan's waypoint before it at the plan's speed or less (:func:`move_speed_frac`)."""
+    from the plan's waypoint before it at the plan's speed or less (:func:`move_speed_frac`). ``gate`` and
+    ``path_deg`` (:func:`plan_path_deg`'s waypoints), when a caller has them, are not built again."""
     gate = gate or plan.gate()
-    w, _ = plan_path_deg(plan)
+    w = plan_path_deg(plan)[0] if path_deg is None else path_deg
     q = plan.q_deg[k]
     name = f"C{k + 1}"
     pre = JointTarget(f"{name}_pre", tuple(v - PRE_DEG for v in q), label=f"{name} pre-position")
@@ -339,11 +340,12 @@ def _to_batch_start(ctx: StepContext, plan: ArmCalPlan, k: int, controller) -> l
 def check_programs(plan: ArmCalPlan) -> list[str]:
     """Every pose program through the gate, each from the pose before it (home first); the problems."""
     gate = plan.gate()
+    path = plan_path_deg(plan)[0]
     problems = []
     q_prev = plan.robot.home_q_rad
     for k in range(len(plan.q_deg)):
         try:
-            gate.check_program(pose_program(plan, k, gate), q_start=q_prev)
+            gate.check_program(pose_program(plan, k, gate, path), q_start=q_prev)
         except StationError as exc:
             problems.append(f"pose C{k + 1}: {exc}")
         q_prev = np.radians(plan.q_deg[k])
