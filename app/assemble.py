@@ -238,7 +238,7 @@ def _start_forwarding(cfg, base: Path, stack: ExitStack):
     """With a central store configured, forward in the background while the run records (local first)."""
     if not cfg.station.store_url:
         return None
-    from station.store_forward import Forwarder
+    from station.store.forward import Forwarder
 
     fwd = Forwarder(cfg.station.store_file(base), cfg.station.store_url, station=cfg.station.name,
                     interval_s=FORWARD_INTERVAL_S).start()
@@ -253,7 +253,7 @@ FORWARD_INTERVAL_S = 5.0
 def _last_push(cfg, base: Path, forwarder, run_id: str) -> str:
     """After the run: stop the background pass and push what is left once; says what the centre holds
     of the run (an absent centre is only said)."""
-    from station.store_forward import forward_status, push
+    from station.store.forward import forward_status, push
 
     forwarder.stop()
     try:

@@ -107,7 +107,7 @@ def _ts(t: float | None) -> str:
 
 def _runs(args) -> int:
     from station.config import load_config
-    from station.store_forward import forward_status
+    from station.store.forward import forward_status
 
     forwarding = not args.central and bool(load_config(args.config).station.store_url)
     with open_store(args.config, args.central) as store:
@@ -166,7 +166,7 @@ def _exceeding(args) -> int:
         rows = store.robots_exceeding(args.name, latest_only=not args.all_runs)
         if not args.all_runs:
             # the runs' decision rule (ISO 14253-1): over the limit but within U of it is not proven
-            from station.fleet import limit_decisions_now
+            from station.fleet.questions import limit_decisions_now
 
             d = limit_decisions_now(store, args.name)
             proven = {(r["run_id"], r["pose"]) for r in d["proven"]}
@@ -174,7 +174,7 @@ def _exceeding(args) -> int:
             undecided = [{k: r[k] for k in ("model", "serial", "run_id", "created_at", "pose", "value", "limit", "U",
                                             "rule", "decision")} for r in d["not_decided"]]
     if args.json:
-        from station.fleet import decisions_as_json
+        from station.fleet.questions import decisions_as_json
 
         print(json.dumps(rows + decisions_as_json(undecided), indent=2))
         return 0
@@ -194,7 +194,7 @@ def _exceeding(args) -> int:
 def _overhaul(args) -> int:
     from station.config import load_config
 
-    from station.fleet import parse_when
+    from station.fleet.questions import parse_when
 
     at = parse_when(args.date, "--date")
     station = load_config(args.config).station.name
@@ -238,7 +238,7 @@ def _push(args) -> int:
     from station.config import load_config
     from station.errors import ConfigError
     from station.store import RunStore, StoreUnavailable, redacted
-    from station.store_forward import Forwarder, push
+    from station.store.forward import Forwarder, push
 
     cfg = load_config(args.config)
     if not cfg.station.store_url:
@@ -296,7 +296,7 @@ def _print_report(report) -> None:
 
 
 def _status(args) -> int:
-    from station.store_forward import forward_status
+    from station.store.forward import forward_status
 
     with open_store(args.config) as store:
         rows = forward_status(store)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.fleet import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
+from station.fleet.questions import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
 from station.report import Report, plot_xy, render_html
 from station.store import RunStore
 from station.verdict import Outcome
