@@ -260,14 +260,14 @@ class AcceptanceRun:
         return [f"{m['pose']} {m['name']}" for m in self.measurements if m.get("marginal")]
 
     def test_record(self) -> dict:
-        """This run's test record (:func:`station.test_record.build`)."""
-        from station.test_record import build
+        """This run's test record (:func:`station.run_record.build`)."""
+        from station.run_record import build
 
         return build(self)
 
     def write_record(self, out_dir: str | Path) -> tuple[Path, Path]:
         """Write the test record as ``RUN.record.json`` and ``RUN.junit.xml`` into ``out_dir``; their paths."""
-        from station.test_record import write
+        from station.run_record import write
 
         return write(self.test_record(), out_dir)
 

@@ -67,7 +67,7 @@ from station.models import kinematics as kin
 from station.numeric import finite_or_none
 
 from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
-from .block_test import model_basis, wald_block
+from .candidate_significance import model_basis, wald_block
 from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split
 from .geometry_cv import beats_nominal, fold_errors
