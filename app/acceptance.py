@@ -321,7 +321,8 @@ def make_operator(operator, arm: bool):
     moves, so no script answers the confirmations that guard real motion.
     """
     from app.assemble import require_person
-    from station.runner import AnswerFileOperator, CallableOperator, InteractiveOperator, ScriptedOperator
+    from app.terminal import InteractiveOperator
+    from station.runner import AnswerFileOperator, CallableOperator, ScriptedOperator
 
     if operator is None:
         operator = InteractiveOperator() if arm else ScriptedOperator(True)

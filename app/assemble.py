@@ -33,7 +33,8 @@ from app.page_operator import WebOperator
 from procedures.devices import DeviceSet, configured_devices
 from procedures.execute import execute, prepare, preflight
 from station.errors import ConfigError, SafetyError
-from station.runner import InteractiveOperator, ProgressLine, RunControl, ScriptedOperator
+from app.terminal import InteractiveOperator, ProgressLine
+from station.runner import RunControl, ScriptedOperator
 from station.store import RunStore, StoreError
 from station.verdict import Outcome
 

@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from station.fleet.questions import drifting, over_limits_now, robot_history, since_overhaul  # noqa: E402
-from station.runner import InteractiveOperator  # noqa: E402
+from app.terminal import InteractiveOperator  # noqa: E402
 from station.store import RunStore  # noqa: E402
 from station.store.forward import push  # noqa: E402
 from tests.store.fleetgen import load_fleet, make_fleet  # noqa: E402

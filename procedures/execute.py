@@ -27,7 +27,7 @@ from pathlib import Path
 from procedures.devices import DeviceSet
 from procedures.registry import ProcedureSpec, Subject, get_procedure
 from station.errors import ConfigError, PreflightError
-from station.runner import Operator, ProgressLine, RunControl, RunOutcome, Runner, resume_start_s
+from station.runner import Operator, Progress, RunControl, RunOutcome, Runner, resume_start_s
 from station.store import RunStore
 
 
@@ -95,7 +95,7 @@ def preflight(prepared: PreparedRun, cfg, devices: DeviceSet) -> None:
 
 
 def execute(store: RunStore, prepared: PreparedRun, cfg, devices: DeviceSet, *, operator: Operator | None = None,
-            control: RunControl | None = None, progress: ProgressLine | None = None) -> RunOutcome:
+            control: RunControl | None = None, progress: Progress | None = None) -> RunOutcome:
     """Run (or resume) the prepared run on ``devices``; returns the runner's outcome."""
     spec = prepared.spec
     session = spec.new_session(devices)
