@@ -70,6 +70,7 @@ from procedures.cell import (ROBOT_STREAM, CellSession, connect_cell, connect_co
                             record_robot_readings, robot_subject, stop_cell)
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
+from procedures.live_views import arm_calibration_view
 from procedures.plan_params import plan_from_params, plan_params
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
 from station.analysis.arm.jig_features import feature_point
@@ -824,4 +825,6 @@ SPEC = ProcedureSpec(
     result_key=RESULT_KEY,
     summary=summary,
     preflight=preflight_problems,
+    live_view=lambda store, run_id, params: arm_calibration_view(store, run_id, params, tracker_stream=STREAM,
+                                                                 scanner_stream=SCAN_STREAM),
 )

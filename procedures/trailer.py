@@ -45,6 +45,7 @@ import numpy as np
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
+from procedures.live_views import odometry_view
 from procedures.plan_params import plan_from_params, plan_params
 from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
 from station.analysis.trailer.setpoints import interval_average, place_unacknowledged
@@ -583,4 +584,5 @@ SPEC = ProcedureSpec(
     result_key="trailer",
     summary=summary,
     preflight=preflight_problems,
+    live_view=odometry_view,
 )
