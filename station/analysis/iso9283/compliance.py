@@ -25,6 +25,7 @@ arrays in, results out.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +54,26 @@ class Figure:
 #: the static compliance figure, one value per load direction
 COMPLIANCE = Figure("compliance_mm_per_N", "mm/N", "direction", "static compliance",
                     "ISO 9283 clause 10: slope of the displacement along the load against the load")
+
+
+#: how the station asks the operator for a load (the simulated operator of the fake cell reads it back)
+_LOAD_PROMPT = ("Pull the tool along {direction} of the robot base frame until the force gauge reads "
+                "{load:.0f} N, hold it still, then confirm")
+_LOAD_PROMPT_RE = re.compile(r"along ([+-][xyz]) of the robot base frame until the force gauge reads "
+                             r"(\d+(?:\.\d*)?) N")
+
+
+def load_prompt(direction: str, load_N: float) -> str:
+    """The operator's prompt for ``load_N`` newtons along ``direction`` (0: take every load off the tool)."""
+    if direction not in DIRECTIONS:
+        raise ConfigError(f"direction {direction!r} is not one of {', '.join(DIRECTIONS)}")
+    return _LOAD_PROMPT.format(direction=direction, load=float(load_N))
+
+
+def parse_load_prompt(message: str) -> tuple[str, float] | None:
+    """``(direction, load_N)`` asked by a prompt of :func:`load_prompt`; None for any other prompt."""
+    m = _LOAD_PROMPT_RE.search(message)
+    return None if m is None else (m.group(1), float(m.group(2)))
 
 
 def load_levels_N(rated_load_N: float, steps: int = 10) -> np.ndarray:
@@ -158,5 +179,5 @@ def characteristic_rows(results: list[DirectionCompliance]) -> list[dict]:
              "limit": None, "passed": None} for r in results]
 
 
-__all__ = ["DIRECTIONS", "Figure", "COMPLIANCE", "load_levels_N", "DirectionCompliance", "direction_compliance",
+__all__ = ["DIRECTIONS", "Figure", "COMPLIANCE", "load_prompt", "parse_load_prompt", "load_levels_N", "DirectionCompliance", "direction_compliance",
            "characteristic_rows"]
