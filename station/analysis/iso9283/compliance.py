@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.analysis.iso9283.more_figures import COMPLIANCE
 from station.errors import ConfigError, DataError, InsufficientDataError
 
 #: the directions of the test, base frame: name -> unit vector
@@ -37,23 +38,6 @@ DIRECTIONS: dict[str, tuple[float, float, float]] = {
     "+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0),
     "-y": (0.0, -1.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0),
 }
-
-
-@dataclass(frozen=True)
-class Figure:
-    """One figure of the station beyond the pose table: its key (unit in the name), unit, what one value is
-    stated per (``level``), title and where its formula comes from."""
-
-    key: str
-    unit: str
-    level: str
-    title: str
-    formula: str
-
-
-#: the static compliance figure, one value per load direction
-COMPLIANCE = Figure("compliance_mm_per_N", "mm/N", "direction", "static compliance",
-                    "ISO 9283 clause 10: slope of the displacement along the load against the load")
 
 
 #: how the station asks the operator for a load (the simulated operator of the fake cell reads it back)
@@ -179,5 +163,5 @@ def characteristic_rows(results: list[DirectionCompliance]) -> list[dict]:
              "limit": None, "passed": None} for r in results]
 
 
-__all__ = ["DIRECTIONS", "Figure", "COMPLIANCE", "load_prompt", "parse_load_prompt", "load_levels_N", "DirectionCompliance", "direction_compliance",
+__all__ = ["DIRECTIONS", "COMPLIANCE", "load_prompt", "parse_load_prompt", "load_levels_N", "DirectionCompliance", "direction_compliance",
            "characteristic_rows"]
