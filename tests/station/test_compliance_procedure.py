@@ -67,3 +67,29 @@ def test_compliance_in_every_direction_is_the_simulated_arms_within_its_uncertai
     html = open(store.result("c1", "compliance")["report"]).read()
     assert "Displacement along the load" in html and "<svg" in html
     assert any("+x" in line and "mm/N" in out.summary[0] for line in out.summary)
+
+
+def _demo_cfg(tmp_path):
+    from fakes.cells import demo_config
+
+    return config_from_dict(demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=100.0))
+
+
+def test_station_run_compliance_on_the_fake_cell_and_a_gauge_overload_fails_the_run_naming_it(tmp_path, test_seed):
+    """Through the front door on the fake cell: the cell's simulated hand answers the load prompts; a gauge
+    whose capacity is below the rated load stops the run with its overload, the run resumable."""
+    from tests.pace import LOCKSTEP
+
+    cfg = _demo_cfg(tmp_path)
+    ok = run_procedure(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="ok",
+                       config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+x", "-z"]})
+    assert ok.status == "done" and ok.exit_code == 0, ok.error
+    with RunStore(tmp_path / "station.sqlite") as store:
+        rows = {(r["pose"], r["name"]): r["value"] for r in store.characteristics("ok")}
+    assert sorted(rows) == [("+x", "compliance_mm_per_N"), ("-z", "compliance_mm_per_N")]
+    assert all(v > 0 for v in rows.values())
+    bad = run_procedure(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="bad",
+                        config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+y"]},
+                        fake_options={"gauge_faults": {"capacity_N": "300"}})
+    assert bad.status == "failed" and "force gauge on" in bad.error and "overload" in bad.error, bad.error
+    assert "resume with: station run --resume bad" in "\n".join(bad.lines())
