@@ -20,8 +20,6 @@ Fault injection (``faults`` dict, string values)::
 
 from __future__ import annotations
 
-import os
-import select
 import threading
 
 import numpy as np
@@ -84,7 +82,7 @@ class ForceGaugeFake:
         self._thread.join(timeout=10.0)
         self._port.close()
 
-    def __enter__(self):
+    def __enter__(self) -> "ForceGaugeFake":
         return self
 
     def __exit__(self, *exc) -> None:
@@ -94,35 +92,14 @@ class ForceGaugeFake:
     def _serve(self) -> None:
         buf = bytearray()
         while not self._stop.is_set():
-            ready, _, _ = select.select([self._port.master], [], [], 0.05)
-            if not ready:
-                continue
-            data = self._port.read()
-            if data is None:  # no driver has the device open
-                self._stop.wait(0.01)
-                continue
-            buf += data
-            while True:
-                idx = min((i for i in (buf.find(b"\r"), buf.find(b"\n")) if i >= 0), default=-1)
-                if idx < 0:
-                    if len(buf) > _MAX_LINE:
-                        buf.clear()
-                    break
+            buf += self._port.wait_read(self._stop)
+            while (idx := min((i for i in (buf.find(b"\r"), buf.find(b"\n")) if i >= 0), default=-1)) >= 0:
                 line = bytes(buf[:idx]).strip()
                 del buf[: idx + 1]
                 if line:
                     self._request(line.decode("latin-1"))
-
-    def _write(self, data: bytes) -> None:
-        view = memoryview(data)
-        waited = 0.0
-        while view:
-            try:
-                view = view[os.write(self._port.master, view):]
-            except BlockingIOError:
-                if waited > 1.0 or self._stop.wait(0.005):
-                    return
-                waited += 0.005
+            if len(buf) > _MAX_LINE:  # no line end in sight: not a command of this gauge
+                buf.clear()
 
     # ------------------------------------------------------------------ the gauge
     def applied_force_N(self) -> float:
@@ -141,7 +118,7 @@ class ForceGaugeFake:
             reply = self._rng.integers(128, 256, size, dtype=np.uint8).tobytes() + b"\r\n"
             self.stats["garbage"] += 1
         self.stats["replies"] += 1
-        self._write(reply)
+        self._port.write_all(reply, self._stop)
 
     def _answer(self, command: str) -> bytes:
         if command == "?":
