@@ -136,3 +136,14 @@ def test_the_command_states_the_figure_and_refuses_with_exit_2(fleet, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "app.cli", "store", "exchangeability", "--config", str(cfg),
                           "--serials", sorted(truths)[0]], capture_output=True, text=True)
     assert bad.returncode == 2 and "at least 2 serials" in bad.stderr
+
+
+def test_the_fleet_page_states_the_models_exchangeability(fleet):
+    from station.fleet_page import fleet_report
+
+    tmp, _, _, _ = fleet
+    with RunStore(tmp / "s.sqlite") as store:
+        res, _ = fleet_exchangeability(store, model="industrial-3100")
+        notes = fleet_report(store, "RP_mm").notes
+    line = next(n for n in notes if n.startswith("exchangeability (ISO 9283 7.8) of industrial-3100"))
+    assert f"E = {res.exchangeability_mm:.4f} mm" in line and f"{ROBOTS} robots" in line
