@@ -52,6 +52,8 @@ def test_compliance_in_every_direction_is_the_simulated_arms_within_its_uncertai
     for name, u in DIRECTIONS.items():
         r = res[name]
         truth = float(np.asarray(u) @ C @ np.asarray(u))
+        print(f"{name}: {r['compliance_mm_per_N']:.5g} mm/N, U {r['U_mm_per_N']:.2g}, truth {truth:.5g}, "
+              f"hysteresis {r['hysteresis_mm'] * 1000:.2f} um")
         # six directions at once: each within 2 U (k = 4), so an honest U fails this 1 time in 3000
         assert abs(r["compliance_mm_per_N"] - truth) <= 2.0 * r["U_mm_per_N"], (name, r, truth)
         assert r["U_mm_per_N"] < 0.3 * max(abs(truth), 2e-5), (name, r["U_mm_per_N"], truth)  # U says something
