@@ -189,6 +189,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             cell = start_fake_cell(spec, prepared.params, prepared.fake)
             stack.callback(cell.close)
             devices = DeviceSet(urls=dict(cell.urls), time_scale=cell.time_scale)
+            if getattr(cell, "hand", None) is not None:  # the simulated world acts on the answers (loads)
+                operator = cell.hand(operator)
         # every reason the devices cannot run the plan, before anything moves
         preflight(prepared, cfg, devices)
         if devices.armed:

@@ -24,6 +24,7 @@ REGISTRY: dict[str, str] = {
     "iso9283": "procedures.iso9283",
     "trailer": "procedures.trailer",
     "arm-calibration": "procedures.arm_calibration",
+    "compliance": "procedures.compliance",
 }
 
 

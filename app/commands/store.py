@@ -9,6 +9,7 @@
     station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
     station store status --config C                                  what of each run has reached the centre
     station store reanalyze --config C [--central] [--run ID ...] [--jobs N] [--force]
+    station store exchangeability --config C (--model M | --serials A,B,...) [--central] [--json]
     station store fleet history|since-overhaul|over-limits|drifting|page --config C [--central] ...
 
 One rule for which store a command asks: the station's own file, unless
@@ -91,9 +92,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--force", action="store_true", help="again even when this analysis version has a result")
     r.add_argument("--json", action="store_true", help=JSON_HELP)
     r.set_defaults(func=_reanalyze)
-    from app.commands import store_fleet
+    from app.commands import store_exchangeability, store_fleet
 
     store_fleet.register(s)
+    store_exchangeability.register(s)
 
 
 def _common(p) -> None:
