@@ -27,7 +27,7 @@ def register(s) -> None:
 
 
 def _exchangeability(args) -> int:
-    from station.fleet_exchangeability import fleet_exchangeability
+    from station.fleet.exchangeability import fleet_exchangeability
 
     serials = None if args.serials is None else args.serials.split(",")
     with open_store(args.config, args.central) as store:

@@ -95,7 +95,7 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
 def exchangeability_notes(store: RunStore) -> list[str]:
     """Per model with ISO 9283 runs of two robots or more: its exchangeability (ISO 9283 7.8), or why not."""
     from station.errors import StationError
-    from station.fleet_exchangeability import PROCEDURE, fleet_exchangeability
+    from station.fleet.exchangeability import PROCEDURE, fleet_exchangeability
 
     robots: dict[str, set] = {}
     for run in store.runs():

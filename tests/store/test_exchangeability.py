@@ -18,7 +18,7 @@ from procedures.iso9283 import registration_of
 from station.analysis.iso9283.exchangeability import conditions_problems
 from station.config import config_from_dict
 from station.errors import ConfigError
-from station.fleet_exchangeability import fleet_exchangeability
+from station.fleet.exchangeability import fleet_exchangeability
 from station.runner import ScriptedOperator
 from station.store import RunStore
 from tests.pace import LOCKSTEP
@@ -139,7 +139,7 @@ def test_the_command_states_the_figure_and_refuses_with_exit_2(fleet, tmp_path):
 
 
 def test_the_fleet_page_states_the_models_exchangeability(fleet):
-    from station.fleet_page import fleet_report
+    from station.fleet.page import fleet_report
 
     tmp, _, _, _ = fleet
     with RunStore(tmp / "s.sqlite") as store:
