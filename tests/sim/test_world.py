@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from fakes.sim.world import ISO_CUBE_CENTRE_MM, make_world
 from station.errors import ConfigError
 from station.models import kinematics as kin
 from station.models.effects import EffectSet
+from station.models.robots import get_robot
 
 
 @pytest.mark.parametrize(
@@ -63,6 +66,8 @@ def test_world_parts_share_one_truth():
     expect = (p - T[:3, 3]) @ T[:3, :3]
     sigma = w.tracker.sigma_mm(np.linalg.norm(expect, axis=1))
     assert np.all(np.abs(xyz - expect) < 6 * sigma[:, None])
+    # the reading is the session's systematic error (sd up to the MPE / 2) plus micrometres of reading noise
+    assert np.all(np.abs(xyz - w.tracker.reading(expect)) < 6 * w.tracker.noise.total_um * 1e-3)
     # the true arm differs from the nominal one by the effects
     p_nom = kin.tool_position(w.robot.dh_nominal, w.robot.home_q_rad)
     assert 0.1 < np.linalg.norm(p[0] - p_nom) < 20.0
@@ -110,3 +115,21 @@ def test_trailer_created_lazily_on_the_world_clock():
     assert w.trailer is tr and w.get_trailer() is tr
     assert tr.clock is w.clock
     w.close()
+
+
+@pytest.mark.parametrize("robot", ["ur5e", "ur10e", "industrial-3100"])
+def test_stop_scatter_is_the_models(robot, rng):
+    """A realistic world draws its stop scatter (TCP sd per coordinate at home) from its model's range: a UR
+    some micrometres, the seed's large arm 12-40 um; a number given overrides it."""
+    from station.models.kinematics import joint_jacobian
+
+    spec = get_robot(robot)
+    J = joint_jacobian(spec.dh_nominal, spec.home_q_rad)[:3]
+    gain = math.sqrt(float(np.trace(J @ J.T)) / 3.0)
+    lo, hi = spec.stop_scatter_mm
+    for seed in rng.integers(0, 2**31, 5):
+        w = make_world(robot, seed=int(seed), clock=ManualClock())
+        assert lo <= w.arm.stop_sigma_rad[0] * gain <= hi
+    assert hi <= 0.01 if robot.startswith("ur") else (lo, hi) == (0.012, 0.04)
+    w = make_world(robot, seed=1, clock=ManualClock(), stop_sigma_mm=0.02)
+    assert w.arm.stop_sigma_rad[0] * gain == pytest.approx(0.02)
