@@ -212,7 +212,7 @@ def make_world(
     servo: str | ServoParams | None = "realistic",
     stop_sigma_mm: str | float | None = "auto",
     payload_kg: float = 0.0,
-    profile: str = "scurve",
+    profile: str | None = None,
     history_s: float = 3600.0,
     tracker_mpe_a_um: float = 15.0,
     tracker_mpe_b_um_per_m: float = 6.0,
@@ -253,8 +253,9 @@ def make_world(
         ``"auto"``: realistic when ``effects`` is ``"realistic"``, else none.
     payload_kg : float
         Mass at the TCP.
-    profile : {"scurve", "trapezoid"}
-        Velocity profile of the arm's moves.
+    profile : {"scurve", "trapezoid"}, optional
+        Velocity profile of the arm's moves (default: trapezoid for a UR
+        controller, which plans its moves so, else S-curve).
     history_s : float
         Past the arm keeps for queries (see :mod:`fakes.sim.arm`).
     tracker_mpe_a_um, tracker_mpe_b_um_per_m : float
@@ -322,6 +323,8 @@ def make_world(
     else:
         stop_sigma_mm = finite_number(stop_sigma_mm, "stop_sigma_mm", nonneg=True)
     payload_kg = finite_number(payload_kg, "payload_kg", nonneg=True)
+    if profile is None:
+        profile = "trapezoid" if spec.controller == "ur" else "scurve"
     if profile not in PROFILE_KINDS:
         raise ConfigError(f"`profile` must be one of {PROFILE_KINDS}, got {profile!r}")
     history_s = finite_number(history_s, "history_s", positive=True)
