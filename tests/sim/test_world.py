@@ -133,3 +133,31 @@ def test_stop_scatter_is_the_models(robot, rng):
     assert hi <= 0.01 if robot.startswith("ur") else (lo, hi) == (0.012, 0.04)
     w = make_world(robot, seed=1, clock=ManualClock(), stop_sigma_mm=0.02)
     assert w.arm.stop_sigma_rad[0] * gain == pytest.approx(0.02)
+
+
+def test_a_configured_stop_scatter_reaches_the_fake_cell(tmp_path, rng):
+    """`[robots.X] stop_scatter_mm` goes with a dry run's stored fake parameters to the world of its cell (a
+    fake option given with the run wins); without it nothing is added and the model's range is drawn from."""
+    from fakes.cells import demo_config
+    from procedures.execute import prepare
+    from station.config import config_from_dict
+    from station.store import RunStore
+
+    scatter = float(rng.uniform(0.001, 0.05))
+    d = demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0, robot="ur5e")
+    d["robots"]["r1"]["stop_scatter_mm"] = scatter
+    store = RunStore(tmp_path / "s.sqlite")
+    try:
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0}, run_id="a")
+        assert run.fake["stop_sigma_mm"] == scatter
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0,
+                                                                   "stop_sigma_mm": 0.02}, run_id="b")
+        assert run.fake["stop_sigma_mm"] == 0.02
+        del d["robots"]["r1"]["stop_scatter_mm"]
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0}, run_id="c")
+        assert "stop_sigma_mm" not in run.fake
+    finally:
+        store.close()
+    d["robots"]["r1"]["stop_scatter_mm"] = -1.0
+    with pytest.raises(ConfigError, match="stop_scatter_mm"):
+        config_from_dict(d)
