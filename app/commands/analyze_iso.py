@@ -181,7 +181,7 @@ def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
 
     noise_um = None
     if args.tracker_noise is not None:
-        from station.readers.tracker_noise_file import read_tracker_noise
+        from station.models.tracker_noise import read_tracker_noise
 
         noise_um = read_tracker_noise(args.tracker_noise, "--tracker-noise").total_um
     budget = budget_from_options(args.tracker_uncertainty, temperature_u_K=args.temperature_u_k,

@@ -198,7 +198,7 @@ def _tracker_noise(args: argparse.Namespace):
     """The world options of ``--tracker-noise`` (read before anything is simulated)."""
     if args.tracker_noise is None:
         return None
-    from station.readers.tracker_noise_file import read_tracker_noise
+    from station.models.tracker_noise import read_tracker_noise
 
     return read_tracker_noise(args.tracker_noise, "--tracker-noise")
 

@@ -26,20 +26,23 @@ of the position a sample shows relative to its stamp (not measurable from a
 hold: a held pose does not move).
 
 The file form (``station analyze hold --noise-out FILE``, read by ``station
-simulate ... --tracker-noise FILE``) is the JSON of :meth:`TrackerNoise.to_dict`,
-schema ``station.tracker_noise/1``.
+simulate ... --tracker-noise FILE`` and ``station analyze iso9283
+--tracker-noise FILE`` through :func:`read_tracker_noise`) is the JSON of
+:meth:`TrackerNoise.to_dict`, schema ``station.tracker_noise/1``.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 from station.errors import ConfigError
 from station.numeric import finite_number
 
-__all__ = ["TrackerNoise", "NOISE_SCHEMA", "TRACKER_NOISE_DEFAULTS", "default_tracker_noise", "MAX_NOISE_UM",
-           "MAX_TAU_S", "MAX_LATENCY_S"]
+__all__ = ["TrackerNoise", "read_tracker_noise", "NOISE_SCHEMA", "TRACKER_NOISE_DEFAULTS", "default_tracker_noise",
+           "MAX_NOISE_UM", "MAX_TAU_S", "MAX_LATENCY_S", "MAX_NOISE_FILE_BYTES"]
 
 NOISE_SCHEMA = "station.tracker_noise/1"
 
@@ -138,3 +141,29 @@ def default_tracker_noise(name: str = "leica") -> TrackerNoise:
         return TRACKER_NOISE_DEFAULTS[name]
     except (KeyError, TypeError):
         raise ConfigError(f"unknown tracker noise model {name!r}; known: {', '.join(TRACKER_NOISE_DEFAULTS)}") from None
+
+
+#: largest noise file read, bytes (a fit's file is under a kilobyte)
+MAX_NOISE_FILE_BYTES = 1 << 16
+
+
+def read_tracker_noise(path, option: str = "--tracker-noise") -> TrackerNoise:
+    """Read a noise file (the JSON of :meth:`TrackerNoise.to_dict`, at most :data:`MAX_NOISE_FILE_BYTES`);
+    ConfigError naming ``option``, the file and the key that is wrong."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_NOISE_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{option} {p}: cannot read ({exc.strerror})") from None
+    if len(raw) > MAX_NOISE_FILE_BYTES:
+        raise ConfigError(f"{option} {p}: larger than {MAX_NOISE_FILE_BYTES} bytes; a noise file is a few lines")
+    try:
+        obj = json.loads(raw.decode("utf-8-sig"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{option} {p}: not UTF-8 text") from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{option} {p}: line {exc.lineno}: not JSON ({exc.msg})") from None
+    except (ValueError, RecursionError) as exc:
+        raise ConfigError(f"{option} {p}: not JSON ({str(exc)[:80]})") from None
+    return TrackerNoise.from_dict(obj, f"{option} {p}")
