@@ -617,8 +617,8 @@ def realistic_stop_sigma_rad(robot, rng: np.random.Generator, sigma_mm: float | 
     ``robot.stop_scatter_mm``), which gives ISO 9283
     ``RP = l_bar + 3 S_l ~ 3.6 sigma``: for the seed's large arm
     U(0.012, 0.04) mm, RP about 0.05-0.15 mm, the range of seed 000 Table 3
-    (0.07-0.20 mm); for a UR5e U(0.003, 0.007) mm, RP 0.011-0.025 mm, what a
-    real one measured (issue 42).
+    (0.07-0.20 mm); for a UR5e U(0.005, 0.011) mm, the RP a real one measured
+    (0.012-0.024 mm, issue 42).
 
     Parameters
     ----------
