@@ -150,18 +150,12 @@ MAX_NOISE_FILE_BYTES = 1 << 16
 def read_tracker_noise(path, option: str = "--tracker-noise") -> TrackerNoise:
     """Read a noise file (the JSON of :meth:`TrackerNoise.to_dict`, at most :data:`MAX_NOISE_FILE_BYTES`);
     ConfigError naming ``option``, the file and the key that is wrong."""
+    from station.readers.text import read_small_text
+
     p = Path(path)
+    text = read_small_text(p, MAX_NOISE_FILE_BYTES, f"{option} {p}", "a noise file is a few lines", ConfigError)
     try:
-        with open(p, "rb") as fh:
-            raw = fh.read(MAX_NOISE_FILE_BYTES + 1)
-    except OSError as exc:
-        raise ConfigError(f"{option} {p}: cannot read ({exc.strerror})") from None
-    if len(raw) > MAX_NOISE_FILE_BYTES:
-        raise ConfigError(f"{option} {p}: larger than {MAX_NOISE_FILE_BYTES} bytes; a noise file is a few lines")
-    try:
-        obj = json.loads(raw.decode("utf-8-sig"))
-    except UnicodeDecodeError:
-        raise ConfigError(f"{option} {p}: not UTF-8 text") from None
+        obj = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{option} {p}: line {exc.lineno}: not JSON ({exc.msg})") from None
     except (ValueError, RecursionError) as exc:

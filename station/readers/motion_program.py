@@ -47,6 +47,7 @@ from pathlib import Path
 
 from station.errors import ConfigError
 from station.numeric import short_repr
+from station.readers.text import read_small_text
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
 __all__ = ["MotionProgram", "ProgramMove", "read_motion_program", "parse_motion_program", "MOVE_TYPES",
@@ -254,18 +255,7 @@ def parse_motion_program(obj, source: str = "<program>") -> MotionProgram:
 def read_motion_program(path) -> MotionProgram:
     """Read and check a program file (``.json``: JSON; otherwise TOML, or JSON when it starts with ``{``)."""
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            raw = fh.read(MAX_PROGRAM_BYTES + 1)
-    except OSError as exc:
-        raise ConfigError(f"--program {p}: cannot read ({exc.strerror})") from None
-    if len(raw) > MAX_PROGRAM_BYTES:
-        raise ConfigError(f"--program {p}: larger than {MAX_PROGRAM_BYTES} bytes; a program is a few dozen lines")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise ConfigError(f"--program {p}: line {line}: not UTF-8 text") from None
+    text = read_small_text(p, MAX_PROGRAM_BYTES, f"--program {p}", "a program is a few dozen lines", ConfigError)
     as_json = p.suffix.lower() == ".json" or text.lstrip().startswith("{")
     try:
         obj = json.loads(text) if as_json else tomllib.loads(text)
