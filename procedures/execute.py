@@ -78,6 +78,10 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
     params = spec.new_params(cfg, robot, str(report_dir), dict(plan_overrides or {}))
     if fake is not None:
         params["fake"] = dict(fake)
+        rc = cfg.robots.get(robot) if robot is not None else None
+        scatter = getattr(rc, "stop_scatter_mm", None)
+        if scatter is not None:  # the configured robot's simulated arm scatters so (unless the fake says)
+            params["fake"].setdefault("stop_sigma_mm", float(scatter))
     if acceptance:  # what the run's verdict asks beyond the procedure (procedures.decision)
         params["acceptance"] = dict(acceptance)
     run_id = run_id or f"{subject.serial}-{time.strftime('%Y%m%d-%H%M%S')}"

@@ -444,7 +444,8 @@ class SimArm:
     def _start_time(self) -> float:
         return max(float(self.clock.now()), self._t_end)
 
-    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0, *, noise_key=None) -> Move:
+    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0, *, noise_key=None,
+                   profile: str | None = None) -> Move:
         """Queue a synchronised joint move to ``q_rad`` (commanded, nominal model).
 
         Parameters
@@ -456,6 +457,8 @@ class SimArm:
             Identity of the move (see :meth:`_draw_delta`): the same key draws
             the same stopping error in any world of the same seed, whatever
             moved before (a resumed run meets the stops of the run it resumes).
+        profile : {"scurve", "trapezoid"}, optional
+            This move's velocity profile (default the arm's).
 
         Returns
         -------
@@ -482,7 +485,7 @@ class SimArm:
                 speed_frac=speed_frac,
                 accel_frac=accel_frac,
                 jerk_time_s=self.jerk_time_s,
-                profile=self.profile,
+                profile=self.profile if profile is None else profile,
             )
             t_start = self._start_time()
             if plan.duration_s == 0:
@@ -493,7 +496,7 @@ class SimArm:
             return self._append(t_start, plan.trajectory, traj_srv, "joint", noise_key)
 
     def move_linear(self, target, speed_mm_s: float = 250.0, accel_mm_s2: float = 2500.0, *,
-                    noise_key=None) -> Move:
+                    noise_key=None, profile: str | None = None) -> Move:
         """Queue a straight-line TCP move (nominal model, fixed or slerped orientation).
 
         Parameters
@@ -507,6 +510,8 @@ class SimArm:
             Path acceleration.
         noise_key : tuple of int, optional
             As in :meth:`move_joint`.
+        profile : {"scurve", "trapezoid"}, optional
+            This move's path profile (default the arm's).
 
         Returns
         -------
@@ -539,7 +544,7 @@ class SimArm:
                     joint_speed_limits_rad_s=self.robot.joint_speed_limits_rad_s,
                     joint_accel_limits_rad_s2=self.robot.joint_accel_limits_rad_s2,
                     jerk_time_s=self.jerk_time_s,
-                    profile=self.profile,
+                    profile=self.profile if profile is None else profile,
                     ipo_period_s=self.ipo_period_s,
                 )
             except motion.UnreachableTarget as exc:

@@ -659,9 +659,12 @@ def realistic_stop_sigma_rad(robot, rng: np.random.Generator, sigma_mm: float | 
 
     The arm adds an independent Gaussian joint offset at every stop. Its
     size is set so that the TCP scatter at the home pose has ``sigma_mm``
-    per coordinate (default drawn U(0.012, 0.04) mm), which gives ISO 9283
-    ``RP = l_bar + 3 S_l ~ 3.6 sigma`` of about 0.05-0.15 mm, the range of
-    seed 000 Table 3 (0.07-0.20 mm).
+    per coordinate (default drawn uniformly from the model's
+    ``robot.stop_scatter_mm``), which gives ISO 9283
+    ``RP = l_bar + 3 S_l ~ 3.6 sigma``: for the seed's large arm
+    U(0.012, 0.04) mm, RP about 0.05-0.15 mm, the range of seed 000 Table 3
+    (0.07-0.20 mm); for a UR5e U(0.005, 0.011) mm, the RP a real one measured
+    (0.012-0.024 mm, issue 42).
 
     Parameters
     ----------
@@ -678,7 +681,7 @@ def realistic_stop_sigma_rad(robot, rng: np.random.Generator, sigma_mm: float | 
     from station.models.kinematics import joint_jacobian
 
     if sigma_mm is None:
-        sigma_mm = float(rng.uniform(0.012, 0.04))
+        sigma_mm = float(rng.uniform(*getattr(robot, "stop_scatter_mm", (0.012, 0.04))))
     if not (math.isfinite(sigma_mm) and sigma_mm >= 0):
         raise ConfigError(f"`sigma_mm` must be finite and >= 0, got {sigma_mm!r}")
     J = joint_jacobian(robot.dh_nominal, robot.home_q_rad)[:3]
