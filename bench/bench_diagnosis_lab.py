@@ -62,16 +62,19 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=16)
     ap.add_argument("--none", type=int, default=4)
     ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--strength", type=float, nargs=2, default=(1.2, 2.0),
+                    help="the hidden effect's tool-point RMS, a range in times the noise's 3-D RMS")
     args = ap.parse_args()
     seed = int(np.random.SeedSequence().entropy % (2 ** 31)) if args.seed is None else args.seed
     rng = np.random.default_rng(seed)
-    print(f"seed {seed}: RB5-850 as built, 40 poses, 0.05 mm noise, 120 unseen poses (mean 3-D error, mm)")
+    print(f"seed {seed}: RB5-850 as built, 40 poses, 0.05 mm noise, 120 unseen poses, hidden effect "
+          f"U{tuple(args.strength)} x the noise (mean 3-D error, mm)")
     print(f"{'hidden':<26}{'written':>8}{'plain':>8}{'oracle':>8}{'w/plain':>8}{'o/plain':>8}  named")
     ratios, oratios, named_ok = [], [], 0
     t0 = time.perf_counter()
     for k in range(args.draws + args.none):
         hidden = LAB_EFFECTS[int(rng.integers(len(LAB_EFFECTS)))] if k < args.draws else None
-        d = lab_shaped(rng, hidden)
+        d = lab_shaped(rng, hidden, strength=tuple(args.strength))
         res = diagnose_arm(d.dh_nominal, d.q_rad, d.xyz_mm, robot=d.robot)
         w = written_error(res, d)
         dh, B = plain_fit(d.dh_nominal, d.q_rad, d.xyz_mm)

@@ -14,7 +14,9 @@
     ``steps`` (each ``effect``, ``joint``, ``params``, ``ci``,
     ``heldout_rms_before``, ``heldout_rms_after``, ``gain``,
     ``cv_rms_before``, ``cv_rms_after``, ``statistic``, ``threshold``,
-    ``ambiguous_with``), ``simulation_heldout_rms``, ``final_heldout_rms``,
+    ``ambiguous_with``: candidates of the same residual, with the evidence;
+    ``told_apart_from``: those an encompassing test ruled out),
+    ``simulation_heldout_rms``, ``final_heldout_rms``,
     ``noise_floor`` (mm) and ``noise_floor_source``, ``selection``,
     ``geometry``, ``stop_reason``, ``remaining_structure``,
     ``not_testable``, ``rejected``, ``fits`` (each fit's convergence),
@@ -24,7 +26,8 @@
     with the sweep ends' extrapolation figure beside it), ``written_model``
     (whether the effects were written: only when, added to the calibration
     of the training poses, they predict the held-out poses no worse than
-    the calibration alone),
+    the calibration alone; ``geometry``: re-identified with the effects on
+    spread poses, held at the calibration on one-joint sweeps),
     ``extended_model`` (the model file ``--model-out`` writes: the chosen
     effects refitted on every pose, read by ``station predict arm`` and
     ``station compensate arm``). Exit code 3: a fit did not converge (the

@@ -210,9 +210,9 @@ class ArmDiagnosis:
 
     def extended_model(self, *, name: str = "diagnosed", gravity_model: str | None = None,
                        joint_limits_rad=None) -> dict:
-        """The extended model file (schema of :mod:`station.models.arm_model_file`): the table, the base
-        transform of the calibration of every pose and the named effects fitted on every pose with that
-        geometry held; ``station predict``/``compensate`` read it."""
+        """The extended model file (schema of :mod:`station.models.arm_model_file`): from the calibration of
+        every pose, the named effects fitted on every pose with the geometry re-identified with them (spread
+        poses) or held (one-joint sweeps); ``station predict``/``compensate`` read it."""
         from station.models.arm_extended import EffectTerm, terms_to_json
         from station.models.arm_model_file import model_to_json
 
