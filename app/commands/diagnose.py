@@ -220,6 +220,8 @@ def _print(doc: dict) -> None:
         joint = f" joint {s['joint']}" if s["joint"] else ""
         amb = "".join(f"; same residual as {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
                       for a in s["ambiguous_with"])
+        amb += "".join(f"; told apart from {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
+                       for a in s.get("told_apart_from", []))
         print(f"{k:>2}. {s['effect']}{joint}: held-out {s['heldout_rms_before']:.4f} -> {s['heldout_rms_after']:.4f} mm "
               f"({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > {s['threshold']:.1f}{amb}")
     if not doc["steps"]:

@@ -108,6 +108,10 @@ def test_eccentricity_and_compliance_told_apart_on_spread_poses(test_seed, effec
     assert (effect, 2) in res.selected, (test_seed, res.selected)
     assert not any(e == rival for e, _ in res.selected), (test_seed, res.selected)
     step = next(s for s in res.steps if (s.term.effect, s.term.joint) == (effect, 2))
+    # the evidence is in the JSON: each rival told apart, or named as a candidate, with both statistics
+    doc = next(s for s in res.to_json()["steps"] if (s["effect"], s["joint"]) == (effect, 2))
+    for a in doc["told_apart_from"]:
+        assert a["it_beyond"] > 1.0 and not (a["beyond_it"] or 0.0) > 1.0, a
     for a in step.ambiguous_with:
         if a["effect"] == rival and "beyond_it" in a:
             assert not (a["beyond_it"] or 0.0) > 1.0 and not (a["it_beyond"] or 0.0) > 1.0, a

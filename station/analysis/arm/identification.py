@@ -273,14 +273,8 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     """
     m = J.shape[0]
     if m > J.shape[1]:
-        # every decision below depends on J only through J^T J = R^T R: work on a small R. R from the
-        # eigen-decomposition of the column-scaled J^T J (a product and a 41 x 41 decomposition, a quarter of a
-        # QR of the 3N rows): scaled, its rounding is ~1e-8 of a unit column, far below REDUNDANCY_TOL
-        cn = np.linalg.norm(J, axis=0)
-        cn = np.where(cn > 0, cn, 1.0)
-        G = (J.T @ J) / np.outer(cn, cn)
-        w, V = np.linalg.eigh(G)
-        J = (V * np.sqrt(np.clip(w, 0.0, None))).T * cn
+        # every decision below depends on J only through J^T J = R^T R: work on the small R
+        J = np.linalg.qr(J, mode="r")
     norms = np.linalg.norm(J, axis=0)
     # a column this much smaller than the largest is numerically zero (e.g. theta1 in the distances)
     norms = np.where(norms < 1e-9 * max(float(norms.max()), 1e-300), 0.0, norms)

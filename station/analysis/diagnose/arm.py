@@ -926,7 +926,7 @@ def _order_by_encompassing(state: ModelState, q, meas, train, sig: list, alpha_m
             apart.setdefault(sig[top].key, []).append(
                 {"effect": sig[j].effect, "joint": sig[j].joint, "beyond_it": finite_or_none(b_beyond),
                  "it_beyond": finite_or_none(a_beyond),
-                 "note": "told apart: it explains significantly more of the residual than this candidate, which "
+                 "note": "the chosen one explains significantly more of the residual than this candidate, which "
                          f"explains nothing beyond it (statistic over threshold {a_beyond:.3g} and {b_beyond:.3g})"})
         elif not (a_beyond > 1.0) and not (b_beyond > 1.0):
             told.setdefault(sig[top].key, []).append(
