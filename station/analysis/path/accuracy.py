@@ -51,7 +51,8 @@ def _batched(c, commanded):
 
 def at_rt_uncertainty(crossings_mm, commanded_mm, normals, noise_sd_mm, acc: PathAccuracy, subject: str, *,
                       sampling_mm: float = 0.0, trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
-    """u and U of AT and RT: the crossings re-measured with the instrument's noise in their planes.
+    """u and U of AT and RT: the crossings re-measured with the instrument's noise in their planes; both are
+    taken back to no noise (:func:`~station.analysis.path.mc.from_draws` with ``draws2``).
 
     ``normals`` (m, 3) unit normals of the planes (None: noise in all three axes, e.g. a held point);
     ``noise_sd_mm`` per-coordinate sd (scalar or (n, m)); ``sampling_mm``: the standard uncertainty a
@@ -59,16 +60,23 @@ def at_rt_uncertainty(crossings_mm, commanded_mm, normals, noise_sd_mm, acc: Pat
     """
     c = np.asarray(crossings_mm, dtype=float)
     rng = np.random.default_rng([seed, 44, 82])
-    e = rng.standard_normal((trials, *c.shape)) * np.broadcast_to(np.asarray(noise_sd_mm, float),
-                                                                     c.shape[:2])[None, :, :, None]
-    if normals is not None:
-        nn = np.asarray(normals, dtype=float)
-        e -= np.einsum("tnmk,mk->tnm", e, nn)[..., None] * nn[None, None]
-    at, rt = _batched(c[None] + e, np.asarray(commanded_mm, float))
+    sd = np.broadcast_to(np.asarray(noise_sd_mm, float), c.shape[:2])[None, :, :, None]
+    nn = None if normals is None else np.asarray(normals, dtype=float)
+
+    def noise():
+        e = rng.standard_normal((trials, *c.shape)) * sd
+        if nn is not None:
+            e -= np.einsum("tnmk,mk->tnm", e, nn)[..., None] * nn[None, None]
+        return e
+
+    e1 = noise()
+    cmd = np.asarray(commanded_mm, float)
+    at, rt = _batched(c[None] + e1, cmd)
+    at2, rt2 = _batched(c[None] + e1 + noise(), cmd)
     n = c.shape[0]
     extra = {"sampling (interpolation between samples)": sampling_mm / np.sqrt(n)} if sampling_mm else None
-    out = {"AT_mm": from_draws("AT_mm", subject, acc.AT_mm, at, k=k, extra=extra, n=n, seed=seed)}
+    out = {"AT_mm": from_draws("AT_mm", subject, acc.AT_mm, at, k=k, extra=extra, n=n, seed=seed, draws2=at2)}
     if rt is not None and acc.RT_mm is not None:
         extra = {"sampling (interpolation between samples)": sampling_mm} if sampling_mm else None
-        out["RT_mm"] = from_draws("RT_mm", subject, acc.RT_mm, rt, k=k, extra=extra, n=n, seed=seed)
+        out["RT_mm"] = from_draws("RT_mm", subject, acc.RT_mm, rt, k=k, extra=extra, n=n, seed=seed, draws2=rt2)
     return out

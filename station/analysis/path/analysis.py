@@ -17,7 +17,7 @@ import numpy as np
 
 from station.analysis.path.accuracy import at_rt, at_rt_uncertainty
 from station.analysis.path.commanded import Arc, Line, PathSpec, Rectangle, Reorientation, Weaving
-from station.analysis.path.cornering import SMOOTH_S, CornerWindow, cornering, cornering_uncertainty
+from station.analysis.path.cornering import CornerWindow, cornering, cornering_uncertainty
 from station.analysis.path.figures import NAMES, SIGNED
 from station.analysis.path.mc import DEFAULT_TRIALS
 from station.analysis.path.passes import crossings, find_passes, project
@@ -102,8 +102,11 @@ def _accuracy(res, spec, xyz, passes, noise, kw, ds_mm):
     acc = at_rt(c, cmd)
     normals = None if isinstance(g, Reorientation) else g.tangent_at(sp)
     sag = ds_mm ** 2 / (8 * g.radius_mm) / np.sqrt(3) if isinstance(g, Arc) else 0.0
-    res.figures["AT_mm"], res.figures["RT_mm"] = acc.AT_mm, acc.RT_mm
     res.uncertainty.update(at_rt_uncertainty(c, cmd, normals, noise, acc, spec.name, sampling_mm=sag, **kw))
+    # AT, RT taken back to no noise (the ISO formula on the noisy crossings kept beside them)
+    res.detail["as_measured"] = {"AT_mm": acc.AT_mm, "RT_mm": acc.RT_mm}
+    res.figures["AT_mm"] = res.uncertainty["AT_mm"].value
+    res.figures["RT_mm"] = res.uncertainty["RT_mm"].value if "RT_mm" in res.uncertainty else None
     res.detail["planes"] = {"s": [round(float(x), 4) for x in sp], "s_unit": "deg" if normals is None else "mm",
                             "AT_i_mm": [round(float(x), 6) for x in acc.AT_i_mm],
                             "RT_i_mm": None if acc.RT_i_mm is None else [round(float(x), 6) for x in acc.RT_i_mm]}
@@ -141,7 +144,7 @@ def _velocity(res, spec, t, xyz, passes, noise, kw, clock_refused, jump_rows):
         if why:
             res.notes.append(f"cycle {ps.cycle}: left out of the path velocity: {why}")
             continue
-        v = speed(xyz[ps.rows], dt)
+        v = speed(xyz[ps.rows], dt, noise)
         if isinstance(spec.geometry, Arc):  # the filter's bias on the arc, at this cycle's own speed
             bias = curvature_bias(spec.geometry.radius_mm, float(np.mean(v)), dt)
             v = v / (1.0 + bias)
@@ -159,7 +162,8 @@ def _velocity(res, spec, t, xyz, passes, noise, kw, clock_refused, jump_rows):
     pv = path_velocity(speeds, spec.velocity_mm_s)
     res.uncertainty.update(velocity_uncertainty(pieces, spec.velocity_mm_s, noise, pv, spec.name, **kw))
     res.figures.update(AV_percent=pv.AV_percent, RV_percent=pv.RV_percent,
-                       FV_percent=res.uncertainty["FV_percent"].value)  # FV less the noise's push
+                       FV_percent=res.uncertainty["FV_percent"].value)  # FV taken back to no noise
+    res.detail["as_measured"] = {"FV_percent": pv.FV_percent}
     res.detail["velocity"] = {"cycles": len(speeds), "mean_speed_mm_s": [round(float(x), 4) for x in pv.mean_speed_mm_s],
                               "range_mm_s": [round(float(x), 4) for x in pv.range_mm_s]}
 
@@ -171,8 +175,6 @@ def _cornering(res, spec, t, xyz, passes, noise, kw):
     c = np.asarray(g.corners_mm, dtype=float)
     wins = []
     for ps in passes:  # loop over cycles
-        dt = float(np.median(np.diff(t[ps.rows]))) if ps.i1 > ps.i0 else 0.0
-        sm = max(int(round(SMOOTH_S / dt)) | 1, 5) if dt > 0 else 5
         for k in (1, 2, 3):  # loop over the corners inside a cycle
             rows = _window_rows(ps, cs[k] - 0.5 * edges[k - 1], cs[k] + 0.5 * edges[k])
             p = xyz[ps.i0:ps.i1 + 1][rows]
@@ -180,13 +182,15 @@ def _cornering(res, spec, t, xyz, passes, noise, kw):
                 res.notes.append(f"cycle {ps.cycle}, corner {k + 1}: fewer than 3 samples; left out")
                 continue
             t1, t2 = g.tangent_at(cs[k] - 0.5 * edges[k - 1])[0], g.tangent_at(cs[k] + 0.5 * edges[k])[0]
-            wins.append(CornerWindow(k + 1, ps.cycle, p, c[k], t1, t2, float(edges[k]), sm))
+            wins.append(CornerWindow(k + 1, ps.cycle, p, c[k], t1, t2, float(edges[k])))
     if not wins:
         res.refused.update(CR_mm="no corner with samples", CO_mm="no corner with samples")
         return
     cr = cornering(wins)
     res.uncertainty.update(cornering_uncertainty(wins, noise, cr, spec.name, **kw))
-    res.figures.update(CR_mm=cr.CR_mm, CO_mm=res.uncertainty["CO_mm"].value)  # CO less the noise's push
+    # CO taken back to no noise
+    res.detail["as_measured"] = {"CR_mm": cr.CR_mm, "CO_mm": cr.CO_mm}
+    res.figures.update(CR_mm=res.uncertainty["CR_mm"].value, CO_mm=res.uncertainty["CO_mm"].value)
     res.detail["corners"] = [{"corner": a, "cycle": b, "CR_mm": round(float(x), 6), "CO_mm": round(float(y), 6)}
                              for (a, b), x, y in zip(cr.corners, cr.CR_jc_mm, cr.CO_jc_mm)]
     res.detail["blend_mm"] = float(g.blend_mm)
@@ -234,16 +238,21 @@ def analyze_path(spec: PathSpec, t_s, xyz_mm, valid, *, abc_deg=None, noise_sd_m
         if abc_deg is None:
             raise DataError(f"path {spec.name!r} is a reorientation and the stream has no angles (columns a, b, c)")
         ok &= np.all(np.isfinite(abc_deg), axis=1)
-    x0 = np.where(ok[:, None], xyz, 0.0)
-    s, off = project(g, x0, None if abc_deg is None else np.where(ok[:, None], abc_deg, 0.0))
     tube = spec.tube_mm + (g.amplitude_mm if isinstance(g, Weaving) else 0.0)
     win = None if spec.window_s is None else (t >= spec.window_s[0]) & (t <= spec.window_s[1])
+    # only the rows in the path's box (its points every 1/200 of it, plus the tube) are projected
+    box = g.point_at(np.linspace(0.0, g.length_mm, 201))
+    lo_b, hi_b = box.min(axis=0) - tube - 1.0, box.max(axis=0) + tube + 1.0
+    near = ok & np.all((xyz >= lo_b) & (xyz <= hi_b), axis=1) & (True if win is None else win)
+    rows = np.flatnonzero(near)
+    s, off = np.full(t.size, np.nan), np.full(t.size, np.inf)
+    s[rows], off[rows] = project(g, xyz[rows], None if abc_deg is None else np.asarray(abc_deg, float)[rows])
     sp = spec.plane_s_mm()
     lo, hi = sp[0], sp[-1]
     if isinstance(g, Rectangle):  # a cycle from just after the start corner to just before it again
         lo, hi = 0.01 * g.length_mm, 0.99 * g.length_mm
     passes, broken = find_passes(s, off, ok, length=g.length_mm, closed=bool(getattr(g, "closed", False)),
-                                 s_lo=lo, s_hi=hi, tube_mm=tube, in_window=win)
+                                 s_lo=lo, s_hi=hi, tube_mm=tube, in_window=near)
     res = PathResult(spec.name, spec.kind, len(passes), {f: None for f in figures_of(spec)}, broken=broken)
     res.detail["cycle_rows"] = [[int(p.i0), int(p.i1)] for p in passes]
     for b in broken:  # loop over broken passes

@@ -136,7 +136,7 @@ class Rectangle:
     @property
     def _cum(self) -> np.ndarray:
         c = np.asarray(self.corners_mm, dtype=float)
-        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))])
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(c[[1, 2, 3, 0]] - c, axis=1))])
 
     @property
     def length_mm(self) -> float:
@@ -155,7 +155,7 @@ class Rectangle:
     def tangent_at(self, s) -> np.ndarray:
         _, k = self._edge(s)
         c = np.asarray(self.corners_mm, dtype=float)
-        d = np.roll(c, -1, axis=0) - c
+        d = c[[1, 2, 3, 0]] - c
         return (d / np.linalg.norm(d, axis=1)[:, None])[k]
 
     def point_at(self, s) -> np.ndarray:
@@ -254,11 +254,3 @@ class PathSpec:
         if getattr(self.geometry, "closed", False):
             return L * (np.arange(self.planes) + 0.5) / self.planes
         return np.linspace(self.end_margin * L, (1.0 - self.end_margin) * L, self.planes)
-
-
-def dense(geometry, step_mm: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(s (M,), points (M, 3), tangents (M, 3))`` along the path every ``step_mm`` at most."""
-    L = geometry.length_mm
-    M = max(int(np.ceil(L / step_mm)), 1) + 1
-    s = np.linspace(0.0, L, M)
-    return s, geometry.point_at(s), geometry.tangent_at(s)

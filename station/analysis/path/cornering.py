@@ -7,8 +7,10 @@ At a corner point C between edge 1 (direction t1) and edge 2 (direction t2):
 * CO_j = the largest deviation of the attained path, after the corner, from
   the commanded edge 2, outward (along n = t1 - (t1.t2) t2, normalised: the
   side the robot overshoots to), over the first half of edge 2; 0 when it
-  stays inside. The positions are first smoothed by a short local quadratic
-  (:data:`SMOOTH_S`) so the tracker's noise does not make the maximum.
+  stays inside. The samples are not smoothed (a local fit across a rounded
+  corner bends the path outward): the push of the tracker's noise on the
+  maximum is taken back by simulation-extrapolation
+  (:func:`~station.analysis.path.mc.from_draws`).
 
 CR and CO are the largest over the corners and cycles; each corner's values are
 kept. The start corner (where a cycle starts and ends) is not one.
@@ -19,13 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from station.analysis.path.mc import DEFAULT_TRIALS, from_draws
-
-#: time span of the local quadratic smoothing the positions for CO, s
-SMOOTH_S = 0.01
-
 
 @dataclass(frozen=True)
 class CornerWindow:
@@ -38,7 +35,6 @@ class CornerWindow:
     t1: np.ndarray
     t2: np.ndarray
     edge2_mm: float
-    smooth: int = 5
 
 
 @dataclass(frozen=True)
@@ -71,15 +67,9 @@ def _outward(p, win: CornerWindow):
     return np.where(after, out, -np.inf).max(axis=-1).clip(min=0.0)
 
 
-def _smooth(p, w: int):
-    if p.shape[-2] < w:
-        return p
-    return savgol_filter(p, w, 2, axis=-2, mode="interp")
-
-
 def cornering(windows: list[CornerWindow]) -> Cornering:
     cr = np.array([_polyline_distance(w.xyz_mm, w.point_mm) for w in windows])
-    co = np.array([float(_outward(_smooth(w.xyz_mm, w.smooth), w)) for w in windows])
+    co = np.array([float(_outward(w.xyz_mm, w)) for w in windows])
     h = np.array([_sampling_bound(w, c) for w, c in zip(windows, cr)])
     return Cornering(float(cr.max()), float(co.max()), cr, co, h, [(w.corner, w.cycle) for w in windows])
 
@@ -104,27 +94,42 @@ def _sampling_bound(w: CornerWindow, cr: float) -> float:
 
 def cornering_uncertainty(windows: list[CornerWindow], noise_sd_mm: float, res: Cornering, subject: str, *,
                           trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
-    """u, U of CR and CO: each corner's samples re-measured with the instrument noise (3-D)."""
+    """u, U of CR and CO: each corner's samples re-measured with the instrument noise (3-D), once and twice.
+
+    Only what can make the largest is drawn: the corners within 8 noise sd of the largest CR_j (CO_j), and
+    for CO the samples within 8 sd of each one's largest outward deviation.
+    """
     rng = np.random.default_rng([seed, 44, 84])
-    cr = np.empty((trials, len(windows)))
-    co = np.empty((trials, len(windows)))
-    for i, w in enumerate(windows):  # loop over corners x cycles
+    reach = 8.0 * noise_sd_mm
+    pick_cr = np.flatnonzero(res.CR_jc_mm >= res.CR_mm - reach - res.h_jc_mm.max())
+    pick_co = np.flatnonzero(res.CO_jc_mm >= res.CO_mm - reach)
+    cr = np.full((2, trials, pick_cr.size), -np.inf)
+    co = np.zeros((2, trials, pick_co.size))
+
+    def twice(shape):
+        e1 = rng.standard_normal((trials, *shape)) * noise_sd_mm
+        return np.stack([e1, e1 + rng.standard_normal((trials, *shape)) * noise_sd_mm])
+
+    for c, i in enumerate(pick_cr):  # loop over candidate corners
+        w = windows[i]
         j = int(np.argmin(np.linalg.norm(w.xyz_mm - w.point_mm, axis=1)))
         near = w.xyz_mm[max(j - 25, 0):j + 26]
-        cr[:, i] = _polyline_distance(near[None] + rng.standard_normal((trials, *near.shape)) * noise_sd_mm,
-                                      w.point_mm)
+        cr[:, :, c] = _polyline_distance(near[None, None] + twice(near.shape), w.point_mm)
+    for c, i in enumerate(pick_co):  # loop over candidate corners
+        w = windows[i]
+        n = w.t1 - np.dot(w.t1, w.t2) * w.t2
         q = (w.xyz_mm - w.point_mm) @ w.t2
-        idx = np.flatnonzero((q > 0) & (q <= 0.5 * w.edge2_mm))
+        out = np.where((q > 0) & (q <= 0.5 * w.edge2_mm), (w.xyz_mm - w.point_mm) @ (n / np.linalg.norm(n)),
+                       -np.inf)
+        idx = np.flatnonzero(out >= out.max() - reach)
         if idx.size == 0:
-            co[:, i] = 0.0
             continue
-        a, b = max(idx[0] - w.smooth, 0), min(idx[-1] + w.smooth + 1, w.xyz_mm.shape[0])
-        seg = w.xyz_mm[a:b]
-        pert = _smooth(seg[None] + rng.standard_normal((trials, *seg.shape)) * noise_sd_mm, w.smooth)
-        co[:, i] = _outward(pert, w)
+        seg = w.xyz_mm[idx]
+        co[:, :, c] = _outward(seg[None, None] + twice(seg.shape), w)
     n = len(windows)
     h = {"sampling (the path between samples at the corner)": float(res.h_jc_mm[int(np.argmax(res.CR_jc_mm))])
          / np.sqrt(3.0)}
-    return {"CR_mm": from_draws("CR_mm", subject, res.CR_mm, cr.max(axis=1), k=k, extra=h, n=n, seed=seed),
-            "CO_mm": from_draws("CO_mm", subject, res.CO_mm, co.max(axis=1), k=k, n=n, seed=seed, debias=True,
-                                note="corrected for the push of the tracker's noise on the maximum")}
+    crd, cod = cr.max(axis=2), co.max(axis=2) if pick_co.size else np.zeros((2, trials))
+    return {"CR_mm": from_draws("CR_mm", subject, res.CR_mm, crd[0], k=k, extra=h, n=n, seed=seed),
+            "CO_mm": from_draws("CO_mm", subject, res.CO_mm, cod[0], k=k, n=n, seed=seed, draws2=cod[1],
+                                extrapolate="sd")}

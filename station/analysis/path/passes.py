@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.analysis.path.commanded import Arc, Line, Rectangle, Reorientation, Weaving, dense
+from station.analysis.path.commanded import Arc, Line, Rectangle, Reorientation, Weaving
 
 
 @dataclass(frozen=True)
@@ -73,15 +73,19 @@ def project(geometry, xyz_mm, abc_deg=None) -> tuple[np.ndarray, np.ndarray]:
         zc = d @ np.cross(geometry._e1, geometry._e2)
         off = np.hypot(np.hypot(x, y) - geometry.radius_mm, zc)
         return geometry.radius_mm * phi, off
-    if isinstance(geometry, Rectangle):
-        from scipy.spatial import cKDTree
-
-        s_d, pts, tan = dense(geometry, step_mm=0.5)
-        _, j = cKDTree(pts).query(p)
-        d = p - pts[j]
-        ds = np.einsum("ij,ij->i", d, tan[j])
-        s = (s_d[j] + ds) % geometry.length_mm
-        return s, np.linalg.norm(d - ds[:, None] * tan[j], axis=1)
+    if isinstance(geometry, Rectangle):  # the nearest of the four edges
+        c = np.asarray(geometry.corners_mm, dtype=float)
+        best_off = np.full(p.shape[0], np.inf)
+        s = np.zeros(p.shape[0])
+        for k in range(4):  # loop over edges
+            a, e = c[k], c[(k + 1) % 4] - c[k]
+            Le = float(np.linalg.norm(e))
+            q = np.clip((p - a) @ (e / Le), 0.0, Le)
+            o = np.linalg.norm(p - a - q[:, None] * (e / Le), axis=1)
+            better = o < best_off
+            best_off[better] = o[better]
+            s[better] = geometry.corner_s_mm[k] + q[better]
+        return s % geometry.length_mm, best_off
     raise TypeError(f"unknown path geometry {type(geometry).__name__}")
 
 
