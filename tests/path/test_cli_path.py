@@ -51,3 +51,19 @@ def test_unknown_limit_is_exit_2(tmp_path, rng, capsys):
     s, p = _write(tmp_path, sim)
     assert main(["analyze", "path", "--stream", str(s), "--path", str(p), "--limit", "XX_mm=1"]) == 2
     assert "XX_mm" in capsys.readouterr().err
+
+
+def test_coarse_stamps_refuse_the_speed_not_the_geometry(tmp_path, rng, capsys):
+    sim = simarm.line(rng, n_cycles=3, noise=0.01)
+    rows = ["t,x,y,z"] + [f"{np.floor(t * 10) / 10:.1f},{x:.5f},{y:.5f},{z:.5f}" for t, (x, y, z) in zip(sim.t, sim.meas)]
+    s = tmp_path / "coarse.csv"
+    s.write_text("\n".join(rows) + "\n")
+    p = tmp_path / "p.json"
+    p.write_text(json.dumps({"paths": [sim.path]}))
+    out = tmp_path / "o.json"
+    code = main(["analyze", "path", "--stream", str(s), "--path", str(p), "--limit", "AV_percent=50",
+                 "--json", str(out)])
+    d = json.loads(out.read_text())["paths"]["line"]
+    assert code == 3 and "clock" in capsys.readouterr().err
+    assert d["AV_percent"] is None and "clock" in d["refused"]["AV_percent"]
+    assert d["AT_mm"] is not None and d["RT_mm"] is not None

@@ -116,7 +116,7 @@ def _time_cycles(res, passes, t, clock_refused, jump_rows, figs):
     """The passes the clock can time, or None with the figures refused."""
     if clock_refused:
         for f in figs:
-            res.refused[f] = f"the clock failed its check: {clock_refused}"
+            res.refused[f] = clock_refused
         return None
     jr = np.asarray(list(jump_rows), dtype=np.int64)
     keep = []
