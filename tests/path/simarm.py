@@ -262,3 +262,27 @@ def whole_test(rng, *, n_cycles=10, noise=0.01):
         paths.append({**sim.path, "name": name})
         truths[name] = sim.truth
     return np.concatenate(ts), np.concatenate(ps), paths, truths
+
+
+def reorientation(rng, *, n_cycles=10, noise=0.01, turn_deg=None):
+    """The tool point held while the angles turn (clause 8.3): the point wanders with the turn (a static
+    offset, a bend with the angle, a per-cycle scatter); truth from the true points at the turned angles."""
+    p0 = np.array([700.0, 100, 600])
+    a0 = rng.uniform(-30, 30, 3)
+    turn = rng.uniform(20, 60) * rng.standard_normal(3) / np.sqrt(3) if turn_deg is None else turn_deg
+    lat = _lateral(rng, n_cycles)
+    _, e1, e2 = _frame(rng.standard_normal(3))
+    Lt = float(np.linalg.norm(turn))
+    cyc = _along(rng, Lt, rng.uniform(20, 60), n_cycles)
+    parts, abcs = [], []
+    for j, (t, u, _) in enumerate(cyc):  # loop over cycles (u: the angle turned, deg)
+        o = lat(j, u / Lt)
+        parts.append((t, p0 + o[:, :1] * e1 + o[:, 1:] * e2))
+        abcs.append(a0 + (u / Lt)[:, None] * turn)
+    tt, true, meas = _stack(parts, rng, noise)
+    sp = np.linspace(0.05 * Lt, 0.95 * Lt, 50)
+    cross = np.stack([lat(j, sp / Lt) for j in range(n_cycles)])
+    at, rt = iso_at_rt(np.concatenate([cross, np.zeros((*cross.shape[:2], 1))], axis=2))
+    path = {"name": "reorient", "kind": "reorientation", "point_mm": p0.tolist(), "start_abc_deg": a0.tolist(),
+            "end_abc_deg": (a0 + turn).tolist()}
+    return Sim(tt, true, meas, path, {"AT_mm": at, "RT_mm": rt}, abc=np.concatenate(abcs))

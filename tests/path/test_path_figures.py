@@ -63,3 +63,29 @@ def test_one_cycle_is_not_enough(rng):
     spec = parse_paths({"paths": [sim.path]})[0]
     r = analyze_path(spec, sim.t, sim.meas, np.ones(sim.t.size, bool), noise_sd_mm=0.01, trials=20)
     assert r.figures["AT_mm"] is None and "1 complete cycle" in r.refused["AT_mm"]
+
+
+def test_reorientation_AT_RT_within_U_of_truth(rng):
+    inside = {"AT_mm": 0, "RT_mm": 0}
+    for _ in range(DRAWS):  # loop over draws
+        noise = rng.uniform(0.005, 0.02)
+        sim = simarm.reorientation(rng, n_cycles=5, noise=noise)
+        spec = parse_paths({"paths": [sim.path]})[0]
+        abc = sim.abc + rng.standard_normal(sim.abc.shape) * 0.001  # the angles' own noise, deg
+        r = analyze_path(spec, sim.t, sim.meas, np.ones(sim.t.size, bool), abc_deg=abc, noise_sd_mm=noise,
+                         trials=60, seed=int(rng.integers(2**31)))
+        assert r.n_cycles == 5, r.notes
+        for fig in inside:  # loop over figures
+            inside[fig] += int(abs(r.figures[fig] - sim.truth[fig]) <= r.uncertainty[fig].U)
+    assert all(v >= MIN_INSIDE for v in inside.values()), inside
+
+
+def test_reorientation_without_angles_is_refused_clearly(rng):
+    import pytest as _pytest
+
+    from station.errors import DataError
+
+    sim = simarm.reorientation(rng, n_cycles=2, noise=0.01)
+    spec = parse_paths({"paths": [sim.path]})[0]
+    with _pytest.raises(DataError, match="no angles"):
+        analyze_path(spec, sim.t, sim.meas, np.ones(sim.t.size, bool), noise_sd_mm=0.01)
