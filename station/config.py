@@ -111,9 +111,9 @@ class LimitsConfig(_Strict):
             raise
 
     def by_characteristic(self) -> dict[str, float]:
-        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``)."""
-        keys = _limit_keys()
-        return {keys[k]: float(v) for k, v in (self.model_extra or {}).items() if v is not None}
+        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``), in the table's order."""
+        given = self.model_extra or {}
+        return {key: float(given[k]) for k, key in _limit_keys().items() if given.get(k) is not None}
 
 
 class WorkspaceConfig(_Strict):
