@@ -87,6 +87,11 @@ def test_a_row_added_to_the_table_is_a_limit_of_the_cli_and_a_key_of_its_json(tm
     with table.added(SPREAD):
         assert main(args) == 1  # every spread is above 1 um: FAIL
         res = json.loads((tmp_path / "r.json").read_text())
+        out = capsys.readouterr().out
+    header = next(line for line in out.splitlines() if line.startswith("pose "))
+    assert "SPREAD_mm" in header.split()  # a column of the console's pose table
+    p1 = next(line for line in out.splitlines() if line.startswith("P1 ")).split()
+    assert float(p1[header.split().index("SPREAD_mm")]) == pytest.approx(res["poses"]["P1"]["SPREAD_mm"], abs=1e-3)
     for name, pose in res["poses"].items():
         assert pose["SPREAD_mm"] == pytest.approx(_spread_of(_attained(pose)), abs=1e-6)
     verdicts = [v for v in res["verdicts"] if v["characteristic"] == "SPREAD_mm"]
