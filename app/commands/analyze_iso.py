@@ -44,6 +44,7 @@ from app.commands.analyze_inputs import (
     window_parameters,
 )
 from app.commands.analyze_outcome import decide
+from station.analysis.iso9283.table import limit_levels
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
 from station.readers.date_time import DATE_ORDERS
@@ -91,7 +92,9 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("--band", choices=("limit", "own"), default=None,
                    help="POS/PST limit band: the --limit-mm value (default when given) or each pose's own RP")
     s.add_argument("--limit", action="append", default=[], metavar="KEY=VALUE",
-                   help="further limits, repeatable, e.g. AP_mm=5 PST_s=0.5 vAP_mm=1.5 MPT_s=6")
+                   help="further limits, repeatable, e.g. AP_mm=5 PST_s=0.5; KEY one of "
+                        + ", ".join(limit_levels()) + " (a station config's robots.<r>.limits take the same, "
+                        "as ap_limit_mm, pst_limit_s, ...)")
     s.add_argument("--order", default=None, help="commanded order of one cycle, e.g. P2,P3,P4,P5,P1")
     s.add_argument("--distance", action="append", default=None, metavar="A,B",
                    help="pose pair for AD/RD (default P2,P4 when present); repeatable")

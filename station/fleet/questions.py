@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from station.analysis.iso9283.table import from_their_cycles
 from station.errors import ConfigError
 from station.fleet.trend import benjamini_hochberg, trends
 from station.store import RunStore, StoreError
@@ -247,6 +248,6 @@ def _stored_verdicts(store: RunStore, run_id: str) -> dict:
         res = store.result(run_id, "iso9283")
     except StoreError:  # a run of another procedure, or stored before its analysis
         return {}
-    vs = list((res.get("pose") or {}).get("verdicts", []))
-    vs += [v for v in (res.get("vap") or {}).get("verdicts", []) if v.get("characteristic") == "vAP_mm"]
+    vs = from_their_cycles((res.get("pose") or {}).get("verdicts", []), (res.get("vap") or {}).get("verdicts", []),
+                           key=lambda v: v.get("characteristic"))
     return {(v.get("characteristic"), v.get("subject")): v for v in vs}

@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from station.analysis.decision import check_rule, decide
+from station.analysis.iso9283.table import unit_of
 from station.analysis.uncertainty import (
     Budget,
     FigureUncertainty,
@@ -142,10 +143,6 @@ def apply_rule(res, uncertainties: dict[Key, FigureUncertainty], rule: str):
         new.append(replace(v, outcome=d.outcome, note=note, uncertainty=fu, rule=rule, guard_band=d.guard_band))
     extra = {"uncertainties": dict(uncertainties)} if hasattr(res, "uncertainties") else {}
     return replace(res, verdicts=tuple(new), **extra)
-
-
-def unit_of(characteristic: str) -> str:
-    return characteristic.rsplit("_", 1)[-1]
 
 
 def verdict_uncertainty_dict(v) -> dict:
