@@ -102,3 +102,24 @@ def test_a_limit_the_table_lacks_is_refused_naming_it():
         config_from_dict(_config({"ap_limit_um": 5.0}))
     with pytest.raises(ConfigError, match=r"robots\.r1\.limits\.rpa_limit_deg"):
         config_from_dict(_config({"rpa_limit_deg": -1.0}))
+
+
+def test_every_figure_of_the_station_is_a_row_of_the_one_table():
+    """The path test's, the compliance test's and the fleet's figures are rows of the same table (programme
+    path, compliance, fleet): the analyses read their names and units there, and none of them leaks into the
+    pose test's limits (a station config's robots.<r>.limits, --limit of analyze iso9283)."""
+    from station.analysis.iso9283 import compliance, exchangeability
+    from station.analysis.path import figures as path_figures
+
+    path_keys = {c.key for c in table.characteristics("path")}
+    assert path_keys == {"AT_mm", "RT_mm", "CR_mm", "CO_mm", "AV_percent", "RV_percent", "FV_percent",
+                         "WS_percent", "WF_percent"}
+    assert set(path_figures.NAMES) == path_keys
+    assert compliance.COMPLIANCE is table.get("compliance_mm_per_N", "compliance")
+    assert compliance.COMPLIANCE.unit == "mm/N" and compliance.COMPLIANCE.level == "direction"
+    assert exchangeability.EXCHANGEABILITY is table.get("exchangeability_mm", "fleet")
+    pose = table.limit_levels()
+    assert not ({"CR_mm", "AV_percent", "compliance_mm_per_N", "exchangeability_mm"} & set(pose))
+    assert table.get("CR_mm") is None and table.get("CR_mm", "path") is not None
+    assert table.unit_of("WS_percent") == "%" and table.unit_of("compliance_mm_per_N") == "mm/N"
+    assert "compliance_mm_per_N" in table.history_names()

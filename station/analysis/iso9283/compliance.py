@@ -30,8 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.analysis.iso9283.more_figures import COMPLIANCE
+from station.analysis.iso9283 import table
 from station.errors import ConfigError, DataError, InsufficientDataError
+
+#: the figure (its row of the characteristics table)
+COMPLIANCE = table.get("compliance_mm_per_N", "compliance")
 
 #: the directions of the test, base frame: name -> unit vector
 DIRECTIONS: dict[str, tuple[float, float, float]] = {

@@ -41,8 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.analysis.iso9283.more_figures import EXCHANGEABILITY
+from station.analysis.iso9283 import table
 from station.errors import DataError, InsufficientDataError
+
+#: the figure (its row of the characteristics table)
+EXCHANGEABILITY = table.get("exchangeability_mm", "fleet")
 
 #: plan entries that make two runs the same test programme, with the tolerance of a number in each
 SAME_PROGRAMME = {"poses_mm": 1e-6, "payload_kg": 1e-9, "speed_frac": 1e-9, "dwell_s": 1e-9, "cycles": 0.0,

@@ -21,8 +21,17 @@ added for the length of a ``with`` block (:func:`added`), as the tests do.
 
 Levels: ``pose`` (one figure per commanded pose, subject ``"P1"``), ``pair``
 (a pose pair, ``"P2-P4"``), ``move`` (a move between two poses,
-``"P1->P2"``), ``path`` (a path segment, ``"P1->P2"``), ``run`` (one figure for
+``"P1->P2"``), ``path`` (a path segment, ``"P1->P2"``), ``direction`` (a load
+direction of the static compliance test, ``"+x"``), ``run`` (one figure for
 the whole run, subject ``"run"``).
+
+Programmes: each row says which test states it. ``pose`` is the ISO 9283
+pose test (``station run iso9283``, ``station analyze iso9283``; it also
+states AT/RT of straight moves in its stream), ``path`` the path test's
+analysis (``station analyze path``, clauses 8.2-8.5 and 11), ``compliance``
+the static compliance test (clause 10), ``fleet`` the figures over several
+robots' stored runs (exchangeability, 7.8). The functions below answer for
+the pose test unless a programme is named.
 """
 
 from __future__ import annotations
@@ -34,7 +43,10 @@ from dataclasses import dataclass
 from typing import Any
 
 #: the levels a characteristic is stated at, in the order the verdicts and rows list them
-LEVELS = ("pose", "pair", "move", "path", "run")
+LEVELS = ("pose", "pair", "move", "path", "direction", "run")
+
+#: the tests that state characteristics (see the module's docstring)
+PROGRAMMES = ("pose", "path", "compliance", "fleet")
 
 
 @dataclass(frozen=True)
@@ -68,19 +80,25 @@ class Characteristic:
     in_json: bool = True
     #: the equation of seed 000 (or the ISO 9283 clause) it implements
     source: str = ""
+    #: the test that states it (:data:`PROGRAMMES`)
+    programme: str = "pose"
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
             raise ValueError(f"characteristic {self.key}: level {self.level!r} is not one of {', '.join(LEVELS)}")
-        if self.unit != "1" and not self.key.endswith(f"_{self.unit}"):
+        if self.programme not in PROGRAMMES:
+            raise ValueError(f"characteristic {self.key}: programme {self.programme!r} is not one of "
+                             f"{', '.join(PROGRAMMES)}")
+        suffix = unit_suffix(self.unit)
+        if self.unit != "1" and not self.key.endswith(f"_{suffix}"):
             raise ValueError(f"characteristic {self.key}: the key must carry its unit ({self.unit})")
-        if self.limit_key is not None and not self.limit_key.endswith(f"_{self.unit}"):
+        if self.limit_key is not None and not self.limit_key.endswith(f"_{suffix}"):
             raise ValueError(f"characteristic {self.key}: limit key {self.limit_key} must carry the unit {self.unit}")
 
     @property
     def symbol(self) -> str:
         """The key without its unit (``AP``)."""
-        return self.key if self.unit == "1" else self.key[: -len(self.unit) - 1]
+        return self.key if self.unit == "1" else self.key[: -len(unit_suffix(self.unit)) - 1]
 
     @property
     def column(self) -> str:
@@ -97,6 +115,11 @@ class Characteristic:
             return None
         v = float(v)
         return v if math.isfinite(v) else None
+
+
+def unit_suffix(unit: str) -> str:
+    """How a unit is spelled at the end of a key: ``mm``, ``s``, ``percent`` for %, ``mm_per_N`` for mm/N."""
+    return unit.replace("%", "percent").replace("/", "_per_")
 
 
 def _pose(attr: str, field: str):
@@ -151,49 +174,78 @@ _ROWS: tuple[Characteristic, ...] = (
                    "fewer than 2 traversals", needs_stream=True, source="ISO 9283 path accuracy"),
     Characteristic("RT_mm", "mm", "path", "rt_limit_mm", "Path repeatability RT", lambda p: p.RT_mm,
                    "fewer than 2 traversals", needs_stream=True, source="ISO 9283 path repeatability"),
+    # the path test (station.analysis.path): one value per commanded path of the path file
+    *(Characteristic(key, unit, "path", None, title, lambda p, key=key: getattr(p, key, None), "not stated for this path",
+                     needs_stream=True, source=f"ISO 9283 {clause}", programme="path")
+      for key, unit, clause, title in (
+          ("AT_mm", "mm", "8.2", "Path accuracy AT: largest distance of a normal plane's barycentre from the commanded point"),
+          ("RT_mm", "mm", "8.2", "Path repeatability RT: largest l_bar + 3 S_l over the normal planes"),
+          ("CR_mm", "mm", "8.4", "Cornering round-off error CR: least distance of the attained path from the corner "
+                                 "point (largest over corners and cycles)"),
+          ("CO_mm", "mm", "8.4", "Cornering overshoot CO: largest deviation outward of the second edge after the "
+                                 "corner (largest over corners and cycles)"),
+          ("AV_percent", "%", "8.5", "Path velocity accuracy AV: (mean attained speed - commanded) / commanded"),
+          ("RV_percent", "%", "8.5", "Path velocity repeatability RV: 3 S of the cycles' mean speeds / commanded"),
+          ("FV_percent", "%", "8.5", "Path velocity fluctuation FV: largest max - min of the speed within one cycle "
+                                     "/ commanded"),
+          ("WS_percent", "%", "11", "Weaving stroke error WS: (mean attained amplitude - commanded) / commanded"),
+          ("WF_percent", "%", "11", "Weaving frequency error WF: (mean attained frequency - commanded) / commanded"),
+      )),
+    # the static compliance test (station.analysis.iso9283.compliance): one value per load direction
+    Characteristic("compliance_mm_per_N", "mm/N", "direction", None, "Static compliance",
+                   lambda d: getattr(d, "compliance_mm_per_N", None), "no loading in this direction", stated=True,
+                   source="ISO 9283 clause 10: slope of the displacement along the load against the load",
+                   programme="compliance"),
+    # over several robots of one model (station.fleet.exchangeability): one value per pose and the largest
+    Characteristic("exchangeability_mm", "mm", "pose", None, "Exchangeability",
+                   lambda e: getattr(e, "exchangeability_mm", None), "fewer than 2 robots",
+                   source="ISO 9283 7.8: largest distance between the barycentres of the robots at a pose",
+                   programme="fleet"),
 )
 
 
 def _check_unique(rows) -> None:
     for attr in ("key", "limit_key"):
-        seen = [getattr(c, attr) for c in rows if getattr(c, attr) is not None]
+        seen = [(c.programme, getattr(c, attr)) for c in rows if getattr(c, attr) is not None]
         twice = sorted({k for k in seen if seen.count(k) > 1})
         if twice:
-            raise ValueError(f"the characteristics table names {attr} {', '.join(twice)} twice")
+            raise ValueError(f"the characteristics table names {attr} {', '.join(k for _, k in twice)} twice")
 
 
 _check_unique(_ROWS)
 
 
-def characteristics() -> tuple[Characteristic, ...]:
-    """Every characteristic, in the table's order (the order of verdicts and rows within a level)."""
-    return _ROWS
+def characteristics(programme: str = "pose") -> tuple[Characteristic, ...]:
+    """The characteristics ``programme`` states, in the table's order (the order of verdicts and rows within
+    a level); ``"*"``: every row."""
+    return _ROWS if programme == "*" else tuple(c for c in _ROWS if c.programme == programme)
 
 
-def get(key: str) -> Characteristic | None:
-    """The characteristic of ``key`` (``"AP_mm"``), None when the table has none."""
-    return next((c for c in _ROWS if c.key == key), None)
+def get(key: str, programme: str = "pose") -> Characteristic | None:
+    """The characteristic of ``key`` (``"AP_mm"``) that ``programme`` states, None when the table has none."""
+    return next((c for c in characteristics(programme) if c.key == key), None)
 
 
-def limit_levels() -> dict[str, str]:
+def limit_levels(programme: str = "pose") -> dict[str, str]:
     """``{key: level}`` of every characteristic a limit can be given for (``--limit KEY=VALUE``)."""
-    return {c.key: c.level for c in _ROWS if c.limit_key is not None}
+    return {c.key: c.level for c in characteristics(programme) if c.limit_key is not None}
 
 
-def config_limit_keys() -> dict[str, str]:
+def config_limit_keys(programme: str = "pose") -> dict[str, str]:
     """``{config limit key: characteristic key}`` (``{"ap_limit_mm": "AP_mm", ...}``)."""
-    return {c.limit_key: c.key for c in _ROWS if c.limit_key is not None}
+    return {c.limit_key: c.key for c in characteristics(programme) if c.limit_key is not None}
 
 
 def unit_of(key: str) -> str:
-    """The unit of a characteristic (from the table; the key's suffix for a name the table lacks)."""
-    c = get(key)
+    """The unit of a characteristic (from the table, any programme; the key's suffix for a name it lacks)."""
+    c = get(key) or get(key, "*")
     return c.unit if c is not None else key.rsplit("_", 1)[-1]
 
 
 def history_names() -> tuple[str, ...]:
-    """The figures every run states, to follow across a robot's runs (counts left out)."""
-    return tuple(c.key for c in _ROWS if c.stated and c.unit != "1")
+    """The figures every run states, to follow across a robot's runs (counts left out): the pose test's and
+    the compliance test's."""
+    return tuple(c.key for c in _ROWS if c.stated and c.unit != "1" and c.programme in ("pose", "compliance"))
 
 
 def subjects(result, level: str) -> list[tuple[str, Any]]:
@@ -214,7 +266,7 @@ def figures(result, select: Callable[[Characteristic], bool] = lambda c: True
     """``(characteristic, subject name, subject result)`` of ``result`` for the selected characteristics:
     level by level, subject by subject, in the table's order."""
     for level in LEVELS:
-        chars = [c for c in _ROWS if c.level == level and select(c)]
+        chars = [c for c in characteristics() if c.level == level and select(c)]
         if not chars:
             continue
         for name, subject in subjects(result, level):
