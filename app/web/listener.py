@@ -137,8 +137,8 @@ class ReservingListener(socket.socket):
         if self._logged_at is None or now - self._logged_at >= ACCEPT_LOG_INTERVAL_S:
             since = "" if self._logged_at is None else f" in the last {now - self._logged_at:.0f} s"
             log.warning("accept() refused %d time(s)%s (%s: %s); room made %d time(s) by closing connections "
-                        "waiting for their heads, %d new connection(s) dropped", self.refused, since, errno.errorcode.get(exc.errno, exc.errno),
-                        exc.strerror, self.evicted, self.dropped)
+                        "waiting for their heads, %d new connection(s) dropped", self.refused, since,
+                        errno.errorcode.get(exc.errno, exc.errno), exc.strerror, self.evicted, self.dropped)
             self._logged_at = now
             self.refused = self.evicted = self.dropped = 0
 
