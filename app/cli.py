@@ -47,6 +47,7 @@ class _ShownStream:
 
     def __init__(self, raw) -> None:
         self._raw = raw
+        self.unscreened = raw  # for the progress bar's own escapes (station.runner), which screens its text
 
     def write(self, text: str) -> int:
         self._raw.write(shown(text, lines=True))

@@ -41,6 +41,7 @@ import numpy as np
 from station.errors import RunStateError, SafetyError, StationError
 from station.store import RunStore
 from station.numeric import json_default
+from station.shown import shown
 
 
 
@@ -364,7 +365,9 @@ class ProgressLine:
         from rich.progress import BarColumn, Progress, TextColumn
         from rich.table import Column
 
-        console = Console(file=self.stream, force_terminal=True, highlight=False, soft_wrap=False)
+        # the bar's own escapes go to the terminal itself (the CLI screens what commands print, see app.cli);
+        # the names in it are screened here
+        console = Console(file=getattr(self.stream, "unscreened", self.stream), force_terminal=True, highlight=False, soft_wrap=False)
         self._bar = Progress(
             BarColumn(bar_width=16),
             TextColumn("{task.fields[count]}"),
@@ -397,7 +400,7 @@ class ProgressLine:
         self._last = now
         from rich.text import Text
 
-        self._bar.update(self._task, completed=self.done, total=max(self.total, 1), description=Text(label),
+        self._bar.update(self._task, completed=self.done, total=max(self.total, 1), description=Text(shown(label)),
                          times=self._times(), count=f"{idx + 1:>3}/{self.total}")
         if not self._paused:
             self._bar.refresh()
@@ -408,7 +411,7 @@ class ProgressLine:
         if self._bar is not None and not self._paused:
             from rich.text import Text
 
-            self._bar.console.print(Text(message))  # above the bar, which is redrawn below it
+            self._bar.console.print(Text(shown(message, lines=True)))  # above the bar, which is redrawn below it
             return
         self.stream.write(message + "\n")
         self.stream.flush()
