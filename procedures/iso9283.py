@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from procedures.plan_params import plan_from_params, plan_params
 from station.analysis.iso9283.characteristics import ISO_CYCLES, analyze_iso9283, conformance_text
 from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
@@ -114,39 +115,11 @@ class IsoPlan:
         )
 
     def params(self) -> dict:
-        return {
-            "robot": self.robot.name, "workspace_min_mm": list(self.workspace_min_mm),
-            "workspace_max_mm": list(self.workspace_max_mm), "max_tcp_speed_mm_s": self.max_tcp_speed_mm_s,
-            "poses_mm": {k: list(v) for k, v in self.poses_mm.items()},
-            "registration_mm": {k: list(v) for k, v in self.registration_mm.items()},
-            "cycles": self.cycles, "vap_cycles": self.vap_cycles, "dwell_s": self.dwell_s,
-            "speed_frac": self.speed_frac, "vap_offset_mm": self.vap_offset_mm,
-            "tracker_rate_hz": self.tracker_rate_hz, "limits": dict(self.limits), "band_mm": self.band_mm,
-            "payload_kg": self.payload_kg, "report_dir": self.report_dir,
-            "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
-            "registration": self.registration, "axis_sweep_deg": list(self.axis_sweep_deg),
-            "axis_sweep_points": self.axis_sweep_points,
-            "decision_rule": self.decision_rule, "uncertainty": None if self.uncertainty is None else dict(self.uncertainty),
-        }
+        return plan_params(self)
 
     @classmethod
     def from_params(cls, p: Mapping) -> "IsoPlan":
-        return cls(
-            robot=get_robot(p["robot"]), workspace_min_mm=tuple(p["workspace_min_mm"]),
-            workspace_max_mm=tuple(p["workspace_max_mm"]), max_tcp_speed_mm_s=float(p["max_tcp_speed_mm_s"]),
-            poses_mm={k: tuple(v) for k, v in p["poses_mm"].items()},
-            registration_mm={k: tuple(v) for k, v in p["registration_mm"].items()},
-            cycles=int(p["cycles"]), vap_cycles=int(p["vap_cycles"]), dwell_s=float(p["dwell_s"]),
-            speed_frac=float(p["speed_frac"]), vap_offset_mm=float(p["vap_offset_mm"]),
-            tracker_rate_hz=float(p["tracker_rate_hz"]), limits=dict(p["limits"]), band_mm=p["band_mm"],
-            payload_kg=float(p["payload_kg"]), report_dir=str(p["report_dir"]),
-            max_speed_frac=float(p.get("max_speed_frac", 1.0)), max_accel_frac=float(p.get("max_accel_frac", 1.0)),
-            registration=str(p.get("registration", "axes")),
-            axis_sweep_deg=tuple(p.get("axis_sweep_deg", (25.0, 30.0))),
-            axis_sweep_points=int(p.get("axis_sweep_points", 13)),
-            decision_rule=str(p.get("decision_rule", "simple")),
-            uncertainty=None if p.get("uncertainty") is None else dict(p["uncertainty"]),
-        )
+        return plan_from_params(cls, p)
 
 
 def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:

@@ -125,6 +125,9 @@ class RobotConfig(_Strict):
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
     overhaul_state: Literal["before", "after", "new", "in-service"] = "in-service"
     payload_kg: float = Field(0.0, ge=0, le=10_000, allow_inf_nan=False)
+    #: the stop scatter of this robot's simulated arm (a fake cell), mm, 1 sigma per coordinate of the tool at
+    #: home (None: drawn from the model's range, station.models.robots.RobotSpec.stop_scatter_mm)
+    stop_scatter_mm: float | None = Field(None, ge=0, le=1, allow_inf_nan=False)
     controller: str
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()

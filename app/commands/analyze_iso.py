@@ -120,6 +120,10 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
                    help="the tracker's MPE per coordinate, um + um/m (k = 2 bound), e.g. 15+6/m, or a standard "
                         "deviation sd:7.5+3/m; states u and U of every figure (default with --decision-rule "
                         "guarded: 15+6/m)")
+    u.add_argument("--tracker-noise", default=None, metavar="FILE",
+                   help="the tracker's reading noise (a noise file, e.g. `analyze hold --noise-out`): the random "
+                        "error of a reading is then its white and wander noise, and the MPE a systematic error of "
+                        "the session (AP, AD); states u and U of every figure")
     u.add_argument("--temperature-u-k", type=float, default=0.0,
                    help="uncertainty of the air temperature of the tracker's compensation, K (default 0)")
     u.add_argument("--mc-trials", type=int, default=None, help="Monte Carlo trials (default 20000)")
@@ -170,13 +174,18 @@ def _write_json(path, d) -> None:
 
 def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
     """The result decided by the rule with every figure's uncertainty (unchanged when none is asked)."""
-    if args.decision_rule == "simple" and args.tracker_uncertainty is None:
+    if args.decision_rule == "simple" and args.tracker_uncertainty is None and args.tracker_noise is None:
         return res, None
     from station.analysis.iso9283.uncertainty import with_uncertainty
     from station.analysis.uncertainty import budget_from_options
 
+    noise_um = None
+    if args.tracker_noise is not None:
+        from station.models.tracker_noise import read_tracker_noise
+
+        noise_um = read_tracker_noise(args.tracker_noise, "--tracker-noise").total_um
     budget = budget_from_options(args.tracker_uncertainty, temperature_u_K=args.temperature_u_k,
-                                 trials=args.mc_trials, seed=args.mc_seed, rate_hz=rate_hz)
+                                 trials=args.mc_trials, seed=args.mc_seed, rate_hz=rate_hz, noise_um=noise_um)
     base = None
     if args.register is not None:
         from station.readers.registration_files import read_registration_csv

@@ -234,7 +234,7 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
 
     async def record_overhaul(request: Request) -> Response:
         """An overhaul of the robot recorded from its page (as ``station store overhaul`` does)."""
-        from station.fleet import parse_when
+        from station.fleet.questions import parse_when
 
         serial = request.path_params["serial"]
         form, refused = await _checked_post(request)

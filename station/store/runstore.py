@@ -3,7 +3,7 @@
 One interface, two backends (:mod:`station.store.backends`): a SQLite file
 (WAL) is the station's own store; a ``postgresql://`` URL is the plant's
 central store that stations forward their runs to
-(:mod:`station.store_forward`). The logical schema, its version and the
+(:mod:`station.store.forward`). The logical schema, its version and the
 migrations are in :mod:`station.store.schema`.
 
 What it keeps
@@ -166,7 +166,7 @@ class RunStore:
     # -- plumbing ---------------------------------------------------------
     @property
     def backend(self):
-        """The connection (for :mod:`station.store_forward` and the fleet queries)."""
+        """The connection (for :mod:`station.store.forward` and the fleet queries)."""
         return self._b
 
     def close(self) -> None:

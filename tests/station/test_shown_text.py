@@ -14,7 +14,7 @@ import pytest
 from app.cli import main
 from station.report import Report, render_html
 from station.shown import QUOTE_MOST, shown
-from station.test_record import junit_xml, write
+from station.run_record import junit_xml, write
 from tests.store.helpers import station_config
 
 #: what the hostile pass tried, and the rest of C0, DEL and C1

@@ -95,7 +95,7 @@ def figure_uncertainties(res, budget: Budget, points_by_row=None) -> dict[Key, F
         pa, pb = res.poses[d.pose_a], res.poses[d.pose_b]
         ma = pa.attained_mm.mean(axis=0) if pa.n_cycles else None
         mb = pb.attained_mm.mean(axis=0) if pb.n_cycles else None
-        sys_sd = budget.scale_sd() * float(np.mean(d.D_mm))
+        sys_sd = math.hypot(budget.scale_sd(), budget.systematic_scale_sd()) * float(np.mean(d.D_mm))
         put(mean_uncertainty("AD_mm", subj, d.D_mm, d.AD_mm, budget, reference=d.Dc_mm, systematic_sd=sys_sd))
         if d.RD_mm is not None and ma is not None and mb is not None:
             nv = float(budget.instrument_sd_mm(ma)) ** 2 + float(budget.instrument_sd_mm(mb)) ** 2
@@ -182,6 +182,8 @@ def format_uncertainty_lines(uncertainties: dict[Key, FigureUncertainty], budget
     b = budget
     inst = (f"{b.instrument_a_um:g} um + {b.instrument_b_um_per_m:g} um/m "
             + ("MPE (k = 2)" if b.instrument_kind == "mpe" else "sd"))
+    if b.instrument_noise_um is not None:
+        inst += f" systematic, reading noise {b.instrument_noise_um:g} um"
     reg = ("none" if b.registration_rms_mm is None
            else f"fit rms {b.registration_rms_mm:.4f} mm over {b.registration_n} pairs")
     lines = [f"decision rule: {rule}; uncertainty budget: instrument {inst}; registration {reg}; "

@@ -13,7 +13,7 @@
   (ISO 14253-1) into non-conformance proven and not decided (a figure in its
   guard band, on either side of the limit);
 * :func:`drifting` — robots of a model whose characteristic grows with time
-  since their last overhaul, by the trend test of :mod:`station.fleet_trend`
+  since their last overhaul, by the trend test of :mod:`station.fleet.trend`
   with false-discovery control across the model's robots.
 
 A robot is its model and serial, in every question here as in the store.
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from station.errors import ConfigError
-from station.fleet_trend import benjamini_hochberg, trends
+from station.fleet.trend import benjamini_hochberg, trends
 from station.store import RunStore, StoreError
 from station.verdict import Outcome
 
@@ -166,7 +166,7 @@ def drifting(store: RunStore, name: str, *, model: str | None = None, q_max: flo
     """Robots (of ``model``, or every model) whose ``name`` grows since their last overhaul.
 
     Per robot with at least ``min_runs`` runs since, the one-sided trend test
-    of :func:`station.fleet_trend.trends`; the p-values of a model's robots
+    of :func:`station.fleet.trend.trends`; the p-values of a model's robots
     become Benjamini-Hochberg q-values and a robot drifts when ``q <= q_max``.
     Returns the drifting robots, largest slope first, with slope, p and q.
     """
