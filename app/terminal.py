@@ -15,6 +15,7 @@ from typing import TextIO
 
 from station.errors import SafetyError
 from station.runner import Step
+from station.shown import shown
 
 
 class InteractiveOperator:
@@ -117,7 +118,9 @@ class ProgressLine:
         from rich.progress import BarColumn, Progress, TextColumn
         from rich.table import Column
 
-        console = Console(file=self.stream, force_terminal=True, highlight=False, soft_wrap=False)
+        # the bar's own escapes go to the terminal itself (the CLI screens what commands print, see app.cli);
+        # the names in it are screened here
+        console = Console(file=getattr(self.stream, "unscreened", self.stream), force_terminal=True, highlight=False, soft_wrap=False)
         self._bar = Progress(
             BarColumn(bar_width=16),
             TextColumn("{task.fields[count]}"),
@@ -150,7 +153,7 @@ class ProgressLine:
         self._last = now
         from rich.text import Text
 
-        self._bar.update(self._task, completed=self.done, total=max(self.total, 1), description=Text(label),
+        self._bar.update(self._task, completed=self.done, total=max(self.total, 1), description=Text(shown(label)),
                          times=self._times(), count=f"{idx + 1:>3}/{self.total}")
         if not self._paused:
             self._bar.refresh()
@@ -161,7 +164,7 @@ class ProgressLine:
         if self._bar is not None and not self._paused:
             from rich.text import Text
 
-            self._bar.console.print(Text(message))  # above the bar, which is redrawn below it
+            self._bar.console.print(Text(shown(message, lines=True)))  # above the bar, which is redrawn below it
             return
         self.stream.write(message + "\n")
         self.stream.flush()

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.shown import shown
 from station.verdict import Outcome, combine, outcome_of
 
 
@@ -351,8 +352,11 @@ figure{margin:1.5em 0}figcaption{font-size:.9em;color:#555}
 
 
 def render_html(report: Report) -> str:
-    """The report as one HTML document (inline CSS and SVG)."""
-    e = html.escape
+    """The report as one HTML document (inline CSS and SVG); control characters in names shown escaped."""
+
+    def e(text) -> str:
+        return html.escape(shown(text, lines=True))
+
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>{e(report.title)}</title><style>{_CSS}</style></head><body>",

@@ -375,8 +375,9 @@ def _run_stops(args, limits) -> int:
     names = cmd = None
     if args.poses is not None:
         names, cmd, _, _ = _read_poses(args)
+        known = set(names)
         for k, p in enumerate(sl.pose):
-            if p not in names:
+            if p not in known:
                 raise DataError(f"{sl.source}: line {int(sl.lines[k].min())}, column 'pose': {p!r} is not in "
                                 f"{args.poses} (poses: {', '.join(names)}; name each file's pose with --pose)")
     elif args.frame is not None or args.register is not None:

@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 from app.commands.store_open import CENTRAL_HELP, CONFIG_HELP, JSON_HELP, open_store
+from station.shown import shown
 from station.verdict import Outcome, outcome_of
 
 
@@ -206,8 +207,9 @@ def _overhaul(args) -> int:
         else:
             model, serial = args.model, args.serial
         new = store.record_overhaul(model, serial, at, args.what, ticket=args.ticket, station=station)
-    print(f"{model} serial {serial}: overhaul of {_ts(at)} " + ("recorded" if new else "was already recorded")
-          + f" ({args.what}" + (f", ticket {args.ticket}" if args.ticket else "") + ")")
+    print(f"{shown(model)} serial {shown(serial)}: overhaul of {_ts(at)} "
+          + ("recorded" if new else "was already recorded")
+          + f" ({shown(args.what.strip(), 200)}" + (f", ticket {shown(args.ticket)}" if args.ticket else "") + ")")
     return 0
 
 
@@ -220,8 +222,8 @@ def _overhauls(args) -> int:
     if not rows:
         print("no overhaul recorded" + (f" for serial {args.serial}" if args.serial else ""))
     for r in rows:
-        print(f"{_ts(r['at'])}  {r['model']:<18} {r['serial']:<14} {r['what']}"
-              + (f"  (ticket {r['ticket']})" if r["ticket"] else "") + f"  [{r['station'] or '-'}]")
+        print(f"{_ts(r['at'])}  {shown(r['model']):<18} {shown(r['serial']):<14} {shown(r['what'])}"
+              + (f"  (ticket {shown(r['ticket'])})" if r["ticket"] else "") + f"  [{shown(r['station'] or '-')}]")
     return 0
 
 

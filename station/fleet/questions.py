@@ -121,7 +121,9 @@ def parse_when(text: str, what: str = "date") -> float:
             return datetime.strptime(str(text).strip(), fmt).timestamp()
         except ValueError:
             continue
-    raise ConfigError(f"{what} {text!r} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
+    from station.shown import quoted
+
+    raise ConfigError(f"{what} {quoted(text)} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
 
 
 def since_overhaul(store: RunStore, name: str, *, model: str | None = None) -> list[dict]:
