@@ -168,10 +168,17 @@ def _tolerance(args, limits) -> float:
     return assignment_tolerance_mm(limits)
 
 
+#: poses beyond which the JSON is written without indentation (json's C encoder: a stop list of 100,000 poses
+#: spent most of its time in the indenting encoder written in Python)
+INDENTED_POSES_MAX = 2000
+
+
 def _write_json(path, d) -> None:
     from station.readers.out_files import write_output
 
-    write_output(path, json.dumps(d, indent=1) + "\n", "--json")
+    poses = d.get("poses") if isinstance(d, dict) else None
+    big = isinstance(poses, (dict, list)) and len(poses) > INDENTED_POSES_MAX
+    write_output(path, (json.dumps(d) if big else json.dumps(d, indent=1)) + "\n", "--json")
     print(f"results written to {path}")
 
 
