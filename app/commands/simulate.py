@@ -59,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="error effects of the true arm (default realistic)")
     s.add_argument("--beam-break", action="append", default=[], metavar="START:END",
                    help="beam break, seconds after the recording starts (repeatable)")
+    s.add_argument("--motion-model", metavar="M.json",
+                   help="extended motion model (station diagnose motion --model-out): the arm's loop and profile, "
+                        "its creep and structural mode, the tracker's drift")
     s.set_defaults(func=_run_iso9283)
     a = ssub.add_parser("arm", help="an arm measured at random poses -> arm CSV for calibrate/diagnose arm",
                         description="A true arm (the library model plus drawn errors) measured by a laser tracker "
@@ -184,7 +187,9 @@ def _run_trailer(args: argparse.Namespace) -> int:
 
 def _run_iso9283(args: argparse.Namespace) -> int:
     from fakes.sim.iso_run import simulate_iso9283
+    from station.readers.motion_model import read_motion_model
 
+    motion = read_motion_model(args.motion_model) if args.motion_model else None
     summary = simulate_iso9283(
         args.out,
         cycles=args.cycles,
@@ -196,6 +201,7 @@ def _run_iso9283(args: argparse.Namespace) -> int:
         move=args.move,
         effects=args.effects,
         beam_breaks=[_parse_break(b) for b in args.beam_break],
+        motion_model=motion,
     )
     print(
         f"wrote {summary['stream_csv']} ({summary['n_samples']} samples, {summary['n_invalid']} invalid, "

@@ -107,6 +107,18 @@ def true_figures(names, commanded_tracker_mm, stops) -> dict:
     return out
 
 
+def _motion_offsets(t, stops, names, cmd_trk, model, seed):
+    """The motion model's effects (tracker frame) at world times ``t`` for the moves made so far."""
+    from station.models.motion_effects import approach_offsets_mm
+
+    moves, prev = [], "P1"
+    for s in stops:
+        moves.append({"t_start_s": s["t_start_s"], "t_end_s": s["t_end_s"], "from_mm": cmd_trk[names.index(prev)],
+                      "to_mm": cmd_trk[names.index(s["pose"])]})
+        prev = s["pose"]
+    return approach_offsets_mm(t, moves, model, seed)
+
+
 def simulate_iso9283(
     out_dir,
     *,
@@ -120,6 +132,7 @@ def simulate_iso9283(
     effects: str = "realistic",
     beam_breaks=(),
     chunk_s: float = 60.0,
+    motion_model=None,
 ) -> dict:
     """Run the ISO 9283 cycles offline and write ``stream.csv``, ``poses.csv``, ``truth.json``.
 
@@ -148,6 +161,10 @@ def simulate_iso9283(
         Beam breaks, seconds after the recording starts.
     chunk_s : float
         The stream is measured and written in chunks of this simulated time.
+    motion_model : station.models.motion_effects.MotionModel, optional
+        A diagnosed arm's motion: its loop (every axis) and profile (trapezoid when its jerk time is
+        short), and its creep, structural mode and the tracker's drift added along each move
+        (:func:`station.models.motion_effects.approach_offsets_mm`).
 
     Returns
     -------
@@ -167,13 +184,21 @@ def simulate_iso9283(
     names = tp.names
     positions = np.array(tp.positions_mm, dtype=float)
     clock = ManualClock()
+    motion_kw = {}
+    if motion_model is not None:
+        from station.models.motion import ServoParams
+        from station.models.motion_effects import servo_of
+
+        motion_kw = {"servo": ServoParams.uniform(*servo_of(motion_model)),
+                     "profile": "trapezoid" if motion_model.jerk_time_s < 0.01 else "scurve"}
     world = make_world(robot=robot, seed=seed, clock=clock, effects="realistic" if effects == "realistic" else None,
-                       tracker_rate_hz=rate_hz)
+                       tracker_rate_hz=rate_hz, **motion_kw)
     from station.readers.out_files import output_dir, output_file, write_output
 
     out = output_dir(out_dir, "--out")
     try:
         targets, q_cmd = commanded_joints(world.robot, positions)
+        cmd_trk = world.tracker.to_tracker_frame(positions)
         arm = world.arm
         source = world.tracker_source()
         tracker = world.tracker
@@ -210,6 +235,8 @@ def simulate_iso9283(
                     check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
                                   f"(the moves included)")
                     xyz, valid = source.measure(t)
+                    if motion_model is not None:
+                        xyz = xyz + _motion_offsets(t, stops, names, cmd_trk, motion_model, seed)
                     status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
                     rows = np.column_stack([source.device_time(t), xyz, status])
                     np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")
@@ -245,7 +272,6 @@ def simulate_iso9283(
         # The commanded poses in the tracker frame come from the world's true
         # base transform here; a real station gets that transform from a
         # registration (measuring known points), with its own uncertainty.
-        cmd_trk = tracker.to_tracker_frame(positions)
         poses_path = out / "poses.csv"
         with output_file(poses_path, "--out", newline="\n") as fh:
             fh.write("name,x,y,z\n")

@@ -28,6 +28,8 @@ import numpy as np
 __all__ = ["free_decay", "ramp_response", "decel_response", "command_position", "creep", "servo_position",
            "mode_response"]
 
+#: a jerk time below this is a step (its ramp's effect is below 1e-4 of the deceleration's lag), s
+STEP_TJ_S = 1e-5
 #: damping ratios within this of 1 are moved off it (the closed form divides by the roots' difference)
 _CRITICAL_EPS = 1e-6
 
@@ -65,7 +67,7 @@ def free_decay(tau, omega: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
 
 def ramp_response(tau, omega: float, zeta: float, tj: float) -> np.ndarray:
     """The response to an input falling linearly from 1 to 0 over ``[-tj, 0]`` (a step at 0 when ``tj = 0``)."""
-    if tj <= 1e-6:
+    if tj <= STEP_TJ_S:
         return free_decay(tau, omega, zeta)[0]
     _, G1 = free_decay(np.asarray(tau, dtype=float) + tj, omega, zeta)
     _, G0 = free_decay(tau, omega, zeta)
@@ -86,6 +88,17 @@ def _mode_poles(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
     return p[keep], np.where(p[keep].imag > 0.0, 2.0, 1.0) * R[keep]
 
 
+def _pr_decay(tau, p, R) -> np.ndarray:
+    """The free decay ``g = -sum R e^(p tau) / p`` after a unit step down at 0 (1 before it)."""
+    tau = np.asarray(tau, dtype=float)
+    g = np.ones_like(tau)
+    after = tau >= 0.0
+    if after.any():
+        ta = tau[after]
+        g[after] = -sum((Ri * np.exp(pi * ta) / pi).real for pi, Ri in zip(p, R))
+    return g
+
+
 def _pr_integral(tau, p, R) -> np.ndarray:
     """``G``: the integral from 0 of the free decay ``g = -sum R e^(p tau) / p`` after a unit step down at 0
     (``g = 1``, ``G = tau`` before it)."""
@@ -103,10 +116,12 @@ def mode_response(tau, a, v, D, tj: float, loop: tuple[float, float], mode: tupl
     = omega, zeta) that follows the command (:func:`_edges`): 0 at cruise, 1 while decelerating steadily,
     ringing out after the end."""
     p, R = _mode_poles(loop[0], loop[1], mode[0], mode[1])
-    tj = max(float(tj), 1e-6)
+    tj = float(tj)
     tau = np.asarray(tau, dtype=float)
 
-    def ramp(x):  # unit level falling over [-tj, 0]
+    def ramp(x):  # unit level falling over [-tj, 0] (a step below STEP_TJ_S)
+        if tj <= STEP_TJ_S:
+            return _pr_decay(x, p, R)
         return (_pr_integral(x + tj, p, R) - _pr_integral(x, p, R)) / tj
 
     return _edges(tau, a, v, D, tj, ramp)

@@ -61,8 +61,8 @@ class Stream:
     accel_mm_s2: float
 
 
-def _tf(num, den):
-    b, a = signal.bilinear(num, den, FINE_HZ)
+def _tf(num, den, fine_hz):
+    b, a = signal.bilinear(num, den, fine_hz)
     return b, a
 
 
@@ -93,16 +93,16 @@ def draw(rng, *, effects=(), underdamped=False, cycles=8, dwell_s=2.0, rate_hz=R
     return d
 
 
-def make_stream(d: dict) -> Stream:
+def make_stream(d: dict, fine_hz: float = FINE_HZ) -> Stream:
     eff = set(d["effects"])
     truth = Truth(d["servo_hz"], d["servo_zeta"], noise_mm=d["noise_mm"], effects=sorted(eff))
     w = 2 * np.pi * d["servo_hz"]
     z = d["servo_zeta"]
-    servo = _tf([2 * z * w, w * w], [1.0, 2 * z * w, w * w])
+    servo = _tf([2 * z * w, w * w], [1.0, 2 * z * w, w * w], fine_hz)
     if "structural_mode" in eff:
         wm = 2 * np.pi * d["mode_hz"]
         G = d["mode_amp_mm"] / d["accel"]  # deflection per unit deceleration, s^2
-        mode = _tf([-G * wm * wm, 0.0, 0.0], [1.0, 2 * d["mode_zeta"] * wm, wm * wm])
+        mode = _tf([-G * wm * wm, 0.0, 0.0], [1.0, 2 * d["mode_zeta"] * wm, wm * wm], fine_hz)
         truth.mode_hz, truth.mode_zeta, truth.mode_mm_per_mm_s2 = d["mode_hz"], d["mode_zeta"], G
     if "creep" in eff:
         truth.creep_mm, truth.creep_tau_s = d["creep_mm"], d["creep_tau_s"]
@@ -120,7 +120,7 @@ def make_stream(d: dict) -> Stream:
         vp = a * ta
         tc = (D - vp * ta) / vp
         T = 2 * ta + tc
-        tt = np.arange(0.0, T + d["dwell_s"], 1.0 / FINE_HZ)
+        tt = np.arange(0.0, T + d["dwell_s"], 1.0 / fine_hz)
         tq = np.clip(tt, 0, T)
         s_cmd = np.where(tq < ta, 0.5 * a * tq ** 2,
                          np.where(tq < ta + tc, 0.5 * a * ta ** 2 + vp * (tq - ta), D - 0.5 * a * (T - tq) ** 2))
@@ -129,7 +129,7 @@ def make_stream(d: dict) -> Stream:
         if "structural_mode" in eff:
             along += signal.lfilter(*mode, s)
         if "creep" in eff:
-            sp = np.abs(np.gradient(s, 1.0 / FINE_HZ))
+            sp = np.abs(np.gradient(s, 1.0 / fine_hz))
             c = -d["creep_mm"] * (1.0 - np.exp(-tt / TAU_IN_S))
             after = np.flatnonzero((tt > T) & (sp < STICK_MM_S))
             if after.size:
@@ -138,7 +138,7 @@ def make_stream(d: dict) -> Stream:
             along += c
         t_fine.append(t0 + tt)
         p_fine.append(P0 + along[:, None] * u)
-        t0 += tt[-1] + 1.0 / FINE_HZ
+        t0 += tt[-1] + 1.0 / fine_hz
     tf = np.concatenate(t_fine)
     pf = np.concatenate(p_fine)
     t = np.arange(0.0, tf[-1], 1.0 / d["rate_hz"])

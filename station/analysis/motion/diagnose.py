@@ -48,8 +48,10 @@ BLOCK_S = 0.1
 #: a named effect lowers the held-out mean square by at least (RELEVANCE * noise)^2
 RELEVANCE = 0.25
 #: most training moves a fit uses (evenly spread), and the rate it decimates them to
-MAX_FIT_MOVES = 40
-FIT_RATE_HZ = 170.0
+MAX_FIT_MOVES = 30
+FIT_RATE_HZ = 150.0
+#: the held-out moves are compared at this rate or below while choosing (the time figures use every sample)
+HELDOUT_RATE_HZ = 350.0
 #: starts of each candidate's refit (the best of a grid of starting values)
 STARTS = 2
 #: fewest training and held-out moves
@@ -260,7 +262,8 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
     w = cut_windows(t_s, xyz_mm, poses_mm, names, valid)
     train, held = split(w)
     tr = decimated(w.select(_spread(train, MAX_FIT_MOVES)), FIT_RATE_HZ)
-    ho = w.select(held)
+    ho_full = w.select(held)
+    ho = decimated(ho_full, HELDOUT_RATE_HZ)
     noise = w.noise_mm
     fits = []
 
@@ -272,10 +275,10 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
     base = F.best_start(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})))
     base = refit(base, "baseline")
     r_sim, _ = F.approach_residual(ho, base)
-    sim_rms = _rms(r_sim)
+    sim_rms = _rms(F.approach_residual(ho_full, base)[0])
     not_testable = _not_testable(w, tr)
     remaining = [e for e in F.EFFECTS if e not in not_testable]
-    cur, r_cur = base, r_sim
+    cur, r_cur, full_rms = base, r_sim, sim_rms
     steps, rounds = [], []
     n_app = int(np.count_nonzero(F.parts(tr)[1]))
     for _ in range(max_steps + 1):
@@ -308,17 +311,18 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
             break
         best = min(wins, key=lambda ct: ct.heldout_rms_after)
         r_new, _ = F.approach_residual(ho, best.params)
-        steps.append(MotionStep(best.effect, best.params.named(best.effect), _rms(r_cur), _rms(r_new),
+        full_new = _rms(F.approach_residual(ho_full, best.params)[0])
+        steps.append(MotionStep(best.effect, best.params.named(best.effect), full_rms, full_new,
                                 best.statistic, best.threshold, best.heldout_t, best.heldout_threshold))
-        cur, r_cur = best.params, r_new
+        cur, r_cur, full_rms = best.params, r_new, full_new
         remaining = [e for e in remaining if e != best.effect]
         if not remaining:
             break
     sd_drift = _drift_sd(w)
     if "tracker_drift" in cur.active:
         steps[[s.effect for s in steps].index("tracker_drift")].details["rate_sd_mm_per_s"] = sd_drift
-    poses, curves = _figures(ho, base, cur, time_refused)
-    return MotionDiagnosis(steps, rounds, not_testable, sim_rms, _rms(r_cur), noise, base, cur, w, train, held,
+    poses, curves = _figures(ho_full, base, cur, time_refused)
+    return MotionDiagnosis(steps, rounds, not_testable, sim_rms, full_rms, noise, base, cur, w, train, held,
                            poses, curves, sd_drift, fits, time_refused, alpha, time.perf_counter() - t0)
 
 

@@ -130,7 +130,9 @@ def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISAN
         # the timing part is the command's parabola, its loop's lag and the mode's deflection, all in
         # proportion to a (the small rest is the creep's constant offset); a later end moves the curve later
         ja = np.where(timing, x0 / a[:, None], 0.0)
-        jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / np.gradient(np.nan_to_num(w.t_s), axis=1), 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros
+            jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / np.gradient(np.nan_to_num(w.t_s), axis=1),
+                          0.0)
         h11, h12, h22 = (ja * ja * m).sum(1), (ja * jT * m).sum(1), (jT * jT * m).sum(1)
         g1, g2 = (ja * r).sum(1), (jT * r).sum(1)
         det = h11 * h22 - h12 * h12
