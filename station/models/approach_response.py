@@ -127,10 +127,16 @@ def mode_response(tau, a, v, D, tj: float, loop: tuple[float, float], mode: tupl
     return _edges(tau, a, v, D, tj, ramp)
 
 
-def command_position(tau, a, tj: float) -> np.ndarray:
-    """The command near its end: deceleration ``a`` (mm/s^2) falling to 0 over ``[-tj, 0]``, at 0 from ``tau = 0``."""
-    tau = np.asarray(tau, dtype=float)
+def command_position(tau, a, tj: float, v=None) -> np.ndarray:
+    """The command near its end: deceleration ``a`` (mm/s^2) falling to 0 over ``[-tj, 0]``, at 0 from ``tau = 0``;
+    with the cruise speed ``v``, a straight line at ``v`` before the deceleration set in (at ``-tj - v / a``)."""
     a = np.asarray(a, dtype=float)
+    if v is not None:
+        tau = np.asarray(tau, dtype=float)
+        onset = -tj - np.asarray(v, dtype=float) / a
+        tc = np.maximum(tau, onset)
+        return command_position(tc, a, tj) + np.asarray(v, dtype=float) * (tau - tc)
+    tau = np.asarray(tau, dtype=float)
     s = tau + tj
     r0, v0 = -a * tj * tj / 6.0, a * tj / 2.0
     if tj > 1e-9:
@@ -169,4 +175,4 @@ def servo_position(tau, a, tj: float, omega: float, zeta: float, v=None, D=None)
     earlier edges of the profile are included (:func:`_edges`)."""
     a = np.asarray(a, dtype=float)
     resp = ramp_response(tau, omega, zeta, tj) if v is None else decel_response(tau, a, v, D, tj, omega, zeta)
-    return command_position(tau, a, tj) + a / omega ** 2 * resp
+    return command_position(tau, a, tj, v) + a / omega ** 2 * resp

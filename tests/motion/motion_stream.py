@@ -14,7 +14,7 @@ this generator integrates the physics numerically instead, on a 10 kHz grid
   ``TAU_IN_S``); once its speed falls below ``STICK_MM_S`` the integral
   action pulls it in as ``exp(-t / tau)``;
 * tracker drift: a smooth wander of the reading, three sinusoids per axis
-  with periods of 10-40 s;
+  with periods of 30-90 s (a few micrometres a second, as a lab's tracker at rest);
 * white noise of a micrometre or so per axis.
 
 Everything is drawn from the caller's generator before any effect is
@@ -82,8 +82,8 @@ def draw(rng, *, effects=(), underdamped=False, cycles=8, dwell_s=2.0, rate_hz=R
         "mode_hz": rng.uniform(8.0, 14.0),
         "mode_zeta": rng.uniform(0.05, 0.1),
         "mode_amp_mm": rng.uniform(0.015, 0.05) * rng.choice([-1.0, 1.0]),
-        "drift_mm": rng.uniform(0.01, 0.03),
-        "drift_periods": rng.uniform(10.0, 40.0, (3, 3)),
+        "drift_mm": rng.uniform(0.008, 0.02),
+        "drift_periods": rng.uniform(30.0, 90.0, (3, 3)),
         "drift_phase": rng.uniform(0, 2 * np.pi, (3, 3)),
         "noise_mm": rng.uniform(0.5e-3, 1.5e-3),
         "noise_seed": int(rng.integers(2**31)),

@@ -12,8 +12,9 @@ Every approach window is predicted by the closed forms of
 * ``structural_mode``: a mode (``frequency_hz``, ``damping``) driven by the
   deceleration, its deflection ``gain_s2 * a_m`` ringing out after the end;
 * ``tracker_drift``: the reading wanders: the late dwell's drift rate
-  (:mod:`.windows`) carried back over the window, times ``shrinkage``
-  (0: none, 1: all of the measured rate).
+  (:mod:`.windows`), changing at the rate it changed since the previous
+  rest's, carried back over the window, times ``shrinkage`` (0: none, 1:
+  all of the measured drift).
 
 Per move, ``a_m`` and ``T_m`` are nuisances: they are fitted (Gauss-Newton,
 all moves at once) on the window's *timing part*, the samples more than
@@ -38,8 +39,10 @@ from .windows import Windows
 
 #: samples more than this short of the end time the move (set a_m and T_m), mm
 TIMING_MM = 1.0
+#: rounds of a fit (the nuisances' start re-profiled at each)
+FIT_ROUNDS = 3
 #: Gauss-Newton iterations of the per-move nuisances
-NUISANCE_ITERATIONS = 5
+NUISANCE_ITERATIONS = 15
 #: (name, lowest, highest) of each effect's parameters
 EFFECT_PARAMS = {
     "servo": (("frequency_hz", 0.3, 80.0), ("damping", 0.03, 4.0), ("jerk_time_s", 0.0, 0.4)),
@@ -105,7 +108,8 @@ def predict(w: Windows, p: Params, a, T) -> np.ndarray:
         x = x + g * a2 * ar.mode_response(tau, a2, v, D, tj, (2.0 * math.pi * f, z), (2.0 * math.pi * fm, zm))
     if "tracker_drift" in p.values:
         (k,) = p.values["tracker_drift"]
-        x = x + k * w.drift_mm_s[:, None] * (w.t_s - w.t_late_s[:, None])
+        dt = w.t_s - w.t_late_s[:, None]
+        x = x + k * (w.drift_mm_s[:, None] * dt + 0.5 * w.drift_change_mm_s2[:, None] * dt * dt)
     return x
 
 
@@ -127,9 +131,9 @@ def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISAN
     for _ in range(iterations):
         x0 = predict(w, p, a, T)
         r = np.where(timing, X - x0, 0.0)
-        # the timing part is the command's parabola, its loop's lag and the mode's deflection, all in
-        # proportion to a (the small rest is the creep's constant offset); a later end moves the curve later
-        ja = np.where(timing, x0 / a[:, None], 0.0)
+        # a later end moves the curve later
+        da = 1e-4 * a
+        ja = np.where(timing, (predict(w, p, a + da, T) - x0) / da[:, None], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros
             jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / np.gradient(np.nan_to_num(w.t_s), axis=1),
                           0.0)
@@ -155,13 +159,14 @@ def approach_residual(w: Windows, p: Params) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _objective(w: Windows, p: Params):
+    """The approach residual as a function of the parameters' vector; the nuisances re-profiled from those of
+    ``p`` by two Gauss-Newton steps at every evaluation (from the same start: a deterministic function)."""
     _, app = parts(w)
-    warm = list(nuisances(w, p))  # each evaluation starts from the last one's nuisances
+    start = nuisances(w, p)
 
     def f(v):
         q = p.from_vector(v)
-        a, T = nuisances(w, q, *warm, iterations=1)
-        warm[:] = [a, T]
+        a, T = nuisances(w, q, *start, iterations=2)
         return (w.x_mm - predict(w, q, a, T))[app]
 
     return f
@@ -170,10 +175,15 @@ def _objective(w: Windows, p: Params):
 def fit(w: Windows, p: Params) -> tuple[Params, bool, str]:
     """Refit all of ``p``'s parameters on the approach parts of ``w`` (from ``p``)."""
     lo, hi = p.bounds(w.rate_hz)
-    x0 = np.clip(p.vector(), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    sol = least_squares(_objective(w, p), x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-4, max_nfev=30,
-                        xtol=1e-8, ftol=1e-9)
-    return p.from_vector(sol.x), bool(sol.success), str(sol.message)
+    sol = None
+    for _ in range(FIT_ROUNDS):  # each round re-profiles the nuisances' start at the round's parameters
+        x0 = np.clip(p.vector(), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        sol = least_squares(_objective(w, p), x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-4, max_nfev=15,
+                            xtol=1e-8, ftol=1e-9)
+        p = p.from_vector(sol.x)
+        if sol.status in (2, 3, 4) and sol.nfev < 15:  # converged within the round
+            break
+    return p, bool(sol.success), str(sol.message)
 
 
 def rss(w: Windows, p: Params) -> float:

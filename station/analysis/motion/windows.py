@@ -7,14 +7,15 @@ The moves between rests come from :func:`station.analysis.iso9283.motion_clock.f
    of it, more than :data:`PROJECT_MM` from the rest) is fitted by a parabola in
    time: its curvature gives the deceleration ``a`` (mm/s^2) and its vertex the
    time ``T*`` the command ends (first estimates the diagnosis refines);
-2. the window runs from ``T* - T_PRE_S`` (not before the parabola's first
-   sample) to ``T* + t_post``; ``t_post`` is :data:`T_POST_S` or less, so that
+2. the window runs from :data:`T_CRUISE_S` before the deceleration set in
+   (``T* - v / a``, ``v`` the cruise speed; not before the peak speed) to
+   ``T* + t_post``; ``t_post`` is :data:`T_POST_S` or less, so that
    a *late dwell* of at least :data:`LATE_MIN_S` remains before the arm
    leaves again (:data:`LEAVE_MARGIN_S` before the last row inside the rest);
 3. the end point ``p_end`` is the mean of the late dwell, the reading's drift
    rate along the travel its least-squares slope (the creep has died out by
    then: ``exp(-T_POST_S / 0.15 s)``);
-4. the position along the travel is ``x = -|p - p_end|`` further than
+4. the position along the travel is ``x = -|p - p_end|`` (``+`` past the end) further than
    :data:`PROJECT_MM` from the end and ``(p - p_end) . u`` within it, ``u``
    the direction of arrival (from the sample :data:`DIRECTION_MM` out to
    ``p_end``): a joint move's curved path is measured by its chord far out,
@@ -39,10 +40,8 @@ DECEL_SPEED_FRACTION = 0.8
 PROJECT_MM = 1.0
 #: the direction of arrival is taken from the sample this far out, mm
 DIRECTION_MM = 3.0
-#: the window starts this long before the command's end, s (at most)
-T_PRE_S = 0.3
-#: the window starts this long after the deceleration set in (past its jerk ramp), s
-DECEL_SETTLE_S = 0.05
+#: the window starts this long before the deceleration sets in (at the cruise, after the peak speed), s
+T_CRUISE_S = 0.1
 #: ... and ends this long after it, s (at most)
 T_POST_S = 1.0
 #: shortest window after the command's end a move needs to be used, s
@@ -71,6 +70,7 @@ class Windows:
     drift_mm_s: np.ndarray   # (M,) the late dwell's slope along the travel
     t_late_s: np.ndarray     # (M,) mean time of the late dwell
     late_s: np.ndarray       # (M,) duration of the late dwell
+    drift_change_mm_s2: np.ndarray  # (M,) change of the drift rate since the previous move's late dwell
     p_end_mm: np.ndarray     # (M, 3)
     u: np.ndarray            # (M, 3) direction of arrival
     from_pose: list
@@ -88,7 +88,7 @@ class Windows:
         idx = np.asarray(idx, dtype=int)
         pick = lambda v: [v[i] for i in idx]  # noqa: E731
         return Windows(self.t_s[idx], self.x_mm[idx], self.a0_mm_s2[idx], self.T0_s[idx], self.v_mm_s[idx], self.D_mm[idx], self.t_leave_s[idx],
-                       self.drift_mm_s[idx], self.t_late_s[idx], self.late_s[idx], self.p_end_mm[idx], self.u[idx],
+                       self.drift_mm_s[idx], self.t_late_s[idx], self.late_s[idx], self.drift_change_mm_s2[idx], self.p_end_mm[idx], self.u[idx],
                        pick(self.from_pose), pick(self.to_pose), self.move_index[idx], self.skipped, self.noise_mm,
                        self.rate_hz)
 
@@ -162,7 +162,7 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
         # the cruise speed (the median of the samples within 10 % of the peak: a ringing mode lifts the peak)
         # and where the deceleration set in, had it no jerk limit
         v_pk = float(np.median(sp[sp >= 0.9 * sp[ipk]]))
-        t_start = max(T0 - T_PRE_S, T0 - v_pk / a0 + DECEL_SETTLE_S, float(t[seg[sel[0]]]))
+        t_start = max(T0 - v_pk / a0 - T_CRUISE_S, float(t[seg[ipk]]))
         late = np.flatnonzero((t >= T0 + post) & (t <= t_out) & ok)
         if late.size < 5:
             skipped.append((k, "too few valid samples in the late dwell"))
@@ -177,7 +177,7 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
         u = p_end - xyz[w[out[-1]]]
         u /= np.linalg.norm(u)
         along = (xyz[w] - p_end) @ u
-        x = np.where(d_w > PROJECT_MM, -d_w, along)
+        x = np.where(d_w > PROJECT_MM, np.where(along > 0.0, d_w, -d_w), along)  # past the end: an overshoot
         tl = t[late]
         late_along = (xyz[late] - p_end) @ u
         tm = tl.mean()
@@ -196,7 +196,15 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
     for j, (tt, xx) in enumerate(zip(rows_t, rows_x)):
         T[j, :tt.size], X[j, :xx.size] = tt, xx
     col = lambda i: np.array([row[i] for row in info])  # noqa: E731
-    return Windows(T, X, col(0), col(1), col(11), col(12), col(2), col(3), col(4), col(10), np.array([r[5] for r in info]),
+    # the reading's drift is the tracker's, the same at every pose: the rate measured at the previous rest
+    # (the move before, when it was usable) and at this one give its change over the move
+    change = np.zeros(len(info))
+    k_of = {int(r[9]): j for j, r in enumerate(info)}
+    for j, r in enumerate(info):
+        prev = k_of.get(int(r[9]) - 1)
+        if prev is not None and r[4] > info[prev][4]:
+            change[j] = (r[3] - info[prev][3]) / (r[4] - info[prev][4])
+    return Windows(T, X, col(0), col(1), col(11), col(12), col(2), col(3), col(4), col(10), change, np.array([r[5] for r in info]),
                    np.array([r[6] for r in info]), [r[7] for r in info], [r[8] for r in info],
                    col(9).astype(int), skipped, mv.noise_mm / math.sqrt(3.0), rate)
 
@@ -206,5 +214,5 @@ def decimated(w: Windows, max_rate_hz: float) -> Windows:
     k = max(1, int(math.ceil(w.rate_hz / max_rate_hz - 1e-9)))
     if k == 1:
         return w
-    return Windows(w.t_s[:, ::k], w.x_mm[:, ::k], w.a0_mm_s2, w.T0_s, w.v_mm_s, w.D_mm, w.t_leave_s, w.drift_mm_s, w.t_late_s, w.late_s,
+    return Windows(w.t_s[:, ::k], w.x_mm[:, ::k], w.a0_mm_s2, w.T0_s, w.v_mm_s, w.D_mm, w.t_leave_s, w.drift_mm_s, w.t_late_s, w.late_s, w.drift_change_mm_s2,
                    w.p_end_mm, w.u, w.from_pose, w.to_pose, w.move_index, w.skipped, w.noise_mm, w.rate_hz / k)
