@@ -187,7 +187,7 @@ def _run_trailer(args: argparse.Namespace) -> int:
 
 def _run_iso9283(args: argparse.Namespace) -> int:
     from fakes.sim.iso_run import simulate_iso9283
-    from station.readers.motion_model import read_motion_model
+    from station.models.motion_model_file import read_motion_model
 
     motion = read_motion_model(args.motion_model) if args.motion_model else None
     summary = simulate_iso9283(
