@@ -1,7 +1,6 @@
 """`station diagnose motion`: where the station's motion model disagrees with a measured stream near the stops.
 
-``station diagnose motion --stream S --poses P [--program FILE] [--rate-hz R] [--hold H] [--json D]
-[--report R.html] [--model-out M]``
+``station diagnose motion --stream S --poses P [--program F] [--rate-hz R] [--hold H] [--json D] ...``
     The stream (any format ``station analyze`` reads) is cut into moves
     between the poses of P (``name,x,y,z``, the stream's frame) and their
     approaches along the travel. The baseline (the command's deceleration
@@ -13,12 +12,13 @@
     ``simulation_heldout_rms``, ``final_heldout_rms``, ``gain``,
     ``noise_floor``, ``not_testable``; mm along the travel) and per held-out
     pose POS, time to band (0.1 -> 0.02 mm), PST and MPT, measured,
-    simulated (baseline) and extended. The clock is checked as ``station
-    analyze`` checks it (the program's ``dwell_s`` lets the dwells give the
-    rate); a clock that fails states no time figure and writes no model.
-    ``--model-out`` writes the extended motion model for ``station simulate
-    iso9283 --motion-model``. ``--hold`` takes a held-pose record of the same
-    tracker: its noise and wander are stated beside the diagnosis.
+    simulated (baseline) and extended. The clock is checked as
+    ``station analyze`` checks it (the program's ``dwell_s`` lets the dwells
+    give the rate); a clock that fails states no time figure and writes no
+    model. ``--model-out`` writes the extended motion model for
+    ``station simulate iso9283 --motion-model``. ``--hold`` takes a held-pose
+    record of the same tracker: its noise and wander are stated beside the
+    diagnosis.
 """
 
 from __future__ import annotations
