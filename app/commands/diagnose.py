@@ -90,6 +90,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--json", metavar="OUT", help="write the result as JSON")
     t.add_argument("--report", metavar="OUT.html", help="write the HTML report")
     t.set_defaults(func=_trailer)
+    from app.commands.diagnose_motion import register_motion
+
+    register_motion(dsub)
 
 
 #: exit code when a fit of the diagnosis did not converge

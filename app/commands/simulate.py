@@ -66,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="error effects of the true arm (default realistic)")
     s.add_argument("--beam-break", action="append", default=[], metavar="START:END",
                    help="beam break, seconds after the recording starts (repeatable)")
+    s.add_argument("--motion-model", metavar="M.json",
+                   help="extended motion model (station diagnose motion --model-out): the arm's loop and profile, "
+                        "its creep and structural mode, the tracker's drift")
     s.set_defaults(func=_run_iso9283)
     a = ssub.add_parser("arm", help="an arm measured at random poses -> arm CSV for calibrate/diagnose arm",
                         description="A true arm (the library model plus drawn errors) measured by a laser tracker "
@@ -210,7 +213,9 @@ def _run_iso9283(args: argparse.Namespace) -> int:
     if args.program is not None:
         return _run_program(args, breaks, options)
     from fakes.sim.iso_run import simulate_iso9283
+    from station.models.motion_model_file import read_motion_model
 
+    motion = read_motion_model(args.motion_model) if args.motion_model else None
     summary = simulate_iso9283(
         args.out,
         cycles=3 if args.cycles is None else args.cycles,
@@ -223,6 +228,7 @@ def _run_iso9283(args: argparse.Namespace) -> int:
         effects=args.effects,
         beam_breaks=breaks,
         world_options=options,
+        motion_model=motion,
     )
     print(
         f"wrote {summary['stream_csv']} ({summary['n_samples']} samples, {summary['n_invalid']} invalid, "

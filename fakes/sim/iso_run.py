@@ -107,6 +107,19 @@ def true_figures(names, commanded_tracker_mm, stops) -> dict:
     return out
 
 
+def _motion_offsets(t, stops, names, cmd_trk, model, seed, start: str = "P1"):
+    """The motion model's effects (tracker frame) at world times ``t`` for the moves made so far (the first
+    from pose ``start``)."""
+    from station.models.motion_effects import approach_offsets_mm
+
+    moves, prev = [], start
+    for s in stops:
+        moves.append({"t_start_s": s["t_start_s"], "t_end_s": s["t_end_s"], "from_mm": cmd_trk[names.index(prev)],
+                      "to_mm": cmd_trk[names.index(s["pose"])]})
+        prev = s["pose"]
+    return approach_offsets_mm(t, moves, model, seed)
+
+
 def simulate_iso9283(
     out_dir,
     *,
@@ -121,6 +134,7 @@ def simulate_iso9283(
     beam_breaks=(),
     chunk_s: float = 60.0,
     world_options: dict | None = None,
+    motion_model=None,
 ) -> dict:
     """Run the ISO 9283 cycles offline and write ``stream.csv``, ``poses.csv``, ``truth.json``.
 
@@ -151,6 +165,10 @@ def simulate_iso9283(
         The stream is measured and written in chunks of this simulated time.
     world_options : dict, optional
         Further :func:`fakes.sim.world.make_world` keywords (e.g. ``tracker_noise``).
+    motion_model : station.models.motion_effects.MotionModel, optional
+        A diagnosed arm's motion: its loop (every axis) and profile (trapezoid when its jerk time is
+        short), and its creep, structural mode and the tracker's drift added along each move
+        (:func:`station.models.motion_effects.approach_offsets_mm`).
 
     Returns
     -------
@@ -169,9 +187,16 @@ def simulate_iso9283(
     tp = cube_test_poses(cube.corners_mm, inset_mm=cube.inset_mm)
     names = list(tp.names)
     positions = np.array(tp.positions_mm, dtype=float)
+    motion_kw = {}
+    if motion_model is not None:
+        from station.models.motion import ServoParams
+        from station.models.motion_effects import servo_of
+
+        motion_kw = {"servo": ServoParams.uniform(*servo_of(motion_model)),
+                     "profile": "trapezoid" if motion_model.jerk_time_s < 0.01 else "scurve"}
     world = make_world(robot=robot, seed=seed, clock=ManualClock(),
                        effects="realistic" if effects == "realistic" else None, tracker_rate_hz=rate_hz,
-                       **(world_options or {}))
+                       **{**(world_options or {}), **motion_kw})
     try:
         targets, q_cmd = commanded_joints(world.robot, positions)
         arm = world.arm
@@ -185,7 +210,7 @@ def simulate_iso9283(
         sequence = [(names.index(n), go, {}) for n in CYCLE_ORDER]
         return record_run(out_dir, world, names=names, positions_base_mm=positions, q_cmd_rad=q_cmd,
                           start=names.index("P1"), sequence=sequence, cycles=cycles, dwell_s=dwell_s, wait_s=wait_s,
-                          rate_hz=rate_hz, beam_breaks=beam_breaks, chunk_s=chunk_s,
+                          rate_hz=rate_hz, beam_breaks=beam_breaks, chunk_s=chunk_s, motion_model=motion_model,
                           truth_head={"description": "truth of a simulated ISO 9283 run (seed 000 sec. 3.1.3); "
                                                      "mm, s, deg", "move": move})
     finally:
@@ -194,7 +219,7 @@ def simulate_iso9283(
 
 def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: int, sequence, cycles: int,
                dwell_s: float, wait_s: float, rate_hz: float, beam_breaks=(), chunk_s: float = 60.0,
-               truth_head: dict | None = None) -> dict:
+               truth_head: dict | None = None, motion_model=None) -> dict:
     """Drive the world's arm through ``cycles`` of ``sequence`` and write ``stream.csv``, ``poses.csv`` and
     ``truth.json`` to ``out_dir`` (the files of the module docstring).
 
@@ -202,7 +227,8 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
     starts: ``wait_s`` at ``start``, then every cycle runs ``sequence``, a list
     of ``(pose index, go(pose index, cycle) -> Move, info)``, each move
     followed by a dwell of ``dwell_s``; ``info`` (JSON-able) is put on the
-    stop's truth entry.
+    stop's truth entry. ``motion_model`` (a diagnosed arm's motion) adds its creep, mode and drift to
+    the readings along each move.
     """
     from station.readers.out_files import output_dir, output_file, write_output
 
@@ -213,6 +239,7 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
     positions = np.asarray(positions_base_mm, dtype=float)
     q_cmd = np.asarray(q_cmd_rad, dtype=float)
     out = output_dir(out_dir, "--out")
+    cmd_trk = tracker.to_tracker_frame(positions)
     # approach the start pose from home (not recorded), settle, then the recording starts
     arm.move_joint(q_cmd[start], speed_frac=0.5)
     arm.dwell(1.0)
@@ -239,6 +266,8 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
                 check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
                               f"(the moves included)")
                 xyz, valid = source.measure(t)
+                if motion_model is not None:
+                    xyz = xyz + _motion_offsets(t, stops, names, cmd_trk, motion_model, world.seed, names[start])
                 status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
                 rows = np.column_stack([source.device_time(t), xyz, status])
                 np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")
@@ -276,7 +305,6 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
     # The commanded poses in the tracker frame come from the world's true
     # base transform here; a real station gets that transform from a
     # registration (measuring known points), with its own uncertainty.
-    cmd_trk = tracker.to_tracker_frame(positions)
     poses_path = out / "poses.csv"
     with output_file(poses_path, "--out", newline="\n") as fh:
         fh.write("name,x,y,z\n")

@@ -1,7 +1,9 @@
 """A lab's motion program: poses, order, moves, dwell, cycles, payload, tracker rate (TOML or JSON).
 
 ``station simulate iso9283 --program FILE`` replays it on the simulated cell
-(:mod:`fakes.sim.program_run`). The grammar (also in the README's file
+(:mod:`fakes.sim.program_run`); ``station diagnose motion --program FILE``
+reads the same file for what the recording's clock is checked against (its
+dwell and, when stated, its rate). The grammar (also in the README's file
 formats section), TOML shown; the JSON form has the same keys::
 
     robot = "ur5e"              # optional: the robot model (else --robot)
@@ -104,6 +106,8 @@ class MotionProgram:
     start: str
     order: tuple[ProgramMove, ...]
     poses: dict  # name -> ("joints_deg" | "xyz_mm", (float, ...))
+    #: the file states its tracker rate (else rate_hz is the replay's default, no fact about a recording)
+    rate_stated: bool = False
 
     @property
     def pose_names(self) -> list[str]:
@@ -249,7 +253,8 @@ def parse_motion_program(obj, source: str = "<program>") -> MotionProgram:
     start = _name(d.get("start", order[-1].to), src, "start")
     if start not in poses:
         raise ConfigError(f"{_where(src, 'start')} names pose {start!r}, which `poses` does not define")
-    return MotionProgram(src, robot, rate, cycles, dwell, wait, payload, pct, start, tuple(order), poses)
+    return MotionProgram(src, robot, rate, cycles, dwell, wait, payload, pct, start, tuple(order), poses,
+                         rate_stated="rate_hz" in d)
 
 
 def read_motion_program(path) -> MotionProgram:

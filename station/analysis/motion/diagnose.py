@@ -1,0 +1,364 @@
+"""Motion diagnosis: where the motion model disagrees with a measured stream near the stops, and why.
+
+1. The stream is cut into moves and approach windows along the travel
+   (:mod:`.windows`); moves are held out per pair of poses (from, to): the
+   2nd, 5th, 8th ... move of each pair, so every pair has training and
+   held-out moves (:func:`split`; the JSON lists them).
+2. Baseline (the station's motion model, refitted as ``diagnose arm``
+   refits geometry): the command's deceleration and jerk time and a
+   second-order position loop (frequency, damping), fitted on the training
+   moves (:mod:`.fit`). An underdamped loop rings: that is the baseline's.
+3. Candidates ``creep``, ``structural_mode``, ``tracker_drift`` are tested
+   one at a time against the current model. A candidate is named when (a)
+   on the training moves its refit lowers the approach RSS by more than the
+   noise explains, ``F = (dRSS / k) / (RSS / (n - p))`` against
+   ``F(k, n - p)`` at ``1 - alpha / m`` (``m`` candidates of the round), and
+   (b) on the held-out moves, which chose nothing, the mean-square residual
+   falls: per block of :data:`BLOCK_S` of their approach parts, the
+   reduction's one-sided t statistic beyond the ``1 - alpha`` quantile,
+   and the reduction at least ``(RELEVANCE * noise)^2``. Of those, the one
+   with the lowest held-out RMS is named and the model refitted; again until
+   none is left.
+4. Time figures per held-out pose (:mod:`.figures`): POS, time to band, PST,
+   MPT of the measured curve, the baseline's prediction (``simulated``) and
+   the extended model's (``extended``). A clock that failed its check
+   (``time_refused``) states no time figure.
+
+RMS and the noise floor are along the travel, mm, over the approach parts
+(from :data:`~.fit.TIMING_MM` short of the end to the window's end).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from station.errors import DataError, InsufficientDataError
+
+from . import fit as F
+from .figures import approach_figures, mean_figures
+from .windows import Windows, cut_windows, decimated
+
+#: blocks of the held-out approach parts the held-out test compares, s
+BLOCK_S = 0.1
+#: a named effect lowers the held-out mean square by at least (RELEVANCE * noise)^2
+RELEVANCE = 0.25
+#: most training moves a fit uses (evenly spread), and the rate it decimates them to
+MAX_FIT_MOVES = 30
+FIT_RATE_HZ = 150.0
+#: the held-out moves are compared at this rate or below while choosing (the time figures use every sample)
+HELDOUT_RATE_HZ = 350.0
+#: starts of each candidate's refit (the best of a grid of starting values)
+STARTS = 2
+#: fewest training and held-out moves
+MIN_TRAIN, MIN_HELDOUT = 3, 1
+
+
+@dataclass
+class MotionTest:
+    """One candidate tested against the current model."""
+
+    effect: str
+    testable: bool = True
+    reason: str = ""
+    statistic: float = math.nan
+    threshold: float = math.nan
+    heldout_t: float = math.nan
+    heldout_threshold: float = math.nan
+    heldout_rms_after: float = math.nan
+    relevant: bool = False
+    params: F.Params | None = None
+
+    @property
+    def significant(self) -> bool:
+        return self.testable and self.statistic > self.threshold
+
+    @property
+    def wins(self) -> bool:
+        return self.significant and self.heldout_t > self.heldout_threshold and self.relevant
+
+    def to_json(self) -> dict:
+        d = {"candidate": self.effect, "effect": self.effect, "joint": None, "testable": self.testable}
+        if not self.testable:
+            d["reason"] = self.reason
+            return d
+        return d | {"statistic": _f(self.statistic), "threshold": _f(self.threshold), "significant": self.significant,
+                    "heldout_t": _f(self.heldout_t), "heldout_threshold": _f(self.heldout_threshold),
+                    "heldout_rms_after": _f(self.heldout_rms_after), "relevant": self.relevant,
+                    "wins_on_heldout": self.wins}
+
+
+def _f(x):
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+@dataclass
+class MotionStep:
+    effect: str
+    params: dict
+    heldout_rms_before: float
+    heldout_rms_after: float
+    statistic: float
+    threshold: float
+    heldout_t: float
+    heldout_threshold: float
+    details: dict = field(default_factory=dict)
+
+    @property
+    def gain(self) -> float:
+        return 1.0 - self.heldout_rms_after / self.heldout_rms_before if self.heldout_rms_before > 0 else 0.0
+
+    def to_json(self) -> dict:
+        return {"effect": self.effect, "joint": None, "params": self.params, "ci": {},
+                "heldout_rms_before": self.heldout_rms_before, "heldout_rms_after": self.heldout_rms_after,
+                "gain": self.gain, "gain_percent": 100.0 * self.gain, "statistic": self.statistic,
+                "threshold": self.threshold, "heldout_t": self.heldout_t, "heldout_threshold": self.heldout_threshold,
+                "test": "F on the training moves' approach RSS at 1 - alpha/m, then a one-sided t test of the "
+                        f"held-out mean-square reduction over {BLOCK_S:g} s blocks at 1 - alpha",
+                "ambiguous_with": [], "details": self.details}
+
+
+@dataclass
+class MotionDiagnosis:
+    steps: list
+    rounds: list
+    not_testable: dict
+    simulation_heldout_rms: float
+    final_heldout_rms: float
+    noise_floor: float
+    baseline: F.Params
+    final: F.Params
+    windows: Windows
+    train: np.ndarray
+    heldout: np.ndarray
+    poses: list
+    curves: list
+    drift_rate_sd_mm_s: float
+    fits: list
+    time_refused: str = ""
+    alpha: float = 0.01
+    elapsed_s: float = 0.0
+
+    @property
+    def gain(self) -> float:
+        return 1.0 - self.final_heldout_rms / self.simulation_heldout_rms if self.simulation_heldout_rms > 0 else 0.0
+
+    @property
+    def named(self) -> list[str]:
+        return [s.effect for s in self.steps]
+
+    def motion_model(self, model: F.Params | None = None) -> dict:
+        """The extended motion model as ``--model-out`` writes it (read by :mod:`station.models.motion_effects`)."""
+        p = self.final if model is None else model
+        effects = {e: p.named(e) for e in p.active if e != "servo"}
+        if "tracker_drift" in effects:
+            effects["tracker_drift"]["rate_sd_mm_per_s"] = self.drift_rate_sd_mm_s
+        return {"kind": "station motion model", "version": 1,
+                "units": "mm, s, Hz; gain_s2 is mm of deflection per mm/s^2 of deceleration",
+                "servo": p.named("servo"),
+                "deceleration_mm_s2": float(np.median(self.windows.a0_mm_s2)),
+                "noise_mm": self.noise_floor, "rate_hz": self.windows.rate_hz,
+                "effects": effects}
+
+    def to_json(self) -> dict:
+        from station.analysis.diagnose.summary_json import core_json
+
+        w = self.windows
+        mv = lambda idx: [{"move": int(w.move_index[i]) + 1, "from": w.from_pose[i], "to": w.to_pose[i]}  # noqa: E731
+                          for i in idx]
+        return {**core_json(self, lambda ct: ct.effect),
+                "noise_floor_source": "robust second differences of the stream (white part, per axis)",
+                "units": "rms and noise_floor: mm along the travel over the approach parts; figures mm and s",
+                "baseline": {"servo": self.baseline.named("servo"),
+                             "deceleration_mm_s2_median": float(np.median(w.a0_mm_s2))},
+                "extended": {e: self.final.named(e) for e in self.final.active},
+                "heldout_moves": mv(self.heldout), "training_moves": mv(self.train),
+                "heldout_rule": "per pair of poses (from, to), its 2nd, 5th, 8th ... move",
+                "n_moves": {"train": int(self.train.size), "heldout": int(self.heldout.size),
+                            "skipped": [{"move": k + 1, "reason": r} for k, r in w.skipped]},
+                "poses": self.poses, "time_refused": self.time_refused or None,
+                "rate_hz": w.rate_hz, "alpha": self.alpha, "fits": self.fits,
+                "converged": all(f["converged"] for f in self.fits),
+                "extended_model": self.motion_model(), "elapsed_s": self.elapsed_s}
+
+
+def split(w: Windows) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out moves: per pair of poses, the 2nd, 5th, 8th ... held out."""
+    seen: dict = {}
+    held = np.zeros(w.n, bool)
+    for i, key in enumerate(zip(w.from_pose, w.to_pose)):
+        occ = seen.get(key, 0)
+        seen[key] = occ + 1
+        held[i] = occ % 3 == 1
+    if held.sum() < MIN_HELDOUT:  # every pair once: every third move
+        held = np.arange(w.n) % 3 == 1
+    train, heldout = np.flatnonzero(~held), np.flatnonzero(held)
+    if train.size < MIN_TRAIN or heldout.size < MIN_HELDOUT:
+        raise InsufficientDataError(f"the stream holds {w.n} usable move(s); the diagnosis needs at least "
+                                    f"{MIN_TRAIN} training and {MIN_HELDOUT} held-out moves")
+    return train, heldout
+
+
+def _spread(idx: np.ndarray, k: int) -> np.ndarray:
+    if idx.size <= k:
+        return idx
+    return idx[np.unique(np.round(np.linspace(0, idx.size - 1, k)).astype(int))]
+
+
+def _rms(r) -> float:
+    v = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(v * v))) if v.size else math.nan
+
+
+def _block_t(w: Windows, r0: np.ndarray, r1: np.ndarray) -> tuple[float, int]:
+    """One-sided t of the mean-square reduction over blocks of :data:`BLOCK_S` of the approach parts."""
+    d = []
+    for i in range(w.n):
+        m = np.isfinite(r0[i]) & np.isfinite(r1[i])
+        if not m.any():
+            continue
+        tt = w.t_s[i][m]
+        b = np.floor((tt - tt[0]) / BLOCK_S).astype(int)
+        s0 = np.bincount(b, r0[i][m] ** 2)
+        s1 = np.bincount(b, r1[i][m] ** 2)
+        c = np.bincount(b)
+        ok = c > 0
+        d.extend(((s0[ok] - s1[ok]) / c[ok]).tolist())
+    d = np.array(d)
+    if d.size < 3 or np.std(d) == 0:
+        return math.nan, int(d.size)
+    return float(np.mean(d) / (np.std(d, ddof=1) / math.sqrt(d.size))), int(d.size)
+
+
+def _not_testable(w: Windows, tr: Windows) -> dict:
+    out = {}
+    if w.rate_hz < 4.0 * F.EFFECT_PARAMS["structural_mode"][0][1]:
+        out["structural_mode"] = f"{w.rate_hz:.4g} Hz sampling cannot show a mode of a few Hz"
+    if not np.all(np.isfinite(tr.drift_mm_s)):
+        out["tracker_drift"] = "no late dwell to measure the reading's drift on"
+    return out
+
+
+def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 0.01, time_refused: str = "",
+                    max_steps: int = 3) -> MotionDiagnosis:
+    """Diagnose the motion model against a measured stream (see the module's docstring).
+
+    Parameters
+    ----------
+    t_s : (N,) sample times, s (on a checked clock; see ``time_refused``).
+    xyz_mm : (N, 3) measured positions, mm.
+    poses_mm, names : the commanded poses (P, 3) mm in the stream's frame, and their names.
+    valid : (N,) bool, optional; rows to leave out are False.
+    alpha : family-wise false-discovery rate of a round (training test) and of each held-out test.
+    time_refused : why the clock may not give time figures ("" when it may).
+    """
+    t0 = time.perf_counter()
+    if not (0.0 < alpha < 0.5):
+        raise DataError(f"`alpha` must be in (0, 0.5), got {alpha!r}")
+    w = cut_windows(t_s, xyz_mm, poses_mm, names, valid)
+    train, held = split(w)
+    tr = decimated(w.select(_spread(train, MAX_FIT_MOVES)), FIT_RATE_HZ)
+    ho_full = w.select(held)
+    ho = decimated(ho_full, HELDOUT_RATE_HZ)
+    noise = w.noise_mm
+    fits = []
+
+    def refit(p, label):
+        q, ok, msg = F.fit(tr, p)
+        fits.append({"fit": label, "converged": ok, "message": msg})
+        return q
+
+    base = F.best_start(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})))
+    base = refit(base, "baseline")
+    r_sim, _ = F.approach_residual(ho, base)
+    sim_rms = _rms(F.approach_residual(ho_full, base)[0])
+    not_testable = _not_testable(w, tr)
+    remaining = [e for e in F.EFFECTS if e not in not_testable]
+    cur, r_cur, full_rms = base, r_sim, sim_rms
+    steps, rounds = [], []
+    n_app = int(np.count_nonzero(F.parts(tr)[1]))
+    for _ in range(max_steps + 1):
+        tests = []
+        rss0 = F.rss(tr, cur)
+        for e in remaining:
+            ct = MotionTest(e)
+            q, best_rss = None, math.inf
+            for start in F.best_starts(tr, cur, e, F.start_grid(e, tr, cur), n=STARTS):
+                qq = refit(start, f"{'+'.join(cur.active[1:] + [e])}")
+                s1 = F.rss(tr, qq)
+                if s1 < best_rss:
+                    q, best_rss = qq, s1
+            k = len(F.EFFECT_PARAMS[e])
+            p_all = q.vector().size
+            rss1 = F.rss(tr, q)
+            ct.statistic = ((rss0 - rss1) / k) / max(rss1 / max(n_app - p_all, 1), 1e-300)
+            ct.threshold = float(stats.f.isf(alpha / max(len(remaining), 1), k, max(n_app - p_all, 1)))
+            r1, _ = F.approach_residual(ho, q)
+            ct.heldout_rms_after = _rms(r1)
+            ct.heldout_t, nb = _block_t(ho, r_cur, r1)
+            ct.heldout_threshold = float(stats.t.isf(alpha, max(nb - 1, 1)))
+            ms0, ms1 = _rms(r_cur) ** 2, ct.heldout_rms_after ** 2
+            ct.relevant = bool(ms0 - ms1 >= (RELEVANCE * noise) ** 2)
+            ct.params = q
+            tests.append(ct)
+        rounds.append(tests)
+        wins = [ct for ct in tests if ct.wins]
+        if not wins or len(steps) >= max_steps:
+            break
+        best = min(wins, key=lambda ct: ct.heldout_rms_after)
+        r_new, _ = F.approach_residual(ho, best.params)
+        full_new = _rms(F.approach_residual(ho_full, best.params)[0])
+        steps.append(MotionStep(best.effect, best.params.named(best.effect), full_rms, full_new,
+                                best.statistic, best.threshold, best.heldout_t, best.heldout_threshold))
+        cur, r_cur, full_rms = best.params, r_new, full_new
+        remaining = [e for e in remaining if e != best.effect]
+        if not remaining:
+            break
+    sd_drift = _drift_sd(w)
+    if "tracker_drift" in cur.active:
+        steps[[s.effect for s in steps].index("tracker_drift")].details["rate_sd_mm_per_s"] = sd_drift
+    poses, curves = _figures(ho_full, base, cur, time_refused)
+    return MotionDiagnosis(steps, rounds, not_testable, sim_rms, full_rms, noise, base, cur, w, train, held,
+                           poses, curves, sd_drift, fits, time_refused, alpha, time.perf_counter() - t0)
+
+
+def _drift_sd(w: Windows) -> float:
+    """The spread of the late dwells' drift rates beyond what the noise gives them, mm/s."""
+    v = w.drift_mm_s[np.isfinite(w.drift_mm_s)]
+    if v.size < 3:
+        return 0.0
+    # a least-squares slope over D s at r Hz has the variance 12 sigma^2 / (r D^3)
+    se2 = float(np.mean(12.0 * w.noise_mm ** 2 / (w.rate_hz * np.maximum(w.late_s, 1e-3) ** 3)))
+    return float(math.sqrt(max(float(np.var(v, ddof=1)) - se2, 0.0)))
+
+
+def _figures(ho: Windows, base: F.Params, ext: F.Params, time_refused: str):
+    """Per held-out pose the mean figures of the measured, simulated and extended curves; the curves."""
+    a_b, T_b = F.nuisances(ho, base)
+    a_e, T_e = F.nuisances(ho, ext)
+    xs, xe = F.predict(ho, base, a_b, T_b), F.predict(ho, ext, a_e, T_e)
+    per: dict = {}
+    curves = []
+    for i in range(ho.n):
+        m = np.isfinite(ho.x_mm[i])
+        t = ho.t_s[i][m]
+        figs = {k: approach_figures(t, x[i][m], ho.t_leave_s[i]) for k, x in
+                (("measured", ho.x_mm), ("simulated", xs), ("extended", xe))}
+        per.setdefault(ho.to_pose[i], []).append(figs)
+        curves.append({"move": int(ho.move_index[i]) + 1, "from": ho.from_pose[i], "to": ho.to_pose[i],
+                       "tau_s": t - T_e[i], "measured": ho.x_mm[i][m], "simulated": xs[i][m],
+                       "extended": xe[i][m]})
+    out = []
+    for pose, figs in per.items():
+        d = {"pose": pose, "n_moves": len(figs)}
+        for k in ("measured", "simulated", "extended"):
+            f = mean_figures([g[k] for g in figs])
+            if time_refused:
+                f.update({"time_to_band_s": None, "PST_s": None, "MPT_s": None})
+            d[k] = f
+        out.append(d)
+    return out, curves

@@ -1,0 +1,240 @@
+"""The approach model of the motion diagnosis and its fit (pure: arrays in, parameters out).
+
+Every approach window is predicted by the closed forms of
+:mod:`station.models.approach_response`, with time from the command's end
+``tau = t - T_m``:
+
+* baseline (``servo``): the command (deceleration ``a_m`` falling to 0 over
+  ``jerk_time_s``) followed by a second-order position loop
+  (``frequency_hz``, ``damping``; an underdamped loop rings and overshoots
+  here, it is no effect of its own);
+* ``creep``: short by ``amplitude_mm`` while moving, in as ``exp(-tau / tau_s)``;
+* ``structural_mode``: a mode (``frequency_hz``, ``damping``) driven by the
+  deceleration, its deflection ``gain_s2 * a_m`` ringing out after the end;
+* ``tracker_drift``: the reading wanders: the late dwell's drift rate
+  (:mod:`.windows`), changing at the rate it changed since the previous
+  rest's, carried back over the window, times ``shrinkage`` (0: none, 1:
+  all of the measured drift).
+
+Per move, ``a_m`` and ``T_m`` are nuisances: they are fitted (Gauss-Newton,
+all moves at once) on the window's *timing part*, the samples more than
+:data:`TIMING_MM` short of the end, given the global parameters; the global
+parameters are fitted on the *approach part* (the rest of the window) of the
+training moves with the nuisances so profiled out. A held-out move is
+predicted the same way: its own timing part sets its ``a_m, T_m``, its
+approach part is never fitted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from station.models import approach_response as ar
+
+from .windows import Windows
+
+#: samples more than this short of the end time the move (set a_m and T_m), mm
+TIMING_MM = 1.0
+#: rounds of a fit (the nuisances' start re-profiled at each)
+FIT_ROUNDS = 3
+#: Gauss-Newton iterations of the per-move nuisances
+NUISANCE_ITERATIONS = 15
+#: (name, lowest, highest) of each effect's parameters
+EFFECT_PARAMS = {
+    "servo": (("frequency_hz", 0.3, 80.0), ("damping", 0.03, 4.0), ("jerk_time_s", 0.0, 0.4)),
+    "creep": (("amplitude_mm", -1.0, 1.0), ("tau_s", 0.01, 2.0)),
+    "structural_mode": (("frequency_hz", 1.5, 80.0), ("damping", 0.003, 0.6), ("gain_s2", -0.01, 0.01)),
+    "tracker_drift": (("shrinkage", 0.0, 1.5),),
+}
+EFFECTS = ("creep", "structural_mode", "tracker_drift")
+
+
+@dataclass
+class Params:
+    """Global parameters of the active effects: ``values[effect]`` arrays in the order of :data:`EFFECT_PARAMS`."""
+
+    values: dict
+
+    @property
+    def active(self) -> list[str]:
+        return list(self.values)
+
+    def with_(self, effect: str, v) -> "Params":
+        d = dict(self.values)
+        d[effect] = np.asarray(v, dtype=float)
+        return Params(d)
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([self.values[e] for e in self.values])
+
+    def from_vector(self, x) -> "Params":
+        out, i = {}, 0
+        for e in self.values:
+            k = len(EFFECT_PARAMS[e])
+            out[e] = np.asarray(x[i:i + k], dtype=float)
+            i += k
+        return Params(out)
+
+    def bounds(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = [], []
+        for e in self.values:
+            for name, a, b in EFFECT_PARAMS[e]:
+                if name == "frequency_hz":
+                    b = min(b, rate_hz / 4.0)
+                lo.append(a)
+                hi.append(b)
+        return np.array(lo), np.array(hi)
+
+    def named(self, effect: str) -> dict:
+        return {name: float(v) for (name, _, _), v in zip(EFFECT_PARAMS[effect], self.values[effect])}
+
+
+def predict(w: Windows, p: Params, a, T) -> np.ndarray:
+    """The model's position along the travel (M, L), mm."""
+    tau = w.t_s - np.asarray(T)[:, None]
+    a2 = np.asarray(a)[:, None]
+    f, z, tj = p.values["servo"]
+    v, D = w.v_mm_s[:, None], w.D_mm[:, None]
+    x = ar.servo_position(tau, a2, tj, 2.0 * math.pi * f, z, v, D)
+    if "creep" in p.values:
+        A, tc = p.values["creep"]
+        x = x + ar.creep(tau, A, tc)
+    if "structural_mode" in p.values:
+        fm, zm, g = p.values["structural_mode"]
+        x = x + g * a2 * ar.mode_response(tau, a2, v, D, tj, (2.0 * math.pi * f, z), (2.0 * math.pi * fm, zm))
+    if "tracker_drift" in p.values:
+        (k,) = p.values["tracker_drift"]
+        dt = w.t_s - w.t_late_s[:, None]
+        x = x + k * (w.drift_mm_s[:, None] * dt + 0.5 * w.drift_change_mm_s2[:, None] * dt * dt)
+    return x
+
+
+def parts(w: Windows) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (M, L) of the timing part and of the approach part."""
+    fin = np.isfinite(w.x_mm)
+    timing = fin & (np.nan_to_num(w.x_mm, nan=0.0) < -TIMING_MM)
+    return timing, fin & ~timing
+
+
+def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISANCE_ITERATIONS
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """``(a_m, T_m)`` of every move fitted on its timing part, the global parameters ``p`` given."""
+    timing, _ = parts(w)
+    a = w.a0_mm_s2.copy() if a is None else np.array(a, dtype=float)
+    T = w.T0_s.copy() if T is None else np.array(T, dtype=float)
+    m = timing.astype(float)
+    X = np.nan_to_num(w.x_mm)
+    for _ in range(iterations):
+        x0 = predict(w, p, a, T)
+        r = np.where(timing, X - x0, 0.0)
+        # a later end moves the curve later
+        da = 1e-4 * a
+        ja = np.where(timing, (predict(w, p, a + da, T) - x0) / da[:, None], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros
+            jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / np.gradient(np.nan_to_num(w.t_s), axis=1),
+                          0.0)
+        h11, h12, h22 = (ja * ja * m).sum(1), (ja * jT * m).sum(1), (jT * jT * m).sum(1)
+        g1, g2 = (ja * r).sum(1), (jT * r).sum(1)
+        det = h11 * h22 - h12 * h12
+        good = det > 1e-12 * np.maximum(h11 * h22, 1e-300)
+        step_a = np.where(good, (h22 * g1 - h12 * g2) / np.where(good, det, 1.0), 0.0)
+        step_T = np.where(good, (h11 * g2 - h12 * g1) / np.where(good, det, 1.0), 0.0)
+        a = np.clip(a + step_a, 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
+        T = T + np.clip(step_T, -0.05, 0.05)
+        if np.max(np.abs(step_T)) < 1e-7:
+            break
+    return a, T
+
+
+def approach_residual(w: Windows, p: Params) -> tuple[np.ndarray, np.ndarray]:
+    """``(residual (M, L) with NaN outside the approach part, prediction (M, L))``, nuisances profiled."""
+    a, T = nuisances(w, p)
+    x = predict(w, p, a, T)
+    _, app = parts(w)
+    return np.where(app, w.x_mm - x, np.nan), x
+
+
+def _objective(w: Windows, p: Params):
+    """The approach residual as a function of the parameters' vector; the nuisances re-profiled from those of
+    ``p`` by two Gauss-Newton steps at every evaluation (from the same start: a deterministic function)."""
+    _, app = parts(w)
+    start = nuisances(w, p)
+
+    def f(v):
+        q = p.from_vector(v)
+        a, T = nuisances(w, q, *start, iterations=2)
+        return (w.x_mm - predict(w, q, a, T))[app]
+
+    return f
+
+
+def fit(w: Windows, p: Params) -> tuple[Params, bool, str]:
+    """Refit all of ``p``'s parameters on the approach parts of ``w`` (from ``p``)."""
+    lo, hi = p.bounds(w.rate_hz)
+    sol = None
+    for _ in range(FIT_ROUNDS):  # each round re-profiles the nuisances' start at the round's parameters
+        x0 = np.clip(p.vector(), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        sol = least_squares(_objective(w, p), x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-4, max_nfev=15,
+                            xtol=1e-8, ftol=1e-9)
+        p = p.from_vector(sol.x)
+        if sol.status in (2, 3, 4) and sol.nfev < 15:  # converged within the round
+            break
+    return p, bool(sol.success), str(sol.message)
+
+
+def rss(w: Windows, p: Params) -> float:
+    r, _ = approach_residual(w, p)
+    return float(np.nansum(r * r))
+
+
+def best_starts(w: Windows, p: Params, effect: str, grid, n: int = 1) -> list[Params]:
+    """Of the starting values ``grid`` of ``effect`` (with the loop's own rescanned when ``effect`` rings too:
+    a mode and a ringing loop trade places), the ``n`` whose models leave the least approach RSS."""
+    starts = [p.with_(effect, v) for v in grid]
+    if effect == "structural_mode" and "servo" in p.values:
+        f, _, tj = p.values["servo"]
+        starts += [q.with_("servo", (f, z, tj)) for q in starts for z in (0.7, 1.0)]
+    if p.values:  # the current model's nuisances, held while the grid is scanned
+        a, T = nuisances(w, p)
+    else:
+        a, T = w.a0_mm_s2, w.T0_s
+    _, app = parts(w)
+    scored = []
+    for q in starts:
+        if effect == "structural_mode":  # the gain is linear: fitted at each frequency and damping
+            q0 = q.with_(effect, (q.values[effect][0], q.values[effect][1], 0.0))
+            r = (w.x_mm - predict(w, q0, a, T))[app]
+            c = (predict(w, q.with_(effect, (q.values[effect][0], q.values[effect][1], 1.0)), a, T)
+                 - predict(w, q0, a, T))[app]
+            g = float(c @ r) / max(float(c @ c), 1e-300)
+            q = q.with_(effect, (q.values[effect][0], q.values[effect][1], g))
+            r = r - g * c
+        else:
+            r = (w.x_mm - predict(w, q, a, T))[app]
+        scored.append((float(r @ r), q))
+    scored.sort(key=lambda sq: sq[0])
+    return [q for _, q in scored[:n]]
+
+
+def best_start(w: Windows, p: Params, effect: str, grid) -> Params:
+    """Of the starting values ``grid`` of ``effect``, the one whose model leaves the least approach RSS."""
+    return best_starts(w, p, effect, grid, 1)[0]
+
+
+def start_grid(effect: str, w: Windows, p: Params) -> list:
+    """Starting values of an effect's parameters; amplitudes from the residual's size."""
+    nyq = w.rate_hz / 4.0
+    if effect == "servo":
+        return [(f, z, tj) for f in (2.0, 4.0, 8.0, 16.0, 32.0) if f < nyq for z in (0.3, 0.7, 1.3)
+                for tj in (0.0, 0.06)]
+    if effect == "creep":
+        return [(A, tc) for A in (-0.05, -0.01, 0.01, 0.05) for tc in (0.05, 0.15, 0.4)]
+    if effect == "structural_mode":  # frequencies 6 % apart (the gain is fitted linearly at each)
+        return [(f, z, 0.0) for f in np.geomspace(3.0, 40.0, 45) if f < nyq for z in (0.03, 0.08)]
+    if effect == "tracker_drift":
+        return [(0.5,), (1.0,)]
+    raise KeyError(effect)
