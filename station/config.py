@@ -23,6 +23,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from station.analysis.decision import MARGINAL_FRACTION
 from station.errors import ConfigError, DataError
 from station.protocols.handshake import RegisterMap
 
@@ -306,6 +307,9 @@ class StationSection(_Strict):
     #: password by ``?password_env=VAR`` or ``?password_file=PATH``, never in the URL); None: local only
     store_url: str | None = None
     report_dir: str = Field("reports", min_length=1, max_length=4096)
+    #: the plant's guard band: a passing figure within this fraction of its limit (or whose U carries it over
+    #: the limit) is flagged marginal (station.analysis.decision.marginal_reason); 0 keeps only the U test
+    marginal_fraction: float = Field(MARGINAL_FRACTION, ge=0, lt=1, allow_inf_nan=False)
 
     @field_validator("store_path", "report_dir")
     @classmethod
