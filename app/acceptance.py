@@ -28,6 +28,8 @@ from station.verdict import EXIT_ABORTED, Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
 CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out", "one-pose-out")
+#: the trailer section of a fake station (Station.fake's ``trailer`` merges into it)
+FAKE_TRAILER = {"odometry": "odometry", "serial": "TRAILER-SIM-0001", "length_tolerance_m": 0.05}
 #: the fake cell of a "marginal" robot: stops that scatter by 2 um and a tracker of MPE 1 um + 0.5 um/m, so the
 #: run scatters about its prediction by 0.02-0.04 mm rms and 4 of it fit inside a 10 % guard band of a 5 mm AP
 #: limit (on the realistic cell the registration alone scatters AP by 0.2-0.4 mm rms, wider than that band)
@@ -398,7 +400,8 @@ class Station:
              limits: dict | None = None, serial: str = "SIM-0001", model: str = "industrial-3100",
              payload_kg: float = 0.0, cycles: int = 30, vap_cycles: int = 30, condition: str = "as-drawn",
              operator=None, store: str | Path | None = None, record: dict | None = None,
-             measurements: dict | None = None) -> "Station":
+             measurements: dict | None = None, trailer: dict | None = None,
+             trailer_lengths_m: tuple[float, float] | None = None) -> "Station":
         """A station whose devices are the fake cell (started for each run, same seed).
 
         ``limits`` are merged into the fake robot's (``{"rp_limit_mm": 0.3}``
@@ -406,6 +409,11 @@ class Station:
         limit). ``cycles``/``vap_cycles`` are the ISO plan's defaults,
         ``payload_kg`` the mass at the TCP, ``measurements`` the plant's
         own per procedure (``{"iso9283": [Measurement or table, ...]}``).
+        ``trailer`` is merged into the fake station's trailer section (its
+        odometry is the fake trailer's; serial ``TRAILER-SIM-0001``, length
+        tolerance 0.05 m, the guarded rule: ``{"length_tolerance_m": 0.01}``),
+        ``trailer_lengths_m`` the simulated trailer's true (L1, L2) in m
+        (default: its design lengths).
 
         ``condition`` chooses the simulated robot (:data:`CONDITIONS`):
         ``"as-drawn"`` takes the cell of ``seed`` whatever its errors (an
@@ -437,6 +445,8 @@ class Station:
         r1.update(serial=serial, model=model, payload_kg=float(payload_kg))
         merged = {**r1["limits"], **dict(limits or {})}
         r1["limits"] = {k: v for k, v in merged.items() if v is not None}
+        cfg["devices"]["odometry"] = {"url": "fake://odometry"}
+        cfg["trailer"] = {**FAKE_TRAILER, **dict(trailer or {})}
         if measurements:
             cfg["measurements"] = {proc: [m.to_dict() if hasattr(m, "to_dict") else dict(m) for m in ms]
                                    for proc, ms in measurements.items()}
@@ -450,12 +460,14 @@ class Station:
         prediction = None
         if condition == "marginal":
             fake_options = dict(MARGINAL_CELL)
+        if trailer_lengths_m is not None:
+            fake_options = {**(fake_options or {}), "true_lengths_m": [float(x) for x in trailer_lengths_m]}
         if condition not in ("as-drawn", "rp-out"):
             seed, prediction = fake_robot_prediction(config, seed, "in-spec" if condition == "one-pose-out"
                                                      else condition, world_kwargs=fake_options)
         if condition == "one-pose-out":
             pose, defect = one_pose_out_defect(config, seed, prediction)
-            fake_options = {"joint_defect": defect}
+            fake_options = {**(fake_options or {}), "joint_defect": defect}
             prediction = {**prediction, "out_pose": pose, "joint_defect": defect}
         station = cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator, store=store,
                       record=record)
@@ -485,8 +497,11 @@ class Station:
         from app.assemble import run_procedure
         from station.measurements import parse
 
+        from procedures.registry import get_procedure
+
         self._n += 1
-        subject = self.config.robots[robot].serial if robot in self.config.robots else procedure
+        # the run is named after what it is made on: the robot's serial, the trailer's for a trailer run
+        subject = get_procedure(procedure).subject(self.config, robot).serial or procedure
         run_id = run_id or f"{subject}-{time.strftime('%Y%m%d-%H%M%S')}-{self._n}-{secrets.token_hex(2)}"
         acceptance = {"record": {**self.record, **dict(record or {})},
                       "require_conformance": bool(require_conformance)}

@@ -86,15 +86,26 @@ def _unit(u) -> str:
     return "" if u in (None, "", "1") else f" {u}"
 
 
-def row_reason(r: dict, outcome: Outcome) -> str:
-    """One sentence for a judged row: value, unit and limit ("P1 RP_mm = 0.06 mm > limit 0.05 mm")."""
+def row_reason(r: dict, outcome: Outcome, U: float | None = None) -> str:
+    """One sentence for a judged row: value, unit and limit ("P1 RP_mm = 0.06 mm > limit 0.05 mm"); a row not
+    decided with its expanded uncertainty ``U`` known says its guard band, and when U alone is wider than the
+    limit, that no run as precise as this one can prove it."""
     u = _unit(r.get("unit"))
     if r.get("value") is None:
         return f"{r['pose']} {r['name']}: limit {_g(r['limit'])}{u}, not computed"
     if outcome is Outcome.FAIL:
         return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} > limit {_g(r['limit'])}{u}"
     if outcome is Outcome.NOT_DECIDED:
-        return f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
+        head = f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
+        if U is None:
+            return head
+        L = float(r["limit"])
+        head += (f": +/- U {U:.2g}{u} (k = 2) straddles it (guard band {_g(max(L - U, 0.0))}..{_g(L + U)}{u}, guarded rule: "
+                 "neither conformance nor non-conformance proven)")
+        if U >= L:
+            head += (f"; U alone exceeds the limit, so no run this precise can prove conformance (measure longer, "
+                     f"or a limit wider than {_g(U)}{u})")
+        return head
     return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} <= limit {_g(r['limit'])}{u}"
 
 
@@ -116,9 +127,10 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
         o = row_outcome(r)
         if o is not None:
             outcomes[(r["pose"], r["name"])] = (o, r)
-    reasons = [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.FAIL]
-    reasons += [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.NOT_DECIDED]
     checks = spec.checks(store, run_id, params) if getattr(spec, "checks", None) else Checks()
+    reasons = [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.FAIL]
+    reasons += [row_reason(r, o, checks.uncertainties.get((r["pose"], r["name"])))
+                for o, r in outcomes.values() if o is Outcome.NOT_DECIDED]
     undecided = list(checks.undecided)
     reasons += undecided
     found = [o for o, _ in outcomes.values()] + [Outcome.NOT_DECIDED] * bool(undecided)

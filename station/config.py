@@ -256,6 +256,10 @@ class TrailerConfig(_Strict):
     method: str = "dynamic"
     #: |L1 - nominal_L1_m| and |L2 - nominal_L2_m| of the estimate must stay within this (verdicts), m
     length_tolerance_m: float | None = Field(None, gt=0, allow_inf_nan=False)
+    #: how a length error is judged against the tolerance with its U = 2 sigma of the estimate (ISO 14253-1):
+    #: ``guarded`` (conformance proven when error + U is within, non-conformance when error - U is beyond, else
+    #: NOT DECIDED) or ``simple`` (the error against the tolerance; a straddling U makes it marginal)
+    decision_rule: Literal["simple", "guarded"] = "guarded"
 
     @field_validator("method")
     @classmethod
