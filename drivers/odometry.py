@@ -166,6 +166,8 @@ class OdometryDriver:
         self.sync_retry_s = min(self.ack_timeout_s, SYNC_RETRY_S)
         self._token = f"{os.getpid():x}x{next(_TOKENS)}"  # this driver, to the unit
         self._newest_t: float | None = None  # lockstep: the newest sample received
+        self._returned_t: float | None = None  # lockstep: the device time of the newest sample handed out
+        self._spacing: float | None = None  # lockstep: the shortest device time between two samples handed out
 
     @classmethod
     def from_url(cls, url, *, timeout_s: float | None = None, baudrate: int | None = None,
@@ -269,9 +271,28 @@ class OdometryDriver:
     def read_sample(self, timeout_s: float | None = None) -> OdometrySample:
         """The next sample (queued first); DeviceTimeout if none within the timeout.
 
-        Raises DeviceFault first if the unit refused a streamed set point.
+        Raises DeviceFault first if the unit refused a streamed set point. In lockstep the timeout is
+        also the device's: the unit holds its clock for its host and only runs on unheld while its line
+        is silent, so a sample more than the timeout of device time after the one before says the line
+        was silent that long, however little of it this host saw (a loaded host whose own wait had not
+        yet run out when the line came back). The sample stays queued.
         """
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        sample = self._read_sample(timeout)
+        if self.lockstep:
+            last, self._returned_t = self._returned_t, sample.t_s
+            gap = None if last is None else sample.t_s - last
+            if gap is not None and self._spacing is not None and gap > timeout + self._spacing:
+                self._samples.appendleft(sample)
+                self._returned_t = last
+                raise DeviceTimeout(
+                    f"no odometry sample from {self.transport.description} within {timeout} s of device time "
+                    f"(t = {last:.3f} s to {sample.t_s:.3f} s: the line was silent)")
+            if gap is not None and gap > 0:
+                self._spacing = gap if self._spacing is None else min(self._spacing, gap)
+        return sample
+
+    def _read_sample(self, timeout: float) -> OdometrySample:
         deadline = ListeningDeadline(timeout, LISTEN_SLICE_S)
         while not self._samples:
             self._raise_refusal()
@@ -299,6 +320,8 @@ class OdometryDriver:
         self._pump(Deadline(0.0))
         out = list(self._samples)
         self._samples.clear()
+        if out and self.lockstep:
+            self._returned_t = out[-1].t_s
         return out
 
     # -- commands ---------------------------------------------------------------------
