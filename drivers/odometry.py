@@ -75,6 +75,10 @@ SYNC_RETRY_S = 0.05
 #: s: the driver looks at least every ack timeout (0.5 s) while it runs, so a longer gap is a host that did
 #: not run, whose unit was not heard (see :class:`drivers.transport.ListeningDeadline`)
 LISTEN_SLICE_S = 1.0
+#: lockstep: the host's own wait for a sample lasts at least this (s); the simulated unit's silence is
+#: measured in its own time (the sample after it, :meth:`OdometryDriver.read_sample`), this only catches a
+#: unit that never answers again (a loaded host had it time out while the unit was merely not scheduled)
+LOCKSTEP_WAIT_S = 10.0
 
 
 # ----------------------------------------------------------------------------- driver
@@ -272,13 +276,13 @@ class OdometryDriver:
         """The next sample (queued first); DeviceTimeout if none within the timeout.
 
         Raises DeviceFault first if the unit refused a streamed set point. In lockstep the timeout is
-        also the device's: the unit holds its clock for its host and only runs on unheld while its line
-        is silent, so a sample more than the timeout of device time after the one before says the line
-        was silent that long, however little of it this host saw (a loaded host whose own wait had not
-        yet run out when the line came back). The sample stays queued.
+        the device's: the unit holds its clock for its host and only runs on unheld while its line is
+        silent, so a sample more than the timeout of device time after the one before says the line was
+        silent that long, however little of it this host saw; the host's own wait lasts at least
+        :data:`LOCKSTEP_WAIT_S` (a unit that never answers again). The sample stays queued.
         """
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        sample = self._read_sample(timeout)
+        sample = self._read_sample(max(timeout, LOCKSTEP_WAIT_S) if self.lockstep else timeout)
         if self.lockstep:
             last, self._returned_t = self._returned_t, sample.t_s
             gap = None if last is None else sample.t_s - last
