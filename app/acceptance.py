@@ -55,8 +55,10 @@ class CellTruth:
     seed: int
     effects: object  # station.models.effects.EffectSet
     stop_sigma_rad: np.ndarray
-    #: tracker noise per coordinate at the farthest test pose, mm
+    #: the tracker's reading noise per coordinate (white and wander), mm
     tracker_sigma_mm: float
+    #: the tracker's position in the base frame and its MPE a + b R (um, um/m): a systematic error of the session
+    tracker_accuracy: tuple = ((0.0, 0.0, 0.0), 0.0, 0.0)
 
 
 def fake_cell_truth(plan, seed: int, world_kwargs: dict | None = None) -> CellTruth:
@@ -68,10 +70,9 @@ def fake_cell_truth(plan, seed: int, world_kwargs: dict | None = None) -> CellTr
     world = make_world(robot=plan.robot.name, seed=int(seed), clock=ManualClock(), payload_kg=plan.payload_kg,
                        **dict(world_kwargs or {}))
     try:
-        tracker_at = world.tracker.base_T_tracker[:3, 3]
-        reach = np.linalg.norm(np.array(list(plan.poses_mm.values())) - tracker_at, axis=1).max()
-        return CellTruth(int(seed), world.arm.effects, world.arm.stop_sigma_rad.copy(),
-                         float(np.max(world.tracker.sigma_mm(reach))))
+        tr = world.tracker
+        return CellTruth(int(seed), world.arm.effects, world.arm.stop_sigma_rad.copy(), tr.noise.total_um * 1e-3,
+                         (tuple(float(v) for v in tr.base_T_tracker[:3, 3]), tr.mpe_a_um, tr.mpe_b_um_per_m))
     finally:
         world.close()
 
@@ -157,7 +158,8 @@ def _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs) -> 
         if not _meets(condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0, ap_lim, ad_lim, fraction):
             continue
         sc = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=_SPEC_CYCLES,
-                                tracker_sigma_mm=cell.tracker_sigma_mm, rng=np.random.default_rng(s), geometry=geo)
+                                tracker_sigma_mm=cell.tracker_sigma_mm, rng=np.random.default_rng(s), geometry=geo,
+                                tracker_accuracy=cell.tracker_accuracy)
         rms = np.array([sc.AP_rms_mm[n] for n in names])
         ad_sd = max(sc.AD_sd_mm.values(), default=0.0)
         if _meets(condition, ap_lo, ap_hi, ad_hi, sigmas * rms, sigmas * ad_sd, ap_lim, ad_lim, fraction):
@@ -278,14 +280,14 @@ class AcceptanceRun:
                 + [f"{m['pose']} {m['name']}" for m in self.measurements if m.get("marginal")])
 
     def test_record(self) -> dict:
-        """This run's test record (:func:`station.test_record.build`)."""
-        from station.test_record import build
+        """This run's test record (:func:`station.run_record.build`)."""
+        from station.run_record import build
 
         return build(self)
 
     def write_record(self, out_dir: str | Path) -> tuple[Path, Path]:
         """Write the test record as ``RUN.record.json`` and ``RUN.junit.xml`` into ``out_dir``; their paths."""
-        from station.test_record import write
+        from station.run_record import write
 
         return write(self.test_record(), out_dir)
 
@@ -339,7 +341,8 @@ def make_operator(operator, arm: bool):
     moves, so no script answers the confirmations that guard real motion.
     """
     from app.assemble import require_person
-    from station.runner import AnswerFileOperator, CallableOperator, InteractiveOperator, ScriptedOperator
+    from app.terminal import InteractiveOperator
+    from station.runner import AnswerFileOperator, CallableOperator, ScriptedOperator
 
     if operator is None:
         operator = InteractiveOperator() if arm else ScriptedOperator(True)

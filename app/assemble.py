@@ -33,7 +33,8 @@ from app.page_operator import WebOperator
 from procedures.devices import DeviceSet, configured_devices
 from procedures.execute import execute, prepare, preflight
 from station.errors import ConfigError, SafetyError
-from station.runner import InteractiveOperator, ProgressLine, RunControl, ScriptedOperator
+from app.terminal import InteractiveOperator, ProgressLine
+from station.runner import RunControl, ScriptedOperator
 from station.store import RunStore, StoreError
 from station.verdict import Outcome
 
@@ -194,6 +195,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             cell = start_fake_cell(spec, prepared.params, prepared.fake)
             stack.callback(cell.close)
             devices = DeviceSet(urls=dict(cell.urls), time_scale=cell.time_scale)
+            if getattr(cell, "hand", None) is not None:  # the simulated world acts on the answers (loads)
+                operator = cell.hand(operator)
         # every reason the devices cannot run the plan, before anything moves
         preflight(prepared, cfg, devices)
         if devices.armed:
@@ -244,7 +247,7 @@ def _start_forwarding(cfg, base: Path, stack: ExitStack):
     """With a central store configured, forward in the background while the run records (local first)."""
     if not cfg.station.store_url:
         return None
-    from station.store_forward import Forwarder
+    from station.store.forward import Forwarder
 
     fwd = Forwarder(cfg.station.store_file(base), cfg.station.store_url, station=cfg.station.name,
                     interval_s=FORWARD_INTERVAL_S).start()
@@ -259,7 +262,7 @@ FORWARD_INTERVAL_S = 5.0
 def _last_push(cfg, base: Path, forwarder, run_id: str) -> str:
     """After the run: stop the background pass and push what is left once; says what the centre holds
     of the run (an absent centre is only said)."""
-    from station.store_forward import forward_status, push
+    from station.store.forward import forward_status, push
 
     forwarder.stop()
     try:

@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from station.errors import StationError
+from station.shown import shown
 
 #: command groups, in the order ``station --help`` lists them
 GROUPS = ("init", "demo", "run", "serve", "store", "simulate", "analyze", "calibrate", "diagnose", "predict",
@@ -40,7 +41,32 @@ def _describe_from_help(sub: argparse._SubParsersAction) -> None:
                 _describe_from_help(a)
 
 
+class _ShownStream:
+    """The terminal as a command writes to it: control characters in what it prints (a model, pose or operator
+    name, an overhaul's text) arrive escaped (``\\x1b``), never as escapes that recolour, clear or retitle it."""
+
+    def __init__(self, raw) -> None:
+        self._raw = raw
+        self.unscreened = raw  # for the progress bar's own escapes (station.runner), which screens its text
+
+    def write(self, text: str) -> int:
+        self._raw.write(shown(text, lines=True))
+        return len(text)
+
+    def __getattr__(self, name):
+        return getattr(self._raw, name)
+
+
 def main(argv: list[str] | None = None) -> int:
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _ShownStream(out), _ShownStream(err)
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout, sys.stderr = out, err
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -41,7 +41,8 @@ def one_cell(seed: int, cycles: int) -> dict:
         cell = fake_cell_truth(plan, seed)
         pred = predict_static(plan, cell.effects)
         scatter = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=cycles,
-                                     tracker_sigma_mm=cell.tracker_sigma_mm, draws=300)
+                                     tracker_sigma_mm=cell.tracker_sigma_mm, draws=300,
+                                     tracker_accuracy=cell.tracker_accuracy)
         run = st.iso9283(cycles=cycles, vap_cycles=2)
         with RunStore(run.store_path) as store:
             reg = next(s.output for s in store.steps(run.run_id) if s.name == "register base frame" and s.status == "done")

@@ -6,7 +6,7 @@ Starts a private PostgreSQL server (as the tests do, but with fsync on, as a
 plant's server would run), writes a local SQLite store with one run of
 ``--samples`` tracker samples (t, x, y, z, status) in batches of
 ``--per-batch`` (the ISO procedure commits what each read brings, ~0.1 s at
-1 kHz), pushes it with :func:`station.store_forward.push` and checks that the
+1 kHz), pushes it with :func:`station.store.forward.push` and checks that the
 centre holds every sample; then pushes again (nothing to send). Then loads a
 simulated fleet and times each fleet question on PostgreSQL and on SQLite.
 Last, makes one ISO run on the fake cell, archives it ``--copies`` times and
@@ -26,10 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from station.fleet import drifting, over_limits_now, robot_history, since_overhaul  # noqa: E402
-from station.runner import InteractiveOperator  # noqa: E402
+from station.fleet.questions import drifting, over_limits_now, robot_history, since_overhaul  # noqa: E402
+from app.terminal import InteractiveOperator  # noqa: E402
 from station.store import RunStore  # noqa: E402
-from station.store_forward import push  # noqa: E402
+from station.store.forward import push  # noqa: E402
 from tests.store.fleetgen import load_fleet, make_fleet  # noqa: E402
 from tests.store.pgserver import PgServer  # noqa: E402
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from drivers import emscon_codec as ec
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer,
-                             StreamRecord, Tracker, TrackerInfo)
+                             StreamRecord, TrackerBase, TrackerInfo)
 from drivers.transport import Deadline, check_positive, tcp_factory, transport_or_factory
 from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
@@ -54,7 +54,7 @@ def _cmd_name(command: int) -> str:
     return f"{_COMMAND_NAMES.get(command, 'command')} ({command})"
 
 
-class EmsconTracker(Tracker):
+class EmsconTracker(TrackerBase):
     """emScon TPI client.
 
     Parameters

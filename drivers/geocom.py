@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from drivers.tracker import (BeamBroken, EventKind, guarded, StationaryMeasurement, StreamBuffer, StreamRecord,
-                             Tracker, TrackerInfo)
+                             TrackerBase, TrackerInfo)
 from drivers.geocom_codec import (GeoComReply, INCLINATION_AUTO, MeasureProgram, RC_NAMES, RC_WARNINGS,
                                   REPLY_VALUES, Rpc, encode_request, geocom_error, idempotent, parse_float,
                                   parse_int, parse_reply, rc_name)
@@ -49,7 +49,7 @@ from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotR
 LISTEN_SLICE_S = 0.01
 
 
-class GeoComTracker(Tracker):
+class GeoComTracker(TrackerBase):
     """GeoCOM client over a serial line (pty in tests).
 
     Parameters

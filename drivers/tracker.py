@@ -36,6 +36,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -390,8 +391,59 @@ def guarded(buf_of, name: str, target):
     return run
 
 
-class Tracker(abc.ABC):
-    """What every tracker driver offers. Use as a context manager."""
+@runtime_checkable
+class Tracker(Protocol):
+    """What the procedures call on a tracker (implemented by the emScon and GeoCom drivers, on
+    :class:`TrackerBase`). Devices are described the same way throughout: a ``Protocol`` the callers
+    see (:class:`drivers.robot.Robot` for a robot), and the code a family of drivers shares in a
+    base class of its own. Use as a context manager."""
+
+    protocol: str
+
+    def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
+        """Open the link, check the tracker and initialise it if needed."""
+
+    def set_units(self, length_unit: str = "mm") -> None:
+        """Units the device reports in; samples are always delivered in mm."""
+
+    def measure_stationary(self, duration_s: float = 0.5, timeout_s: float = 10.0) -> StationaryMeasurement:
+        """One stationary point averaged over ``duration_s`` of device time.
+
+        Raises BeamBroken, DeviceNotReady, DeviceTimeout, ConnectionLost.
+        """
+
+    def start_stream(self, rate_hz: float) -> None:
+        """Start a continuous time-based stream at ``rate_hz`` (device time)."""
+
+    def stop_stream(self, timeout_s: float = 5.0) -> StreamRecord:
+        """Stop the stream; samples already received stay readable."""
+
+    def read_samples(self, timeout_s: float = 1.0, max_samples: int | None = None) -> SampleBatch:
+        """Samples (device time, mm) and events since the last call (empty after ``timeout_s``)."""
+
+    def sync(self, timeout_s: float = 5.0) -> None:
+        """Return once every sample the device sent before this call is readable."""
+
+    def poll_events(self) -> list[TrackerEvent]:
+        """Events not yet handed out (with or without a stream)."""
+
+    def stream_record(self) -> StreamRecord | None:
+        """Counters of the current (or last) stream."""
+
+    def link_record(self) -> StreamRecord:
+        """Counters of the traffic outside streams."""
+
+    def close(self) -> None:
+        """Stop everything and release the transport; idempotent."""
+
+    def __enter__(self): ...
+
+    def __exit__(self, *exc) -> None: ...
+
+
+class TrackerBase(abc.ABC):
+    """The code every tracker driver shares (event and stream buffers, reads, context manager); a driver
+    implements the abstract methods and so offers :class:`Tracker`."""
 
     protocol: str = "?"
 
@@ -487,5 +539,5 @@ class Tracker(abc.ABC):
 
 __all__ = [
     "BeamBroken", "EventKind", "TrackerEvent", "Gap", "SampleBatch", "StationaryMeasurement",
-    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker",
+    "StreamRecord", "TrackerInfo", "StreamBuffer", "Tracker", "TrackerBase",
 ]

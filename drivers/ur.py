@@ -59,7 +59,7 @@ from typing import Collection
 import numpy as np
 
 from station.device_urls import parse_device_url
-from station.models.rotation import rotvec_of
+from station.models.rotation import matrix_to_rotvec, ur_pose_to_T
 from station.protocols.ur import (LOCKSTEP_STORED_REGISTER, SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode,
                                   RuntimeState, SafetyMode)
 from station.errors import (
@@ -351,34 +351,6 @@ class RtdeSidecar:
 
 
 # ====================================================================== state
-
-
-def rotvec_to_matrix(rv) -> np.ndarray:
-    """Rotation vectors (..., 3) -> rotation matrices (..., 3, 3) (Rodrigues)."""
-    rv = np.asarray(rv, dtype=float)
-    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
-    k = np.where(theta[..., 0] > 1e-12, rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0), 0.0)
-    K = np.zeros(rv.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
-
-
-def matrix_to_rotvec(R) -> np.ndarray:
-    """Rotation matrix (3, 3) -> rotation vector (3,), robust near 0 and pi (through the quaternion)."""
-    return rotvec_of(np.asarray(R, dtype=float).reshape(1, 3, 3))[0]
-
-
-def ur_pose_to_T(pose) -> np.ndarray:
-    """UR pose(s) ``[x, y, z, rx, ry, rz]`` (m, rotation vector) -> (..., 4, 4) in mm."""
-    p = np.asarray(pose, dtype=float)
-    T = np.zeros(p.shape[:-1] + (4, 4))
-    T[..., :3, :3] = rotvec_to_matrix(p[..., 3:])
-    T[..., :3, 3] = 1000.0 * p[..., :3]
-    T[..., 3, 3] = 1.0
-    return T
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,9 @@ class FakeCell:
     urls: dict[str, str]
     time_scale: float
     _close: Callable[[], None]
+    #: ``hand(operator) -> operator``: a cell whose simulated world acts on the operator's answers (the loads
+    #: of a static compliance test) wraps the run's operator with it; None: the operator is left alone
+    hand: Callable | None = None
 
     def close(self) -> None:
         self._close()
@@ -53,6 +56,34 @@ def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
                                 start_s=float(fake.get("start_s", 0.0)), rtde_hz=fake.get("rtde_hz"), **world)
     return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
                     float(fake["time_scale"]), station.close)
+
+
+def compliance_cell(params: Mapping, fake: Mapping) -> FakeCell:
+    """The ISO cell with a force gauge on a pty in the load path, and the simulated operator's hand
+    (:class:`fakes.sim.hand.SimulatedHand`) that applies the loads the run asks for to the simulated arm."""
+    from fakes.forcegauge import start_fake
+    from fakes.sim.hand import SimulatedHand
+    from fakes.station import FakeStation
+
+    world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
+    station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
+                                robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
+                                start_s=float(fake.get("start_s", 0.0)), **world)
+    try:
+        gauge = start_fake(station.world, faults=fake.get("gauge_faults"))
+    except BaseException:
+        station.close()
+        raise
+
+    def close() -> None:
+        try:
+            gauge.close()
+        finally:
+            station.close()
+
+    arm, rng = station.world.arm, station.world.rng
+    return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url, "gauge": gauge.url},
+                    float(fake["time_scale"]), close, hand=lambda operator: SimulatedHand(operator, arm, rng))
 
 
 def arm_calibration_cell(params: Mapping, fake: Mapping) -> FakeCell:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import errno
 import os
 import pty
+import select
+import threading
 import tty
 
 
@@ -33,6 +35,31 @@ class PtyPort:
             if exc.errno == errno.EIO:
                 return None
             raise
+
+    def wait_read(self, stop: threading.Event, timeout_s: float = 0.05) -> bytes:
+        """What the driver wrote, waiting up to ``timeout_s`` for it (``b""``: nothing, or no driver has the
+        device open: then a little wait on ``stop`` too)."""
+        ready, _, _ = select.select([self.master], [], [], timeout_s)
+        if not ready:
+            return b""
+        data = self.read()
+        if data is None:
+            stop.wait(0.01)
+            return b""
+        return data
+
+    def write_all(self, data: bytes, stop: threading.Event, give_up_s: float = 1.0) -> bool:
+        """Write all of ``data`` to the driver; False if nobody read the line for ``give_up_s`` (or ``stop``)."""
+        view = memoryview(data)
+        waited = 0.0
+        while view:
+            try:
+                view = view[os.write(self.master, view):]
+            except BlockingIOError:
+                if waited > give_up_s or stop.wait(0.005):
+                    return False
+                waited += 0.005
+        return True
 
     def close(self) -> None:
         """Close both ends (idempotent); call after the serving thread has stopped."""

@@ -117,9 +117,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from station.models.rotation import rotvec_of
+from station.models.rotation import T_to_ur_pose, rotvec_of, ur_pose_to_T
 
 from fakes import rtde_protocol as rp
 from fakes.sim.clock import keep_running, stop_running
@@ -211,28 +210,6 @@ def _parse_number(faults: dict, key: str, kind, lo: float):
 
 
 # ====================================================================== URScript subset
-
-
-def _rotvec_to_matrix(rv) -> np.ndarray:
-    return Rotation.from_rotvec(np.asarray(rv, dtype=float)).as_matrix()
-
-
-def pose_to_T(pose_m_rotvec) -> np.ndarray:
-    """UR pose ``[x, y, z, rx, ry, rz]`` (m, rotation vector) -> (4, 4) in mm."""
-    p = np.asarray(pose_m_rotvec, dtype=float)
-    T = np.eye(4)
-    T[:3, :3] = _rotvec_to_matrix(p[3:])
-    T[:3, 3] = 1000.0 * p[:3]
-    return T
-
-
-def T_to_pose(T) -> np.ndarray:
-    """(N, 4, 4) mm -> (N, 6) UR poses (m, rotation vector)."""
-    T = np.asarray(T, dtype=float).reshape(-1, 4, 4)
-    out = np.empty((len(T), 6))
-    out[:, :3] = T[:, :3, 3] / 1000.0
-    out[:, 3:] = rotvec_of(T[:, :3, :3])
-    return out
 
 
 def _angular_velocity(T_now: np.ndarray, T_prev: np.ndarray, dt: float) -> np.ndarray:
@@ -404,7 +381,7 @@ class _Controller:
             if need & {"actual_TCP_pose", "actual_TCP_speed", "actual_tool_accelerometer"}:
                 T = kinematics.fk(self.dh, qa)
                 T_now, T_prev = T[:n], T[n:]
-                cols["actual_TCP_pose"] = T_to_pose(T_now)
+                cols["actual_TCP_pose"] = T_to_ur_pose(T_now)
                 speed = np.empty((n, 6))
                 speed[:, :3] = (T_now[:, :3, 3] - T_prev[:, :3, 3]) / 1000.0 / FD_STEP_S
                 speed[:, 3:] = _angular_velocity(T_now, T_prev, FD_STEP_S)
@@ -434,7 +411,7 @@ class _Controller:
             cols["target_qdd"] = (q0 - 2 * q1 + q2) / FD_STEP_S**2
             if need & {"target_TCP_pose", "target_TCP_speed"}:
                 T = kinematics.fk(self.dh, qt[: 2 * n])
-                cols["target_TCP_pose"] = T_to_pose(T[:n])
+                cols["target_TCP_pose"] = T_to_ur_pose(T[:n])
                 sp = np.empty((n, 6))
                 sp[:, :3] = (T[:n, :3, 3] - T[n:, :3, 3]) / 1000.0 / FD_STEP_S
                 sp[:, 3:] = _angular_velocity(T[:n], T[n:], FD_STEP_S)
@@ -678,7 +655,7 @@ class _Interpreter:
         if call.name == "movej":
             target = b["q"]
             if isinstance(target, Pose):
-                res = kinematics.ik(ctl.dh, pose_to_T(target.values), q_now, lim)
+                res = kinematics.ik(ctl.dh, ur_pose_to_T(target.values), q_now, lim)
                 if not bool(res.success[0]):
                     raise ScriptError(f"line {call.line}: movej: inverse kinematics failed for p{list(target.values)}")
                 q = res.q_rad[0]
@@ -699,7 +676,7 @@ class _Interpreter:
         else:
             target = b["pose"]
             if isinstance(target, Pose):
-                T = pose_to_T(target.values)
+                T = ur_pose_to_T(target.values)
             else:
                 T = kinematics.fk(ctl.dh, np.asarray(target, dtype=float))
             v = float(b.get("v", 0.25)) * 1000.0

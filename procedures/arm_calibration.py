@@ -70,6 +70,8 @@ from procedures.cell import (ROBOT_STREAM, CellSession, connect_cell, connect_co
                             record_robot_readings, robot_subject, stop_cell)
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec
+from procedures.live_views import arm_calibration_view
+from procedures.plan_params import plan_from_params, plan_params
 from station.analysis.arm.calibration import Split, calibrate_arm, calibration_json
 from station.analysis.arm.jig_features import feature_point
 from station.analysis.arm.pose_planning import (PRE_DEG, _path_ok, along_chain, candidate_poses, order_poses,
@@ -144,30 +146,11 @@ class ArmCalPlan:
         return Split(int(np.flatnonzero(roles == "reference")[0]), train, np.flatnonzero(roles == "test"))
 
     def params(self) -> dict:
-        return {
-            "robot": self.robot.name, "workspace_min_mm": list(self.workspace_min_mm),
-            "workspace_max_mm": list(self.workspace_max_mm), "max_tcp_speed_mm_s": self.max_tcp_speed_mm_s,
-            "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
-            "q_deg": [list(q) for q in self.q_deg], "roles": list(self.roles), "method": self.method,
-            "dwell_s": self.dwell_s, "measure_s": self.measure_s, "speed_frac": self.speed_frac,
-            "poses_per_step": self.poses_per_step, "report_dir": self.report_dir, "selection": self.selection,
-            "instrument": self.instrument, "scan_timeout_s": self.scan_timeout_s,
-            "start_dh": None if self.start_dh is None else [list(r) for r in self.start_dh],
-        }
+        return plan_params(self)
 
     @classmethod
     def from_params(cls, p: Mapping) -> "ArmCalPlan":
-        return cls(
-            robot=get_robot(p["robot"]), workspace_min_mm=tuple(p["workspace_min_mm"]),
-            workspace_max_mm=tuple(p["workspace_max_mm"]), max_tcp_speed_mm_s=float(p["max_tcp_speed_mm_s"]),
-            max_speed_frac=float(p["max_speed_frac"]), max_accel_frac=float(p["max_accel_frac"]),
-            q_deg=tuple(tuple(float(v) for v in q) for q in p["q_deg"]), roles=tuple(p["roles"]),
-            method=str(p["method"]), dwell_s=float(p["dwell_s"]), measure_s=float(p["measure_s"]),
-            speed_frac=float(p["speed_frac"]), poses_per_step=int(p["poses_per_step"]),
-            report_dir=str(p["report_dir"]), selection=p.get("selection"),
-            instrument=str(p.get("instrument", "tracker")), scan_timeout_s=float(p.get("scan_timeout_s", 30.0)),
-            start_dh=None if p.get("start_dh") is None else tuple(tuple(float(v) for v in r) for r in p["start_dh"]),
-        )
+        return plan_from_params(cls, p)
 
 
 def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> ArmCalPlan:
@@ -842,4 +825,6 @@ SPEC = ProcedureSpec(
     result_key=RESULT_KEY,
     summary=summary,
     preflight=preflight_problems,
+    live_view=lambda store, run_id, params: arm_calibration_view(store, run_id, params, tracker_stream=STREAM,
+                                                                 scanner_stream=SCAN_STREAM),
 )

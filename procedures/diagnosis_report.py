@@ -121,5 +121,7 @@ def _notes(doc: dict, name_of) -> list[str]:
     """Ambiguous pairs and candidates that could not be tested, as report notes."""
     notes = [f"{name_of(s)} and {name_of(a)} explain the same residual ({100 * a['share_of_residual_explained']:.0f} % "
              f"as much alone): the data cannot tell them apart" for s in doc["steps"] for a in s["ambiguous_with"]]
+    notes += [f"{name_of(s)} told apart from {name_of(a)}: {a['note']}" for s in doc["steps"]
+              for a in s.get("told_apart_from", [])]
     return notes + [f"not testable: {k}: {why}" for k, why in doc["not_testable"].items()]
 

@@ -27,7 +27,7 @@ from pathlib import Path
 from procedures.devices import DeviceSet
 from procedures.registry import ProcedureSpec, Subject, get_procedure
 from station.errors import ConfigError, PreflightError
-from station.runner import Operator, ProgressLine, RunControl, RunOutcome, Runner, resume_start_s
+from station.runner import Operator, Progress, RunControl, RunOutcome, Runner, resume_start_s
 from station.store import RunStore
 
 
@@ -78,6 +78,10 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
     params = spec.new_params(cfg, robot, str(report_dir), dict(plan_overrides or {}))
     if fake is not None:
         params["fake"] = dict(fake)
+        rc = cfg.robots.get(robot) if robot is not None else None
+        scatter = getattr(rc, "stop_scatter_mm", None)
+        if scatter is not None:  # the configured robot's simulated arm scatters so (unless the fake says)
+            params["fake"].setdefault("stop_sigma_mm", float(scatter))
     if acceptance:  # what the run's verdict asks beyond the procedure (procedures.decision)
         params["acceptance"] = dict(acceptance)
     run_id = run_id or f"{subject.serial}-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -95,7 +99,7 @@ def preflight(prepared: PreparedRun, cfg, devices: DeviceSet) -> None:
 
 
 def execute(store: RunStore, prepared: PreparedRun, cfg, devices: DeviceSet, *, operator: Operator | None = None,
-            control: RunControl | None = None, progress: ProgressLine | None = None) -> RunOutcome:
+            control: RunControl | None = None, progress: Progress | None = None) -> RunOutcome:
     """Run (or resume) the prepared run on ``devices``; returns the runner's outcome."""
     spec = prepared.spec
     session = spec.new_session(devices)

@@ -45,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from procedures.plan_params import plan_from_params, plan_params
+from station.analysis.iso9283 import table
 from station.analysis.iso9283.characteristics import ISO_CYCLES, analyze_iso9283, conformance_text
 from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
@@ -68,11 +70,6 @@ SEED_CUBE_MM = (
 )
 #: the poses approached from three directions in seed 000 Fig. 7 / Table 3
 VAP_POSES = ("P1", "P2", "P4")
-#: limit keys of the config -> characteristic keys of the analysis
-LIMIT_KEYS = {
-    "ap_limit_mm": "AP_mm", "rp_limit_mm": "RP_mm", "pst_limit_s": "PST_s", "vap_limit_mm": "vAP_mm",
-    "ad_limit_mm": "AD_mm", "rd_limit_mm": "RD_mm", "mpt_limit_s": "MPT_s",
-}
 STREAM = "tracker"
 
 
@@ -114,39 +111,11 @@ class IsoPlan:
         )
 
     def params(self) -> dict:
-        return {
-            "robot": self.robot.name, "workspace_min_mm": list(self.workspace_min_mm),
-            "workspace_max_mm": list(self.workspace_max_mm), "max_tcp_speed_mm_s": self.max_tcp_speed_mm_s,
-            "poses_mm": {k: list(v) for k, v in self.poses_mm.items()},
-            "registration_mm": {k: list(v) for k, v in self.registration_mm.items()},
-            "cycles": self.cycles, "vap_cycles": self.vap_cycles, "dwell_s": self.dwell_s,
-            "speed_frac": self.speed_frac, "vap_offset_mm": self.vap_offset_mm,
-            "tracker_rate_hz": self.tracker_rate_hz, "limits": dict(self.limits), "band_mm": self.band_mm,
-            "payload_kg": self.payload_kg, "report_dir": self.report_dir,
-            "max_speed_frac": self.max_speed_frac, "max_accel_frac": self.max_accel_frac,
-            "registration": self.registration, "axis_sweep_deg": list(self.axis_sweep_deg),
-            "axis_sweep_points": self.axis_sweep_points,
-            "decision_rule": self.decision_rule, "uncertainty": None if self.uncertainty is None else dict(self.uncertainty),
-        }
+        return plan_params(self)
 
     @classmethod
     def from_params(cls, p: Mapping) -> "IsoPlan":
-        return cls(
-            robot=get_robot(p["robot"]), workspace_min_mm=tuple(p["workspace_min_mm"]),
-            workspace_max_mm=tuple(p["workspace_max_mm"]), max_tcp_speed_mm_s=float(p["max_tcp_speed_mm_s"]),
-            poses_mm={k: tuple(v) for k, v in p["poses_mm"].items()},
-            registration_mm={k: tuple(v) for k, v in p["registration_mm"].items()},
-            cycles=int(p["cycles"]), vap_cycles=int(p["vap_cycles"]), dwell_s=float(p["dwell_s"]),
-            speed_frac=float(p["speed_frac"]), vap_offset_mm=float(p["vap_offset_mm"]),
-            tracker_rate_hz=float(p["tracker_rate_hz"]), limits=dict(p["limits"]), band_mm=p["band_mm"],
-            payload_kg=float(p["payload_kg"]), report_dir=str(p["report_dir"]),
-            max_speed_frac=float(p.get("max_speed_frac", 1.0)), max_accel_frac=float(p.get("max_accel_frac", 1.0)),
-            registration=str(p.get("registration", "axes")),
-            axis_sweep_deg=tuple(p.get("axis_sweep_deg", (25.0, 30.0))),
-            axis_sweep_points=int(p.get("axis_sweep_points", 13)),
-            decision_rule=str(p.get("decision_rule", "simple")),
-            uncertainty=None if p.get("uncertainty") is None else dict(p["uncertainty"]),
-        )
+        return plan_from_params(cls, p)
 
 
 def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> IsoPlan:
@@ -195,7 +164,7 @@ def _plan_on_cube(cfg, robot_name: str, corners, inset_mm: float, vap_offset_mm:
     centre = corners.mean(axis=0)
     inset = corners - np.sign(corners - centre) * inset_mm
     registration = {f"R{k + 1}": tuple(float(v) for v in c) for k, c in enumerate(inset)}
-    limits = {LIMIT_KEYS[k]: v for k, v in rc.limits.model_dump().items() if k in LIMIT_KEYS and v is not None}
+    limits = rc.limits.by_characteristic()
     kw = dict(
         robot=robot, workspace_min_mm=tuple(rc.workspace.min_mm),
         workspace_max_mm=tuple(rc.workspace.max_mm), max_tcp_speed_mm_s=rc.workspace.max_tcp_speed_mm_s,
@@ -570,7 +539,8 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
     names = list(plan.poses_mm)
     commanded = np.array([plan.poses_mm[n] for n in names])
     # vAP is judged on the multi-directional cycles (below), not on the single-direction pose cycles
-    main_limits = {k: v for k, v in plan.limits.items() if k != "vAP_mm"}
+    several = {c.key for c in table.characteristics() if c.several_approaches}
+    main_limits = {k: v for k, v in plan.limits.items() if k not in several}
     main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=main_limits,
                            band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles))
     vap = None
@@ -579,7 +549,7 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
         vcmd = np.array([plan.poses_mm[n] for n in vnames])
         # each vAP pose is approached three times in a row: that is the commanded order
         order = [n for n in vnames for _ in range(3)]
-        vlim = {k: v for k, v in plan.limits.items() if k == "vAP_mm"}
+        vlim = {k: v for k, v in plan.limits.items() if k in several}
         vap = analyze_iso9283(vap_t, vap_xyz, vcmd, names=vnames, order=order, limits=vlim,
                               distance_pairs=None, band_mm=plan.band_mm)
     if plan.uncertainty is not None:
@@ -597,33 +567,28 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
     return main, vap
 
 
+def run_verdicts(main, vap) -> dict:
+    """``{(characteristic, subject): LimitCheck}`` of the run: each from the analysis that states it."""
+    vs = table.from_their_cycles(main.verdicts, vap.verdicts if vap is not None else ())
+    return {(v.characteristic, v.subject): v for v in vs}
+
+
 def characteristic_rows(main, vap) -> list[dict]:
-    """One row per number (pose, name, value, unit, limit, passed) for the store and the report."""
+    """One row per number (pose, name, value, unit, limit, passed) for the store and the report: every
+    characteristic of the table the procedure states, and every one a limit was configured for."""
     rows: list[dict] = []
-    verdicts = {(v.characteristic, v.subject): v for v in main.verdicts}
-    if vap is not None:
-        verdicts.update({(v.characteristic, v.subject): v for v in vap.verdicts if v.characteristic == "vAP_mm"})
+    verdicts = run_verdicts(main, vap)
+    for res in (main, vap):
+        if res is None:
+            continue
 
-    def add(pose, name, value, unit):
-        v = verdicts.get((name, pose))
-        value = None if value is None or (isinstance(value, float) and not math.isfinite(value)) else float(value)
-        rows.append({"pose": pose, "name": name, "value": value, "unit": unit,
-                     "limit": None if v is None else v.limit, "passed": None if v is None else v.passed})
+        def ours(c, res=res):
+            return c.several_approaches is (res is vap) and (c.stated or c.key in res.limits)
 
-    for name, pr in main.poses.items():
-        add(name, "AP_mm", pr.accuracy.AP_mm if pr.accuracy else None, "mm")
-        add(name, "RP_mm", pr.repeatability.RP_mm if pr.repeatability else None, "mm")
-        add(name, "POS_mm", pr.overshoot.POS_mm if pr.overshoot else None, "mm")
-        add(name, "PST_s", pr.overshoot.PST_s if pr.overshoot else None, "s")
-        add(name, "n_cycles", pr.n_cycles, "1")
-    if vap is not None:
-        for name, pr in vap.poses.items():
-            add(name, "vAP_mm", pr.multidirectional.vAP_mm, "mm")
-    for d in main.distances:
-        add(f"{d.pose_a}-{d.pose_b}", "AD_mm", d.AD_mm, "mm")
-        add(f"{d.pose_a}-{d.pose_b}", "RD_mm", d.RD_mm, "mm")
-    for m in main.posing_times:
-        add(f"{m.from_pose}->{m.to_pose}", "MPT_s", m.MPT_s, "s")
+        for c, subject, obj in table.figures(res, ours):
+            v = verdicts.get((c.key, subject))
+            rows.append({"pose": subject, "name": c.key, "value": c.value(obj), "unit": c.unit,
+                         "limit": None if v is None else v.limit, "passed": None if v is None else v.passed})
     return rows
 
 
@@ -777,15 +742,16 @@ def summary(store, run_id: str) -> list[str]:
     by_pose: dict[str, dict] = {}
     for r in rows:
         by_pose.setdefault(r["pose"], {})[r["name"]] = r
-    cols = [("AP_mm", "AP mm"), ("RP_mm", "RP mm"), ("POS_mm", "POS mm"), ("PST_s", "PST s"), ("vAP_mm", "vAP mm"),
-            ("n_cycles", "n")]
-    lines.append(f"{'pose':<8}" + "".join(f"{h:>10}" for _, h in cols))
+    names = {r["name"] for r in rows}
+    shown = [c for c in table.characteristics() if c.stated or c.key in names]
+    cols = [c for c in shown if c.level == "pose"]
+    lines.append(f"{'pose':<8}" + "".join(f"{c.column:>10}" for c in cols))
     for pose in sorted(p for p in by_pose if p.startswith("P") and "-" not in p):
-        lines.append(f"{pose:<8}" + "".join(f"{_fmt(by_pose[pose].get(key)):>10}" for key, _ in cols))
+        lines.append(f"{pose:<8}" + "".join(f"{_fmt(by_pose[pose].get(c.key)):>10}" for c in cols))
     for pose, d in sorted(by_pose.items()):
-        for key in ("AD_mm", "RD_mm", "MPT_s"):
-            if key in d:
-                lines.append(f"{key:<7} {pose:<8} {_fmt(d[key]):>10}")
+        for c in shown:
+            if c.level != "pose" and c.key in d:
+                lines.append(f"{c.key:<7} {pose:<8} {_fmt(d[c.key]):>10}")
     if not any(r["limit"] is not None for r in rows):
         lines.append("no limits configured")
     lines += _decision_lines(store, run_id)
@@ -844,9 +810,10 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
 
 
 def _stored_verdicts(res: Mapping) -> list[dict]:
-    """The stored ISO 9283 verdicts of a run's result: the pose run's and the vAP run's vAP ones."""
-    vs = list((res.get("pose") or {}).get("verdicts", []))
-    return vs + [v for v in (res.get("vap") or {}).get("verdicts", []) if v.get("characteristic") == "vAP_mm"]
+    """The stored ISO 9283 verdicts of a run's result, each from the cycles that state it (the pose run's,
+    the vAP run's vAP)."""
+    return table.from_their_cycles((res.get("pose") or {}).get("verdicts", []),
+                                   (res.get("vap") or {}).get("verdicts", []), key=lambda v: v.get("characteristic"))
 
 
 def _decision_lines(store, run_id: str) -> list[str]:
@@ -862,8 +829,7 @@ def _decision_lines(store, run_id: str) -> list[str]:
     lines = [f"decision rule: {', '.join(sorted(rules))} (ISO 14253-1); U = k u with k = 2"]
     for v in vs:
         if v.get("outcome") and Outcome.parse(v["outcome"]) is Outcome.NOT_DECIDED:
-            unit = v["characteristic"].rsplit("_", 1)[-1]
-            U = v.get(f"U_{unit}")
+            U = v.get(f"U_{table.unit_of(v['characteristic'])}")
             head = f"{Outcome.NOT_DECIDED} {v['characteristic']} {v['subject']}: "
             lines.append(head + (f"{v['value']:.4g} +/- {U:.2g} against {v['limit']:g} (guard band "
                                  f"{v['guard_band'][0]:.4g}..{v['guard_band'][1]:.4g})"

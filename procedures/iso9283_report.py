@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from station.analysis.iso9283 import table
 from station.report import Report, plot_approach, plot_bars, plot_clusters, plot_intervals, plot_velocity_windows
 
 
@@ -73,12 +74,10 @@ def _cluster_figures(vap_xyz, vap, plan) -> list[tuple[str, str]]:
 
 def _with_decisions(rows, main, vap) -> list[dict]:
     """The stored rows with each verdict's rule, decision and U (k = 2) when a budget was stated."""
-    vs = {(v.characteristic, v.subject): v for v in main.verdicts}
-    if vap is not None:
-        vs.update({(v.characteristic, v.subject): v for v in vap.verdicts if v.characteristic == "vAP_mm"})
-    unc = dict(getattr(main, "uncertainties", {}) or {})
-    if vap is not None:
-        unc.update({k: fu for k, fu in (getattr(vap, "uncertainties", {}) or {}).items() if k[0] == "vAP_mm"})
+    vs = {(v.characteristic, v.subject): v
+          for v in table.from_their_cycles(main.verdicts, vap.verdicts if vap is not None else ())}
+    unc = dict(table.from_their_cycles((getattr(main, "uncertainties", {}) or {}).items(),
+                                       (getattr(vap, "uncertainties", {}) or {}).items(), key=lambda kv: kv[0][0]))
     out = []
     for r in rows:
         v = vs.get((r["name"], r["pose"]))
@@ -139,19 +138,19 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
     by = {}
     for r in rows:
         by.setdefault(r["name"], []).append(r)
-    for key, unit, title in (("AP_mm", "mm", "Position accuracy AP per pose, eq. (1)"),
-                             ("RP_mm", "mm", "Position repeatability RP per pose, eq. (2)"),
-                             ("MPT_s", "s", "Minimum posing time per move, eq. (10)")):
-        rs = [r for r in by.get(key, []) if r["value"] is not None]
+    for c in table.characteristics():
+        rs = [r for r in by.get(c.key, []) if r["value"] is not None] if c.plotted else []
         if rs:
+            title = f"{c.title} per {c.level}" + (f", {c.source}" if c.source else "")
             lim = next((r["limit"] for r in rs if r["limit"] is not None), None)
+            ylabel = f"{c.symbol} [{c.unit}]"
             if rule is not None:
                 figs.append((title + ", with U (k = 2) and the guard band", plot_intervals(
                     [r["pose"] for r in rs], [r["value"] for r in rs], [r.get("U") for r in rs], limit=lim,
-                    ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
+                    ylabel=ylabel, title=title)))
             else:
                 figs.append((title, plot_bars([r["pose"] for r in rs], [r["value"] for r in rs], limit=lim,
-                                              ylabel=f"{key.split('_')[0]} [{unit}]", title=title)))
+                                              ylabel=ylabel, title=title)))
     notes = list(main.warnings) + (list(vap.warnings) if vap is not None else [])
     shown = [r for r in rows if r["name"] != "n_cycles"]
     return Report(title=f"ISO 9283 run {run.run_id}", facts=facts, rows=shown, figures=figs, notes=notes)

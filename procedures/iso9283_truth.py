@@ -27,6 +27,7 @@ manufacturer's limits on purpose (:mod:`app.testing`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,7 +195,8 @@ class PredictionScatter:
 
 def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad, *, cycles: int,
                        tracker_sigma_mm: float = 0.0, draws: int = 200, rng: np.random.Generator | None = None,
-                       warmup_s: float = 0.0, geometry: RunGeometry | None = None) -> PredictionScatter:
+                       warmup_s: float = 0.0, geometry: RunGeometry | None = None,
+                       tracker_accuracy: tuple | None = None) -> PredictionScatter:
     """Monte Carlo of the random part that :func:`predict_static` leaves out.
 
     Each draw gives every registration point its own stop offset (joints,
@@ -202,7 +204,13 @@ def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad,
     tracker noise (``tracker_sigma_mm`` per coordinate), fits the axis
     registration to them, and stops ``cycles`` times at each pose with fresh
     offsets; the mean attained position, mapped by that registration, is
-    compared with the noise-free one. The circle fits of a +-25 deg and a
+    compared with the noise-free one. With ``tracker_accuracy`` each draw is
+    also a measurement session of the tracker of :mod:`fakes.sim.tracker`: its
+    MPE a systematic error drawn once for every point of the draw (an offset
+    of sd ``a / 2``, a scale and three angles of sd ``b / 2`` ppm and urad
+    about the tracker), so what the registration absorbs of it (the offset
+    and the angles) is absorbed here too; ``tracker_sigma_mm`` is then the
+    reading noise alone. The circle fits of a +-25 deg and a
     +-30 deg arc turn a few hundredths of a millimetre of stop scatter into
     tenths of a millimetre of frame error at the poses, so this is most of the
     difference between a run and its prediction.
@@ -214,7 +222,10 @@ def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad,
     cycles : int
         Stops per pose whose mean is the attained pose (>= 1).
     tracker_sigma_mm : float
-        Tracker noise per coordinate of one registration point.
+        Tracker noise per coordinate of one measured point (registration points and stops).
+    tracker_accuracy : (origin_mm (3,), a_um, b_um_per_m), optional
+        The tracker's position in the base frame and its MPE ``a + b R``, read
+        as a systematic error of each draw (see above); None: no such error.
     draws : int
         Monte Carlo draws (>= 10).
 
@@ -247,6 +258,18 @@ def prediction_scatter(plan: IsoPlan, effects: EffectSet | None, stop_sigma_rad,
     qp = q_pose[None, None] + rng.normal(size=(draws, cycles, P, 6)) * sigma
     pp = _true_positions(plan, effects, qp.reshape(-1, 6), np.tile(dirs, (draws * cycles, 1)), warmup_s)
     mean_true = pp.reshape(draws, cycles, P, 3).mean(axis=1)  # (draws, P, 3), true base frame
+    if tracker_accuracy is not None:  # the session's error: the registration points and the stops read through it
+        origin, a_um, b_um = np.asarray(tracker_accuracy[0], dtype=float), *map(float, tracker_accuracy[1:])
+        e = rng.standard_normal((draws, 7))
+        off, scale, w = e[:, :3] * a_um * 1e-3 / 2, e[:, 3] * b_um * 1e-6 / 2, e[:, 4:] * b_um * 1e-6 / 2
+
+        def read(p):  # (draws, k, 3) in the base frame
+            d = p - origin
+            return p + scale[:, None, None] * d + np.cross(w[:, None, :], d) + off[:, None, :]
+
+        ps = read(ps)
+        mean_true = read(mean_true)  # the mean of readings of one session: the reading of the mean
+        mean_true = mean_true + rng.normal(size=mean_true.shape) * tracker_sigma_mm / math.sqrt(cycles)
     err = np.empty((draws, P, 3))
     for k in range(draws):
         reg = _registration(plan, geo, ps[k])

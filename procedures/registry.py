@@ -24,6 +24,7 @@ REGISTRY: dict[str, str] = {
     "iso9283": "procedures.iso9283",
     "trailer": "procedures.trailer",
     "arm-calibration": "procedures.arm_calibration",
+    "compliance": "procedures.compliance",
 }
 
 
@@ -77,6 +78,9 @@ class ProcedureSpec:
         of a finished stored run from its plan, journal and raw samples (the
         result stored under ``result_key``, the characteristic rows); None:
         its runs are not re-analysed (``station store reanalyze``).
+    live_view : callable or None
+        ``live_view(store, run_id, params) -> dict``: what the run page shows of the procedure's instrument
+        while it runs (:mod:`procedures.live_views`); None: the page draws the tracker's stream.
     """
 
     name: str
@@ -91,6 +95,7 @@ class ProcedureSpec:
     preflight: Callable[[Mapping, Any, Any], list[str]] = field(default=lambda params, cfg, devices: [])
     checks: Callable[[Any, str, Mapping], Any] | None = None
     reanalyse: Callable[[Any, str], tuple[dict, list[dict]]] | None = None
+    live_view: Callable[[Any, str, Mapping], dict] | None = None
 
 
 def procedure_names() -> tuple[str, ...]:

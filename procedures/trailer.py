@@ -34,7 +34,6 @@ The trailer is stopped after a failure or an abort.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -46,6 +45,8 @@ import numpy as np
 from procedures.preflight import report_dir_problems
 from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
+from procedures.live_views import odometry_view
+from procedures.plan_params import plan_from_params, plan_params
 from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
 from station.analysis.trailer.setpoints import interval_average, place_unacknowledged
 from station.errors import ConfigError, StationError
@@ -128,20 +129,6 @@ class TrailerCalibrationPlan:
                 raise ConfigError(f"plan method {name!r} unknown; use one of M1..M24, odr, dynamic")
 
 
-def plan_params(plan: TrailerCalibrationPlan) -> dict:
-    d = dataclasses.asdict(plan)
-    d["commands"] = [[k, float(m)] for k, m in plan.commands]
-    d["compare"] = list(plan.compare)
-    return d
-
-
-def plan_from_params(p: dict) -> TrailerCalibrationPlan:
-    kw = {f.name: p[f.name] for f in dataclasses.fields(TrailerCalibrationPlan) if f.name in p}
-    kw["commands"] = tuple((k, float(m)) for k, m in kw.get("commands", ()))
-    kw["compare"] = tuple(kw.get("compare", ()))
-    return TrailerCalibrationPlan(**kw)
-
-
 @dataclass(frozen=True)
 class SetPoint:
     """A curvature set point: its value and the device time it was applied (None: its acknowledgement
@@ -215,7 +202,7 @@ def _record(ctx: StepContext) -> TrailerSession:
     """The session, its plan and record rebuilt from the store once in a new session."""
     s: TrailerSession = ctx.session
     if s.samples is None:
-        s.plan = plan_from_params(ctx.params["plan"])
+        s.plan = plan_from_params(TrailerCalibrationPlan, ctx.params["plan"])
         s.samples = {c: [] for c in COLUMNS}
         done = ctx.samples("odometry")
         if done:
@@ -616,7 +603,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     """The plan against eq. (25), the 45 deg joint-angle limit and the report folder."""
     problems = report_dir_problems(params.get("report_dir", "reports"))
     try:
-        plan_check(plan_from_params(params["plan"]))
+        plan_check(plan_from_params(TrailerCalibrationPlan, params["plan"]))
     except StationError as exc:
         problems.append(f"trailer plan: {exc}")
     return problems
@@ -625,7 +612,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
 SPEC = ProcedureSpec(
     name="trailer",
     new_params=new_params,
-    build=lambda params: build_procedure(plan_from_params(params["plan"])),
+    build=lambda params: build_procedure(plan_from_params(TrailerCalibrationPlan, params["plan"])),
     new_session=lambda devices: TrailerSession(devices),
     subject=subject,
     device_roles=device_roles,
@@ -633,5 +620,6 @@ SPEC = ProcedureSpec(
     result_key="trailer",
     summary=summary,
     preflight=preflight_problems,
+    live_view=odometry_view,
     checks=run_checks,
 )

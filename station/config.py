@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from station.analysis.decision import MARGINAL_FRACTION
 from station.errors import ConfigError, DataError
@@ -68,17 +69,52 @@ class DeviceConfig(_Strict):
         return parse_device_url(self.url)
 
 
-class LimitsConfig(_Strict):
-    """Acceptance limits (manufacturer's figures); None = report only."""
+def _limit_keys() -> dict[str, str]:
+    from station.analysis.iso9283.table import config_limit_keys
 
-    ap_limit_mm: PositiveMM | None = None
-    rp_limit_mm: PositiveMM | None = None
+    return config_limit_keys()
+
+
+class LimitsConfig(_Strict):
+    """Acceptance limits (manufacturer's figures); None = report only.
+
+    One key per limited characteristic of the ISO 9283 table
+    (:mod:`station.analysis.iso9283.table`: ``ap_limit_mm`` for ``AP_mm``, ...,
+    every key ``station analyze iso9283 --limit`` accepts), and the POS/PST
+    band ``pos_band_mm``. A key the table lacks is refused, naming it.
+    """
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+    __pydantic_extra__: dict[str, PositiveMM | None]
+
     pos_band_mm: PositiveMM | None = None
-    pst_limit_s: PositiveMM | None = None
-    vap_limit_mm: PositiveMM | None = None
-    ad_limit_mm: PositiveMM | None = None
-    rd_limit_mm: PositiveMM | None = None
-    mpt_limit_s: PositiveMM | None = None
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _known_keys(cls, data, handler):
+        if isinstance(data, dict):
+            known = _limit_keys()
+            bad = [k for k in data if k not in known and k not in cls.model_fields]
+            if bad:
+                why = PydanticCustomError(
+                    "unknown_limit", "unknown limit (keys carry their unit; known: {known})",
+                    {"known": ", ".join(sorted([*known, *cls.model_fields]))})
+                raise ValidationError.from_exception_data(
+                    cls.__name__, [InitErrorDetails(type=why, loc=(k,), input=data[k]) for k in bad])
+        return handler(data)
+
+    def __getattr__(self, name: str):
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            if name in _limit_keys():
+                return None  # a limit not configured
+            raise
+
+    def by_characteristic(self) -> dict[str, float]:
+        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``), in the table's order."""
+        given = self.model_extra or {}
+        return {key: float(given[k]) for k, key in _limit_keys().items() if given.get(k) is not None}
 
 
 class WorkspaceConfig(_Strict):
@@ -126,6 +162,9 @@ class RobotConfig(_Strict):
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
     overhaul_state: Literal["before", "after", "new", "in-service"] = "in-service"
     payload_kg: float = Field(0.0, ge=0, le=10_000, allow_inf_nan=False)
+    #: the stop scatter of this robot's simulated arm (a fake cell), mm, 1 sigma per coordinate of the tool at
+    #: home (None: drawn from the model's range, station.models.robots.RobotSpec.stop_scatter_mm)
+    stop_scatter_mm: float | None = Field(None, ge=0, le=1, allow_inf_nan=False)
     controller: str
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()

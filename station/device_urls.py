@@ -29,6 +29,10 @@ scheme             device                                      address, defaults
                                                                ``lockstep=1``: the simulated controller only
 ``nmea``           trailer odometry, NMEA 0183 over serial     ``nmea:///dev/ttyX[?baud=N]``, 57600 baud;
                                                                ``lockstep=1``: the simulated unit only
+``forcegauge``     force gauge / load-cell indicator, ASCII    ``forcegauge:///dev/ttyX[?baud=N]``, 9600 baud
+                   request/reply over serial (``?`` -> ``12.34
+                   N``, ``Z`` zero, unit select; grammar in
+                   :mod:`drivers.forcegauge_codec`)
 ``ply``            3D scanner clouds: PLY files in a folder    ``ply:///path/to/folder``
 ``fake``           a device of the station's own fake set      ``fake://NAME``
 =================  ==========================================  =========================================
@@ -102,6 +106,9 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
     Scheme("nmea", "odometry", "trailer odometry (NMEA 0183 over serial)", "path",
            options={"baud": "57600", "lockstep": None}, int_options=("baud",),
            driver="drivers.odometry:OdometryDriver", fake="odometry", fake_module="fakes.odometry"),
+    Scheme("forcegauge", "forcegauge", "force gauge / load-cell indicator (ASCII request/reply over serial)",
+           "path", options={"baud": "9600"}, int_options=("baud",),
+           driver="drivers.forcegauge:ForceGauge", fake="forcegauge", fake_module="fakes.forcegauge"),
     Scheme("ply", "scanner", "3D scanner point clouds (PLY files in a folder)", "path",
            path_what="folder path", path_example="/data/scans",
            driver="drivers.scanner:ScannerDriver", fake="scanner", fake_module="fakes.scanner_folder"),

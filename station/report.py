@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.shown import shown
 from station.verdict import Outcome, combine, outcome_of
 
 
@@ -270,6 +271,23 @@ def plot_xy(series: Sequence[tuple[str, np.ndarray, np.ndarray, str]], *, xlabel
     return _svg(fig)
 
 
+def plot_load_displacement(curves: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], *,
+                           title: str = "Displacement against load (ISO 9283 clause 10)") -> str:
+    """Displacement (um) against load (N) per direction: ``curves`` maps a direction to ``(load_N,
+    displacement_mm, loading)``; the loading steps as a solid line, the unloading ones dashed (hysteresis)."""
+    fig, (ax,) = _figure(7.0, 3.6)
+    for k, (name, (F, d, up)) in enumerate(curves.items()):
+        F, d, up = np.asarray(F, float), np.asarray(d, float) * 1000.0, np.asarray(up, bool)
+        ax.plot(F[up], d[up], "o-", ms=3, lw=1.0, color=f"C{k}", label=f"{name} loading")
+        idx = np.concatenate([np.flatnonzero(up)[-1:], np.flatnonzero(~up)])  # from the peak down
+        ax.plot(F[idx], d[idx], "s--", ms=3, lw=1.0, color=f"C{k}", alpha=0.7, label=f"{name} unloading")
+    ax.set_xlabel("load [N]")
+    ax.set_ylabel("displacement along the load [um]")
+    ax.set_title(title, y=TITLE_Y)
+    ax.legend(fontsize=6, ncol=2)
+    return _svg(fig)
+
+
 def plot_errors_before_after(before: np.ndarray, after: np.ndarray, *, ylabel: str = "error [mm]", title: str = "Errors before and after calibration") -> str:
     fig, (ax,) = _figure(7.0, 2.8)
     ax.plot(np.abs(before), "o-", ms=3, lw=0.7, color="C0", label=f"before (mean {np.mean(np.abs(before)):.3g})")
@@ -334,8 +352,11 @@ figure{margin:1.5em 0}figcaption{font-size:.9em;color:#555}
 
 
 def render_html(report: Report) -> str:
-    """The report as one HTML document (inline CSS and SVG)."""
-    e = html.escape
+    """The report as one HTML document (inline CSS and SVG); control characters in names shown escaped."""
+
+    def e(text) -> str:
+        return html.escape(shown(text, lines=True))
+
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>{e(report.title)}</title><style>{_CSS}</style></head><body>",

@@ -1,7 +1,7 @@
 """A person at a terminal, for tests that drive armed runs against the fakes.
 
 An armed run takes its confirmations only from a person: the terminal
-operator (:class:`~station.runner.InteractiveOperator`) with both its streams
+operator (:class:`~app.terminal.InteractiveOperator`) with both its streams
 on a real terminal, or the operator's page. These tests stand in for the
 person by typing into a pseudo-terminal (``pty.openpty``) whose other end the
 station reads and writes, in this process or in a ``station run`` child, so
@@ -18,7 +18,7 @@ import termios
 import threading
 import weakref
 
-from station.runner import InteractiveOperator
+from app.terminal import InteractiveOperator
 
 #: more answers than any procedure asks
 TYPED_YES = "y\n" * 50

@@ -75,3 +75,24 @@ def test_an_import_cycle_breaks_the_contracts(lint, tmp_path):
     (tmp_path / "procedures" / "b.py").write_text("def f():\n    import procedures.a\n")
     res = lint(tmp_path, tmp_path)
     assert res.returncode != 0 and "No import cycles" in res.stdout, res.stdout[-2000:]
+
+
+def test_every_tracker_driver_offers_the_tracker_interface():
+    """Devices have one interface style: a Protocol the procedures see, drivers implementing it (the
+    trackers on a shared base class); a tracker driver missing a method of the interface is caught here."""
+    import inspect
+    import typing
+
+    from drivers.emscon import EmsconTracker
+    from drivers.geocom import GeoComTracker
+    from drivers.robot import Robot
+    from drivers.tracker import Tracker, TrackerBase
+
+    assert typing.Protocol in Tracker.__mro__ and typing.Protocol in Robot.__mro__
+    wanted = {n for n, v in vars(Tracker).items() if inspect.isfunction(v) and not n.startswith("_")}
+    assert {"connect", "measure_stationary", "start_stream", "stop_stream", "read_samples", "close"} <= wanted
+    for cls in (EmsconTracker, GeoComTracker):
+        assert issubclass(cls, TrackerBase)
+        missing = {n for n in wanted if getattr(cls, n, None) is None or getattr(getattr(cls, n), "__isabstractmethod__", False)}
+        assert not missing, f"{cls.__name__} lacks {sorted(missing)}"
+    assert inspect.isabstract(TrackerBase)

@@ -5,6 +5,9 @@
     ISO 9283 pose characteristics of a tracker stream in any format a lab
     exports, or of a stop list (:mod:`app.commands.analyze_iso`).
 
+``station analyze path --stream S --path PATH [--limit KEY=VALUE] [--json OUT]``
+    ISO 9283 path characteristics against a path file (:mod:`app.commands.analyze_path`).
+
 ``station analyze hold --stream S [--rate-hz R] [--window-s W] [--json OUT]``
     A held pose: noise, drift and the RP-style figure over windows
     (:mod:`app.commands.analyze_hold`).
@@ -36,6 +39,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     iso_arguments(s)
     s.set_defaults(func=_iso9283)
+    from app.commands.analyze_path import add_arguments as path_arguments
+
+    pth = asub.add_parser(
+        "path",
+        help="ISO 9283 path characteristics (AT, RT, CR, CO, AV, RV, FV, WS, WF) against a path file",
+        description="Cycles of each commanded path of the path file found in the stream, and the figures of "
+        "ISO 9283 clauses 8.2-8.5 and 11 with their u and U. Exit 0 only when every asked limit was decided "
+        "and passed; 1 a limit failed; 2 bad input; 3 not decided.",
+    )
+    path_arguments(pth)
+    pth.set_defaults(func=_path)
     h = asub.add_parser(
         "hold",
         help="a held pose: noise, drift and the RP-style figure over windows",
@@ -51,6 +65,12 @@ def _iso9283(args: argparse.Namespace) -> int:
     from app.commands.analyze_iso import run_iso9283
 
     return run_iso9283(args)
+
+
+def _path(args: argparse.Namespace) -> int:
+    from app.commands.analyze_path import run_path
+
+    return run_path(args)
 
 
 def _hold(args: argparse.Namespace) -> int:

@@ -30,15 +30,19 @@ def add_arguments(h: argparse.ArgumentParser) -> None:
     h.add_argument("--rate-hz", type=float, default=None, help="sample rate: the sample index / rate is the time base")
     h.add_argument("--window-s", type=float, default=1.0, help="window of the RP-style figure, s (default 1)")
     h.add_argument("--json", default=None, help="write the results JSON here")
+    h.add_argument("--noise-out", default=None, metavar="FILE",
+                   help="write the tracker's reading noise fitted from the hold (white sd, wander sd and its time "
+                        "constant; the file `simulate ... --tracker-noise` reads)")
 
 
 def run_hold(args: argparse.Namespace) -> int:
     from station.analysis.iso9283.hold import analyze_hold
+    from station.analysis.iso9283.tracker_noise_fit import MIN_FIT_SAMPLES
 
     from station.readers.out_files import check_outputs
 
     check_positive(args.window_s, "--window-s")
-    check_outputs(args, json="--json")
+    check_outputs(args, json="--json", noise_out="--noise-out")
     si = load_stream(args.stream, args.format, args.group, args.rate_hz, args.date_order,
                      command="analyze hold")
     ps = si.points
@@ -66,6 +70,15 @@ def run_hold(args: argparse.Namespace) -> int:
             f"(l_bar {res.l_bar_mm:.4f}, S_l {res.S_l_mm:.4f})"
             + (f"; {res.n_dropped} samples of short windows left out" if res.n_dropped else ""),
         ]
+    fit = res.noise_fit
+    if fit is None:
+        lines.append(f"tracker noise: not fitted (fewer than {MIN_FIT_SAMPLES} valid samples)")
+    elif refused:
+        lines.append("tracker noise: REFUSED: its wander's time constant is on the same clock")
+    else:
+        tau = "no wander resolved" if fit.wander_tau_s is None else \
+            f"wander {fit.wander_um:.3f} um, time constant {fit.wander_tau_s:.3f} s"
+        lines.append(f"tracker noise: white {fit.white_um:.3f} um per axis, {tau} ({fit.note})")
     if si.estimated_rate:
         lines.append("drift per minute and the windows rest on the rate estimated from the stamps")
     print("\n".join(lines))
@@ -79,12 +92,26 @@ def run_hold(args: argparse.Namespace) -> int:
         if refused:
             for k in ("duration_s", "drift_mm_per_min", "drift_sd_mm_per_min", "drift_3d_mm_per_min", "windows"):
                 d[k] = None
-            d["time_base"]["refused_figures"] = ["duration_s", "drift", "windows"]
+            d["tracker_noise"] = None
+            d["time_base"]["refused_figures"] = ["duration_s", "drift", "windows", "tracker_noise"]
             d["time_base"]["refused"] = refused
         from station.readers.out_files import write_output
 
         write_output(args.json, json.dumps(d, indent=1, allow_nan=False) + "\n", "--json")  # never NaN in JSON
         print(f"results written to {args.json}")
+    if args.noise_out is not None:
+        from station.errors import InsufficientDataError
+        from station.readers.out_files import write_output
+
+        if fit is None:
+            raise InsufficientDataError(f"--noise-out: the hold has {res.n} valid samples; the noise fit needs at "
+                                        f"least {MIN_FIT_SAMPLES}")
+        if refused:
+            raise InsufficientDataError(f"--noise-out: the wander's time constant would rest on a clock that "
+                                        f"failed its check: {refused}")
+        write_output(args.noise_out, json.dumps(fit.to_dict(f"fit of the held pose {ps.source}"), indent=1)
+                     + "\n", "--noise-out")
+        print(f"tracker noise written to {args.noise_out}")
     if refused:
         from station.verdict import EXIT_UNDECIDED
 

@@ -44,6 +44,7 @@ from app.commands.analyze_inputs import (
     window_parameters,
 )
 from app.commands.analyze_outcome import decide
+from station.analysis.iso9283.table import limit_levels
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
 from station.readers.date_time import DATE_ORDERS
@@ -91,7 +92,9 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("--band", choices=("limit", "own"), default=None,
                    help="POS/PST limit band: the --limit-mm value (default when given) or each pose's own RP")
     s.add_argument("--limit", action="append", default=[], metavar="KEY=VALUE",
-                   help="further limits, repeatable, e.g. AP_mm=5 PST_s=0.5 vAP_mm=1.5 MPT_s=6")
+                   help="further limits, repeatable, e.g. AP_mm=5 PST_s=0.5; KEY one of "
+                        + ", ".join(limit_levels()) + " (a station config's robots.<r>.limits take the same, "
+                        "as ap_limit_mm, pst_limit_s, ...)")
     s.add_argument("--order", default=None, help="commanded order of one cycle, e.g. P2,P3,P4,P5,P1")
     s.add_argument("--distance", action="append", default=None, metavar="A,B",
                    help="pose pair for AD/RD (default P2,P4 when present); repeatable")
@@ -120,6 +123,10 @@ def add_arguments(s: argparse.ArgumentParser) -> None:
                    help="the tracker's MPE per coordinate, um + um/m (k = 2 bound), e.g. 15+6/m, or a standard "
                         "deviation sd:7.5+3/m; states u and U of every figure (default with --decision-rule "
                         "guarded: 15+6/m)")
+    u.add_argument("--tracker-noise", default=None, metavar="FILE",
+                   help="the tracker's reading noise (a noise file, e.g. `analyze hold --noise-out`): the random "
+                        "error of a reading is then its white and wander noise, and the MPE a systematic error of "
+                        "the session (AP, AD); states u and U of every figure")
     u.add_argument("--temperature-u-k", type=float, default=0.0,
                    help="uncertainty of the air temperature of the tracker's compensation, K (default 0)")
     u.add_argument("--mc-trials", type=int, default=None, help="Monte Carlo trials (default 20000)")
@@ -170,13 +177,18 @@ def _write_json(path, d) -> None:
 
 def _uncertainty(args, res, reg, points_by_row, rate_hz=None):
     """The result decided by the rule with every figure's uncertainty (unchanged when none is asked)."""
-    if args.decision_rule == "simple" and args.tracker_uncertainty is None:
+    if args.decision_rule == "simple" and args.tracker_uncertainty is None and args.tracker_noise is None:
         return res, None
     from station.analysis.iso9283.uncertainty import with_uncertainty
     from station.analysis.uncertainty import budget_from_options
 
+    noise_um = None
+    if args.tracker_noise is not None:
+        from station.models.tracker_noise import read_tracker_noise
+
+        noise_um = read_tracker_noise(args.tracker_noise, "--tracker-noise").total_um
     budget = budget_from_options(args.tracker_uncertainty, temperature_u_K=args.temperature_u_k,
-                                 trials=args.mc_trials, seed=args.mc_seed, rate_hz=rate_hz)
+                                 trials=args.mc_trials, seed=args.mc_seed, rate_hz=rate_hz, noise_um=noise_um)
     base = None
     if args.register is not None:
         from station.readers.registration_files import read_registration_csv
@@ -363,8 +375,9 @@ def _run_stops(args, limits) -> int:
     names = cmd = None
     if args.poses is not None:
         names, cmd, _, _ = _read_poses(args)
+        known = set(names)
         for k, p in enumerate(sl.pose):
-            if p not in names:
+            if p not in known:
                 raise DataError(f"{sl.source}: line {int(sl.lines[k].min())}, column 'pose': {p!r} is not in "
                                 f"{args.poses} (poses: {', '.join(names)}; name each file's pose with --pose)")
     elif args.frame is not None or args.register is not None:

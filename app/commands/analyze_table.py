@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from station.analysis.iso9283 import table
 from station.verdict import Outcome
 
 #: lines of a list (missing, left out) shown before "... more (see the JSON)"
@@ -15,16 +16,28 @@ def _n(x, fmt="{:.3f}"):
 
 
 def _pose_rows(res, estimated_rate: bool = False) -> list[str]:
-    pst = "PST_s*" if estimated_rate else "PST_s"
-    lines = [f"{'pose':<6}{'n':>5}{'AP_mm':>9}{'RP_mm':>9}{'POS_mm':>9}{pst:>8}{'band_mm':>9} {'src':<7}"
-             f"{'vAP_mm':>8}{'dirs':>5}"]
+    """One line per pose: its cycles, every pose figure of the table it states (those of one approach, the
+    limit band, those of several approaches and the directions), ``*`` on a time that rests on an estimated
+    rate."""
+    chars = [c for c in table.characteristics()
+             if c.level == "pose" and c.unit != "1" and (c.stated or c.key in res.limits)]
+    one = [c for c in chars if not c.several_approaches]
+    several = [c for c in chars if c.several_approaches]
+
+    def head(c):
+        return c.key + ("*" if estimated_rate and c.unit == "s" else "")
+
+    def cells(cs, text):
+        return "".join(f"{text(c):>{max(9, len(head(c)) + 2)}}" for c in cs)
+
+    lines = [f"{'pose':<6}{'n':>5}" + cells(one, head) + f"{'band_mm':>9} {'src':<7}" + cells(several, head)
+             + f"{'dirs':>5}"]
     for name, pr in res.poses.items():
-        acc, rep, ovs, md = pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional
+        ovs = pr.overshoot
         lines.append(
-            f"{name:<6}{pr.n_cycles:>5}{_n(acc.AP_mm if acc else None):>9}{_n(rep.RP_mm if rep else None):>9}"
-            f"{_n(ovs.POS_mm if ovs else None):>9}{_n(ovs.PST_s if ovs else None):>8}"
-            f"{_n(ovs.band_mm if ovs else None):>9} {(ovs.band_source if ovs else '-'):<7}"
-            f"{_n(md.vAP_mm):>8}{md.n_directions:>5}"
+            f"{name:<6}{pr.n_cycles:>5}" + cells(one, lambda c: _n(c.value(pr)))
+            + f"{_n(ovs.band_mm if ovs else None):>9} {(ovs.band_source if ovs else '-'):<7}"
+            + cells(several, lambda c: _n(c.value(pr))) + f"{pr.multidirectional.n_directions:>5}"
         )
     return lines
 

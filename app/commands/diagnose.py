@@ -14,7 +14,9 @@
     ``steps`` (each ``effect``, ``joint``, ``params``, ``ci``,
     ``heldout_rms_before``, ``heldout_rms_after``, ``gain``,
     ``cv_rms_before``, ``cv_rms_after``, ``statistic``, ``threshold``,
-    ``ambiguous_with``), ``simulation_heldout_rms``, ``final_heldout_rms``,
+    ``ambiguous_with``: candidates of the same residual, with the evidence;
+    ``told_apart_from``: those an encompassing test ruled out),
+    ``simulation_heldout_rms``, ``final_heldout_rms``,
     ``noise_floor`` (mm) and ``noise_floor_source``, ``selection``,
     ``geometry``, ``stop_reason``, ``remaining_structure``,
     ``not_testable``, ``rejected``, ``fits`` (each fit's convergence),
@@ -24,7 +26,8 @@
     with the sweep ends' extrapolation figure beside it), ``written_model``
     (whether the effects were written: only when, added to the calibration
     of the training poses, they predict the held-out poses no worse than
-    the calibration alone),
+    the calibration alone; ``geometry``: re-identified with the effects on
+    spread poses, held at the calibration on one-joint sweeps),
     ``extended_model`` (the model file ``--model-out`` writes: the chosen
     effects refitted on every pose, read by ``station predict arm`` and
     ``station compensate arm``). Exit code 3: a fit did not converge (the
@@ -217,6 +220,8 @@ def _print(doc: dict) -> None:
         joint = f" joint {s['joint']}" if s["joint"] else ""
         amb = "".join(f"; same residual as {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
                       for a in s["ambiguous_with"])
+        amb += "".join(f"; told apart from {a['effect']}" + (f" joint {a['joint']}" if a["joint"] else "")
+                       for a in s.get("told_apart_from", []))
         print(f"{k:>2}. {s['effect']}{joint}: held-out {s['heldout_rms_before']:.4f} -> {s['heldout_rms_after']:.4f} mm "
               f"({100 * s['gain']:.1f} %), W/k {s['statistic']:.1f} > {s['threshold']:.1f}{amb}")
     if not doc["steps"]:

@@ -35,6 +35,9 @@ url = "fake://controller"
 [devices.odometry]
 url = "fake://odometry"
 
+[devices.gauge]                    # force gauge of the static compliance test (forcegauge:///dev/ttyUSB1?baud=9600)
+url = "fake://forcegauge"
+
 [robots.r1]
 model = "industrial-3100"          # rb5-850, rb5-850-as-built, ur5e, ur10e, industrial-3100
 serial = "DEMO-0001"

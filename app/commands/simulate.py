@@ -48,13 +48,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "mm, tracker frame), DIR/poses.csv (the commanded poses, tracker frame) and "
                                     "DIR/truth.json (the true stops and their AP and RP, the drawn world).")
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
-    s.add_argument("--cycles", type=int, default=3, help="number of cycles P2,P3,P4,P5,P1, 1-100 (default 3)")
-    s.add_argument("--dwell", type=float, default=0.5, help="dwell at each pose, s, 0-60 (default 0.5)")
-    s.add_argument("--rate", type=float, default=1000.0, help=f"tracker rate, Hz, {_RATES} (default 1000)")
+    s.add_argument("--program", default=None, metavar="FILE",
+                   help="replay a lab's program instead of the seed's cycles: poses, order, moves, dwell, cycles, "
+                        "payload, rate (TOML or JSON; the README's file formats); --cycles, --dwell, --rate, "
+                        "--wait and --move are then the program's")
+    s.add_argument("--cycles", type=int, default=None, help="number of cycles P2,P3,P4,P5,P1, 1-100 (default 3)")
+    s.add_argument("--dwell", type=float, default=None, help="dwell at each pose, s, 0-60 (default 0.5)")
+    s.add_argument("--rate", type=float, default=None, help=f"tracker rate, Hz, {_RATES} (default 1000)")
     s.add_argument("--seed", type=int, default=0, help="seed of the simulated world, 0-4294967295 (default 0)")
-    s.add_argument("--robot", default="industrial-3100", help="robot model (default industrial-3100)")
-    s.add_argument("--wait", type=float, default=4.0, help="initial wait at P1 while measuring, s, 0-600 (default 4)")
-    s.add_argument("--move", choices=("joint", "linear"), default="joint", help="move type between poses")
+    s.add_argument("--robot", default=None, help="robot model (default industrial-3100, or the program's)")
+    s.add_argument("--wait", type=float, default=None, help="initial wait at P1 while measuring, s, 0-600 (default 4)")
+    s.add_argument("--move", choices=("joint", "linear"), default=None, help="move type between poses (default joint)")
+    s.add_argument("--tracker-noise", default=None, metavar="FILE",
+                   help="the tracker's reading noise (white, wander, latency), e.g. the fit `analyze hold "
+                        "--noise-out` wrote (default: the measured Leica figures, 0.6 um white, 2 um wander, 1 s)")
     s.add_argument("--effects", choices=("realistic", "none"), default="realistic",
                    help="error effects of the true arm (default realistic)")
     s.add_argument("--beam-break", action="append", default=[], metavar="START:END",
@@ -94,6 +101,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     h.add_argument("--duration", type=float, default=60.0, help="length of the hold, s, 3-14400 (default 60)")
     h.add_argument("--rate", type=float, default=100.0, help=f"tracker rate, Hz, {_RATES} (default 100)")
     h.add_argument("--seed", type=int, default=0, help="seed of the drawn hold (default 0)")
+    h.add_argument("--tracker-noise", default=None, metavar="FILE",
+                   help="the tracker's reading noise file (default: the measured Leica figures)")
     h.set_defaults(func=_run_hold)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -117,8 +126,9 @@ def _run_hold(args: argparse.Namespace) -> int:
     rate = check_real(args.rate, "--rate", *TRACKER_RATE_RANGE_HZ, " Hz")
     check_seed(args.seed)
     check_samples(duration * rate + 1, f"--duration {duration:g} s at --rate {rate:g} Hz")
+    noise = _tracker_noise(args)
     _out_dir(args.out, create=False)
-    cols, truth = simulate_hold(seed=args.seed, duration_s=duration, rate_hz=rate)
+    cols, truth = simulate_hold(seed=args.seed, duration_s=duration, rate_hz=rate, noise=noise)
     out = _out_dir(args.out)
     with output_file(out / "stream.csv", "--out", newline="") as fh:
         w = csv.writer(fh)
@@ -127,8 +137,10 @@ def _run_hold(args: argparse.Namespace) -> int:
             w.writerow([repr(float(t))] + [repr(float(v)) for v in p])
     _write_truth(out / "truth.json", truth)
     print(f"wrote {out / 'stream.csv'} ({cols['t'].size} samples over {args.duration:g} s at {args.rate:g} Hz)")
+    nz = truth["tracker_noise"]
     print(f"wrote {out / 'truth.json'} (drift {np.linalg.norm(truth['drift_mm_per_min']):.4f} mm/min, noise "
-          f"{truth['noise_mm']:.4f} mm)")
+          f"{truth['noise_mm']:.4f} mm: white {nz['white_um']:g} um, wander {nz['wander_um']:g} um over "
+          f"{nz['wander_tau_s']} s)")
     return 0
 
 
@@ -183,20 +195,35 @@ def _run_trailer(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tracker_noise(args: argparse.Namespace):
+    """The world options of ``--tracker-noise`` (read before anything is simulated)."""
+    if args.tracker_noise is None:
+        return None
+    from station.models.tracker_noise import read_tracker_noise
+
+    return read_tracker_noise(args.tracker_noise, "--tracker-noise")
+
+
 def _run_iso9283(args: argparse.Namespace) -> int:
+    breaks = [_parse_break(b) for b in args.beam_break]
+    noise = _tracker_noise(args)
+    options = {} if noise is None else {"tracker_noise": noise}
+    if args.program is not None:
+        return _run_program(args, breaks, options)
     from fakes.sim.iso_run import simulate_iso9283
 
     summary = simulate_iso9283(
         args.out,
-        cycles=args.cycles,
-        dwell_s=args.dwell,
-        rate_hz=args.rate,
+        cycles=3 if args.cycles is None else args.cycles,
+        dwell_s=0.5 if args.dwell is None else args.dwell,
+        rate_hz=1000.0 if args.rate is None else args.rate,
         seed=args.seed,
-        robot=args.robot,
-        wait_s=args.wait,
-        move=args.move,
+        robot=args.robot or "industrial-3100",
+        wait_s=4.0 if args.wait is None else args.wait,
+        move=args.move or "joint",
         effects=args.effects,
-        beam_breaks=[_parse_break(b) for b in args.beam_break],
+        beam_breaks=breaks,
+        world_options=options,
     )
     print(
         f"wrote {summary['stream_csv']} ({summary['n_samples']} samples, {summary['n_invalid']} invalid, "
@@ -204,6 +231,30 @@ def _run_iso9283(args: argparse.Namespace) -> int:
     )
     print(f"wrote {summary['poses_csv']} (5 commanded poses, tracker frame)")
     print(f"wrote {summary['truth_json']} ({summary['n_stops']} stops = {summary['cycles']} cycles x 5 poses)")
+    return 0
+
+
+def _run_program(args: argparse.Namespace, breaks, options: dict) -> int:
+    from fakes.sim.program_run import simulate_program
+    from station.readers.motion_program import read_motion_program
+
+    given = [o for o, v in (("--cycles", args.cycles), ("--dwell", args.dwell), ("--rate", args.rate),
+                            ("--wait", args.wait), ("--move", args.move)) if v is not None]
+    if given:
+        raise ConfigError(f"{given[0]} and --program: the program sets the cycles, dwell, rate, wait and moves "
+                          f"(edit the program, or leave --program out)")
+    program = read_motion_program(args.program)
+    _out_dir(args.out, create=False)
+    summary = simulate_program(args.out, program, seed=args.seed, robot=args.robot, effects=args.effects,
+                               beam_breaks=breaks, world_options=options)
+    n_poses = len(program.poses)
+    print(
+        f"wrote {summary['stream_csv']} ({summary['n_samples']} samples, {summary['n_invalid']} invalid, "
+        f"{summary['duration_s']:.1f} s at {summary['rate_hz']:g} Hz)"
+    )
+    print(f"wrote {summary['poses_csv']} ({n_poses} commanded poses, tracker frame)")
+    print(f"wrote {summary['truth_json']} ({summary['n_stops']} stops = {summary['cycles']} cycles x "
+          f"{len(program.order)} moves of {program.source})")
     return 0
 
 

@@ -9,6 +9,7 @@
     station store push --config C [--run RUN_ID ...] [--watch S]     forward local runs to the central store
     station store status --config C                                  what of each run has reached the centre
     station store reanalyze --config C [--central] [--run ID ...] [--jobs N] [--force]
+    station store exchangeability --config C (--model M | --serials A,B,...) [--central] [--json]
     station store fleet history|since-overhaul|over-limits|drifting|page --config C [--central] ...
 
 One rule for which store a command asks: the station's own file, unless
@@ -27,6 +28,7 @@ import time
 from pathlib import Path
 
 from app.commands.store_open import CENTRAL_HELP, CONFIG_HELP, JSON_HELP, open_store
+from station.shown import shown
 from station.verdict import Outcome, outcome_of
 
 
@@ -91,9 +93,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--force", action="store_true", help="again even when this analysis version has a result")
     r.add_argument("--json", action="store_true", help=JSON_HELP)
     r.set_defaults(func=_reanalyze)
-    from app.commands import store_fleet
+    from app.commands import store_exchangeability, store_fleet
 
     store_fleet.register(s)
+    store_exchangeability.register(s)
 
 
 def _common(p) -> None:
@@ -107,7 +110,7 @@ def _ts(t: float | None) -> str:
 
 def _runs(args) -> int:
     from station.config import load_config
-    from station.store_forward import forward_status
+    from station.store.forward import forward_status
 
     forwarding = not args.central and bool(load_config(args.config).station.store_url)
     with open_store(args.config, args.central) as store:
@@ -166,7 +169,7 @@ def _exceeding(args) -> int:
         rows = store.robots_exceeding(args.name, latest_only=not args.all_runs)
         if not args.all_runs:
             # the runs' decision rule (ISO 14253-1): over the limit but within U of it is not proven
-            from station.fleet import limit_decisions_now
+            from station.fleet.questions import limit_decisions_now
 
             d = limit_decisions_now(store, args.name)
             proven = {(r["run_id"], r["pose"]) for r in d["proven"]}
@@ -174,7 +177,7 @@ def _exceeding(args) -> int:
             undecided = [{k: r[k] for k in ("model", "serial", "run_id", "created_at", "pose", "value", "limit", "U",
                                             "rule", "decision")} for r in d["not_decided"]]
     if args.json:
-        from station.fleet import decisions_as_json
+        from station.fleet.questions import decisions_as_json
 
         print(json.dumps(rows + decisions_as_json(undecided), indent=2))
         return 0
@@ -194,7 +197,7 @@ def _exceeding(args) -> int:
 def _overhaul(args) -> int:
     from station.config import load_config
 
-    from station.fleet import parse_when
+    from station.fleet.questions import parse_when
 
     at = parse_when(args.date, "--date")
     station = load_config(args.config).station.name
@@ -204,8 +207,9 @@ def _overhaul(args) -> int:
         else:
             model, serial = args.model, args.serial
         new = store.record_overhaul(model, serial, at, args.what, ticket=args.ticket, station=station)
-    print(f"{model} serial {serial}: overhaul of {_ts(at)} " + ("recorded" if new else "was already recorded")
-          + f" ({args.what}" + (f", ticket {args.ticket}" if args.ticket else "") + ")")
+    print(f"{shown(model)} serial {shown(serial)}: overhaul of {_ts(at)} "
+          + ("recorded" if new else "was already recorded")
+          + f" ({shown(args.what.strip(), 200)}" + (f", ticket {shown(args.ticket)}" if args.ticket else "") + ")")
     return 0
 
 
@@ -218,8 +222,8 @@ def _overhauls(args) -> int:
     if not rows:
         print("no overhaul recorded" + (f" for serial {args.serial}" if args.serial else ""))
     for r in rows:
-        print(f"{_ts(r['at'])}  {r['model']:<18} {r['serial']:<14} {r['what']}"
-              + (f"  (ticket {r['ticket']})" if r["ticket"] else "") + f"  [{r['station'] or '-'}]")
+        print(f"{_ts(r['at'])}  {shown(r['model']):<18} {shown(r['serial']):<14} {shown(r['what'])}"
+              + (f"  (ticket {shown(r['ticket'])})" if r["ticket"] else "") + f"  [{shown(r['station'] or '-')}]")
     return 0
 
 
@@ -238,7 +242,7 @@ def _push(args) -> int:
     from station.config import load_config
     from station.errors import ConfigError
     from station.store import RunStore, StoreUnavailable, redacted
-    from station.store_forward import Forwarder, push
+    from station.store.forward import Forwarder, push
 
     cfg = load_config(args.config)
     if not cfg.station.store_url:
@@ -296,7 +300,7 @@ def _print_report(report) -> None:
 
 
 def _status(args) -> int:
-    from station.store_forward import forward_status
+    from station.store.forward import forward_status
 
     with open_store(args.config) as store:
         rows = forward_status(store)

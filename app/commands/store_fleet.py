@@ -87,7 +87,7 @@ def _emit(args, rows, line, empty: str) -> None:
 
 
 def _history(args) -> int:
-    from station.fleet import robot_history
+    from station.fleet.questions import robot_history
 
     with _open(args) as store:
         rows = robot_history(store, args.serial, args.name, args.pose, model=args.model)
@@ -98,7 +98,7 @@ def _history(args) -> int:
 
 
 def _since(args) -> int:
-    from station.fleet import since_overhaul
+    from station.fleet.questions import since_overhaul
 
     with _open(args) as store:
         rows = since_overhaul(store, args.name, model=args.model)
@@ -112,7 +112,7 @@ def _since(args) -> int:
 
 
 def _over(args) -> int:
-    from station.fleet import decisions_as_json, limit_decisions_now
+    from station.fleet.questions import decisions_as_json, limit_decisions_now
 
     with _open(args) as store:
         d = limit_decisions_now(store, args.name)
@@ -135,7 +135,7 @@ def _over(args) -> int:
 
 
 def _drifting(args) -> int:
-    from station.fleet import drifting
+    from station.fleet.questions import drifting
 
     with _open(args) as store:
         rows = drifting(store, args.name, model=args.model, q_max=args.q, min_runs=args.min_runs)
@@ -146,7 +146,7 @@ def _drifting(args) -> int:
 
 
 def _page(args) -> int:
-    from station.fleet_page import write_fleet_page
+    from station.fleet.page import write_fleet_page
 
     from station.readers.out_files import check_outputs
 

@@ -29,6 +29,7 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
 from starlette.routing import Route
 
+from station.analysis.iso9283.table import history_names
 from station.errors import StationError
 from station.store import RunStore, StoreError
 from app.web import pages
@@ -48,8 +49,6 @@ MAX_BODY_BYTES = 16 * 1024
 MAX_FORM_FIELDS = 20
 #: a POST body must arrive within this many seconds
 BODY_TIMEOUT_S = 10.0
-#: characteristics the robot page plots
-HISTORY_NAMES = ("AP_mm", "RP_mm", "vAP_mm", "AD_mm", "RD_mm", "overshoot_mm", "settling_time_s")
 
 
 def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
@@ -227,14 +226,15 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
 
     async def robot(request: Request) -> Response:
         serial = request.path_params["serial"]
-        history = {name: store.history(serial, name) for name in HISTORY_NAMES}
+        names = history_names()
+        history = {name: store.history(serial, name) for name in names}
         models = store.robot_models(serial)
         overhauls = store.overhauls(serial=serial) if len(models) == 1 else []
-        return _html(pages.robot_page(serial, list(HISTORY_NAMES), history, guard.csrf_token, overhauls))
+        return _html(pages.robot_page(serial, list(names), history, guard.csrf_token, overhauls))
 
     async def record_overhaul(request: Request) -> Response:
         """An overhaul of the robot recorded from its page (as ``station store overhaul`` does)."""
-        from station.fleet import parse_when
+        from station.fleet.questions import parse_when
 
         serial = request.path_params["serial"]
         form, refused = await _checked_post(request)

@@ -1,77 +1,23 @@
-"""What the run page shows of a procedure's instrument, read from the store (pure of the page).
+"""What the run page shows of a procedure's instrument: the view its spec names (pure of the page).
 
-Each procedure measures with its own instrument: the ISO 9283 run streams
-the tracker (:mod:`app.web.tracker_view`, drawn while it runs), the arm
-calibration measures one point per pose with the tracker or one corner per
-pose with the scanner, the trailer calibration streams odometry. The panel
-says which instrument, what it has delivered so far and, for a stream, its
-last seconds.
+Each procedure measures with its own instrument and says in its
+:class:`~procedures.registry.ProcedureSpec` (``live_view``) what the page
+shows of it (:mod:`procedures.live_views`); a procedure without one (the ISO
+9283 run) is drawn from the tracker's stream (:mod:`app.web.tracker_view`).
 """
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
+from procedures.live_views import ODOMETRY_WINDOW_S
+from procedures.registry import get_procedure
 from station.store import RunStore
-
-#: seconds of an odometry stream shown
-ODOMETRY_WINDOW_S = 30.0
-#: most points of a stream sent to the page
-MAX_POINTS = 300
-
-
-def _finite(x) -> float | None:
-    return float(x) if x is not None and math.isfinite(float(x)) else None
-
-
-def arm_calibration_view(store: RunStore, run_id: str, params: dict) -> dict:
-    """Poses measured of those planned, the last one, and (scanner) the corners not found."""
-    from procedures.arm_calibration import SCAN_STREAM, STREAM
-
-    scanner = params.get("instrument") == "scanner"
-    stream = SCAN_STREAM if scanner else STREAM
-    planned = len(params.get("q_deg") or ())
-    s = store.samples(run_id, stream, finished_only=False)
-    n = 0 if not s else int(s["pose"].size)
-    out = {"kind": "scanner" if scanner else "tracker", "stream": stream, "planned": planned, "measured": n,
-           "title": "Scanner: corner of the jig per pose" if scanner else "Tracker: one point per pose",
-           "last": None, "not_found": []}
-    if n:
-        k = n - 1
-        out["last"] = {"pose": int(s["pose"][k]) + 1, "x": _finite(s["x"][k]), "y": _finite(s["y"][k]),
-                       "z": _finite(s["z"][k])}
-        if scanner:
-            out["not_found"] = [int(p) + 1 for p, f in zip(s["pose"], s["found"]) if f < 0.5]
-    return out
-
-
-def odometry_view(store: RunStore, run_id: str) -> dict:
-    """The odometry stream's last :data:`ODOMETRY_WINDOW_S` seconds: speed, curvature, joint angle."""
-    s = store.samples(run_id, "odometry", finished_only=False)
-    out = {"kind": "odometry", "title": "Odometry, last seconds", "received": 0, "t": [], "v_m_s": [],
-           "kappa_1_m": [], "psi_deg": []}
-    if not s or not s["t"].size:
-        return out
-    t = np.asarray(s["t"], float)
-    keep = np.flatnonzero(t >= t.max() - ODOMETRY_WINDOW_S)
-    keep = keep[::-1][:: max(1, -(-keep.size // MAX_POINTS))][::-1]  # thinned, the newest sample kept
-    out.update(received=int(t.size), t=(t[keep] - t.max()).round(3).tolist(),
-               v_m_s=np.asarray(s["v"], float)[keep].round(4).tolist(),
-               kappa_1_m=np.asarray(s["kappa"], float)[keep].round(5).tolist(),
-               psi_deg=np.degrees(np.asarray(s["psi"], float)[keep]).round(3).tolist())
-    return out
 
 
 def instrument_view(store: RunStore, run_id: str, procedure: str, params: dict) -> dict | None:
     """The panel of a procedure measured by something else than the tracker's stream (None: the tracker's
     own view, or nothing to show)."""
-    if procedure == "arm-calibration":
-        return arm_calibration_view(store, run_id, params)
-    if procedure == "trailer":
-        return odometry_view(store, run_id)
-    return None
+    view = get_procedure(procedure).live_view
+    return None if view is None else view(store, run_id, params)
 
 
-__all__ = ["instrument_view", "arm_calibration_view", "odometry_view", "ODOMETRY_WINDOW_S"]
+__all__ = ["instrument_view", "ODOMETRY_WINDOW_S"]

@@ -20,7 +20,8 @@ from pathlib import Path
 
 from app.page_operator import WebOperator
 from station.errors import ConfigError, RunStateError, StationError
-from station.runner import ProgressLine, RunControl
+from app.terminal import ProgressLine
+from station.runner import RunControl
 
 
 class _PageProgress(ProgressLine):

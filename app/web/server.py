@@ -7,6 +7,8 @@ resumable, like any interrupted run) and joins every thread.
 
 from __future__ import annotations
 
+import asyncio
+import re
 import socket
 import threading
 from pathlib import Path
@@ -18,6 +20,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 from station.errors import ConfigError
 from station.store import RunStore
 from app.web.app import create_app
+from app.web.listener import ReservingListener, quiet_accept_errors, raise_file_limit
 from app.web.live import RunHub
 from app.web.security import Guard, listen_problem
 
@@ -26,18 +29,68 @@ KEEP_ALIVE_S = 5.0
 #: a request's head (request line and headers) must arrive within this many seconds of the connection opening
 #: (or of the previous response); slow and idle connections are closed
 HEAD_TIMEOUT_S = 10.0
-#: largest request head, bytes
+#: largest request head, bytes, however it arrives (in one write or trickled)
 MAX_HEAD_BYTES = 16 * 1024
+#: the blank line that ends a request head (h11 takes a bare LF too)
+_HEAD_END = re.compile(rb"\n\r?\n")
+#: connections over the cap the server tolerates for the moment an evicted one takes to close, before it
+#: answers 503
+EVICTION_SLACK = 16
+
+
+#: descriptors kept for the rest of the station (store, logs, devices, the page's own files), not for connections
+FD_HEADROOM = 64
+#: the connection cap never goes below this
+MIN_CONNECTIONS = 16
 
 
 def max_connections() -> int:
-    """Connections served at once: what the process's file limit leaves (64 kept for the store, logs,
-    devices), at most 4096."""
+    """Connections served at once: what the process's file limit leaves (FD_HEADROOM kept for the store,
+    logs, devices), at most 4096."""
     import resource
 
     soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
-    soft = 4096 + 64 if soft == resource.RLIM_INFINITY else soft
-    return max(16, min(4096, soft - 64))
+    soft = 4096 + FD_HEADROOM if soft == resource.RLIM_INFINITY else soft
+    return max(MIN_CONNECTIONS, min(4096, soft - FD_HEADROOM))
+
+
+def head_too_large(buffer: bytes) -> bool:
+    """Whether the request head at the start of ``buffer`` is (or, unfinished, already is) over MAX_HEAD_BYTES."""
+    end = _HEAD_END.search(buffer, 0, MAX_HEAD_BYTES + 2)
+    return end is None and len(buffer) > MAX_HEAD_BYTES or end is not None and end.end() > MAX_HEAD_BYTES
+
+
+def evict_waiting(connections, keep: int) -> int:
+    """Close the connections that have waited longest for their request head until at most ``keep`` stay open
+    (those busy with a request stay whatever their number); how many stay open."""
+    live = [c for c in connections if not c.transport.is_closing()]
+    waiting = sorted((c for c in live if getattr(c, "_head_timer", None) is not None), key=lambda c: c._head_since)
+    excess = max(0, len(live) - keep)
+    for c in waiting[:excess]:
+        c.transport.close()
+    return len(live) - min(excess, len(waiting))
+
+
+def connection_cap(server_state) -> int:
+    """The connections served at once now: :func:`max_connections`, lowered once the file table was full."""
+    return getattr(server_state, "connection_cap", None) or max_connections()
+
+
+def make_room(server_state) -> bool:
+    """The file table is full: lower the connection cap to leave FD_HEADROOM descriptors to the rest of the
+    station (the store, reports, the page's own files) and close waiting connections down to it; whether a new
+    connection fits."""
+    live = sum(not c.transport.is_closing() for c in server_state.connections)
+    server_state.connection_cap = min(connection_cap(server_state), max(MIN_CONNECTIONS, live - FD_HEADROOM))
+    return evict_waiting(server_state.connections, server_state.connection_cap - 1) < server_state.connection_cap
+
+
+class _Server(uvicorn.Server):
+    """uvicorn's server; a refused accept is logged by the listener alone (once per interval)."""
+
+    async def startup(self, sockets=None) -> None:
+        asyncio.get_running_loop().set_exception_handler(quiet_accept_errors)
+        await super().startup(sockets)
 
 
 class BoundedH11Protocol(H11Protocol):
@@ -54,10 +107,9 @@ class BoundedH11Protocol(H11Protocol):
         super().connection_made(transport)
         self._head_timer = None
         self._arm_head_timer()
-        if len(self.connections) > max_connections():
-            waiting = [c for c in self.connections if getattr(c, "_head_timer", None) is not None]
-            victim = min(waiting, key=lambda c: c._head_since)
-            victim.transport.close()
+        cap = connection_cap(self.server_state)
+        if len(self.connections) > cap:
+            evict_waiting(self.connections, cap)
 
     def _arm_head_timer(self) -> None:
         self._cancel_head_timer()
@@ -73,6 +125,22 @@ class BoundedH11Protocol(H11Protocol):
         self._head_timer = None
         if not self.transport.is_closing():
             self.transport.close()
+
+    def handle_events(self) -> None:
+        # h11 bounds only a head that is still incomplete: one that arrives whole in one write passes its
+        # limit, so the head waiting in the buffer is measured here before h11 parses it
+        if self.conn.their_state is h11.IDLE and head_too_large(self.conn.trailing_data[0]):
+            self._refuse_head()
+            return
+        super().handle_events()
+
+    def _refuse_head(self) -> None:
+        self._cancel_head_timer()
+        body = f"request head over {MAX_HEAD_BYTES} bytes".encode()
+        self.transport.write(b"HTTP/1.1 431 Request Header Fields Too Large\r\n"
+                             b"content-type: text/plain; charset=utf-8\r\nconnection: close\r\n"
+                             b"content-length: %d\r\n\r\n" % len(body) + body)
+        self.transport.close()
 
     def data_received(self, data: bytes) -> None:
         super().data_received(data)
@@ -99,8 +167,9 @@ class WebServer:
         problem = listen_problem(host)
         if problem:
             raise ConfigError(problem)
+        raise_file_limit()  # before the connection cap is read from it
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        self.sock = socket.socket(family, socket.SOCK_STREAM)
+        self.sock = ReservingListener(family)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self.sock.bind((host, int(port)))
@@ -118,10 +187,11 @@ class WebServer:
         self.store = RunStore(cfg.station.store_file(config_dir))
         self.hub = RunHub(cfg, config_dir, arm=arm, time_scale=time_scale, plan_overrides=plan_overrides)
         app = create_app(self.hub, self.store, self.guard)
-        self.server = uvicorn.Server(uvicorn.Config(
+        self.server = _Server(uvicorn.Config(
             app, log_level="warning", timeout_graceful_shutdown=2, lifespan="off", http=BoundedH11Protocol,
-            timeout_keep_alive=KEEP_ALIVE_S, limit_concurrency=max_connections(),
+            loop="asyncio", timeout_keep_alive=KEEP_ALIVE_S, limit_concurrency=max_connections() + EVICTION_SLACK,
             h11_max_incomplete_event_size=MAX_HEAD_BYTES))
+        self.sock.make_room = lambda: make_room(self.server.server_state)
         self._thread: threading.Thread | None = None
 
     @property

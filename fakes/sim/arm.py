@@ -283,6 +283,9 @@ class SimArm:
         # rest since the arm was made
         self._epoch_t: list[float] = [-math.inf]
         self._epoch_key: list[tuple] = [(0,)]
+        # external force on the TCP (base frame, N) from each instant on: the load of a static compliance test
+        self._force_t: list[float] = [-math.inf]
+        self._force_N: list[np.ndarray] = [np.zeros(3)]
 
     # ------------------------------------------------------------------ state
     @property
@@ -441,7 +444,8 @@ class SimArm:
     def _start_time(self) -> float:
         return max(float(self.clock.now()), self._t_end)
 
-    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0, *, noise_key=None) -> Move:
+    def move_joint(self, q_rad, speed_frac: float = 1.0, accel_frac: float = 1.0, *, noise_key=None,
+                   profile: str | None = None) -> Move:
         """Queue a synchronised joint move to ``q_rad`` (commanded, nominal model).
 
         Parameters
@@ -453,6 +457,8 @@ class SimArm:
             Identity of the move (see :meth:`_draw_delta`): the same key draws
             the same stopping error in any world of the same seed, whatever
             moved before (a resumed run meets the stops of the run it resumes).
+        profile : {"scurve", "trapezoid"}, optional
+            This move's velocity profile (default the arm's).
 
         Returns
         -------
@@ -479,7 +485,7 @@ class SimArm:
                 speed_frac=speed_frac,
                 accel_frac=accel_frac,
                 jerk_time_s=self.jerk_time_s,
-                profile=self.profile,
+                profile=self.profile if profile is None else profile,
             )
             t_start = self._start_time()
             if plan.duration_s == 0:
@@ -490,7 +496,7 @@ class SimArm:
             return self._append(t_start, plan.trajectory, traj_srv, "joint", noise_key)
 
     def move_linear(self, target, speed_mm_s: float = 250.0, accel_mm_s2: float = 2500.0, *,
-                    noise_key=None) -> Move:
+                    noise_key=None, profile: str | None = None) -> Move:
         """Queue a straight-line TCP move (nominal model, fixed or slerped orientation).
 
         Parameters
@@ -504,6 +510,8 @@ class SimArm:
             Path acceleration.
         noise_key : tuple of int, optional
             As in :meth:`move_joint`.
+        profile : {"scurve", "trapezoid"}, optional
+            This move's path profile (default the arm's).
 
         Returns
         -------
@@ -536,7 +544,7 @@ class SimArm:
                     joint_speed_limits_rad_s=self.robot.joint_speed_limits_rad_s,
                     joint_accel_limits_rad_s2=self.robot.joint_accel_limits_rad_s2,
                     jerk_time_s=self.jerk_time_s,
-                    profile=self.profile,
+                    profile=self.profile if profile is None else profile,
                     ipo_period_s=self.ipo_period_s,
                 )
             except motion.UnreachableTarget as exc:
@@ -727,13 +735,48 @@ class SimArm:
         q, _ = self._actual(tt)
         return q[0] if scalar else q
 
+    def apply_tcp_force(self, force_N, t_s: float | None = None) -> None:
+        """An external force on the TCP (N, base frame) from ``t_s`` (default now) on, until the next one:
+        what a person pulling on the tool with a force gauge applies (ISO 9283 clause 10). The arm gives
+        way through its joint compliance (:class:`station.models.effects.JointCompliance`)."""
+        F = np.asarray(force_N, dtype=float).reshape(-1)
+        if F.shape != (3,) or not np.all(np.isfinite(F)):
+            raise DataError(f"`force_N` must be 3 finite values (N, base frame), got {force_N!r}")
+        with self._lock:
+            t = float(self.clock.now()) if t_s is None else float(t_s)
+            if not (math.isfinite(t) and t >= self._force_t[-1]):
+                raise DataError(f"a force is applied from t = {t!r}, before the last change at {self._force_t[-1]}")
+            self._force_t.append(t)
+            self._force_N.append(F.copy())
+
+    def tcp_force_N(self, t=None) -> np.ndarray:
+        """The external force on the TCP at ``t`` (N, base frame): (3,) or (N, 3)."""
+        tt, scalar = self._times(t)
+        with self._lock:
+            idx = np.searchsorted(np.asarray(self._force_t), tt, side="right") - 1
+            out = np.asarray(self._force_N)[idx]
+        return out[0] if scalar else out
+
+    def compliance_mm_per_N(self, t=None) -> np.ndarray:
+        """The truth of a static compliance test at ``t`` (the arm at rest): the TCP's compliance matrix
+        (mm/N, base frame) of the arm's joint compliance at its true table and joint angles; zeros without it."""
+        from station.models.effects import tcp_compliance_mm_per_N
+
+        if self.effects is None or not self.effects.is_enabled("joint_compliance"):
+            return np.zeros((3, 3))
+        dh, q = self.true_model(float(self.clock.now()) if t is None else float(t))
+        dh = np.asarray(dh)
+        return tcp_compliance_mm_per_N(dh[0] if dh.ndim == 3 else dh, q[0], self.effects.get("joint_compliance"))
+
     def effect_context(self, t, direction) -> EffectContext:
         """Context of the error effects at times ``t`` (N,)."""
+        loaded = len(self._force_t) > 1
         return EffectContext(
             robot=self.robot,
             last_dir=direction,
             warmup_s=np.asarray(t, dtype=float) - self.warmup_origin_s,
             payload_kg=self.payload_kg,
+            tcp_force_N=self.tcp_force_N(np.asarray(t, dtype=float)) if loaded else None,
         )
 
     def true_model(self, t=None):

@@ -33,7 +33,7 @@ from fakes.sim.sim_bounds import check_int, check_real, check_samples, check_see
 from station.errors import ConfigError
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
-__all__ = ["simulate_iso9283", "commanded_joints", "CYCLE_ORDER", "STATUS_VALID", "STATUS_BEAM_BROKEN"]
+__all__ = ["simulate_iso9283", "record_run", "commanded_joints", "CYCLE_ORDER", "STATUS_VALID", "STATUS_BEAM_BROKEN"]
 
 STATUS_VALID = 0
 STATUS_BEAM_BROKEN = 1
@@ -120,6 +120,7 @@ def simulate_iso9283(
     effects: str = "realistic",
     beam_breaks=(),
     chunk_s: float = 60.0,
+    world_options: dict | None = None,
 ) -> dict:
     """Run the ISO 9283 cycles offline and write ``stream.csv``, ``poses.csv``, ``truth.json``.
 
@@ -148,6 +149,8 @@ def simulate_iso9283(
         Beam breaks, seconds after the recording starts.
     chunk_s : float
         The stream is measured and written in chunks of this simulated time.
+    world_options : dict, optional
+        Further :func:`fakes.sim.world.make_world` keywords (e.g. ``tracker_noise``).
 
     Returns
     -------
@@ -164,124 +167,151 @@ def simulate_iso9283(
     spec = get_robot(robot)
     cube = fit_cube_to_reach(spec.dh_nominal, spec.joint_limits_rad, spec.home_q_rad, TOOL_DOWN)
     tp = cube_test_poses(cube.corners_mm, inset_mm=cube.inset_mm)
-    names = tp.names
+    names = list(tp.names)
     positions = np.array(tp.positions_mm, dtype=float)
-    clock = ManualClock()
-    world = make_world(robot=robot, seed=seed, clock=clock, effects="realistic" if effects == "realistic" else None,
-                       tracker_rate_hz=rate_hz)
-    from station.readers.out_files import output_dir, output_file, write_output
-
-    out = output_dir(out_dir, "--out")
+    world = make_world(robot=robot, seed=seed, clock=ManualClock(),
+                       effects="realistic" if effects == "realistic" else None, tracker_rate_hz=rate_hz,
+                       **(world_options or {}))
     try:
         targets, q_cmd = commanded_joints(world.robot, positions)
         arm = world.arm
-        source = world.tracker_source()
-        tracker = world.tracker
 
-        def go(i: int):
+        def go(i: int, _cycle: int):
             if move == "joint":
                 return arm.move_joint(q_cmd[i], speed_frac=1.0)
             return arm.move_linear(targets[i], speed_mm_s=world.robot.max_tcp_speed_mm_s,
                                    accel_mm_s2=world.robot.max_tcp_speed_mm_s / 0.5)
 
-        # approach P1 from home (not recorded), settle, then the recording starts
-        arm.move_joint(q_cmd[0], speed_frac=0.5)
-        arm.dwell(1.0)
-        arm.wait_idle()
-        t_rec = float(clock.now())
-        for a, b in beam_breaks:
-            tracker.add_beam_break(t_rec + a, t_rec + b)
-
-        stream_path = out / "stream.csv"
-        n_samples = n_invalid = 0
-        t_written = t_rec
-        stops = []
-        with output_file(stream_path, "--out", newline="\n") as fh:
-            fh.write("t,x,y,z,status\n")
-
-            def flush(t_upto: float) -> None:
-                nonlocal n_samples, n_invalid, t_written
-                while t_written < t_upto:
-                    t1 = min(t_upto, t_written + chunk_s)
-                    t = source.sample_times(t_written, t1)
-                    t_written = t1
-                    if t.size == 0:
-                        continue
-                    check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
-                                  f"(the moves included)")
-                    xyz, valid = source.measure(t)
-                    status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
-                    rows = np.column_stack([source.device_time(t), xyz, status])
-                    np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")
-                    n_samples += t.size
-                    n_invalid += int(np.count_nonzero(~valid))
-
-            arm.dwell(float(wait_s))
-            for c in range(1, cycles + 1):
-                for name in CYCLE_ORDER:
-                    i = names.index(name)
-                    m = go(i)
-                    arm.dwell(float(dwell_s))
-                    stops.append({"cycle": c, "pose": name, "t_start_s": m.t_start, "t_end_s": m.t_end,
-                                  "t_leave_s": m.t_end + float(dwell_s)})
-                arm.wait_idle()
-                if c == 1:  # the first cycle's moves are simulated, nothing sampled yet: the whole run's size
-                    cycle_s = float(clock.now()) - t_rec - float(wait_s)
-                    check_samples(float(rate_hz) * (float(wait_s) + cycles * cycle_s),
-                                  f"--rate {float(rate_hz):g} Hz over {cycles} --cycles of {cycle_s:.1f} s "
-                                  f"(moves and dwells) after --wait {float(wait_s):g} s")
-                flush(float(clock.now()))
-
-        # true attained positions: the settled pose late in each dwell
-        t_att = np.array([s["t_end_s"] + 0.9 * float(dwell_s) for s in stops])
-        p_base = arm.tool_position_mm(t_att)
-        p_trk = tracker.to_tracker_frame(p_base)
-        for s, pb, pt, ta in zip(stops, p_base, p_trk, t_att):
-            s["t_attained_s"] = float(ta)
-            s["t_attained_device_s"] = float(source.device_time(ta))
-            s["true_base_mm"] = pb.tolist()
-            s["true_tracker_mm"] = pt.tolist()
-
-        # The commanded poses in the tracker frame come from the world's true
-        # base transform here; a real station gets that transform from a
-        # registration (measuring known points), with its own uncertainty.
-        cmd_trk = tracker.to_tracker_frame(positions)
-        poses_path = out / "poses.csv"
-        with output_file(poses_path, "--out", newline="\n") as fh:
-            fh.write("name,x,y,z\n")
-            for name, p in zip(names, cmd_trk):
-                fh.write(f"{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}\n")
-
-        truth = {
-            "description": "truth of a simulated ISO 9283 run (seed 000 sec. 3.1.3); mm, s, deg",
-            "robot": world.robot.name,
-            "seed": seed,
-            "cycles": cycles,
-            "dwell_s": float(dwell_s),
-            "move": move,
-            "rate_hz": float(rate_hz),
-            "t_record_start_s": t_rec,
-            "base_T_tracker": world.base_T_tracker.tolist(),
-            "frames_note": "poses.csv uses the true base_T_tracker; a real station estimates it by registration",
-            "commanded": {
-                name: {
-                    "base_mm": positions[i].tolist(),
-                    "tracker_mm": cmd_trk[i].tolist(),
-                    "q_deg": np.rad2deg(q_cmd[i]).tolist(),
-                }
-                for i, name in enumerate(names)
-            },
-            "stops": stops,
-            "figures": true_figures(names, cmd_trk, stops),
-            "world": world.describe(),
-        }
-        truth_path = out / "truth.json"
-        text = json.dumps(truth, indent=1)
-        # one line per list of numbers, so a person can read the file
-        text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
-        write_output(truth_path, text, "--out")
+        sequence = [(names.index(n), go, {}) for n in CYCLE_ORDER]
+        return record_run(out_dir, world, names=names, positions_base_mm=positions, q_cmd_rad=q_cmd,
+                          start=names.index("P1"), sequence=sequence, cycles=cycles, dwell_s=dwell_s, wait_s=wait_s,
+                          rate_hz=rate_hz, beam_breaks=beam_breaks, chunk_s=chunk_s,
+                          truth_head={"description": "truth of a simulated ISO 9283 run (seed 000 sec. 3.1.3); "
+                                                     "mm, s, deg", "move": move})
     finally:
         world.close()
+
+
+def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: int, sequence, cycles: int,
+               dwell_s: float, wait_s: float, rate_hz: float, beam_breaks=(), chunk_s: float = 60.0,
+               truth_head: dict | None = None) -> dict:
+    """Drive the world's arm through ``cycles`` of ``sequence`` and write ``stream.csv``, ``poses.csv`` and
+    ``truth.json`` to ``out_dir`` (the files of the module docstring).
+
+    The arm goes to pose ``start`` (unrecorded), settles, then the recording
+    starts: ``wait_s`` at ``start``, then every cycle runs ``sequence``, a list
+    of ``(pose index, go(pose index, cycle) -> Move, info)``, each move
+    followed by a dwell of ``dwell_s``; ``info`` (JSON-able) is put on the
+    stop's truth entry.
+    """
+    from station.readers.out_files import output_dir, output_file, write_output
+
+    clock = world.clock
+    arm = world.arm
+    source = world.tracker_source()
+    tracker = world.tracker
+    positions = np.asarray(positions_base_mm, dtype=float)
+    q_cmd = np.asarray(q_cmd_rad, dtype=float)
+    out = output_dir(out_dir, "--out")
+    # approach the start pose from home (not recorded), settle, then the recording starts
+    arm.move_joint(q_cmd[start], speed_frac=0.5)
+    arm.dwell(1.0)
+    arm.wait_idle()
+    t_rec = float(clock.now())
+    for a, b in beam_breaks:
+        tracker.add_beam_break(t_rec + a, t_rec + b)
+
+    stream_path = out / "stream.csv"
+    n_samples = n_invalid = 0
+    t_written = t_rec
+    stops = []
+    with output_file(stream_path, "--out", newline="\n") as fh:
+        fh.write("t,x,y,z,status\n")
+
+        def flush(t_upto: float) -> None:
+            nonlocal n_samples, n_invalid, t_written
+            while t_written < t_upto:
+                t1 = min(t_upto, t_written + chunk_s)
+                t = source.sample_times(t_written, t1)
+                t_written = t1
+                if t.size == 0:
+                    continue
+                check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
+                              f"(the moves included)")
+                xyz, valid = source.measure(t)
+                status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
+                rows = np.column_stack([source.device_time(t), xyz, status])
+                np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")
+                n_samples += t.size
+                n_invalid += int(np.count_nonzero(~valid))
+
+        arm.dwell(float(wait_s))
+        for c in range(1, cycles + 1):
+            for i, go, info in sequence:
+                m = go(i, c)
+                arm.dwell(float(dwell_s))
+                stops.append({"cycle": c, "pose": names[i], "t_start_s": m.t_start, "t_end_s": m.t_end,
+                              "t_leave_s": m.t_end + float(dwell_s), **info})
+            arm.wait_idle()
+            if c == 1:  # the first cycle's moves are simulated, nothing sampled yet: the whole run's size
+                cycle_s = float(clock.now()) - t_rec - float(wait_s)
+                check_samples(float(rate_hz) * (float(wait_s) + cycles * cycle_s),
+                              f"--rate {float(rate_hz):g} Hz over {cycles} --cycles of {cycle_s:.1f} s "
+                              f"(moves and dwells) after --wait {float(wait_s):g} s")
+            flush(float(clock.now()))
+
+    # true attained positions: the settled pose late in each dwell; what a noise-free reading of the tracker
+    # shows of them (its session's systematic error applied)
+    t_att = np.array([s["t_end_s"] + 0.9 * float(dwell_s) for s in stops])
+    p_base = arm.tool_position_mm(t_att)
+    p_trk = tracker.to_tracker_frame(p_base)
+    p_read = tracker.reading(p_trk)
+    for s, pb, pt, pr, ta in zip(stops, p_base, p_trk, p_read, t_att):
+        s["t_attained_s"] = float(ta)
+        s["t_attained_device_s"] = float(source.device_time(ta))
+        s["true_base_mm"] = pb.tolist()
+        s["true_tracker_mm"] = pt.tolist()
+        s["reading_tracker_mm"] = pr.tolist()
+
+    # The commanded poses in the tracker frame come from the world's true
+    # base transform here; a real station gets that transform from a
+    # registration (measuring known points), with its own uncertainty.
+    cmd_trk = tracker.to_tracker_frame(positions)
+    poses_path = out / "poses.csv"
+    with output_file(poses_path, "--out", newline="\n") as fh:
+        fh.write("name,x,y,z\n")
+        for name, p in zip(names, cmd_trk):
+            fh.write(f"{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}\n")
+
+    truth = {
+        **(truth_head or {}),
+        "robot": world.robot.name,
+        "seed": world.seed,
+        "cycles": cycles,
+        "dwell_s": float(dwell_s),
+        "rate_hz": float(rate_hz),
+        "t_record_start_s": t_rec,
+        "base_T_tracker": world.base_T_tracker.tolist(),
+        "frames_note": "poses.csv uses the true base_T_tracker; a real station estimates it by registration. "
+                       "true_tracker_mm: where the tool was; reading_tracker_mm: what the tracker reads of it "
+                       "without its reading noise (its session's systematic error, world.tracker.systematic)",
+        "commanded": {
+            name: {
+                "base_mm": positions[i].tolist(),
+                "tracker_mm": cmd_trk[i].tolist(),
+                "q_deg": np.rad2deg(q_cmd[i]).tolist(),
+            }
+            for i, name in enumerate(names)
+        },
+        "stops": stops,
+        "figures": true_figures(names, cmd_trk, stops),
+        "world": world.describe(),
+    }
+    truth_path = out / "truth.json"
+    text = json.dumps(truth, indent=1)
+    # one line per list of numbers, so a person can read the file
+    text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
+    write_output(truth_path, text, "--out")
     return {
         "stream_csv": str(stream_path),
         "poses_csv": str(poses_path),

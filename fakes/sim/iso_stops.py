@@ -8,6 +8,12 @@ Gaussian noise of sd MPE/2, as :mod:`fakes.sim.tracker`), and a registration
 of the tracker to the base frame fitted on 8 fiducials of known base-frame
 position measured by the same tracker.  The stops are carried into the base
 frame by the fitted registration, as the station does.
+
+With ``reading_noise_um`` the tracker is the one of :mod:`fakes.sim.tracker`
+instead: its MPE is a systematic error of the session (an offset of sd
+``a / 2`` per coordinate, a scale error and three angles of sd ``b / 2`` ppm
+and urad, drawn once), and each reading scatters by the reading noise only
+(drawn uniformly from the range, um per coordinate).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ class SimulatedPoseTest:
     mpe_b_um_per_m: float
     registration: Registration
     fiducials_mm: np.ndarray
+    reading_noise_um: float | None = None  # None: the MPE / 2 is per-reading noise
 
 
 def _rotation(rng) -> np.ndarray:
@@ -45,8 +52,10 @@ def _rotation(rng) -> np.ndarray:
 
 
 def simulate_pose_test(rng: np.random.Generator, n: int, *, sd_range_mm=(0.005, 0.05),
-                       ap_range_mm=(0.0, 1.0), mpe_a_um=(5.0, 25.0), mpe_b_um_per_m=(2.0, 10.0)) -> SimulatedPoseTest:
-    """One simulated AP/RP test of ``n`` cycles at P1, everything drawn from ``rng``."""
+                       ap_range_mm=(0.0, 1.0), mpe_a_um=(5.0, 25.0), mpe_b_um_per_m=(2.0, 10.0),
+                       reading_noise_um=None) -> SimulatedPoseTest:
+    """One simulated AP/RP test of ``n`` cycles at P1, everything drawn from ``rng`` (``reading_noise_um``:
+    a (low, high) range, um: the tracker of the module docstring's last paragraph)."""
     cmd = P1_MM.copy()
     u = rng.standard_normal(3)
     mu = cmd + rng.uniform(*ap_range_mm) * u / np.linalg.norm(u)
@@ -58,9 +67,16 @@ def simulate_pose_test(rng: np.random.Generator, n: int, *, sd_range_mm=(0.005, 
     d[2] = abs(d[2]) * 0.3
     origin = cmd + rng.uniform(2000.0, 5000.0) * d / np.linalg.norm(d)
     R_tb = _rotation(rng)  # p_tracker = R_tb (p_base - origin)
+    noise_um = None if reading_noise_um is None else float(rng.uniform(*reading_noise_um))
+    if noise_um is not None:  # the session's error, drawn once
+        off = rng.standard_normal(3) * a_um * 1e-3 / 2.0
+        scale = float(rng.standard_normal()) * b_um * 1e-6 / 2.0
+        w = rng.standard_normal(3) * b_um * 1e-6 / 2.0
 
     def measure(p_base):
         p_trk = (p_base - origin) @ R_tb.T
+        if noise_um is not None:
+            return p_trk + scale * p_trk + np.cross(w, p_trk) + off + rng.standard_normal(p_trk.shape) * noise_um * 1e-3
         sd = (a_um + b_um * np.linalg.norm(p_trk, axis=1) / 1000.0) / 1000.0 / 2.0
         return p_trk + rng.standard_normal(p_trk.shape) * sd[:, None]
 
@@ -69,4 +85,4 @@ def simulate_pose_test(rng: np.random.Generator, n: int, *, sd_range_mm=(0.005, 
     measured = reg.to_base(measure(x_true))
     ap = float(np.linalg.norm(mu - cmd))
     rp = float(population_rp(np.linalg.eigvalsh(C)))
-    return SimulatedPoseTest(measured, cmd, ap, rp, a_um, b_um, reg, FIDUCIALS_MM)
+    return SimulatedPoseTest(measured, cmd, ap, rp, a_um, b_um, reg, FIDUCIALS_MM, noise_um)

@@ -140,24 +140,29 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
 
 
 def simulate_hold(*, seed: int, duration_s: float = 60.0, rate_hz: float = 100.0,
-                  distance_mm: float = 2500.0) -> tuple[dict, dict]:
+                  distance_mm: float = 2500.0, noise=None) -> tuple[dict, dict]:
     """``(columns t, x, y, z, truth)``: a robot holding one pose, measured by the tracker.
 
     The tool drifts along a random direction at U(0.005, 0.03) mm/min (the
-    arm warming up); the tracker adds its noise at ``distance_mm``
-    (:meth:`fakes.sim.tracker.TrackerModel.sigma_mm`).
+    arm warming up); the tracker (:class:`fakes.sim.tracker.TrackerModel`,
+    ``distance_mm`` away) reads it with its session's systematic error and its
+    reading noise ``noise`` (a :class:`~station.models.tracker_noise.TrackerNoise`;
+    default the measured Leica figures). ``truth["noise_mm"]``: the sd of one
+    reading about the truth, white and wander together.
     """
     from fakes.sim.tracker import TrackerModel
 
     rng = np.random.default_rng(seed)
     n = int(round(duration_s * rate_hz)) + 1
     t = np.arange(n) / rate_hz
-    sigma = float(np.max(TrackerModel(np.eye(4), rate_hz=rate_hz).sigma_mm(distance_mm)))
+    tracker = TrackerModel(np.eye(4), rate_hz=rate_hz, noise=noise, seed=int(rng.integers(0, 2**31 - 1)))
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
     drift = float(rng.uniform(0.005, 0.03)) * direction  # mm/min
     p0 = rng.uniform(-1000.0, 1000.0, 3) + np.array([0.0, 0.0, distance_mm])
-    xyz = p0 + np.outer(t / 60.0, drift) + rng.normal(0.0, sigma, (n, 3))
+    xyz, _ = tracker.measure(t, lambda tt: p0 + np.outer(tt / 60.0, drift))
     truth = {"seed": seed, "position_mm": p0.tolist(), "drift_mm_per_min": drift.tolist(),
-             "noise_mm": sigma, "duration_s": duration_s, "rate_hz": rate_hz}
+             "noise_mm": tracker.noise.total_um * 1e-3, "tracker_noise": tracker.noise.to_dict(),
+             "reading_offset_mm": (tracker.reading(p0[None])[0] - p0).tolist(),
+             "duration_s": duration_s, "rate_hz": rate_hz}
     return {"t": t, "xyz_mm": xyz}, truth

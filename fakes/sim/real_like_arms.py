@@ -204,3 +204,61 @@ def _finish(name, dh_nom, lim, q, rng, noise_mm, target, hidden, *, motion_order
     xyz = _measure(dh_true, q, dq, B, noise, target, rng)
     t = np.cumsum(rng.uniform(20.0, 40.0, q.shape[0]))
     return LookalikeSet(name, dh_nom, dh_true, lim, q, xyz, t, B, noise, target, eff, dq)
+
+
+#: the hidden effects of a lab-shaped set (issue 43): gravity compliance or first-harmonic encoder eccentricity
+#: of the shoulder or the elbow
+LAB_EFFECTS = (("joint_compliance", 2), ("joint_compliance", 3), ("encoder_eccentricity", 2),
+               ("encoder_eccentricity", 3))
+
+
+@dataclass(frozen=True)
+class LabSet:
+    """A lab-shaped calibration set and unseen poses of the same arm: ``q_rad``/``xyz_mm`` the measured poses,
+    ``q_unseen_rad``/``xyz_unseen_mm`` more poses of the same arm and instrument; ``hidden`` [(effect, joint)];
+    ``effect_column`` (N + N_unseen,) the hidden joint error's shape in q (rad per unit, measured poses first)."""
+
+    robot: object
+    dh_nominal: np.ndarray
+    dh_true: np.ndarray
+    q_rad: np.ndarray
+    xyz_mm: np.ndarray
+    q_unseen_rad: np.ndarray
+    xyz_unseen_mm: np.ndarray
+    base_T: np.ndarray
+    noise_mm: float
+    hidden: list
+    effect_column: np.ndarray | None = None
+
+
+def lab_shaped(rng, hidden=None, *, n: int = 40, n_unseen: int = 120, noise_mm: float = 0.05,
+               strength=(1.2, 2.0), span_rad: float = 2.6, joint_error_rad: float | None = None) -> LabSet:
+    """An RB5-850 as built (seed 002 Table 3) against its nominal table (Table 2), measured at ``n`` spread poses
+    with ``noise_mm`` per coordinate, and ``n_unseen`` more poses of the same arm and instrument. ``hidden``: one
+    (effect, joint) of :data:`LAB_EFFECTS` (None: none), its tool-point RMS ``U(strength)`` times the noise's 3-D
+    RMS (or, with ``joint_error_rad``, its largest joint error over the poses that); compliance is the mass
+    model's gravity torque of the true table, eccentricity ``sin(q_j + phi)``."""
+    from fakes.sim.arm_measurements import random_poses
+    from station.models.robots import get_robot, gravity_torques
+
+    robot, truth = get_robot("rb5-850"), get_robot("rb5-850-as-built")
+    q_all = random_poses(robot.joint_limits_rad, n + n_unseen, rng, span_rad=span_rad)
+    B = instrument_frame(rng)
+    dq = np.zeros_like(q_all)
+    col = None
+    if hidden is not None:
+        effect, j = hidden
+        if effect == "joint_compliance":
+            col = -gravity_torques(robot, truth.dh_nominal, q_all)[:, j - 1]
+        elif effect == "encoder_eccentricity":
+            col = np.sin(q_all[:, j - 1] + rng.uniform(0.0, 2.0 * np.pi))
+        else:
+            raise ValueError(f"lab_shaped: hidden effect {effect!r} is not one of {LAB_EFFECTS}")
+        J = kin.joint_jacobian(truth.dh_nominal, q_all[:n])[:, :3, j - 1]
+        rms = float(np.sqrt(np.mean(np.sum((J * col[:n, None]) ** 2, axis=1))))
+        size = rng.uniform(*strength) * noise_mm * math.sqrt(3.0) / rms
+        dq[:, j - 1] = col * (size if joint_error_rad is None else joint_error_rad / np.max(np.abs(col)))
+    p = kin.tool_position(truth.dh_nominal, q_all + dq) @ B[:3, :3].T + B[:3, 3]
+    p = p + rng.normal(0.0, noise_mm, p.shape)
+    return LabSet(robot, robot.dh_nominal, truth.dh_nominal, q_all[:n], p[:n], q_all[n:], p[n:], B, noise_mm,
+                  [] if hidden is None else [tuple(hidden)], col)

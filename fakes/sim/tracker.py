@@ -6,16 +6,24 @@ returns what a tracker standing somewhere in the cell reports:
 * **frame**: coordinates in the tracker's own frame. ``base_T_tracker`` is the
   tracker's pose in the robot base frame (unknown to the station, which finds
   it by registration): ``p_tracker = inv(base_T_tracker) . p_base``.
-* **noise**: the maximum permissible error of a coordinate is specified as
+* **accuracy**: the maximum permissible error of a coordinate is specified as
   ``MPE(R) = a + b R`` (e.g. 15 um + 6 um/m, ``R`` the tracker-reflector
   distance), the usual form of tracker data sheets (ASME B89.4.19 /
-  ISO 10360-10). Convention here: the MPE is a 2-sigma (k = 2) bound on each
-  coordinate, so every coordinate gets independent Gaussian noise with
-  ``sigma(R) = (a + b R) / 2``.
+  ISO 10360-10), read as a 2-sigma (k = 2) bound on each coordinate
+  (``sigma(R) = (a + b R) / 2``, :meth:`TrackerModel.sigma_mm`). Within one
+  measurement session it is a **systematic** error of the instrument's frame,
+  drawn once from the seed: an offset (sd ``a / 2`` per coordinate), a scale
+  error and three small angles (sd ``b / 2`` ppm and urad each), so a reading
+  is ``(1 + s) p + omega x p + o``; it does not scatter from sample to sample.
+* **reading noise**: white + slow wander (eq. (N1) of
+  :mod:`station.models.tracker_noise`; default the measured Leica figures:
+  0.6 um white, 2 um wander with a 1 s correlation time), per coordinate,
+  whatever the distance. The wander is a Gauss-Markov process drawn by
+  index (:mod:`fakes.sim.wander`).
 * **time**: the device samples on its own grid ``t_dev = k / rate_hz``; its
   clock runs ``clock_offset_s`` ahead of the world's (``t_dev = t_sim +
   offset``), and each sample shows the reflector as it was ``latency_s``
-  before its stamp. Noise is tied to the grid index ``k`` (block-seeded), so
+  before its stamp (default the noise model's ``latency_s``). Noise is tied to the grid index ``k`` (block-seeded), so
   the same instant measured twice gives the same value and a stream does not
   depend on how it is chunked.
 * **beam breaks**: scheduled intervals ``(t_start, t_end)`` (simulated time)
@@ -36,7 +44,9 @@ from typing import Callable
 
 import numpy as np
 
+from fakes.sim.wander import WanderDraws
 from station.errors import ConfigError, DataError
+from station.models.tracker_noise import TrackerNoise, default_tracker_noise
 from station.numeric import finite_number
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
@@ -77,8 +87,9 @@ class TrackerModel:
         Constant term of the MPE, micrometres.
     mpe_b_um_per_m : float
         Distance term of the MPE, micrometres per metre.
-    latency_s : float
-        Age of the position shown by a sample, relative to its stamp (>= 0).
+    latency_s : float, optional
+        Age of the position shown by a sample, relative to its stamp (>= 0;
+        default the noise model's).
     clock_offset_s : float
         Device clock minus world clock, s.
     beam_breaks : iterable of (float, float)
@@ -88,7 +99,11 @@ class TrackerModel:
     random_break_duration_s : (float, float)
         Range of random break durations.
     seed : int
-        Seed of the noise and random breaks.
+        Seed of the noise, the systematic error and the random breaks.
+    noise : TrackerNoise, optional
+        Reading noise (default :func:`station.models.tracker_noise.default_tracker_noise`).
+    systematic : bool
+        Draw the session's systematic accuracy error (False: readings are true but for the noise).
     """
 
     def __init__(
@@ -98,12 +113,14 @@ class TrackerModel:
         *,
         mpe_a_um: float = 15.0,
         mpe_b_um_per_m: float = 6.0,
-        latency_s: float = 0.0,
+        latency_s: float | None = None,
         clock_offset_s: float = 0.0,
         beam_breaks=(),
         random_breaks_per_hour: float = 0.0,
         random_break_duration_s=(0.05, 0.5),
         seed: int = 0,
+        noise: TrackerNoise | None = None,
+        systematic: bool = True,
     ) -> None:
         self.base_T_tracker = _check_transform(base_T_tracker, "base_T_tracker")
         self.tracker_T_base = np.linalg.inv(self.base_T_tracker)
@@ -113,7 +130,12 @@ class TrackerModel:
         self.rate_hz = rate
         self.mpe_a_um = finite_number(mpe_a_um, "mpe_a_um", nonneg=True)
         self.mpe_b_um_per_m = finite_number(mpe_b_um_per_m, "mpe_b_um_per_m", nonneg=True)
-        self.latency_s = finite_number(latency_s, "latency_s", nonneg=True)
+        if noise is None:
+            noise = default_tracker_noise()
+        if not isinstance(noise, TrackerNoise):
+            raise ConfigError(f"`noise` must be a TrackerNoise, got {type(noise).__name__}")
+        self.noise = noise
+        self.latency_s = noise.latency_s if latency_s is None else finite_number(latency_s, "latency_s", nonneg=True)
         self.clock_offset_s = finite_number(clock_offset_s, "clock_offset_s")
         self.random_breaks_per_hour = finite_number(random_breaks_per_hour, "random_breaks_per_hour", nonneg=True)
         try:
@@ -132,10 +154,21 @@ class TrackerModel:
             self.add_beam_break(t0, t1)
         self._noise_cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._break_cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        tau = 0.0 if noise.wander_tau_s is None else noise.wander_tau_s * self.rate_hz
+        self._wander_grid = WanderDraws(self.seed, 4, tau, _NOISE_BLOCK)
+        self._wander_epoch = WanderDraws(self.seed, 6, tau, _EPOCH_BLOCK, cache=4 * _CACHE)
+        # the session's accuracy error: drawn once (its own stream of the seed), fixed for the session
+        sys_rng = np.random.default_rng([self.seed, 5])
+        self.systematic = bool(systematic)
+        draw = sys_rng.standard_normal(7) if self.systematic else np.zeros(7)
+        self.systematic_offset_mm = draw[:3] * self.mpe_a_um * 1e-3 / 2.0
+        self.systematic_scale = float(draw[3]) * self.mpe_b_um_per_m * 1e-6 / 2.0
+        self.systematic_rotvec_rad = draw[4:] * self.mpe_b_um_per_m * 1e-6 / 2.0
 
     # ------------------------------------------------------------ noise model
     def sigma_mm(self, distance_mm) -> np.ndarray:
-        """1-sigma noise per coordinate at a distance: ``(a + b R) / 2`` in mm."""
+        """1-sigma accuracy per coordinate at a distance: ``(a + b R) / 2`` in mm (the sd the session's
+        systematic error is drawn with; the reading noise is :attr:`noise`)."""
         R_m = np.asarray(distance_mm, dtype=float) * 1e-3
         return (self.mpe_a_um + self.mpe_b_um_per_m * R_m) * 1e-3 / 2.0
 
@@ -252,8 +285,23 @@ class TrackerModel:
         R = T[:3, :3]
         return p[:, :1] * R[:, 0] + p[:, 1:2] * R[:, 1] + p[:, 2:3] * R[:, 2] + T[:3, 3]
 
-    def epoch_noise(self, t_sim, epoch, epoch_starts, keys: dict) -> np.ndarray:
-        """Standard normal noise (N, 3) drawn per epoch and sample index within it.
+    def reading(self, p_tracker_mm) -> np.ndarray:
+        """What the tracker reads, noise aside, for true tracker-frame points (N, 3): the session's systematic
+        error ``(1 + s) p + omega x p + o`` applied (element by element, the same whatever batch holds a point)."""
+        p = np.asarray(p_tracker_mm, dtype=float)
+        w = self.systematic_rotvec_rad
+        cross = np.stack([w[1] * p[:, 2] - w[2] * p[:, 1], w[2] * p[:, 0] - w[0] * p[:, 2],
+                          w[0] * p[:, 1] - w[1] * p[:, 0]], axis=1)
+        return p + self.systematic_scale * p + cross + self.systematic_offset_mm
+
+    def unit_wander(self, t_sim) -> np.ndarray:
+        """Unit-variance wander (N, 3) tied to the grid index of each time (:mod:`fakes.sim.wander`)."""
+        t = np.asarray(t_sim, dtype=float).reshape(-1)
+        return self._wander_grid.at(self._grid_index(t))
+
+    def epoch_noise(self, t_sim, epoch, epoch_starts, keys: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Standard normal white noise and unit-variance wander ((N, 3) each) drawn per epoch and sample index
+        within it.
 
         Sample ``i`` at ``t_sim[i]`` belongs to epoch ``epoch[i]`` (e.g. the
         arm's move in progress) with key ``keys[epoch[i]]`` (tuple of ints) that
@@ -261,18 +309,23 @@ class TrackerModel:
         ``(seed, key)`` at the index ``round((t - start) * rate_hz)``. The same
         epoch measured in another world of the same seed, at another time, gets
         the same noise: a resumed run's samples match those of the run left
-        alone. Each index within an epoch is one independent draw.
+        alone. Each index within an epoch is one independent white draw; the
+        wander is one Gauss-Markov process per epoch (it starts afresh with a
+        move: the arm is moving then).
         """
         t = np.asarray(t_sim, dtype=float).reshape(-1)
         rel = np.rint((t - np.asarray(epoch_starts, dtype=float)) * self.rate_hz).astype(np.int64)
         epoch = np.asarray(epoch).reshape(-1)
         blocks = np.floor_divide(rel, _EPOCH_BLOCK)
         out = np.empty((t.size, 3))
+        wander = np.empty((t.size, 3))
         for e in np.unique(epoch):  # one pass per epoch and noise block in the batch (a few), not per sample
-            for b in np.unique(blocks[epoch == e]):
-                sel = (epoch == e) & (blocks == b)
+            in_e = epoch == e
+            for b in np.unique(blocks[in_e]):
+                sel = in_e & (blocks == b)
                 out[sel] = self._epoch_block(keys[int(e)], int(b))[rel[sel] - int(b) * _EPOCH_BLOCK]
-        return out
+            wander[in_e] = self._wander_epoch.at(rel[in_e], tuple(int(v) for v in keys[int(e)]))
+        return out, wander
 
     def _epoch_block(self, key: tuple, b: int) -> np.ndarray:
         ck = ("epoch", key, b)
@@ -301,8 +354,9 @@ class TrackerModel:
             ``position_fn(t (N,)) -> (N, 3)`` true reflector position in the
             robot base frame, mm.
         noise_fn : callable, optional
-            ``noise_fn(t (N,)) -> (N, 3)`` standard normal noise (default
-            :meth:`unit_noise`, per grid index).
+            ``noise_fn(t (N,)) -> ((N, 3), (N, 3))`` standard normal white
+            noise and unit-variance wander (default :meth:`unit_noise` and
+            :meth:`unit_wander`, per grid index).
 
         Returns
         -------
@@ -315,8 +369,9 @@ class TrackerModel:
             raise DataError("`t_sim` contains non-finite times")
         p_base = np.asarray(position_fn(t - self.latency_s), dtype=float).reshape(t.size, 3)
         p = self.to_tracker_frame(p_base)
-        R = np.linalg.norm(p, axis=1)
-        xyz = p + self.sigma_mm(R)[:, None] * (self.unit_noise(t) if noise_fn is None else noise_fn(t))
+        white, wander = (self.unit_noise(t), self.unit_wander(t)) if noise_fn is None else noise_fn(t)
+        nz = self.noise
+        xyz = self.reading(p) + (nz.white_um * 1e-3) * white + (nz.wander_um * 1e-3) * wander
         valid = ~self.broken(t)
         xyz[~valid] = np.nan
         return xyz, valid
@@ -328,7 +383,10 @@ class TrackerModel:
             "rate_hz": self.rate_hz,
             "mpe_a_um": self.mpe_a_um,
             "mpe_b_um_per_m": self.mpe_b_um_per_m,
-            "mpe_convention": "MPE = 2 sigma per coordinate",
+            "mpe_convention": "MPE = 2 sigma per coordinate, a systematic error of the session",
+            "systematic": {"offset_mm": self.systematic_offset_mm.tolist(), "scale": self.systematic_scale,
+                           "rotvec_rad": self.systematic_rotvec_rad.tolist()},
+            "noise": self.noise.to_dict(),
             "latency_s": self.latency_s,
             "clock_offset_s": self.clock_offset_s,
             "beam_breaks": self.beam_breaks.tolist(),

@@ -28,6 +28,7 @@ from station.models.effects import EffectSet, realistic_effects, realistic_stop_
 from station.models.jig import CornerJig
 from station.models.motion import PROFILE_KINDS, ServoParams
 from station.models.robots import RobotSpec, get_robot
+from station.models.tracker_noise import TrackerNoise
 from station.numeric import finite_number
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
@@ -211,12 +212,13 @@ def make_world(
     servo: str | ServoParams | None = "realistic",
     stop_sigma_mm: str | float | None = "auto",
     payload_kg: float = 0.0,
-    profile: str = "scurve",
+    profile: str | None = None,
     history_s: float = 3600.0,
     tracker_mpe_a_um: float = 15.0,
     tracker_mpe_b_um_per_m: float = 6.0,
-    tracker_latency_s: float = 0.0,
+    tracker_latency_s: float | None = None,
     tracker_clock_offset_s: float = 0.0,
+    tracker_noise: TrackerNoise | None = None,
     beam_breaks=(),
     random_breaks_per_hour: float = 0.0,
     base_T_tracker=None,
@@ -247,17 +249,22 @@ def make_world(
         Axis dynamics (``None``: perfect tracking).
     stop_sigma_mm : "auto", "realistic", float or None
         Repeatability scatter per stop (TCP, 1 sigma per coordinate at home).
+        ``"realistic"``: drawn from the model's ``robot.stop_scatter_mm``;
         ``"auto"``: realistic when ``effects`` is ``"realistic"``, else none.
     payload_kg : float
         Mass at the TCP.
-    profile : {"scurve", "trapezoid"}
-        Velocity profile of the arm's moves.
+    profile : {"scurve", "trapezoid"}, optional
+        Velocity profile of the arm's moves (default: trapezoid for a UR
+        controller, which plans its moves so, else S-curve).
     history_s : float
         Past the arm keeps for queries (see :mod:`fakes.sim.arm`).
     tracker_mpe_a_um, tracker_mpe_b_um_per_m : float
-        Tracker MPE ``a + b R`` (2 sigma per coordinate).
+        Tracker MPE ``a + b R`` (2 sigma per coordinate): the session's systematic error.
     tracker_latency_s, tracker_clock_offset_s : float
-        Tracker timing (see :mod:`fakes.sim.tracker`).
+        Tracker timing (see :mod:`fakes.sim.tracker`; latency default the noise model's).
+    tracker_noise : TrackerNoise, optional
+        Reading noise (white + wander; default the measured Leica figures of
+        :mod:`station.models.tracker_noise`).
     beam_breaks : iterable of (float, float)
         Scheduled beam breaks, simulated seconds.
     random_breaks_per_hour : float
@@ -316,12 +323,17 @@ def make_world(
     else:
         stop_sigma_mm = finite_number(stop_sigma_mm, "stop_sigma_mm", nonneg=True)
     payload_kg = finite_number(payload_kg, "payload_kg", nonneg=True)
+    if profile is None:
+        profile = "trapezoid" if spec.controller == "ur" else "scurve"
     if profile not in PROFILE_KINDS:
         raise ConfigError(f"`profile` must be one of {PROFILE_KINDS}, got {profile!r}")
     history_s = finite_number(history_s, "history_s", positive=True)
     for name, val in (("tracker_mpe_a_um", tracker_mpe_a_um), ("tracker_mpe_b_um_per_m", tracker_mpe_b_um_per_m),
-                      ("tracker_latency_s", tracker_latency_s), ("random_breaks_per_hour", random_breaks_per_hour)):
+                      ("tracker_latency_s", 0.0 if tracker_latency_s is None else tracker_latency_s),
+                      ("random_breaks_per_hour", random_breaks_per_hour)):
         finite_number(val, name, nonneg=True)
+    if tracker_noise is not None and not isinstance(tracker_noise, TrackerNoise):
+        raise ConfigError(f"`tracker_noise` must be a TrackerNoise, got {type(tracker_noise).__name__}")
     finite_number(tracker_clock_offset_s, "tracker_clock_offset_s")
     try:
         breaks = [(float(a), float(b)) for a, b in beam_breaks]
@@ -367,6 +379,7 @@ def make_world(
             beam_breaks=breaks,
             random_breaks_per_hour=random_breaks_per_hour,
             seed=tracker_seed,
+            noise=tracker_noise,
         )
     except ConfigError as exc:
         raise ConfigError(f"tracker: {exc}") from exc

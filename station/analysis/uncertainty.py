@@ -18,6 +18,16 @@ The budget (:class:`Budget`) names every input:
   the means, and it inflates every scatter figure (RP, RD, RT, orientation RP):
   the model takes it out of the robot's scatter (the deflation is part of the
   model, so the figure's bias is part of its uncertainty);
+* **instrument, read apart** (``instrument_noise_um`` given): a tracker's
+  accuracy is mostly a fixed error of its frame within one session (scale,
+  offset, angles), and its readings scatter far less than it (eq. (N1) of
+  :mod:`station.models.tracker_noise`: micrometres). Then each reading has
+  the random error ``instrument_noise_um`` (what the scatter figures deflate
+  by), and the accuracy ``sd(R)`` above is systematic: a shift common to the
+  stops of a pose (for AP, as the registration's), and a scale error ``b``
+  (per m, 1 sigma of ``b / 2`` ppm for an MPE) of every distance (AD). Read
+  so it is a bound: a registration absorbs the offset and angles of the
+  tracker's frame, which the budget still counts;
 * **registration**: a rigid fit of n point pairs with residual rms ``r``
   leaves each point of the frame with a per-axis standard deviation
   ``s^2 (1/n + d^2 / sum d_i^2)``, ``s^2 = n r^2 / (3n - 6)`` the per-axis
@@ -107,6 +117,9 @@ class Budget:
     registration_at_points: tuple | None = None
     temperature_u_K: float = 0.0
     angle_sd_deg: float = 0.0  # instrument sd of a 6-DOF angle
+    #: the reading noise of one sample (sd per coordinate, um; white and wander together): when given, the
+    #: instrument's a + b R is a systematic error of the session and this the random one
+    instrument_noise_um: float | None = None
     rate_hz: float | None = None  # time stamps' quantisation (PST, MPT)
     trials: int = DEFAULT_TRIALS
     seed: int = 0
@@ -118,6 +131,11 @@ class Budget:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= most):
                 raise ConfigError(f"uncertainty budget: {name} must be within 0-{most:g}, got {v!r}")
+        if self.instrument_noise_um is not None and not (
+                isinstance(self.instrument_noise_um, (int, float)) and math.isfinite(self.instrument_noise_um)
+                and 0 <= self.instrument_noise_um <= MAX_INSTRUMENT_UM):
+            raise ConfigError(f"uncertainty budget: instrument_noise_um must be within 0-{MAX_INSTRUMENT_UM:g}, "
+                              f"got {self.instrument_noise_um!r}")
         if self.instrument_kind not in ("mpe", "sd"):
             raise ConfigError(f"uncertainty budget: instrument_kind must be 'mpe' or 'sd', got {self.instrument_kind!r}")
         if not (isinstance(self.trials, (int, np.integer)) and 200 <= self.trials <= 10_000_000):
@@ -130,12 +148,35 @@ class Budget:
             raise ConfigError(f"uncertainty budget: rate_hz must be > 0, got {self.rate_hz!r}")
 
     # -- the instrument -------------------------------------------------
-    def instrument_sd_mm(self, points_mm) -> np.ndarray:
-        """Per-coordinate standard deviation of a measured point at each of ``points_mm`` (..., 3), mm."""
+    def accuracy_sd_mm(self, points_mm) -> np.ndarray:
+        """Per-coordinate standard deviation of the instrument's accuracy at each of ``points_mm`` (..., 3), mm:
+        ``a + b R`` (an sd) or its half (an MPE)."""
         p = np.asarray(points_mm, dtype=float)
         R_m = np.linalg.norm(p - np.asarray(self.tracker_origin_mm), axis=-1) / 1000.0
         v_um = self.instrument_a_um + self.instrument_b_um_per_m * R_m
         return v_um / 1000.0 / (2.0 if self.instrument_kind == "mpe" else 1.0)
+
+    def instrument_sd_mm(self, points_mm) -> np.ndarray:
+        """Per-coordinate standard deviation of the random error of one measured point at each of
+        ``points_mm`` (..., 3), mm: the reading noise when stated, else the accuracy."""
+        if self.instrument_noise_um is not None:
+            p = np.asarray(points_mm, dtype=float)
+            return np.full(p.shape[:-1], self.instrument_noise_um / 1000.0)
+        return self.accuracy_sd_mm(points_mm)
+
+    def systematic_sd_mm(self, points_mm) -> np.ndarray:
+        """Per-coordinate standard deviation of the instrument's systematic error at each point, mm: its
+        accuracy when the reading noise is stated apart, else 0 (the accuracy is then read as random)."""
+        if self.instrument_noise_um is None:
+            return np.zeros(np.asarray(points_mm, dtype=float).shape[:-1])
+        return self.accuracy_sd_mm(points_mm)
+
+    def systematic_scale_sd(self) -> float:
+        """Standard deviation of the instrument's scale error common to every distance (dimensionless): the
+        distance term ``b`` (um/m = ppm; halved for an MPE) when the reading noise is stated apart, else 0."""
+        if self.instrument_noise_um is None:
+            return 0.0
+        return self.instrument_b_um_per_m * 1e-6 / (2.0 if self.instrument_kind == "mpe" else 1.0)
 
     # -- the registration -----------------------------------------------
     def registration_sd_mm(self, points_mm) -> np.ndarray:
@@ -191,7 +232,10 @@ class Budget:
                            "kind": self.instrument_kind,
                            "meaning": ("maximum permissible error of a coordinate, read as a k = 2 bound"
                                        if self.instrument_kind == "mpe" else "standard deviation of a coordinate"),
-                           "tracker_origin_mm": list(self.tracker_origin_mm)},
+                           "tracker_origin_mm": list(self.tracker_origin_mm),
+                           "reading_noise_um": self.instrument_noise_um,
+                           "accuracy_read_as": ("random per reading" if self.instrument_noise_um is None else
+                                                "a systematic error of the session; the reading noise is random")},
             "registration": None if self.registration_rms_mm is None and not self.registration_at_points else {
                 "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n,
                 "sd_at_points_mm": None if not self.registration_at_points else
@@ -439,13 +483,16 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
         dv = xb - c
         g = dv / max(float(np.linalg.norm(dv)), 1e-15)
         sc = budget.scale_sd()
+        sd_sys = float(budget.systematic_sd_mm(xb))
         ap_comp = {"sampling": math.sqrt(max(float(g @ S @ g) / n, 0.0)),
                    "registration": sd_reg, "temperature": abs(float(g @ d_los)) * sc,
                    "instrument (in sampling)": sd_i / math.sqrt(n)}
-        ap_g = math.sqrt(ap_comp["sampling"] ** 2 + sd_reg ** 2 + ap_comp["temperature"] ** 2)
+        if budget.instrument_noise_um is not None:
+            ap_comp["instrument (systematic)"] = sd_sys
+        ap_g = math.sqrt(ap_comp["sampling"] ** 2 + sd_reg ** 2 + ap_comp["temperature"] ** 2 + sd_sys ** 2)
         reg_dof = 3 * budget.registration_n - 6 if budget.registration_n else None
         ap_dof = welch_satterthwaite([(ap_comp["sampling"], n - 1), (sd_reg, reg_dof),
-                                      (ap_comp["temperature"], None)])
+                                      (ap_comp["temperature"], None), (sd_sys, None)])
     RP = rp_g = None
     rp_comp: dict = {}
     if need_rp and mu is not None:
@@ -463,13 +510,17 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
 
 
 def frame_shift_draws(point_mm, budget: Budget, rng, M: int | None = None) -> np.ndarray:
-    """Draws (M, 3) of the frame error at a point: registration and temperature scale (common to its stops)."""
+    """Draws (M, 3) of the frame error at a point: registration, the instrument's systematic error (when its
+    reading noise is stated apart) and temperature scale (common to its stops)."""
     M = int(budget.trials if M is None else M)
     p = np.asarray(point_mm, dtype=float)
     sd_reg = float(budget.registration_sd_mm(p))
     out = np.zeros((M, 3))
     if sd_reg > 0:
         out += sd_reg * rng.standard_normal((M, 3))
+    sd_sys = float(budget.systematic_sd_mm(p))
+    if sd_sys > 0:  # the instrument's accuracy read as a fixed error of the session (common to the stops)
+        out += sd_sys * rng.standard_normal((M, 3))
     sc = budget.scale_sd()
     if sc > 0:
         out += rng.standard_normal(M)[:, None] * sc * (p - np.asarray(budget.tracker_origin_mm))[None, :]
@@ -701,9 +752,11 @@ def overshoot_uncertainty(att_mm, max_mm, value, budget: Budget, subject="") -> 
 
 
 def budget_from_options(tracker: str | None = None, *, temperature_u_K: float = 0.0, trials: int | None = None,
-                        seed: int = 0, rate_hz: float | None = None, angle_sd_deg: float = 0.0) -> Budget:
+                        seed: int = 0, rate_hz: float | None = None, angle_sd_deg: float = 0.0,
+                        noise_um: float | None = None) -> Budget:
     """A :class:`Budget` from the options of a command (``tracker``: ``--tracker-uncertainty`` text; None:
-    the default 15 um + 6 um/m MPE)."""
+    the default 15 um + 6 um/m MPE; ``noise_um``: the reading noise of ``--tracker-noise``, which makes the
+    accuracy systematic)."""
     kw = parse_tracker_uncertainty(tracker) if tracker is not None else {}
     return Budget(**kw, temperature_u_K=float(temperature_u_K), trials=int(trials or DEFAULT_TRIALS),
-                  seed=int(seed), rate_hz=rate_hz, angle_sd_deg=float(angle_sd_deg))
+                  seed=int(seed), rate_hz=rate_hz, angle_sd_deg=float(angle_sd_deg), instrument_noise_um=noise_um)

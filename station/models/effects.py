@@ -40,7 +40,11 @@ Effects
     Gravity twists each joint's reducer: ``q_eff = q - c_i g_i(dh_eff, q)``
     where ``g(q)`` is the gravity holding torque of
     :func:`station.models.robots.gravity_torques` (with the context's
-    payload), so a positive ``c_i`` (rad per N m) lets the link sag.
+    payload), so a positive ``c_i`` (rad per N m) lets the link sag. An
+    external force ``F`` (N, base frame) on the TCP (the context's
+    ``tcp_force_N``: the load of a static compliance test, ISO 9283 clause
+    10) adds its holding torque ``-J_v^T F``, so the TCP gives way by
+    ``C F`` with the compliance matrix :func:`tcp_compliance_mm_per_N`.
 
 Composition order (:data:`EFFECT_ORDER`)
 ----------------------------------------
@@ -80,6 +84,7 @@ __all__ = [
     "eccentricity_amplitude_phase",
     "realistic_effects",
     "realistic_stop_sigma_rad",
+    "tcp_compliance_mm_per_N",
 ]
 
 N_JOINTS = 6
@@ -109,6 +114,8 @@ class EffectContext:
         Measured temperature rise; overrides the warm-up model when given.
     payload_kg : float
         Mass at the TCP (``joint_compliance``).
+    tcp_force_N : array_like, shape (N, 3) or (3,), optional
+        External force on the TCP, base frame (``joint_compliance``); ``None`` = none.
     """
 
     robot: Any = None
@@ -116,6 +123,7 @@ class EffectContext:
     warmup_s: Any = None
     temperature_rise_K: Any = None
     payload_kg: float = 0.0
+    tcp_force_N: Any = None
 
 
 def _q_array(q_rad) -> np.ndarray:
@@ -267,8 +275,46 @@ class JointCompliance:
         from station.models.robots import gravity_torques
 
         dh_arr = np.asarray(dh, dtype=float)
-        tau = gravity_torques(ctx.robot, dh_arr, q, payload_kg=float(ctx.payload_kg))
-        return dh, q - p * np.reshape(tau, q.shape)
+        tau = np.reshape(gravity_torques(ctx.robot, dh_arr, q, payload_kg=float(ctx.payload_kg)), q.shape)
+        if ctx.tcp_force_N is not None:
+            tau = tau - _force_torques_Nm(dh_arr, q, ctx.tcp_force_N)
+        return dh, q - p * tau
+
+
+def _force_torques_Nm(dh, q: np.ndarray, force_N) -> np.ndarray:
+    """Joint torques (N m, (N, 6)) that a force ``force_N`` (N, base frame) on the TCP exerts: ``J_v^T F``."""
+    from station.models import kinematics as kin
+
+    F = np.broadcast_to(np.asarray(force_N, dtype=float), (q.shape[0], 3))
+    if not np.all(np.isfinite(F)):
+        raise DataError("`tcp_force_N` must be finite")
+    Jv = np.reshape(kin.joint_jacobian(dh, q), (q.shape[0], 6, 6))[:, :3, :]  # mm/rad
+    return 1e-3 * np.einsum("nki,nk->ni", Jv, F)
+
+
+def tcp_compliance_mm_per_N(dh, q_rad, c_rad_per_Nm) -> np.ndarray:
+    """Translational compliance matrix of the TCP from joint compliance, ``C = J_v diag(c) J_v^T`` (mm/N).
+
+    The linearisation of :class:`JointCompliance` under an external force at
+    the TCP: a force ``F`` (N, base frame) displaces the TCP by ``C F`` (mm).
+    ``u^T C u`` is the static compliance along the unit direction ``u``
+    (ISO 9283 clause 10: displacement per unit load, in the load's direction).
+
+    Parameters
+    ----------
+    dh : array_like, shape (7, 5)
+    q_rad : array_like, shape (6,)
+    c_rad_per_Nm : array_like, shape (6,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    from station.models import kinematics as kin
+
+    c = _params(c_rad_per_Nm, 6, "joint_compliance")
+    Jv = np.reshape(kin.joint_jacobian(dh, np.reshape(np.asarray(q_rad, dtype=float), (1, 6))), (6, 6))[:3, :]
+    return 1e-3 * (Jv * c) @ Jv.T
 
 
 _EFFECT_TYPES = {
@@ -613,9 +659,12 @@ def realistic_stop_sigma_rad(robot, rng: np.random.Generator, sigma_mm: float | 
 
     The arm adds an independent Gaussian joint offset at every stop. Its
     size is set so that the TCP scatter at the home pose has ``sigma_mm``
-    per coordinate (default drawn U(0.012, 0.04) mm), which gives ISO 9283
-    ``RP = l_bar + 3 S_l ~ 3.6 sigma`` of about 0.05-0.15 mm, the range of
-    seed 000 Table 3 (0.07-0.20 mm).
+    per coordinate (default drawn uniformly from the model's
+    ``robot.stop_scatter_mm``), which gives ISO 9283
+    ``RP = l_bar + 3 S_l ~ 3.6 sigma``: for the seed's large arm
+    U(0.012, 0.04) mm, RP about 0.05-0.15 mm, the range of seed 000 Table 3
+    (0.07-0.20 mm); for a UR5e U(0.005, 0.011) mm, the RP a real one measured
+    (0.012-0.024 mm, issue 42).
 
     Parameters
     ----------
@@ -632,7 +681,7 @@ def realistic_stop_sigma_rad(robot, rng: np.random.Generator, sigma_mm: float | 
     from station.models.kinematics import joint_jacobian
 
     if sigma_mm is None:
-        sigma_mm = float(rng.uniform(0.012, 0.04))
+        sigma_mm = float(rng.uniform(*getattr(robot, "stop_scatter_mm", (0.012, 0.04))))
     if not (math.isfinite(sigma_mm) and sigma_mm >= 0):
         raise ConfigError(f"`sigma_mm` must be finite and >= 0, got {sigma_mm!r}")
     J = joint_jacobian(robot.dh_nominal, robot.home_q_rad)[:3]

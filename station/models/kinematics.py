@@ -330,39 +330,39 @@ def tool_position(dh, q_rad) -> np.ndarray:
 # --------------------------------------------------------------------------
 # Jacobians
 # --------------------------------------------------------------------------
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product over the last axis (3), without np.cross's axis handling."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
-
-
 def _param_jacobian_from_frames(dh: np.ndarray, q: np.ndarray, F: np.ndarray) -> np.ndarray:
     n = q.shape[0]
-    p = F[:, -1, None, :3, 3]  # (N, 1, 3) tool position
     th = dh[..., 3] + np.concatenate([q, np.zeros((n, 1))], axis=1)
-    ct, st = np.cos(th)[..., None], np.sin(th)[..., None]                 # (N, 7, 1)
+    ct, st = np.cos(th), np.sin(th)                                       # (N, 7)
     al = np.broadcast_to(dh[..., 1], (n, N_ROWS))
-    ca, sa = np.cos(al)[..., None], np.sin(al)[..., None]
-    R_prev = F[:, :N_ROWS, :3, :3]                                        # (N, 7, 3, 3)
-    x_prev, y_prev, z_prev = R_prev[..., 0], R_prev[..., 1], R_prev[..., 2]
+    ca, sa = np.cos(al), np.sin(al)
+    # coordinates first (3, N, 7): each product below runs over one coordinate's rows at a time
+    Fr = F.transpose(2, 3, 0, 1)                                          # (4, 4, N, 8) view
+    x_prev, y_prev, z_prev = Fr[:3, 0, :, :N_ROWS], Fr[:3, 1, :, :N_ROWS], Fr[:3, 2, :, :N_ROWS]
+    o = Fr[:3, 3]                                                         # (3, N, 8) frame origins
+    p = o[:, :, N_ROWS:]                                                  # tool position
     # frame after Rz(theta): its x axis carries a, its y axis (after
     # Rx(alpha)) is the Hayati beta axis; alpha and beta rotate about o_i.
     x_m = ct * x_prev + st * y_prev
-    y_m = -st * x_prev + ct * y_prev
+    y_m = ct * y_prev - st * x_prev
     y_b = ca * y_m + sa * z_prev
-    r_prev = p - F[:, :N_ROWS, :3, 3]
-    r_i = p - F[:, 1:, :3, 3]
-    J = np.empty((n, N_ROWS, 5, 3))
-    J[:, :, 0] = x_m                        # d p / d a_i
-    J[:, :, 1] = _cross(x_m, r_i)           # d p / d alpha_i
-    J[:, :, 2] = z_prev                     # d p / d d_i
-    J[:, :, 3] = _cross(z_prev, r_prev)     # d p / d theta_i
-    J[:, :, 4] = _cross(y_b, r_i)           # d p / d beta_i
+    r_prev = p - o[:, :, :N_ROWS]
+    r_i = p - o[:, :, 1:]
+    J = np.empty((3, n, N_ROWS, 5))
+    J[..., 0] = x_m                        # d p / d a_i
+    _cross_first(x_m, r_i, J[..., 1])      # d p / d alpha_i
+    J[..., 2] = z_prev                     # d p / d d_i
+    _cross_first(z_prev, r_prev, J[..., 3])  # d p / d theta_i
+    _cross_first(y_b, r_i, J[..., 4])      # d p / d beta_i
     # column 5*i + k of the result is row i, parameter k
-    return np.ascontiguousarray(J.reshape(n, N_PARAMS, 3).transpose(0, 2, 1))
+    return np.ascontiguousarray(J.reshape(3, n, N_PARAMS).transpose(1, 0, 2))
+
+
+def _cross_first(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Cross product over the first axis (3) into ``out``."""
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
 
 
 def param_jacobian(dh, q_rad) -> np.ndarray:

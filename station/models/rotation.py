@@ -1,8 +1,10 @@
-"""Rotation vectors of rotation matrices, as UR poses and RTDE speeds carry them.
+"""Rotation vectors and UR poses, as URScript moves and RTDE samples carry them.
 
 One implementation for the UR driver (:mod:`drivers.ur`, the pose of a URScript
-move) and the UR fake (:mod:`fakes.ur`, every RTDE sample's TCP pose and angular
-speed).
+move, the TCP pose of a sample) and the UR fake (:mod:`fakes.ur`, every RTDE
+sample's TCP pose and angular speed, the target of a move): a UR pose is
+``[x, y, z, rx, ry, rz]`` in metres and a rotation vector (rad); the station's
+homogeneous transforms are in mm.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import math
 
 import numpy as np
 
-__all__ = ["rotvec_of"]
+__all__ = ["rotvec_of", "rotvec_to_matrix", "matrix_to_rotvec", "ur_pose_to_T", "T_to_ur_pose"]
 
 
 def _rotvec_scale(angle):
@@ -71,3 +73,40 @@ def rotvec_of(R) -> np.ndarray:
     q[q[:, 3] < 0] *= -1.0
     s = np.linalg.norm(q[:, :3], axis=1)
     return _rotvec_scale(2.0 * np.arctan2(s, q[:, 3]))[:, None] * q[:, :3]
+
+
+def rotvec_to_matrix(rv) -> np.ndarray:
+    """Rotation vectors (..., 3) -> rotation matrices (..., 3, 3) (Rodrigues)."""
+    rv = np.asarray(rv, dtype=float)
+    theta = np.linalg.norm(rv, axis=-1)[..., None, None]
+    k = np.where(theta[..., 0] > 1e-12, rv / np.where(theta[..., 0] > 1e-12, theta[..., 0], 1.0), 0.0)
+    K = np.zeros(rv.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
+
+
+def matrix_to_rotvec(R) -> np.ndarray:
+    """Rotation matrix (3, 3) -> rotation vector (3,), robust near 0 and pi (through the quaternion)."""
+    return rotvec_of(np.asarray(R, dtype=float).reshape(1, 3, 3))[0]
+
+
+def ur_pose_to_T(pose) -> np.ndarray:
+    """UR pose(s) ``[x, y, z, rx, ry, rz]`` (m, rotation vector) -> (..., 4, 4) in mm."""
+    p = np.asarray(pose, dtype=float)
+    T = np.zeros(p.shape[:-1] + (4, 4))
+    T[..., :3, :3] = rotvec_to_matrix(p[..., 3:])
+    T[..., :3, 3] = 1000.0 * p[..., :3]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def T_to_ur_pose(T) -> np.ndarray:
+    """Transforms (N, 4, 4) in mm -> UR poses (N, 6) (m, rotation vector)."""
+    T = np.asarray(T, dtype=float).reshape(-1, 4, 4)
+    out = np.empty((len(T), 6))
+    out[:, :3] = T[:, :3, 3] / 1000.0
+    out[:, 3:] = rotvec_of(T[:, :3, :3])
+    return out

@@ -20,7 +20,7 @@ import numpy as np
 
 from station.errors import DataError
 from station.readers.once import reads_once
-from station.readers.text import MAX_ABS_MM, csv_records, parse_number
+from station.readers.text import MAX_ABS_MM, csv_records, parse_number, read_small_text
 
 #: largest frame file read, bytes (the step's JSON with its figures is a few hundred)
 MAX_FRAME_BYTES = 1 << 20
@@ -35,18 +35,7 @@ PAIR_COLUMNS = ("name", "base_x", "base_y", "base_z", "tracker_x", "tracker_y", 
 def read_frame_json(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(R (3,3), t_mm (3,), the JSON object)`` of a frame file; DataError naming the key that is wrong."""
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            raw = fh.read(MAX_FRAME_BYTES + 1)
-    except OSError as exc:
-        raise DataError(f"{p}: cannot read ({exc.strerror})") from None
-    if len(raw) > MAX_FRAME_BYTES:
-        raise DataError(f"{p}: larger than {MAX_FRAME_BYTES} bytes; a frame file holds a 3x3 matrix and 3 numbers")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataError(f"{p}: line {line}: not UTF-8 text") from None
+    text = read_small_text(p, MAX_FRAME_BYTES, str(p), "a frame file holds a 3x3 matrix and 3 numbers")
     if text.count("[") + text.count("{") > MAX_FRAME_BRACKETS:
         raise DataError(f"{p}: more than {MAX_FRAME_BRACKETS} brackets; a frame file nests a few levels deep")
     try:

@@ -34,6 +34,24 @@ def pipe_too_long(shown, limit: int) -> DataError:
                      "(give the file itself)")
 
 
+def read_small_text(path, most_bytes: int, label: str, too_large: str, error: type[Exception] = DataError) -> str:
+    """The UTF-8 text (BOM allowed) of a small file, read in one bounded read: ``error`` starting with ``label``
+    when it cannot be read, holds more than ``most_bytes`` (``too_large`` says what such a file holds) or is
+    not UTF-8 (naming the line)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(most_bytes + 1)
+    except OSError as exc:
+        raise error(f"{label}: cannot read ({exc.strerror})") from None
+    if len(raw) > most_bytes:
+        raise error(f"{label}: larger than {most_bytes} bytes; {too_large}")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise error(f"{label}: line {line}: not UTF-8 text") from None
+
+
 def numbered_lines(path) -> Iterator[tuple[int, str]]:
     """``(line number from 1, text without the line end)`` for every line of a UTF-8 file (BOM allowed).
 

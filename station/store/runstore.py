@@ -3,7 +3,7 @@
 One interface, two backends (:mod:`station.store.backends`): a SQLite file
 (WAL) is the station's own store; a ``postgresql://`` URL is the plant's
 central store that stations forward their runs to
-(:mod:`station.store_forward`). The logical schema, its version and the
+(:mod:`station.store.forward`). The logical schema, its version and the
 migrations are in :mod:`station.store.schema`.
 
 What it keeps
@@ -44,6 +44,10 @@ from station.store.backends import open_backend
 from station.store.errors import StoreError, StoreVersionError
 from station.store.schema import APPLICATION, BASE, SCHEMA_VERSION, migration, statements
 from station.numeric import dumps
+#: longest description of an overhaul, characters (a sentence or a paragraph; documents go with the ticket)
+MAX_OVERHAUL_TEXT = 2000
+#: longest overhaul ticket, characters
+MAX_TICKET_TEXT = 200
 
 #: The run state machine, as data: the states a run may go to from each state.
 #: ``running -> running`` is a resume after the process that ran it died without
@@ -162,7 +166,7 @@ class RunStore:
     # -- plumbing ---------------------------------------------------------
     @property
     def backend(self):
-        """The connection (for :mod:`station.store_forward` and the fleet queries)."""
+        """The connection (for :mod:`station.store.forward` and the fleet queries)."""
         return self._b
 
     def close(self) -> None:
@@ -223,6 +227,11 @@ class RunStore:
         what = (what or "").strip()
         if not what:
             raise StoreError("an overhaul needs a description of what was done")
+        if len(what) > MAX_OVERHAUL_TEXT:
+            raise StoreError(f"an overhaul's description is {len(what)} characters; at most {MAX_OVERHAUL_TEXT} "
+                             "(say what was done; attach documents to the ticket)")
+        if ticket is not None and len(str(ticket)) > MAX_TICKET_TEXT:
+            raise StoreError(f"an overhaul's ticket is {len(str(ticket))} characters; at most {MAX_TICKET_TEXT}")
         if not (isinstance(at_s, (int, float)) and math.isfinite(at_s)) or at_s > time.time() + 86400.0:
             raise StoreError(f"overhaul time {at_s!r} is not a time up to now")
         rid = self.robot_id(model, serial)

@@ -23,7 +23,7 @@ Version 2 adds:
 Version 3 adds ``overhauls``: an overhaul is an event in a robot's life
 (when, what was done, the work ticket, where it was recorded), not a
 property of each run; since-overhaul figures and drift are computed from
-these events (:mod:`station.fleet`). Runs keep their ``overhaul_state``
+these events (:mod:`station.fleet.questions`). Runs keep their ``overhaul_state``
 label as it was configured.
 """
 

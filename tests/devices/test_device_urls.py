@@ -26,6 +26,7 @@ EXAMPLES = {
     "modbus+ftp": "modbus+ftp://10.0.0.7",
     "ur": "ur://10.0.0.9",
     "nmea": "nmea:///dev/ttyS1",
+    "forcegauge": "forcegauge:///dev/ttyUSB1",
     "ply": "ply:///data/scans",
     "fake": "fake://tracker-emscon",
 }
@@ -48,6 +49,7 @@ def test_every_scheme_of_the_table_parses_with_its_defaults():
     # the documented defaults
     assert parse_device_url("geocom:///dev/ttyUSB0").int_option("baud") == 115200
     assert parse_device_url("nmea:///dev/ttyS1").int_option("baud") == 57600
+    assert parse_device_url("forcegauge:///dev/ttyUSB1").int_option("baud") == 9600
     assert parse_device_url("modbus+ftp://h").int_option("modbus_port") == 502
     assert parse_device_url("emscon://h").port == 700
 
@@ -266,6 +268,10 @@ def test_every_scheme_of_the_table_opens_against_its_fake_through_the_registry(t
             elif kind == "scanner":
                 assert drv.timeout_s == timeouts[name]
                 drv.connect()
+            elif kind == "forcegauge":
+                assert drv.reply_timeout_s == timeouts[name]
+                drv.connect()
+                assert abs(drv.read_force_N()) < 5.0  # nobody pulls on the tool
             else:  # a new kind of device: the table gained a row this test does not know how to exercise
                 raise AssertionError(f"scheme {name} ({kind}) opened but not exercised: extend this test")
     finally:

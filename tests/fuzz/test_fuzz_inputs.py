@@ -251,3 +251,43 @@ def test_program_generator_refuses_or_renders_what_parses_back(name, points, spe
         # generator declares itself may be refused)
         with pytest.raises(StationError, match="same identifier|reserved word"):
             build()
+
+
+_PROGRAM = {"robot": "ur5e", "rate_hz": 333.333, "cycles": 3, "dwell_s": 2.0, "wait_s": 2.0, "payload_kg": 0.0,
+            "speed_pct": 100, "start": "P1", "order": ["P2", {"to": "P1", "type": "joint", "speed": 30.0}],
+            "move": {"type": "joint", "speed": 60.0, "acceleration": 80.0, "profile": "trapezoid"},
+            "poses": {"P1": {"joints_deg": [-80.0, -100.0, 100.0, -90.0, -90.0, 0.0]},
+                      "P2": {"xyz_mm": [400.0, 100.0, 300.0]}}}
+
+
+#: every value of the program above, by its keys
+_PROGRAM_PATHS = [(k,) for k in _PROGRAM] + [("order", 0), ("order", 1), ("order", 1, "to"), ("order", 1, "type"),
+                                             ("order", 1, "speed")] \
+    + [("move", k) for k in _PROGRAM["move"]] + [("poses", "P1"), ("poses", "P2"), ("poses", "P1", "joints_deg"),
+                                                 ("poses", "P2", "xyz_mm")] \
+    + [("poses", "P1", "joints_deg", i) for i in range(6)] + [("poses", "P2", "xyz_mm", i) for i in range(3)]
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_a_program_with_one_value_replaced_is_read_or_refused_naming_it(data):
+    """Any one value of a good motion program replaced by junk: the program is read, or refused with a
+    ConfigError that names the file (never another exception)."""
+    import copy
+
+    from station.errors import ConfigError
+    from station.readers.motion_program import parse_motion_program
+
+    prog = copy.deepcopy(_PROGRAM)
+    path = data.draw(st.sampled_from(_PROGRAM_PATHS))
+    junk = data.draw(st.one_of(st.none(), st.booleans(), st.integers(-10**30, 10**30), st.floats(allow_nan=True),
+                               st.text(max_size=20), st.lists(st.floats(-1e6, 1e6), max_size=8),
+                               st.dictionaries(st.text(max_size=5), st.integers(), max_size=3)))
+    node = prog
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = junk
+    try:
+        parse_motion_program(prog, "fuzz.toml")
+    except ConfigError as exc:
+        assert "program fuzz.toml: `" in str(exc), str(exc)

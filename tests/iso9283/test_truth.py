@@ -102,3 +102,25 @@ def test_scatter_is_zero_without_noise_and_grows_with_it(plan, rng):
         prediction_scatter(plan, None, np.zeros(5), cycles=3)
     with pytest.raises(ConfigError, match="cycles >= 1"):
         prediction_scatter(plan, None, sigma, cycles=0)
+
+
+def test_the_registration_absorbs_the_trackers_offset_and_angles_not_its_scale(plan, rng):
+    """The tracker's MPE as a systematic error of each draw (tracker_accuracy): an offset of its frame moves the
+    registration with it (AP unchanged), its angles turn it with it, and what is left is its scale error, of
+    the order of b / 2 ppm times the distances."""
+    from procedures.iso9283_truth import RunGeometry, prediction_scatter
+
+    geo = RunGeometry.of(plan)
+    origin = np.array([rng.uniform(-3000, 3000), rng.uniform(-3000, 3000), rng.uniform(500, 1500)])
+    zero = np.zeros(6)
+    kw = dict(cycles=3, draws=30, geometry=geo)
+    offset = prediction_scatter(plan, None, zero, tracker_accuracy=(origin, 50.0, 0.0), rng=np.random.default_rng(1),
+                                **kw)
+    assert max(offset.AP_rms_mm.values()) < 1e-6
+    b = rng.uniform(5.0, 20.0)
+    scale = prediction_scatter(plan, None, zero, tracker_accuracy=(origin, 0.0, b), rng=np.random.default_rng(2),
+                               **kw)
+    poses = np.array(list(plan.poses_mm.values()))
+    reach = np.linalg.norm(poses - origin, axis=1).max()
+    ap = np.array(list(scale.AP_rms_mm.values()))
+    assert np.all(ap > 0) and np.all(ap < 3 * b / 2 * 1e-6 * reach), (ap, b, reach)

@@ -48,14 +48,28 @@ def test_simulated_arm_is_calibrated_down_to_its_noise(tmp_path, seed, capsys):
 
 
 def test_simulated_hold_gives_its_drift_and_noise(tmp_path, seed, capsys):
-    assert main(["simulate", "hold", "--out", str(tmp_path), "--seed", str(seed)]) == 0
+    """A simulated hold (the tracker's white + wander reading noise) gives back its drift, and `--noise-out`
+    its reading noise: white, wander and time constant, within what the hold's length tells (about
+    duration / (2 tau) independent wander values per axis)."""
+    duration = 120.0
+    assert main(["simulate", "hold", "--out", str(tmp_path), "--seed", str(seed), "--duration", str(duration),
+                 "--rate", "333.333"]) == 0
     truth = json.loads((tmp_path / "truth.json").read_text())
-    assert main(["analyze", "hold", "--stream", str(tmp_path / "stream.csv"), "--json", str(tmp_path / "h.json")]) == 0
+    assert main(["analyze", "hold", "--stream", str(tmp_path / "stream.csv"), "--json", str(tmp_path / "h.json"),
+                 "--noise-out", str(tmp_path / "noise.json")]) == 0
     d = json.loads((tmp_path / "h.json").read_text())
     sd = np.array(d["drift_sd_mm_per_min"])
     assert np.all(np.abs(np.array(d["drift_mm_per_min"]) - truth["drift_mm_per_min"]) < 5 * sd)
-    n = 6001
-    assert np.all(np.abs(np.array(d["noise_mm"]) / truth["noise_mm"] - 1) < 5 / np.sqrt(2 * n))
+    nz = truth["tracker_noise"]
+    k_eff = 3 * duration / (2 * nz["wander_tau_s"])
+    tol = 6 / np.sqrt(2 * k_eff)
+    assert np.all(np.abs(np.array(d["noise_mm"]) / truth["noise_mm"] - 1) < 2 * tol)
+    fit = json.loads((tmp_path / "noise.json").read_text())
+    assert fit == d["tracker_noise"] | {"source": fit["source"]}
+    assert abs(fit["white_um"] / nz["white_um"] - 1) < 0.1
+    assert abs(fit["wander_um"] / nz["wander_um"] - 1) < tol
+    assert abs(fit["wander_tau_s"] / nz["wander_tau_s"] - 1) < 2 * tol
+    assert fit["latency_s"] is None
 
 
 def test_the_trailer_csv_and_an_arm_model_come_through_a_pipe_or_standard_input(tmp_path, seed, capsys, monkeypatch):

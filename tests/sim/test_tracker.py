@@ -1,4 +1,4 @@
-"""Laser tracker measurement model: noise from the MPE spec, frames, timing, beam breaks."""
+"""Laser tracker measurement model: the MPE as a systematic error, the reading noise, frames, timing, beam breaks."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from scipy import stats
 
 from fakes.sim.tracker import TrackerModel
 from station.errors import ConfigError
+from station.models.tracker_noise import TrackerNoise
 
 
 def _pose(rng):
@@ -45,35 +46,71 @@ def test_bad_configuration_refused():
 
 
 @pytest.mark.parametrize("distance_m", [1.5, 8.0])
-def test_noise_matches_mpe_spec(distance_m, rng):
-    """Per-coordinate variance = ((a + b R)/2)^2 (MPE = 2 sigma): chi-square test."""
-    T = _pose(rng)
+def test_accuracy_is_a_systematic_error_of_the_session(distance_m, rng):
+    """The MPE is drawn once per tracker (offset sd a/2, scale and angles sd b/2 ppm / urad): over many
+    trackers the error of one point has per-coordinate variance (a/2)^2 + (b R / 2)^2 (chi-square test); within
+    one tracker it is the same at every sample (the mean reading is off by it, not the sample scatter)."""
     a, b = rng.uniform(5, 30), rng.uniform(2, 10)
-    tr = TrackerModel(T, 1000.0, mpe_a_um=a, mpe_b_um_per_m=b, seed=int(rng.integers(1 << 30)))
     direction = rng.normal(size=3)
     p_trk = direction / np.linalg.norm(direction) * distance_m * 1000.0
+    m = 400
+    errs = np.array([TrackerModel(np.eye(4), 100.0, mpe_a_um=a, mpe_b_um_per_m=b, noise=TrackerNoise(0.0),
+                                  seed=int(s)).reading(p_trk[None])[0] - p_trk
+                     for s in rng.integers(0, 1 << 30, m)])
+    var = ((a / 2) ** 2 + (b * distance_m / 2) ** 2) * 1e-6
+    assert math.sqrt(var) <= TrackerModel(np.eye(4), mpe_a_um=a, mpe_b_um_per_m=b).sigma_mm(distance_m * 1000) + 1e-12
+    chi2 = float(np.sum(errs ** 2)) / var  # 3 m degrees of freedom (the coordinates' shares differ, the sum not)
+    assert stats.chi2.ppf(1e-5, 3 * m) < chi2 < stats.chi2.ppf(1 - 1e-5, 3 * m)
+    # one tracker: a fixed error, plus the reading noise only
+    T = _pose(rng)
+    noise = TrackerNoise(white_um=rng.uniform(0.3, 2.0))
+    tr = TrackerModel(T, 1000.0, mpe_a_um=a, mpe_b_um_per_m=b, noise=noise, seed=int(rng.integers(1 << 30)))
     p_base = T[:3, :3] @ p_trk + T[:3, 3]
-    t = tr.sample_times(0.0, 20.0)
-    xyz, valid = tr.measure(t, _static(p_base))
-    assert valid.all()
-    res = xyz - p_trk
-    sigma = (a + b * distance_m) / 2 * 1e-3
-    assert tr.sigma_mm(distance_m * 1000) == pytest.approx(sigma)
+    xyz, valid = tr.measure(tr.sample_times(0.0, 5.0), _static(p_base))
+    res = xyz - tr.reading(p_trk[None])[0]
     n = res.shape[0]
+    sig = noise.white_um * 1e-3
     for k in range(3):
-        chi2 = float(np.sum(res[:, k] ** 2)) / sigma**2  # known mean: n degrees of freedom
+        chi2 = float(np.sum(res[:, k] ** 2)) / sig ** 2
         assert stats.chi2.ppf(1e-5, n) < chi2 < stats.chi2.ppf(1 - 1e-5, n)
-        assert abs(res[:, k].mean()) < 5 * sigma / math.sqrt(n)
-    # coordinates independent
-    c = np.corrcoef(res.T)
-    assert np.abs(c[np.triu_indices(3, 1)]).max() < 5 / math.sqrt(n)
+
+
+def test_reading_noise_is_white_plus_wander(rng):
+    """Eq. (N1): the lag-1 difference has variance 2 (w^2 + g^2 (1 - phi)), a long lag 2 (w^2 + g^2), and
+    the same instants measured in chunks give the same readings (the wander is drawn by index)."""
+    rate = float(rng.choice([100.0, 333.3333, 1000.0]))
+    noise = TrackerNoise(white_um=rng.uniform(0.3, 1.5), wander_um=rng.uniform(1.0, 4.0),
+                         wander_tau_s=rng.uniform(0.3, 2.0))
+    tr = TrackerModel(_pose(rng), rate, noise=noise, seed=int(rng.integers(1 << 30)))
+    duration = 600.0
+    t = tr.sample_times(0.0, duration)
+    x = tr.measure(t, _static([1000.0, 2000.0, 500.0]))[0]
+    x = (x - x.mean(axis=0)) * 1e3  # um
+    n = x.shape[0]
+    d1 = np.diff(x, axis=0)
+    want1 = 2 * noise.semivariogram_um2(1.0 / rate)
+    # lag-1 differences are nearly independent: n - 1 draws per axis, 3 axes
+    chi2 = float(np.sum(d1 ** 2)) / want1
+    assert stats.chi2.ppf(1e-5, 3 * (n - 1)) * 0.98 < chi2 < stats.chi2.ppf(1 - 1e-5, 3 * (n - 1)) * 1.02
+    # total variance: about duration / (2 tau) independent wander values per axis
+    k_eff = 3 * duration / (2 * noise.wander_tau_s)
+    tot = float(np.mean(x ** 2))
+    assert abs(tot / noise.total_um ** 2 - 1) < 6 / math.sqrt(k_eff)
+    # correlation at lag tau: g^2 e^-1 / (w^2 + g^2)
+    lag = int(round(noise.wander_tau_s * rate))
+    c = float(np.mean(x[:-lag] * x[lag:])) / tot
+    assert abs(c - noise.wander_um ** 2 * math.exp(-lag / (noise.wander_tau_s * rate)) / noise.total_um ** 2) \
+        < 6 / math.sqrt(k_eff)
+    parts = [tr.measure(t[i: i + 70001], _static([1000.0, 2000.0, 500.0]))[0] for i in range(0, t.size, 70001)]
+    np.testing.assert_array_equal(np.concatenate(parts), tr.measure(t, _static([1000.0, 2000.0, 500.0]))[0])
 
 
 def test_frame_latency_and_time_grid(rng):
     T = _pose(rng)
     latency = 0.0123
     offset = rng.uniform(-100, 100)
-    tr = TrackerModel(T, 250.0, mpe_a_um=0.0, mpe_b_um_per_m=0.0, latency_s=latency, clock_offset_s=offset)
+    tr = TrackerModel(T, 250.0, mpe_a_um=0.0, mpe_b_um_per_m=0.0, latency_s=latency, clock_offset_s=offset,
+                      noise=TrackerNoise(0.0))
     t = tr.sample_times(3.0, 5.0)
     dev = tr.device_time(t)
     k = dev * 250.0

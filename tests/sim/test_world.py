@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from fakes.sim.world import ISO_CUBE_CENTRE_MM, make_world
 from station.errors import ConfigError
 from station.models import kinematics as kin
 from station.models.effects import EffectSet
+from station.models.robots import get_robot
 
 
 @pytest.mark.parametrize(
@@ -63,6 +66,8 @@ def test_world_parts_share_one_truth():
     expect = (p - T[:3, 3]) @ T[:3, :3]
     sigma = w.tracker.sigma_mm(np.linalg.norm(expect, axis=1))
     assert np.all(np.abs(xyz - expect) < 6 * sigma[:, None])
+    # the reading is the session's systematic error (sd up to the MPE / 2) plus micrometres of reading noise
+    assert np.all(np.abs(xyz - w.tracker.reading(expect)) < 6 * w.tracker.noise.total_um * 1e-3)
     # the true arm differs from the nominal one by the effects
     p_nom = kin.tool_position(w.robot.dh_nominal, w.robot.home_q_rad)
     assert 0.1 < np.linalg.norm(p[0] - p_nom) < 20.0
@@ -110,3 +115,49 @@ def test_trailer_created_lazily_on_the_world_clock():
     assert w.trailer is tr and w.get_trailer() is tr
     assert tr.clock is w.clock
     w.close()
+
+
+@pytest.mark.parametrize("robot", ["ur5e", "ur10e", "industrial-3100"])
+def test_stop_scatter_is_the_models(robot, rng):
+    """A realistic world draws its stop scatter (TCP sd per coordinate at home) from its model's range: a UR
+    some micrometres, the seed's large arm 12-40 um; a number given overrides it."""
+    from station.models.kinematics import joint_jacobian
+
+    spec = get_robot(robot)
+    J = joint_jacobian(spec.dh_nominal, spec.home_q_rad)[:3]
+    gain = math.sqrt(float(np.trace(J @ J.T)) / 3.0)
+    lo, hi = spec.stop_scatter_mm
+    for seed in rng.integers(0, 2**31, 5):
+        w = make_world(robot, seed=int(seed), clock=ManualClock())
+        assert lo <= w.arm.stop_sigma_rad[0] * gain <= hi
+    assert hi <= 0.02 if robot.startswith("ur") else (lo, hi) == (0.012, 0.04)
+    w = make_world(robot, seed=1, clock=ManualClock(), stop_sigma_mm=0.02)
+    assert w.arm.stop_sigma_rad[0] * gain == pytest.approx(0.02)
+
+
+def test_a_configured_stop_scatter_reaches_the_fake_cell(tmp_path, rng):
+    """`[robots.X] stop_scatter_mm` goes with a dry run's stored fake parameters to the world of its cell (a
+    fake option given with the run wins); without it nothing is added and the model's range is drawn from."""
+    from fakes.cells import demo_config
+    from procedures.execute import prepare
+    from station.config import config_from_dict
+    from station.store import RunStore
+
+    scatter = float(rng.uniform(0.001, 0.05))
+    d = demo_config(tmp_path, cycles=2, vap_cycles=2, rate_hz=100.0, robot="ur5e")
+    d["robots"]["r1"]["stop_scatter_mm"] = scatter
+    store = RunStore(tmp_path / "s.sqlite")
+    try:
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0}, run_id="a")
+        assert run.fake["stop_sigma_mm"] == scatter
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0,
+                                                                   "stop_sigma_mm": 0.02}, run_id="b")
+        assert run.fake["stop_sigma_mm"] == 0.02
+        del d["robots"]["r1"]["stop_scatter_mm"]
+        run = prepare(config_from_dict(d), store, "iso9283", fake={"seed": 1, "time_scale": 1.0}, run_id="c")
+        assert "stop_sigma_mm" not in run.fake
+    finally:
+        store.close()
+    d["robots"]["r1"]["stop_scatter_mm"] = -1.0
+    with pytest.raises(ConfigError, match="stop_scatter_mm"):
+        config_from_dict(d)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from station.runner import ProgressLine, RunControl
+from app.terminal import ProgressLine
+from station.runner import RunControl
 
 
 class AbortAtStep(ProgressLine):

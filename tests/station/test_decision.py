@@ -13,7 +13,7 @@ from procedures.decision import decide, record_measurements
 from procedures.registry import get_procedure
 from station.measurements import Measurement, evaluate
 from station.store import RunStore
-from station.test_record import junit_xml
+from station.run_record import junit_xml
 from station.verdict import Outcome
 
 ISO = get_procedure("iso9283")

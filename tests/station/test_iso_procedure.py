@@ -105,9 +105,10 @@ def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars
     t_all = np.concatenate([p["attained"]["t_s"] for p in result["poses"].values()])
     warm = float(t_all.mean() - world.arm.warmup_origin_s)
     pred = predict_static(plan, world.arm.effects, warmup_s=warm)
-    sigma = float(np.max(world.tracker.sigma_mm(3000.0)))
+    tr = world.tracker
     scatter = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=CYCLES,
-                                 tracker_sigma_mm=sigma, warmup_s=warm)
+                                 tracker_sigma_mm=tr.noise.total_um * 1e-3, warmup_s=warm,
+                                 tracker_accuracy=(tr.base_T_tracker[:3, 3], tr.mpe_a_um, tr.mpe_b_um_per_m))
     for name in plan.poses_mm:
         tol = 4 * scatter.AP_rms_mm[name] + 0.05
         assert abs(chars[(name, "AP_mm")]["value"] - pred.AP_mm[name]) < tol, (name, pred.AP_mm, tol)

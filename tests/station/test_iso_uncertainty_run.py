@@ -9,8 +9,8 @@ passes with every verdict carrying u, U and k.
 import json
 
 from procedures.iso9283 import plan_from_config
-from station.fleet import limit_decisions_now, over_limits_now
-from station.fleet_page import fleet_report
+from station.fleet.questions import limit_decisions_now, over_limits_now
+from station.fleet.page import fleet_report
 from app.assemble import run_procedure
 from station.config import config_from_dict
 from station.store import RunStore

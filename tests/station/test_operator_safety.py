@@ -19,7 +19,8 @@ import pytest
 from app.acceptance import Station
 from app.cli import main
 from station.errors import ConfigError, SafetyError
-from station.runner import AnswerFileOperator, InteractiveOperator
+from app.terminal import InteractiveOperator
+from station.runner import AnswerFileOperator
 from station.store import RunStore
 from tests.person import TYPED_YES, Terminal, person_typing_yes
 from tests.pace import LOCKSTEP

@@ -39,7 +39,8 @@ from fakes.cells import demo_config
 from procedures.iso9283 import IsoPlan, analyse, build_procedure, registration_of
 from app.assemble import run_procedure
 from station.config import config_from_dict
-from station.runner import CallableOperator, ProgressLine, RunControl
+from app.terminal import ProgressLine
+from station.runner import CallableOperator, RunControl
 from station.store import RunStore
 from tests.pace import LOCKSTEP
 

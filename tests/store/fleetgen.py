@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from station.fleet import YEAR_S
+from station.fleet.questions import YEAR_S
 
 POSES = ("P1", "P2", "P3", "P4", "P5")
 LIMIT_MM = 0.5

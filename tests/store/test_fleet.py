@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from station.fleet import drifting, over_limits_now, robot_history, since_overhaul
-from station.fleet_trend import benjamini_hochberg, trends
+from station.fleet.questions import drifting, over_limits_now, robot_history, since_overhaul
+from station.fleet.trend import benjamini_hochberg, trends
 from station.store import RunStore
 from tests.store.fleetgen import LIMIT_MM, load_fleet, make_fleet, worst
 from tests.store.helpers import station_config

@@ -7,7 +7,7 @@ import time
 
 from app.cli import main
 from station.store import RunStore
-from station.store_forward import Forwarder, forward_status, push
+from station.store.forward import Forwarder, forward_status, push
 from tests.store.helpers import add_run, central_batches, popen, same_samples, station_config
 
 
@@ -128,7 +128,7 @@ def test_several_stations_pushing_at_once(rng, tmp_path, pg_url):
     assert got == expected
     shared = central.backend.query("SELECT COUNT(*) FROM robots WHERE serial='SN-SHARED'")[0][0]
     assert shared == 1
-    from station.fleet import robot_history
+    from station.fleet.questions import robot_history
 
     assert {h["station"] for h in robot_history(central, "SN-SHARED", "RP_mm")} == {"cell-a", "cell-b", "cell-c"}
     for name in ("cell-a", "cell-b", "cell-c"):

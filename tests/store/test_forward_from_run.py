@@ -8,7 +8,7 @@ from fakes.cells import demo_config
 from app.assemble import run_procedure
 from station.config import StationConfig
 from station.store import RunStore
-from station.store_forward import forward_status
+from station.store.forward import forward_status
 from tests.store.helpers import same_samples
 from tests.pace import LOCKSTEP
 

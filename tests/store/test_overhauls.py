@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from station.fleet import YEAR_S, drifting, robot_history, since_overhaul
-from station.fleet_page import fleet_report
+from station.fleet.questions import YEAR_S, drifting, robot_history, since_overhaul
+from station.fleet.page import fleet_report
 from station.store import RunStore, StoreError
-from station.store_forward import push
+from station.store.forward import push
 from tests.store.fleetgen import POSES, Fleet, load_fleet
 from tests.store.helpers import station_config
 

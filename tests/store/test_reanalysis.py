@@ -100,7 +100,7 @@ def test_reanalysis_in_parallel_processes_and_bad_input(iso_store, tmp_path, cap
 
 
 def test_reanalysis_on_the_central_store_after_a_push(iso_store, pg_url, capsys):
-    from station.store_forward import push
+    from station.store.forward import push
 
     with RunStore(iso_store / "s.sqlite") as local, RunStore(pg_url) as central:
         push(local, central, station="cell")

@@ -219,7 +219,8 @@ def test_script_the_fake_does_not_understand_is_refused_with_a_text_message(worl
 
 
 def test_urls_and_configuration_are_validated(world, gate):
-    from drivers.ur import URDriver, parse_ur_url, ur_pose_to_T, matrix_to_rotvec
+    from drivers.ur import URDriver, parse_ur_url
+    from station.models.rotation import matrix_to_rotvec, ur_pose_to_T
     from station.errors import ConfigError
 
     assert parse_ur_url("ur://127.0.0.5") == "127.0.0.5"
@@ -268,7 +269,7 @@ def test_script_port_movej_and_movel_with_a_duration(world, fake):
         _wait(lambda: world.clock.now() > mj.t_end and arm.state == "idle", what="movej done")
         p = kinematics.tool_position(world.robot.dh_nominal, q) / 1000.0
         T = kinematics.fk(world.robot.dh_nominal, q)
-        from drivers.ur import matrix_to_rotvec
+        from station.models.rotation import matrix_to_rotvec
 
         rv = matrix_to_rotvec(T[:3, :3])
         pose = [float(x) for x in (p[0] + 0.05, p[1], p[2], *rv)]

@@ -148,6 +148,60 @@ def test_connections_beyond_the_cap_evict_the_oldest_waiting_one(served, client,
             s.close()
 
 
+# -- issue 47 item 7: the head limit holds however the head arrives ---------------------------------------------
+def _padded_head(served, size: int) -> bytes:
+    """A GET of the page with the access cookie, padded by one header to ``size`` bytes in all."""
+    head = (b"GET / HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nCookie: station_access_%d=%s\r\nConnection: close\r\n"
+            % (served.port, served.port, served.guard.access_token.encode()))
+    pad = size - len(head) - len(b"X-Pad: \r\n\r\n")
+    return head + b"X-Pad: " + b"a" * pad + b"\r\n\r\n"
+
+
+def _send_in_pieces(served, data: bytes, piece: int) -> bytes:
+    with socket.create_connection(("127.0.0.1", served.port), timeout=30) as s:
+        try:
+            for k in range(0, len(data), piece):
+                s.sendall(data[k:k + piece])
+                time.sleep(0.002 if piece < len(data) else 0)
+        except OSError:
+            pass  # the server may close as soon as it has refused
+        out = b""
+        while True:
+            try:
+                chunk = s.recv(65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        return out
+
+
+@pytest.mark.parametrize("size_kb", [17, 20, 60])
+@pytest.mark.parametrize("piece", ["one write", "trickled"])
+def test_a_request_head_over_the_limit_is_refused_however_it_arrives(served, size_kb, piece):
+    """Heads of 20-60 KB in one write were answered 200: only a trickled head met the 16 KB limit."""
+    data = _padded_head(served, size_kb * 1024)
+    answer = _send_in_pieces(served, data, len(data) if piece == "one write" else 1024)
+    assert answer.split(b"\r\n", 1)[0] in (b"HTTP/1.1 431 Request Header Fields Too Large",
+                                             b"HTTP/1.1 400 Bad Request"), answer[:200]
+    assert b"<html" not in answer.lower()
+
+
+@pytest.mark.parametrize("piece", ["one write", "trickled"])
+def test_a_request_head_under_the_limit_is_served(served, piece):
+    data = _padded_head(served, web_server.MAX_HEAD_BYTES - 200)
+    answer = _send_in_pieces(served, data, len(data) if piece == "one write" else 1024)
+    assert answer.startswith(b"HTTP/1.1 200"), answer[:200]
+
+
+def test_a_pipelined_second_head_over_the_limit_is_refused(served):
+    """The second of two requests in one write is measured too, when its turn comes."""
+    first = _padded_head(served, 1024).replace(b"Connection: close\r\n", b"")
+    answer = _send_in_pieces(served, first + _padded_head(served, 40 * 1024), 10**6)
+    assert answer.startswith(b"HTTP/1.1 200") and b"HTTP/1.1 431" in answer, answer[:100]
+
+
 # -- item 12: no anonymous use on loopback; errors without the store's path --------------------------------
 def test_an_unknown_run_id_answers_without_the_stores_path(served, client):
     store_dir = str(served.store.name).rsplit("/", 1)[0]

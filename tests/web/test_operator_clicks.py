@@ -58,6 +58,47 @@ def test_prompt_buttons_pressed_like_a_person_are_never_lost(served, browser, mo
     assert answered == [f"Prompt {k} of {N_PROMPTS}: ready?" for k in range(1, N_PROMPTS + 1)]
 
 
+#: installed before the run page loads: after every change of the page, where the controls are and whether a prompt
+#: stands (a press held on Pause was lost when a prompt appeared above the controls: y 166 -> 339)
+CONTROLS_JS = """() => {
+  const seen = window.__controls = [];
+  const look = () => {
+    const prompt = document.getElementById('prompt');
+    const box = id => { const el = document.getElementById(id); if (!el) return null;
+      const r = el.getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; };
+    if (!prompt) return;
+    seen.push({prompt: !prompt.hidden, pause: box('btn-pause'), abort: box('btn-abort')});
+  };
+  new MutationObserver(look).observe(document, {subtree: true, childList: true, characterData: true,
+                                                attributes: true});
+}"""
+
+
+@pytest.mark.parametrize("viewport", [{"width": 1280, "height": 800}, {"width": 800, "height": 1280}])
+def test_the_controls_stay_put_when_a_prompt_comes_and_goes(served, client, browser, seed, viewport):
+    from playwright.sync_api import expect
+
+    page = browser.new_page(viewport=viewport)
+    page.add_init_script(f"({CONTROLS_JS})()")
+    run_id = client.start(seed)
+    base, _, query = served.url.partition("?")
+    page.goto(f"{base}runs/{run_id}" + (f"?{query}" if query else ""))
+    expect(page.locator("#btn-pause")).to_be_visible()
+    for _ in range(2):  # the two prompts of the ISO run: each stands on the page, then goes
+        st = client.wait(run_id, lambda s: s["prompt"] is not None, 60, "a prompt")
+        expect(page.locator("#prompt-text")).to_have_text(st["prompt"]["message"])
+        status, _, text = client.post(f"/runs/{run_id}/answer", {"prompt_id": st["prompt"]["id"], "answer": "yes"})
+        assert status == 303, text
+    expect(page.locator("#prompt")).to_be_hidden()
+    seen = page.evaluate("window.__controls")
+    live = [s for s in seen if s["pause"] is not None]
+    assert any(s["prompt"] for s in live) and any(not s["prompt"] for s in live), live[-5:]
+    for key in ("pause", "abort"):
+        boxes = {tuple(round(v, 1) for v in s[key]) for s in live if s[key] is not None}
+        assert len(boxes) == 1, (key, boxes)
+    client.post(f"/runs/{run_id}/abort")
+
+
 @pytest.mark.pace(LOCKSTEP)
 @pytest.mark.parametrize("viewport", [{"width": 1280, "height": 800}, {"width": 800, "height": 1280}])
 def test_the_verdict_banner_is_in_sight_when_the_run_ends(served, client, browser, seed, viewport):

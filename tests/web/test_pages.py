@@ -90,7 +90,7 @@ def test_a_history_plot_is_against_the_date_takes_every_value_and_marks_failures
 
 
 def test_an_overhaul_recorded_on_the_robot_page_is_an_event_the_fleet_counts_from(rng, served, client):
-    from station.fleet import since_overhaul
+    from station.fleet.questions import since_overhaul
 
     days = sorted(rng.choice(np.arange(10, 300), size=3, replace=False).tolist())
     t0 = 1.70e9

@@ -85,13 +85,15 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
     if not math.isfinite(cost):
         return LMResult(state, r, J, cost, 0, False, "not converged: the start gives a non-finite residual", hist,
                         states)
+    all_free = free.size == n and np.array_equal(free, np.arange(n))
     for it in range(1, max_iter + 1):
-        Jf = J[:, free]
-        scale = np.linalg.norm(Jf, axis=0)
+        # the scaled normal equations from one product of the free columns (no scaled copy of J)
+        Jf = J if all_free else J[:, free]
+        A = Jf.T @ Jf
+        scale = np.sqrt(np.diag(A))
         scale[scale == 0] = 1.0
-        Js = Jf / scale
-        A = Js.T @ Js
-        g = Js.T @ r
+        A /= np.outer(scale, scale)
+        g = (r @ Jf) / scale
         try:
             gn = np.linalg.lstsq(A, g, rcond=1e-12)[0]
             decrease = float(g @ gn)

@@ -32,14 +32,25 @@
    with no training gain, a zero estimate or a joint error beyond
    :data:`PLAUSIBLE_JOINT_ERROR_RAD` is no step. The held-out poses never
    take part in a choice: they report the gain.
-6. Ambiguity: a candidate that was significant in the round another one was
-   chosen, explained at least half as much of the residual alone, and is no
-   longer significant after it, explains the same residual: the step names it.
+6. Rivals (issue 43 item 4): of the round's chosen candidates, each pair is
+   compared by an encompassing test, each one's columns beyond the model and
+   the other's (:func:`_order_by_encompassing`): one that explains what the
+   other cannot, while the other explains nothing beyond it, goes first
+   (encoder eccentricity, once per turn in q, against joint compliance, the
+   gravity torque of the arm's configuration); the step says which it told
+   apart (``told_apart_from``), and names as candidates with it those neither
+   of which explains anything beyond the other (both statistics given).
+7. Ambiguity: a candidate that was significant in the round another one was
+   chosen, explained at least half as much of the residual alone, is no
+   longer significant after it, and was not told apart from it, explains the
+   same residual: the step names it.
 
-The model written out (:meth:`ArmDiagnosis.extended_model`) is the
-calibration of every pose with the named effects fitted on it held; the
-effects are written only when the same construction on the training poses
-predicts the held-out poses no worse than the calibration alone
+The model written out (:meth:`ArmDiagnosis.extended_model`) starts from the
+calibration of every pose; the named effects are fitted on it with the
+geometry re-identified with them (poses spread over the joint space) or
+held (one-joint sweeps, whose unseen poses lie beyond the sweeps' range);
+the effects are written only when the same construction on the training
+poses predicts the held-out poses no worse than the calibration alone
 (``written_model`` says which, with both figures).
 
 The noise floor is the pooled scatter of repeated measurements of the same
@@ -67,7 +78,7 @@ from station.models import kinematics as kin
 from station.numeric import finite_or_none
 
 from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
-from .block_test import model_basis, wald_block
+from .candidate_significance import model_basis, wald_block
 from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split
 from .geometry_cv import beats_nominal, fold_errors
@@ -135,6 +146,7 @@ class Step:
     resid_before: np.ndarray | None = None
     resid_after: np.ndarray | None = None
     cv: tuple | None = None          # cross-validated RMS inside the training poses, before and after (chose it)
+    told_apart: list = field(default_factory=list)  # rivals of the same residual the encompassing test ruled out
 
     @property
     def gain(self) -> float:
@@ -144,7 +156,8 @@ class Step:
         d = {"effect": self.term.effect, "joint": self.term.joint, "params": self.params, "ci": self.ci,
              "heldout_rms_before": self.heldout_rms_before, "heldout_rms_after": self.heldout_rms_after,
              "gain": self.gain, "gain_percent": 100.0 * self.gain, "statistic": self.statistic,
-             "threshold": self.threshold, "test": self.test, "ambiguous_with": self.ambiguous_with}
+             "threshold": self.threshold, "test": self.test, "ambiguous_with": self.ambiguous_with,
+             "told_apart_from": self.told_apart}
         if self.cv is not None:
             d["cv_rms_before"], d["cv_rms_after"] = float(self.cv[0]), float(self.cv[1])
         if self.term.extra:
@@ -197,9 +210,9 @@ class ArmDiagnosis:
 
     def extended_model(self, *, name: str = "diagnosed", gravity_model: str | None = None,
                        joint_limits_rad=None) -> dict:
-        """The extended model file (schema of :mod:`station.models.arm_model_file`): the table, the base
-        transform of the calibration of every pose and the named effects fitted on every pose with that
-        geometry held; ``station predict``/``compensate`` read it."""
+        """The extended model file (schema of :mod:`station.models.arm_model_file`): from the calibration of
+        every pose, the named effects fitted on every pose with the geometry re-identified with them (spread
+        poses) or held (one-joint sweeps); ``station predict``/``compensate`` read it."""
         from station.models.arm_extended import EffectTerm, terms_to_json
         from station.models.arm_model_file import model_to_json
 
@@ -306,27 +319,67 @@ def _on_calibration(state: ModelState, dh, geo: Term, res) -> ModelState:
     return out
 
 
-def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, geo: Term, res) -> dict:
-    """The written model's construction (the calibration, and the named effects fitted with it held) made on the
-    training poses, against that calibration alone, on the held-out poses: the effects are written only when
-    they predict those poses no worse (issue 43: the written model is never worse than its own calibration on
-    poses that did not choose it). RMS of the 3-D error, mm."""
-    st, _, sol = fit_report(_on_calibration(state, dh, geo, res), q, meas, train, hold_geometry=True)
+def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, geo: Term, res, *,
+                              hold_geometry: bool) -> dict:
+    """The written model's construction (from the calibration, the named effects fitted with the geometry held
+    or re-identified with them, see :func:`diagnose_arm`) made on the training poses, against that calibration
+    alone, on the held-out poses: effects are written only when they predict those poses not clearly worse
+    (:func:`_clearly_worse`; issue 43: the written model is never worse than its own calibration on poses that
+    did not choose it). The effects are
+    taken in the order they were named: of the calibration with the first k of them (k = 1 .. all), the one
+    that predicts the held-out poses best is written, if it is not clearly worse than the calibration alone (a
+    later step, named on a few training poses, may fit their noise where the first one holds: 40 lab poses,
+    eccentricity on J3 named with a compliance on J3 after it, the two together 1.001x a plain fit on unseen
+    poses, the first alone 0.81x). RMS of the 3-D error, mm; ``effects`` the keys written."""
     p_geo = kin.tool_position(res.dh, q[heldout]) @ res.base_T[:3, :3].T + res.base_T[:3, 3]
     rms_geo = _rms(meas[heldout] - p_geo)
-    rms_eff = _rms(meas[heldout] - predict(st, q, heldout))
-    ok = bool(sol.converged and rms_eff <= rms_geo)
-    names = [t.key for t in state.terms if t.kind != "geometric"]
-    note = (f"the effects ({', '.join(names)}) are written: added to the calibration of the training poses they "
-            f"predict the {heldout.size} held-out poses at {rms_eff:.4g} mm RMS, the calibration alone at "
-            f"{rms_geo:.4g} mm" if ok else
-            f"the written model is the calibration alone: the effects ({', '.join(names)}) added to the calibration "
-            f"of the training poses predict the {heldout.size} held-out poses at {rms_eff:.4g} mm RMS, worse than "
-            f"the calibration alone ({rms_geo:.4g} mm)" if sol.converged else
-            "the written model is the calibration alone: the effects could not be fitted on it "
-            f"({sol.message})")
-    return {"effects_written": ok, "heldout_rms_with_effects_mm": finite_or_none(rms_eff),
+    start = _on_calibration(state, dh, geo, res)
+    eff = [i for i, t in enumerate(start.terms) if t.kind != "geometric"]
+    geo_i = [i for i, t in enumerate(start.terms) if t.kind == "geometric"]
+    e_geo = np.sum((meas[heldout] - p_geo) ** 2, axis=1)
+    tried, ok_fits = [], []
+    for k in range(len(eff), 0, -1):
+        sub = start.copy()
+        keep = geo_i + eff[:k]
+        sub.terms, sub.theta = [sub.terms[i] for i in keep], [sub.theta[i] for i in keep]
+        st, _, sol = fit_report(sub, q, meas, train, hold_geometry=hold_geometry)
+        e_k = np.sum((meas[heldout] - predict(st, q, heldout)) ** 2, axis=1)
+        tried.append((k, _rms(meas[heldout] - predict(st, q, heldout)), sol))
+        if sol.converged and not _clearly_worse(e_k, e_geo):
+            ok_fits.append((tried[-1][1], -k, k))
+    names = [start.terms[i].key for i in eff]
+    k_all, rms_all, sol_all = tried[0]
+    if ok_fits:
+        rms_eff, _, k = min(ok_fits)
+        kept = names[:k]
+        note = (f"the effects ({', '.join(kept)}) are written: added to the calibration of the training poses they "
+                f"predict the {heldout.size} held-out poses at {rms_eff:.4g} mm RMS, the calibration alone at "
+                f"{rms_geo:.4g} mm")
+        if k < len(names):
+            note += (f"; {', '.join(names[k:])}, named after them, not written (with them "
+                     f"{rms_all:.4g} mm)")
+    else:
+        rms_eff, kept = rms_all, []
+        note = (f"the written model is the calibration alone: the effects ({', '.join(names)}) added to the "
+                f"calibration of the training poses predict the {heldout.size} held-out poses at {rms_eff:.4g} mm "
+                f"RMS, clearly worse than the calibration alone ({rms_geo:.4g} mm)" if sol_all.converged else
+                "the written model is the calibration alone: the effects could not be fitted on it "
+                f"({sol_all.message})")
+    return {"effects_written": bool(kept), "effects": kept,
+            "geometry": "held at the calibration" if hold_geometry else
+            "re-identified with the effects (from the calibration)",
+            "heldout_rms_with_effects_mm": finite_or_none(rms_eff),
             "heldout_rms_calibration_mm": finite_or_none(rms_geo), "note": note}
+
+
+def _clearly_worse(e_new: np.ndarray, e_old: np.ndarray) -> bool:
+    """Squared errors ``e_new`` of the held-out poses larger than ``e_old`` by more than one standard error of
+    their paired difference (the held-out poses are few: 10 of 40 lab poses; a true effect lost to their
+    scatter loses its gain on every unseen pose)."""
+    d = e_new - e_old
+    if d.size < 2:
+        return bool(d.sum() > 0)
+    return float(d.mean()) > CV_GAIN_SE * float(d.std(ddof=1)) / math.sqrt(d.size)
 
 
 def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
@@ -716,6 +769,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
             _ambiguity(steps[-1], prev_sig, chosen_prev, tests)
         sig = sorted((ct for ct in tests if ct.significant and ct.cv_gain),
                      key=lambda ct: ct.heldout_rms_after)
+        sig, told, apart = _order_by_encompassing(state, q, meas, train, sig, alpha / max(len(keys), 1))
         taken = False
         for best in sig:
             new_state, _, sol = fit_report(state.with_term(best.variant), q, meas, train)
@@ -744,6 +798,8 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
                               f"inside the training poses {cv_now:.4g} -> {best.heldout_rms_after:.4g} mm",
                               resid_before=r_before, resid_after=r_after))
             steps[-1].cv = (cv_now, best.heldout_rms_after)
+            steps[-1].ambiguous_with.extend(told.get(best.key, []))
+            steps[-1].told_apart = apart.get(best.key, [])
             state = new_state
             remaining = [t for t in remaining if t.key != best.key]
             prev_sig = [c for c in tests if c.significant]
@@ -753,10 +809,10 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         if not taken:
             break
     resid_final = meas - predict(state, q, all_rows)
-    # the model written out: the calibration of every pose, and the chosen effects fitted on every pose with
-    # that geometry held. A joint refit moves the geometry with each effect, and on poses beyond the range the
-    # training poses span (a random split of one-joint sweeps holds out sweep ends 60 deg beyond it) that moved
-    # geometry extrapolates worse than the calibration did: FANUC-like sets, 6 random 70/30 splits each, the
+    # the model written out: the calibration of every pose, and the chosen effects fitted on every pose. On
+    # one-joint sweeps with that geometry held: a joint refit moves the geometry with each effect, and on poses
+    # beyond the range the training poses span (a random split of one-joint sweeps holds out sweep ends 60 deg
+    # beyond it) that moved geometry extrapolates worse than the calibration did: FANUC-like sets, 6 random 70/30 splits each, the
     # mean held-out error against geometry alone was above 1.02x in 7 draws of 60 with the joint refit, in none
     # held (worst 1.010; mean 0.972)
     on_calibration = geometry["named"] or geometry.get("adopted")
@@ -766,13 +822,20 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         geo_all, res_all, _ = _geometric_term(dh, q, meas, all_rows)
         if geo_all is not None:
             start_all = _on_calibration(state, dh, geo_all, res_all)
-    written = _check_effects_on_heldout(state, dh, q, meas, train, heldout, geo, geo_res) if (
+    # how the effects meet the geometry in the written model. On poses spread over the joint space the geometry is
+    # re-identified with them (from the calibration, under its prior): an effect fitted on the residual the
+    # calibration left can explain only its part no geometric error mimics, and the calibration keeps the rest as
+    # a distorted table. Lab-shaped sets (RB5-850, 40 poses, one hidden compliance or eccentricity on J2/J3,
+    # bench/bench_diagnosis_lab.py): unseen error against a plain fit 0.82x held, 0.64x re-identified, an oracle
+    # that knows the effect's form 0.63x (mean of 10 draws).
+    hold = structure.interpolation_only
+    written = _check_effects_on_heldout(state, dh, q, meas, train, heldout, geo, geo_res, hold_geometry=hold) if (
         on_calibration and len(state.terms) > 1) else None
-    if written is not None and not written["effects_written"] and start_all is not state:
-        # the effects, added to the calibration of the training poses, predicted the held-out poses worse than
-        # that calibration alone: the written model is the calibration, and says so
+    if written is not None and len(written["effects"]) < len(state.terms) - 1 and start_all is not state:
+        # the effects (or the later ones), added to the calibration of the training poses, predicted the held-out
+        # poses worse than that calibration alone (or than the first ones): not written, and it says so
         start_all = start_all.copy()
-        keep = [i for i, t in enumerate(start_all.terms) if t.kind == "geometric"]
+        keep = [i for i, t in enumerate(start_all.terms) if t.kind == "geometric" or t.key in written["effects"]]
         start_all.terms = [start_all.terms[i] for i in keep]
         start_all.theta = [start_all.theta[i] for i in keep]
     if start_all is not state and len(start_all.terms) == 1:
@@ -780,7 +843,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         # prior would extrapolate differently beyond the poses' range)
         state_all, sol_all = start_all, res_all
     else:
-        state_all, _, sol_all = fit_report(start_all, q, meas, all_rows, hold_geometry=start_all is not state)
+        state_all, _, sol_all = fit_report(start_all, q, meas, all_rows, hold_geometry=start_all is not state and hold)
     fits.append(("all poses (model written out)", sol_all))
     variables = {"q_rad": q_in, "last_dir": last_dir[inv], "t_s": t_s, "temperature_c": temperature_c}
     for term in others:
@@ -811,8 +874,9 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
 
 def _ambiguity(step: Step, prev_sig, chosen_prev, tests) -> None:
     now = {ct.key: ct for ct in tests}
+    named = {(a["effect"], a["joint"]) for a in step.ambiguous_with + step.told_apart}
     for ct in prev_sig:
-        if ct.key == chosen_prev.key:
+        if ct.key == chosen_prev.key or (ct.effect, ct.joint) in named:
             continue
         later = now.get(ct.key)
         gone = later is None or not later.significant
@@ -822,3 +886,91 @@ def _ambiguity(step: Step, prev_sig, chosen_prev, tests) -> None:
                  "share_of_residual_explained": ct.rss_reduction / chosen_prev.rss_reduction,
                  "cv_rms_alone": ct.heldout_rms_after,
                  "note": "explains the same residual: nothing significant is left of it after this step"})
+
+
+#: a direction of a candidate's columns counts as its own beyond another candidate's when this share of it (unit
+#: columns) lies outside that candidate's and the model's span
+DISTINCT_SHARE = 0.01
+
+
+def _beyond(M: np.ndarray, r: np.ndarray, n: int, B_cand: np.ndarray, B_other: np.ndarray, alpha_m: float) -> float:
+    """Cluster-robust Wald statistic (W / k) of the columns ``B_cand`` (3n, k) on the residual ``r`` beyond the
+    model's columns ``M`` and another candidate's ``B_other``, over its ``1 - alpha_m`` threshold (above 1: the
+    candidate explains what the other cannot); NaN when not testable."""
+    Q = model_basis(np.concatenate([M, B_other], axis=1))
+    bn = np.linalg.norm(B_cand, axis=0)
+    if np.any(bn <= 0.0):
+        return math.nan
+    Bp = B_cand - Q @ (Q.T @ B_cand)
+    # the directions of the candidate the other cannot produce (a compliance column that is a once-per-turn
+    # shape of its joint lies inside the eccentricity's sine and cosine: the other one may not)
+    U, sv, _ = np.linalg.svd(Bp / bn, full_matrices=False)
+    keep = sv > DISTINCT_SHARE
+    k = int(keep.sum())
+    if k == 0:
+        return 0.0
+    dof_poses = n - (M.shape[1] + B_cand.shape[1] + B_other.shape[1]) / 3.0
+    if dof_poses < MIN_DOF_POSES:
+        return math.nan
+    X = U[:, keep]
+    th = X.T @ r
+    r1 = r - X @ th
+    cov = robust_cov(X.reshape(n, 3, k), r1.reshape(n, 3)) * ((n - k / 3.0) / dof_poses)
+    try:
+        wald = float(th @ np.linalg.solve(cov, th))
+    except np.linalg.LinAlgError:
+        return math.nan
+    return (wald / k) / float(stats.f.isf(alpha_m, k, dof_poses))
+
+
+def _order_by_encompassing(state: ModelState, q, meas, train, sig: list, alpha_m: float) -> tuple[list, dict]:
+    """The round's significant candidates reordered by what each explains beyond the others, and for each the
+    candidates it cannot be told from.
+
+    Two candidates of the same residual (encoder eccentricity, once per turn of its joint, and joint compliance,
+    the arm's gravity torque: on poses that hardly change the rest of the arm's configuration they are nearly the
+    same columns) are told apart by an encompassing test: each one's columns against the residual beyond the
+    model and the other's. The one that explains significantly more than its rival, while the rival explains
+    nothing beyond it, goes first even when the cross-validation ranked the rival higher (the rival's extra
+    parameters fit the noise of a few folds as well). When neither explains anything beyond the other the poses
+    cannot tell them apart: the first is chosen and the other is named with it, with both statistics.
+    ``(ordered, {key: [cannot be told apart]}, {key: [told apart]})``."""
+    if len(sig) < 2:
+        return sig, {}, {}
+    pred, A, extra = jacobian(state, q, train, [ct.variant for ct in sig])
+    n, p = train.size, A.shape[2]
+    r = (meas[train] - pred).reshape(-1)
+    M = A.reshape(-1, p)
+    cols = [B.reshape(-1, B.shape[2]) for _, B in extra]
+
+    def pair(i, j):
+        return _beyond(M, r, n, cols[i], cols[j], alpha_m), _beyond(M, r, n, cols[j], cols[i], alpha_m)
+
+    order = list(range(len(sig)))
+    top = 0
+    for j in range(1, len(sig)):
+        top_beyond, other_beyond = pair(top, j)
+        if other_beyond > 1.0 and not top_beyond > 1.0:
+            top = j  # j explains what the current first cannot, and not the other way round
+    order.remove(top)
+    order.insert(0, top)
+    told: dict = {}
+    apart: dict = {}
+    for j in order[1:]:
+        a_beyond, b_beyond = pair(top, j)
+        if a_beyond > 1.0 and not b_beyond > 1.0:
+            apart.setdefault(sig[top].key, []).append(
+                {"effect": sig[j].effect, "joint": sig[j].joint, "beyond_it": finite_or_none(b_beyond),
+                 "it_beyond": finite_or_none(a_beyond),
+                 "note": "the chosen one explains significantly more of the residual than this candidate, which "
+                         f"explains nothing beyond it (statistic over threshold {a_beyond:.3g} and {b_beyond:.3g})"})
+        elif not (a_beyond > 1.0) and not (b_beyond > 1.0):
+            told.setdefault(sig[top].key, []).append(
+                {"effect": sig[j].effect, "joint": sig[j].joint,
+                 "share_of_residual_explained": sig[j].rss_reduction / max(sig[top].rss_reduction, 1e-300),
+                 "cv_rms_alone": sig[j].heldout_rms_after,
+                 "beyond_it": finite_or_none(b_beyond), "it_beyond": finite_or_none(a_beyond),
+                 "note": "cannot be told apart on these poses: neither explains significantly more of the residual "
+                         "than the other (statistic over threshold of each beyond the other: "
+                         f"{b_beyond:.3g} and {a_beyond:.3g})"})
+    return [sig[i] for i in order], told, apart

@@ -140,14 +140,14 @@ def initial_state(dh_nominal, q: np.ndarray, meas: np.ndarray, rows: np.ndarray)
     return state
 
 
-def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 50,
+def fit(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 200,
         rtol: float = 1e-10) -> tuple[ModelState, float]:
     """Damped Levenberg-Marquardt on ``rows`` from ``state`` (the solver of the identification,
     :func:`station.analysis.lm_solver.levenberg_marquardt`); returns the fitted state and its RSS (mm^2)."""
     return fit_report(state, q, meas, rows, max_iter=max_iter, rtol=rtol)[:2]
 
 
-def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 50,
+def fit_report(state: ModelState, q: np.ndarray, meas: np.ndarray, rows: np.ndarray, *, max_iter: int = 200,
                rtol: float = 1e-10, hold_geometry: bool = False):
     """As :func:`fit`, with the solver's outcome third (``converged``, ``message``, ``iterations``).
 

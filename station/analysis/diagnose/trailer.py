@@ -78,7 +78,7 @@ from station.errors import DataError, InsufficientDataError
 from station.models.trailer import check_lengths
 from station.numeric import finite_or_none
 
-from .block_test import model_basis, refit_step, wald_block
+from .candidate_significance import model_basis, refit_step, wald_block
 from .summary_json import core_json
 from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, SAMPLINGS, columns, hac_bandwidth, hac_cov, loo_smooth,
                             null_params, predict, rms, segments, stamp_curvature)

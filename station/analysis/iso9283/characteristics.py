@@ -28,9 +28,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
+from station.analysis.iso9283 import table
 from station.analysis.iso9283.extraction import (
     STATUS_ASSIGNED,
     StopStatus,
@@ -46,15 +48,6 @@ from station.verdict import Outcome, combine
 #: ISO 9283 prescribes 30 cycles for AP and RP
 ISO_CYCLES = 30
 
-#: limit keys a verdict can be given for, with the level they apply to
-LIMIT_KEYS = {
-    "AP_mm": "pose", "RP_mm": "pose", "POS_mm": "pose", "PST_s": "pose", "vAP_mm": "pose",
-    "dAP_mm": "pose", "dRP_mm": "pose",
-    "APa_deg": "pose", "APb_deg": "pose", "APc_deg": "pose",
-    "RPa_deg": "pose", "RPb_deg": "pose", "RPc_deg": "pose",
-    "AD_mm": "distance", "RD_mm": "distance",
-    "MPT_s": "move", "AT_mm": "path", "RT_mm": "path",
-}
 
 
 # --------------------------------------------------------------------------
@@ -254,7 +247,7 @@ class LeftOut:
 class LimitCheck:
     """One characteristic of one subject judged against its limit (its outcome a :class:`station.verdict.Outcome`)."""
 
-    characteristic: str  # a LIMIT_KEYS key
+    characteristic: str  # a key of the characteristics table (station.analysis.iso9283.table)
     subject: str  # pose name, "P2-P4", "P1->P2"
     value: float | None
     limit: float
@@ -661,11 +654,12 @@ def _group_directions(units, clean, cos_tol):
 
 
 def check_limits(limits) -> dict[str, float]:
-    """Validate a ``{key: limit}`` mapping against :data:`LIMIT_KEYS`."""
+    """Validate a ``{key: limit}`` mapping against the characteristics table (:func:`table.limit_levels`)."""
     out = {}
+    known = table.limit_levels()
     for k, v in (limits or {}).items():
-        if k not in LIMIT_KEYS:
-            raise ConfigError(f"unknown limit {k!r}; known: {', '.join(sorted(LIMIT_KEYS))}")
+        if k not in known:
+            raise ConfigError(f"unknown limit {k!r}; known: {', '.join(sorted(known))}")
         try:
             fv = float(v)
         except (TypeError, ValueError) as exc:
@@ -740,7 +734,7 @@ def analyze_iso9283(
     commanded_orientation_rad : array_like, shape (P, 3), optional
         Commanded a, b, c, rad (for orientation accuracy).
     limits : dict, optional
-        ``{key: limit}`` with keys of :data:`LIMIT_KEYS` (e.g. ``{"RP_mm": 0.5}``);
+        ``{key: limit}`` with keys of the characteristics table (e.g. ``{"RP_mm": 0.5}``);
         each computed characteristic with a limit gets a verdict ``|value| <= limit``.
     band_mm : None, float or dict
         Limit band of POS/PST: None = each pose's own RP; a float = one value
@@ -798,7 +792,7 @@ def analyze_iso9283(
     paths = _stage_paths(run, k0, k1, linear_paths, n_planes)
     _stage_extraction_problems(run)
     left_out = _stage_left_out(run, pose_info, settle, dists)
-    verdicts = _verdicts(lim, poses, dists, mts, paths)
+    verdicts = _verdicts(lim, SimpleNamespace(poses=poses, distances=dists, posing_times=mts, paths=paths))
     if any(v.outcome is Outcome.NOT_DECIDED for v in verdicts):
         run.partial = True
     reasons = iso_conformance_reasons(poses, ex, verdicts, lim)
@@ -1262,48 +1256,11 @@ def _verdict(key, subject, value, lim, why=""):
     return LimitCheck(key, subject, float(value), lim[key], Outcome.PASS if abs(value) <= lim[key] else Outcome.FAIL)
 
 
-def _verdicts(lim, poses, dists, mts, paths):
-    out = []
-    for name, pr in poses.items():
-        acc, rep, ovs, md = pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional
-        cand = [
-            ("AP_mm", acc.AP_mm if acc else None, "no attained pose"),
-            ("RP_mm", rep.RP_mm if rep else None, "fewer than 2 attained poses"),
-            ("POS_mm", ovs.POS_mm if ovs else None, "no limit band or no complete approach"),
-            ("PST_s", ovs.PST_s if ovs else None, "no limit band or no complete approach"),
-        ]
-        if md.n_directions >= 2 or "vAP_mm" in lim:
-            cand.append(("vAP_mm", md.vAP_mm, f"{md.n_directions} approach direction(s), 3 needed"))
-        if "dAP_mm" in lim or "dRP_mm" in lim:
-            cand += [("dAP_mm", pr.drift.dAP_mm if pr.drift else None, "too few cycles for two drift blocks"),
-                     ("dRP_mm", pr.drift.dRP_mm if pr.drift else None, "too few cycles for two drift blocks")]
-        o = pr.orientation
-        for j, ax in enumerate("abc"):
-            if f"AP{ax}_deg" in lim:
-                cand.append((f"AP{ax}_deg", math.degrees(o.AP_rad[j]) if o is not None and o.AP_rad is not None
-                             else None, "no orientation data"))
-            if f"RP{ax}_deg" in lim:
-                cand.append((f"RP{ax}_deg", math.degrees(o.RP_rad[j]) if o is not None else None,
-                             "no orientation data"))
-        for key, val, why in cand:
-            v = _verdict(key, name, val, lim, why)
-            if v:
-                out.append(v)
-    for d in dists:
-        for key, val in (("AD_mm", d.AD_mm), ("RD_mm", d.RD_mm)):
-            v = _verdict(key, f"{d.pose_a}-{d.pose_b}", val, lim, "fewer than 2 cycles")
-            if v:
-                out.append(v)
-    for m in mts:
-        v = _verdict("MPT_s", f"{m.from_pose}->{m.to_pose}", m.MPT_s, lim, "fewer posing times than repeats")
-        if v:
-            out.append(v)
-    for pa in paths:
-        for key, val in (("AT_mm", pa.AT_mm), ("RT_mm", pa.RT_mm)):
-            v = _verdict(key, f"{pa.from_pose}->{pa.to_pose}", val, lim, "fewer than 2 traversals")
-            if v:
-                out.append(v)
-    return out
+def _verdicts(lim, result) -> list[LimitCheck]:
+    """Every limited characteristic of the table judged for every subject of its level in ``result``
+    (anything with ``poses``, ``distances``, ``posing_times``, ``paths``)."""
+    return [_verdict(c.key, name, c.figure(subject), lim, c.why_missing(subject))
+            for c, name, subject in table.figures(result, lambda c: c.key in lim)]
 
 
 # --------------------------------------------------------------------------
@@ -1319,7 +1276,7 @@ def pose_to_dict(pr: PoseResult) -> dict:
     """The JSON of one pose's results (keys shared by the stream and the stop-list analyses)."""
     acc, rep, ovs, md, o, dr = (pr.accuracy, pr.repeatability, pr.overshoot, pr.multidirectional,
                                 pr.orientation, pr.drift)
-    return {
+    return _with_figures({
         "commanded_mm": None if pr.commanded_mm is None else finite_list(pr.commanded_mm),
         "n_cycles": pr.n_cycles,
         "AP_mm": finite_or_none(acc.AP_mm, 6) if acc else None,
@@ -1363,13 +1320,22 @@ def pose_to_dict(pr: PoseResult) -> dict:
             "block_t_s": finite_list(dr.block_t_s), "AP_mm": finite_list(dr.AP_mm), "RP_mm": finite_list(dr.RP_mm),
             "n_per_block": _il(dr.n_per_block),
         },
-    }
+    }, pr, "pose")
+
+
+def _with_figures(d: dict, subject, level: str) -> dict:
+    """``d`` and, after its own keys, every figure of the table at ``level`` that ``d`` does not hold yet
+    (a characteristic whose formula has no block of its own in the JSON)."""
+    for c in table.characteristics():
+        if c.level == level and c.in_json and c.key not in d:
+            d[c.key] = finite_or_none(c.value(subject), 6)
+    return d
 
 
 def distance_to_dict(d: DistanceAR) -> dict:
-    return {"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": finite_or_none(d.Dc_mm, 6), "AD_mm": finite_or_none(d.AD_mm, 6),
+    return _with_figures({"pose_a": d.pose_a, "pose_b": d.pose_b, "Dc_mm": finite_or_none(d.Dc_mm, 6), "AD_mm": finite_or_none(d.AD_mm, 6),
             "RD_mm": finite_or_none(d.RD_mm, 6), "n": d.n, "D_mm": finite_list(d.D_mm), "cycle": _il(d.cycles),
-            "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)}
+            "row_a": _il(d.rows_a), "row_b": _il(d.rows_b)}, d, "pair")
 
 
 def verdict_to_dict(v: LimitCheck) -> dict:
@@ -1399,26 +1365,32 @@ def _result_to_dict(r: Iso9283Result) -> dict:
     return d
 
 
-def _result_dict(r: Iso9283Result) -> dict:
-    ex = r.extraction
-    st = ex.stops
-    poses = {name: pose_to_dict(pr) for name, pr in r.poses.items()}
-    p = ex.params
-    return {
-        "schema": "station.iso9283/1",
-        "units": {"position": "mm", "time": "s", "angle": "deg", "row": "0-based data row of the stream"},
-        "poses": poses,
-        "distance": [distance_to_dict(d) for d in r.distances],
+def figures_dict(r, rows: str, **head) -> dict:
+    """The JSON keys the stream and the stop-list analyses share (``head`` after the schema), in their order;
+    ``rows``: what a row number of the result counts."""
+    d = {
+        "schema": "station.iso9283/1", **head,
+        "units": {"position": "mm", "time": "s", "angle": "deg", "row": rows},
+        "poses": {name: pose_to_dict(pr) for name, pr in r.poses.items()},
+        "distance": [distance_to_dict(x) for x in r.distances],
         "MPT": [
-            {"from": m.from_pose, "to": m.to_pose, "MPT_s": finite_or_none(m.MPT_s, 6), "n": m.n, "n_available": m.n_available,
-             "times_s": finite_list(m.times_s), "row_leave": _il(m.row_leave), "row_settled": _il(m.row_settled)}
-            for m in r.posing_times
+            _with_figures({"from": m.from_pose, "to": m.to_pose, "MPT_s": finite_or_none(m.MPT_s, 6), "n": m.n,
+                           "n_available": m.n_available, "times_s": finite_list(m.times_s),
+                           "row_leave": _il(m.row_leave), "row_settled": _il(m.row_settled)}, m, "move")
+            for m in getattr(r, "posing_times", ())
         ],
         "paths": [
-            {"from": pa.from_pose, "to": pa.to_pose, "AT_mm": finite_or_none(pa.AT_mm, 6), "RT_mm": finite_or_none(pa.RT_mm, 6), "n": pa.n,
-             "plane_s_mm": finite_list(pa.plane_s_mm), "AT_i_mm": finite_list(pa.AT_i_mm), "RT_i_mm": finite_list(pa.RT_i_mm)}
-            for pa in r.paths
+            _with_figures({"from": pa.from_pose, "to": pa.to_pose, "AT_mm": finite_or_none(pa.AT_mm, 6),
+                           "RT_mm": finite_or_none(pa.RT_mm, 6), "n": pa.n, "plane_s_mm": finite_list(pa.plane_s_mm),
+                           "AT_i_mm": finite_list(pa.AT_i_mm), "RT_i_mm": finite_list(pa.RT_i_mm)}, pa, "path")
+            for pa in getattr(r, "paths", ())
         ],
+    }
+    run = _with_figures({}, r, "run")
+    if run:
+        d["run"] = run
+    return {
+        **d,
         "verdicts": [verdict_to_dict(v) for v in r.verdicts],
         "limits": {k: finite_or_none(v, 6) for k, v in r.limits.items()},
         "passed": r.passed,
@@ -1427,6 +1399,15 @@ def _result_dict(r: Iso9283Result) -> dict:
         "iso_reasons": list(r.iso_reasons),
         "left_out": [left_out_to_dict(x) for x in r.left_out],
         "warnings": list(r.warnings),
+    }
+
+
+def _result_dict(r: Iso9283Result) -> dict:
+    ex = r.extraction
+    st = ex.stops
+    p = ex.params
+    return {
+        **figures_dict(r, "0-based data row of the stream"),
         "stream": {
             "n_rows": ex.n_rows, "n_used": ex.n_used, "n_invalid": ex.n_rows - ex.n_used,
             "rate_hz": finite_or_none(p.rate_hz, 3), "t_start_s": finite_or_none(r.stream_span_s[0], 6), "t_end_s": finite_or_none(r.stream_span_s[1], 6),

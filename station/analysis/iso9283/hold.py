@@ -8,6 +8,14 @@ analysis, which needs stops):
   three variances (the rms distance from the drifting mean);
 * drift: the slope of that line, per axis and in 3-D, in mm per minute, with
   its standard deviation from the noise;
+* the tracker's reading noise (eq. (N1) of :mod:`station.models.tracker_noise`):
+  white sd, wander sd and its correlation time, fitted by
+  :func:`station.analysis.iso9283.tracker_noise_fit.fit_tracker_noise`
+  (with at least :data:`~station.analysis.iso9283.tracker_noise_fit.MIN_FIT_SAMPLES`
+  samples); when a wander is resolved the drift's standard deviation counts
+  it: the slope of a line through AR(1) noise of lag-one correlation
+  ``rho = exp(-dt / tau)`` has the variance of white noise times
+  ``(1 + rho) / (1 - rho)``;
 * an RP-style figure: the stream cut into windows of ``window_s``; the mean
   of each window plays an attained pose and ``l_bar + 3 S_l`` of eq. (2)
   (seed 000) is taken over the window means about their barycentre. It holds
@@ -25,6 +33,7 @@ import numpy as np
 
 from station.analysis.iso9283.characteristics import position_repeatability
 from station.analysis.iso9283.extraction import estimate_noise_mm, moving_speed, validate_stream
+from station.analysis.iso9283.tracker_noise_fit import MIN_FIT_SAMPLES, NoiseFit, fit_tracker_noise
 from station.errors import DataError, InsufficientDataError
 
 
@@ -53,6 +62,7 @@ class HoldResult:
     l_bar_mm: float
     S_l_mm: float
     n_dropped: int  # samples of windows with less than half the fullest one's, left out of the RP figure
+    noise_fit: NoiseFit | None = None  # the tracker's reading noise (None: too few samples)
 
     def to_dict(self) -> dict:
         def fl(a):
@@ -68,6 +78,7 @@ class HoldResult:
                         "mean_mm": [fl(m) for m in self.window_mean_mm], "n_samples": [int(x) for x in self.window_n],
                         "l_mm": fl(self.l_mm), "RP_mm": round(self.RP_mm, 6), "l_bar_mm": round(self.l_bar_mm, 6),
                         "S_l_mm": round(self.S_l_mm, 6), "n_dropped": self.n_dropped},
+            "tracker_noise": None if self.noise_fit is None else self.noise_fit.to_dict("fit of a held pose"),
         }
 
 
@@ -119,6 +130,11 @@ def analyze_hold(t_s, xyz_mm, valid=None, *, window_s: float = 1.0, min_move_mm:
     resid = xyz - mean - np.outer(tc, slope)
     noise = np.sqrt((resid**2).sum(axis=0) / (n - 2))
     slope_sd = noise / np.sqrt(stt)
+    fit = fit_tracker_noise(t, xyz) if n >= MIN_FIT_SAMPLES else None
+    if fit is not None and fit.wander_tau_s is not None:
+        rho = float(np.exp(-fit.dt_s / fit.wander_tau_s))
+        var_um2 = fit.white_um ** 2 + fit.wander_um ** 2 * (1.0 + rho) / (1.0 - rho)
+        slope_sd = np.maximum(slope_sd, np.full(3, np.sqrt(var_um2) * 1e-3 / np.sqrt(stt)))
     # windows of window_s from the first sample; a window with less than half the fullest one's samples (the
     # last, or one cut by a beam break) is left out
     # the windows the samples fall in, numbered 0.. in order (a gap in time makes no empty windows: memory and
@@ -140,5 +156,5 @@ def analyze_hold(t_s, xyz_mm, valid=None, *, window_s: float = 1.0, min_move_mm:
         drift_mm_per_min=60.0 * slope, drift_sd_mm_per_min=60.0 * slope_sd,
         drift_3d_mm_per_min=float(60.0 * np.linalg.norm(slope)), window_s=float(window_s),
         window_t_s=tsum[keep_w] / counts[keep_w], window_mean_mm=wm, window_n=counts[keep_w], l_mm=rep.l_mm,
-        RP_mm=rep.RP_mm, l_bar_mm=rep.l_bar_mm, S_l_mm=rep.S_l_mm, n_dropped=dropped,
+        RP_mm=rep.RP_mm, l_bar_mm=rep.l_bar_mm, S_l_mm=rep.S_l_mm, n_dropped=dropped, noise_fit=fit,
     )

@@ -240,14 +240,14 @@ def rest_noise_mm(t, xyz) -> float:
 
 def stop_scatter_mm(centroid_mm, pose) -> float:
     """Per-axis scatter of the stops (K, 3) about their pose's mean, pooled, mm (bounds the points' noise)."""
+    from station.analysis.iso9283.stop_list import rows_by_label
+
     c = np.asarray(centroid_mm, dtype=float)
-    pose = np.array(pose, dtype=object)
     dev, dof = 0.0, 0
-    for p in set(pose.tolist()):
-        m = pose == p
-        if m.sum() >= 2:
+    for m in rows_by_label(pose).values():
+        if m.size >= 2:
             dev += float(np.sum((c[m] - c[m].mean(axis=0)) ** 2))
-            dof += 3 * (int(m.sum()) - 1)
+            dof += 3 * (m.size - 1)
     return math.sqrt(dev / dof) if dof else 0.0
 
 

@@ -31,9 +31,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
+from station.analysis.iso9283 import table
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
     ApproachGroup,
@@ -46,22 +48,15 @@ from station.analysis.iso9283.characteristics import (
     PoseResult,
     _verdicts,
     check_limits,
-    distance_to_dict,
-    left_out_to_dict,
+    figures_dict,
     multidirectional_accuracy,
-    pose_to_dict,
     position_accuracy,
     position_repeatability,
-    verdict_to_dict,
 )
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
 from station.numeric import finite_list, finite_or_none
 from station.verdict import Outcome
-
-#: characteristics a stop list cannot give (they need the motion between stops)
-STREAM_ONLY = ("POS_mm", "PST_s", "MPT_s", "AT_mm", "RT_mm", "dAP_mm", "dRP_mm",
-               "APa_deg", "APb_deg", "APc_deg")
 
 
 @dataclass(frozen=True)
@@ -96,21 +91,7 @@ class StopListResult(Judged):
     def to_dict(self) -> dict:
 
         return {
-            "schema": "station.iso9283/1",
-            "source": "stop list",
-            "units": {"position": "mm", "time": "s", "angle": "deg", "row": "0-based stop of the stop list"},
-            "poses": {name: pose_to_dict(pr) for name, pr in self.poses.items()},
-            "distance": [distance_to_dict(d) for d in self.distances],
-            "MPT": [],
-            "paths": [],
-            "verdicts": [verdict_to_dict(v) for v in self.verdicts],
-            "limits": {k: finite_or_none(v, 6) for k, v in self.limits.items()},
-            "passed": self.passed,
-            "partial": self.partial,
-            "iso_conformant": self.iso_conformant,
-            "iso_reasons": list(self.iso_reasons),
-            "left_out": [left_out_to_dict(x) for x in self.left_out],
-            "warnings": list(self.warnings),
+            **figures_dict(self, "0-based stop of the stop list", source="stop list"),
             "stops": {
                 "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": finite_or_none(self.assign_tol_mm, 6),
                 "pose": list(self.stop_pose), "cycle": [int(c) for c in self.stop_cycle],
@@ -160,6 +141,17 @@ def orientation_by_rigid_fit(points_mm) -> tuple[np.ndarray, np.ndarray]:
         out[k] = rotation_abc(reg.R)
         rms[k] = reg.rms_mm
     return out, rms
+
+
+def rows_by_label(labels) -> dict[str, np.ndarray]:
+    """The rows of each label (ascending), labels in order of first appearance.
+
+    One pass over the rows: a scan of every row per label took K x P steps (100,000 poses, over a minute).
+    """
+    rows: dict[str, list[int]] = {}
+    for k, lab in enumerate(labels):
+        rows.setdefault(lab, []).append(k)
+    return {lab: np.array(ks, dtype=np.int64) for lab, ks in rows.items()}
 
 
 def _groups(k_pose: np.ndarray, approach) -> list[tuple[str, np.ndarray]]:
@@ -261,12 +253,13 @@ def analyze_stop_list(
             leave(k, "all", f"{dist[k]:.3f} mm from its commanded pose {pose[k]}, farther than the assignment "
                             f"tolerance {assign_tol_mm:g} mm")
     order = list(cmd) if cmd is not None else list(dict.fromkeys(pose))
-    pose_arr = np.array(pose, dtype=object)
+    by_pose = rows_by_label(pose)
     fit_rms = np.full(K, np.nan)
     poses: dict[str, PoseResult] = {}
     primary: dict[str, np.ndarray] = {}
     for name in order:  # loop over poses
-        k_pose = np.flatnonzero((pose_arr == name) & ~far)
+        k_pose = by_pose.get(name, np.zeros(0, np.int64))
+        k_pose = k_pose[~far[k_pose]]
         k_pose = k_pose[np.argsort(cyc[k_pose], kind="stable")]
         groups = _groups(k_pose, approach)
         if groups:
@@ -323,8 +316,9 @@ def analyze_stop_list(
     if any(d.RD_mm is None for d in dists):
         partial = True
     verdicts = []
-    for v in _verdicts(lim, poses, dists, [], []):
-        if v.outcome is Outcome.NOT_DECIDED and v.characteristic in STREAM_ONLY:
+    stream_only = {c.key for c in table.characteristics() if c.needs_stream}
+    for v in _verdicts(lim, SimpleNamespace(poses=poses, distances=dists)):
+        if v.outcome is Outcome.NOT_DECIDED and v.characteristic in stream_only:
             v = LimitCheck(v.characteristic, v.subject, None, v.limit, Outcome.NOT_DECIDED,
                            "needs a stream: a stop list has one "
                            "point per stop" if not v.characteristic.startswith("AP") else

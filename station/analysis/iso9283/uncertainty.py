@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from station.analysis.decision import check_rule, decide
+from station.analysis.iso9283.table import unit_of
 from station.analysis.uncertainty import (
     Budget,
     FigureUncertainty,
@@ -95,7 +96,7 @@ def figure_uncertainties(res, budget: Budget, points_by_row=None) -> dict[Key, F
         pa, pb = res.poses[d.pose_a], res.poses[d.pose_b]
         ma = pa.attained_mm.mean(axis=0) if pa.n_cycles else None
         mb = pb.attained_mm.mean(axis=0) if pb.n_cycles else None
-        sys_sd = budget.scale_sd() * float(np.mean(d.D_mm))
+        sys_sd = math.hypot(budget.scale_sd(), budget.systematic_scale_sd()) * float(np.mean(d.D_mm))
         put(mean_uncertainty("AD_mm", subj, d.D_mm, d.AD_mm, budget, reference=d.Dc_mm, systematic_sd=sys_sd))
         if d.RD_mm is not None and ma is not None and mb is not None:
             nv = float(budget.instrument_sd_mm(ma)) ** 2 + float(budget.instrument_sd_mm(mb)) ** 2
@@ -144,10 +145,6 @@ def apply_rule(res, uncertainties: dict[Key, FigureUncertainty], rule: str):
     return replace(res, verdicts=tuple(new), **extra)
 
 
-def unit_of(characteristic: str) -> str:
-    return characteristic.rsplit("_", 1)[-1]
-
-
 def verdict_uncertainty_dict(v) -> dict:
     """The keys a verdict's JSON gains under a rule: ``u_mm``, ``U_mm``, ``k``, ``rule``, ``outcome``, ..."""
     unit = unit_of(v.characteristic)
@@ -182,6 +179,8 @@ def format_uncertainty_lines(uncertainties: dict[Key, FigureUncertainty], budget
     b = budget
     inst = (f"{b.instrument_a_um:g} um + {b.instrument_b_um_per_m:g} um/m "
             + ("MPE (k = 2)" if b.instrument_kind == "mpe" else "sd"))
+    if b.instrument_noise_um is not None:
+        inst += f" systematic, reading noise {b.instrument_noise_um:g} um"
     reg = ("none" if b.registration_rms_mm is None
            else f"fit rms {b.registration_rms_mm:.4f} mm over {b.registration_n} pairs")
     lines = [f"decision rule: {rule}; uncertainty budget: instrument {inst}; registration {reg}; "

@@ -26,6 +26,7 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from station.shown import shown
 from station.verdict import Outcome, row_outcome
 
 SCHEMA = "station-test-record/1"
@@ -127,6 +128,11 @@ def junit_xml(record: dict) -> ET.ElementTree:
             val = "not computed" if m["value"] is None else f"{m['value']:.6g} {m['unit']}"
             text = f"{m['outcome']}: {m['pose']} {m['name']} = {val} (limits {lim} {m['unit']})"
             ET.SubElement(mc, "failure", type=m["outcome"], message=text).text = text
+    for el in root.iter():  # names and values come from outside: control characters are not XML 1.0
+        for k, v in el.attrib.items():
+            el.attrib[k] = shown(v)
+        if el.text:
+            el.text = shown(el.text, lines=True)
     ET.indent(root)
     return ET.ElementTree(root)
 

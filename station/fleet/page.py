@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.fleet import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
+from station.fleet.questions import YEAR_S, drifting, limit_decisions_now, run_values, since_overhaul
 from station.report import Report, plot_xy, render_html
 from station.store import RunStore
 from station.verdict import Outcome
@@ -88,7 +88,32 @@ def fleet_report(store: RunStore, name: str, *, q_max: float = 0.05, max_plots: 
                             plot_xy(series, xlabel="days since first run", ylabel=name, title=s)))
     if len(shown) > max_plots:
         rep.notes.append(f"{len(shown) - max_plots} more flagged robots not plotted")
+    rep.notes += exchangeability_notes(store)
     return rep
+
+
+def exchangeability_notes(store: RunStore) -> list[str]:
+    """Per model with ISO 9283 runs of two robots or more: its exchangeability (ISO 9283 7.8), or why not."""
+    from station.errors import StationError
+    from station.fleet.exchangeability import PROCEDURE, fleet_exchangeability
+
+    robots: dict[str, set] = {}
+    for run in store.runs():
+        if run.procedure == PROCEDURE and run.status == "done" and run.model:
+            robots.setdefault(run.model, set()).add(run.serial)
+    notes = []
+    for model, serials in sorted(robots.items()):
+        if len(serials) < 2:
+            continue
+        try:
+            res, runs = fleet_exchangeability(store, model=model)
+        except StationError as exc:
+            notes.append(f"exchangeability of {html.escape(model)}: not stated ({html.escape(str(exc))})")
+            continue
+        notes.append(f"exchangeability (ISO 9283 7.8) of {html.escape(model)}: E = {res.exchangeability_mm:.4f} mm "
+                     f"+/- {res.U_mm:.2g} mm (k = 2) at {res.pose}, {len(runs)} robots, in each robot's registered "
+                     f"base frame")
+    return notes
 
 
 def write_fleet_page(store: RunStore, path: str | Path, name: str = "RP_mm", **kw) -> Path:

@@ -39,7 +39,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from station.errors import ConfigError
-from station.store import RunStore, StoreError, StoreUnavailable
+from station.store.errors import StoreError, StoreUnavailable
+from station.store.runstore import RunStore
 from station.numeric import dumps
 
 FINAL = ("done", "failed", "aborted")

@@ -13,7 +13,7 @@
   (ISO 14253-1) into non-conformance proven and not decided (a figure in its
   guard band, on either side of the limit);
 * :func:`drifting` — robots of a model whose characteristic grows with time
-  since their last overhaul, by the trend test of :mod:`station.fleet_trend`
+  since their last overhaul, by the trend test of :mod:`station.fleet.trend`
   with false-discovery control across the model's robots.
 
 A robot is its model and serial, in every question here as in the store.
@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from station.analysis.iso9283.table import from_their_cycles
 from station.errors import ConfigError
-from station.fleet_trend import benjamini_hochberg, trends
+from station.fleet.trend import benjamini_hochberg, trends
 from station.store import RunStore, StoreError
 from station.verdict import Outcome
 
@@ -120,7 +121,9 @@ def parse_when(text: str, what: str = "date") -> float:
             return datetime.strptime(str(text).strip(), fmt).timestamp()
         except ValueError:
             continue
-    raise ConfigError(f"{what} {text!r} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
+    from station.shown import quoted
+
+    raise ConfigError(f"{what} {quoted(text)} is not YYYY-MM-DD or YYYY-MM-DDTHH:MM")
 
 
 def since_overhaul(store: RunStore, name: str, *, model: str | None = None) -> list[dict]:
@@ -164,7 +167,7 @@ def drifting(store: RunStore, name: str, *, model: str | None = None, q_max: flo
     """Robots (of ``model``, or every model) whose ``name`` grows since their last overhaul.
 
     Per robot with at least ``min_runs`` runs since, the one-sided trend test
-    of :func:`station.fleet_trend.trends`; the p-values of a model's robots
+    of :func:`station.fleet.trend.trends`; the p-values of a model's robots
     become Benjamini-Hochberg q-values and a robot drifts when ``q <= q_max``.
     Returns the drifting robots, largest slope first, with slope, p and q.
     """
@@ -247,6 +250,6 @@ def _stored_verdicts(store: RunStore, run_id: str) -> dict:
         res = store.result(run_id, "iso9283")
     except StoreError:  # a run of another procedure, or stored before its analysis
         return {}
-    vs = list((res.get("pose") or {}).get("verdicts", []))
-    vs += [v for v in (res.get("vap") or {}).get("verdicts", []) if v.get("characteristic") == "vAP_mm"]
+    vs = from_their_cycles((res.get("pose") or {}).get("verdicts", []), (res.get("vap") or {}).get("verdicts", []),
+                           key=lambda v: v.get("characteristic"))
     return {(v.get("characteristic"), v.get("subject")): v for v in vs}
