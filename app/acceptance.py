@@ -28,8 +28,12 @@ from station.verdict import EXIT_ABORTED, Outcome
 
 #: robots a fake station can be asked for (:meth:`Station.fake`)
 CONDITIONS = ("as-drawn", "in-spec", "out-of-spec", "marginal", "rp-out", "one-pose-out")
-#: a "marginal" robot's worst predicted AP lies within this fraction of the AP limit below it
-MARGINAL_FRACTION = 0.25
+#: the trailer section of a fake station (Station.fake's ``trailer`` merges into it)
+FAKE_TRAILER = {"odometry": "odometry", "serial": "TRAILER-SIM-0001", "length_tolerance_m": 0.05}
+#: the fake cell of a "marginal" robot: stops that scatter by 2 um and a tracker of MPE 1 um + 0.5 um/m, so the
+#: run scatters about its prediction by 0.02-0.04 mm rms and 4 of it fit inside a 10 % guard band of a 5 mm AP
+#: limit (on the realistic cell the registration alone scatters AP by 0.2-0.4 mm rms, wider than that band)
+MARGINAL_CELL = {"stop_sigma_mm": 0.002, "tracker_mpe_a_um": 1.0, "tracker_mpe_b_um_per_m": 0.5}
 #: an "rp-out" robot's expected RP, in units of the RP limit
 RP_OUT_FACTOR = 2.0
 #: RP = l_bar + 3 S_l of 3-D Gaussian stop scatter of sigma s per coordinate: l_bar = 1.596 s, S_l = 0.673 s
@@ -73,17 +77,18 @@ def fake_cell_truth(plan, seed: int, world_kwargs: dict | None = None) -> CellTr
         world.close()
 
 
-def _meets(condition, ap_lo, ap_hi, ad_hi, ap_margin, ad_margin, ap_lim, ad_lim) -> bool:
-    """In spec: every AP and |AD| plus its margin within its limit (no limit, no bound); out of spec:
-    some pose's AP minus its margin at or over the AP limit; marginal: in spec, and the worst pose's AP
-    plus its margin within :data:`MARGINAL_FRACTION` of the AP limit."""
-    out = ap_lo - ap_margin >= ap_lim if ap_lim is not None else None
-    inside = ap_hi + ap_margin <= ap_lim if ap_lim is not None else None
+def _meets(condition, ap_lo, ap_hi, ad_hi, ap_margin, ad_margin, ap_lim, ad_lim, fraction) -> bool:
+    """In spec: every AP and |AD| plus its margin within its limit less the guard band ``fraction`` of it
+    (no limit, no bound: clear of the band, so an in-spec run is not marginal); out of spec: some pose's AP
+    minus its margin at or over the AP limit; marginal: every AP and |AD| plus its margin within its limit,
+    and some pose's AP minus its margin inside the guard band (at or over ``1 - fraction`` of the AP limit)."""
     if condition == "out-of-spec":
-        return bool(np.any(out))
-    in_spec = (ap_lim is None or bool(np.all(inside))) and (ad_lim is None or ad_hi + ad_margin <= ad_lim)
+        return bool(np.any(ap_lo - ap_margin >= ap_lim))
+    keep = 1.0 if condition == "marginal" else 1.0 - fraction
+    in_spec = ((ap_lim is None or bool(np.all(ap_hi + ap_margin <= keep * ap_lim)))
+               and (ad_lim is None or ad_hi + ad_margin <= keep * ad_lim))
     if condition == "marginal":
-        return in_spec and bool(np.max(ap_hi + ap_margin) >= (1.0 - MARGINAL_FRACTION) * ap_lim)
+        return in_spec and bool(np.any(ap_lo - ap_margin >= (1.0 - fraction) * ap_lim))
     return in_spec
 
 
@@ -98,8 +103,11 @@ def fake_robot_seed(config: StationConfig, seed: int, condition: str, robot: str
     run scatters about them (registration from the stop scatter of the sweep
     points, mean of two stops per pose, tracker noise). ``"in-spec"``: every
     AP and |AD| plus ``sigmas`` times its scatter within the configured
-    ``ap_limit_mm`` / ``ad_limit_mm``. ``"out-of-spec"``: some pose's AP
-    minus ``sigmas`` times its scatter over ``ap_limit_mm``. RP, vAP and PST
+    ``ap_limit_mm`` / ``ad_limit_mm`` less their guard band
+    (``station.marginal_fraction`` of each). ``"out-of-spec"``: some pose's AP
+    minus ``sigmas`` times its scatter over ``ap_limit_mm``. ``"marginal"``:
+    every AP and |AD| plus its margin within its limit, and some pose's AP
+    minus its margin inside the guard band. RP, vAP and PST
     of the simulated arms are bounded by their draws (over 50 cells at 5
     cycles the largest were 0.23 mm, 0.54 mm and 0.09 s) and not conditioned.
 
@@ -133,8 +141,11 @@ def _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs) -> 
     plan = plan_from_config(config, robot)
     ap_lim = plan.limits.get("AP_mm")
     ad_lim = plan.limits.get("AD_mm")
+    fraction = config.station.marginal_fraction
     if condition != "in-spec" and ap_lim is None:
         raise ConfigError(f"robots.{robot}.limits.ap_limit_mm is needed to draw a robot {condition}")
+    if condition == "marginal" and fraction <= 0:
+        raise ConfigError("a robot 'marginal' needs a guard band: station.marginal_fraction is 0")
     names = list(plan.poses_mm)
     geo = RunGeometry.of(plan)
     for s in range(int(seed), int(seed) + max_tries):
@@ -144,19 +155,19 @@ def _search(config, seed, condition, robot, sigmas, max_tries, world_kwargs) -> 
         ap_lo, ap_hi = ap.min(axis=0), ap.max(axis=0)
         ad_hi = max((abs(v) for p in (cold, warm) for v in p.AD_mm.values()), default=0.0)
         # the cheap test first: the noise-free numbers must already be on the right side
-        if not _meets("in-spec" if condition == "marginal" else condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0,
-                      ap_lim, ad_lim):
+        if not _meets(condition, ap_lo, ap_hi, ad_hi, 0.0, 0.0, ap_lim, ad_lim, fraction):
             continue
         sc = prediction_scatter(plan, cell.effects, cell.stop_sigma_rad, cycles=_SPEC_CYCLES,
                                 tracker_sigma_mm=cell.tracker_sigma_mm, rng=np.random.default_rng(s), geometry=geo,
                                 tracker_accuracy=cell.tracker_accuracy)
         rms = np.array([sc.AP_rms_mm[n] for n in names])
         ad_sd = max(sc.AD_sd_mm.values(), default=0.0)
-        if _meets(condition, ap_lo, ap_hi, ad_hi, sigmas * rms, sigmas * ad_sd, ap_lim, ad_lim):
+        if _meets(condition, ap_lo, ap_hi, ad_hi, sigmas * rms, sigmas * ad_sd, ap_lim, ad_lim, fraction):
             return s, {"AP_low_mm": dict(zip(names, ap_lo.tolist())), "AP_high_mm": dict(zip(names, ap_hi.tolist())),
                        "AP_margin_mm": dict(zip(names, (sigmas * rms).tolist()))}
     raise InsufficientDataError(f"no fake cell {condition} among seeds {seed}..{seed + max_tries - 1} "
-                                f"(AP limit {ap_lim}, AD limit {ad_lim}, {sigmas:g} sigma)")
+                                f"(AP limit {ap_lim}, AD limit {ad_lim}, guard band {100 * fraction:g} %, "
+                                f"{sigmas:g} sigma)")
 
 
 #: the flaw of a "one pose out" robot spans at most a sixth of the way to the nearest other joint angle the
@@ -256,10 +267,17 @@ class AcceptanceRun:
     #: the robot and station of the run (model, serial, overhaul_state, station)
     subject: dict = field(default_factory=dict)
 
+    #: the passing characteristics within the plant's guard band of their limit, one sentence each
+    #: (:attr:`procedures.decision.RunDecision.marginal`)
+    marginal_reasons: list[str] = field(default_factory=list)
+
     @property
     def marginal(self) -> list[str]:
-        """The plant measurements that passed within their marginal band: ``"P1 RP_plant"``."""
-        return [f"{m['pose']} {m['name']}" for m in self.measurements if m.get("marginal")]
+        """What passed within its guard band: the characteristics within ``station.marginal_fraction`` of their
+        limit (or whose U carries them over it) and the plant measurements within their own marginal band,
+        as ``"P3 AP_mm"``, ``"P1 RP_plant"``."""
+        return ([s.split(" = ", 1)[0] for s in self.marginal_reasons]
+                + [f"{m['pose']} {m['name']}" for m in self.measurements if m.get("marginal")])
 
     def test_record(self) -> dict:
         """This run's test record (:func:`station.run_record.build`)."""
@@ -385,7 +403,8 @@ class Station:
              limits: dict | None = None, serial: str = "SIM-0001", model: str = "industrial-3100",
              payload_kg: float = 0.0, cycles: int = 30, vap_cycles: int = 30, condition: str = "as-drawn",
              operator=None, store: str | Path | None = None, record: dict | None = None,
-             measurements: dict | None = None) -> "Station":
+             measurements: dict | None = None, trailer: dict | None = None,
+             trailer_lengths_m: tuple[float, float] | None = None) -> "Station":
         """A station whose devices are the fake cell (started for each run, same seed).
 
         ``limits`` are merged into the fake robot's (``{"rp_limit_mm": 0.3}``
@@ -393,14 +412,21 @@ class Station:
         limit). ``cycles``/``vap_cycles`` are the ISO plan's defaults,
         ``payload_kg`` the mass at the TCP, ``measurements`` the plant's
         own per procedure (``{"iso9283": [Measurement or table, ...]}``).
+        ``trailer`` is merged into the fake station's trailer section (its
+        odometry is the fake trailer's; serial ``TRAILER-SIM-0001``, length
+        tolerance 0.05 m, the guarded rule: ``{"length_tolerance_m": 0.01}``),
+        ``trailer_lengths_m`` the simulated trailer's true (L1, L2) in m
+        (default: its design lengths).
 
         ``condition`` chooses the simulated robot (:data:`CONDITIONS`):
         ``"as-drawn"`` takes the cell of ``seed`` whatever its errors (an
         uncalibrated arm after overhaul: AP of about 1-6 mm); ``"in-spec"``,
         ``"out-of-spec"`` (AP over its limit at some pose) and
-        ``"marginal"`` (inside, but the worst pose's AP plus its scatter
-        margin within :data:`MARGINAL_FRACTION` of its limit) take the first cell from
-        ``seed`` on that meets it by a clear margin (:func:`fake_robot_seed`);
+        ``"marginal"`` (inside, but some pose's AP inside the guard band
+        ``station.marginal_fraction`` below its limit, on the fine cell of
+        :data:`MARGINAL_CELL`) take the first cell from ``seed`` on that meets
+        it by a clear margin (:func:`fake_robot_seed`; an in-spec cell also
+        keeps clear of the guard band);
         ``"one-pose-out"`` is an in-spec cell whose arm has a flaw on one joint
         (a damaged gear tooth, :func:`one_pose_out_defect`) right at one pose:
         that pose's AP is over its limit, the others are in spec
@@ -422,6 +448,8 @@ class Station:
         r1.update(serial=serial, model=model, payload_kg=float(payload_kg))
         merged = {**r1["limits"], **dict(limits or {})}
         r1["limits"] = {k: v for k, v in merged.items() if v is not None}
+        cfg["devices"]["odometry"] = {"url": "fake://odometry"}
+        cfg["trailer"] = {**FAKE_TRAILER, **dict(trailer or {})}
         if measurements:
             cfg["measurements"] = {proc: [m.to_dict() if hasattr(m, "to_dict") else dict(m) for m in ms]
                                    for proc, ms in measurements.items()}
@@ -433,12 +461,16 @@ class Station:
                 raise ConfigError("condition 'rp-out' needs an RP limit (limits={'rp_limit_mm': ...})")
             fake_options = {"stop_sigma_mm": rp * RP_OUT_FACTOR / _RP_PER_SIGMA}
         prediction = None
+        if condition == "marginal":
+            fake_options = dict(MARGINAL_CELL)
+        if trailer_lengths_m is not None:
+            fake_options = {**(fake_options or {}), "true_lengths_m": [float(x) for x in trailer_lengths_m]}
         if condition not in ("as-drawn", "rp-out"):
             seed, prediction = fake_robot_prediction(config, seed, "in-spec" if condition == "one-pose-out"
-                                                     else condition)
+                                                     else condition, world_kwargs=fake_options)
         if condition == "one-pose-out":
             pose, defect = one_pose_out_defect(config, seed, prediction)
-            fake_options = {"joint_defect": defect}
+            fake_options = {**(fake_options or {}), "joint_defect": defect}
             prediction = {**prediction, "out_pose": pose, "joint_defect": defect}
         station = cls(config, workdir=workdir, seed=seed, time_scale=time_scale, operator=operator, store=store,
                       record=record)
@@ -468,8 +500,11 @@ class Station:
         from app.assemble import run_procedure
         from station.measurements import parse
 
+        from procedures.registry import get_procedure
+
         self._n += 1
-        subject = self.config.robots[robot].serial if robot in self.config.robots else procedure
+        # the run is named after what it is made on: the robot's serial, the trailer's for a trailer run
+        subject = get_procedure(procedure).subject(self.config, robot).serial or procedure
         run_id = run_id or f"{subject}-{time.strftime('%Y%m%d-%H%M%S')}-{self._n}-{secrets.token_hex(2)}"
         acceptance = {"record": {**self.record, **dict(record or {})},
                       "require_conformance": bool(require_conformance)}
@@ -519,6 +554,7 @@ class Station:
                 started_at=rec.created_at, finished_at=rec.finished_at, procedure=outcome.procedure,
                 record=(rec.params.get("acceptance") or {}).get("record", {}),
                 measurements=store.results(outcome.run_id).get("measurements", []),
+                marginal_reasons=list(outcome.marginal),
                 subject={"model": rec.model, "serial": rec.serial, "overhaul_state": rec.overhaul_state,
                          "station": rec.station or self.config.station.name})
 

@@ -104,6 +104,8 @@ class ProcedureOutcome:
     measurements: list[dict] = field(default_factory=list)
     #: why the run is not conformant to its standard (empty where it is or has none)
     conformance_reasons: list[str] = field(default_factory=list)
+    #: the passing characteristics within the plant's guard band of their limit, one sentence each
+    marginal: list[str] = field(default_factory=list)
 
     def lines(self, config: str | Path | None = None) -> list[str]:
         """The console's presentation: the verdict first, then why, then the results; an unfinished run
@@ -113,6 +115,7 @@ class ProcedureOutcome:
             head += f"; not {_STANDARD.get(self.procedure, 'standard')} conformant: " + "; ".join(self.conformance_reasons)
         out = [head + (f" ({self.error})" if self.error and self.status != "done" else "")]
         out += [f"  {r}" for r in self.reasons]
+        out += [f"  {m}" for m in self.marginal]
         if self.status != "done":
             out.append(f"resume with: station run --resume {self.run_id}"
                        + (f" --config {shlex.quote(str(config))}" if config else ""))
@@ -131,7 +134,8 @@ class ProcedureOutcome:
                 "verdict": str(self.verdict), "reasons": list(self.reasons), "exit_code": self.exit_code,
                 "conformant": self.conformant, "conformance_reasons": list(self.conformance_reasons),
                 "error": self.error, "report": self.report, "fake": self.fake,
-                "forwarding": self.forwarding, "measurements": list(self.measurements)}
+                "forwarding": self.forwarding, "measurements": list(self.measurements),
+                "marginal": list(self.marginal)}
 
 
 def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", resume: str | None = None,
@@ -172,6 +176,8 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
         acceptance.pop("measurements", None)
         if declared:  # refused here, naming the entry, before anything is recorded
             acceptance["measurements"] = [m.to_dict() for m in parse_measurements(declared, "measurements")]
+        # the plant's guard band, stored with the run so its verdict reads the same later
+        acceptance.setdefault("marginal_fraction", cfg.station.marginal_fraction)
     operator = operator or operator_for(yes, quiet)
     if arm:  # refused before the run is even recorded
         require_person(operator)
@@ -213,7 +219,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             prepared.run_id, spec.name, ran.status, decision.outcome, list(decision.reasons), decision.exit_code,
             decision.conformant, ran.error, lines, _report_path(store, prepared.run_id), prepared.fake,
             conformance_reasons=list(decision.conformance_reasons),
-            measurements=measured)
+            measurements=measured, marginal=[sentence for _, _, sentence in decision.marginal])
         if forwarder is not None:  # after the verdict is stored: the centre gets it too
             outcome.forwarding = _last_push(cfg, base, forwarder, prepared.run_id)
         if json_out:

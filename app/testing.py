@@ -19,7 +19,7 @@ Fixtures for acceptance scripts:
   stations as a test needs, each printed with its seed.
 
 Conditions (:data:`app.acceptance.CONDITIONS`): ``as-drawn``,
-``in-spec``, ``out-of-spec`` (AP out), ``marginal``,
+``in-spec``, ``out-of-spec`` (AP out), ``marginal`` (AP in the guard band below its limit),
 ``rp-out``, ``one-pose-out`` (one pose's AP out, the rest in). The cell's seed is printed (shown with a failing test's output):
 rerun with ``--station-seed N``. ``--station-store PATH`` points every
 fixture's store at one persistent SQLite store so history spans sessions

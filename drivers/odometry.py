@@ -75,6 +75,10 @@ SYNC_RETRY_S = 0.05
 #: s: the driver looks at least every ack timeout (0.5 s) while it runs, so a longer gap is a host that did
 #: not run, whose unit was not heard (see :class:`drivers.transport.ListeningDeadline`)
 LISTEN_SLICE_S = 1.0
+#: lockstep: the host's own wait for a sample lasts at least this (s); the simulated unit's silence is
+#: measured in its own time (the sample after it, :meth:`OdometryDriver.read_sample`), this only catches a
+#: unit that never answers again (a loaded host had it time out while the unit was merely not scheduled)
+LOCKSTEP_WAIT_S = 10.0
 
 
 # ----------------------------------------------------------------------------- driver
@@ -166,6 +170,8 @@ class OdometryDriver:
         self.sync_retry_s = min(self.ack_timeout_s, SYNC_RETRY_S)
         self._token = f"{os.getpid():x}x{next(_TOKENS)}"  # this driver, to the unit
         self._newest_t: float | None = None  # lockstep: the newest sample received
+        self._returned_t: float | None = None  # lockstep: the device time of the newest sample handed out
+        self._spacing: float | None = None  # lockstep: the shortest device time between two samples handed out
 
     @classmethod
     def from_url(cls, url, *, timeout_s: float | None = None, baudrate: int | None = None,
@@ -269,9 +275,28 @@ class OdometryDriver:
     def read_sample(self, timeout_s: float | None = None) -> OdometrySample:
         """The next sample (queued first); DeviceTimeout if none within the timeout.
 
-        Raises DeviceFault first if the unit refused a streamed set point.
+        Raises DeviceFault first if the unit refused a streamed set point. In lockstep the timeout is
+        the device's: the unit holds its clock for its host and only runs on unheld while its line is
+        silent, so a sample more than the timeout of device time after the one before says the line was
+        silent that long, however little of it this host saw; the host's own wait lasts at least
+        :data:`LOCKSTEP_WAIT_S` (a unit that never answers again). The sample stays queued.
         """
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        sample = self._read_sample(max(timeout, LOCKSTEP_WAIT_S) if self.lockstep else timeout)
+        if self.lockstep:
+            last, self._returned_t = self._returned_t, sample.t_s
+            gap = None if last is None else sample.t_s - last
+            if gap is not None and self._spacing is not None and gap > timeout + self._spacing:
+                self._samples.appendleft(sample)
+                self._returned_t = last
+                raise DeviceTimeout(
+                    f"no odometry sample from {self.transport.description} within {timeout} s of device time "
+                    f"(t = {last:.3f} s to {sample.t_s:.3f} s: the line was silent)")
+            if gap is not None and gap > 0:
+                self._spacing = gap if self._spacing is None else min(self._spacing, gap)
+        return sample
+
+    def _read_sample(self, timeout: float) -> OdometrySample:
         deadline = ListeningDeadline(timeout, LISTEN_SLICE_S)
         while not self._samples:
             self._raise_refusal()
@@ -299,6 +324,8 @@ class OdometryDriver:
         self._pump(Deadline(0.0))
         out = list(self._samples)
         self._samples.clear()
+        if out and self.lockstep:
+            self._returned_t = out[-1].t_s
         return out
 
     # -- commands ---------------------------------------------------------------------

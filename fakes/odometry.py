@@ -197,8 +197,11 @@ class OdometryFake:
                 self._k += 1
                 if self._host is not None and self._granted:  # stalled: nothing sent, the unit runs on
                     self._run_to_next()
-                continue
-            wait = min(max(self._clock.real_seconds(t_next - now), 0.0005), 0.05)
+                # a unit behind its clock (this host loaded, at many times real time) still hears its line
+                # between the cycles it catches up on: a command is latched by the next, not lost for good
+                wait = 0.0
+            else:
+                wait = min(max(self._clock.real_seconds(t_next - now), 0.0005), 0.05)
             ready, writable, _ = select.select([self._master], [self._master] if self._out else [], [], wait)
             if writable:
                 self._flush()

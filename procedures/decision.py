@@ -15,6 +15,12 @@ cannot disagree.
   (``params["acceptance"]["require_conformance"]``, ``--require-iso``).
 * Plant measurements (:mod:`station.measurements`) stored with the run
   count like characteristics.
+* A passing characteristic within the plant's guard band of its limit is
+  marginal (:func:`station.analysis.decision.marginal_reason`: within
+  ``params["acceptance"]["marginal_fraction"]`` of the limit, default 10 %,
+  or its U, where the procedure states one, carrying it over the limit); it
+  stays PASS and is listed (``RunDecision.marginal``). A plant measurement
+  keeps its own band (``marginal`` of its declaration).
 
 Exit codes are :func:`station.verdict.exit_code`'s (the one table of every
 command): 0 PASS, 1 FAIL, 3 NOT DECIDED, 4 NOT DECIDED only because
@@ -38,6 +44,8 @@ class Checks:
     #: the standard's conformance; None where the procedure has no such notion
     conformant: bool | None = None
     conformance_reasons: tuple[str, ...] = ()
+    #: the expanded uncertainty U of a judged row, where the procedure states one: (pose, name) -> U
+    uncertainties: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,8 @@ class RunDecision:
     outcomes: dict = field(default_factory=dict)
     #: why the run is not conformant to its standard (empty where it is, or has none)
     conformance_reasons: tuple[str, ...] = ()
+    #: the passing characteristics within the guard band of their limit: (pose, name, sentence)
+    marginal: tuple[tuple[str, str, str], ...] = ()
 
     @property
     def outcome(self) -> Outcome:
@@ -64,7 +74,8 @@ class RunDecision:
         return self.verdict.exit_code
 
     def to_dict(self) -> dict:
-        return {**self.verdict.to_dict(), "conformant": self.conformant, "exit_code": self.exit_code}
+        return {**self.verdict.to_dict(), "conformant": self.conformant, "exit_code": self.exit_code,
+                "marginal": [sentence for _, _, sentence in self.marginal]}
 
 
 def _g(x) -> str:
@@ -75,15 +86,26 @@ def _unit(u) -> str:
     return "" if u in (None, "", "1") else f" {u}"
 
 
-def row_reason(r: dict, outcome: Outcome) -> str:
-    """One sentence for a judged row: value, unit and limit ("P1 RP_mm = 0.06 mm > limit 0.05 mm")."""
+def row_reason(r: dict, outcome: Outcome, U: float | None = None) -> str:
+    """One sentence for a judged row: value, unit and limit ("P1 RP_mm = 0.06 mm > limit 0.05 mm"); a row not
+    decided with its expanded uncertainty ``U`` known says its guard band, and when U alone is wider than the
+    limit, that no run as precise as this one can prove it."""
     u = _unit(r.get("unit"))
     if r.get("value") is None:
         return f"{r['pose']} {r['name']}: limit {_g(r['limit'])}{u}, not computed"
     if outcome is Outcome.FAIL:
         return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} > limit {_g(r['limit'])}{u}"
     if outcome is Outcome.NOT_DECIDED:
-        return f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
+        head = f"{r['pose']} {r['name']} = {_g(r['value'])}{u}: not decided against limit {_g(r['limit'])}{u}"
+        if U is None:
+            return head
+        L = float(r["limit"])
+        head += (f": +/- U {U:.2g}{u} (k = 2) straddles it (guard band {_g(max(L - U, 0.0))}..{_g(L + U)}{u}, guarded rule: "
+                 "neither conformance nor non-conformance proven)")
+        if U >= L:
+            head += (f"; U alone exceeds the limit, so no run this precise can prove conformance (measure longer, "
+                     f"or a limit wider than {_g(U)}{u})")
+        return head
     return f"{r['pose']} {r['name']} = {_g(r['value'])}{u} <= limit {_g(r['limit'])}{u}"
 
 
@@ -105,9 +127,10 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
         o = row_outcome(r)
         if o is not None:
             outcomes[(r["pose"], r["name"])] = (o, r)
-    reasons = [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.FAIL]
-    reasons += [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.NOT_DECIDED]
     checks = spec.checks(store, run_id, params) if getattr(spec, "checks", None) else Checks()
+    reasons = [row_reason(r, o) for o, r in outcomes.values() if o is Outcome.FAIL]
+    reasons += [row_reason(r, o, checks.uncertainties.get((r["pose"], r["name"])))
+                for o, r in outcomes.values() if o is Outcome.NOT_DECIDED]
     undecided = list(checks.undecided)
     reasons += undecided
     found = [o for o, _ in outcomes.values()] + [Outcome.NOT_DECIDED] * bool(undecided)
@@ -122,7 +145,26 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
         found.append(Outcome.NOT_DECIDED)
     return RunDecision(Verdict(combine(found), tuple(reasons), conformance_only), checks.conformant,
                        {k: o for k, (o, _) in outcomes.items()},
-                       tuple(checks.conformance_reasons) if checks.conformant is False else ())
+                       tuple(checks.conformance_reasons) if checks.conformant is False else (),
+                       _marginal(outcomes, checks, params))
+
+
+def _marginal(outcomes: dict, checks: Checks, params: dict) -> tuple[tuple[str, str, str], ...]:
+    """The passing rows within the guard band of their limit (module docstring), plant measurements aside."""
+    from station.analysis.decision import MARGINAL_FRACTION, marginal_reason
+
+    acceptance = params.get("acceptance") or {}
+    fraction = float(acceptance.get("marginal_fraction", MARGINAL_FRACTION))
+    plant = {m.get("name") for m in acceptance.get("measurements") or ()}
+    out = []
+    for (pose, name), (o, r) in outcomes.items():
+        if o is not Outcome.PASS or name in plant or r.get("value") is None or r.get("limit") is None:
+            continue
+        unit = r.get("unit") if r.get("unit") not in (None, "1") else ""
+        why = marginal_reason(r["value"], r["limit"], checks.uncertainties.get((pose, name)), fraction, unit)
+        if why:
+            out.append((pose, name, f"{pose} {name} = {_g(r['value'])}{_unit(r.get('unit'))}: marginal, {why}"))
+    return tuple(out)
 
 
 #: the result entry of a run's evaluated plant measurements

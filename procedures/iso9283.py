@@ -677,7 +677,7 @@ def step_report(ctx: StepContext) -> dict:
                           reg=registration_of(ctx.outputs), vap_poses=VAP_POSES)
     decision = decide(SPEC, ctx.store, ctx.run_id, finished=True)
     report.outcome, report.reasons = decision.outcome, list(decision.reasons)
-    report.notes += marginal
+    report.notes += [sentence for _, _, sentence in decision.marginal] + marginal
     path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
     # the registered frame beside the report, in the form `station analyze iso9283 --frame` reads
     frame = write_frame_json(path.with_name(f"{ctx.run_id}.frame.json"), ctx.outputs["register base frame"])
@@ -802,8 +802,18 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
     # vAP on its own multi-directional cycles
     vap_asked = int(params.get("vap_cycles", 0))
     vap_short = (f"vAP: {vap_asked} of {ISO_CYCLES} multi-directional cycles",) if vap_asked < ISO_CYCLES else ()
+    # each figure's U (where a budget was asked) for the guard band of the marginal figures
+    U = {(v["subject"], v["characteristic"]): v[f"U_{v['characteristic'].rsplit('_', 1)[-1]}"]
+         for v in _stored_verdicts(res) if v.get(f"U_{v['characteristic'].rsplit('_', 1)[-1]}") is not None}
     return Checks(tuple(undecided), bool(pose.get("iso_conformant")) and not vap_short,
-                  tuple(pose.get("iso_reasons") or ()) + vap_short)
+                  tuple(pose.get("iso_reasons") or ()) + vap_short, U)
+
+
+def _stored_verdicts(res: Mapping) -> list[dict]:
+    """The stored ISO 9283 verdicts of a run's result, each from the cycles that state it (the pose run's,
+    the vAP run's vAP)."""
+    return table.from_their_cycles((res.get("pose") or {}).get("verdicts", []),
+                                   (res.get("vap") or {}).get("verdicts", []), key=lambda v: v.get("characteristic"))
 
 
 def _decision_lines(store, run_id: str) -> list[str]:
@@ -812,8 +822,7 @@ def _decision_lines(store, run_id: str) -> list[str]:
         res = store.result(run_id, "iso9283")
     except Exception:  # noqa: BLE001 - no stored result: nothing to say
         return []
-    vs = table.from_their_cycles((res.get("pose") or {}).get("verdicts", []),
-                                 (res.get("vap") or {}).get("verdicts", []), key=lambda v: v.get("characteristic"))
+    vs = _stored_verdicts(res)
     rules = {v.get("rule") for v in vs} - {None}
     if not rules:
         return []

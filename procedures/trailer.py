@@ -384,14 +384,38 @@ def estimate(ctx: StepContext) -> dict:
     return {name: est.to_json() for name, est in s.estimates.items()}
 
 
-def length_rows(method: str, L1_m, L2_m, nominal_L1_m, nominal_L2_m, tol_m: float | None) -> list[dict]:
-    """|L - nominal| of both links of the run's estimate, judged against ``trailer.length_tolerance_m``."""
+#: coverage factor of a length's expanded uncertainty U = k sigma (about 95 %, as the ISO 9283 figures')
+LENGTH_K = 2.0
+
+
+def length_rows(method: str, L1_m, L2_m, nominal_L1_m, nominal_L2_m, tol_m: float | None,
+                sigmas_m=(None, None), rule: str = "guarded") -> list[dict]:
+    """|L - nominal| of both links of the run's estimate, judged against ``trailer.length_tolerance_m`` by
+    ``rule`` (:func:`station.analysis.decision.decide`) with U = :data:`LENGTH_K` x the estimate's sigma
+    (``sigmas_m``; None: not known, which decides nothing under ``guarded``). Each row carries its ``U``."""
+    from station.analysis.decision import decide
+
     rows = []
-    for name, est, nom in (("L1_error_m", L1_m, nominal_L1_m), ("L2_error_m", L2_m, nominal_L2_m)):
+    for name, est, nom, sd in (("L1_error_m", L1_m, nominal_L1_m, sigmas_m[0]),
+                               ("L2_error_m", L2_m, nominal_L2_m, sigmas_m[1])):
         value = None if est is None or not np.isfinite(est) else abs(float(est) - float(nom))
-        passed = None if (tol_m is None or value is None) else bool(value <= tol_m)
-        rows.append({"pose": method, "name": name, "value": value, "unit": "m", "limit": tol_m, "passed": passed})
+        U = None if sd is None or not np.isfinite(sd) else LENGTH_K * float(sd)
+        passed = None if (tol_m is None or value is None) else decide(value, tol_m, U, rule).passed
+        rows.append({"pose": method, "name": name, "value": value, "unit": "m", "limit": tol_m, "passed": passed,
+                     "U": U})
     return rows
+
+
+def run_checks(store, run_id: str, params: Mapping):
+    """The length errors' U (stored with the result), for the verdict's reasons and the marginal figures."""
+    from procedures.decision import Checks
+
+    try:
+        res = store.result(run_id, "trailer")
+    except Exception:  # noqa: BLE001 - no result stored: nothing to add
+        return Checks()
+    return Checks(uncertainties={(d["pose"], d["name"]): d["U"] for d in res.get("length_errors") or ()
+                                 if d.get("U") is not None})
 
 
 def report(ctx: StepContext) -> dict:
@@ -420,8 +444,12 @@ def report(ctx: StepContext) -> dict:
             rows.append({"pose": name, "name": key, "value": j[key], "unit": "m", "limit": None, "passed": None})
             rows.append({"pose": name, "name": key.replace("_m", "_sigma_m"), "value": j[f"{key[:2]}_sigma_m"],
                          "unit": "m", "limit": None, "passed": None})
-    tol = (ctx.store.run(ctx.run_id).config.get("trailer") or {}).get("length_tolerance_m")
-    rows += length_rows(s.plan.method, main.L1_m, main.L2_m, s.plan.nominal_L1_m, s.plan.nominal_L2_m, tol)
+    section = ctx.store.run(ctx.run_id).config.get("trailer") or {}
+    tol, rule = section.get("length_tolerance_m"), section.get("decision_rule", "guarded")
+    errors = length_rows(s.plan.method, main.L1_m, main.L2_m, s.plan.nominal_L1_m, s.plan.nominal_L2_m, tol,
+                         (main.L1_sigma_m, main.L2_sigma_m), rule)
+    out["length_errors"] = [{**r, "rule": rule} for r in errors]
+    rows += errors
     ctx.store.put_characteristics(ctx.run_id, rows)
     k = np.linspace(np.nanmin(data["kappa"]), np.nanmax(data["kappa"]), 200)
     # steady state of eq. (23) for the estimated lengths: sin psi = kappa (L2 + L1 cos psi)
@@ -559,6 +587,14 @@ def summary(store, run_id: str) -> list[str]:
     for r in rows:
         lines.append(f"{r['method']:<10}{f(r['L1_m'], 10, 4)}{f(r['L1_sigma_m'], 8, 4)}{f(r['L2_m'], 10, 4)}"
                      f"{f(r['L2_sigma_m'], 8, 4)}{f(r['condition_number'], 10, 1)}")
+    for e in res.get("length_errors") or ():  # each length error against the tolerance, with its U and rule
+        if e.get("limit") is None or e.get("value") is None:
+            continue
+        from station.verdict import outcome_of
+
+        U = "" if e.get("U") is None else f" +/- U {e['U']:.2g} m (k = 2)"
+        lines.append(f"{e['name']} {e['value']:.4f} m{U} against tolerance {e['limit']:g} m ({e['rule']} rule): "
+                     f"{outcome_of(e['passed'])}")
     lines.append(f"report: {res['report']}")
     return lines
 
@@ -585,4 +621,5 @@ SPEC = ProcedureSpec(
     summary=summary,
     preflight=preflight_problems,
     live_view=odometry_view,
+    checks=run_checks,
 )

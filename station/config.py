@@ -24,6 +24,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from station.analysis.decision import MARGINAL_FRACTION
 from station.errors import ConfigError, DataError
 from station.protocols.handshake import RegisterMap
 
@@ -294,6 +295,10 @@ class TrailerConfig(_Strict):
     method: str = "dynamic"
     #: |L1 - nominal_L1_m| and |L2 - nominal_L2_m| of the estimate must stay within this (verdicts), m
     length_tolerance_m: float | None = Field(None, gt=0, allow_inf_nan=False)
+    #: how a length error is judged against the tolerance with its U = 2 sigma of the estimate (ISO 14253-1):
+    #: ``guarded`` (conformance proven when error + U is within, non-conformance when error - U is beyond, else
+    #: NOT DECIDED) or ``simple`` (the error against the tolerance; a straddling U makes it marginal)
+    decision_rule: Literal["simple", "guarded"] = "guarded"
 
     @field_validator("method")
     @classmethod
@@ -345,6 +350,9 @@ class StationSection(_Strict):
     #: password by ``?password_env=VAR`` or ``?password_file=PATH``, never in the URL); None: local only
     store_url: str | None = None
     report_dir: str = Field("reports", min_length=1, max_length=4096)
+    #: the plant's guard band: a passing figure within this fraction of its limit (or whose U carries it over
+    #: the limit) is flagged marginal (station.analysis.decision.marginal_reason); 0 keeps only the U test
+    marginal_fraction: float = Field(MARGINAL_FRACTION, ge=0, lt=1, allow_inf_nan=False)
 
     @field_validator("store_path", "report_dir")
     @classmethod

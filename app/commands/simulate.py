@@ -74,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         description="A true arm (the library model plus drawn errors) measured by a laser tracker "
                         "in a random frame at random poses, in order. Writes DIR/arm.csv (q1..q6 deg, x,y,z mm, "
                         "t s, temperature degC, load kg) and DIR/truth.json (the drawn errors, the tracker frame, "
-                        "the noise and the noise-free points).")
+                        "the noise, the noise-free points and the figures calibrate arm prints on them, with U).")
     a.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     a.add_argument("--robot", default="industrial-3100", help="library robot model (default industrial-3100)")
     a.add_argument("--poses", type=int, default=80, help="number of measured poses, 10-20000 (default 80)")
@@ -174,7 +174,8 @@ def _run_arm(args: argparse.Namespace) -> int:
                   load=cols["load"])
     _write_truth(out / "truth.json", truth)
     print(f"wrote {out / 'arm.csv'} ({args.poses} poses of {truth['robot']}, errors: {args.effects})")
-    print(f"wrote {out / 'truth.json'} (the drawn errors, the tracker frame, the noise {truth['noise_mm']:.4f} mm)")
+    print(f"wrote {out / 'truth.json'} (the drawn errors, the tracker frame, the noise {truth['noise_mm']:.4f} mm; "
+          "under figures: what calibrate arm prints on this file, stated on the noise-free points, with U)")
     return 0
 
 

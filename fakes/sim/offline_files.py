@@ -44,7 +44,43 @@ def simulate_arm(robot: str, *, n: int, effects: str, seed: int) -> tuple[dict, 
              "effect_params": eff.to_dict(), "tracker_T_base": d.base_T.tolist(), "noise_mm": d.noise_mm,
              "stop_sigma_rad": np.asarray(d.stop_sigma_rad).tolist(),
              "true_points_mm": d.true_points(spec).tolist()}
+    truth["figures"] = true_arm_figures(spec, d.q_rad, d.true_points(spec), d.xyz_mm)
     return cols, truth
+
+
+def true_arm_figures(spec, q_rad, true_mm, measured_mm) -> dict:
+    """The figures ``station calibrate arm`` prints on this file with its defaults (distance errors from the
+    first pose, seed 002 eq. (11); the seed's tail split), stated on the noise-free points, and what the
+    tracker's noise on this file's distances lets the printed ones differ from them by.
+
+    ``train`` / ``test``: ``mean_abs_before_mm``, ``max_abs_before_mm`` (the library model),
+    ``mean_abs_after_mm``, ``max_abs_after_mm`` (the model identified on the noise-free points: what the
+    arm's errors leave that the model cannot take, 0 up to the stops' scatter for geometric errors) and
+    ``n``. ``U``: per part ``mean_mm`` = 2 rms and ``max_mm`` = max + 2 rms of the noise on the file's
+    distances (measured minus true). A before figure differs from its truth by at most the mean and the
+    max of that noise (the triangle inequality); an after figure is refitted on the noisy points and over
+    20 files of 30-150 poses (geometric and realistic errors, seeds 0-9) differed by at most 0.66 of ``U``.
+    """
+    from station.analysis.arm.calibration import calibrate_arm
+
+    q = np.asarray(q_rad, dtype=float)
+    true_mm, measured_mm = np.asarray(true_mm, dtype=float), np.asarray(measured_mm, dtype=float)
+    cal = calibrate_arm(spec.dh_nominal, q, true_mm, joint_limits_rad=spec.joint_limits_rad)
+    ref = cal.split.reference
+    out = {"errors_are": "distances from the first pose (seed 002 eq. (11)), calibrate arm's default tail split",
+           "U": {}}
+    for part, stats, idx in (("train", cal.train, np.setdiff1d(cal.split.train, [ref])),
+                             ("test", cal.test, cal.split.test)):
+        if stats is None:
+            continue
+        j = stats.to_json()
+        out[part] = {k: round(j[k], 6) for k in ("mean_abs_before_mm", "max_abs_before_mm", "mean_abs_after_mm",
+                                                 "max_abs_after_mm")} | {"n": j["n"]}
+        noise = (np.linalg.norm(measured_mm[idx] - measured_mm[ref], axis=1)
+                 - np.linalg.norm(true_mm[idx] - true_mm[ref], axis=1))
+        rms = float(np.sqrt(np.mean(noise ** 2)))
+        out["U"][part] = {"mean_mm": round(2 * rms, 6), "max_mm": round(float(np.max(np.abs(noise))) + 2 * rms, 6)}
+    return out
 
 
 #: the record is simulated this many times finer than it is written; curvature and speed are then averaged over

@@ -11,6 +11,13 @@ The limits of ISO 9283 figures are upper limits (``|figure| <= limit``).
 
 The outcome is a :class:`station.verdict.Outcome` (PASS, FAIL, NOT_DECIDED;
 the run's one verdict combines them elsewhere).
+
+A passing figure is *marginal* (:func:`marginal_reason`) when it lies within
+the plant's guard band of its limit: ``|figure| >= (1 - fraction) * limit``
+(default :data:`MARGINAL_FRACTION`), or, where its ``U`` is known, when
+``|figure| + U`` exceeds the limit (under ``simple`` such a figure passes
+although its interval straddles the limit; under ``guarded`` it is not
+decided, never passing).
 """
 
 from __future__ import annotations
@@ -22,6 +29,9 @@ from station.errors import ConfigError
 from station.verdict import Outcome
 
 RULES = ("simple", "guarded")
+#: a passing figure within this fraction of its limit is marginal (the plant's guard band; the
+#: config's ``station.marginal_fraction``)
+MARGINAL_FRACTION = 0.10
 
 
 @dataclass(frozen=True)
@@ -85,3 +95,24 @@ def decide(value: float, limit: float, U: float | None = None, rule: str = "simp
     else:
         out = Outcome.NOT_DECIDED
     return Decision(out, rule, v, L, U, band)
+
+
+def marginal_reason(value: float, limit: float, U: float | None = None,
+                    fraction: float = MARGINAL_FRACTION, unit: str = "") -> str | None:
+    """Why a figure that passed ``|value| <= limit`` is marginal (module docstring), or None when it is not.
+
+    ``fraction`` is the guard band as a fraction of the limit (0 <= fraction < 1); ``U`` the figure's
+    expanded uncertainty (None: not known, only the fraction counts); ``unit`` is said after the limit.
+    """
+    if not (0.0 <= float(fraction) < 1.0):
+        raise ValueError(f"marginal fraction must lie in [0, 1), got {fraction!r}")
+    a, L = abs(float(value)), float(limit)
+    u = f" {unit}" if unit else ""
+    if not (math.isfinite(a) and math.isfinite(L)) or a > L:
+        return None
+    why = []
+    if fraction > 0 and a >= (1.0 - fraction) * L:
+        why.append(f"within {100 * fraction:.3g} % of its limit {L:g}{u}")
+    if U is not None and math.isfinite(U) and a + U > L:
+        why.append(f"{a:.4g} + U {U:.2g} > limit {L:g}{u}: its interval straddles the limit")
+    return "; ".join(why) or None

@@ -182,3 +182,45 @@ def test_a_characteristic_the_run_could_not_state_is_not_a_pass(tmp_path, rng):
         d = decide(ISO, store, "lost")
         assert d.outcome is Outcome.NOT_DECIDED and d.exit_code == 3
         assert d.reasons == (f"not stated (the stream could not give them): MPT_s {pair}",)
+
+
+def test_a_passing_figure_in_the_guard_band_of_its_limit_is_marginal(tmp_path, rng):
+    """A PASS within the plant's fraction of its limit, or whose U carries it over the limit, is listed marginal
+    (the verdict stays PASS); one clear of both is not; a FAIL is never marginal; the fraction is the run's."""
+    fraction = float(rng.uniform(0.05, 0.2))
+    rows, U, expect = _rows(rng), {}, set()
+    ap = {r["pose"]: r for r in rows if r["name"] == "AP_mm"}
+    band, straddle, clear = (str(p) for p in rng.permutation(POSES)[:3])
+    lim = ap[band]["limit"]
+    ap[band]["value"] = float(rng.uniform(1 - fraction, 1) * lim)  # inside the band
+    ap[straddle]["value"] = v = float(rng.uniform(0.5, 1 - fraction) * lim)  # below it, but U reaches over
+    U[straddle] = float(rng.uniform(1.01, 1.5) * (lim - v))
+    ap[clear]["value"] = v = float(rng.uniform(0.3, 0.8) * lim)  # below it, U short of the limit
+    U[clear] = float(rng.uniform(0.2, 0.9) * ((1 - fraction) * lim - v))
+    # the three placed, and any other drawn row that happens to lie in a band wider than 10 %
+    expect = {(r["pose"], r["name"]) for r in rows if r["limit"] is not None and r["value"] >= (1 - fraction) * r["limit"]}
+    expect |= {(straddle, "AP_mm")}
+    assert {(band, "AP_mm"), (straddle, "AP_mm")} <= expect and (clear, "AP_mm") not in expect
+    verdicts = [{"characteristic": "AP_mm", "subject": p, "value": ap[p]["value"], "limit": lim, "U_mm": u}
+                for p, u in U.items()]
+    with RunStore(tmp_path / "s.sqlite") as store:
+        _run(store, "m", rows=rows, acceptance={"marginal_fraction": fraction})
+        store.put_result("m", "iso9283", {"pose": {"iso_conformant": True, "iso_reasons": [], "verdicts": verdicts},
+                                          "vap": {}})
+        d = decide(ISO, store, "m")
+        assert d.outcome is Outcome.PASS and d.exit_code == 0
+        assert {(p, n) for p, n, _ in d.marginal} == expect
+        said = {(p, n): s for p, n, s in d.marginal}
+        assert f"within {100 * fraction:.3g} % of its limit 5 mm" in said[(band, "AP_mm")]
+        assert "straddles the limit" in said[(straddle, "AP_mm")]
+        assert d.to_dict()["marginal"] == [s for _, _, s in d.marginal]
+        # the default band is 10 %; over the limit is a FAIL, never marginal
+        ap[band]["value"] = float(rng.uniform(1.01, 1.5) * lim)
+        ap[band]["passed"] = False
+        _run(store, "f", rows=rows)
+        d = decide(ISO, store, "f")
+        assert d.outcome is Outcome.FAIL
+        assert (band, "AP_mm") not in {(p, n) for p, n, _ in d.marginal}
+        _run(store, "dflt", rows=[{**r, "value": 0.95 * r["limit"]} if r["name"] == "RP_mm" else r
+                                  for r in _rows(rng)])
+        assert {n for _, n, _ in decide(ISO, store, "dflt").marginal} == {"RP_mm"}

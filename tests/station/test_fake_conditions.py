@@ -46,3 +46,49 @@ def test_conditions_refused_clearly(tmp_path, world_seed):
     st = Station.fake(tmp_path, seed=world_seed, limits={"ap_limit_mm": 0.5})
     with pytest.raises(InsufficientDataError, match="no fake cell in-spec among seeds"):
         fake_robot_seed(st.config, world_seed, "in-spec", max_tries=20)
+
+
+def test_a_marginal_robot_is_marginal_and_an_in_spec_one_is_not(tmp_path, world_seed):
+    """The "marginal" fake robot's worst AP lies inside the guard band (10 % of the limit) below its limit and
+    the run says so (``run.marginal``, the console, the report), still PASS; an in-spec robot has nothing
+    marginal."""
+    from station.verdict import Outcome
+
+    st = Station.fake(tmp_path / "m", seed=world_seed, condition="marginal", time_scale=LOCKSTEP, cycles=3,
+                      vap_cycles=3)
+    lim, band = st.config.robots["r1"].limits.ap_limit_mm, st.config.station.marginal_fraction
+    pred = st.prediction
+    lo = {p: pred["AP_low_mm"][p] - pred["AP_margin_mm"][p] for p in pred["AP_low_mm"]}
+    hi = {p: pred["AP_high_mm"][p] + pred["AP_margin_mm"][p] for p in pred["AP_low_mm"]}
+    inside = {p for p in lo if lo[p] >= (1 - band) * lim}
+    assert inside and all(h <= lim for h in hi.values())
+    run = st.iso9283(require_iso=False)
+    assert run.verdict is Outcome.PASS
+    for p in lo:  # the run measures what the truth predicts, within its margin
+        assert lo[p] <= run.value(p, "AP_mm") <= hi[p]
+    said = {m for m in run.marginal if m.endswith("AP_mm")}
+    assert {f"{p} AP_mm" for p in inside} <= said
+    assert said == {f"{p} AP_mm" for p in lo if run.value(p, "AP_mm") >= (1 - band) * lim}
+    for p in inside:
+        assert f"{p} AP_mm = {run.value(p, 'AP_mm'):.4g} mm: marginal, within 10 % of its limit 5 mm" in run.output
+        assert f"{p} AP_mm = {run.value(p, 'AP_mm'):.4g} mm: marginal" in open(run.report).read()
+    good = Station.fake(tmp_path / "g", seed=world_seed, condition="in-spec", time_scale=LOCKSTEP, cycles=3,
+                        vap_cycles=3).iso9283(require_iso=False)
+    assert good.verdict is Outcome.PASS
+    assert good.marginal == [] and ": marginal" not in good.output
+    assert max(good.value(p, "AP_mm") for p in good.poses) < (1 - band) * lim
+
+
+def test_the_guard_band_is_the_configs_and_checked(tmp_path, world_seed):
+    from fakes.cells import demo_config
+    from station.config import config_from_dict
+
+    cfg = demo_config(tmp_path, cycles=3, vap_cycles=3, rate_hz=100.0)
+    assert config_from_dict(cfg).station.marginal_fraction == 0.1
+    for bad in (1.0, -0.1, float("nan")):
+        cfg["station"]["marginal_fraction"] = bad
+        with pytest.raises(ConfigError, match="station.marginal_fraction"):
+            config_from_dict(cfg)
+    cfg["station"]["marginal_fraction"] = 0.0
+    with pytest.raises(ConfigError, match="needs a guard band"):
+        fake_robot_seed(config_from_dict(cfg), world_seed, "marginal")

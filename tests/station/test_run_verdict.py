@@ -30,6 +30,6 @@ def test_station_run_exits_with_its_verdict_and_says_it_first(test_seed, tmp_pat
     assert any(r.startswith("not conformant (required)") for r in doc["reasons"])
     assert doc["characteristics"] and doc["results"]["pose"]["iso_conformant"] is False
     with RunStore(tmp_path / "station.sqlite") as store:
-        assert store.result("v1", "verdict") == {k: doc[k] for k in ("verdict", "reasons", "conformant", "exit_code")}
+        assert store.result("v1", "verdict") == {k: doc[k] for k in ("verdict", "reasons", "conformant", "exit_code", "marginal")}
     report = Path(doc["report"]).read_text()
     assert f">{doc['verdict']}</p>" in report
