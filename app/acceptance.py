@@ -484,7 +484,7 @@ class Station:
     fake_options: dict | None = None
 
     def run(self, procedure: str, robot: str = "r1", *, run_id: str | None = None,
-            plan_overrides: dict | None = None, require_conformance: bool = True,
+            plan_overrides: dict | None = None, require_conformance: bool | None = None,
             measurements: list | None = None, record: dict | None = None) -> AcceptanceRun:
         """Run procedure ``procedure`` (``"iso9283"``, ``"arm-calibration"``, ``"trailer"``) and return
         its :class:`AcceptanceRun`; prompts go to :attr:`operator`.
@@ -492,10 +492,13 @@ class Station:
         ``measurements`` (:class:`station.measurements.Measurement` or tables)
         are judged with the run, after the config's; ``record`` adds to the
         station's test-record fields for this run; an acceptance requires
-        conformance to the procedure's standard (``require_conformance``,
-        default True): a run that is not conformant (ISO 9283: fewer than 30
+        conformance to the procedure's standard (``require_conformance``;
+        default: required where the procedure has one, its spec's
+        ``standard``): a run that is not conformant (ISO 9283: fewer than 30
         cycles) is NOT DECIDED; False for a short check, whose PASS is then
-        said to be not conformant.
+        said to be not conformant. A procedure without a standard (the
+        trailer's, the compliance test) is judged by its figures alone unless
+        True is asked, which then makes it NOT DECIDED.
         """
         from app.assemble import run_procedure
         from station.measurements import parse
@@ -503,6 +506,8 @@ class Station:
         from procedures.registry import get_procedure
 
         self._n += 1
+        if require_conformance is None:
+            require_conformance = get_procedure(procedure).standard is not None
         # the run is named after what it is made on: the robot's serial, the trailer's for a trailer run
         subject = get_procedure(procedure).subject(self.config, robot).serial or procedure
         run_id = run_id or f"{subject}-{time.strftime('%Y%m%d-%H%M%S')}-{self._n}-{secrets.token_hex(2)}"

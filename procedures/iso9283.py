@@ -857,6 +857,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
 
 SPEC = ProcedureSpec(
     name="iso9283",
+    standard="ISO 9283",
     new_params=new_params,
     build=lambda params: build_procedure(IsoPlan.from_params(params)),
     new_session=lambda devices: IsoSession(devices),

@@ -81,6 +81,9 @@ class ProcedureSpec:
     live_view : callable or None
         ``live_view(store, run_id, params) -> dict``: what the run page shows of the procedure's instrument
         while it runs (:mod:`procedures.live_views`); None: the page draws the tracker's stream.
+    standard : str or None
+        The standard whose conformance an acceptance requires by default (``"ISO 9283"``: its cycles);
+        None: the procedure has no conformance to check (an acceptance of it is judged by its figures).
     """
 
     name: str
@@ -96,6 +99,7 @@ class ProcedureSpec:
     checks: Callable[[Any, str, Mapping], Any] | None = None
     reanalyse: Callable[[Any, str], tuple[dict, list[dict]]] | None = None
     live_view: Callable[[Any, str, Mapping], dict] | None = None
+    standard: str | None = None
 
 
 def procedure_names() -> tuple[str, ...]:
