@@ -17,7 +17,11 @@ The budget (:class:`Budget`) names every input:
   tracker-reflector distance.  It is in the scatter of the stops (Type A) for
   the means, and it inflates every scatter figure (RP, RD, RT, orientation RP):
   the model takes it out of the robot's scatter (the deflation is part of the
-  model, so the figure's bias is part of its uncertainty);
+  model, so the figure's bias is part of its uncertainty). Where no
+  registration stands between the tracker and the commanded poses, it is also
+  counted whole as a shift common to the stops of a pose (AP, AT): a tracker's
+  accuracy is mostly a fixed error of its frame within a session, which no
+  number of stops averages away (counted twice so, AP's U is a bound);
 * **instrument, read apart** (``instrument_noise_um`` given): a tracker's
   accuracy is mostly a fixed error of its frame within one session (scale,
   offset, angles), and its readings scatter far less than it (eq. (N1) of
@@ -166,8 +170,15 @@ class Budget:
 
     def systematic_sd_mm(self, points_mm) -> np.ndarray:
         """Per-coordinate standard deviation of the instrument's systematic error at each point, mm: its
-        accuracy when the reading noise is stated apart, else 0 (the accuracy is then read as random)."""
-        if self.instrument_noise_um is None:
+        accuracy, a fixed error of its frame within a session, common to the stops of a pose (AP, AT).
+
+        Counted when the reading noise is stated apart (then a bound), and when no registration stands
+        between the tracker and the commanded poses (a file whose poses are in the tracker's frame: nothing
+        absorbs the frame's error). With a registration fitted on points the same tracker measured, and the
+        reading noise unstated, 0: the fit absorbs the frame's offset and angles, and the accuracy is read as
+        the readings' random error."""
+        registered = self.registration_rms_mm is not None or bool(self.registration_at_points)
+        if self.instrument_noise_um is None and registered:
             return np.zeros(np.asarray(points_mm, dtype=float).shape[:-1])
         return self.accuracy_sd_mm(points_mm)
 
@@ -234,7 +245,11 @@ class Budget:
                                        if self.instrument_kind == "mpe" else "standard deviation of a coordinate"),
                            "tracker_origin_mm": list(self.tracker_origin_mm),
                            "reading_noise_um": self.instrument_noise_um,
-                           "accuracy_read_as": ("random per reading" if self.instrument_noise_um is None else
+                           "accuracy_read_as": (("random per reading" if self.registration_rms_mm is not None
+                                                 or self.registration_at_points else
+                                                 "random per reading in the scatter figures, and systematic for AP "
+                                                 "(no registration; a bound)")
+                                                if self.instrument_noise_um is None else
                                                 "a systematic error of the session; the reading noise is random")},
             "registration": None if self.registration_rms_mm is None and not self.registration_at_points else {
                 "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n,
@@ -483,11 +498,13 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
         dv = xb - c
         g = dv / max(float(np.linalg.norm(dv)), 1e-15)
         sc = budget.scale_sd()
+        # AP: the instrument's accuracy, a fixed error of its frame within a session common to a pose's stops
+        # (the simulated tracker draws it so, eq. (N1) of station.models.tracker_noise; Budget.systematic_sd_mm)
         sd_sys = float(budget.systematic_sd_mm(xb))
         ap_comp = {"sampling": math.sqrt(max(float(g @ S @ g) / n, 0.0)),
                    "registration": sd_reg, "temperature": abs(float(g @ d_los)) * sc,
                    "instrument (in sampling)": sd_i / math.sqrt(n)}
-        if budget.instrument_noise_um is not None:
+        if sd_sys > 0:
             ap_comp["instrument (systematic)"] = sd_sys
         ap_g = math.sqrt(ap_comp["sampling"] ** 2 + sd_reg ** 2 + ap_comp["temperature"] ** 2 + sd_sys ** 2)
         reg_dof = 3 * budget.registration_n - 6 if budget.registration_n else None
@@ -510,8 +527,8 @@ def _pose_draws(x, commanded, budget: Budget, rng, shift=None, need_rp=True) -> 
 
 
 def frame_shift_draws(point_mm, budget: Budget, rng, M: int | None = None) -> np.ndarray:
-    """Draws (M, 3) of the frame error at a point: registration, the instrument's systematic error (when its
-    reading noise is stated apart) and temperature scale (common to its stops)."""
+    """Draws (M, 3) of the frame error at a point: registration, the instrument's systematic error and
+    temperature scale (common to its stops)."""
     M = int(budget.trials if M is None else M)
     p = np.asarray(point_mm, dtype=float)
     sd_reg = float(budget.registration_sd_mm(p))

@@ -163,12 +163,12 @@ def _unknown(d: dict, known, src, prefix="") -> None:
 def _move_fields(d: dict, src: str, key: str) -> dict:
     out = {}
     if "type" in d:
-        if d["type"] not in MOVE_TYPES:
+        if not isinstance(d["type"], str) or d["type"] not in MOVE_TYPES:
             raise ConfigError(f"{_where(src, key + '.type')} must be one of {', '.join(MOVE_TYPES)}, "
                               f"got {short_repr(d['type'])}")
         out["type"] = d["type"]
     if "profile" in d:
-        if d["profile"] not in PROGRAM_PROFILES:
+        if not isinstance(d["profile"], str) or d["profile"] not in PROGRAM_PROFILES:
             raise ConfigError(f"{_where(src, key + '.profile')} must be one of {', '.join(PROGRAM_PROFILES)}, "
                               f"got {short_repr(d['profile'])}")
         out["profile"] = PROGRAM_PROFILES[d["profile"]]
