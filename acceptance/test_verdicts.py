@@ -11,7 +11,8 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from app.acceptance import MARGINAL_FRACTION, Station
+from app.acceptance import Station
+from station.analysis.decision import MARGINAL_FRACTION
 
 from station.measurements import Measurement
 from station.store import RunStore
