@@ -60,8 +60,9 @@ def test_a_row_added_to_the_table_appears_in_config_run_store_report_and_json(fa
         assert set(rows) == set(poses) == {"P1", "P2", "P3", "P4", "P5"}
         for name, pose in poses.items():
             truth = _spread_of(_attained(pose))  # from the JSON's attained positions, not the row's formula
-            assert pose["SPREAD_mm"] == pytest.approx(truth, abs=1e-6)
-            assert rows[name]["value"] == pytest.approx(truth, abs=1e-6)
+            # the JSON rounds the figure and the attained positions each to 1e-6 mm: two roundings apart
+            assert pose["SPREAD_mm"] == pytest.approx(truth, abs=2e-6)
+            assert rows[name]["value"] == pytest.approx(truth, abs=2e-6)
             assert rows[name]["unit"] == "mm" and rows[name]["limit"] == 0.001 and rows[name]["passed"] is False
         spread_verdicts = [v for v in out["results"]["pose"]["verdicts"] if v["characteristic"] == "SPREAD_mm"]
         assert len(spread_verdicts) == 5 and not any(v["passed"] for v in spread_verdicts)

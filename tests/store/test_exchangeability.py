@@ -28,15 +28,18 @@ CYCLES = 3
 
 
 def _true_barycentres(store, run_id, world) -> tuple[dict, dict]:
-    """Each pose's barycentre of the arm's true positions at the attained instants: in the run's registered
-    frame (where the run states its barycentres), and in the arm's true base frame."""
+    """Each pose's barycentre of the arm's true positions at the attained instants: as the tracker reads them
+    (noise aside) in the run's registered frame (where the run states its barycentres), and in the arm's true
+    base frame."""
     steps = store.steps(run_id)
     reg = registration_of({s.name: s.output for s in steps if s.status == "done"})
     in_fit, in_base = {}, {}
     for name, pose in store.result(run_id, "iso9283")["pose"]["poses"].items():
         true_base = world.arm.tool_position_mm(np.asarray(pose["attained"]["t_s"]))
         T = world.tracker.tracker_T_base
-        in_fit[name] = reg.to_base(true_base @ T[:3, :3].T + T[:3, 3]).mean(axis=0)
+        # what the tracker reads of the true positions, its noise aside (its session's scale and angles, which a
+        # registration does not wholly absorb, are the run's systematic error, in U_mm, not in U_scatter_mm)
+        in_fit[name] = reg.to_base(world.tracker.reading(true_base @ T[:3, :3].T + T[:3, 3])).mean(axis=0)
         in_base[name] = true_base.mean(axis=0)
     return in_fit, in_base
 
