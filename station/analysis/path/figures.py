@@ -11,8 +11,5 @@ from station.analysis.iso9283 import table
 #: the path test's figures, in the table's order
 NAMES = tuple(c.key for c in table.characteristics("path"))
 
-#: figures that rest on the clock (refused on a clock that failed its check, or across a jump)
-TIME_FIGURES = frozenset({"AV_percent", "RV_percent", "FV_percent", "WF_percent"})
-
 #: figures whose sign matters (a limit bounds their magnitude)
 SIGNED = frozenset({"AV_percent", "WS_percent", "WF_percent"})
