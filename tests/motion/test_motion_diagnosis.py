@@ -78,3 +78,16 @@ def test_hidden_effect_is_named_first(rng, effect):
         m, e = pose["measured"], pose["extended"]
         if m["MPT_s"] is not None and e["MPT_s"] is not None:
             assert abs(e["MPT_s"] - m["MPT_s"]) <= 0.2 * m["MPT_s"]
+
+
+def test_a_mode_on_the_loops_own_pole_is_the_loop(rng):
+    from station.analysis.motion import fit as F
+    from station.analysis.motion.diagnose import SAME_POLE, _same_pole
+
+    f, z = rng.uniform(6.0, 15.0), rng.uniform(0.15, 1.1)
+    on = F.Params({"servo": np.array([f, z, 0.01]), "structural_mode": np.array([f * 1.01, z * 0.98, 1e-5])})
+    assert "position loop" in _same_pole(on)
+    # a lightly damped mode at the loop's frequency, the loop well damped: two poles, a mode to name
+    off = F.Params({"servo": np.array([f, 0.8, 0.01]), "structural_mode": np.array([f, 0.07, 1e-5])})
+    assert _same_pole(off) == ""
+    assert SAME_POLE < 0.5

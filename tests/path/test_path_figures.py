@@ -1,9 +1,11 @@
 """Each path figure lies within its stated U of the truth of a simulated arm (tests/path/simarm.py).
 
 The draws are random (the test's rng); each kind is drawn a few times and a
-binomial threshold is set from the ~95 % the U claims: with 6 draws, 4 or
-more inside (P(fewer | p = 0.95) < 0.3 %). The coverage itself is measured
-in bench/bench_path_coverage.py.
+binomial threshold is set from the ~95 % the U claims, for the family of
+checks a suite run makes (about 40 figure-kinds): with 6 draws, 3 or more
+inside (P(fewer | p = 0.95) = 9e-5 each, 3e-3 for the family; at p = 0.9,
+1.3e-3 each). A U that covers half the time fails it one run in three. The
+coverage itself is measured in bench/bench_path_coverage.py.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from station.analysis.path.path_file import parse_paths
 from tests.path import simarm
 
 DRAWS = 6
-MIN_INSIDE = 4
+MIN_INSIDE = 3
 
 
 @pytest.mark.parametrize("kind", sorted(simarm.KINDS))

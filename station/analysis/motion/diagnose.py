@@ -71,6 +71,8 @@ class MotionTest:
     heldout_threshold: float = math.nan
     heldout_rms_after: float = math.nan
     relevant: bool = False
+    #: why the fitted effect cannot be told from the current model ("" when it can)
+    same_as: str = ""
     params: F.Params | None = None
 
     @property
@@ -79,7 +81,7 @@ class MotionTest:
 
     @property
     def wins(self) -> bool:
-        return self.significant and self.heldout_t > self.heldout_threshold and self.relevant
+        return self.significant and self.heldout_t > self.heldout_threshold and self.relevant and not self.same_as
 
     def to_json(self) -> dict:
         d = {"candidate": self.effect, "effect": self.effect, "joint": None, "testable": self.testable}
@@ -89,7 +91,7 @@ class MotionTest:
         return d | {"statistic": _f(self.statistic), "threshold": _f(self.threshold), "significant": self.significant,
                     "heldout_t": _f(self.heldout_t), "heldout_threshold": _f(self.heldout_threshold),
                     "heldout_rms_after": _f(self.heldout_rms_after), "relevant": self.relevant,
-                    "wins_on_heldout": self.wins}
+                    "wins_on_heldout": self.wins} | ({"same_as": self.same_as} if self.same_as else {})
 
 
 def _f(x):
@@ -234,6 +236,34 @@ def _block_t(w: Windows, r0: np.ndarray, r1: np.ndarray) -> tuple[float, int]:
     return float(np.mean(d) / (np.std(d, ddof=1) / math.sqrt(d.size))), int(d.size)
 
 
+#: a mode whose pole lies within this fraction of the loop's (|s_mode - s_loop| / |s_loop|) is the loop's
+SAME_POLE = 0.1
+
+
+def _same_pole(p: F.Params) -> str:
+    """Why a fitted structural mode is the position loop's own ringing ("" when it is not).
+
+    A mode at the loop's frequency *and* damping is the loop's complex pole counted twice: its term only reshapes
+    the loop's response, which the loop's own parameters (and their misfit) already describe, so it names no
+    second physical cause. Poles ``s = -zeta w + i w sqrt(1 - zeta^2)`` compared relative to the loop's.
+    """
+    if "structural_mode" not in p.values or "servo" not in p.values:
+        return ""
+
+    def pole(f, z):
+        w = 2.0 * math.pi * f
+        return complex(-z * w, w * math.sqrt(max(1.0 - z * z, 0.0)))
+
+    f, z, _ = p.values["servo"]
+    fm, zm, _ = p.values["structural_mode"]
+    s_loop, s_mode = pole(f, z), pole(fm, zm)
+    d = abs(s_mode - s_loop) / abs(s_loop)
+    if d < SAME_POLE:
+        return (f"the mode's pole ({fm:.3g} Hz, damping {zm:.2g}) is the position loop's ({f:.3g} Hz, {z:.2g}): "
+                f"{d:.2g} apart, under {SAME_POLE:g}")
+    return ""
+
+
 def _not_testable(w: Windows, tr: Windows) -> dict:
     out = {}
     if w.rate_hz < 4.0 * F.EFFECT_PARAMS["structural_mode"][0][1]:
@@ -304,6 +334,7 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
             ms0, ms1 = _rms(r_cur) ** 2, ct.heldout_rms_after ** 2
             ct.relevant = bool(ms0 - ms1 >= (RELEVANCE * noise) ** 2)
             ct.params = q
+            ct.same_as = _same_pole(q)
             tests.append(ct)
         rounds.append(tests)
         wins = [ct for ct in tests if ct.wins]
