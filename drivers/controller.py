@@ -64,6 +64,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from drivers.transport import ListeningDeadline
 from station.device_urls import parse_device_url
 from station.errors import (
     ConfigError,
@@ -204,6 +205,10 @@ logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 #: a read (idempotent) whose reply does not come is asked again, on a new connection, this many times in
 #: all within the driver's ``timeout_s`` (writes are not repeated: a command is acted on once)
 READ_ATTEMPTS = 3
+#: s: while it waits for an acknowledge or for rest the driver looks at least every poll interval (a status
+#: read between), so a longer gap between two looks is a host that did not run this process (nor a simulated
+#: controller in it), and only this much of it counts (:class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 1.0
 
 
 def poll_pauses(interval_s: float):
@@ -455,13 +460,13 @@ class ControllerDriver:
         self._seq = self._seq % 65535 + 1
         seq = self._seq
         self._write(self.map.command, [int(command), seq])
-        deadline = time.monotonic() + self.timeout_s
+        deadline = ListeningDeadline(self.timeout_s, max(LISTEN_SLICE_S, self.poll_interval_s))
         pauses = poll_pauses(self.poll_interval_s)
         while True:
             st = self.status()
             if st.ack_seq == seq:
                 break
-            if time.monotonic() >= deadline:
+            if deadline.expired():
                 raise DeviceTimeout(
                     f"controller did not acknowledge {command.name} (seq {seq}) within {self.timeout_s:g} s "
                     f"({st.summary()})"
@@ -753,13 +758,13 @@ class ControllerDriver:
 
     def wait_settled(self, timeout_s: float) -> ControllerStatus:
         """Until the controller runs no program (it reports a program done only with the arm at rest)."""
-        deadline = time.monotonic() + float(timeout_s)
+        deadline = ListeningDeadline(float(timeout_s), max(LISTEN_SLICE_S, self.poll_interval_s))
         pauses = poll_pauses(self.poll_interval_s)
         while True:
             st = self.status()
             if st.state != State.RUNNING:
                 return st
-            if time.monotonic() > deadline:
+            if deadline.expired():
                 raise DeviceTimeout(f"controller still running a program after {timeout_s:g} s ({st.summary()})")
             time.sleep(next(pauses))
 

@@ -130,7 +130,8 @@ class GeoComTracker(TrackerBase):
         """One distance measurement (GeoCOM does not average; ``duration_s`` is unused)."""
         if self._stream_active:
             raise DeviceError("a stream is running; stop it before a stationary measurement")
-        deadline = Deadline(timeout_s)
+        # each request waits at most reply_timeout_s between two looks: a longer gap is a host that did not run
+        deadline = ListeningDeadline(timeout_s, self.reply_timeout_s + LISTEN_SLICE_S)
         self.request(Rpc.DO_MEASURE, (MeasureProgram.DISTANCE, INCLINATION_AUTO),
                      timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
         wait_ms = int(max(0.0, min(deadline.time_left(), self.reply_timeout_s)) * 500)

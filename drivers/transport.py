@@ -70,27 +70,48 @@ class ListeningDeadline:
         The longest the caller blocks between two looks when it runs (> 0).
     now : callable, optional
         The clock (default ``time.monotonic``).
+    host_delay : callable, optional
+        Seconds (cumulative, non-decreasing) that the party who talks to the device on the caller's behalf
+        (a helper process) spent ready to run but not run by this host: between two looks, that much does
+        not count either (:func:`run_queue_delay_s`).
     """
 
-    __slots__ = ("_left", "_slice", "_now", "_last")
+    __slots__ = ("_left", "_slice", "_now", "_last", "_host_delay", "_last_delay")
 
-    def __init__(self, timeout_s: float, slice_s: float, *, now=time.monotonic) -> None:
+    def __init__(self, timeout_s: float, slice_s: float, *, now=time.monotonic, host_delay=None) -> None:
         if not (isinstance(timeout_s, (int, float)) and timeout_s >= 0):
             raise ConfigError(f"timeout_s must be >= 0, got {timeout_s!r}")
         if not (isinstance(slice_s, (int, float)) and slice_s > 0):
             raise ConfigError(f"slice_s must be > 0, got {slice_s!r}")
         self._left, self._slice, self._now = float(timeout_s), float(slice_s), now
+        self._host_delay = host_delay
+        self._last_delay = host_delay() if host_delay is not None else 0.0
         self._last = now()
 
     def time_left(self) -> float:
         """Seconds of listening left (0.0 once expired)."""
         t = self._now()
-        self._left -= min(t - self._last, self._slice)
+        counted = min(t - self._last, self._slice)
+        if self._host_delay is not None:
+            delay = self._host_delay()
+            counted = max(0.0, counted - max(0.0, delay - self._last_delay))
+            self._last_delay = max(delay, self._last_delay)
+        self._left -= counted
         self._last = t
         return max(0.0, self._left)
 
     def expired(self) -> bool:
         return self.time_left() <= 0.0
+
+
+def run_queue_delay_s(pid: int) -> float:
+    """Seconds process ``pid``'s main thread has spent ready to run while this host ran others (Linux
+    ``/proc/PID/schedstat``, its second field); 0.0 where the kernel does not say (the time then counts)."""
+    try:
+        with open(f"/proc/{int(pid)}/schedstat", "rb") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 @runtime_checkable
@@ -423,6 +444,6 @@ def serial_factory(port: str, *, baudrate: int = 9600) -> TransportFactory:
 
 
 __all__ = [
-    "Deadline", "Transport", "TransportFactory", "TcpTransport", "SerialTransport",
-    "LineReader", "tcp_factory", "serial_factory",
+    "Deadline", "ListeningDeadline", "run_queue_delay_s", "Transport", "TransportFactory", "TcpTransport",
+    "SerialTransport", "LineReader", "tcp_factory", "serial_factory",
 ]

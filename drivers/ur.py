@@ -58,6 +58,7 @@ from typing import Collection
 
 import numpy as np
 
+from drivers.transport import Deadline, ListeningDeadline, run_queue_delay_s
 from station.device_urls import parse_device_url
 from station.models.rotation import matrix_to_rotvec, ur_pose_to_T
 from station.protocols.ur import (LOCKSTEP_STORED_REGISTER, SAFETY_BIT_PROTECTIVE, SAFETY_BITS_EMERGENCY, RobotMode,
@@ -121,13 +122,12 @@ def _sidecar_main(conn, host: str, frequency_hz: float, register_base: int, poll
     parent = os.getppid()
     io = None
     try:
+        import rtde_io
         import rtde_receive
 
         # the interpreter is up and has imported what it needs: from here on the time is the device's
         conn.send(("started", None))
         if stored_register is not None:  # first: the stream goes one by one from its first package
-            import rtde_io
-
             io = rtde_io.RTDEIOInterface(host)
         rtde = rtde_receive.RTDEReceiveInterface(host, float(frequency_hz), rtde_variables(register_base))
     except Exception as exc:  # noqa: BLE001 - reported to the parent verbatim
@@ -227,6 +227,14 @@ def _sidecar_entry() -> None:
 #: the longest a fresh receive process may take to start and import ``ur_rtde`` (real s): the host's time, not the
 #: device's; an idle host takes about 0.3 s, one loaded by two busy processes per core several seconds
 SIDECAR_START_S = 120.0
+#: the driver looks at the receive process at least this often while it waits for the handshake (real s): a
+#: longer gap between two looks is a host that did not run the driver (nor a simulated controller in its
+#: process), and only this much of it counts (:class:`drivers.transport.ListeningDeadline`)
+HANDSHAKE_LOOK_S = 0.1
+#: lockstep: the host's own wait for the handshake lasts at least this (real s). A simulated controller's clock
+#: stands still through a handshake, so no device time can bound it, and it runs on this host, whose load
+#: alone makes it late (a real controller is never in lockstep; its handshake keeps the driver's timeout)
+LOCKSTEP_HANDSHAKE_S = 60.0
 
 
 class RtdeSidecar:
@@ -288,19 +296,25 @@ class RtdeSidecar:
         theirs.close()
         self._proc, self._conn = proc, Connection(ours.detach())
         # two waits: the start of a fresh interpreter is this host's time (seconds on a loaded host), bounded
-        # apart; the device's handshake gets timeout_s from the moment the process is ready to connect
-        kind, info = self._handshake_message(SIDECAR_START_S, "the receive process did not start")
+        # apart; the device's handshake gets timeout_s from the moment the process is ready to connect,
+        # counted only while this host ran both the driver and the receive process (a loaded host's run
+        # queue is not the device's silence); a simulated controller's at least LOCKSTEP_HANDSHAKE_S
+        kind, info = self._handshake_message(Deadline(SIDECAR_START_S), SIDECAR_START_S,
+                                             "the receive process did not start")
         if kind == "started":
-            kind, info = self._handshake_message(timeout_s, "no handshake")
+            wait_s = max(timeout_s, LOCKSTEP_HANDSHAKE_S) if self.stored_register is not None else timeout_s
+            deadline = ListeningDeadline(wait_s, HANDSHAKE_LOOK_S, host_delay=lambda: run_queue_delay_s(proc.pid))
+            kind, info = self._handshake_message(deadline, wait_s, "no handshake")
         if kind != "ready":
             self._kill()
             raise ConnectionLost(f"RTDE {self.host}:30004: ur_rtde could not connect: {info}")
 
-    def _handshake_message(self, timeout_s: float, what: str):
+    def _handshake_message(self, deadline, timeout_s: float, what: str):
         """The receive process's next message during the start, or the process killed and an error."""
-        if not self._conn.poll(timeout_s):
-            self._kill()
-            raise DeviceTimeout(f"RTDE {self.host}:30004: {what} within {timeout_s} s")
+        while not self._conn.poll(min(HANDSHAKE_LOOK_S, deadline.time_left())):
+            if deadline.expired():
+                self._kill()
+                raise DeviceTimeout(f"RTDE {self.host}:30004: {what} within {timeout_s:g} s")
         try:
             return self._conn.recv()
         except (EOFError, OSError) as exc:
@@ -739,14 +753,17 @@ class URDriver:
             )
 
     def state(self, timeout_s: float | None = None) -> URState:
-        """The newest RTDE sample; waits up to ``timeout_s`` for the first one.
+        """The newest RTDE sample; waits up to ``timeout_s`` for the first one (in lockstep at least
+        :data:`LOCKSTEP_HANDSHAKE_S`: the simulated controller's first sample is late only by this host's load).
 
         Raises
         ------
         ConnectionLost
             The link dropped, or no new sample for ``stale_after_s``.
         """
-        deadline = time.monotonic() + (self.stale_after_s if timeout_s is None else timeout_s)
+        wait_s = self.stale_after_s if timeout_s is None else timeout_s
+        first_wait_s = max(wait_s, LOCKSTEP_HANDSHAKE_S) if self.lockstep else wait_s
+        started = time.monotonic()
         while True:
             self._pull()
             with self._lock:
@@ -754,9 +771,9 @@ class URDriver:
             now = time.monotonic()
             if latest is not None and (self.lockstep or now - at <= self.stale_after_s):
                 return URState.from_row(latest)  # lockstep: a standing clock sends no new sample
-            if now >= deadline:
+            if now - started >= (first_wait_s if latest is None else wait_s):
                 if latest is None:
-                    raise DeviceTimeout(f"RTDE {self.host}: no sample within {timeout_s} s")
+                    raise DeviceTimeout(f"RTDE {self.host}: no sample within {first_wait_s:g} s")
                 raise ConnectionLost(
                     f"RTDE {self.host}: no new sample for {now - at:.1f} s (last t = {latest[_C_T]:.3f} s)"
                 )

@@ -18,6 +18,7 @@ Every POST needs the CSRF token (form field ``csrf`` or header
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import json
 import threading
 import time
@@ -51,9 +52,37 @@ MAX_FORM_FIELDS = 20
 BODY_TIMEOUT_S = 10.0
 
 
-def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
-    """The app of one station: ``hub`` drives runs, ``store`` is read, ``guard`` checks requests."""
+def load_procedures(cfg) -> tuple[str, ...]:
+    """The procedures ``cfg`` can run, their modules imported (seconds on a loaded host: numpy, scipy and the
+    analyses behind them); :func:`create_app` calls it once, in a thread of its own, as the server starts."""
     from procedures.registry import runnable_procedures
+
+    return tuple(runnable_procedures(cfg))
+
+
+def _in_background(fn, *args) -> concurrent.futures.Future:
+    """``fn(*args)`` in a daemon thread of its own; its result (or exception) in the returned future."""
+    future: concurrent.futures.Future = concurrent.futures.Future()
+
+    def work() -> None:
+        try:
+            future.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - handed to whoever awaits the future
+            future.set_exception(exc)
+
+    threading.Thread(target=work, name="page-procedures", daemon=True).start()
+    return future
+
+
+def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
+    """The app of one station: ``hub`` drives runs, ``store`` is read, ``guard`` checks requests.
+
+    The event loop answers every connection, so no handler does slow work on it: the procedures' modules are
+    imported once in a thread as the app is made (:func:`load_procedures`; the station page awaits it without
+    holding the loop, and every other page is answered meanwhile), and the store's reads, the run's snapshot
+    and a run's start (which may import a procedure's module, whose import lock would hold the loop) run in
+    worker threads."""
+    procedures = _in_background(load_procedures, hub.cfg)
 
     def _html(body: str, status: int = 200) -> HTMLResponse:
         return HTMLResponse(body, status_code=status, headers={"Cache-Control": "no-store",
@@ -110,8 +139,9 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         return text.replace(f" in {store.name}", "").replace(str(store.name), "the store")
 
     async def station(request: Request) -> Response:
-        st = station_state(hub.cfg, store, hub)
-        return _html(pages.station_page(st, guard.csrf_token, list(runnable_procedures(hub.cfg))))
+        names = await asyncio.wrap_future(procedures)
+        st = await asyncio.to_thread(station_state, hub.cfg, store, hub)
+        return _html(pages.station_page(st, guard.csrf_token, list(names)))
 
     async def station_events(request: Request) -> Response:
         def snapshot() -> str:
@@ -127,8 +157,9 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         except ValueError:
             return _refused(ValueError(f"seed must be an integer, got {form.get('seed')!r}"), 400)
         try:
-            run_id = hub.start(form.get("procedure", ""), form.get("robot") or "r1", seed,
-                               existing={r.run_id for r in store.runs()})
+            await asyncio.wrap_future(procedures)  # imported: the start below finds its modules loaded
+            run_id = await asyncio.to_thread(lambda: hub.start(form.get("procedure", ""), form.get("robot") or "r1",
+                                                               seed, existing={r.run_id for r in store.runs()}))
         except StationError as exc:
             return _refused(exc, 400 if isinstance(exc, ValueError) else 409)
         return RedirectResponse(f"/runs/{run_id}", status_code=303)
@@ -155,21 +186,22 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
     async def run(request: Request) -> Response:
         run_id = request.path_params["run_id"]
         try:
-            st = _state(run_id)
+            st = await asyncio.to_thread(_state, run_id)
         except StoreError as exc:
             return _refused(exc, 404)
         return _html(pages.run_page(st, guard.csrf_token))
 
     async def run_json(request: Request) -> Response:
         try:
-            return JSONResponse(json.loads(json.dumps(_state(request.path_params["run_id"]), default=float)))
+            st = await asyncio.to_thread(_state, request.path_params["run_id"])
+            return JSONResponse(json.loads(json.dumps(st, default=float)))
         except StoreError as exc:
             return JSONResponse({"error": _public(exc)}, status_code=404)
 
     async def run_events(request: Request) -> Response:
         run_id = request.path_params["run_id"]
         try:
-            _state(run_id)
+            await asyncio.to_thread(_state, run_id)
         except StoreError as exc:
             return _refused(exc, 404)
         return _stream(request, "state", lambda: json.dumps(_state(run_id), default=float), lambda: False)
@@ -217,7 +249,7 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
     async def report(request: Request) -> Response:
         run_id = request.path_params["run_id"]
         try:
-            path = report_path(store.steps(run_id))
+            path = report_path(await asyncio.to_thread(store.steps, run_id))
         except StoreError as exc:
             return _refused(exc, 404)
         if path is None:
@@ -226,11 +258,15 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
 
     async def robot(request: Request) -> Response:
         serial = request.path_params["serial"]
-        names = history_names()
-        history = {name: store.history(serial, name) for name in names}
-        models = store.robot_models(serial)
-        overhauls = store.overhauls(serial=serial) if len(models) == 1 else []
-        return _html(pages.robot_page(serial, list(names), history, guard.csrf_token, overhauls))
+
+        def page() -> str:
+            names = history_names()
+            history = {name: store.history(serial, name) for name in names}
+            models = store.robot_models(serial)
+            overhauls = store.overhauls(serial=serial) if len(models) == 1 else []
+            return pages.robot_page(serial, list(names), history, guard.csrf_token, overhauls)
+
+        return _html(await asyncio.to_thread(page))
 
     async def record_overhaul(request: Request) -> Response:
         """An overhaul of the robot recorded from its page (as ``station store overhaul`` does)."""

@@ -4,9 +4,13 @@
 Pages are rendered on the server with the current snapshot, so they are
 useful without the script; the script then follows the run's event stream
 and redraws the parts that change. Every action is a form POST carrying the
-CSRF token. Everything a template shows is escaped by the engine; the only
-markup passed through is matplotlib's SVG (its text escaped by matplotlib)
-and the run's state as JSON for the script (``</`` broken up).
+CSRF token. Everything a template shows is escaped by the engine, its control
+characters and bidirectional overrides first written visibly
+(:func:`station.shown.shown`: ``\x1b``, ``\u202e``; the engine's ``finalize``);
+the only markup passed through is matplotlib's SVG (its text escaped by
+matplotlib, the overhauls' text in it screened here) and the run's state as
+JSON for the script (``</`` broken up; the script screens what it shows the
+same way).
 """
 
 from __future__ import annotations
@@ -17,13 +21,23 @@ import time
 
 from markupsafe import Markup
 
+from station.shown import shown
+
+
+def _screened(value):
+    """What a template shows: text with its control characters written visibly (a name from a file or a form
+    may carry an ANSI escape, a BEL or a bidi override that reorders the line); markup as it is."""
+    if isinstance(value, str) and not isinstance(value, Markup):
+        return shown(value, lines=True)
+    return value
+
 
 @functools.lru_cache(maxsize=1)
 def _env():
     from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 
     env = Environment(loader=PackageLoader("app.web", "templates"), undefined=StrictUndefined,
-                      autoescape=select_autoescape(["html"]), keep_trailing_newline=False)
+                      autoescape=select_autoescape(["html"]), keep_trailing_newline=False, finalize=_screened)
     env.globals["style"] = _static(env, "style.css")
     return env
 
@@ -61,7 +75,7 @@ def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], cs
     from station.report import plot_history
 
     overhauls = overhauls or []
-    events = [(o["at"], f"overhaul: {o['what']}") for o in overhauls]
+    events = [(o["at"], f"overhaul: {shown(o['what'], 60)}") for o in overhauls]
     histories = []
     for name in names:
         rows = history.get(name) or []
@@ -69,14 +83,14 @@ def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], cs
             continue
         runs = worst_per_run(rows)
         svg = Markup(plot_history([r["created_at"] for r in runs], [r["value"] for r in runs],
-                                  [r["limit"] for r in runs], [r["failed"] for r in runs], ylabel=name,
-                                  title=f"{name}: worst pose of each run", events=events)) if runs else ""
+                                  [r["limit"] for r in runs], [r["failed"] for r in runs], ylabel=shown(name),
+                                  title=f"{shown(name)}: worst pose of each run", events=events)) if runs else ""
         for r in runs:
             r["date"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime(r["created_at"]))
         histories.append({"name": name, "runs": runs, "svg": svg})
-    shown = [{**o, "date": time.strftime("%Y-%m-%d %H:%M", time.localtime(o["at"]))} for o in overhauls]
+    listed = [{**o, "date": time.strftime("%Y-%m-%d %H:%M", time.localtime(o["at"]))} for o in overhauls]
     return _render("robot.html", title=f"robot {serial}", csrf=csrf, serial=serial, histories=histories,
-                   any_history=any(history.values()), overhauls=shown)
+                   any_history=any(history.values()), overhauls=listed)
 
 
 def worst_per_run(rows: list[dict]) -> list[dict]:

@@ -8,9 +8,12 @@ resumable, like any interrupted run) and joins every thread.
 from __future__ import annotations
 
 import asyncio
+import os
 import re
+import resource
 import socket
 import threading
+import time
 from pathlib import Path
 
 import h11
@@ -71,9 +74,49 @@ def evict_waiting(connections, keep: int) -> int:
     return len(live) - min(excess, len(waiting))
 
 
+#: a connection cap lowered for a full file table is looked at again at most this often, s
+CAP_LOOK_S = 1.0
+#: ... and raised each time by at most this fraction of itself (at least one connection), while the descriptors
+#: beyond FD_HEADROOM allow: back to :func:`max_connections` in steps, so a table that fills again is found
+#: before it is full
+CAP_RAISE_FRACTION = 0.25
+
+
 def connection_cap(server_state) -> int:
     """The connections served at once now: :func:`max_connections`, lowered once the file table was full."""
     return getattr(server_state, "connection_cap", None) or max_connections()
+
+
+def free_descriptors() -> int | None:
+    """Descriptors this process may still open (its soft limit less those open); None where it cannot tell."""
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    try:
+        used = len(os.listdir("/proc/self/fd")) - 1  # less the one listdir itself held
+    except OSError:
+        return None
+    return (4096 + FD_HEADROOM if soft == resource.RLIM_INFINITY else soft) - used
+
+
+def relax_cap(server_state, *, now: float | None = None, free=free_descriptors) -> int:
+    """The connection cap, raised again where :func:`make_room` lowered it and descriptors are free now: at most
+    every :data:`CAP_LOOK_S`, by at most :data:`CAP_RAISE_FRACTION` of itself and by no more than the free
+    descriptors beyond FD_HEADROOM; back at :func:`max_connections` it is no longer lowered. ``free``: the
+    count of free descriptors (a callable; None: unknown, nothing raised)."""
+    cap = getattr(server_state, "connection_cap", None)
+    if cap is None:
+        return max_connections()
+    now = time.monotonic() if now is None else now
+    if now - getattr(server_state, "cap_looked_at", -CAP_LOOK_S) < CAP_LOOK_S:
+        return cap
+    server_state.cap_looked_at = now
+    n_free = free()
+    spare = -1 if n_free is None else n_free - FD_HEADROOM
+    if spare <= 0:
+        return cap
+    top = max_connections()
+    new = min(top, cap + min(spare, max(1, int(cap * CAP_RAISE_FRACTION))))
+    server_state.connection_cap = None if new >= top else new
+    return new
 
 
 def make_room(server_state) -> bool:
@@ -82,6 +125,7 @@ def make_room(server_state) -> bool:
     connection fits."""
     live = sum(not c.transport.is_closing() for c in server_state.connections)
     server_state.connection_cap = min(connection_cap(server_state), max(MIN_CONNECTIONS, live - FD_HEADROOM))
+    server_state.cap_looked_at = time.monotonic()  # raised again (relax_cap) no sooner than CAP_LOOK_S from now
     return evict_waiting(server_state.connections, server_state.connection_cap - 1) < server_state.connection_cap
 
 
@@ -107,7 +151,7 @@ class BoundedH11Protocol(H11Protocol):
         super().connection_made(transport)
         self._head_timer = None
         self._arm_head_timer()
-        cap = connection_cap(self.server_state)
+        cap = relax_cap(self.server_state)
         if len(self.connections) > cap:
             evict_waiting(self.connections, cap)
 

@@ -201,3 +201,22 @@ def test_a_serial_write_whose_bytes_went_out_is_no_timeout_however_late_the_thre
         port.close()
         os.close(master)
         os.close(slave)
+
+
+def test_a_helpers_wait_for_the_host_does_not_count_as_the_devices_silence(rng):
+    """``host_delay``: time the process that talks to the device spent ready to run but not run (its run
+    queue wait) is the host's, not the device's. Looks every 0.1 s over drawn waits: the deadline expires
+    once the waits less the helper's queueing add up to the timeout, not before."""
+    t, delay = [0.0], [0.0]
+    d = ListeningDeadline(2.0, 0.1, now=lambda: t[0], host_delay=lambda: delay[0])
+    counted = 0.0
+    while True:
+        step = float(rng.uniform(0.0, 0.1))
+        queued = float(rng.uniform(0.0, step))
+        t[0] += step
+        delay[0] += queued
+        counted += step - queued
+        if d.expired():
+            break
+        assert counted < 2.0 + 1e-9
+    assert counted >= 2.0 - 1e-9

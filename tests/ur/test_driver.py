@@ -15,7 +15,7 @@ from fakes import rtde_protocol as rp
 from fakes.urscript import Pose, parse_program
 from station.errors import ConnectionLost, DeviceFault, DeviceNotReady, SafetyError
 from station.models import kinematics
-from tests.ur.conftest import box_gate, finish_probe, start_probe
+from tests.ur.conftest import TIME_SCALE, box_gate, finish_probe, start_probe
 
 
 def _wait(pred, timeout_s=10.0, what="condition"):
@@ -320,4 +320,79 @@ def test_a_slow_start_of_the_receive_process_is_not_the_devices_handshake(fake, 
             rows, dropped, connected = side.drain()
         assert connected and len(rows) > 0
     finally:
+        side.close()
+
+
+def _hold_rtde_sessions(monkeypatch, release: threading.Event, bound_s: float = 120.0) -> list:
+    """Every new RTDE session of the fake waits for ``release`` (at most ``bound_s``) before it reads its
+    client's first request, as a controller on a loaded host answers late; the list counts the held ones."""
+    from fakes import ur as fake_ur
+
+    held = []
+    run = fake_ur._RtdeSession.run
+
+    def held_run(session):
+        held.append(session)
+        release.wait(bound_s)
+        run(session)
+
+    monkeypatch.setattr(fake_ur._RtdeSession, "run", held_run)
+    return held
+
+
+def test_a_simulated_controller_late_by_this_hosts_load_still_hands_shake(monkeypatch, rng):
+    """In lockstep the controller is simulated on this host: its clock stands still through a handshake, so
+    no device time can bound it, and a late answer is this host's load. Its RTDE sessions are held here
+    for a drawn 2-4 times the handshake timeout: the lockstep receive process still connects and streams
+    (the host's own wait lasts at least LOCKSTEP_HANDSHAKE_S)."""
+    from drivers.ur import LOCKSTEP_HANDSHAKE_S, RtdeSidecar
+    from fakes.sim.clock import SimClock
+    from fakes.sim.world import make_world
+    from fakes.ur import start_fake
+    from station.protocols.ur import LOCKSTEP_STORED_REGISTER
+
+    world = make_world(robot="ur5e", seed=int(rng.integers(2**31)),
+                       clock=SimClock(TIME_SCALE, start=float(rng.uniform(1.0, 100.0)), lockstep=True))
+    timeout_s = 0.5
+    hold_s = float(rng.uniform(2.0, 4.0)) * timeout_s
+    assert hold_s < LOCKSTEP_HANDSHAKE_S
+    release = threading.Event()
+    held = _hold_rtde_sessions(monkeypatch, release)
+    fake = start_fake(world, lockstep=True)
+    side = RtdeSidecar(fake.endpoint["host"], frequency_hz=125.0, stored_register=LOCKSTEP_STORED_REGISTER)
+    timer = threading.Timer(hold_s, release.set)
+    try:
+        timer.start()
+        side.start(timeout_s=timeout_s)
+        assert held and release.is_set()  # the handshake was held past its timeout, and still succeeded
+        rows = np.empty((0, 34))
+        deadline = time.monotonic() + 30.0
+        while len(rows) == 0 and time.monotonic() < deadline:
+            rows, _dropped, connected = side.drain()
+            time.sleep(0.01)
+        assert connected and len(rows) > 0
+    finally:
+        timer.cancel()
+        release.set()
+        side.close()
+        fake.close()
+        world.close()
+
+
+def test_a_real_controller_that_does_not_answer_still_times_out(fake, monkeypatch):
+    """Without lockstep (a real controller) the handshake keeps the driver's timeout: a controller that
+    accepts the connection and never answers is refused, not waited for (its sessions are held until the
+    driver has given up)."""
+    from drivers.ur import RtdeSidecar
+    from station.errors import DeviceTimeout
+
+    release = threading.Event()
+    held = _hold_rtde_sessions(monkeypatch, release)
+    side = RtdeSidecar(fake.endpoint["host"], frequency_hz=125.0)
+    try:
+        with pytest.raises(DeviceTimeout, match="no handshake within 0.5 s"):
+            side.start(timeout_s=0.5)
+        assert held and not release.is_set()
+    finally:
+        release.set()
         side.close()

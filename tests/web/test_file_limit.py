@@ -102,3 +102,101 @@ def test_the_soft_file_limit_is_raised_to_the_hard_one_where_allowed():
             assert raised == hard
     finally:
         resource.setrlimit(resource.RLIMIT_NOFILE, before)
+
+
+def test_a_lowered_connection_cap_is_raised_back_in_steps_while_descriptors_are_free(rng):
+    """``relax_cap``: after a full table lowered the cap, it goes back up at most every CAP_LOOK_S, by at most
+    a quarter of itself and by no more than the descriptors free beyond the headroom; it stays down while
+    none are; back at max_connections() it is no longer lowered. Free counts drawn."""
+    from types import SimpleNamespace
+
+    from app.web.server import CAP_LOOK_S, CAP_RAISE_FRACTION, FD_HEADROOM, MIN_CONNECTIONS, max_connections, \
+        relax_cap
+
+    top = max_connections()
+    st = SimpleNamespace(connection_cap=MIN_CONNECTIONS, cap_looked_at=0.0)
+    t = 0.0
+    assert relax_cap(st, now=t + 0.5 * CAP_LOOK_S, free=lambda: 10**6) == MIN_CONNECTIONS  # too soon
+    assert relax_cap(st, now=t + CAP_LOOK_S, free=lambda: FD_HEADROOM) == MIN_CONNECTIONS  # none beyond headroom
+    assert relax_cap(st, now=t + 2 * CAP_LOOK_S, free=lambda: None) == MIN_CONNECTIONS  # cannot tell: stays
+    t += 2 * CAP_LOOK_S
+    caps = [MIN_CONNECTIONS]
+    while getattr(st, "connection_cap", None) is not None:
+        t += CAP_LOOK_S * float(rng.uniform(1.0, 2.0))
+        free = FD_HEADROOM + int(rng.integers(1, 200))
+        cap = relax_cap(st, now=t, free=lambda: free)
+        step = cap - caps[-1]
+        assert 1 <= step <= min(free - FD_HEADROOM, max(1, int(caps[-1] * CAP_RAISE_FRACTION))), (caps[-1], cap, free)
+        caps.append(cap)
+        assert len(caps) < 10_000
+    assert caps[-1] == top and relax_cap(st, now=t + 10 * CAP_LOOK_S, free=lambda: 0) == top
+
+
+#: the child of the file-limit tests, answering on stdin: ``release`` closes the descriptors it held (the
+#: station's other files), ``cap`` prints the connection cap now (-1: not lowered)
+CHILD_CAP = CHILD.replace("sys.stdin.read()\n", """for line in sys.stdin:
+    if line.strip() == "release":
+        while held:
+            os.close(held.pop())
+        print("released", flush=True)
+    elif line.strip() == "cap":
+        print(getattr(server.server.server_state, "connection_cap", None) or -1, flush=True)
+""")
+
+
+def test_the_page_serves_as_many_connections_again_once_descriptors_are_free(tmp_path):
+    """A flood fills the file table and lowers the connection cap; once the flood and the station's other
+    files are closed, the token holder's next requests (a new connection each) raise it back, a step per
+    CAP_LOOK_S (1 s; lowered here to 0.05 s in the child), until it is no longer lowered."""
+    soft, hard, free = 200, 256, 40
+    assert "for line in sys.stdin" in CHILD_CAP
+    child = CHILD_CAP.replace("from app.web.server import WebServer",
+                              "import app.web.server as s; s.CAP_LOOK_S = 0.05\nfrom app.web.server import WebServer")
+    socks: list[socket.socket] = []
+    log_path = tmp_path / "server.log"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen([sys.executable, "-c", child, str(demo_station_config(tmp_path)), str(soft),
+                                 str(hard), str(free)], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=log, text=True)
+
+        def ask(what: str) -> str:
+            proc.stdin.write(what + "\n")
+            proc.stdin.flush()
+            return proc.stdout.readline().strip()
+
+        try:
+            info = json.loads(proc.stdout.readline())
+            token_holder = Client(info["url"])
+            assert token_holder.get("/")[0] == 200
+            assert ask("cap") == "-1"
+            socks += _slow_clients(info["port"], 300)
+            assert token_holder.get("/")[0] == 200
+            lowered = int(ask("cap"))
+            assert lowered > 0, log_path.read_text()[-2000:]  # the table was full: the cap went down
+            for s in socks:
+                s.close()
+            socks.clear()
+            assert ask("release") == "released"
+            caps = [lowered]
+            for _ in range(2000):  # bounded: each request is a new connection, each may raise the cap a step
+                assert token_holder.get("/robots/DEMO-0001")[0] == 200
+                cap = int(ask("cap"))
+                if cap != caps[-1]:
+                    caps.append(cap)
+                if cap == -1:
+                    break
+            print("connection caps", caps)
+            assert caps[-1] == -1, caps  # no longer lowered
+            steps = caps[:-1]
+            assert len(steps) >= 3 and steps == sorted(steps), caps  # in steps, up
+            assert all(b - a <= max(1, a // 4) for a, b in zip(steps, steps[1:])), caps
+        finally:
+            for s in socks:
+                s.close()
+            proc.stdin.close()
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                raise

@@ -148,3 +148,68 @@ def test_every_page_escapes_what_it_shows():
         assert "<script>alert" not in h
     for h in (html[0], html[2], html[3]):
         assert "&lt;script&gt;alert(1)" in h
+
+
+#: what no page may carry raw: C0 controls but tab, newline and carriage return, DEL, C1, bidi overrides
+_RAW_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029]")
+
+
+def _hostile_name(rng) -> str:
+    """A name with drawn control characters between letters: ANSI colour, BEL, NUL, C1, a bidi override."""
+    bad = ["\x1b[31m", "\x07", "\x00", "\x9b", "\u202e", "\u2066", "\x7f", "\u2028"]
+    picks = rng.choice(len(bad), size=4, replace=False)
+    return "J2" + "".join(bad[i] + "x" for i in picks)
+
+
+def test_the_station_and_robot_pages_show_control_characters_visibly(rng):
+    """Issue 47: a name from a config, a store or a form (robot serial and model, device, run, overhaul text)
+    reaches the station and robot pages with its control characters written visibly (station.shown), not raw:
+    no ANSI escape, BEL, NUL or bidi override that reorders the line is left in the HTML."""
+    from app.web import pages
+    from station.shown import shown
+
+    evil = _hostile_name(rng)
+    state = {"station": evil, "armed": False, "active": None,
+             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil,
+                          "last_fault": {"run_id": evil, "step": evil, "when": evil, "message": evil}}],
+             "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
+             "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
+                       "verdict": evil}]}
+    rows = [{"run_id": evil, "created_at": 1.7e9, "overhaul_state": evil, "pose": "P1", "value": 0.1, "limit": 0.5,
+             "passed": True}]
+    html = {"station": pages.station_page(state, "t", [evil]),
+            "robot": pages.robot_page(evil, [evil], {evil: rows}, "t",
+                                      [{"at": 1.7e9, "what": evil, "ticket": evil, "station": evil}]),
+            "runs": pages.runs_table(state["runs"]), "message": pages.message_page(evil, evil),
+            "run": pages.run_page({"run_id": evil, "steps": [], "note": evil}, "t")}
+    visible = shown(evil, lines=True)
+    assert _RAW_CONTROL.search(evil) and not _RAW_CONTROL.search(visible)
+    for name, h in html.items():
+        assert not _RAW_CONTROL.search(h), (name, _RAW_CONTROL.search(h))
+        assert visible in h or name == "run", name  # the run page draws its names from its state, in its script
+    assert html["robot"].count(visible) >= 4  # serial, the overhaul's what, ticket and station, the run id
+
+
+def test_the_run_pages_script_screens_as_the_server_does(rng):
+    """The run page draws from its state in the browser: its ``vis`` writes the same characters visibly as
+    station.shown(lines=True) does (run under node, the browsers' JavaScript engine, where it is installed)."""
+    import json
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    import pytest
+
+    from station.shown import shown
+
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed")
+    src = (Path(__file__).resolve().parents[2] / "app/web/templates/run.js").read_text()
+    m = re.search(r"^  const vis = .*?;\n(?=  const esc)", src, re.S | re.M)
+    assert m, "run.js defines vis"
+    texts = [_hostile_name(rng) + "\tline\nnext" for _ in range(5)] + ["".join(map(chr, range(0, 0x250)))]
+    out = subprocess.run([node, "-e", m.group(0) + "process.stdout.write(JSON.stringify(JSON.parse("
+                          "require('fs').readFileSync(0, 'utf8')).map(vis)));"],
+                         input=json.dumps(texts), capture_output=True, text=True, timeout=60, check=True)
+    assert json.loads(out.stdout) == [shown(t, lines=True) for t in texts]

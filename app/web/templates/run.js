@@ -1,6 +1,9 @@
 (function(){
   const csrf = document.querySelector("meta[name=csrf-token]").content;
-  const esc = s => String(s ?? '').replace(/[&<>"']/g, c => ({'&':'&amp;','<':'&lt;','>':'&gt;','"':'&quot;',"'":'&#39;'}[c]));
+  // control characters and bidi overrides written visibly, as the server does (station/shown.py); tab and newline stay
+  const vis = s => String(s ?? '').replace(/[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029]/g,
+    c => { const n = c.charCodeAt(0); return n < 0x100 ? '\\x' + n.toString(16).padStart(2, '0') : '\\u' + n.toString(16).padStart(4, '0'); });
+  const esc = s => vis(s).replace(/[&<>"']/g, c => ({'&':'&amp;','<':'&lt;','>':'&gt;','"':'&quot;',"'":'&#39;'}[c]));
   const fmt = s => { if (s == null) return '?'; s = Math.max(0, Math.round(s));
     return Math.floor(s/60) + ':' + String(s%60).padStart(2,'0'); };
   const form = (action, label, fields) => {
@@ -47,7 +50,7 @@
     const ctl = document.getElementById('controls');
     if (ctl.dataset.html !== c) { ctl.dataset.html = c; ctl.innerHTML = c; }
     const resumable = !st.live && (st.status === 'failed' || st.status === 'aborted');
-    document.getElementById('error').textContent = (st.error || '') +
+    document.getElementById('error').textContent = vis(st.error || '') +
       (resumable ? (st.error ? ' ' : '') + 'Press Resume to go on from the last finished step.' : '');
     // the verdict, once the run has one, in a banner at the top of the page
     const banner = document.getElementById('banner');
@@ -61,7 +64,7 @@
     const out = document.getElementById('output');
     // the console's hint to resume from the command line is the Resume button here
     const text = (st.output || '').split('\n').filter(l => !l.startsWith('resume with: station run')).join('\n');
-    out.hidden = !text.trim(); out.textContent = text;
+    out.hidden = !text.trim(); out.textContent = vis(text);
     let r = '';
     if (st.results.length) {
       r = '<table id="results-table"><tr><th>pose</th><th>characteristic</th><th>value</th><th>unit</th><th>limit</th><th>verdict</th></tr>';
@@ -102,7 +105,7 @@
       `<polyline fill="none" stroke="${color}" stroke-width="1.5" points="${pts}"/></svg>`;
   }
   function drawInstrument(ins) {
-    document.getElementById('instrument-title').textContent = ins.title;
+    document.getElementById('instrument-title').textContent = vis(ins.title);
     const el = document.getElementById('tracker');
     if (ins.kind === 'odometry') {
       el.innerHTML = `<p id="instrument-counters">received <b id="received">${ins.received}</b> samples</p>` +
