@@ -139,7 +139,10 @@ def create_app(hub: RunHub, store: RunStore, guard: Guard) -> Starlette:
         return text.replace(f" in {store.name}", "").replace(str(store.name), "the store")
 
     async def station(request: Request) -> Response:
-        names = await asyncio.wrap_future(procedures)
+        await asyncio.wrap_future(procedures)  # the registry's modules imported once, off the loop
+        # the list itself is asked of the registry each time (cheap once imported; a registry changed since, e.g.
+        # a procedure added by a test or a plugin, is offered), in a worker thread like every other read
+        names = await asyncio.to_thread(load_procedures, hub.cfg)
         st = await asyncio.to_thread(station_state, hub.cfg, store, hub)
         return _html(pages.station_page(st, guard.csrf_token, list(names)))
 
