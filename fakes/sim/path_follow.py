@@ -26,7 +26,7 @@ from station.models import cartesian_path as cp
 from station.models import kinematics as kin
 from station.programs.model import Loop, Move, Program
 
-__all__ = ["Run", "is_path_program", "group_runs", "ripple_of", "queue_run"]
+__all__ = ["Run", "is_path_program", "group_runs", "ripple_of", "queue_run", "queue_segments"]
 
 #: range of the interpolator's relative speed ripple (1 sigma of nothing: uniform), and of its frequency, Hz
 RIPPLE_AMPLITUDE = (0.002, 0.01)
@@ -86,10 +86,17 @@ def ripple_of(seed: int, key=None) -> cp.Ripple:
 def queue_run(arm, robot, run: Run, *, rated_tcp_speed_mm_s: float, accel_mm_s2: float, ripple: cp.Ripple,
               noise_key=None):
     """Plan ``run`` from where the arm's queue ends and queue it on ``arm``; returns the arm's Move."""
-    q0 = np.asarray(arm.moves[-1].q_target_rad if arm.moves else arm.commanded_q_rad(arm.clock.now()),
-                    dtype=float).reshape(6)
     segs = [cp.Segment(m.target.pose, m.speed_frac * rated_tcp_speed_mm_s, m.zone_mm,
                        None if m.via is None else np.asarray(m.via.xyz_mm, float)) for m in run.moves]
+    return queue_segments(arm, robot, segs, accel_mm_s2=accel_mm_s2, ripple=ripple, noise_key=noise_key)
+
+
+def queue_segments(arm, robot, segments: list, *, accel_mm_s2: float, ripple: cp.Ripple, noise_key=None):
+    """Plan blended ``segments`` (:class:`~station.models.cartesian_path.Segment`) from where the arm's queue
+    ends, to rest at the last one's target, and queue them on ``arm``; returns the arm's Move."""
+    q0 = np.asarray(arm.moves[-1].q_target_rad if arm.moves else arm.commanded_q_rad(arm.clock.now()),
+                    dtype=float).reshape(6)
+    segs = list(segments)
     segs[-1] = cp.Segment(segs[-1].end_pose, segs[-1].speed_mm_s, 0.0, segs[-1].via_mm)  # the run ends at rest
     accel = float(accel_mm_s2)
     for _ in range(3):  # an axis that cannot follow the path acceleration lowers it (the cruise speed stays)
