@@ -34,7 +34,6 @@ import numpy as np
 
 from procedures import iso9283 as iso
 from procedures.decision import Checks
-from procedures.plan_params import plan_from_params, plan_params
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.iso9283 import table
@@ -63,13 +62,7 @@ class PathPlan(iso.IsoPlan):
     path_side_mm: float | None = None
     #: limits of path figures, ``{"CR_mm": 2.0, "rectangle_blend_100.CO_mm": 1.0, ...}``
     path_limits: dict[str, float] = field(default_factory=dict)
-
-    def params(self) -> dict:
-        return plan_params(self)
-
-    @classmethod
-    def from_params(cls, p: Mapping) -> "PathPlan":
-        return plan_from_params(cls, p)
+    # params() and from_params() are the pose plan's: they follow the fields of the class they are called on
 
 
 def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> PathPlan:
