@@ -72,7 +72,10 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> PathPlan:
     plan = PathPlan(**{f.name: getattr(base, f.name) for f in dataclasses.fields(iso.IsoPlan)}, **path_kw)
     if plan.path_cycles < 2:
         raise ConfigError(f"path_cycles must be at least 2 (path repeatability), got {plan.path_cycles}")
-    check_limits(limits_of(plan), parse_paths({"paths": [t.path for t in path_tests(plan)]}))
+    try:
+        check_limits(limits_of(plan), parse_paths({"paths": [t.path for t in path_tests(plan)]}))
+    except ConfigError as exc:
+        raise ConfigError(f"path_limits: {str(exc).replace('--limit ', '')}") from None
     return plan
 
 

@@ -108,14 +108,18 @@ def _angle(c, u, w, p) -> float:
     return math.atan2(float(d @ w), float(d @ u)) % (2 * math.pi)
 
 
-def arc_points(p0, via, p1, n: int) -> np.ndarray:
-    """``n`` points from ``p0`` through ``via`` to ``p1`` on their circle (the sweep that passes ``via``)."""
-    c, r, u, w = circle_through(p0, via, p1)
+def _sweep(c, u, w, via, p1) -> float:
+    """Signed angle from the start (along ``u``) to ``p1`` the way that passes ``via``, rad."""
     a_via, a_end = _angle(c, u, w, via), _angle(c, u, w, p1)
     if a_end == 0.0:
         a_end = 2 * math.pi
-    sweep = a_end if a_via <= a_end else a_end - 2 * math.pi  # the other way round passes the via point
-    ang = np.linspace(0.0, sweep, n)
+    return a_end if a_via <= a_end else a_end - 2 * math.pi  # the other way round passes the via point
+
+
+def arc_points(p0, via, p1, n: int) -> np.ndarray:
+    """``n`` points from ``p0`` through ``via`` to ``p1`` on their circle (the sweep that passes ``via``)."""
+    c, r, u, w = circle_through(p0, via, p1)
+    ang = np.linspace(0.0, _sweep(c, u, w, via, p1), n)
     return c + r * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * w)
 
 
@@ -124,15 +128,9 @@ def _dense(p0, seg: Segment) -> np.ndarray:
     if seg.via_mm is None:
         n = max(int(math.ceil(np.linalg.norm(p1 - p0) / STEP_MM)), 1) + 1
         return p0 + np.linspace(0.0, 1.0, n)[:, None] * (p1 - p0)
-    c, r, _, _ = circle_through(p0, seg.via_mm, p1)
-    n = max(int(math.ceil(2 * math.pi * r / STEP_MM)), 8) + 1
-    pts = arc_points(p0, seg.via_mm, p1, n)
-    keep = max(int(math.ceil(_length(pts) / STEP_MM)), 2) + 1
-    return arc_points(p0, seg.via_mm, p1, keep)
-
-
-def _length(pts: np.ndarray) -> float:
-    return float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    c, r, u, w = circle_through(p0, seg.via_mm, p1)
+    length = abs(_sweep(c, u, w, seg.via_mm, p1)) * r
+    return arc_points(p0, seg.via_mm, p1, max(int(math.ceil(length / STEP_MM)), 2) + 1)
 
 
 def _cum(pts: np.ndarray) -> np.ndarray:
@@ -230,7 +228,7 @@ def plan_path(start_pose, segments: list[Segment], *, accel_mm_s2: float, ipo_pe
         pieces.append(_dense(p, seg))
         p = np.asarray(seg.end_pose, float)[:3, 3]
     # corners: each piece keeps its own points up to where the next blend starts
-    out, seg_of, ends = [], [], []
+    out, seg_of = [], []
     cur = pieces[0]
     for j in range(len(segments)):
         if j + 1 < len(segments):

@@ -291,11 +291,6 @@ class Move:
             raise ConfigError(f"move to {self.target.name}: only linear and circular moves blend (zone_mm {z:g})")
         object.__setattr__(self, "zone_mm", z)
 
-    @property
-    def fine(self) -> bool:
-        """An exact stop at the target (no corner zone)."""
-        return self.zone_mm == 0.0
-
 
 @dataclass(frozen=True)
 class Dwell:

@@ -1,4 +1,5 @@
-"""``station run iso9283-path`` on the fake cell over the real protocols (FTP + Modbus controller, emScon tracker):
+"""``station run iso9283-path`` on the fake cell over the real protocols (FTP + Modbus controller or the UR's
+RTDE and script ports, emScon tracker):
 the path figures lie within their U of what the tracker reads of the simulated arm's true motion, in the run's
 registered frame; a run cut inside a path cycle and resumed states the same characteristics."""
 
@@ -7,6 +8,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
+import pytest
 
 from app.assemble import run_procedure
 from fakes.cells import demo_config
@@ -34,11 +36,14 @@ def _stream(store, run_id, steps, reg):
     return s["t"][order], np.column_stack([s["x"], s["y"], s["z"]])[order], reg
 
 
-def test_path_procedure_figures_within_U_of_the_arm(test_seed, tmp_path):
-    with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP) as station:
+@pytest.mark.parametrize("robot", ["industrial-3100", "ur5e"])
+def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
+    iso = {"cycles": 3, "vap_cycles": 2, "tracker_rate_hz": 500.0}
+    if robot == "ur5e":  # a cobot's joint-2 circle stays inside its smaller box over +/- 20 deg (as the demo's)
+        iso["axis_sweep_deg"] = [25.0, 20.0]
+    with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, robot=robot) as station:
         cfg = config_from_dict(station.config_dict(store_path=str(tmp_path / "s.sqlite"),
-                                                   report_dir=str(tmp_path / "reports"),
-                                                   iso9283={"cycles": 3, "vap_cycles": 2, "tracker_rate_hz": 500.0}))
+                                                   report_dir=str(tmp_path / "reports"), iso9283=iso))
         code = run_procedure(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True, run_id="p1",
                              config_dir=tmp_path, plan_overrides=dict(OVERRIDES))
         store = RunStore(tmp_path / "s.sqlite")
