@@ -14,7 +14,8 @@ Subset understood (anything else is a :class:`RapidError` naming the line)::
       [LOCAL] CONST|VAR|PERS robtarget|jointtarget|speeddata|num name := value;
       PROC main()
         MoveJ  robtarget, speed, fine, tool0 [\\WObj:=wobj0];
-        MoveL  robtarget, speed, fine, tool0 [\\WObj:=wobj0];
+        MoveL  robtarget, speed, zone, tool0 [\\WObj:=wobj0];
+        MoveC  robtarget, robtarget, speed, zone, tool0 [\\WObj:=wobj0];
         MoveAbsJ jointtarget, speed, fine, tool0;
         WaitTime seconds;
         AccSet acc_percent, ramp_percent;
@@ -26,9 +27,11 @@ Subset understood (anything else is a :class:`RapidError` naming the line)::
     ENDMODULE
 
 Targets may be named data or inline aggregates; speeds may be named
-``speeddata``, the predefined ``v5`` ... ``v7000`` or ``vmax``. Only ``fine``
-zones and ``tool0``/``wobj0`` are supported (ISO 9283 measures at exact
-stops). Strings follow RAPID: ``""`` is a quote, ``\\\\`` a backslash,
+``speeddata``, the predefined ``v5`` ... ``v7000`` or ``vmax``; zones
+``fine``, the predefined ``z0`` ... ``z200`` or ``zonedata`` (its TCP radius
+rounds the corner; only ``MoveL``/``MoveC`` blend). A run of blended moves
+is interpolated as one path (:mod:`station.models.cartesian_path`). Only
+``tool0``/``wobj0`` are supported. Strings follow RAPID: ``""`` is a quote, ``\\\\`` a backslash,
 ``\\hh`` a character code; comments run from ``!`` to the end of the line.
 """
 
@@ -44,7 +47,8 @@ from typing import Callable
 
 import numpy as np
 
-from station.errors import ConfigError, SafetyError, StationError
+from fakes.sim import path_follow
+from station.errors import ConfigError, DataError, SafetyError, StationError
 from station.programs.builders import rated_tcp_accel_mm_s2
 from station.programs.model import (
     CartesianTarget,
@@ -52,6 +56,7 @@ from station.programs.model import (
     Dwell,
     JointTarget,
     Loop,
+    MAX_ZONE_MM,
     Move,
     Program,
     check_name,
@@ -77,6 +82,8 @@ _TOKEN_RE = re.compile(
     re.VERBOSE | re.ASCII,
 )
 _PREDEFINED_SPEEDS = {f"v{n}" for n in (5, 10, 20, 30, 40, 50, 60, 80, 100, 150, 200, 300, 400, 500, 600, 800, 1000, 1500, 2000, 2500, 3000, 4000, 5000, 6000, 7000)}
+#: RAPID's predefined zones: name -> TCP zone radius, mm
+_PREDEFINED_ZONES = {f"z{n}": float(n) for n in (0, 1, 5, 10, 15, 20, 30, 40, 50, 60, 80, 100, 150, 200)}
 _KEYWORDS = {"module", "endmodule", "proc", "endproc", "for", "from", "to", "step", "do", "endfor", "const", "var", "pers", "local"}
 
 
@@ -503,13 +510,44 @@ class _Compiler:
         return f"{prefix}{line}"
 
     # instructions
+    def zone(self, e: Expr, line: int, name: str) -> float:
+        """Blend radius of a zone argument, mm (0: ``fine``)."""
+        if e.kind == "id":
+            z = e.args[0].lower()
+            if z == "fine":
+                return 0.0
+            if z not in self.decls and z in _PREDEFINED_ZONES:
+                return _PREDEFINED_ZONES[z]
+            d = self.decls.get(z)
+            if d is None or d.type != "zonedata":
+                raise RapidError(line, f"{name}: unknown zone {e.args[0]} (fine, z0 ... z200 or a zonedata)")
+        elif e.kind != "agg":
+            raise RapidError(line, f"{name}: the zone must be fine, a predefined zone or zonedata")
+        if e.kind == "id":
+            e = self.decls[e.args[0].lower()].value
+        if e is None or e.kind != "agg" or len(e.args) != 7:
+            raise RapidError(line, f"{name}: zonedata must hold [finep, pzone_tcp, ...] (7 values)")
+        finep = e.args[0]
+        if finep.kind != "id" or finep.args[0].lower() not in ("true", "false"):
+            raise RapidError(line, f"{name}: zonedata's finep must be TRUE or FALSE")
+        if finep.args[0].lower() == "true":
+            return 0.0
+        r = self.num(e.args[1])
+        if not 0 <= r <= MAX_ZONE_MM:
+            raise RapidError(line, f"{name}: zone radius {r:g} mm is outside [0, {MAX_ZONE_MM:g}]")
+        return r
+
     def move(self, ins: Instr) -> Move:
         op = ins.name.lower()
-        if len(ins.args) != 4:
-            raise RapidError(ins.line, f"{ins.name} takes target, speed, zone, tool")
-        target_e, speed_e, zone_e, tool_e = ins.args
-        if zone_e.kind != "id" or zone_e.args[0].lower() != "fine":
-            raise RapidError(ins.line, f"{ins.name}: only the zone 'fine' is supported (exact stops)")
+        n_args = 5 if op == "movec" else 4
+        if len(ins.args) != n_args:
+            raise RapidError(ins.line, f"{ins.name} takes {'circle point, ' if op == 'movec' else ''}target, speed, "
+                                       "zone, tool")
+        via_e = ins.args[0] if op == "movec" else None
+        target_e, speed_e, zone_e, tool_e = ins.args[-4:]
+        zone_mm = self.zone(zone_e, ins.line, ins.name)
+        if zone_mm > 0 and op not in ("movel", "movec"):
+            raise RapidError(ins.line, f"{ins.name}: only MoveL and MoveC blend; use fine")
         if tool_e.kind != "id" or tool_e.args[0].lower() != "tool0":
             raise RapidError(ins.line, f"{ins.name}: only tool0 is supported")
         for sw, val in ins.switches.items():
@@ -523,6 +561,17 @@ class _Compiler:
             )
         frac = min(frac, 1.0)
         label = target_e.args[0] if target_e.kind == "id" else f"inline target line {ins.line}"
+        via = None
+        if via_e is not None:
+            try:
+                pos, rot, _conf, _eax = self.agg(via_e, (3, 4, 4, 6), "robtarget")
+                via = CartesianTarget(self.target_name(via_e, "C", ins.line), tuple(pos), tuple(rot),
+                                      label=via_e.args[0] if via_e.kind == "id" else f"circle point line {ins.line}")
+            except ConfigError as exc:
+                raise RapidError(ins.line, str(exc)) from None
+            key = ("p", via.xyz_mm, via.quat_wxyz)
+            if self._targets.setdefault(via.name.lower(), key) != key:
+                via = replace(via, name=f"C{ins.line}")
         try:
             if op == "moveabsj":
                 (q, _eax) = self.agg(target_e, (6, 6), "jointtarget")
@@ -538,12 +587,15 @@ class _Compiler:
         prev = self._targets.setdefault(target.name.lower(), key)
         if prev != key:
             target = replace(target, name=f"L{ins.line}")
-        interp = "linear" if op == "movel" else "joint"
-        return Move(target, interp, frac, source_line=ins.line)
+        interp = {"movel": "linear", "movec": "circular"}.get(op, "joint")
+        try:
+            return Move(target, interp, frac, source_line=ins.line, zone_mm=zone_mm, via=via)
+        except ConfigError as exc:
+            raise RapidError(ins.line, str(exc)) from None
 
     def instruction(self, ins: Instr, loop_var: str | None, top: bool):
         op = ins.name.lower()
-        if op in ("movej", "movel", "moveabsj"):
+        if op in ("movej", "movel", "movec", "moveabsj"):
             return self.move(ins)
         if op == "waittime":
             if len(ins.args) != 1 or ins.switches:
@@ -590,7 +642,7 @@ class _Compiler:
         if "main" not in procs:
             raise RapidError(1, "no PROC main()")
         for d in self.m.decls.values():
-            if d.type not in ("robtarget", "jointtarget", "speeddata", "num"):
+            if d.type not in ("robtarget", "jointtarget", "speeddata", "zonedata", "num"):
                 raise RapidError(d.line, f"data type {d.type} is not supported")
         self.accel_frac = None
         statements: list = []
@@ -758,6 +810,25 @@ class RapidRun:
         if isinstance(ins, Dwell) and ins.seconds > 0:
             self._t_last = float(self.arm.dwell(ins.seconds).t_end)
             return self._t_last
+        if isinstance(ins, path_follow.Run):
+            for m in ins.moves:
+                self.gate.check_cartesian_target(m.target.pose, self.gate.describe(m), q_seed=self._q_queue_end())
+            try:
+                mv = path_follow.queue_run(self.arm, self.world.robot, ins,
+                                           rated_tcp_speed_mm_s=self.program.rated_tcp_speed_mm_s,
+                                           accel_mm_s2=self._accel_mm_s2,
+                                           ripple=path_follow.ripple_of(self.world.seed, key), noise_key=key)
+            except DataError as exc:
+                raise SafetyError(f"{self.gate.describe(ins.moves[0])}: {exc}") from exc
+            first = self._queued_moves + 1
+            self._queued_moves += len(ins.moves)
+            for kind, at in self.fault_at_move.items():
+                if first <= at <= self._queued_moves:
+                    self._fault_mid[at] = (kind, 0.5 * (float(mv.t_start) + float(mv.t_end)))
+            self._t_last = self.arm.in_position_s()
+            if self._t_last > mv.t_end:
+                self.arm.dwell(self._t_last - float(mv.t_end), kind="settle")
+            return self._t_last
         if not isinstance(ins, Move):
             return self._t_last  # instant: done when everything before it is
         t = ins.target
@@ -788,10 +859,15 @@ class RapidRun:
 
     def _finish(self, ins, t_end: float, cycle: int) -> None:
         """Wait until ``ins`` has ended on the arm, then report it."""
+        n_moves = len(ins.moves) if isinstance(ins, path_follow.Run) else int(isinstance(ins, Move))
+        if isinstance(ins, path_follow.Run):
+            self.progress.line = ins.moves[-1].source_line or 0
+            self.on_progress(self.progress)
         if isinstance(ins, (Move, Dwell)):
             self.progress.line = ins.source_line or 0
             self.on_progress(self.progress)
-        fault = self._fault_mid.get(self.progress.moves_done + 1) if isinstance(ins, Move) else None
+        done = self.progress.moves_done
+        fault = next((self._fault_mid[k] for k in range(done + 1, done + n_moves + 1) if k in self._fault_mid), None)
         if fault is not None:
             kind, t_mid = fault
             if not self.clock.sleep_until(t_mid, self.stop_event):
@@ -805,14 +881,18 @@ class RapidRun:
             raise ProgramStopped()
         if not self.clock.sleep_until(t_end, self.stop_event) or self.stop_event.is_set():
             raise ProgramStopped()
-        if isinstance(ins, Move):
-            self.progress.moves_done += 1
+        if n_moves:
+            self.progress.moves_done += n_moves
         elif isinstance(ins, CycleMark):
             self.progress.cycle_count = cycle if cycle else 1
             self.progress.line = ins.source_line or 0
         self.on_progress(self.progress)
 
     def _stream(self):
+        items = self._instructions()
+        return path_follow.group_runs(items) if path_follow.is_path_program(self.program) else items
+
+    def _instructions(self):
         for s in self.program.statements:
             if isinstance(s, Loop):
                 for c in range(1, s.count + 1):

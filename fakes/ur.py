@@ -18,7 +18,7 @@ ports, so several fakes run side by side on 127.0.0.2, 127.0.0.3, ...):
   anything else gets ``could not understand: '<line>'``.
 * **Script** (30003): a URScript subset, one program per ``def ... end``
   block or per bare line. A new program replaces the running one (as on the
-  real controller). Supported: ``movej``/``movel`` (joint list or ``p[...]``
+  real controller). Supported: ``movej``/``movel``/``movec`` (joint list or ``p[...]``
   pose; ``a``, ``v``, ``t``, ``r`` by position or keyword), ``stopj``,
   ``stopl``, ``sleep``, ``sync``, ``textmsg``,
   ``write_output_{integer,float,boolean}_register``; numbers, ``pi``, lists,
@@ -31,7 +31,12 @@ RTDE text message ``Compile error: ...`` (level error) and records it in
 ``handle.script_errors``. A program that fails while running (unreachable
 pose, joint target outside the limits, robot not ready) stops with a
 ``Runtime error: ...`` text message; the robot halts, no protective stop.
-Blend radii ``r`` are accepted and not applied (every move ends in a stop).
+Blend radii ``r`` blend: consecutive ``movel``/``movec`` calls whose radius
+is > 0 run as one path, their corners rounded by ``r`` and one speed profile
+to rest at the run's last target (:mod:`fakes.sim.path_follow`); register
+writes between them take effect when the run ends. ``movec(pose_via,
+pose_to, a, v, r, mode)`` moves on the circle through the start, the via
+pose's position and the target (fixed orientation).
 ``movej`` speed ``v`` (rad/s) and acceleration ``a`` (rad/s^2) are taken as
 fractions of the robot's slowest joint limits; ``movel``'s are the path speed
 and acceleration (m/s, m/s^2); ``t`` > 0 stretches either move to about that
@@ -122,9 +127,11 @@ from station.models.rotation import T_to_ur_pose, rotvec_of, ur_pose_to_T
 
 from fakes import rtde_protocol as rp
 from fakes.sim.clock import keep_running, stop_running
+from fakes.sim import path_follow
 from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitter, bind_arguments, parse_program
 from station.errors import ConfigError, DataError, ProtocolError
 from station.models import kinematics
+from station.models.cartesian_path import Segment
 from station.protocols.ur import LOCKSTEP_STORED_REGISTER, JointMode, RobotMode, RuntimeState, SafetyMode
 
 #: the robot a UR fake simulates unless told otherwise (`station fakes serve ur --robot ...`)
@@ -618,13 +625,22 @@ class _Interpreter:
             clock.sleep_until(t_sim, self.wake)
 
     def _execute(self, program: ScriptProgram) -> None:
-        for call in program.statements:
+        calls = list(program.statements)
+        i = 0
+        while i < len(calls):
+            call = calls[i]
+            i += 1
             self._check()
             with self.ctl.lock:
                 self.ctl.script_line = call.line
             b = bind_arguments(call)
             name = call.name
-            if name in ("movej", "movel"):
+            if name == "movec" or (name == "movel" and float(b.get("r", 0.0)) > 0):
+                run, deferred, i = _blended_run(calls, i - 1)
+                self._move_path(program, run)
+                for w in deferred:
+                    self._write(w, bind_arguments(w))
+            elif name in ("movej", "movel"):
                 self._move(program, call, b)
             elif name in ("stopj", "stopl"):
                 _halt(self.ctl.arm)
@@ -634,16 +650,51 @@ class _Interpreter:
                 self._wait_until(self.ctl.clock.now() + TICK_S)
             elif name == "textmsg":
                 self.ctl.message(f"{b['s1']}{b.get('s2', '')}", rp.MESSAGE_INFO)
-            elif name == "write_output_integer_register":
-                with self.ctl.lock:
-                    self.ctl.out_int[int(b["address"])] = int(b["value"])
+            elif name.startswith("write_output_"):
+                self._write(call, b)
+
+    def _write(self, call: Call, b: dict) -> None:
+        name = call.name
+        with self.ctl.lock:
+            if name == "write_output_integer_register":
+                self.ctl.out_int[int(b["address"])] = int(b["value"])
             elif name == "write_output_float_register":
-                with self.ctl.lock:
-                    self.ctl.out_double[int(b["address"])] = float(b["value"])
-            elif name == "write_output_boolean_register":
+                self.ctl.out_double[int(b["address"])] = float(b["value"])
+            else:
                 bit = 1 << (int(b["address"]) - 64)
-                with self.ctl.lock:
-                    self.ctl.out_bits = (self.ctl.out_bits | bit) if b["value"] else (self.ctl.out_bits & ~bit)
+                self.ctl.out_bits = (self.ctl.out_bits | bit) if b["value"] else (self.ctl.out_bits & ~bit)
+
+    def _move_path(self, program: ScriptProgram, run: list) -> None:
+        """A run of blended ``movel``/``movec`` calls, interpolated as one path (:mod:`fakes.sim.path_follow`):
+        corners rounded by each move's ``r``, one speed profile to rest at the last target. The run is one
+        motion to the fault plan's counters and to a pause (a paused run is halted, not taken up again)."""
+        ctl, arm, robot = self.ctl, self.ctl.arm, self.ctl.robot
+        why = ctl.ready_to_move()
+        if why is not None:
+            raise ScriptError(f"line {run[0].line}: {run[0].name}: {why}")
+        segs = []
+        for call in run:
+            b = bind_arguments(call)
+            T = ur_pose_to_T((b["pose_to"] if call.name == "movec" else b["pose"]).values)
+            v = float(b.get("v", 0.25)) * 1000.0
+            v = min(v, float(robot.max_tcp_speed_mm_s)) if v > 0 else float(robot.max_tcp_speed_mm_s)
+            via = ur_pose_to_T(b["pose_via"].values)[:3, 3] if call.name == "movec" else None
+            segs.append(Segment(T, v, float(b.get("r", 0.0)) * 1000.0, via))
+        a = float(bind_arguments(run[0]).get("a", 1.2)) * 1000.0
+        with ctl.lock:
+            ctl.motion_count += 1
+            count = ctl.motion_count
+        try:
+            move = path_follow.queue_segments(arm, robot, segs, accel_mm_s2=a if a > 0 else 1200.0,
+                                              ripple=path_follow.ripple_of(ctl.world.seed, (count,)))
+        except Exception as exc:  # the path leaves the reach: a runtime error
+            raise ScriptError(f"line {run[0].line}: {run[0].name}: {exc}") from exc
+        try:
+            self._wait_until(move.t_end)
+        except _Abort:
+            if ctl.safety_mode() == SAFETY_NORMAL:
+                _halt(arm)
+            raise
 
     def _move(self, program: ScriptProgram, call: Call, b: dict) -> None:
         ctl, arm, robot = self.ctl, self.ctl.arm, self.ctl.robot
@@ -721,6 +772,26 @@ class _Interpreter:
             if self.pause_epoch == epoch:
                 return
             # paused during the move: the arm was halted; go on to the same target
+
+
+def _blended_run(calls: list, i: int) -> tuple[list, list, int]:
+    """The blended run of motion calls starting at ``calls[i]``: it goes on while its last move has a blend
+    radius and the next motion (register writes between are deferred to the run's end) is a movel or movec.
+    Returns ``(motions, deferred writes, index after the run)``."""
+    run, deferred = [calls[i]], []
+    j = i + 1
+    while float(bind_arguments(run[-1]).get("r", 0.0)) > 0:
+        k, writes = j, []
+        while k < len(calls) and calls[k].name.startswith("write_output_"):
+            writes.append(calls[k])
+            k += 1
+        if k < len(calls) and calls[k].name in ("movel", "movec"):
+            run.append(calls[k])
+            deferred += writes
+            j = k + 1
+        else:
+            break
+    return run, deferred, j
 
 
 def _trap_time(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> float:

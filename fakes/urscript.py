@@ -208,6 +208,7 @@ def _strip_comment(line: str) -> str:
 _SIGNATURES = {
     "movej": (("q", "a", "v", "t", "r"), 1),
     "movel": (("pose", "a", "v", "t", "r"), 1),
+    "movec": (("pose_via", "pose_to", "a", "v", "r", "mode"), 2),
     "stopj": (("a",), 1),
     "stopl": (("a",), 1),
     "sleep": (("t",), 1),
@@ -250,6 +251,12 @@ def bind_arguments(call: Call) -> dict:
         vals = target.values if isinstance(target, Pose) else target
         if not all(math.isfinite(x) for x in vals):
             raise ScriptError(f"line {call.line}: {call.name}() target is not finite")
+    if call.name == "movec":
+        for k in ("pose_via", "pose_to"):
+            if not (isinstance(bound[k], Pose) and all(math.isfinite(x) for x in bound[k].values)):
+                raise ScriptError(f"line {call.line}: movec() {k} must be a finite pose p[...]")
+        if bound.get("mode", 0) not in (0, 1):
+            raise ScriptError(f"line {call.line}: movec() mode must be 0 (fixed orientation) or 1 (unconstrained)")
     if call.name == "sleep" and not (_is_number(bound["t"]) and bound["t"] >= 0 and math.isfinite(bound["t"])):
         raise ScriptError(f"line {call.line}: sleep() needs a time >= 0")
     if call.name.startswith("write_output_"):

@@ -22,6 +22,7 @@ from station.errors import ConfigError
 #: procedure name -> module whose ``SPEC`` defines it
 REGISTRY: dict[str, str] = {
     "iso9283": "procedures.iso9283",
+    "iso9283-path": "procedures.iso9283_path",
     "trailer": "procedures.trailer",
     "arm-calibration": "procedures.arm_calibration",
     "compliance": "procedures.compliance",

@@ -14,7 +14,9 @@ fake alike:
 * every target and every point of the path between targets lies in the
   configured workspace box (joint moves: the TCP path of the joint
   interpolation is sampled; linear moves: the segment is inside because the
-  box is convex, and sampled points along it must be reachable);
+  box is convex, and sampled points along it must be reachable; circular
+  moves: sampled points of the arc must be inside the box and reachable; a
+  corner zone only rounds a corner inside the convex hull of its segments);
 * speeds and accelerations are under the caps: the speed fraction, the
   linear TCP speed, the estimated peak TCP speed of a joint move (cruise
   joint velocities of the synchronised profile through the Jacobian along the
@@ -51,7 +53,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from scipy.spatial.transform import Rotation, Slerp
 
 from station.errors import ConfigError, DataError, SafetyError
-from station.models import kinematics
+from station.models import cartesian_path, kinematics
 from station.programs.model import (
     CycleMark,
     Dwell,
@@ -416,15 +418,35 @@ class SafetyGate:
         points (a singularity or configuration change), refuses the move.
         """
         pa, pb = pose_a[:3, 3], pose_b[:3, 3]
-        qa, qb = np.asarray(q_a, float), np.asarray(q_b, float)
         n = int(np.clip(np.ceil(np.linalg.norm(pb - pa) / self.limits.path_step_mm), 1, 500)) + 1
         if n <= 2:
             return
-        s = np.linspace(0.0, 1.0, n)[1:-1]
+        s = np.linspace(0.0, 1.0, n)
+        self._check_sampled_path(pose_a, pose_b, pa + s[:, None] * (pb - pa), q_a, q_b, label, "straight")
+
+    def check_arc_path(self, pose_a: np.ndarray, via_mm, pose_b: np.ndarray, q_a, q_b, label: str) -> None:
+        """Points along a circular move (from ``pose_a`` through ``via_mm`` to ``pose_b``) are inside the box
+        and reachable without a branch change (as :meth:`check_linear_path`)."""
+        try:
+            _, r, _, _ = cartesian_path.circle_through(pose_a[:3, 3], via_mm, pose_b[:3, 3])
+        except DataError as exc:
+            raise SafetyError(f"{label}: {exc}") from None
+        n = int(np.clip(np.ceil(2 * np.pi * r / self.limits.path_step_mm), 8, 1000)) + 1
+        pts = cartesian_path.arc_points(pose_a[:3, 3], via_mm, pose_b[:3, 3], n)
+        out = np.nonzero(self._outside_box(pts))[0]
+        if out.size:
+            raise SafetyError(f"{label}: the arc leaves the workspace: {self._box_message(pts[int(out[0])])}")
+        self._check_sampled_path(pose_a, pose_b, pts, q_a, q_b, label, "circular")
+
+    def _check_sampled_path(self, pose_a, pose_b, pts, q_a, q_b, label: str, what: str) -> None:
+        """IK at the inner points ``pts[1:-1]`` (orientation slerped), seeded from the joint interpolation."""
+        qa, qb = np.asarray(q_a, float), np.asarray(q_b, float)
+        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+        s = (cum / cum[-1])[1:-1]
         rots = Rotation.from_matrix(np.stack([pose_a[:3, :3], pose_b[:3, :3]]))
         poses = np.repeat(np.eye(4)[None], s.size, axis=0)
         poses[:, :3, :3] = Slerp([0.0, 1.0], rots)(s).as_matrix()
-        poses[:, :3, 3] = pa + s[:, None] * (pb - pa)
+        poses[:, :3, 3] = pts[1:-1]
         seeds = qa + s[:, None] * (qb - qa)
         res = _ik(
             self.robot.dh_nominal, poses, seeds, self.joint_limits_rad, tol_mm=self.limits.ik_tol_mm * 0.1, n_restarts=0
@@ -433,7 +455,7 @@ class SafetyGate:
         if bad.size:
             i = int(bad[0])
             raise SafetyError(
-                f"{label}: the straight path is not reachable at {100 * s[i]:.0f} % of the move, "
+                f"{label}: the {what} path is not reachable at {100 * s[i]:.0f} % of the move, "
                 f"{_fmt(poses[i, :3, 3])} mm (IK residual {res.residual_mm[i]:.3g} mm)"
             )
         q_all = np.concatenate([qa[None], res.q_rad, qb[None]])
@@ -442,7 +464,7 @@ class SafetyGate:
             k, j = np.unravel_index(int(np.argmax(jumps)), jumps.shape)
             where = poses[min(k, s.size - 1), :3, 3]
             raise SafetyError(
-                f"{label}: the straight path crosses a singularity or configuration change near "
+                f"{label}: the {what} path crosses a singularity or configuration change near "
                 f"{_fmt(where)} mm (joint {j + 1} jumps {np.degrees(jumps[k, j]):.1f} deg)"
             )
 
@@ -453,7 +475,7 @@ class SafetyGate:
         line = getattr(ins, "source_line", None)
         head = f"line {line}" if line is not None else (where or "instruction")
         if isinstance(ins, Move):
-            kind = "linear move" if ins.interpolation == "linear" else "joint move"
+            kind = f"{ins.interpolation} move"
             lab = f" ({ins.target.label!r})" if ins.target.label else ""
             return f"{head}: {kind} to {ins.target.name}{lab}"
         return f"{head}: {type(ins).__name__.lower()}"
@@ -508,11 +530,15 @@ class SafetyGate:
             q = self.check_joint_target(t.q_rad, label)
         else:
             q = self.check_cartesian_target(t.pose, label, q_seed=q_prev)
-        if ins.interpolation == "linear":
+        if ins.interpolation != "joint":
             v = ins.speed_frac * rated
             self.check_speed(label, tcp_speed_mm_s=v)
             pose_a = kinematics.fk(self.robot.dh_nominal, q_prev)
-            self.check_linear_path(pose_a, t.pose, q_prev, q, label)
+            if ins.interpolation == "circular":
+                self.check_position(ins.via.xyz_mm, f"{label} circle point {ins.via.name}")
+                self.check_arc_path(pose_a, np.asarray(ins.via.xyz_mm), t.pose, q_prev, q, label)
+            else:
+                self.check_linear_path(pose_a, t.pose, q_prev, q, label)
         else:
             v = self._check_joint_motion_path(q_prev, q, ins.speed_frac, label)
         return q, v

@@ -559,6 +559,32 @@ class SimArm:
             traj_srv = motion.spline_trajectory(plan.t_knots, q_srv)
             return self._append(t_start, plan.trajectory, traj_srv, "linear", noise_key)
 
+    def move_knots(self, t_knots, q_knots, *, noise_key=None) -> Move:
+        """Queue a path the controller interpolated itself: joint knots ``q_knots`` (K + 1, 6) at times
+        ``t_knots`` from the move's start (a run of blended path moves, :mod:`station.models.cartesian_path`).
+
+        The first knot must be where the queue ends; the stopping error is blended in along the knots as
+        in :meth:`move_linear`.
+        """
+        t = np.asarray(t_knots, dtype=float).reshape(-1)
+        q = np.asarray(q_knots, dtype=float)
+        if q.shape != (t.size, _N) or t.size < 2 or not (np.all(np.isfinite(q)) and np.all(np.diff(t) > 0)) or t[0]:
+            raise DataError("`t_knots` must rise from 0 and `q_knots` hold 6 finite angles per knot")
+        with self._lock:
+            self._check_ready()
+            if np.max(np.abs(q[0] - self._q_cmd_end)) > 1e-6:
+                raise DataError("a path's first knot must be where the arm's queue ends")
+            for qk in q[:: max(1, len(q) // 64)]:
+                self._check_joint_target(qk)
+            self._check_joint_target(q[-1])
+            t_start = self._start_time()
+            delta = self._draw_delta(noise_key)
+            d0 = self._delta_end
+            s = (t / t[-1])[:, None]
+            traj_cmd = motion.spline_trajectory(t, q)
+            traj_srv = motion.spline_trajectory(t, q + d0 + s * (delta - d0))
+            return self._append(t_start, traj_cmd, traj_srv, "linear", noise_key)
+
     def dwell(self, seconds: float, *, kind: str = "dwell") -> Move:
         """Queue a pause of ``seconds`` at the current target (``kind="settle"``: a controller's wait for the arm
         to come in position at a stop point, not a pause the program asked for)."""

@@ -16,8 +16,9 @@ Output: ``<NAME>.src`` (the program) and ``<NAME>.dat`` (its data list)::
     ENDFOR
     END
 
-Conventions: motions without ``C_PTP``/``C_LIN`` stop exactly (ISO 9283
-fine stops); Cartesian speed ``$VEL.CP`` is in m/s (``speed_frac`` x rated
+Conventions: motions without ``C_DIS`` stop exactly (ISO 9283
+fine stops); a move with a corner zone is ``LIN p C_DIS`` (or ``CIRC via, p
+C_DIS``) after ``$APO.CDIS`` = the blend radius in mm; Cartesian speed ``$VEL.CP`` is in m/s (``speed_frac`` x rated
 TCP speed), joint speed ``$VEL_AXIS[i]`` and acceleration ``$ACC_AXIS[i]``
 in percent; ``$ACC.CP`` in m/s^2 needs the program's
 ``rated_tcp_accel_mm_s2``. Orientation is written as KUKA's A, B, C angles
@@ -97,7 +98,7 @@ def render_krl(program: Program) -> RenderedProgram:
     if not isinstance(program, Program):
         raise ConfigError(f"render_krl needs a Program, got {type(program).__name__}")
     has_linear = any(
-        isinstance(s, Move) and s.interpolation == "linear"
+        isinstance(s, Move) and s.interpolation != "joint"
         for st in program.statements
         for s in (st.body if isinstance(st, Loop) else (st,))
     )
@@ -132,10 +133,15 @@ def render_krl(program: Program) -> RenderedProgram:
         emit(f"$ACC.CP = {fmt_num(program.accel_frac * program.rated_tcp_accel_mm_s2 / 1000.0, 4)}", 1)
     emit(f"{CYCLE_SIGNAL} = 0", 1)
 
-    state = {"axis": None, "cp": None}
+    state = {"axis": None, "cp": None, "apo": None}
+
+    def set_zone(ins: Move, depth: int) -> None:
+        if ins.zone_mm > 0 and state["apo"] != ins.zone_mm:
+            emit(f"$APO.CDIS = {fmt_num(ins.zone_mm, 3)}", depth)
+            state["apo"] = ins.zone_mm
 
     def set_speed(ins: Move, depth: int) -> None:
-        if ins.interpolation == "linear":
+        if ins.interpolation != "joint":
             if state["cp"] != ins.speed_frac:
                 v = ins.speed_frac * program.rated_tcp_speed_mm_s / 1000.0
                 emit(f"$VEL.CP = {fmt_num(v, 4)}", depth)
@@ -152,8 +158,12 @@ def render_krl(program: Program) -> RenderedProgram:
             t = ins.target
             if isinstance(t, JointTarget):
                 return emit(f"PTP j_{t.name}", depth)
+            set_zone(ins, depth)
+            blend = " C_DIS" if ins.zone_mm > 0 else ""
+            if ins.interpolation == "circular":
+                return emit(f"CIRC p_{ins.via.name}, p_{t.name}{blend}", depth)
             op = "LIN" if ins.interpolation == "linear" else "PTP"
-            return emit(f"{op} p_{t.name}", depth)
+            return emit(f"{op} p_{t.name}{blend}", depth)
         if isinstance(ins, Dwell):
             return emit(f"WAIT SEC {fmt_num(ins.seconds, 3)}", depth)
         if isinstance(ins, CycleMark):
@@ -163,12 +173,12 @@ def render_krl(program: Program) -> RenderedProgram:
     for s in program.statements:
         if isinstance(s, Loop):
             # speeds set inside the loop must be re-set at the top of each pass
-            state["axis"] = state["cp"] = None
+            state["axis"] = state["cp"] = state["apo"] = None
             stmt_lines.append(emit(f"FOR {LOOP_COUNTER} = 1 TO {s.count}", 1))
             for b in s.body:
                 stmt_lines.append(instruction(b, 2, LOOP_COUNTER))
             emit("ENDFOR", 1)
-            state["axis"] = state["cp"] = None
+            state["axis"] = state["cp"] = state["apo"] = None
         else:
             stmt_lines.append(instruction(s, 1, None))
     emit("END")

@@ -41,6 +41,10 @@ MAX_ABS_VALUE = 1.0e5
 MAX_TEXT_LEN = 80
 #: most repetitions of a loop body
 MAX_CYCLES = 10000
+#: largest corner zone (blend radius), mm
+MAX_ZONE_MM = 500.0
+#: how a move gets to its target: joint-interpolated, straight line, arc through a via point
+INTERPOLATIONS = ("joint", "linear", "circular")
 
 _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*", re.ASCII)
 _TEXT_RE = re.compile(r"[\x20-\x7e]*", re.ASCII)
@@ -250,24 +254,42 @@ class Move:
     source_line : int or None
         Line of the program text this instruction was rendered to (filled by
         the generators; the safety gate names it).
+    zone_mm : float
+        Corner zone (blend radius), mm: 0 is an exact stop (``fine``); a
+        positive radius lets the path round the corner to the next move
+        within that distance of the target (RAPID zonedata, KRL ``C_DIS``,
+        URScript ``r``). Only linear and circular moves blend.
+    via : CartesianTarget or None
+        The circle point of a ``"circular"`` move (the arc runs from where
+        the move starts through ``via`` to ``target``).
     """
 
     target: Target
     interpolation: str = "joint"
     speed_frac: float = 1.0
     source_line: int | None = None
+    zone_mm: float = 0.0
+    via: CartesianTarget | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.target, (CartesianTarget, JointTarget)):
             raise ConfigError(f"move target must be a CartesianTarget or JointTarget, got {type(self.target).__name__}")
-        if self.interpolation not in ("joint", "linear"):
-            raise ConfigError(f"move to {self.target.name}: interpolation must be 'joint' or 'linear', got {self.interpolation!r}")
-        if self.interpolation == "linear" and isinstance(self.target, JointTarget):
-            raise ConfigError(f"move to {self.target.name}: a linear move needs a Cartesian target")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ConfigError(f"move to {self.target.name}: interpolation must be one of {', '.join(INTERPOLATIONS)}, "
+                              f"got {self.interpolation!r}")
+        if self.interpolation != "joint" and isinstance(self.target, JointTarget):
+            raise ConfigError(f"move to {self.target.name}: a {self.interpolation} move needs a Cartesian target")
+        if (self.interpolation == "circular") != isinstance(self.via, CartesianTarget):
+            raise ConfigError(f"move to {self.target.name}: a circular move needs a Cartesian via point, "
+                              "and only a circular move has one")
         v = check_number(self.speed_frac, f"move to {self.target.name} speed_frac", lo=0.0, hi=1.0)
         if v <= 0.0:
             raise ConfigError(f"move to {self.target.name} speed_frac: must be > 0")
         object.__setattr__(self, "speed_frac", v)
+        z = check_number(self.zone_mm, f"move to {self.target.name} zone_mm", lo=0.0, hi=MAX_ZONE_MM)
+        if z > 0 and self.interpolation == "joint":
+            raise ConfigError(f"move to {self.target.name}: only linear and circular moves blend (zone_mm {z:g})")
+        object.__setattr__(self, "zone_mm", z)
 
 
 @dataclass(frozen=True)
@@ -382,18 +404,26 @@ class Program:
         for ins in iter_instructions(self.statements):
             if not isinstance(ins, Move):
                 continue
-            t = ins.target
-            key = t.name.lower()
-            if key in seen:
-                prev = out[seen[key]]
-                if prev != t:
-                    raise ConfigError(
-                        f"program {self.name}: two different targets named {t.name!r} "
-                        "(names are case-insensitive)"
-                    )
-                continue
-            seen[key] = t.name
-            out[t.name] = t
+            for t in ((ins.via, ins.target) if ins.via is not None else (ins.target,)):
+                key = t.name.lower()
+                if key in seen:
+                    prev = out[seen[key]]
+                    if prev != t:
+                        raise ConfigError(
+                            f"program {self.name}: two different targets named {t.name!r} "
+                            "(names are case-insensitive)"
+                        )
+                    continue
+                seen[key] = t.name
+                out[t.name] = t
+        return out
+
+    def zones_mm(self) -> list[float]:
+        """Distinct corner zones (blend radii > 0), mm, in first-use order."""
+        out: list[float] = []
+        for ins in iter_instructions(self.statements):
+            if isinstance(ins, Move) and ins.zone_mm > 0 and ins.zone_mm not in out:
+                out.append(ins.zone_mm)
         return out
 
     def speed_fracs(self) -> list[float]:

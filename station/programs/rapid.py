@@ -24,8 +24,10 @@ data, one ``speeddata`` per speed used and ``PROC main()``::
 
 Conventions the controller (and the station's fake) rely on:
 
-* every move ends with ``fine`` (exact stop): ISO 9283 measures attained
-  poses at rest;
+* a move ends with ``fine`` (exact stop: ISO 9283 measures attained poses
+  at rest) unless it has a corner zone (``zone_mm``), written as a
+  ``zonedata`` ``z_1``, ``z_2`` ... of that radius (path tests: cornering);
+  a circular move is ``MoveC via, to, ...``;
 * ``ConfJ \\Off`` / ``ConfL \\Off``: the controller takes the joint solution
   closest to the current one, which is also what the safety gate assumes
   when it solves the inverse kinematics from the previous target;
@@ -116,6 +118,18 @@ def _speed_name(i: int) -> str:
     return f"v_{i + 1}"
 
 
+def _zone_name(i: int) -> str:
+    return f"z_{i + 1}"
+
+
+def _zonedata(r_mm: float) -> str:
+    """``zonedata`` of a blend radius: [finep, pzone_tcp, pzone_ori, pzone_eax, zone_ori, zone_leax, zone_reax]
+    with the orientation and external-axis zones in the proportions of RAPID's predefined zones."""
+    r = fmt_num(r_mm, 3)
+    big, small = fmt_num(1.5 * r_mm, 3), fmt_num(0.15 * r_mm, 3)
+    return f"[FALSE,{r},{big},{big},{small},{big},{small}]"
+
+
 def render_rapid(program: Program) -> RenderedProgram:
     """Render ``program`` as an ABB RAPID module.
 
@@ -137,12 +151,14 @@ def render_rapid(program: Program) -> RenderedProgram:
             f"program {program.name}: accel_frac {program.accel_frac:g} is below RAPID's AccSet minimum of 20 %"
         )
     speeds = program.speed_fracs()
+    zones = program.zones_mm()
     check_unique_identifiers(program.name, [
         (program.name, "the module"), ("main", "the main routine"), (LOOP_COUNTER, "the loop counter"),
         (CYCLE_SIGNAL, "the cycle signal"),
         *[((robtarget_name(t) if isinstance(t, CartesianTarget) else jointtarget_name(t)), f"target {t.name}")
           for t in program.targets().values()],
-        *[(_speed_name(i), "a speed") for i in range(len(speeds))]])
+        *[(_speed_name(i), "a speed") for i in range(len(speeds))],
+        *[(_zone_name(i), "a zone") for i in range(len(zones))]])
     lines: list[str] = []
     stmt_lines: list[int] = []
 
@@ -166,6 +182,8 @@ def render_rapid(program: Program) -> RenderedProgram:
             f"! {fmt_num(frac * 100, 3)} % of rated speed",
             1,
         )
+    for i, r in enumerate(zones):
+        emit(f"CONST zonedata {_zone_name(i)} := {_zonedata(r)}; ! corner zone {fmt_num(r, 3)} mm", 1)
     emit("PROC main()", 1)
     if program.title:
         emit(f"TPWrite {rapid_string(program.title)};", 2)
@@ -180,8 +198,11 @@ def render_rapid(program: Program) -> RenderedProgram:
             t = ins.target
             if isinstance(t, JointTarget):
                 return emit(f"MoveAbsJ {jointtarget_name(t)}, {speed}, fine, tool0;", depth)
+            zone = _zone_name(zones.index(ins.zone_mm)) if ins.zone_mm > 0 else "fine"
+            if ins.interpolation == "circular":
+                return emit(f"MoveC {robtarget_name(ins.via)}, {robtarget_name(t)}, {speed}, {zone}, tool0;", depth)
             op = "MoveL" if ins.interpolation == "linear" else "MoveJ"
-            return emit(f"{op} {robtarget_name(t)}, {speed}, fine, tool0;", depth)
+            return emit(f"{op} {robtarget_name(t)}, {speed}, {zone}, tool0;", depth)
         if isinstance(ins, Dwell):
             return emit(f"WaitTime {fmt_num(ins.seconds, 3)};", depth)
         if isinstance(ins, CycleMark):

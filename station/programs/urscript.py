@@ -23,7 +23,9 @@ Conventions the driver (:class:`drivers.ur.URDriver`) and the fake rely on:
 * ``movej``'s ``v`` and ``a`` are ``speed_frac`` (``accel_frac``) x the
   slowest joint's limits (rad/s, rad/s^2), ``movel``'s the rated TCP speed and
   acceleration in m/s, m/s^2;
-* every move ends in a stop (no blend radius): ISO 9283 measures at rest;
+* a move ends in a stop (ISO 9283 measures poses at rest) unless it has a
+  corner zone: then ``r`` is its blend radius in m (path tests); a circular
+  move is ``movec(via, to, a, v, r, mode=0)`` (fixed orientation);
 * output integer registers ``base`` .. ``base + 3``: the sequence number when
   the program starts, the same number when it ends, the moves done and the
   cycles done (``CycleMark``), which RTDE reports back to the driver.
@@ -48,6 +50,13 @@ def _num(x: float) -> str:
     if not math.isfinite(float(x)):
         raise SafetyError(f"non-finite number {x!r} in a URScript program")
     return repr(round(float(x), 9))
+
+
+def _pose(T) -> str:
+    """``p[x, y, z, rx, ry, rz]`` of a 4x4 pose in mm: metres and a rotation vector."""
+    T = np.asarray(T, dtype=float)
+    pose = list(T[:3, 3] / 1000.0) + list(Rotation.from_matrix(T[:3, :3]).as_rotvec())
+    return f"p[{', '.join(_num(x) for x in pose)}]"
 
 
 def executed(program: Program) -> list:
@@ -107,10 +116,13 @@ def render_urscript(program: Program, q_rad, *, robot, seq: int, register_base: 
             else:
                 T = getattr(s.target, "pose", None)
                 T = kinematics.fk(robot.dh_nominal, q[k]) if T is None else T
-                pose = list(np.asarray(T)[:3, 3] / 1000.0) + list(Rotation.from_matrix(np.asarray(T)[:3, :3]).as_rotvec())
-                lines.append(f"  movel(p[{', '.join(_num(x) for x in pose)}], "
-                             f"a={_num(program.accel_frac * rated_accel / 1000.0)}, "
-                             f"v={_num(s.speed_frac * program.rated_tcp_speed_mm_s / 1000.0)})")
+                av = (f"a={_num(program.accel_frac * rated_accel / 1000.0)}, "
+                      f"v={_num(s.speed_frac * program.rated_tcp_speed_mm_s / 1000.0)}")
+                blend = f", r={_num(s.zone_mm / 1000.0)}" if s.zone_mm > 0 else ""
+                if s.interpolation == "circular":
+                    lines.append(f"  movec({_pose(s.via.pose)}, {_pose(T)}, {av}{blend}, mode=0)")
+                else:
+                    lines.append(f"  movel({_pose(T)}, {av}{blend})")
             k += 1
             lines.append(f"  write_output_integer_register({reg[REG_MOVES]}, {k})")
         elif isinstance(s, Dwell):

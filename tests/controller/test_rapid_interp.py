@@ -55,7 +55,8 @@ def test_handwritten_program_compiles(robot, gate):
     "body, line, match",
     [
         ("    MoveL pA, v500, fine, tool0\n    WaitTime 1;\n", 6, "expected ','"),
-        ("    MoveL pA, v500, z10, tool0;\n", 5, "only the zone 'fine'"),
+        ("    MoveL pA, v500, z7, tool0;\n", 5, "unknown zone z7"),
+        ("    MoveJ pA, v500, z10, tool0;\n", 5, "only MoveL and MoveC blend"),
         ("    MoveL pA, v500, fine, tool1;\n", 5, "only tool0"),
         ("    MoveL pB, v500, fine, tool0;\n", 5, "unknown robtarget pB"),
         ("    Stop;\n", 5, "Stop is not supported"),

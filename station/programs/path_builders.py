@@ -1,0 +1,182 @@
+"""ISO 9283 path test programmes (path accuracy, cornering, path velocity) as dialect-neutral models.
+
+The paths lie in the test plane: the diagonal plane of the test cube that
+holds the base x axis (through the cube's centre, spanned by ``e_u = x`` and
+``e_v = (y + z) / sqrt 2``; a rectangle ``side x side sqrt 2``). In plane
+coordinates (mm from the centre):
+
+* **line**: the plane's diagonal, 80 % of its length, driven from one end to
+  the other and back, a short dwell at each end; it is written as two
+  collinear halves blended at the middle (the controller passes the middle
+  without slowing);
+* **large circle**: diameter 80 % of the cube side, centred; **small circle**:
+  a tenth of the large one's diameter; each as two ``MoveC`` half circles
+  (the first blends into the second, tangentially), measured from the start
+  round to 340 degrees (the cycles start and end at rest on the start point);
+* **rectangle**: 80 % of the plane's extent, its corners driven in order
+  with a corner zone ``blend_mm`` (cornering round-off CR) or ``fine``
+  (0: exact stops, overshoot CO);
+
+each at 100, 50 and 10 % of the rated speed, ``cycles`` times. Every
+programme goes with its entry of the path file
+(:mod:`station.analysis.path.path_file`): the commanded geometry and speed
+the analysis measures against.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.errors import ConfigError
+from station.programs.builders import TOOL_DOWN, _orientation, _program
+from station.programs.model import CartesianTarget, CycleMark, Dwell, Loop, Move, Program, check_number
+
+__all__ = ["PathTest", "PATH_KINDS", "SPEED_FRACS", "iso_path_tests", "test_plane"]
+
+#: the standard's path speeds, fractions of the rated speed
+SPEED_FRACS = (1.0, 0.5, 0.1)
+#: the path programmes, in the order they run
+PATH_KINDS = ("line", "circle_large", "circle_small", "rectangle_blend", "rectangle_fine")
+#: share of the plane the line and the rectangle span, and the large circle's diameter over the cube side
+SPAN = 0.8
+#: small circle diameter over the large one's
+SMALL_CIRCLE = 0.1
+#: where the circles' measured arc ends, degrees round from their start
+OPEN_ARC_END_DEG = 340.0
+
+
+@dataclass(frozen=True)
+class PathTest:
+    """One path programme and its path file entry (``path["name"]`` names it in results)."""
+
+    kind: str
+    speed_frac: float
+    program: Program
+    path: dict
+
+
+def test_plane(centre_mm, side_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """``(centre, e_u, e_v, half extent along u, half extent along v)`` of the cube's diagonal test plane."""
+    c = np.asarray(centre_mm, float).reshape(3)
+    e_u = np.array([1.0, 0.0, 0.0])
+    e_v = np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0)
+    return c, e_u, e_v, 0.5 * side_mm, 0.5 * side_mm * math.sqrt(2.0)
+
+
+def _pt(plane, u: float, v: float) -> np.ndarray:
+    """A point of the plane, rounded to the micrometre the programme texts carry (so the path file's
+    commanded geometry is the one the controller reads)."""
+    c, e_u, e_v, _, _ = plane
+    return np.round(c + u * e_u + v * e_v, 3) + 0.0
+
+
+def _target(name: str, p, quat, label: str) -> CartesianTarget:
+    return CartesianTarget(name, tuple(float(x) for x in p), quat, label=label)
+
+
+def _line(plane, quat, v_frac, cycles, dwell, tag):
+    _, _, _, hu, hv = plane
+    a, b = _pt(plane, -SPAN * hu, -SPAN * hv), _pt(plane, SPAN * hu, SPAN * hv)
+    start, mid, end = (_target(f"L{tag}_{n}", p, quat, f"line {n}") for n, p in
+                       (("A", a), ("M", 0.5 * (a + b)), ("B", b)))
+    body = [Move(mid, "linear", v_frac, zone_mm=1.0), Move(end, "linear", v_frac), dwell,
+            Move(start, "linear", v_frac), dwell, CycleMark()]
+    return start, body, {"kind": "line", "start_mm": a.tolist(), "end_mm": b.tolist()}
+
+
+def _circle(plane, quat, v_frac, diameter, tag):
+    r = 0.5 * diameter
+    p0, p1, p2, p3 = (_pt(plane, r * math.cos(a), r * math.sin(a)) for a in (0, math.pi / 2, math.pi, 1.5 * math.pi))
+    t0, t1, t2, t3 = (_target(f"C{tag}_{i}", p, quat, f"circle {i}") for i, p in enumerate((p0, p1, p2, p3)))
+    body = [Move(t2, "circular", v_frac, zone_mm=1.0, via=t1), Move(t0, "circular", v_frac, via=t3)]
+    # measured as an open arc from the start round to OPEN_ARC_END_DEG: a cycle starts and ends at rest on its
+    # start point, so every pass enters the arc from below its first plane whatever the arm's own offset
+    p_end = _pt(plane, r * math.cos(math.radians(OPEN_ARC_END_DEG)), r * math.sin(math.radians(OPEN_ARC_END_DEG)))
+    return t0, body, {"kind": "arc", "points_mm": [p0.tolist(), p2.tolist(), p_end.tolist()]}
+
+
+def _rectangle(plane, quat, v_frac, blend_mm, tag):
+    _, _, _, hu, hv = plane
+    uv = ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    pts = [_pt(plane, su * SPAN * hu, sv * SPAN * hv) for su, sv in uv]
+    ts = [_target(f"R{tag}_{i + 1}", p, quat, f"rectangle corner {i + 1}") for i, p in enumerate(pts)]
+    body = [Move(t, "linear", v_frac, zone_mm=blend_mm) for t in ts[1:]] + [Move(ts[0], "linear", v_frac)]
+    return ts[0], body, {"kind": "rectangle", "corners_mm": [p.tolist() for p in pts], "blend_mm": blend_mm}
+
+
+def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_fracs=SPEED_FRACS,
+                   kinds=PATH_KINDS, blend_mm: float = 20.0, dwell_s: float = 0.3, approach_speed_frac: float = 0.2,
+                   accel_frac: float = 1.0, orientation=None, tube_mm: float = 25.0) -> list[PathTest]:
+    """The ISO 9283 path programmes for ``robot`` on the cube of ``side_mm`` about ``centre_mm``.
+
+    Parameters
+    ----------
+    robot : RobotSpec
+    centre_mm : (3,) float
+        Cube centre, base frame.
+    side_mm : float
+        Cube edge.
+    cycles : int
+        Passes of each path (the standard: 10).
+    speed_fracs : sequence of float
+        Path speeds, fractions of the rated speed (the standard: 1, 0.5, 0.1).
+    kinds : sequence of str
+        Which of :data:`PATH_KINDS`.
+    blend_mm : float
+        Corner zone of ``rectangle_blend``.
+    dwell_s : float
+        Rest at the end of each cycle (and at the line's ends), s.
+    tube_mm : float
+        The path file's tube: samples farther from the commanded path belong
+        to no pass. An arm that is not calibrated is off by millimetres
+        everywhere; a rectangle's rounded corners add ``blend / (2 sqrt 2)``.
+
+    Returns
+    -------
+    list of PathTest
+        In the order kinds x speeds; each programme first moves (joint, at
+        ``approach_speed_frac``) to its path's start, then loops the path.
+    """
+    side = check_number(side_mm, "side_mm", lo=1.0, hi=1e4)
+    blend = check_number(blend_mm, "blend_mm", lo=0.0, hi=500.0)
+    if blend <= 0:
+        raise ConfigError("blend_mm must be > 0 (rectangle_fine is the rectangle without a zone)")
+    bad = [k for k in kinds if k not in PATH_KINDS]
+    if bad or not kinds:
+        raise ConfigError(f"path kinds must be among {', '.join(PATH_KINDS)}, got {list(kinds)!r}")
+    quat = _orientation(robot, TOOL_DOWN if orientation is None else orientation)
+    plane = test_plane(centre_mm, side)
+    dwell = Dwell(check_number(dwell_s, "dwell_s", lo=0.0, hi=60.0))
+    rated = float(robot.max_tcp_speed_mm_s)
+    out: list[PathTest] = []
+    for kind in kinds:
+        for frac in speed_fracs:
+            f = check_number(frac, "speed fraction", lo=0.0, hi=1.0)
+            if f <= 0:
+                raise ConfigError("speed fractions must be > 0")
+            pct = int(round(100 * f))
+            tag = f"{PATH_KINDS.index(kind)}{pct}"
+            if kind == "line":
+                start, body, path = _line(plane, quat, f, cycles, dwell, tag)
+            elif kind.startswith("circle"):
+                d = SPAN * side * (SMALL_CIRCLE if kind == "circle_small" else 1.0)
+                start, body, path = _circle(plane, quat, f, d, tag)
+                body = body + [dwell, CycleMark()]
+            else:
+                start, body, path = _rectangle(plane, quat, f, blend if kind == "rectangle_blend" else 0.0, tag)
+                body = body + [dwell, CycleMark()]
+            name = f"{kind}_{pct}"
+            tube = check_number(tube_mm, "tube_mm", lo=0.1, hi=1000.0)
+            if kind == "rectangle_blend":
+                tube += blend / (2.0 * math.sqrt(2.0))
+            path = {"name": name, **path, "tube_mm": tube}
+            if kind != "circle_small" and not kind.startswith("rectangle"):
+                path["velocity_mm_s"] = f * rated
+            statements = [Move(start, "joint", min(approach_speed_frac, f)), dwell, Loop(cycles, tuple(body))]
+            program = _program(robot, f"ISO_{kind.upper()[:12]}_{pct}", statements, accel_frac=accel_frac,
+                               title=f"ISO 9283 path {kind} at {pct} % of rated speed")
+            out.append(PathTest(kind, f, program, path))
+    return out

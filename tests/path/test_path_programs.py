@@ -1,0 +1,152 @@
+"""The ISO 9283 path programmes: what the generators write (RAPID, KRL, URScript), what the controller's own
+parser reads back, and what the safety gate refuses."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from fakes.rapid_interp import RapidSafetyError, compile_rapid
+from station.errors import ConfigError, SafetyError
+from station.analysis.path.path_file import parse_paths
+from station.models.robots import get_robot
+from station.programs import render_krl, render_rapid
+from station.programs.model import CartesianTarget, Loop, Move, Program
+from station.programs.path_builders import PATH_KINDS, SPEED_FRACS, iso_path_tests
+from station.programs.urscript import executed, render_urscript
+from station.safety import SafetyGate, SafetyLimits, default_limits
+
+CENTRE = (0.0, 1700.0, 1400.0)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return get_robot("industrial-3100")
+
+
+def _loop_moves(program):
+    return [b for s in program.statements if isinstance(s, Loop) for b in s.body if isinstance(b, Move)]
+
+
+def test_every_path_and_speed_is_a_programme_with_its_path_entry(robot, rng):
+    side = float(rng.uniform(400.0, 700.0))
+    blend = float(rng.uniform(5.0, 40.0))
+    tests = iso_path_tests(robot, CENTRE, side, cycles=10, blend_mm=blend)
+    assert [(t.kind, t.speed_frac) for t in tests] == [(k, f) for k in PATH_KINDS for f in SPEED_FRACS]
+    specs = parse_paths({"paths": [t.path for t in tests]})  # the analysis reads every entry
+    assert len({s.name for s in specs}) == len(tests)
+    rated = robot.max_tcp_speed_mm_s
+    for t in tests:
+        moves = _loop_moves(t.program)
+        assert all(m.speed_frac == t.speed_frac for m in moves)
+        loop = next(s for s in t.program.statements if isinstance(s, Loop))
+        assert loop.count == 10
+        if t.kind == "rectangle_blend":
+            assert [m.zone_mm for m in moves] == [blend, blend, blend, 0.0]
+            assert t.path["blend_mm"] == blend
+        if t.kind == "rectangle_fine":
+            assert all(m.zone_mm == 0 for m in moves)
+        if t.kind.startswith("circle"):
+            d = 0.8 * side * (0.1 if t.kind == "circle_small" else 1.0)
+            ends = np.array([moves[0].target.xyz_mm, moves[1].target.xyz_mm])
+            assert np.linalg.norm(ends[0] - ends[1]) == pytest.approx(d, abs=2e-3)  # two half circles
+            assert [m.interpolation for m in moves] == ["circular", "circular"]
+        if "velocity_mm_s" in t.path:
+            assert t.path["velocity_mm_s"] == pytest.approx(t.speed_frac * rated)
+        # every target lies in the test plane through the centre (x and the (y + z) diagonal)
+        for m in moves:
+            p = np.asarray(m.target.xyz_mm) - CENTRE
+            assert abs(p[1] - p[2]) < 1e-6 and np.all(np.abs(p) <= side / 2 + 1e-6)
+
+
+def test_rapid_text_is_read_back_by_the_controller_with_zones_and_circles(robot, rng):
+    blend = float(np.round(rng.uniform(5.0, 40.0), 3))
+    gate = SafetyGate(robot, default_limits(robot))
+    for t in iso_path_tests(robot, CENTRE, 600.0, cycles=3, speed_fracs=(0.5,), blend_mm=blend):
+        rendered = render_rapid(t.program)
+        text = rendered.text
+        back = compile_rapid(text, robot, gate).program
+        mine, theirs = _loop_moves(t.program), _loop_moves(back)
+        assert [(m.interpolation, m.zone_mm, m.target.xyz_mm) for m in mine] == \
+               [(m.interpolation, m.zone_mm, m.target.xyz_mm) for m in theirs]
+        assert [m.via.xyz_mm for m in theirs if m.via] == [m.via.xyz_mm for m in mine if m.via]
+        for m in theirs:
+            assert m.speed_frac == pytest.approx(0.5)
+        lines = text.splitlines()
+        for m in back.statements[2].body:
+            if isinstance(m, Move):
+                assert lines[m.source_line - 1].strip().startswith(("MoveL", "MoveC"))
+        if t.kind == "rectangle_blend":
+            assert re.search(rf"CONST zonedata z_1 := \[FALSE,{blend:g},", text)
+            assert text.count(", z_1, tool0;") == 3
+        if t.kind.startswith("circle"):
+            assert len(re.findall(r"^\s*MoveC p_\w+, p_\w+, v_\d, (z_1|fine), tool0;$", text, re.M)) == 2
+
+
+def test_krl_and_urscript_blend_and_circle(robot, rng):
+    blend = float(np.round(rng.uniform(5.0, 40.0), 3))
+    gate = SafetyGate(robot, default_limits(robot))
+    tests = {t.kind: t for t in iso_path_tests(robot, CENTRE, 600.0, cycles=2, speed_fracs=(0.1,), blend_mm=blend)}
+    src = render_krl(tests["rectangle_blend"].program).text
+    assert f"$APO.CDIS = {blend:g}" in src
+    assert len(re.findall(r"^\s*LIN p_\w+ C_DIS$", src, re.M)) == 3
+    assert len(re.findall(r"^\s*LIN p_\w+$", src, re.M)) == 1  # the last corner stops
+    circ = render_krl(tests["circle_large"].program).text
+    assert len(re.findall(r"^\s*CIRC p_\w+, p_\w+( C_DIS)?$", circ, re.M)) == 2
+    for kind in ("rectangle_blend", "circle_small"):
+        prog = tests[kind].program
+        q, qs = robot.home_q_rad, []
+        for m in executed(prog):
+            if isinstance(m, Move):
+                q = gate.check_move(m, q, prog)[0]
+                qs.append(q)
+        ur = render_urscript(prog, np.array(qs), robot=robot, seq=5).text
+        if kind == "rectangle_blend":
+            rs = [float(x) for x in re.findall(r"movel\(p\[[^\]]+\], a=[^,]+, v=[^,]+, r=([0-9.e-]+)\)", ur)]
+            assert rs == pytest.approx([blend / 1000.0] * 3 * 2)  # three blended corners, two cycles
+        else:
+            calls = re.findall(r"movec\(p\[([^\]]+)\], p\[([^\]]+)\], a=[^,]+, v=([0-9.e-]+)", ur)
+            assert len(calls) == 4
+            via = np.array([float(x) for x in calls[0][0].split(",")[:3]]) * 1000.0
+            m = _loop_moves(prog)[0]
+            assert np.allclose(via, m.via.xyz_mm, atol=1e-6)
+            assert float(calls[0][2]) == pytest.approx(0.1 * robot.max_tcp_speed_mm_s / 1000.0)
+
+
+def test_the_gate_refuses_an_arc_outside_the_box_and_too_fast_a_path(robot):
+    t = iso_path_tests(robot, CENTRE, 600.0, cycles=2, speed_fracs=(1.0,), kinds=("circle_large",))[0]
+    start = t.program.statements[0].target
+    # an arc from 30 to 150 degrees in the x-z plane: its top (90 degrees) is above its three points
+    c, r = np.array(CENTRE), 200.0
+    at = lambda deg: tuple(c + r * np.array([math.cos(math.radians(deg)), 0.0, math.sin(math.radians(deg))]))  # noqa
+    a, via, b = (CartesianTarget(n, at(d), start.quat_wxyz) for n, d in (("A", 30), ("V", 60), ("B", 150)))
+    prog = Program("ARC", robot.name, robot.max_tcp_speed_mm_s,
+                   (Move(a, "joint", 0.2), Move(b, "circular", 0.5, via=via)))
+    top = CENTRE[2] + r
+    box = SafetyLimits(workspace_min_mm=(-1000, 1000, 1000), workspace_max_mm=(1000, 2300, top - 10.0),
+                       max_tcp_speed_mm_s=robot.max_tcp_speed_mm_s)
+    text = render_rapid(prog).text
+    with pytest.raises(RapidSafetyError, match="arc leaves the workspace") as ei:
+        compile_rapid(text, robot, SafetyGate(robot, box))
+    assert text.splitlines()[ei.value.line - 1].strip().startswith("MoveC")
+    roomy = SafetyLimits(workspace_min_mm=(-1000, 1000, 1000), workspace_max_mm=(1000, 2300, top + 10.0),
+                         max_tcp_speed_mm_s=robot.max_tcp_speed_mm_s)
+    compile_rapid(text, robot, SafetyGate(robot, roomy))  # the same arc with its top inside passes
+    slow = SafetyLimits(workspace_min_mm=(-3000, -3000, -3000), workspace_max_mm=(3000, 3000, 3000),
+                        max_tcp_speed_mm_s=0.5 * robot.max_tcp_speed_mm_s)
+    with pytest.raises(SafetyError, match="speed"):
+        SafetyGate(robot, slow).check_program(t.program)
+
+
+def test_bad_path_parameters_are_refused_by_name(robot):
+    with pytest.raises(ConfigError, match="kinds"):
+        iso_path_tests(robot, CENTRE, 600.0, kinds=("spiral",))
+    with pytest.raises(ConfigError, match="blend_mm"):
+        iso_path_tests(robot, CENTRE, 600.0, blend_mm=0.0)
+    with pytest.raises(ConfigError, match="zone_mm"):
+        Move(iso_path_tests(robot, CENTRE, 600.0, kinds=("line",))[0].program.statements[0].target, "joint",
+             0.5, zone_mm=5.0)
+    assert math.isfinite(iso_path_tests(robot, CENTRE, 600.0, kinds=("line",))[0].path["tube_mm"])
