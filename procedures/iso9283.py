@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from procedures.plan_params import plan_from_params, plan_params
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import ISO_CYCLES, analyze_iso9283, conformance_text
 from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes

@@ -1,7 +1,7 @@
 """A characteristic added to the table as one row reaches the config, the CLI, the JSON, the report and the store.
 
 The row (the spread of a pose's attained positions: the largest distance between two of them) is added for the
-test only (:func:`station.analysis.iso9283.table.added`); no other file names it.
+test only (:func:`station.characteristics.added`); no other file names it.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from app.assemble import RunRequest, run_procedure
 from app.cli import main
 from procedures.iso9283 import plan_from_config, summary
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.config import config_from_dict
 from station.errors import ConfigError
 from station.store import RunStore

@@ -35,7 +35,7 @@ def _pg_text(url: str) -> str:
     """Every row of every table of the central store, as text."""
     import psycopg
 
-    from station.store.url import parse_pg_url
+    from station.store_url import parse_pg_url
 
     with psycopg.connect(**parse_pg_url(url).connect_kwargs()) as conn:
         tables = [r[0] for r in conn.execute(
