@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from station.errors import ConfigError, DataError, SafetyError
 from station.models import kinematics
-from station.programs.model import (
+from station.programs.program import (
     CycleMark,
     Dwell,
     JointTarget,
