@@ -817,4 +817,4 @@ def _to_estimate(method, fit: FitResult, k, info, extra: dict, warnings: list) -
 
 
 __all__ = ["FitResult", "fit_odr", "estimate_odr", "fit_dynamic", "fit_dynamic_instrumented",
-           "align_command", "estimate_dynamic", "ESTIMATORS", "estimate_trailer"]
+           "align_command", "estimate_dynamic", "estimate_trailer"]
