@@ -12,7 +12,7 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from app.acceptance import Station
-from station.analysis.decision import MARGINAL_FRACTION
+from station.verdict import MARGINAL_FRACTION
 
 from station.measurements import Measurement
 from station.store import RunStore

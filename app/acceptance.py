@@ -500,7 +500,7 @@ class Station:
         trailer's, the compliance test) is judged by its figures alone unless
         True is asked, which then makes it NOT DECIDED.
         """
-        from app.assemble import run_procedure
+        from app.assemble import RunRequest, run_procedure
         from station.measurements import parse
 
         from procedures.registry import get_procedure
@@ -515,10 +515,10 @@ class Station:
                       "require_conformance": bool(require_conformance)}
         if measurements:
             acceptance["measurements"] = [m.to_dict() for m in parse(list(measurements), "measurements")]
-        outcome = run_procedure(self.config, procedure, robot=robot, run_id=run_id, arm=self.arm,
-                                operator=self.operator, quiet=True, time_scale=self.time_scale, seed=self.seed,
-                                config_dir=self.workdir, plan_overrides=plan_overrides, acceptance=acceptance,
-                                fake_options=self.fake_options)
+        outcome = run_procedure(RunRequest(
+            self.config, procedure, robot=robot, run_id=run_id, arm=self.arm, operator=self.operator, quiet=True,
+            time_scale=self.time_scale, seed=self.seed, config_dir=self.workdir, plan_overrides=plan_overrides,
+            acceptance=acceptance, fake_options=self.fake_options))
         return self._read(outcome)
 
     def iso9283(self, robot: str = "r1", *, cycles: int | None = None, vap_cycles: int | None = None,
@@ -541,10 +541,10 @@ class Station:
     def resume(self, run_id: str) -> AcceptanceRun:
         """Resume stored run ``run_id`` (aborted, or stopped by a fault) from its last finished step, on the
         same fake cell (its stored seed) or the armed devices; returns its :class:`AcceptanceRun`."""
-        from app.assemble import run_procedure
+        from app.assemble import RunRequest, run_procedure
 
-        outcome = run_procedure(self.config, None, resume=run_id, arm=self.arm, operator=self.operator, quiet=True,
-                                time_scale=self.time_scale, config_dir=self.workdir)
+        outcome = run_procedure(RunRequest(self.config, None, resume=run_id, arm=self.arm, operator=self.operator,
+                                           quiet=True, time_scale=self.time_scale, config_dir=self.workdir))
         return self._read(outcome)
 
     def _read(self, outcome) -> AcceptanceRun:

@@ -1,13 +1,14 @@
 """Where a run is assembled: which procedure, on which devices, with which operator.
 
 Every front door (``station run``, ``station demo``, the acceptance API and its
-pytest fixtures) comes through :func:`run_procedure`. It
+pytest fixtures) comes through :func:`run_procedure` with one :class:`RunRequest`
+(what to run, on what, answered by whom; contradictions refused there). It
 
 * prepares the run through the application layer (:mod:`procedures.execute`):
   the plan from the config, or the stored plan of a run to resume;
 * chooses its devices: those a caller passes (a test's injected drivers), the
-  configured device URLs with ``arm`` (real hardware: the operator confirms
-  unless ``yes``), or else the procedure's fake cell (named in its registry
+  configured device URLs with ``arm`` (real hardware: a person confirms),
+  or else the procedure's fake cell (named in its registry
   entry, started here, the same cell again on a resume);
 * runs the preflight checks before anything moves, then the procedure with
   Ctrl-C = abort (resumable) and SIGUSR1 = pause/continue;
@@ -22,16 +23,18 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import shlex
 import signal
 import sys
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from pathlib import Path
 
 from app.page_operator import WebOperator
 from procedures.devices import DeviceSet, configured_devices
 from procedures.execute import execute, prepare, preflight
+from station.config import StationConfig
 from station.errors import ConfigError, SafetyError
 from app.terminal import InteractiveOperator, ProgressLine
 from station.runner import RunControl, ScriptedOperator
@@ -138,59 +141,139 @@ class ProcedureOutcome:
                 "marginal": list(self.marginal)}
 
 
-def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", resume: str | None = None,
-                  run_id: str | None = None, arm: bool = False, yes: bool = False, time_scale: float = 20.0,
-                  seed: int = 0, json_out: str | None = None, quiet: bool = False,
-                  config_dir: Path | None = None, plan_overrides: dict | None = None,
-                  fake_options: dict | None = None, devices: DeviceSet | None = None, operator=None,
-                  control: RunControl | None = None, stdout=None, progress: ProgressLine | None = None,
-                  acceptance: dict | None = None) -> ProcedureOutcome:
-    """Run or resume a procedure; returns its :class:`ProcedureOutcome` (verdict, reasons, exit code).
+@dataclass(frozen=True)
+class RunRequest:
+    """What :func:`run_procedure` is asked to run: the config and the procedure, then keywords.
+
+    ``config`` is the station config and ``procedure`` the registry name of a
+    new run's procedure (None: the stored one of the run to ``resume``).
+    ``robot`` is the robot key of the config; ``run_id`` names a new run.
+
+    Devices: ``arm`` uses the configured device URLs (real hardware, the
+    ``operator`` must be a person: :func:`require_person`); ``devices``
+    injects drivers (a test); otherwise the procedure's fake cell is started
+    with ``seed``, ``time_scale`` (simulated s per real s at most) and
+    ``fake_options`` added to its stored parameters (e.g. a trailer's
+    ``true_lengths_m``).
+
+    Answers: ``yes`` answers every prompt yes (dry runs only), ``operator``
+    is whoever answers otherwise (default: the terminal). ``control`` pauses
+    and aborts, ``progress`` replaces the console's progress line (the
+    operator's page shows the step's detail), ``quiet`` silences it.
+
+    Output: ``json_out`` receives the verdict and the results, ``stdout``
+    (when given) the outcome's console lines; ``config_dir`` is the folder
+    the config's relative paths are taken from (default: the working one).
+
+    A new run's plan: ``plan_overrides`` over the config's plan;
+    ``acceptance`` is stored with it and read by its verdict:
+    ``require_conformance`` (bool; ``--require-iso``), ``measurements`` (a
+    plant's own, :mod:`station.measurements`) and ``record`` (who and what:
+    operator, work order, overhaul ticket). A resumed run keeps all of these
+    as it stored them.
+
+    Options that contradict each other are refused here, on construction,
+    with :class:`ConfigError` naming them: nothing is recorded and nothing
+    moves.
+    """
+
+    config: StationConfig
+    procedure: str | None = "iso9283"
+    _: KW_ONLY
+    robot: str = "r1"
+    resume: str | None = None
+    run_id: str | None = None
+    arm: bool = False
+    yes: bool = False
+    time_scale: float = 20.0
+    seed: int = 0
+    json_out: str | None = None
+    quiet: bool = False
+    config_dir: Path | None = None
+    plan_overrides: dict | None = None
+    fake_options: dict | None = None
+    devices: DeviceSet | None = None
+    operator: object = None
+    control: RunControl | None = None
+    stdout: object = None
+    progress: ProgressLine | None = None
+    acceptance: dict | None = None
+
+    def __post_init__(self) -> None:
+        problems = list(self._contradictions())
+        if problems:
+            raise ConfigError("run request: " + "; ".join(problems))
+
+    def _contradictions(self):
+        from procedures.registry import procedure_names
+
+        if not self.procedure and not self.resume:
+            yield f"name a procedure ({', '.join(procedure_names())}) or a run to resume (--resume RUN_ID)"
+        if self.resume:
+            if self.run_id is not None and self.run_id != self.resume:
+                yield (f"a resumed run keeps its id: run_id {self.run_id!r} (--run-id) with resume "
+                       f"{self.resume!r}")
+            kept = [name for name in ("plan_overrides", "acceptance", "fake_options") if getattr(self, name)]
+            if kept:
+                yield (f"a resumed run keeps the plan, acceptance and fake cell it stored; "
+                       f"{', '.join(kept)} cannot be given with resume {self.resume!r}"
+                       + (" (--require-iso)" if "acceptance" in kept else ""))
+        if self.yes and self.operator is not None:
+            yield "give yes (--yes) or an operator (--answers, a script, a person), not both"
+        if self.arm and self.devices is not None:
+            yield "give arm (the configured devices) or devices (injected), not both"
+        if self.fake_options and (self.arm or self.devices is not None):
+            yield (f"fake_options {sorted(self.fake_options)} are the fake cell's; with "
+                   f"{'arm' if self.arm else 'devices'} no fake cell is started")
+        if isinstance(self.time_scale, bool) or not isinstance(self.time_scale, (int, float)) \
+                or not math.isfinite(self.time_scale) or self.time_scale <= 0:
+            yield f"time_scale (--time-scale) must be a number > 0, got {self.time_scale!r}"
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            yield f"seed (--seed) must be a whole number, got {self.seed!r}"
+
+
+def run_procedure(request: RunRequest) -> ProcedureOutcome:
+    """Run or resume what ``request`` asks; returns its :class:`ProcedureOutcome` (verdict, reasons, exit code).
 
     Nothing is printed but the progress line (stderr, unless ``quiet``) and
-    the prompts; ``stdout``, when given, receives the outcome's console lines
-    (:meth:`ProcedureOutcome.lines`). The verdict is also stored with the run
-    (result ``"verdict"``) and written at the top level of ``json_out``.
+    the prompts; ``request.stdout``, when given, receives the outcome's
+    console lines (:meth:`ProcedureOutcome.lines`). The verdict is also
+    stored with the run (result ``"verdict"``) and written at the top level
+    of ``json_out``.
 
     With armed devices (``arm``: the configured URLs, real hardware) the
-    ``operator`` must be a person (:func:`require_person`): ``yes`` or a
+    operator must be a person (:func:`require_person`): ``yes`` or a
     scripted operator is refused with :class:`SafetyError` before anything
     moves, and the armed-run confirmation is always asked.
-
-    ``devices`` overrides the choice of devices (a test injecting drivers);
-    ``fake_options`` adds to the fake cell's stored parameters (e.g. a
-    trailer's ``true_lengths_m``). ``progress`` replaces the console's
-    progress line (the operator's page shows the step's detail, e.g. the
-    target pose). ``acceptance`` is stored with a new run's plan and read by
-    its verdict: ``require_conformance`` (bool; ``--require-iso``),
-    ``measurements`` (a plant's own, :mod:`station.measurements`) and
-    ``record`` (who and what: operator, work order, overhaul ticket).
     """
     from procedures.decision import decide, record_measurements
     from station.measurements import parse as parse_measurements
 
-    base = config_dir or Path.cwd()
-    if procedure is not None and not resume:  # the plant's measurements of the config, then the script's
-        declared = cfg.measurements_for(procedure, robot) + list((acceptance or {}).get("measurements") or [])
+    cfg, procedure = request.config, request.procedure
+    base = request.config_dir or Path.cwd()
+    acceptance = request.acceptance
+    if procedure is not None and not request.resume:  # the plant's measurements of the config, then the script's
+        declared = cfg.measurements_for(procedure, request.robot) + list((acceptance or {}).get("measurements") or [])
         acceptance = dict(acceptance or {})
         acceptance.pop("measurements", None)
         if declared:  # refused here, naming the entry, before anything is recorded
             acceptance["measurements"] = [m.to_dict() for m in parse_measurements(declared, "measurements")]
         # the plant's guard band, stored with the run so its verdict reads the same later
         acceptance.setdefault("marginal_fraction", cfg.station.marginal_fraction)
-    operator = operator or operator_for(yes, quiet)
-    if arm:  # refused before the run is even recorded
+    operator = request.operator or operator_for(request.yes, request.quiet)
+    if request.arm:  # refused before the run is even recorded
         require_person(operator)
+    devices = request.devices
     with ExitStack() as stack:
         store = stack.enter_context(RunStore(cfg.station.store_file(base)))
-        fake = None if (arm or devices is not None) else {"seed": int(seed), "time_scale": float(time_scale),
-                                                          **(fake_options or {})}
-        prepared = prepare(cfg, store, procedure, robot=robot, resume=resume, run_id=run_id,
-                           report_dir=cfg.station.report_folder(base), plan_overrides=plan_overrides, fake=fake,
+        fake = None if (request.arm or devices is not None) else {
+            "seed": int(request.seed), "time_scale": float(request.time_scale), **(request.fake_options or {})}
+        prepared = prepare(cfg, store, procedure, robot=request.robot, resume=request.resume, run_id=request.run_id,
+                           report_dir=cfg.station.report_folder(base), plan_overrides=request.plan_overrides, fake=fake,
                            acceptance=acceptance)
         spec = prepared.spec
         if devices is None and prepared.fake is None:
-            devices = configured_devices(cfg, spec.device_roles(cfg, robot))
+            devices = configured_devices(cfg, spec.device_roles(cfg, request.robot))
         if devices is None:
             cell = start_fake_cell(spec, prepared.params, prepared.fake)
             stack.callback(cell.close)
@@ -204,7 +287,7 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             if not operator.confirm(f"ARMED: real devices will move ({prepared.subject.what}). Continue?"):
                 raise SafetyError("armed run not confirmed by the operator; nothing moved")
         forwarder = _start_forwarding(cfg, base, stack)
-        ran = _drive(store, prepared, cfg, devices, operator, control, quiet, progress)
+        ran = _drive(store, prepared, cfg, devices, operator, request.control, request.quiet, request.progress)
         measured = record_measurements(store, prepared.run_id) if ran.status == "done" else []
         decision = decide(spec, store, prepared.run_id)
         if ran.status == "done":
@@ -222,11 +305,11 @@ def run_procedure(cfg, procedure: str | None = "iso9283", *, robot: str = "r1", 
             measurements=measured, marginal=[sentence for _, _, sentence in decision.marginal])
         if forwarder is not None:  # after the verdict is stored: the centre gets it too
             outcome.forwarding = _last_push(cfg, base, forwarder, prepared.run_id)
-        if json_out:
-            _write_json(store, outcome, json_out, spec.result_key)
-    if stdout is not None:
+        if request.json_out:
+            _write_json(store, outcome, request.json_out, spec.result_key)
+    if request.stdout is not None:
         for line in outcome.lines():
-            print(line, file=stdout)
+            print(line, file=request.stdout)
     return outcome
 
 
@@ -315,4 +398,4 @@ def stored_procedure(cfg, run_id: str, base: Path) -> str:
         return store.run(run_id).procedure
 
 
-__all__ = ["run_procedure", "ProcedureOutcome", "VERDICT_KEY", "operator_for", "require_person", "start_fake_cell", "stored_procedure", "ConfigError"]
+__all__ = ["run_procedure", "RunRequest", "ProcedureOutcome", "VERDICT_KEY", "operator_for", "require_person", "start_fake_cell", "stored_procedure", "ConfigError"]

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fakes.sim.real_like_arms import LAB_EFFECTS, lab_shaped  # noqa: E402
 from station.analysis.diagnose import diagnose_arm  # noqa: E402
 from station.analysis.diagnose.arm import _geometric_term, _with_geometry  # noqa: E402
-from station.analysis.diagnose.model import fit_report, initial_state, predict  # noqa: E402
+from station.analysis.diagnose.arm_fit import fit_report, initial_state, predict  # noqa: E402
 from station.analysis.diagnose.terms import Term  # noqa: E402
 from station.models.arm_extended import ExtendedArm, terms_from_json  # noqa: E402
 from station.models.arm_model_file import model_from_json  # noqa: E402

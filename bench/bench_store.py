@@ -101,7 +101,7 @@ def bench_fleet(store: RunStore, robots: int, runs: int, label: str) -> None:
 def bench_reanalysis(tmp: Path, cycles: int, copies: int) -> None:
     """One real ISO run on the fake cell (through the drivers), archived ``copies`` times, re-analysed."""
     from fakes.station import FakeStation
-    from app.assemble import run_procedure
+    from app.assemble import RunRequest, run_procedure
     from station.config import config_from_dict
     from app.reanalysis import reanalyze
 
@@ -110,7 +110,7 @@ def bench_reanalysis(tmp: Path, cycles: int, copies: int) -> None:
     with FakeStation.start(seed=int(np.random.default_rng().integers(0, 2**31)), time_scale=20.0) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(db), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": cycles, "vap_cycles": cycles}))
-        assert run_procedure(cfg, "iso9283", arm=True, operator=InteractiveOperator(io.StringIO("y\n" * 50), io.StringIO()), quiet=True, run_id="iso-0", config_dir=tmp).status == "done"
+        assert run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=InteractiveOperator(io.StringIO("y\n" * 50), io.StringIO()), quiet=True, run_id="iso-0", config_dir=tmp)).status == "done"
     with RunStore(db) as store:
         n = store.sample_count("iso-0")
         for k in range(1, copies):

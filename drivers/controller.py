@@ -7,7 +7,7 @@ Device URL: ``modbus+ftp://HOST[:FTP_PORT]?modbus_port=502&user=U&password_env=V
 What the driver does, in order, and what it refuses:
 
 1. **Gate** -- :meth:`ControllerDriver.upload` takes a
-   :class:`~station.programs.model.RenderedProgram` (text made by the
+   :class:`~station.programs.program.RenderedProgram` (text made by the
    station's generators from a validated model) and runs the safety gate on
    it (:meth:`station.safety.SafetyGate.check_program`) from the joints the
    controller reports; a refused program never leaves the host.
@@ -87,7 +87,7 @@ from station.protocols.handshake import (
     join_u32,
 )
 from station.programs import RENDERERS
-from station.programs.model import Program, RenderedProgram
+from station.programs.program import Program, RenderedProgram
 
 __all__ = [
     "CommandRefused",
@@ -257,7 +257,7 @@ class ControllerDriver:
     ftp_factory : callable, optional
         ``ftp_factory(timeout_s) -> ftplib.FTP``-like object (injected transport).
     dialect : {"rapid", "krl"}
-        The language a dialect-neutral :class:`~station.programs.model.Program` given to :meth:`run` is
+        The language a dialect-neutral :class:`~station.programs.program.Program` given to :meth:`run` is
         rendered in (a :class:`RenderedProgram` is uploaded as it is).
     modbus_client : object, optional
         A pymodbus-compatible sync client (``connect``, ``close``,
@@ -704,7 +704,7 @@ class ControllerDriver:
         """Gate, upload, verify, select, start and wait: the whole sequence.
 
         ``rendered`` is a :class:`RenderedProgram`, or a dialect-neutral
-        :class:`~station.programs.model.Program` that is rendered here in the driver's ``dialect``.
+        :class:`~station.programs.program.Program` that is rendered here in the driver's ``dialect``.
         """
         if isinstance(rendered, Program):
             rendered = RENDERERS[self.dialect](rendered)
@@ -742,7 +742,7 @@ class ControllerDriver:
     def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
                 timeout_s: float = 60.0) -> ControllerStatus:
         """One gated move as a one-move program: joints (6,) rad, or a Cartesian (4, 4) pose mm."""
-        from station.programs.model import CartesianTarget, JointTarget, Move, quat_from_matrix
+        from station.programs.program import CartesianTarget, JointTarget, Move, quat_from_matrix
 
         t = np.asarray(target, dtype=float)
         if t.shape == (6,):

@@ -10,7 +10,7 @@ Two kinds of robot connection exist in the station:
   dashboard (``ur_rtde``).
 
 What a procedure sees is the same for both: **a program, run whole**. The
-unit of motion is the station's dialect-neutral :class:`~station.programs.model.Program`
+unit of motion is the station's dialect-neutral :class:`~station.programs.program.Program`
 (moves to named joint or Cartesian targets at a fraction of the rated speed,
 fine stops, dwells, counted cycles). The driver checks *every* move of it with
 the safety gate from the joints the robot reports, renders it in its own
@@ -104,7 +104,7 @@ class Robot(Protocol):
         """Leave the robot at rest with no program of the station's running (connections kept)."""
 
     def run(self, program, *, timeout_s: float, on_status: Callable[[Any], None] | None = None) -> Any:
-        """Gate, send and run a :class:`~station.programs.model.Program` (or a rendered one) whole; block until
+        """Gate, send and run a :class:`~station.programs.program.Program` (or a rendered one) whole; block until
         the arm rests on its last target. ``on_status`` gets the progress (``moves_done``, ``cycle_count``,
         ``line``) while it runs; the time it takes (the caller's journal, a disk stalled in a sync) does not count
         against ``timeout_s``. Returns the final status."""

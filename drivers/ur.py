@@ -11,7 +11,7 @@
   RTDE stream alone that *its* program ran. **The safety gate checks every
   target, path and speed before a byte is sent** (:class:`station.safety.SafetyGate`).
 * **Programs run whole** (:meth:`URDriver.run`, the robot interface of
-  :mod:`drivers.robot`): a station :class:`~station.programs.model.Program`
+  :mod:`drivers.robot`): a station :class:`~station.programs.program.Program`
   is gated move by move from the joints RTDE reports, rendered as one
   URScript program (:mod:`station.programs.urscript`; registers
   ``register_base + 2`` and ``+ 3`` carry the moves and cycles done) and
@@ -998,7 +998,7 @@ class URDriver:
     # ------------------------------------------------------------------ the robot interface (drivers.robot)
     def _gate_program(self, program, q_start: np.ndarray) -> np.ndarray:
         """Every executed move of ``program`` through the gate from ``q_start``; the joint targets (M, 6)."""
-        from station.programs.model import Move, Program, RenderedProgram
+        from station.programs.program import Move, Program, RenderedProgram
         from station.programs.urscript import executed
 
         prog = program.program if isinstance(program, RenderedProgram) else program
@@ -1014,10 +1014,10 @@ class URDriver:
         return np.array(out).reshape(-1, 6)
 
     def run(self, program, *, timeout_s: float | None = None, on_status=None) -> "URProgramStatus":
-        """Gate every move of a :class:`~station.programs.model.Program` (or a rendered one) from the joints
+        """Gate every move of a :class:`~station.programs.program.Program` (or a rendered one) from the joints
         RTDE reports, send it as one URScript program, watch its progress on RTDE and return when it is done
         and the arm rests on the last target (:mod:`drivers.robot`)."""
-        from station.programs.model import RenderedProgram
+        from station.programs.program import RenderedProgram
         from station.programs.urscript import render_urscript
 
         prog = program.program if isinstance(program, RenderedProgram) else program

@@ -4,7 +4,7 @@ The controller fake (:mod:`fakes.controller`) loads an uploaded ``.mod`` file
 with :func:`compile_rapid`, which tokenises and parses the text on its own
 (it does not reuse the station's generator), checks it against the
 controller's safety gate and turns it into the dialect-neutral
-:class:`~station.programs.model.Program` with the line of every
+:class:`~station.programs.program.Program` with the line of every
 instruction; :class:`RapidRun` then executes that program on
 ``world.arm``.
 
@@ -50,7 +50,7 @@ import numpy as np
 from fakes.sim import path_follow
 from station.errors import ConfigError, DataError, SafetyError, StationError
 from station.programs.builders import rated_tcp_accel_mm_s2
-from station.programs.model import (
+from station.programs.program import (
     CartesianTarget,
     CycleMark,
     Dwell,

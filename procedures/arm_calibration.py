@@ -81,7 +81,7 @@ from station.device_urls import parse_device_url
 from station.errors import ConfigError, InsufficientDataError, SafetyError, StationError
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import rated_tcp_accel_mm_s2
-from station.programs.model import Dwell, JointTarget, Move, Program
+from station.programs.program import Dwell, JointTarget, Move, Program
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits

@@ -151,7 +151,8 @@ def decide(spec, store, run_id: str, *, finished: bool = False) -> RunDecision:
 
 def _marginal(outcomes: dict, checks: Checks, params: dict) -> tuple[tuple[str, str, str], ...]:
     """The passing rows within the guard band of their limit (module docstring), plant measurements aside."""
-    from station.analysis.decision import MARGINAL_FRACTION, marginal_reason
+    from station.analysis.decision import marginal_reason
+    from station.verdict import MARGINAL_FRACTION
 
     acceptance = params.get("acceptance") or {}
     fraction = float(acceptance.get("marginal_fraction", MARGINAL_FRACTION))

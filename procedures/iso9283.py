@@ -46,14 +46,14 @@ from pathlib import Path
 import numpy as np
 
 from procedures.plan_params import plan_from_params, plan_params
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import ISO_CYCLES, analyze_iso9283, conformance_text
 from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
 from station.errors import ConfigError, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2, vap_program
-from station.programs.model import CartesianTarget, Dwell, JointTarget, Move, Program, quat_from_matrix
+from station.programs.program import CartesianTarget, Dwell, JointTarget, Move, Program, quat_from_matrix
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 from station.safety import SafetyGate, SafetyLimits
@@ -329,7 +329,7 @@ def step_connect(ctx: StepContext) -> dict:
 
 def _move_targets(rendered) -> list[str]:
     """Target name of every move in execution order (loop bodies once): what the progress line shows."""
-    from station.programs.model import Loop, Move
+    from station.programs.program import Loop, Move
 
     names: list[str] = []
     for st in rendered.program.statements:

@@ -36,7 +36,7 @@ from procedures import iso9283 as iso
 from procedures.decision import Checks
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.path.analysis import analyze_path, check_limits
 from station.analysis.path.figures import SIGNED
 from station.analysis.path.path_file import parse_paths

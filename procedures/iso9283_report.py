@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.report import Report, plot_approach, plot_bars, plot_clusters, plot_intervals, plot_velocity_windows
 
 

@@ -38,7 +38,7 @@ from station.errors import ConfigError
 from station.models import kinematics as kin
 from station.models.effects import EffectContext, EffectSet
 from station.programs.builders import TOOL_DOWN
-from station.programs.model import CartesianTarget, quat_from_matrix
+from station.programs.program import CartesianTarget, quat_from_matrix
 
 
 @dataclass(frozen=True)

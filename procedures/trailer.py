@@ -47,11 +47,11 @@ from procedures.registry import ProcedureSpec, Subject
 from procedures.session import Session
 from procedures.live_views import odometry_view
 from procedures.plan_params import plan_from_params, plan_params
-from station.analysis.trailer.estimate import ESTIMATORS, estimate_trailer
+from station.analysis.trailer.estimate import estimate_trailer
 from station.analysis.trailer.setpoints import interval_average, place_unacknowledged
 from station.errors import ConfigError, StationError
 from station.models.trailer import (
-    COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,
+    ESTIMATORS, COMMAND_KINDS, COMMAND_OMEGA_RAD_S, DEFAULT_L1_M, DEFAULT_L2_M, check_curvature_command,
     check_lengths, command_curvature,
 )
 from station.runner import Procedure, Step, StepContext

@@ -24,9 +24,14 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from station.analysis.decision import MARGINAL_FRACTION
+from station.characteristics import config_limit_keys
 from station.errors import ConfigError, DataError
+from station.models.robots import get_robot
+from station.models.trailer import ESTIMATORS
 from station.protocols.handshake import RegisterMap
+from station.readers.once import read_bytes
+from station.store_url import parse_pg_url
+from station.verdict import MARGINAL_FRACTION
 
 # the device-URL grammar is one table, shared with the drivers
 from station.device_urls import DeviceURL, parse_device_url
@@ -69,17 +74,11 @@ class DeviceConfig(_Strict):
         return parse_device_url(self.url)
 
 
-def _limit_keys() -> dict[str, str]:
-    from station.analysis.iso9283.table import config_limit_keys
-
-    return config_limit_keys()
-
-
 class LimitsConfig(_Strict):
     """Acceptance limits (manufacturer's figures); None = report only.
 
     One key per limited characteristic of the ISO 9283 table
-    (:mod:`station.analysis.iso9283.table`: ``ap_limit_mm`` for ``AP_mm``, ...,
+    (:mod:`station.characteristics`: ``ap_limit_mm`` for ``AP_mm``, ...,
     every key ``station analyze iso9283 --limit`` accepts), and the POS/PST
     band ``pos_band_mm``. A key the table lacks is refused, naming it.
     """
@@ -93,7 +92,7 @@ class LimitsConfig(_Strict):
     @classmethod
     def _known_keys(cls, data, handler):
         if isinstance(data, dict):
-            known = _limit_keys()
+            known = config_limit_keys()
             bad = [k for k in data if k not in known and k not in cls.model_fields]
             if bad:
                 why = PydanticCustomError(
@@ -107,14 +106,14 @@ class LimitsConfig(_Strict):
         try:
             return super().__getattr__(name)
         except AttributeError:
-            if name in _limit_keys():
+            if name in config_limit_keys():
                 return None  # a limit not configured
             raise
 
     def by_characteristic(self) -> dict[str, float]:
         """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``), in the table's order."""
         given = self.model_extra or {}
-        return {key: float(given[k]) for k, key in _limit_keys().items() if given.get(k) is not None}
+        return {key: float(given[k]) for k, key in config_limit_keys().items() if given.get(k) is not None}
 
 
 class WorkspaceConfig(_Strict):
@@ -174,8 +173,6 @@ class RobotConfig(_Strict):
     @field_validator("model")
     @classmethod
     def _known_model(cls, v: str) -> str:
-        from station.models.robots import get_robot
-
         try:
             get_robot(v)
         except ConfigError as exc:
@@ -303,8 +300,6 @@ class TrailerConfig(_Strict):
     @field_validator("method")
     @classmethod
     def _method(cls, v):
-        from station.analysis.trailer.estimate import ESTIMATORS
-
         if v not in ESTIMATORS:
             raise ValueError(f"unknown trailer method {v!r}; one of {', '.join(ESTIMATORS)}")
         return v
@@ -367,8 +362,6 @@ class StationSection(_Strict):
     def _check_store_url(cls, v: str | None) -> str | None:
         if v is None:
             return v
-        from station.store.url import parse_pg_url
-
         try:
             parse_pg_url(v)
         except ConfigError as exc:
@@ -451,8 +444,6 @@ def config_from_dict(data: dict, source: str = "config") -> StationConfig:
 
 def load_config(path: str | Path) -> StationConfig:
     """Read a TOML or JSON station config; ConfigError names the file and field."""
-    from station.readers.once import read_bytes
-
     path = Path(path)
     try:  # one bounded read: a pipe or a device (/dev/zero) given as the config is not read for ever
         text = read_bytes(path, MAX_CONFIG_BYTES, "not a station config")

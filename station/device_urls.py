@@ -41,7 +41,7 @@ Unknown schemes and unknown options are refused, naming them.
 
 Secrets: a device URL never carries a password (it would be stored with the
 run's configuration, pushed to the central store, shown on the page). As for
-the store (:mod:`station.store.url`), ``password_env=VAR`` names an
+the store (:mod:`station.store_url`), ``password_env=VAR`` names an
 environment variable and ``password_file=PATH`` a file (first line) that
 holds it; :meth:`DeviceURL.password` reads it when the driver connects. A
 ``password=`` option (however spelt) and a ``user:secret@`` part are refused.

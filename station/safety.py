@@ -54,7 +54,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from station.errors import ConfigError, DataError, SafetyError
 from station.models import cartesian_path, kinematics
-from station.programs.model import (
+from station.programs.program import (
     CycleMark,
     Dwell,
     JointTarget,

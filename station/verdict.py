@@ -41,6 +41,10 @@ import enum
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+#: a passing figure within this fraction of its limit is marginal (the plant's guard band, the config's
+#: ``station.marginal_fraction``; :func:`station.analysis.decision.marginal_reason` flags it)
+MARGINAL_FRACTION = 0.10
+
 
 class Outcome(str, enum.Enum):
     """The outcome of a characteristic, a measurement or a run; its value is the text shown."""

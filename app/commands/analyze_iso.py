@@ -44,7 +44,7 @@ from app.commands.analyze_inputs import (
     window_parameters,
 )
 from app.commands.analyze_outcome import decide
-from station.analysis.iso9283.table import limit_levels
+from station.characteristics import limit_levels
 from app.commands.analyze_table import format_stop_table, format_table
 from station.errors import ConfigError, DataError
 from station.readers.date_time import DATE_ORDERS

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.verdict import Outcome
 
 #: lines of a list (missing, left out) shown before "... more (see the JSON)"

@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from app.assemble import run_procedure
+    from app.assemble import RunRequest, run_procedure
     from fakes.cells import demo_config
     from fakes.station import FULL_PACE
     from station.config import config_from_dict
@@ -58,8 +58,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     scale = FULL_PACE if args.time_scale is None else args.time_scale
     pace = "full pace" if args.time_scale is None else f"{scale:g}x real time"
     print(f"demo: fake cell (seed {args.seed}, {pace}), store {out / 'station.sqlite'}", file=sys.stderr)
-    outcome = run_procedure(cfg, "iso9283", yes=True, time_scale=scale, seed=args.seed,
-                            json_out=args.json, quiet=args.quiet, config_dir=out)
+    outcome = run_procedure(RunRequest(cfg, "iso9283", yes=True, time_scale=scale, seed=args.seed,
+                                       json_out=args.json, quiet=args.quiet, config_dir=out))
     for line in outcome.lines():  # the verdict first (exit codes as `station run`'s)
         print(line)
     return outcome.exit_code

@@ -28,7 +28,6 @@ import argparse
 from pathlib import Path
 
 from procedures.registry import procedure_names
-from station.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,28 +60,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from app.assemble import run_procedure
+    from app.assemble import RunRequest, run_procedure
     from fakes.station import FULL_PACE
     from station.config import load_config
-
-    if not args.resume and not args.procedure:
-        raise ConfigError(f"name a procedure ({', '.join(procedure_names())}) or --resume RUN_ID")
     from station.runner import AnswerFileOperator
 
     from station.readers.out_files import check_outputs
 
     check_outputs(args, json="--json")
     cfg = load_config(args.config)
-    if args.yes and args.answers:
-        raise ConfigError("give --yes or --answers, not both")
-    operator = AnswerFileOperator(args.answers) if args.answers else None
-    outcome = run_procedure(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
-                            arm=args.arm, yes=args.yes, operator=operator,
-                            time_scale=FULL_PACE if args.time_scale is None else args.time_scale,
-                            seed=args.seed, json_out=args.json, quiet=args.quiet,
-                            config_dir=Path(args.config).resolve().parent,
-                            # with --arm a run is an acceptance of real hardware: conformance required unless told not
-                            acceptance={"require_conformance": args.arm if args.require_iso is None else args.require_iso})
+    # with --arm a run is an acceptance of real hardware: conformance required unless told not; a resumed run
+    # keeps what it stored, so only an explicit --require-iso reaches the request (which refuses it)
+    acceptance = (None if args.resume and args.require_iso is None else
+                  {"require_conformance": args.arm if args.require_iso is None else args.require_iso})
+    request = RunRequest(cfg, args.procedure, robot=args.robot, resume=args.resume, run_id=args.run_id,
+                         arm=args.arm, yes=args.yes,
+                         operator=AnswerFileOperator(args.answers) if args.answers else None,
+                         time_scale=FULL_PACE if args.time_scale is None else args.time_scale,
+                         seed=args.seed, json_out=args.json, quiet=args.quiet,
+                         config_dir=Path(args.config).resolve().parent, acceptance=acceptance)
+    outcome = run_procedure(request)
     for line in outcome.lines(config=args.config):
         print(line)
     return outcome.exit_code

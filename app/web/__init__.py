@@ -1,7 +1,7 @@
 """The operator's page: ``station serve`` (issue 16).
 
 A local web server for one station. It drives the same application layer as
-the CLI (:func:`station.assemble.run_procedure`), reads the same store, and
+the CLI (:func:`app.assemble.run_procedure`), reads the same store, and
 shows runs live through server-sent events. Modules, one job each:
 
 * :mod:`app.web.live`: runs this server drives (thread, operator that

@@ -30,7 +30,7 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
 from starlette.routing import Route
 
-from station.analysis.iso9283.table import history_names
+from station.characteristics import history_names
 from station.errors import StationError
 from station.store import RunStore, StoreError
 from app.web import pages

@@ -1,7 +1,7 @@
 """Runs this server drives: one thread each, an operator that waits for the page.
 
 A run started (or resumed) from the page goes through the same front door as
-``station run`` (:func:`station.assemble.run_procedure`) in a thread of the
+``station run`` (:func:`app.assemble.run_procedure`) in a thread of the
 server. Its prompts wait in a :class:`WebOperator` until a page answers them;
 pause and abort go to the run's :class:`~station.runner.RunControl`. Everything
 else a page shows is read from the store, so a run started from the CLI is
@@ -164,15 +164,17 @@ class RunHub:
             live.thread.start()
 
     def _drive(self, live: LiveRun, procedure: str | None, kwargs: dict) -> None:
-        from app.assemble import run_procedure
+        from app.assemble import RunRequest, run_procedure
 
-        if self.arm:  # real hardware from the page is an acceptance: its standard's conformance is required
+        if self.arm and procedure is not None:
+            # a new run on real hardware from the page is an acceptance: its standard's conformance is required
+            # (a resumed run keeps what it stored)
             kwargs = {"acceptance": {"require_conformance": True}, **kwargs}
         try:
-            outcome = run_procedure(
+            outcome = run_procedure(RunRequest(
                 self.cfg, procedure, arm=self.arm, yes=False, time_scale=self.time_scale, quiet=True,
                 config_dir=self.config_dir, operator=live.operator, control=live.control,
-                progress=_PageProgress(live), **kwargs)
+                progress=_PageProgress(live), **kwargs))
             live.outcome, live.exit_code = outcome, outcome.exit_code
             live.output = "\n".join(outcome.lines())
         except StationError as exc:

@@ -24,7 +24,7 @@ import numpy as np
 
 from station.models import cartesian_path as cp
 from station.models import kinematics as kin
-from station.programs.model import Loop, Move, Program
+from station.programs.program import Loop, Move, Program
 
 __all__ = ["Run", "is_path_program", "group_runs", "ripple_of", "queue_run", "queue_segments"]
 

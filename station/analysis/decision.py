@@ -14,7 +14,7 @@ the run's one verdict combines them elsewhere).
 
 A passing figure is *marginal* (:func:`marginal_reason`) when it lies within
 the plant's guard band of its limit: ``|figure| >= (1 - fraction) * limit``
-(default :data:`MARGINAL_FRACTION`), or, where its ``U`` is known, when
+(default :data:`station.verdict.MARGINAL_FRACTION`), or, where its ``U`` is known, when
 ``|figure| + U`` exceeds the limit (under ``simple`` such a figure passes
 although its interval straddles the limit; under ``guarded`` it is not
 decided, never passing).
@@ -26,12 +26,9 @@ import math
 from dataclasses import dataclass
 
 from station.errors import ConfigError
-from station.verdict import Outcome
+from station.verdict import MARGINAL_FRACTION, Outcome
 
 RULES = ("simple", "guarded")
-#: a passing figure within this fraction of its limit is marginal (the plant's guard band; the
-#: config's ``station.marginal_fraction``)
-MARGINAL_FRACTION = 0.10
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.analysis.iso9283.table import from_their_cycles
+from station.characteristics import from_their_cycles
 from station.errors import ConfigError
 from station.fleet.trend import benjamini_hochberg, trends
 from station.store import RunStore, StoreError

@@ -220,7 +220,7 @@ _EFFECTS = ("encoder_eccentricity", "backlash", "joint_compliance", "thermal_dri
 _EXTRA = ("tau_s", "t0_s", "reference_temperature_c")
 
 
-#: the screen (:data:`station.models.model_ranges.LIMITS`) of each effect parameter, by the end of its name
+#: the screen (:data:`station.models.arm_ranges.LIMITS`) of each effect parameter, by the end of its name
 _PARAM_KINDS = (("_rad_per_Nm", "compliance"), ("_rad_per_kg", "compliance"), ("_rad", "joint_offset_rad"),
                 ("alpha_per_K", "alpha_per_K"), ("dT_max_K", "dT_max_K"))
 
@@ -240,9 +240,9 @@ def terms_from_json(data, source: str) -> list:
     """The ``effects`` list of an extended model file, checked (file and field named on error).
 
     Each effect at most once (per joint), each parameter a number within what
-    an arm has (:mod:`station.models.model_ranges`).
+    an arm has (:mod:`station.models.arm_ranges`).
     """
-    from station.models.model_ranges import MAX_EFFECTS, number_in
+    from station.models.arm_ranges import MAX_EFFECTS, number_in
 
     if not isinstance(data, list):
         raise ConfigError(f"{source}: 'effects' must be a list of objects")

@@ -48,7 +48,7 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.models import kinematics as kin
-from station.models.model_ranges import number_in
+from station.models.arm_ranges import number_in
 from station.models.robots import RobotSpec, get_robot
 
 __all__ = ["model_to_json", "model_from_json", "load_arm", "resolve_arm", "ResolvedArm", "ur_deltas",
@@ -306,7 +306,7 @@ def read_ur_calibration(path, dh_nominal) -> np.ndarray:
     """The UR nominal ``dh_nominal`` (7, 5) plus the deltas of a ``calibration.conf`` file.
 
     Each delta is six numbers (not booleans) within what a UR arm's
-    calibration holds (:mod:`station.models.model_ranges`: angles within a
+    calibration holds (:mod:`station.models.arm_ranges`: angles within a
     half turn, lengths within a metre); a refusal names the file, the line and
     the key.
     """

@@ -11,7 +11,7 @@ A model file is JSON::
      ...}
 
 Every number is range-checked like an arm's model file
-(:mod:`station.models.model_ranges`): a value no arm has is a unit or export
+(:mod:`station.models.arm_ranges`): a value no arm has is a unit or export
 error and is refused naming the key. :func:`approach_offsets_mm` adds the
 named effects to a simulated stream along each move's travel, with the closed
 forms the diagnosis fitted (:mod:`station.models.approach_response`); the

@@ -254,6 +254,11 @@ def check_curvature_command(kappa, L1_m: float, L2_m: float,
 #: how sampled curvature and speed stand for the continuous inputs
 INPUT_SAMPLINGS = ("interval", "point")
 
+#: the link-length estimators by name (:func:`station.analysis.trailer.estimate.estimate_trailer`, which
+#: holds them; a station config names one): seed 003 Table 3's combined methods M1..M24, the orthogonal
+#: distance fit and the dynamic fit of (D)
+ESTIMATORS = tuple(f"M{n}" for n in range(1, 25)) + ("odr", "dynamic")
+
 
 def integrate_psi(t_s, kappa, v_m_s, psi0_rad, L1_m, L2_m, *, sensitivities: bool = False,
                   substeps: int = 1, sampling: str = "interval"):

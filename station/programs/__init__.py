@@ -1,6 +1,6 @@
 """Robot motion programs: a dialect-neutral model, its builders and generators.
 
-* :mod:`.model` -- targets, moves, dwells, loops, :class:`Program`; all
+* :mod:`.program` -- targets, moves, dwells, loops, :class:`Program`; all
   validation of names, numbers and text from configs.
 * :mod:`.builders` -- ISO 9283 pose cycle, vAP approaches, calibration poses.
 * :mod:`.rapid` -- ABB RAPID; :mod:`.krl` -- KUKA KRL.
@@ -9,7 +9,7 @@
 
 from station.programs.builders import calibration_program, iso_pose_program, vap_program
 from station.programs.krl import render_krl
-from station.programs.model import (
+from station.programs.program import (
     CartesianTarget,
     CycleMark,
     Dwell,

@@ -20,7 +20,7 @@ import numpy as np
 
 from station.errors import ConfigError
 from station.models import kinematics
-from station.programs.model import (
+from station.programs.program import (
     CartesianTarget,
     CycleMark,
     Dwell,
@@ -189,7 +189,7 @@ def vap_program(
     Returns
     -------
     Program
-        :func:`~station.programs.model.expected_stops` reports, for each stop,
+        :func:`~station.programs.program.expected_stops` reports, for each stop,
         the pre-point it came from (``approach_from``), i.e. the direction.
     """
     dirs = tuple(directions)

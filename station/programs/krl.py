@@ -1,4 +1,4 @@
-"""KUKA KRL generator for :class:`~station.programs.model.Program`.
+"""KUKA KRL generator for :class:`~station.programs.program.Program`.
 
 Output: ``<NAME>.src`` (the program) and ``<NAME>.dat`` (its data list)::
 
@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from station.errors import ConfigError
-from station.programs.model import (
+from station.programs.program import (
     check_unique_identifiers,
     CartesianTarget,
     CycleMark,

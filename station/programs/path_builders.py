@@ -32,7 +32,7 @@ import numpy as np
 
 from station.errors import ConfigError
 from station.programs.builders import TOOL_DOWN, _orientation, _program
-from station.programs.model import CartesianTarget, CycleMark, Dwell, Loop, Move, Program, check_number
+from station.programs.program import CartesianTarget, CycleMark, Dwell, Loop, Move, Program, check_number
 
 __all__ = ["PathTest", "PATH_KINDS", "SPEED_FRACS", "iso_path_tests", "test_plane"]
 

@@ -1,4 +1,4 @@
-"""ABB RAPID generator for :class:`~station.programs.model.Program`.
+"""ABB RAPID generator for :class:`~station.programs.program.Program`.
 
 Output: one module file ``<NAME>.mod`` holding the targets as ``CONST``
 data, one ``speeddata`` per speed used and ``PROC main()``::
@@ -49,7 +49,7 @@ comment and start code.
 from __future__ import annotations
 
 from station.errors import ConfigError
-from station.programs.model import (
+from station.programs.program import (
     check_unique_identifiers,
     CartesianTarget,
     CycleMark,

@@ -1,4 +1,4 @@
-"""URScript generator for :class:`~station.programs.model.Program` (a UR cobot's dialect).
+"""URScript generator for :class:`~station.programs.program.Program` (a UR cobot's dialect).
 
 Output: one ``def NAME(): ... end`` program, sent whole to the controller's
 script port; loops are unrolled (URScript has ``while``, but a flat list is
@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from station.errors import ConfigError, SafetyError
 from station.models import kinematics
-from station.programs.model import CycleMark, Dwell, Loop, Move, Program, RenderedProgram
+from station.programs.program import CycleMark, Dwell, Loop, Move, Program, RenderedProgram
 
 #: registers after ``base``: started, finished, moves done, cycles done
 REG_STARTED, REG_FINISHED, REG_MOVES, REG_CYCLES = 0, 1, 2, 3

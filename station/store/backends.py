@@ -24,7 +24,7 @@ from pathlib import Path
 
 from station.errors import ConfigError
 from station.store.errors import StoreError, StoreUnavailable
-from station.store.url import PgTarget, parse_pg_url
+from station.store_url import PgTarget, parse_pg_url
 
 #: the oldest PostgreSQL server the store's SQL is written for
 MIN_SERVER_VERSION = 120000
@@ -230,7 +230,7 @@ def _translated(name: str, psycopg=None):
 
 def open_backend(target, *, connect_timeout_s: float | None = None):
     """A backend for a SQLite path or a ``postgresql://`` URL."""
-    from station.store.url import is_postgres_url
+    from station.store_url import is_postgres_url
 
     if is_postgres_url(target):
         return PostgresBackend(str(target), connect_timeout_s=connect_timeout_s)

@@ -24,7 +24,7 @@ from station.programs import (
     vap_program,
 )
 from station.programs.krl import abc_deg_from_quat
-from station.programs.model import matrix_from_quat, quat_from_matrix
+from station.programs.program import matrix_from_quat, quat_from_matrix
 
 
 def test_iso_cycle_rapid_structure(rng, robot, iso_poses):
@@ -292,7 +292,7 @@ def test_a_name_that_clashes_with_a_generated_identifier_is_refused(render, name
     """Issue reproducer: program names like v_1 or n_cycle declared an identifier twice (controllers refuse)."""
     from station.programs.krl import CYCLE_SIGNAL as KRL_SIGNAL
     from station.programs.krl import render_krl
-    from station.programs.model import CartesianTarget, JointTarget, Loop, Move, Program
+    from station.programs.program import CartesianTarget, JointTarget, Loop, Move, Program
     from station.programs.rapid import CYCLE_SIGNAL as RAPID_SIGNAL
 
     clashes = {"rapid": {"v_1", "n_cycle", RAPID_SIGNAL.lower(), "main", "p_p1", "j_j1"},

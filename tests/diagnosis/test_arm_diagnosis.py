@@ -9,7 +9,7 @@ import pytest
 
 from station.analysis.diagnose import diagnose_arm
 from station.analysis.diagnose.arm import canonical_order
-from station.analysis.diagnose.model import jacobian
+from station.analysis.diagnose.arm_fit import jacobian
 from app.cli import main
 from station.models import kinematics as kin
 from station.models.effects import EffectSet

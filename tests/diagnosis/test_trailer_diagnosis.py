@@ -11,7 +11,7 @@ from fakes.sim.offline_files import simulate_trailer
 from fakes.sim.trailer import record_commands
 from fakes.sim.trailer_diagnosis_data import make_trailer_case
 from station.analysis.diagnose.trailer import EFFECTS, diagnose_trailer
-from station.analysis.diagnose.trailer_model import predict, rms
+from station.analysis.diagnose.trailer_fit import predict, rms
 from app.cli import main
 from station.readers.trailer_csv import write_trailer_csv
 from station.errors import DataError, InsufficientDataError

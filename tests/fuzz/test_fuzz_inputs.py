@@ -23,7 +23,7 @@ from drivers.ply import parse_ply, write_ply
 from station.config import config_from_dict
 from station.device_urls import parse_device_url
 from station.errors import StationError
-from station.programs.model import CartesianTarget, JointTarget, Move, Program
+from station.programs.program import CartesianTarget, JointTarget, Move, Program
 from station.programs.rapid import render_rapid
 
 FUZZ = settings()  # the budget comes from the loaded profile (tests/fuzz/conftest.py)

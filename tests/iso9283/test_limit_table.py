@@ -15,7 +15,7 @@ import pytest
 
 from app.commands.analyze_inputs import parse_limits
 from procedures.iso9283 import plan_from_config
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import analyze_iso9283, check_limits
 from station.analysis.iso9283.poses import TABLE2_POSES_MM
 from station.config import config_from_dict

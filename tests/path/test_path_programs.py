@@ -14,7 +14,7 @@ from station.errors import ConfigError, SafetyError
 from station.analysis.path.path_file import parse_paths
 from station.models.robots import get_robot
 from station.programs import render_krl, render_rapid
-from station.programs.model import CartesianTarget, Loop, Move, Program
+from station.programs.program import CartesianTarget, Loop, Move, Program
 from station.programs.path_builders import PATH_KINDS, SPEED_FRACS, iso_path_tests
 from station.programs.urscript import executed, render_urscript
 from station.safety import SafetyGate, SafetyLimits, default_limits

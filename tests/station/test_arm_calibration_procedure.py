@@ -19,7 +19,7 @@ import pytest
 
 from fakes.cells import demo_config
 from procedures.arm_calibration import ArmCalPlan, RESULT_KEY, history
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import StationConfig
 from station.errors import PreflightError
 from station.models import kinematics as kin
@@ -46,8 +46,8 @@ def _seeds(rng):
 def test_calibration_run_identifies_and_its_model_reproduces_the_test_errors(rng, tmp_path):
     cell_seed, sel_seed = _seeds(rng)
     cfg = _cfg(tmp_path, test_error_limit_mm=0.1)
-    code = run_procedure(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="c1", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed}))
     assert code.status == "done", code.error
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         doc = store.result("c1", RESULT_KEY)
@@ -112,16 +112,16 @@ def test_aborted_calibration_resumes_at_its_batch_and_keeps_every_measured_pose(
     control = RunControl()
     stop_after = int(rng.integers(1, 5))  # measured batches before the abort (it comes as the next one starts)
 
-    code = run_procedure(cfg, "arm-calibration", run_id="c2", yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
-                         control=control, progress=AbortAtStep(control, f"measure {stop_after + 1}"))
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="c2", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
+                                    control=control, progress=AbortAtStep(control, f"measure {stop_after + 1}")))
     assert code.status == "aborted" and code.exit_code == 5
     with RunStore(db) as store:
         before = store.samples("c2", "points")
         first_q = store.run("c2").params["q_deg"]
     n_before = before["pose"].size
     assert n_before >= 5 * stop_after
-    code = run_procedure(cfg, None, resume="c2", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
+    code = run_procedure(RunRequest(cfg, None, resume="c2", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path))
     assert code.status == "done", code.error
     with RunStore(db) as store:
         after = store.samples("c2", "points")
@@ -160,15 +160,15 @@ def test_a_run_stopped_inside_a_batch_goes_back_over_its_path_before_it_measures
         cfg = config_from_dict(d)
         devices = DeviceSet(urls={"tracker": cell.tracker_url, "controller": cell.controller_url},
                             time_scale=TIME_SCALE)
-        code = run_procedure(cfg, "arm-calibration", run_id="b1", yes=True, quiet=True, config_dir=tmp_path,
-                             devices=devices, plan_overrides={"selection_seed": sel_seed}, control=control,
-                             progress=AbortAtStep(control, f"measure {stop_after + 1}", f"pose C{first + into + 1}"))
+        code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="b1", yes=True, quiet=True, config_dir=tmp_path,
+                                        devices=devices, plan_overrides={"selection_seed": sel_seed}, control=control,
+                                        progress=AbortAtStep(control, f"measure {stop_after + 1}", f"pose C{first + into + 1}")))
         assert code.status == "aborted"
         db = cfg.station.store_file(tmp_path)
         with RunStore(db) as store:
             before = store.samples("b1", "points", finished_only=False)
         assert before["pose"].size == first + into
-        code = run_procedure(cfg, None, resume="b1", yes=True, quiet=True, config_dir=tmp_path, devices=devices)
+        code = run_procedure(RunRequest(cfg, None, resume="b1", yes=True, quiet=True, config_dir=tmp_path, devices=devices))
         assert code.status == "done", code.error
     with RunStore(db) as store:
         after = store.samples("b1", "points", finished_only=False)
@@ -204,8 +204,8 @@ def test_a_pose_outside_the_workspace_is_refused_before_anything_moves(rng, tmp_
     else:
         pytest.fail("no shoulder turn takes this pose out of the box")
     with pytest.raises(PreflightError, match=f"C{bad + 1}"):
-        run_procedure(cfg, "arm-calibration", run_id="c3", yes=True, quiet=True, time_scale=TIME_SCALE,
-                      config_dir=tmp_path, plan_overrides={"q_deg": q, "roles": list(plan.roles),
-                                                           "selection_seed": 1})
+        run_procedure(RunRequest(cfg, "arm-calibration", run_id="c3", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                 config_dir=tmp_path, plan_overrides={"q_deg": q, "roles": list(plan.roles),
+                                                                      "selection_seed": 1}))
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         assert "c3" not in [r.run_id for r in store.runs()]  # not even started

@@ -25,7 +25,7 @@ from fakes.scanner_folder import start_fake
 from fakes.sim.clock import ManualClock
 from fakes.sim.world import make_world
 from procedures.arm_calibration import SCAN_STREAM, ArmCalPlan, RESULT_KEY, history
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.analysis.arm.jig_features import feature_point
 from station.config import StationConfig, config_from_dict
 from station.errors import ConfigError, DataError, DeviceFault, DeviceTimeout
@@ -48,9 +48,9 @@ def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_er
     cell_seed, sel_seed = int(rng.integers(0, 2**31)), int(rng.integers(0, 2**31))
     cfg = _cfg(tmp_path)
     hidden = int(rng.integers(1, 41))  # the scan of this pose (1-based, the reference too) misses the jig
-    code = run_procedure(cfg, "arm-calibration", run_id="s1", yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
-                         fake_options={"scanner_faults": {"hide_jig": [hidden]}})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="s1", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
+                                    fake_options={"scanner_faults": {"hide_jig": [hidden]}}))
     assert code.status == "done", f"cell seed {cell_seed}, selection seed {sel_seed}"
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         doc = store.result("s1", RESULT_KEY)
@@ -99,10 +99,10 @@ def test_scanner_calibration_run_identifies_and_its_model_reproduces_the_test_er
 def test_a_broken_scanner_answer_stops_the_run_cleanly(rng, tmp_path):
     cfg = _cfg(tmp_path, train_poses=10, test_poses=2, poses_per_step=4)
     bad = int(rng.integers(1, 13))
-    code = run_procedure(cfg, "arm-calibration", run_id="s2", yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=int(rng.integers(2**31)), config_dir=tmp_path,
-                         plan_overrides={"selection_seed": int(rng.integers(2**31))},
-                         fake_options={"scanner_faults": {"corrupt": [bad]}})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="s2", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=int(rng.integers(2**31)), config_dir=tmp_path,
+                                    plan_overrides={"selection_seed": int(rng.integers(2**31))},
+                                    fake_options={"scanner_faults": {"corrupt": [bad]}}))
     assert code.status == "failed" and code.exit_code == 5  # ABORTED: stopped by a fault, resumable
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         steps = store.steps("s2")
@@ -189,8 +189,8 @@ def test_a_missing_hot_folder_is_refused_before_anything_moves(tmp_path, rng):
     devices = DeviceSet(urls={"scanner": f"ply://{tmp_path / 'no-such-folder'}",
                               "controller": "modbus+ftp://127.0.0.1:9"})
     with pytest.raises(PreflightError, match="no-such-folder"):
-        run_procedure(cfg, "arm-calibration", run_id="s3", yes=True, quiet=True, config_dir=tmp_path,
-                      devices=devices, plan_overrides={"selection_seed": int(rng.integers(2**31))})
+        run_procedure(RunRequest(cfg, "arm-calibration", run_id="s3", yes=True, quiet=True, config_dir=tmp_path,
+                                 devices=devices, plan_overrides={"selection_seed": int(rng.integers(2**31))}))
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         assert "s3" not in [r.run_id for r in store.runs()]
 
@@ -203,16 +203,16 @@ def test_an_aborted_scanner_run_resumes_at_its_batch_and_keeps_every_found_corne
     control = RunControl()
     stop_after = int(rng.integers(1, 4))  # measured batches before the abort (it comes as the next one starts)
 
-    code = run_procedure(cfg, "arm-calibration", run_id="s4", yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=int(rng.integers(2**31)), config_dir=tmp_path, control=control,
-                         progress=AbortAtStep(control, f"measure {stop_after + 1}"),
-                         plan_overrides={"selection_seed": int(rng.integers(2**31))})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id="s4", yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=int(rng.integers(2**31)), config_dir=tmp_path, control=control,
+                                    progress=AbortAtStep(control, f"measure {stop_after + 1}"),
+                                    plan_overrides={"selection_seed": int(rng.integers(2**31))}))
     assert code.status == "aborted" and code.exit_code == 5
     with RunStore(db) as store:
         before = store.samples("s4", SCAN_STREAM)
     n_before = before["pose"].size
     assert n_before >= 5 * stop_after
-    code = run_procedure(cfg, None, resume="s4", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path)
+    code = run_procedure(RunRequest(cfg, None, resume="s4", yes=True, quiet=True, time_scale=TIME_SCALE, config_dir=tmp_path))
     assert code.status == "done"
     with RunStore(db) as store:
         after = store.samples("s4", SCAN_STREAM)

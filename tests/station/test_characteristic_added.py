@@ -1,7 +1,7 @@
 """A characteristic added to the table as one row reaches the config, the CLI, the JSON, the report and the store.
 
 The row (the spread of a pose's attained positions: the largest distance between two of them) is added for the
-test only (:func:`station.analysis.iso9283.table.added`); no other file names it.
+test only (:func:`station.characteristics.added`); no other file names it.
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import json
 import numpy as np
 import pytest
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from app.cli import main
 from procedures.iso9283 import plan_from_config, summary
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.config import config_from_dict
 from station.errors import ConfigError
 from station.store import RunStore
@@ -50,8 +50,8 @@ def test_a_row_added_to_the_table_appears_in_config_run_store_report_and_json(fa
     with table.added(SPREAD):
         cfg = config_from_dict(doc)
         assert plan_from_config(cfg).limits == {"RP_mm": 0.5, "SPREAD_mm": 0.001}
-        code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="t1",
-                             config_dir=tmp_path, json_out=str(tmp_path / "out.json"))
+        code = run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="t1",
+                                        config_dir=tmp_path, json_out=str(tmp_path / "out.json")))
         assert code.status == "done"
         out = json.loads((tmp_path / "out.json").read_text())
         store = RunStore(tmp_path / "s.sqlite")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.forcegauge import start_fake
 from fakes.sim.hand import SimulatedHand
 from procedures.devices import DeviceSet
@@ -41,8 +41,8 @@ def test_compliance_in_every_direction_is_the_simulated_arms_within_its_uncertai
     hand = SimulatedHand(ScriptedOperator(True), world.arm, rng)
     devices = DeviceSet(urls={"tracker": fake_cell.tracker_url, "controller": fake_cell.controller_url,
                               "gauge": gauge.url}, time_scale=fake_cell.world.clock.time_scale)
-    out = run_procedure(cfg, "compliance", devices=devices, operator=hand, quiet=True, run_id="c1",
-                        config_dir=tmp_path, plan_overrides={"steps": STEPS})
+    out = run_procedure(RunRequest(cfg, "compliance", devices=devices, operator=hand, quiet=True, run_id="c1",
+                                   config_dir=tmp_path, plan_overrides={"steps": STEPS}))
     store = RunStore(tmp_path / "s.sqlite")
     assert out.status == "done", store.steps("c1")[-1].message
     C = world.arm.compliance_mm_per_N()  # the arm rests at the test pose, unloaded
@@ -83,15 +83,15 @@ def test_station_run_compliance_on_the_fake_cell_and_a_gauge_overload_fails_the_
     from tests.pace import LOCKSTEP
 
     cfg = _demo_cfg(tmp_path)
-    ok = run_procedure(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="ok",
-                       config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+x", "-z"]})
+    ok = run_procedure(RunRequest(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="ok",
+                                  config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+x", "-z"]}))
     assert ok.status == "done" and ok.exit_code == 0, ok.error
     with RunStore(tmp_path / "station.sqlite") as store:
         rows = {(r["pose"], r["name"]): r["value"] for r in store.characteristics("ok")}
     assert sorted(rows) == [("+x", "compliance_mm_per_N"), ("-z", "compliance_mm_per_N")]
     assert all(v > 0 for v in rows.values())
-    bad = run_procedure(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="bad",
-                        config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+y"]},
-                        fake_options={"gauge_faults": {"capacity_N": "300"}})
+    bad = run_procedure(RunRequest(cfg, "compliance", yes=True, quiet=True, seed=test_seed, time_scale=LOCKSTEP, run_id="bad",
+                                   config_dir=tmp_path, plan_overrides={"steps": 2, "directions": ["+y"]},
+                                   fake_options={"gauge_faults": {"capacity_N": "300"}}))
     assert bad.status == "failed" and "force gauge on" in bad.error and "overload" in bad.error, bad.error
     assert "resume with: station run --resume bad" in "\n".join(bad.lines())

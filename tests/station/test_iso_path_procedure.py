@@ -10,7 +10,7 @@ import io
 import numpy as np
 import pytest
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.cells import demo_config
 from fakes.station import FakeStation
 from procedures.iso9283 import registration_of
@@ -44,8 +44,8 @@ def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
     with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, robot=robot) as station:
         cfg = config_from_dict(station.config_dict(store_path=str(tmp_path / "s.sqlite"),
                                                    report_dir=str(tmp_path / "reports"), iso9283=iso))
-        code = run_procedure(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True, run_id="p1",
-                             config_dir=tmp_path, plan_overrides=dict(OVERRIDES))
+        code = run_procedure(RunRequest(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True,
+                                        run_id="p1", config_dir=tmp_path, plan_overrides=dict(OVERRIDES)))
         store = RunStore(tmp_path / "s.sqlite")
         assert code.status == "done", (code.error, store.steps("p1")[-1].message)
         world = station.world
@@ -77,10 +77,11 @@ def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
 def _run(cfg, base, run_id, seed, *, cut_at=None, resume=False):
     control = RunControl()
     progress = Recorder(control, cut_at)
-    code = run_procedure(cfg, None if resume else "iso9283-path", resume=run_id if resume else None,
-                         run_id=None if resume else run_id, time_scale=LOCKSTEP, seed=seed, quiet=True,
-                         config_dir=base, operator=CallableOperator(lambda _msg: True), control=control,
-                         progress=progress, stdout=io.StringIO(), plan_overrides=None if resume else dict(OVERRIDES))
+    code = run_procedure(RunRequest(cfg, None if resume else "iso9283-path", resume=run_id if resume else None,
+                                    run_id=None if resume else run_id, time_scale=LOCKSTEP, seed=seed, quiet=True,
+                                    config_dir=base, operator=CallableOperator(lambda _msg: True), control=control,
+                                    progress=progress, stdout=io.StringIO(),
+                                    plan_overrides=None if resume else dict(OVERRIDES)))
     return code, progress.reports
 
 

@@ -15,7 +15,7 @@ import pytest
 from procedures.iso9283 import plan_from_config, registration_of
 from procedures.iso9283_truth import predict_static, prediction_scatter
 from tests.person import person_typing_yes
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.errors import PreflightError
 from station.config import config_from_dict
 from station.errors import ConfigError
@@ -31,8 +31,8 @@ def _config(fake_cell, tmp_path, **iso):
 
 
 def _run(fake_cell, tmp_path, **iso):
-    code = run_procedure(_config(fake_cell, tmp_path, **iso), "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="t1",
-                         config_dir=tmp_path, json_out=str(tmp_path / "out.json"))
+    code = run_procedure(RunRequest(_config(fake_cell, tmp_path, **iso), "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="t1",
+                                    config_dir=tmp_path, json_out=str(tmp_path / "out.json")))
     return code, RunStore(tmp_path / "s.sqlite")
 
 

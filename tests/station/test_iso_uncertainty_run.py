@@ -11,7 +11,7 @@ import json
 from procedures.iso9283 import plan_from_config
 from station.fleet.questions import limit_decisions_now, over_limits_now
 from station.fleet.page import fleet_report
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
 from station.verdict import Outcome
@@ -24,8 +24,8 @@ def _run(fake_cell, tmp_path, capsys, *, cycles, limits, rule="guarded"):
         iso9283={"cycles": cycles, "vap_cycles": 2}, limits=limits)
         | {"uncertainty": {"decision_rule": rule, "mc_trials": 2000, "mc_seed": 4}})
     assert plan_from_config(cfg).decision_rule == rule
-    outcome = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
-                            config_dir=tmp_path)
+    outcome = run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
+                                       config_dir=tmp_path))
     capsys.readouterr()
     return outcome, RunStore(tmp_path / "s.sqlite"), "\n".join(outcome.lines())
 

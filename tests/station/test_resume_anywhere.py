@@ -37,7 +37,7 @@ import pytest
 
 from fakes.cells import demo_config
 from procedures.iso9283 import IsoPlan, analyse, build_procedure, registration_of
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import config_from_dict
 from app.terminal import ProgressLine
 from station.runner import CallableOperator, RunControl
@@ -71,10 +71,10 @@ def _run(cfg, base: Path, run_id: str, seed: int, *, cut_at=None, resume=False):
     control = RunControl()
     progress = Recorder(control, cut_at)
     operator = CallableOperator(lambda _msg: True)
-    code = run_procedure(cfg, None if resume else "iso9283", resume=run_id if resume else None,
-                         run_id=None if resume else run_id, time_scale=SCALE, seed=seed, quiet=True,
-                         config_dir=base, operator=operator, control=control, progress=progress,
-                         stdout=io.StringIO())
+    code = run_procedure(RunRequest(cfg, None if resume else "iso9283", resume=run_id if resume else None,
+                                    run_id=None if resume else run_id, time_scale=SCALE, seed=seed, quiet=True,
+                                    config_dir=base, operator=operator, control=control, progress=progress,
+                                    stdout=io.StringIO()))
     return code, progress.reports, [m for m, _ in operator.asked]
 
 

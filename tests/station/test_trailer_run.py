@@ -16,7 +16,7 @@ from fakes.sim.world import make_world
 from procedures import trailer as tp
 from procedures.devices import DeviceSet
 from procedures.trailer import TrailerSession, build_procedure, plan_params
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.errors import PreflightError
 from station.config import config_from_dict
 from station.runner import RunControl, Runner
@@ -38,9 +38,9 @@ def test_trailer_calibration_end_to_end_recovers_the_true_lengths(rng, tmp_path)
         "trailer": {"odometry": "odo", "serial": "TR-1", "commands": [list(c) for c in SHORT["commands"]],
                     "settle_s": SHORT["settle_s"], "duration_s": SHORT["duration_s"], "length_tolerance_m": 0.03},
     })
-    code = run_procedure(cfg, "trailer", run_id="t1", yes=True, quiet=True, time_scale=20.0,
-                         seed=int(rng.integers(2**31)), fake_options={"true_lengths_m": [L1, L2]},
-                         config_dir=tmp_path)
+    code = run_procedure(RunRequest(cfg, "trailer", run_id="t1", yes=True, quiet=True, time_scale=20.0,
+                                    seed=int(rng.integers(2**31)), fake_options={"true_lengths_m": [L1, L2]},
+                                    config_dir=tmp_path))
     store = RunStore(tmp_path / "s.sqlite")
     assert code.status == "done", [s.message for s in store.steps("t1") if s.message]
     res = store.result("t1", "trailer")["result"]
@@ -126,7 +126,7 @@ def test_unsafe_trailer_plan_refused_before_anything_moves(tmp_path):
     })
     # refused by the preflight: no run is created, nothing is commanded
     with pytest.raises(PreflightError, match=r"eq\. \(25\)|45") as err:
-        run_procedure(cfg, "trailer", run_id="u1", yes=True, quiet=True, config_dir=tmp_path)
+        run_procedure(RunRequest(cfg, "trailer", run_id="u1", yes=True, quiet=True, config_dir=tmp_path))
     assert "nothing moved" in str(err.value) and len(err.value.problems) == 1
     assert RunStore(tmp_path / "s.sqlite").runs() == []
 

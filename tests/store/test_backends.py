@@ -10,7 +10,7 @@ import pytest
 
 from station.store import SCHEMA_VERSION, RunStore, StoreError, StoreUnavailable, StoreVersionError
 from station.store import backends
-from station.store.url import parse_pg_url
+from station.store_url import parse_pg_url
 
 # the schema the first stations wrote (version 1), verbatim: their files must open and upgrade in place
 V1_SCHEMA = """

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.station import FakeStation
 from procedures.devices import DeviceSet
 from procedures.iso9283 import registration_of
@@ -61,8 +61,8 @@ def fleet(tmp_path_factory, request):
             cfg_dict = d
             devices = DeviceSet(urls={"tracker": station.tracker_url, "controller": station.controller_url},
                                 time_scale=station.world.clock.time_scale)
-            out = run_procedure(config_from_dict(d), "iso9283", devices=devices, operator=ScriptedOperator(True),
-                                quiet=True, run_id=f"r{k}", config_dir=tmp)
+            out = run_procedure(RunRequest(config_from_dict(d), "iso9283", devices=devices, operator=ScriptedOperator(True),
+                                           quiet=True, run_id=f"r{k}", config_dir=tmp))
             assert out.status == "done", out.error
             with RunStore(tmp / "s.sqlite") as store:
                 truths[serial] = _true_barycentres(store, f"r{k}", station.world)

@@ -5,7 +5,7 @@ import io
 import numpy as np
 
 from fakes.cells import demo_config
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import StationConfig
 from station.store import RunStore
 from station.store.forward import forward_status
@@ -23,9 +23,9 @@ def _cfg(tmp_path, url):
 def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
     cfg = _cfg(tmp_path, pg_url)
     out = io.StringIO()
-    code = run_procedure(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=LOCKSTEP,
-                         seed=int(rng.integers(2**31)), config_dir=tmp_path,
-                         plan_overrides={"selection_seed": int(rng.integers(2**31))})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", stdout=out, run_id="f1", yes=True, quiet=True, time_scale=LOCKSTEP,
+                                    seed=int(rng.integers(2**31)), config_dir=tmp_path,
+                                    plan_overrides={"selection_seed": int(rng.integers(2**31))}))
     assert code.status == "done"
     # the centre holds the whole run, its verdict stored after the run included, and the line says so
     assert f"central store: holds run f1 complete" in out.getvalue() and code.forwarding in out.getvalue()
@@ -45,9 +45,9 @@ def test_a_run_reaches_the_central_store_by_itself(rng, tmp_path, pg_url):
 def test_an_unreachable_centre_costs_the_run_nothing(rng, tmp_path):
     cfg = _cfg(tmp_path, "postgresql://station@127.0.0.1:1/plant")
     buf = io.StringIO()
-    code = run_procedure(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=LOCKSTEP,
-                         seed=int(rng.integers(2**31)), config_dir=tmp_path,
-                         plan_overrides={"selection_seed": int(rng.integers(2**31))})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", stdout=buf, run_id="f2", yes=True, quiet=True, time_scale=LOCKSTEP,
+                                    seed=int(rng.integers(2**31)), config_dir=tmp_path,
+                                    plan_overrides={"selection_seed": int(rng.integers(2**31))}))
     assert code.status == "done"
     out = buf.getvalue()
     assert "central store not reached" in out and "station store push" in out

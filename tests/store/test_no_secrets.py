@@ -23,7 +23,7 @@ import pytest
 
 import fakes.controller
 from fakes.cells import demo_config
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from app.cli import main
 from station.config import config_from_dict, load_config
 from station.errors import ConfigError
@@ -35,7 +35,7 @@ def _pg_text(url: str) -> str:
     """Every row of every table of the central store, as text."""
     import psycopg
 
-    from station.store.url import parse_pg_url
+    from station.store_url import parse_pg_url
 
     with psycopg.connect(**parse_pg_url(url).connect_kwargs()) as conn:
         tables = [r[0] for r in conn.execute(
@@ -87,8 +87,8 @@ def test_no_secret_reaches_a_record_a_log_the_page_or_an_export(test_seed, tmp_p
     cfg = load_config(cfg_path)
     caplog.set_level(logging.DEBUG)
     out = io.StringIO()
-    code = run_procedure(cfg, "iso9283", stdout=out, run_id="s1", yes=True, quiet=True, time_scale=LOCKSTEP,
-                         seed=seed, config_dir=station_dir)
+    code = run_procedure(RunRequest(cfg, "iso9283", stdout=out, run_id="s1", yes=True, quiet=True, time_scale=LOCKSTEP,
+                                    seed=seed, config_dir=station_dir))
     assert code.status == "done", out.getvalue()  # its verdict is the drawn cell's (the secrets are the point)
     assert "central store:" in out.getvalue()
     for fmt in ("csv", "parquet"):

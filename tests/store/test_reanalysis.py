@@ -7,7 +7,7 @@ import pytest
 
 from fakes.station import FakeStation
 from tests.person import person_typing_yes
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from app.cli import main
 from station.config import config_from_dict
 from app.reanalysis import analysis_version, reanalyze
@@ -23,7 +23,7 @@ def iso_store(tmp_path_factory, request):
     with FakeStation.start(seed=seed_for(request), time_scale=LOCKSTEP) as cell:
         cfg = config_from_dict(cell.config_dict(store_path=str(tmp / "s.sqlite"), report_dir=str(tmp / "reports"),
                                                 iso9283={"cycles": 3, "vap_cycles": 2}))
-        code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="iso-1", config_dir=tmp)
+        code = run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="iso-1", config_dir=tmp))
     assert code.status == "done"
     (tmp / "c.json").write_text(json.dumps({"station": {"name": "cell", "store_path": "s.sqlite"}, "devices": {}}))
     return tmp

@@ -12,7 +12,7 @@ import pynmea2
 import pytest
 import serial
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from drivers.nmea_codec import encode_curvature_command, encode_sync
 from drivers.odometry import LISTEN_SLICE_S, OdometryDriver
 from drivers.transport import SerialTransport
@@ -214,8 +214,8 @@ def _trailer_run(tmp_path, name, seed, lengths, time_scale):
         "trailer": {"odometry": "odo", "serial": "TR-1", "commands": [["H", 0.18]], "settle_s": 5.0,
                     "duration_s": 25.0},
     })
-    out = run_procedure(cfg, "trailer", run_id=name, yes=True, quiet=True, time_scale=time_scale, seed=seed,
-                        fake_options={"true_lengths_m": list(lengths)}, config_dir=tmp_path)
+    out = run_procedure(RunRequest(cfg, "trailer", run_id=name, yes=True, quiet=True, time_scale=time_scale, seed=seed,
+                                   fake_options={"true_lengths_m": list(lengths)}, config_dir=tmp_path))
     with RunStore(tmp_path / f"{name}.sqlite") as store:
         assert out.status == "done", [s.message for s in store.steps(name) if s.message]
         return store.samples(name, "odometry"), store.result(name, "trailer")["result"]

@@ -20,7 +20,7 @@ import pytest
 
 from fakes.cells import demo_config
 from procedures.arm_calibration import RESULT_KEY, ArmCalPlan
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import StationConfig
 from station.models.arm_model_file import read_ur_calibration
 from station.store import RunStore
@@ -38,9 +38,9 @@ def _cfg(tmp_path, **arm):
 
 
 def _run(cfg, tmp_path, run_id, cell_seed, sel_seed):
-    code = run_procedure(cfg, "arm-calibration", run_id=run_id, yes=True, quiet=True, time_scale=TIME_SCALE,
-                         seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
-                         fake_options={"rtde_hz": UR_RTDE_HZ})
+    code = run_procedure(RunRequest(cfg, "arm-calibration", run_id=run_id, yes=True, quiet=True, time_scale=TIME_SCALE,
+                                    seed=cell_seed, config_dir=tmp_path, plan_overrides={"selection_seed": sel_seed},
+                                    fake_options={"rtde_hz": UR_RTDE_HZ}))
     assert code.exit_code == 0
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         return (store.result(run_id, RESULT_KEY), ArmCalPlan.from_params(store.run(run_id).params),

@@ -22,7 +22,7 @@ import pytest
 from fakes.station import FakeStation
 from procedures.iso9283 import plan_from_config, registration_of
 from station.analysis.iso9283.poses import TABLE2_POSES_MM
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import config_from_dict
 from station.models import kinematics
 from station.store import RunStore
@@ -60,8 +60,8 @@ def test_iso9283_runs_on_the_ur_fake_through_ur_rtde(tmp_path, test_seed):
         T[0, :3, 3] = TABLE2_POSES_MM[0]  # what a ur5e config was refused for
         assert not kinematics.ik(cell.world.robot.dh_nominal, T[:1], cell.world.robot.home_q_rad,
                                  cell.world.robot.joint_limits_rad).all_success
-        code = run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
-                             config_dir=tmp_path)
+        code = run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True, run_id="u1",
+                                        config_dir=tmp_path))
         store = RunStore(tmp_path / "s.sqlite")
         steps = store.steps("u1")
         assert code.exit_code == 0, steps[-1].message

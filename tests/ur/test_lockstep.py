@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.station import FakeStation
 from station.config import config_from_dict
 from station.store import RunStore
@@ -43,8 +43,8 @@ def _run(tmp_path, name, seed, time_scale):
         assert cell.controller_url.endswith("lockstep=1") and cell.controller.lockstep
         d = cell.config_dict(store_path=str(tmp_path / f"{name}.sqlite"), report_dir=str(tmp_path / name),
                              iso9283={**UR_ISO, "cycles": 3, "vap_cycles": 2})
-        out = run_procedure(config_from_dict(d), "iso9283", arm=True, operator=person_typing_yes(), quiet=True,
-                            run_id=name, config_dir=tmp_path)
+        out = run_procedure(RunRequest(config_from_dict(d), "iso9283", arm=True, operator=person_typing_yes(), quiet=True,
+                                       run_id=name, config_dir=tmp_path))
     with RunStore(tmp_path / f"{name}.sqlite") as store:
         assert out.exit_code in (0, 1), [s.message for s in store.steps(name) if s.message]
         return (store.samples(name, "tracker"), store.samples(name, "robot"),

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from fakes.station import FakeStation
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from station.config import config_from_dict
 from station.store import RunStore
 from tests.person import person_typing_yes
@@ -49,8 +49,8 @@ def _wait_sim(cell, seconds: float) -> None:
 
 
 def _run(cfg, tmp_path, **kw):
-    return run_procedure(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True,
-                         config_dir=tmp_path, **kw)
+    return run_procedure(RunRequest(cfg, "iso9283", arm=True, operator=person_typing_yes(), quiet=True,
+                                    config_dir=tmp_path, **kw))
 
 
 @pytest.mark.parametrize("fault", ["protective_stop_move", "emergency_stop_move", "rtde_drop_after_s",

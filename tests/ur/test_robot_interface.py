@@ -14,7 +14,7 @@ from fakes.registry import start_named, url_of
 from fakes.sim.world import make_world
 from station.errors import SafetyError
 from station.models import kinematics
-from station.programs.model import CycleMark, Dwell, JointTarget, Loop, Move, Program
+from station.programs.program import CycleMark, Dwell, JointTarget, Loop, Move, Program
 from station.safety import SafetyGate, default_limits
 
 

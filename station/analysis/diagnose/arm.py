@@ -1,7 +1,7 @@
 """Arm diagnosis: where the station's simulation disagrees with measured data, and why.
 
 1. The simulation predicts the measurements: nominal table, base transform
-   fitted on the training poses (:mod:`.model`).
+   fitted on the training poses (:mod:`.arm_fit`).
 2. Train / held-out split spanning the workspace (:mod:`.split`); the rows
    are first put in motion order (by ``t``, or as given with
    ``rows_in_motion_order``) or, without one, in a canonical order, so the
@@ -23,7 +23,7 @@
    residual left by the current model: the part of its Jacobian columns the
    model cannot already produce (Frisch-Waugh), least squares, and a
    cluster-robust Wald statistic ``W`` (poses are the clusters;
-   :func:`.model.robust_cov`) against the ``1 - alpha / m`` quantile of
+   :func:`.arm_fit.robust_cov`) against the ``1 - alpha / m`` quantile of
    ``F(k, n_train - p/3)`` (Bonferroni over the round's candidates).
 5. Choice (nested): of the significant candidates, those whose linearised
    refit lowers the K-fold cross-validated squared error *inside the
@@ -77,7 +77,7 @@ from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 from station.numeric import finite_or_none
 
-from .model import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
+from .arm_fit import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
 from .candidate_significance import model_basis, wald_block
 from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split

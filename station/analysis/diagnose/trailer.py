@@ -5,7 +5,7 @@
    curvature is the average over the interval ending at each stamp
    (``sampling="interval"``, the default, as ``calibrate trailer`` takes
    it): the curvature at the stamp is taken between the intervals'
-   midpoints (:func:`.trailer_model.stamp_curvature`), so the record's
+   midpoints (:func:`.trailer_fit.stamp_curvature`), so the record's
    half-interval lag is not mistaken for a lag of the trailer (nor, at the
    ideal trailer's relaxation, for a curvature gain).
 2. Train / held-out split by time blocks spanning the record: the record is
@@ -14,7 +14,7 @@
    The model is always run over the whole record (the hitch's state carries
    through a held-out block driven by the curvature alone); only the
    residuals are split.
-3. Candidates (:mod:`.trailer_model`): ``link_lengths`` (L1, L2),
+3. Candidates (:mod:`.trailer_fit`): ``link_lengths`` (L1, L2),
    ``hitch_angle_offset`` (the joint-angle sensor's zero),
    ``curvature_gain`` (the curvature sensor's scale), ``hitch_dynamics``
    (the joint angle's relaxation of eq. (D) that the static model ignores;
@@ -80,7 +80,7 @@ from station.numeric import finite_or_none
 
 from .candidate_significance import model_basis, refit_step, wald_block
 from .summary_json import core_json
-from .trailer_model import (EFFECT_PARAMS, PARAM_NAMES, SAMPLINGS, columns, hac_bandwidth, hac_cov, loo_smooth,
+from .trailer_fit import (EFFECT_PARAMS, PARAM_NAMES, SAMPLINGS, columns, hac_bandwidth, hac_cov, loo_smooth,
                             null_params, predict, rms, segments, stamp_curvature)
 
 __all__ = ["TrailerDiagnosis", "TrailerStep", "TrailerTest", "diagnose_trailer", "EFFECTS", "MIN_SAMPLES"]

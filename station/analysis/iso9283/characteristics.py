@@ -32,7 +32,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.extraction import (
     STATUS_ASSIGNED,
     StopStatus,
@@ -247,7 +247,7 @@ class LeftOut:
 class LimitCheck:
     """One characteristic of one subject judged against its limit (its outcome a :class:`station.verdict.Outcome`)."""
 
-    characteristic: str  # a key of the characteristics table (station.analysis.iso9283.table)
+    characteristic: str  # a key of the characteristics table (station.characteristics)
     subject: str  # pose name, "P2-P4", "P1->P2"
     value: float | None
     limit: float

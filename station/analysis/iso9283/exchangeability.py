@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.errors import DataError, InsufficientDataError
 
 #: the figure (its row of the characteristics table)

@@ -35,7 +35,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
     ApproachGroup,

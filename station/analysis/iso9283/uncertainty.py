@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from station.analysis.decision import check_rule, decide
-from station.analysis.iso9283.table import unit_of
+from station.characteristics import unit_of
 from station.analysis.uncertainty import (
     Budget,
     FigureUncertainty,

@@ -71,7 +71,7 @@ from station.analysis.trailer.least_squares import (
     physical_warnings, validate_samples,
 )
 from station.errors import ConfigError, DataError, InsufficientDataError
-from station.models.trailer import INPUT_SAMPLINGS, DegenerateCommandError, integrate_psi
+from station.models.trailer import ESTIMATORS, INPUT_SAMPLINGS, DegenerateCommandError, integrate_psi
 from station.numeric import finite_number
 
 
@@ -706,8 +706,9 @@ def estimate_dynamic(t_s, kappa, psi, v_m_s, *, L0_m: tuple[float, float] | None
 
 
 # ----------------------------------------------------------------------------- dispatch
-#: every method name :func:`estimate_trailer` accepts
-ESTIMATORS = tuple(METHODS) + ("odr", "dynamic")
+# every method name estimate_trailer accepts is named with the trailer's model (a config checks it there)
+if tuple(METHODS) + ("odr", "dynamic") != ESTIMATORS:
+    raise RuntimeError(f"station.models.trailer.ESTIMATORS {ESTIMATORS} are not Table 3's methods, odr, dynamic")
 
 
 def estimate_trailer(data: dict, method: str, *, sampling: str = "interval",
@@ -816,4 +817,4 @@ def _to_estimate(method, fit: FitResult, k, info, extra: dict, warnings: list) -
 
 
 __all__ = ["FitResult", "fit_odr", "estimate_odr", "fit_dynamic", "fit_dynamic_instrumented",
-           "align_command", "estimate_dynamic", "ESTIMATORS", "estimate_trailer"]
+           "align_command", "estimate_dynamic", "estimate_trailer"]
