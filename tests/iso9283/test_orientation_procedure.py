@@ -160,6 +160,20 @@ def test_a_position_only_tracker_states_no_orientation(runs):
         assert six[k] == pytest.approx(v, rel=1e-9, abs=1e-9), k
 
 
+def test_a_stored_6dof_run_reanalyses_to_the_same_orientation_figures(runs):
+    from procedures.iso9283 import reanalyse
+
+    tmp, _, _ = runs
+    with RunStore(tmp / "s.sqlite") as store:
+        result, rows = reanalyse(store, "six")
+        stored = {(r["pose"], r["name"]): r["value"] for r in store.characteristics("six") if r["name"] in KEYS}
+    again = {(r["pose"], r["name"]): r["value"] for r in rows if r["name"] in KEYS}
+    assert again.keys() == stored.keys() and len(again) == 30
+    for k, v in stored.items():
+        assert again[k] == pytest.approx(v, rel=1e-12, abs=1e-12), k
+    assert result["pose"]["poses"]["P1"]["orientation"]["n"] >= CYCLES
+
+
 def store_rows(tmp, run_id):
     with RunStore(tmp / "s.sqlite") as store:
         return store.characteristics(run_id)
