@@ -72,6 +72,7 @@ class EmsconTracker(TrackerBase):
     """
 
     protocol = "emscon"
+    measures_orientation = True
 
     def __init__(self, transport, *, reply_timeout_s: float = 5.0, reconnect_timeout_s: float = 10.0,
                  backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0,

@@ -458,6 +458,8 @@ class TrackerBase(abc.ABC):
     implements the abstract methods and so offers :class:`Tracker`."""
 
     protocol: str = "?"
+    #: streams a 6-DoF target's orientation too (``start_stream(rate_hz, six_dof=True)``)
+    measures_orientation: bool = False
 
     def __init__(self) -> None:
         # events outside a stream land here; a stream uses its own buffer

@@ -896,6 +896,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = IsoPlan.from_params(params)
     problems = report_dir_problems(plan.report_dir)
     problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
+    problems += orientation_problems(plan, devices)
     try:
         rendered = programs(plan)
     except StationError as exc:
@@ -906,6 +907,31 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
             gate.check_program(prog.program, q_start=None)
         except StationError as exc:
             problems.append(f"program {name!r}: {exc}")
+    return problems
+
+
+def orientation_problems(plan: IsoPlan, devices) -> list[str]:
+    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits on a position-only tracker."""
+    from station.analysis.iso9283.table import characteristics
+
+    problems = []
+    if plan.orientation:
+        cls = devices.drivers.get("tracker") if devices is not None else None
+        if cls is None and devices is not None and "tracker" in devices.urls:
+            from drivers.tracker_url import tracker_class
+
+            try:
+                cls = tracker_class(devices.urls["tracker"])
+            except StationError:
+                cls = None  # the URL's own problem is told by the rate check
+        if cls is not None and not getattr(cls, "measures_orientation", False):
+            problems.append(f"devices.tracker.six_dof: this tracker ({getattr(cls, 'protocol', '?')}) streams "
+                            "positions only, not a 6-DoF target's orientation")
+    else:
+        angles = sorted(k for k in plan.limits if any(c.key == k and c.with_orientation for c in characteristics()))
+        if angles:
+            problems.append(f"limits {', '.join(angles)}: orientation limits need a 6-DoF tracker "
+                            "(devices.tracker.six_dof = true); this one measures positions only")
     return problems
 
 

@@ -26,7 +26,7 @@ from station.store import RunStore
 from tests.pace import LOCKSTEP
 
 #: two procedure runs on the fakes (about a minute each on a shared machine)
-pytestmark = pytest.mark.timeout(600)
+pytestmark = pytest.mark.timeout(900)
 
 CYCLES = 5
 KEYS = [f"{kind}{ax}_deg" for ax in "abc" for kind in ("AP", "RP")]
@@ -172,6 +172,22 @@ def test_a_stored_6dof_run_reanalyses_to_the_same_orientation_figures(runs):
     for k, v in stored.items():
         assert again[k] == pytest.approx(v, rel=1e-12, abs=1e-12), k
     assert result["pose"]["poses"]["P1"]["orientation"]["n"] >= CYCLES
+
+
+def test_preflight_refuses_orientation_a_tracker_cannot_measure(runs):
+    from dataclasses import replace
+
+    from procedures.iso9283 import IsoPlan, orientation_problems
+
+    tmp, _, _ = runs
+    with RunStore(tmp / "s.sqlite") as store:
+        plan = IsoPlan.from_params(store.run("six").params)
+    assert plan.orientation and plan.angle_sd_deg == T_MAC_ANGLE_SD_DEG and plan.limits["APa_deg"] == 5.0
+    assert orientation_problems(plan, DeviceSet(urls={"tracker": "emscon://127.0.0.1:700"})) == []
+    (p,) = orientation_problems(plan, DeviceSet(urls={"tracker": "geocom:///dev/ttyUSB0"}))
+    assert p.startswith("devices.tracker.six_dof: this tracker (geocom) streams positions only")
+    (p,) = orientation_problems(replace(plan, orientation=False), DeviceSet(urls={"tracker": "emscon://h"}))
+    assert p.startswith("limits APa_deg: orientation limits need a 6-DoF tracker")
 
 
 def store_rows(tmp, run_id):
