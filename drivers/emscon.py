@@ -72,6 +72,7 @@ class EmsconTracker(TrackerBase):
     """
 
     protocol = "emscon"
+    measures_orientation = True
 
     def __init__(self, transport, *, reply_timeout_s: float = 5.0, reconnect_timeout_s: float = 10.0,
                  backoff_initial_s: float = 0.05, backoff_max_s: float = 1.0,
@@ -112,6 +113,7 @@ class EmsconTracker(TrackerBase):
         self._length_unit = ec.LengthUnit.MILLIMETER
         self._mm_per_unit = 1.0
         self._separation_ms: int | None = None
+        self._stream_mode = ec.MeasMode.CONTINUOUS_TIME
         self._beam_ok = True
         self._stream_active = False
         self.info: TrackerInfo | None = None
@@ -210,14 +212,17 @@ class EmsconTracker(TrackerBase):
                     f"must be 1000/k Hz (1000, 500, 250, ...), got {rate_hz!r}")
         return None
 
-    def start_stream(self, rate_hz: float) -> None:
+    def start_stream(self, rate_hz: float, *, six_dof: bool = False) -> None:
+        """Stream on the time grid; ``six_dof``: a 6-DoF target (T-Mac, T-Probe) in the 6D continuous time
+        mode, each sample with its orientation (``SampleBatch.quat_wxyz``)."""
         if self._stream_active:
             raise DeviceError("a continuous stream is already running")
         problem = self.rate_problem(rate_hz)
         if problem:
             raise ConfigError(problem)
         sep_ms = int(round(1000.0 / rate_hz))
-        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.CONTINUOUS_TIME,)))
+        self._stream_mode = ec.MeasMode.SIX_DOF_CONTINUOUS_TIME if six_dof else ec.MeasMode.CONTINUOUS_TIME
+        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (self._stream_mode,)))
         self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS, (sep_ms, 0, 0, 0)))
         self._separation_ms = sep_ms
         self._stream = StreamBuffer(self.protocol, 1000.0 / sep_ms, grid=True)
@@ -297,7 +302,7 @@ class EmsconTracker(TrackerBase):
         self._initialise(Deadline(self.reply_timeout_s * 4), self.reply_timeout_s * 4)
         self._configure(self.reply_timeout_s)
         if self._stream_active and self._separation_ms:
-            self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.CONTINUOUS_TIME,)))
+            self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (self._stream_mode,)))
             self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS,
                                            (self._separation_ms, 0, 0, 0)))
             self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT))
@@ -462,13 +467,27 @@ class EmsconTracker(TrackerBase):
             return
         if isinstance(frame, ec.MultiMeasResult):
             buf = self._stream
-            if buf is None:
+            if buf is None or self._stream_mode == ec.MeasMode.SIX_DOF_CONTINUOUS_TIME:
                 self._idle.count_garbage(0)
                 return
             k = self._mm_per_unit
             s = frame.samples
             xyz = np.column_stack([s["val1"], s["val2"], s["val3"]])
             buf.add(ec.join_time_s(s["time1"], s["time2"]), xyz * k if k != 1.0 else xyz, s["status"])
+            return
+        if isinstance(frame, ec.ProbeContinuousResult):
+            buf = self._stream
+            if buf is None or self._stream_mode != ec.MeasMode.SIX_DOF_CONTINUOUS_TIME:
+                # 6-DoF samples where none were asked: not this stream's (counted, not taken)
+                self._buffer().count_garbage(0)
+                return
+            s = frame.samples
+            k = self._mm_per_unit
+            ok6 = (s["rotation_status"] & 0b11) == 0b01  # Status6D set, Error6D clear
+            if not ok6.all():
+                buf.count_rejected(int((~ok6).sum()))
+                s = s[ok6]
+            buf.add(ec.join_time_s(s["time1"], s["time2"]), s["position"] * k, s["status"], s["quaternion"])
             return
         if isinstance(frame, ec.SingleMeasResult):
             self._singles.put(frame)

@@ -23,6 +23,26 @@ little-endian, structures packed to 4 bytes, ``long``/``enum``/``ES_BOOL`` are
                        <i bIsTryMode, 3 x <d (Temperature, Pressure, Humidity)
                        then lNumberOfResults x MeasValueT           48 + 36 n bytes
     MeasValueT         <i status, <i lTime1, <i lTime2, 3 x <d (Val1-3)  36 bytes
+    ProbeContinuousResultT (type 5, 6-DoF continuous: T-Mac / T-Probe)
+                       header, <i status, <i lNumberOfResults, <i measMode,
+                       <i bIsTryMode, <i iInternalProbeId, <i iFieldNumber,
+                       <i tipStatus, <i iInternalTipAdapterId,
+                       <i iTipAdapterInterface, 3 x <d (Temperature,
+                       Pressure, Humidity), then lNumberOfResults x
+                       ProbeMeasValueT                              68 + 212 n bytes
+    ProbeMeasValueT    <i status, <i triggerStatus, <i lRotationStatus,
+                       <i lTime1, <i lTime2, 24 x <d: Position1-3,
+                       StdDevPosition1-3, StdDevPositionTotal,
+                       CovarPosition12/13/23, Quaternion0-3,
+                       RotationAngleX-Z, StdDevRotationAngleX-Z,
+                       StdDevRotationAngleTotal, CovarRotationAngleXY/XZ/YZ 212 bytes
+
+6-DoF rotation: the headers give four quaternion terms and three rotation
+angles per sample without naming the convention; this station reads
+``Quaternion0`` as the scalar part and the quaternion as the rotation of the
+probe's frame into the tracker's (``p_tracker = R(q) p_probe + position``),
+and requires it to be a unit quaternion (:data:`QUATERNION_NORM_TOL`): a
+sample that is not is a malformed packet, refused with the sample named.
 
 Device time of a continuous sample: the headers do not define ``lTime1`` /
 ``lTime2`` beyond two 4-byte integers; this station reads them as whole
@@ -58,6 +78,14 @@ MIN_PACKET_BYTES = 12
 DEFAULT_MAX_PACKET_BYTES = 1 << 20
 #: MultiMeasResultT up to (excluding) its first MeasValueT
 MULTI_HEADER_BYTES = 48
+#: ProbeContinuousResultT up to (excluding) its first ProbeMeasValueT
+PROBE_HEADER_BYTES = 68
+#: largest departure of a 6-DoF sample's quaternion norm from 1 (the doubles carry 1e-16; a probe's own
+#: normalisation far better than this)
+QUATERNION_NORM_TOL = 1e-6
+#: ``ES_TriggerStatus`` and ``ES_MeasurementTipStatus`` of a 6-DoF result lie in these ranges
+TRIGGER_STATUS_MAX = 1
+TIP_STATUS_MAX = 2
 SINGLE_MEAS_BYTES = 156
 #: highest command id of TPI 3.6
 MAX_COMMAND_ID = 142
@@ -103,6 +131,8 @@ class MeasMode(IntEnum):
 
     STATIONARY = 0
     CONTINUOUS_TIME = 1
+    #: ``ES_MM_6DContinuousTime``: a 6-DoF probe (T-Mac) streamed on the time grid, ProbeContinuousResultT
+    SIX_DOF_CONTINUOUS_TIME = 7
 
 
 MEAS_MODE_MAX = 11
@@ -256,8 +286,18 @@ MEAS_VALUE_DTYPE = np.dtype([
 ])
 assert MEAS_VALUE_DTYPE.itemsize == 36
 
+#: one 6-DoF continuous sample, exactly as on the wire (212 bytes, no padding)
+PROBE_VALUE_DTYPE = np.dtype([
+    ("status", "<i4"), ("trigger", "<i4"), ("rotation_status", "<i4"), ("time1", "<i4"), ("time2", "<i4"),
+    ("position", "<f8", (3,)), ("std_position", "<f8", (4,)), ("covar_position", "<f8", (3,)),
+    ("quaternion", "<f8", (4,)), ("rotation_angle", "<f8", (3,)), ("std_rotation_angle", "<f8", (4,)),
+    ("covar_rotation_angle", "<f8", (3,)),
+])
+assert PROBE_VALUE_DTYPE.itemsize == 212
+
 _I = struct.Struct("<i")
 _II = struct.Struct("<ii")
+_PROBE_HEAD = struct.Struct("<9i3d")
 _SINGLE = struct.Struct("<iii17d")
 _MULTI_HEAD = struct.Struct("<iiii3d")
 
@@ -418,6 +458,63 @@ class MultiMeasResult:
 
 
 @dataclass(frozen=True)
+class ProbeContinuousResult:
+    """``ProbeContinuousResultT`` (6-DoF continuous) with its samples as a :data:`PROBE_VALUE_DTYPE` array."""
+
+    status: int
+    meas_mode: int
+    is_try_mode: bool
+    probe_id: int
+    field_number: int
+    tip_status: int
+    tip_adapter_id: int
+    tip_adapter_interface: int
+    temperature: float
+    pressure: float
+    humidity: float
+    samples: np.ndarray = field(repr=False)
+
+    @classmethod
+    def from_arrays(cls, t_us, xyz, quat_wxyz, sample_status=0, *,
+                    meas_mode: int = MeasMode.SIX_DOF_CONTINUOUS_TIME, status: int = 0, probe_id: int = 1,
+                    temperature: float = 20.0, pressure: float = 1013.25,
+                    humidity: float = 50.0) -> "ProbeContinuousResult":
+        """Build from device times (int microseconds, (N,)), positions (N, 3) and unit quaternions (N, 4)."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        samples = np.zeros(len(xyz), dtype=PROBE_VALUE_DTYPE)
+        samples["time1"], samples["time2"] = split_time_us(t_us)
+        samples["status"] = sample_status
+        samples["rotation_status"] = 1  # Status6D: the rotation is valid
+        samples["position"] = xyz
+        samples["quaternion"] = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
+        return cls(status, int(meas_mode), False, int(probe_id), 0, 0, 0, 0, temperature, pressure, humidity,
+                   samples)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return join_time_s(self.samples["time1"], self.samples["time2"])
+
+    @property
+    def xyz(self) -> np.ndarray:
+        return np.array(self.samples["position"])
+
+    @property
+    def quat_wxyz(self) -> np.ndarray:
+        """(N, 4) unit quaternions, scalar first: the probe's frame into the tracker's."""
+        return np.array(self.samples["quaternion"])
+
+    def encode(self) -> bytes:
+        samples = np.ascontiguousarray(self.samples, dtype=PROBE_VALUE_DTYPE)
+        n = len(samples)
+        size = PROBE_HEADER_BYTES + PROBE_VALUE_DTYPE.itemsize * n
+        return (HEADER.pack(size, DataType.CONTINUOUS_PROBE_MEAS_RESULT)
+                + _PROBE_HEAD.pack(self.status, n, self.meas_mode, int(self.is_try_mode), self.probe_id,
+                                   self.field_number, self.tip_status, self.tip_adapter_id,
+                                   self.tip_adapter_interface, self.temperature, self.pressure, self.humidity)
+                + samples.tobytes())
+
+
+@dataclass(frozen=True)
 class ReflectorPosResult:
     status: int
     xyz: tuple
@@ -446,7 +543,7 @@ class Garbage:
 
 
 Frame = (CommandPacket | CommandReply | ErrorPacket | StatusChangePacket | SingleMeasResult
-         | MultiMeasResult | ReflectorPosResult | OtherPacket)
+         | MultiMeasResult | ProbeContinuousResult | ReflectorPosResult | OtherPacket)
 
 
 def encode(frame) -> bytes:
@@ -503,6 +600,9 @@ def _header_problem(size: int, ptype: int, from_server: bool, max_bytes: int) ->
     if ptype == DataType.MULTI_MEAS_RESULT2 and (size < MULTI_HEADER_BYTES
                                                  or (size - MULTI_HEADER_BYTES) % _MULTI2_ITEM):
         return f"multi-measurement-2 packet of {size} bytes is not 48 + 92 n"
+    if ptype == DataType.CONTINUOUS_PROBE_MEAS_RESULT and (
+            size < PROBE_HEADER_BYTES or (size - PROBE_HEADER_BYTES) % PROBE_VALUE_DTYPE.itemsize):
+        return f"6-DoF continuous packet of {size} bytes is not 68 + 212 n"
     return None
 
 
@@ -510,6 +610,7 @@ def _header_problem(size: int, ptype: int, from_server: bool, max_bytes: int) ->
 _T_COMMAND, _T_ERROR = int(DataType.COMMAND), int(DataType.ERROR)
 _T_MULTI_MEAS_RESULT, _T_MULTI_MEAS_RESULT2 = int(DataType.MULTI_MEAS_RESULT), int(DataType.MULTI_MEAS_RESULT2)
 _T_SINGLE_MEAS_RESULT, _T_MAX = int(DataType.SINGLE_MEAS_RESULT), int(max(DataType))
+_T_PROBE_CONTINUOUS = int(DataType.CONTINUOUS_PROBE_MEAS_RESULT)
 
 
 def _plausible_mask(words: np.ndarray, from_server: bool, max_bytes: int) -> np.ndarray:
@@ -558,6 +659,11 @@ def _plausible_mask(words: np.ndarray, from_server: bool, max_bytes: int) -> np.
     ok &= (typ != _T_MULTI_MEAS_RESULT2) | multi2_ok
     single_ok = (~a3 | ((w3 >= 0) & (w3 <= MEAS_MODE_MAX))) & (~a4 | ((w4 == 0) | (w4 == 1)))
     ok &= (typ != _T_SINGLE_MEAS_RESULT) | single_ok
+    pbody = size - PROBE_HEADER_BYTES
+    probe_ok = ((pbody >= 0) & (pbody % PROBE_VALUE_DTYPE.itemsize == 0)
+                & (~a3 | (w3 == pbody // PROBE_VALUE_DTYPE.itemsize))
+                & (~a4 | ((w4 >= 0) & (w4 <= MEAS_MODE_MAX))) & (~a5 | ((w5 == 0) | (w5 == 1))))
+    ok &= (typ != _T_PROBE_CONTINUOUS) | probe_ok
     return ok
 
 
@@ -801,7 +907,7 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
     frame, problem = _decode_body(buf, size, ptype, from_server)
     if problem is not None:
         return _skip(buf, problem, from_server, max_packet_bytes)
-    if ptype == DataType.MULTI_MEAS_RESULT and from_server:
+    if ptype in (DataType.MULTI_MEAS_RESULT, DataType.CONTINUOUS_PROBE_MEAS_RESULT) and from_server:
         if require_successor and n - size < _SUCCESSOR_BYTES:
             return 0, None  # too little follows to tell junk from a swallowed packet
         swallowed = _swallowed_packet(buf, size, from_server, max_packet_bytes)
@@ -817,7 +923,7 @@ def decode(buf, *, from_server: bool = True, max_packet_bytes: int = DEFAULT_MAX
 #: packet types an emScon server sends this station; a packet swallowed by a truncated multi result is looked
 #: for among these (the others' headers check too few fields to tell them from sample data)
 _SERVER_TYPES = frozenset({_T_COMMAND, _T_ERROR, int(DataType.SYSTEM_STATUS_CHANGE), _T_SINGLE_MEAS_RESULT,
-                           _T_MULTI_MEAS_RESULT})
+                           _T_MULTI_MEAS_RESULT, _T_PROBE_CONTINUOUS})
 
 
 def _swallowed_packet(buf, size: int, from_server: bool, max_bytes: int) -> tuple[int, bool] | None:
@@ -924,10 +1030,54 @@ def _decode_body(buf, size: int, ptype: int, from_server: bool):
         if problem is not None:
             return None, problem
         return MultiMeasResult(status, mode, bool(is_try), temp, press, hum, samples), None
+    if ptype == DataType.CONTINUOUS_PROBE_MEAS_RESULT:
+        return _decode_probe(buf, size)
     if ptype == DataType.REFLECTOR_POS_RESULT:
         status, *xyz = struct.unpack_from("<i3d", buf, 8)
         return ReflectorPosResult(status, tuple(xyz)), None
     return OtherPacket(ptype, bytes(buf[8:size])), None
+
+
+def _decode_probe(buf, size: int):
+    """A ``ProbeContinuousResultT``, or why its bytes are not one (the first bad field and sample named)."""
+    status, count, mode, is_try, probe_id, field_no, tip, tip_id, tip_if, temp, press, hum = \
+        _PROBE_HEAD.unpack_from(buf, 8)
+    have = (size - PROBE_HEADER_BYTES) // PROBE_VALUE_DTYPE.itemsize
+    if count != have:
+        return None, f"6-DoF result declares {count} samples but its {size} bytes hold {have}"
+    if not 0 <= mode <= MEAS_MODE_MAX or is_try not in (0, 1):
+        return None, f"6-DoF result has measMode {mode}, bIsTryMode {is_try}"
+    if not 0 <= tip <= TIP_STATUS_MAX:
+        return None, f"6-DoF result has tipStatus {tip} (0..{TIP_STATUS_MAX})"
+    samples = np.frombuffer(buf, dtype=PROBE_VALUE_DTYPE, count=count, offset=PROBE_HEADER_BYTES).copy()
+    problem = _probe_samples_problem(samples)
+    if problem is not None:
+        return None, problem
+    return ProbeContinuousResult(status, mode, bool(is_try), probe_id, field_no, tip, tip_id, tip_if, temp, press,
+                                 hum, samples), None
+
+
+def _probe_samples_problem(samples: np.ndarray) -> str | None:
+    """Why a 6-DoF sample is malformed (status, trigger, time or quaternion out of its domain), or None."""
+    bad = ((samples["status"] < 0) | (samples["status"] > MEASUREMENT_STATUS_MAX)
+           | (samples["trigger"] < 0) | (samples["trigger"] > TRIGGER_STATUS_MAX)
+           | (samples["time2"] < 0) | (samples["time2"] >= 1_000_000) | (samples["time1"] < 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        return (f"6-DoF result sample {i} has status {samples['status'][i]}, triggerStatus "
+                f"{samples['trigger'][i]}, lTime1 {samples['time1'][i]}, lTime2 {samples['time2'][i]}")
+    q = samples["quaternion"]
+    with np.errstate(invalid="ignore", over="ignore"):
+        norm = np.sqrt(np.sum(q * q, axis=1))
+    off = ~(np.abs(norm - 1.0) <= QUATERNION_NORM_TOL)  # NaN is off too
+    # a sample the tracker flags as not measured (Status6D clear or Error6D set) may carry anything
+    valid6d = (samples["rotation_status"] & 0b11) == 0b01
+    off &= valid6d
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        return (f"6-DoF result sample {i} has quaternion {np.round(q[i], 9).tolist()} of norm {norm[i]:.9g}, "
+                f"not a unit quaternion (tolerance {QUATERNION_NORM_TOL:g})")
+    return None
 
 
 def decode_packet(data, *, from_server: bool = True,

@@ -106,12 +106,17 @@ class SampleBatch:
         Per-sample device status (0 = OK; emScon: 1 speed warning,
         2 speed exceeded, 3 prism error, 4 trigger time violation).
     events : tuple of TrackerEvent
+    quat_wxyz : ndarray, shape (N, 4), or None
+        A 6-DoF target's orientation per sample (unit quaternion, scalar
+        first: the target's frame into the tracker's); None from a
+        position-only stream.
     """
 
     t_s: np.ndarray
     xyz_mm: np.ndarray
     status: np.ndarray
     events: tuple = ()
+    quat_wxyz: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -262,15 +267,19 @@ class StreamBuffer:
             self._failure = exc
             self._cond.notify_all()
 
-    def add(self, t_s, xyz, status) -> int:
-        """Validate, account and buffer samples; returns how many were accepted."""
+    def add(self, t_s, xyz, status, quat_wxyz=None) -> int:
+        """Validate, account and buffer samples (with a 6-DoF target's quaternions, (N, 4)); returns how many
+        were accepted."""
         t_s = np.asarray(t_s, dtype=np.float64).ravel()
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         status = np.asarray(status).astype(np.int8, copy=False).ravel()
-        if not (len(t_s) == len(xyz) == len(status)):
-            raise ValueError("t_s, xyz and status must have the same length")
+        quat = None if quat_wxyz is None else np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
+        if not (len(t_s) == len(xyz) == len(status)) or (quat is not None and len(quat) != len(t_s)):
+            raise ValueError("t_s, xyz, status (and quat_wxyz) must have the same length")
         with self._cond:
             keep = np.isfinite(t_s) & np.isfinite(xyz).all(axis=1)
+            if quat is not None:
+                keep &= np.isfinite(quat).all(axis=1)
             if self.grid:
                 kf = t_s * self.rate_hz
                 k = np.rint(np.where(keep, kf, 0.0)).astype(np.int64)
@@ -325,7 +334,7 @@ class StreamBuffer:
                     self._first_t = float(t_s[idx[0]])
                 self._last_t = float(t_s[idx[-1]])
                 self.received += int(idx.size)
-                self._chunks.append((t_s[idx], xyz[idx], status[idx]))
+                self._chunks.append((t_s[idx], xyz[idx], status[idx], None if quat is None else quat[idx]))
                 self._cond.notify_all()
             return int(idx.size)
 
@@ -347,16 +356,19 @@ class StreamBuffer:
                 return _empty_batch(events)
             parts, n = [], 0
             while self._chunks and (max_samples is None or n < max_samples):
-                t, x, s = self._chunks.popleft()
+                t, x, s, q = self._chunks.popleft()
                 if max_samples is not None and n + len(t) > max_samples:
                     cut = max_samples - n
-                    self._chunks.appendleft((t[cut:], x[cut:], s[cut:]))
-                    t, x, s = t[:cut], x[:cut], s[:cut]
-                parts.append((t, x, s))
+                    self._chunks.appendleft((t[cut:], x[cut:], s[cut:], None if q is None else q[cut:]))
+                    t, x, s, q = t[:cut], x[:cut], s[:cut], None if q is None else q[:cut]
+                parts.append((t, x, s, q))
                 n += len(t)
+        # orientation only when every sample of the batch has one (a stream is 6-DoF or not as a whole)
+        quats = [p[3] for p in parts]
+        quat = None if any(q is None for q in quats) else np.concatenate(quats)
         return SampleBatch(np.concatenate([p[0] for p in parts]),
                            np.concatenate([p[1] for p in parts]),
-                           np.concatenate([p[2] for p in parts]), events)
+                           np.concatenate([p[2] for p in parts]), events, quat)
 
     def take_events(self) -> list[TrackerEvent]:
         with self._cond:
@@ -446,6 +458,8 @@ class TrackerBase(abc.ABC):
     implements the abstract methods and so offers :class:`Tracker`."""
 
     protocol: str = "?"
+    #: streams a 6-DoF target's orientation too (``start_stream(rate_hz, six_dof=True)``)
+    measures_orientation: bool = False
 
     def __init__(self) -> None:
         # events outside a stream land here; a stream uses its own buffer

@@ -3,13 +3,17 @@
 It measures ``world.tracker_source()`` (the simulated target through the
 tracker measurement model) on the world's clock and answers the command
 subset the station uses: GetSystemStatus, GetTrackerStatus, Set/GetUnits,
-Initialize, Set/GetMeasurementMode, SetCoordinateSystemType (RHR),
+Initialize, Set/GetMeasurementMode (stationary, continuous time and 6D
+continuous time), SetCoordinateSystemType (RHR),
 SetStationaryModeParams, SetContinuousTimeModeParams, SetSystemSettings,
 StartMeasurement, StopMeasurement. Anything else is answered with status
 NotImplemented. Stationary measurements send a SingleMeasResultT after the
 measurement time; continuous-time mode streams MultiMeasResultT packets
 (``packet_rate_hz`` per simulated second) of samples on the device time grid
-``t_k = k * lTimeSeparation`` (the source's device clock when it has one:
+``t_k = k * lTimeSeparation`` (in the 6D continuous time mode, ES_MM_6DContinuousTime,
+ProbeContinuousResultT packets instead: a T-Mac on the tool, its position the TCP's and its quaternion
+the TCP's true rotation in the tracker frame with the tracker's angle noise, ``source.orientation``)
+(the source's device clock when it has one:
 ``device_time``); beam breaks are announced with
 SystemStatusChange MeasStatus_NotReady / MeasStatus_Ready and leave a hole
 in the grid. The stream holds the world's clock (:mod:`fakes.sim.clock`): the clock
@@ -42,6 +46,8 @@ counted from the first StartMeasurement the fake receives, unless noted)::
                               started: Initialize fails (SensorNotWarmedUp), nothing measures
     device_buffer_s  "X"      samples the device holds for a slow client (default 2)
     packet_rate_hz   "X"      continuous packets per simulated second (default 10)
+    bad_quaternion   "N"      every Nth 6-DoF packet's first sample carries a quaternion of
+                              norm 0.9 (a malformed packet)
     seed             "N"      seed of the fault randomness (default 0)
 
 ``start_fake(world, host=None, port=None, faults=None)`` binds 127.0.0.1 and an
@@ -67,6 +73,8 @@ from station.errors import ConfigError
 # --- wire layout (TPI, little-endian, packed to 4) ----------------------------------
 _HDR = struct.Struct("<ii")
 _DT_COMMAND, _DT_ERROR, _DT_SINGLE, _DT_MULTI, _DT_STATUS_CHANGE = 0, 1, 2, 3, 8
+_DT_PROBE_CONTINUOUS = 5
+_MM_6D_CONTINUOUS_TIME = 7
 _SSC_NOT_READY, _SSC_READY = 25, 27
 _RS_OK, _RS_BUSY, _RS_NOT_IMPLEMENTED, _RS_WRONG_PARAMETER, _RS_WRONG_PARAMETER1 = 0, 1, 2, 3, 4
 _RS_NOT_INITIALIZED, _RS_MEAS_NOT_READY, _RS_NOT_WARMED_UP = 39, 10004, 10012
@@ -95,6 +103,7 @@ class TrackerFaults:
     not_ready_s: float = 0.0
     device_buffer_s: float = 2.0
     packet_rate_hz: float = 10.0
+    bad_quaternion_every: int = 0
     seed: int = 0
 
     def beam_blocked(self, t_rel: np.ndarray) -> np.ndarray:
@@ -166,6 +175,8 @@ def parse_tracker_faults(faults: dict | None, *, allowed: frozenset, drop_defaul
             plan.device_buffer_s = _float(key, text, minimum=1e-3)
         elif key == "packet_rate_hz":
             plan.packet_rate_hz = _float(key, text, minimum=1e-3)
+        elif key == "bad_quaternion":
+            plan.bad_quaternion_every = _int(key, text)
         elif key == "seed":
             plan.seed = _int(key, text, minimum=0)
     return plan
@@ -183,7 +194,8 @@ def check_loopback(host: str) -> str:
 
 
 EMSCON_FAULTS = frozenset({"beam_break", "drop_connection", "garbage", "truncate", "truncate_tail", "huge_length",
-                           "slow_reply_s", "lose_reply", "not_ready", "device_buffer_s", "packet_rate_hz", "seed"})
+                           "slow_reply_s", "lose_reply", "not_ready", "device_buffer_s", "packet_rate_hz", "seed",
+                           "bad_quaternion"})
 
 
 # --- packets --------------------------------------------------------------------------
@@ -205,6 +217,27 @@ def _multi(t_us: np.ndarray, xyz_unit: np.ndarray) -> bytes:
     values["time1"], values["time2"] = np.divmod(t_us, 1_000_000)
     values["v1"], values["v2"], values["v3"] = xyz_unit.T
     head = _HDR.pack(48 + 36 * n, _DT_MULTI) + struct.pack("<iiii3d", 0, n, 1, 0, 20.0, 1013.25, 50.0)
+    return head + values.tobytes()
+
+
+#: ProbeMeasValueT: status, triggerStatus, lRotationStatus, lTime1, lTime2, then 24 doubles (position 3, its sd 4
+#: and covariances 3, quaternion 4, rotation angles 3, their sd 4 and covariances 3)
+_PROBE_VALUE = np.dtype([("status", "<i4"), ("trigger", "<i4"), ("rot_status", "<i4"), ("time1", "<i4"),
+                         ("time2", "<i4"), ("pos", "<f8", (3,)), ("pos_stat", "<f8", (7,)), ("q", "<f8", (4,)),
+                         ("rest", "<f8", (10,))])
+
+
+def _probe_multi(t_us: np.ndarray, xyz_unit: np.ndarray, quat_wxyz: np.ndarray) -> bytes:
+    """ProbeContinuousResultT: header, status, count, measMode 7, bIsTryMode, probe id 1, field 0, tip status,
+    tip adapter id and interface, temperature, pressure, humidity; then the samples."""
+    n = len(t_us)
+    values = np.zeros(n, dtype=_PROBE_VALUE)
+    values["time1"], values["time2"] = np.divmod(t_us, 1_000_000)
+    values["rot_status"] = 1  # Status6D: rotation valid
+    values["pos"] = xyz_unit
+    values["q"] = quat_wxyz
+    head = _HDR.pack(68 + 212 * n, _DT_PROBE_CONTINUOUS) + struct.pack(
+        "<9i3d", 0, n, _MM_6D_CONTINUOUS_TIME, 0, 1, 0, 0, 0, 0, 20.0, 1013.25, 50.0)
     return head + values.tobytes()
 
 
@@ -303,6 +336,14 @@ class EmsconFake:
     # ------------------------------------------------------------------ model
     def _not_ready(self) -> bool:
         return self._clock.now() - self._t_started < self._faults.not_ready_s
+
+    def _orientation(self, t_dev: np.ndarray) -> np.ndarray:
+        """Unit quaternions (N, 4), scalar first, of the 6-DoF target at device times (its frame into the
+        tracker's); NaN rows where the source has no orientation."""
+        from fakes.sim.six_dof import matrices_to_quat_wxyz
+
+        t = np.asarray(t_dev, dtype=float) - self._offset
+        return matrices_to_quat_wxyz(self._source.orientation(t))
 
     def _measure(self, t_dev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measure at device times (the source works in world times)."""
@@ -458,7 +499,7 @@ class _Session:
             mode = ints(1)
             if mode is None:
                 return _reply(command, _RS_WRONG_PARAMETER)
-            if mode[0] not in (0, 1):
+            if mode[0] not in (0, 1, _MM_6D_CONTINUOUS_TIME):
                 return _reply(command, _RS_NOT_IMPLEMENTED)
             fake._meas_mode = mode[0]
             return _reply(command, _RS_OK)
@@ -569,19 +610,31 @@ class _Session:
             t_us = ks * sep_us
             xyz, valid = fake._measure(t_us / 1e6)
             xyz_unit = xyz / _MM_PER_UNIT[fake._length_unit]
+            quat = fake._orientation(t_us / 1e6) if fake._meas_mode == _MM_6D_CONTINUOUS_TIME else None
             edges = np.flatnonzero(np.diff(valid.astype(np.int8))) + 1
             for lo, hi in zip(np.concatenate([[0], edges]), np.concatenate([edges, [n]])):
                 if valid[lo]:
                     if not self.beam_ok:
                         self._send(_status_change(_SSC_READY))
                         self.beam_ok = True
-                    self._data_packet(_multi(t_us[lo:hi], xyz_unit[lo:hi]), hi - lo,
-                                      (t_us[lo] / 1e6, t_us[hi - 1] / 1e6))
+                    packet = _multi(t_us[lo:hi], xyz_unit[lo:hi]) if quat is None else \
+                        self._probe_packet(t_us[lo:hi], xyz_unit[lo:hi], quat[lo:hi])
+                    self._data_packet(packet, hi - lo, (t_us[lo] / 1e6, t_us[hi - 1] / 1e6))
                 elif self.beam_ok:
                     self._send(_status_change(_SSC_NOT_READY))
                     self.beam_ok = False
         if self.streaming:
             self.producer.hold_until(self._next_batch_due())
+
+    def _probe_packet(self, t_us, xyz_unit, quat) -> bytes:
+        """A 6-DoF packet; with the ``bad_quaternion`` fault every Nth one's first quaternion is not a unit one."""
+        faults, stats = self.fake._faults, self.fake.stats
+        stats["probe_packets"] = stats.get("probe_packets", 0) + 1
+        if faults.bad_quaternion_every and stats["probe_packets"] % faults.bad_quaternion_every == 0:
+            quat = quat.copy()
+            quat[0] *= 0.9
+            stats["bad_quaternions"] = stats.get("bad_quaternions", 0) + 1
+        return _probe_multi(t_us, xyz_unit, quat)
 
     def _data_packet(self, packet: bytes, n_samples: int, span_s: tuple) -> None:
         fake, faults, stats = self.fake, self.fake._faults, self.fake.stats

@@ -20,9 +20,13 @@ The tests of seed 000 Table 3 on one robot with one laser tracker:
    MPT (10);
 7. ``vAP cycle k`` — P1, P2, P4 approached along x, y and z (sec. 3.3, eq. (7));
    the tracker streams continuously from the first cycle to ``stop stream``,
-   each step committing what arrived while it ran;
+   each step committing what arrived while it ran (with a 6-DoF tracker,
+   ``devices.tracker.six_dof``, a T-Mac on the tool in the emScon 6D
+   continuous time mode: every sample carries the tool's orientation too);
 8. ``analyse`` — attained-pose extraction and every characteristic, with
-   verdicts against the configured limits;
+   verdicts against the configured limits (with a 6-DoF tracker the
+   orientation accuracy and repeatability AP_a,b,c and RP_a,b,c at each
+   pose too, :mod:`station.analysis.iso9283.orientation`);
 9. ``report`` — one HTML file with the plots of Figs. 3-8, and the registered
    frame beside it (``<run>.frame.json``, the form ``analyze iso9283 --frame`` reads).
 
@@ -48,9 +52,10 @@ import numpy as np
 from procedures.plan_params import plan_from_params, plan_params
 from station import characteristics as table
 from station.analysis.iso9283.characteristics import ISO_CYCLES, analyze_iso9283, conformance_text
+from station.analysis.iso9283.orientation import abc_in_base, abc_of_matrices
 from station.analysis.iso9283.poses import cube_test_poses, fit_cube_to_reach
 from station.analysis.registration import Registration, fit_rigid, register_by_axes
-from station.errors import ConfigError, InsufficientDataError, StationError
+from station.errors import ConfigError, DeviceError, InsufficientDataError, StationError
 from station.models.robots import RobotSpec, get_robot
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2, vap_program
 from station.programs.program import CartesianTarget, Dwell, JointTarget, Move, Program, quat_from_matrix
@@ -101,6 +106,10 @@ class IsoPlan:
     #: "simple" or "guarded" (ISO 14253-1); the budget's keyword arguments (None: no uncertainty stated)
     decision_rule: str = "simple"
     uncertainty: dict | None = None
+    #: the tracker measures a 6-DoF target on the tool: orientation at every stop (devices.tracker.six_dof)
+    orientation: bool = False
+    #: sd of each 6-DoF angle reading, deg (the instrument term of the orientation figures' uncertainty)
+    angle_sd_deg: float = 0.0
 
     def gate(self) -> SafetyGate:
         return SafetyGate(
@@ -181,6 +190,9 @@ def _plan_on_cube(cfg, robot_name: str, corners, inset_mm: float, vap_offset_mm:
     )
     if cfg.uncertainty is not None:
         kw.update(decision_rule=cfg.uncertainty.decision_rule, uncertainty=cfg.uncertainty.budget_kwargs())
+    tracker = cfg.devices.get(device_roles(cfg, robot_name)["tracker"])
+    if tracker is not None and tracker.six_dof:
+        kw.update(orientation=True, angle_sd_deg=tracker.angle_sd_deg)
     kw.update(overrides)
     return IsoPlan(**kw)
 
@@ -338,10 +350,21 @@ def _move_targets(rendered) -> list[str]:
     return names
 
 
+#: the stream's columns of a 6-DoF target's orientation (unit quaternion, scalar first, tracker frame)
+QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
+
+
 def _record_batch(ctx: StepContext, batch) -> None:
-    """Commit one batch of tracker samples (device time, tracker frame) to the run's stream."""
-    ctx.record(STREAM, {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1],
-                        "z": batch.xyz_mm[:, 2], "status": batch.status})
+    """Commit one batch of tracker samples (device time, tracker frame) to the run's stream; with a 6-DoF
+    target (the plan's ``orientation``) each sample's quaternion too."""
+    cols = {"t": batch.t_s, "x": batch.xyz_mm[:, 0], "y": batch.xyz_mm[:, 1], "z": batch.xyz_mm[:, 2],
+            "status": batch.status}
+    if _plan(ctx).orientation:
+        if batch.quat_wxyz is None:
+            raise DeviceError("the tracker streamed samples without an orientation in its 6-DoF mode "
+                              "(devices.tracker.six_dof): is the T-Mac on the tool and the 6D mode licensed?")
+        cols.update(zip(QUAT_COLUMNS, batch.quat_wxyz.T))
+    ctx.record(STREAM, cols)
 
 
 def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) -> dict:
@@ -375,7 +398,10 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
     if stream and not tracker.streaming:
         # one continuous stream across the cycles (seed 000: the tracker measures the whole run);
         # a new session (resume) starts it again
-        tracker.start_stream(plan.tracker_rate_hz)
+        if plan.orientation:
+            tracker.start_stream(plan.tracker_rate_hz, six_dof=True)
+        else:
+            tracker.start_stream(plan.tracker_rate_hz)
     ok = False
     try:
         status = controller.run(rendered, timeout_s=timeout_s, on_status=on_status)
@@ -525,11 +551,25 @@ def _stream_in_base(ctx: StepContext, step_names: list[str]):
     reg = registration_of(ctx.outputs)
     xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
     order = np.argsort(s["t"], kind="stable")
-    return s["t"][order], xyz[order], s["status"][order]
+    return s["t"][order], xyz[order], s["status"][order], _abc_in_base(s, reg, order)
 
 
-def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None, reg_u_at_poses=None):
+def _abc_in_base(s: Mapping, reg: Registration, order) -> np.ndarray | None:
+    """The tool's angles a, b, c (N, 3), rad, in the registered base frame, from a 6-DoF stream's quaternions
+    (None: a position-only stream)."""
+    if not all(c in s for c in QUAT_COLUMNS):
+        return None
+    quat = np.column_stack([s[c] for c in QUAT_COLUMNS])[order]
+    return abc_in_base(quat, reg.R)
+
+
+def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None, reg_u_at_poses=None, *,
+            pose_abc_rad=None):
     """Both analyses of the procedure's data (pure: arrays in, results out).
+
+    ``pose_abc_rad`` (N, 3): the tool's angles a, b, c of the pose cycles' samples in the base frame (a 6-DoF
+    tracker's): orientation AP and RP per pose against the programs' commanded orientation (tool down,
+    :data:`~station.programs.builders.TOOL_DOWN`), their uncertainty with the plan's ``angle_sd_deg``.
 
     With a stated budget (``plan.uncertainty``) every verdict carries its uncertainty and is decided by
     ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget);
@@ -541,8 +581,12 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
     # vAP is judged on the multi-directional cycles (below), not on the single-direction pose cycles
     several = {c.key for c in table.characteristics() if c.several_approaches}
     main_limits = {k: v for k, v in plan.limits.items() if k not in several}
+    ori = {}
+    if pose_abc_rad is not None:
+        ori = dict(orientation_rad=pose_abc_rad,
+                   commanded_orientation_rad=np.repeat(abc_of_matrices(TOOL_DOWN), len(names), axis=0))
     main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=main_limits,
-                           band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles))
+                           band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles), **ori)
     vap = None
     if vap_t is not None and len(vap_t):
         vnames = list(VAP_POSES)
@@ -556,7 +600,8 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
         from station.analysis.iso9283.uncertainty import figure_uncertainties, apply_rule
         from station.analysis.uncertainty import Budget
 
-        budget = Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz).with_registration(reg)
+        angle = {"angle_sd_deg": plan.angle_sd_deg} if pose_abc_rad is not None else {}
+        budget = Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz, **angle).with_registration(reg)
         if reg_u_at_poses:
             budget = replace(budget, registration_at_points=tuple(
                 (tuple(plan.poses_mm[k]), float(v) / math.sqrt(3.0)) for k, v in reg_u_at_poses.items()
@@ -575,15 +620,19 @@ def run_verdicts(main, vap) -> dict:
 
 def characteristic_rows(main, vap) -> list[dict]:
     """One row per number (pose, name, value, unit, limit, passed) for the store and the report: every
-    characteristic of the table the procedure states, and every one a limit was configured for."""
+    characteristic of the table the procedure states, every one a limit was configured for, and the
+    orientation figures when the tracker measured the tool's orientation."""
     rows: list[dict] = []
     verdicts = run_verdicts(main, vap)
     for res in (main, vap):
         if res is None:
             continue
 
-        def ours(c, res=res):
-            return c.several_approaches is (res is vap) and (c.stated or c.key in res.limits)
+        oriented = table.has_orientation(res)
+
+        def ours(c, res=res, oriented=oriented):
+            return c.several_approaches is (res is vap) and (c.stated or c.key in res.limits
+                                                             or (c.with_orientation and oriented))
 
         for c, subject, obj in table.figures(res, ours):
             v = verdicts.get((c.key, subject))
@@ -593,13 +642,23 @@ def characteristic_rows(main, vap) -> list[dict]:
 
 
 def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``{"pose": (t, xyz), "vap": (t, xyz)}`` in the registered base frame, read once per session."""
+    """``{"pose": (t, xyz), "vap": (t, xyz), "pose_abc_rad": (N, 3) or None}`` in the registered base frame,
+    read once per session (``pose_abc_rad``: the tool's angles of a 6-DoF stream's pose cycles)."""
     streams = ctx.session.streams
     if streams is None:
         pose_steps, vap_steps = stream_steps(plan)
+        pose = _stream_in_base(ctx, pose_steps)
         streams = ctx.session.streams = {
-            "pose": _stream_in_base(ctx, pose_steps)[:2], "vap": _stream_in_base(ctx, vap_steps)[:2]}
+            "pose": pose[:2], "vap": _stream_in_base(ctx, vap_steps)[:2], "pose_abc_rad": pose[3]}
     return streams
+
+
+def _analyse_streams(ctx: StepContext, plan: IsoPlan):
+    """:func:`analyse` of the session's measured streams in the run's registered frame."""
+    streams = measured_streams(ctx, plan)
+    return analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
+                   reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"),
+                   pose_abc_rad=streams["pose_abc_rad"])
 
 
 def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
@@ -619,16 +678,16 @@ def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
     def stream(names):
         s = store.samples(run_id, STREAM, steps=[index[n] for n in names if n in index])
         if not s:
-            return np.empty(0), np.empty((0, 3))
+            return np.empty(0), np.empty((0, 3)), None
         xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
         order = np.argsort(s["t"], kind="stable")
-        return s["t"][order], xyz[order]
+        return s["t"][order], xyz[order], _abc_in_base(s, reg, order)
 
     pose_steps, vap_steps = stream_steps(plan)
     pose, vap = stream(pose_steps), stream(vap_steps)
     if not len(pose[0]):
         raise DataError(f"run {run_id}: no tracker samples of finished pose cycles")
-    main, vres = analyse(plan, *pose, *vap)
+    main, vres = analyse(plan, *pose[:2], *vap[:2], pose_abc_rad=pose[2])
     return {"pose": main.to_dict(), "vap": vres.to_dict() if vres is not None else None}, characteristic_rows(main, vres)
 
 
@@ -640,9 +699,7 @@ def stream_steps(plan: IsoPlan) -> tuple[list[str], list[str]]:
 
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    streams = measured_streams(ctx, plan)
-    main, vap = analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
-                        reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"))
+    main, vap = _analyse_streams(ctx, plan)
     rows = characteristic_rows(main, vap)
     ctx.store.put_characteristics(ctx.run_id, rows)
     result = {"pose": main.to_dict(), "vap": vap.to_dict() if vap is not None else None}
@@ -664,10 +721,7 @@ def step_report(ctx: StepContext) -> dict:
 
     plan = _plan(ctx)
     if ctx.session.analysis is None:  # a resumed run whose analysis ran in an earlier session
-        streams = measured_streams(ctx, plan)
-        ctx.session.analysis = analyse(
-            plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
-            reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"))
+        ctx.session.analysis = _analyse_streams(ctx, plan)
     main, vap = ctx.session.analysis
     marginal = [f"{m['pose']} {m['name']} = {m['value']:.4g} {m['unit']}: marginal (passes, within its "
                 f"marginal band of a limit)" for m in record_measurements(ctx.store, ctx.run_id) if m["marginal"]]
@@ -842,6 +896,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     plan = IsoPlan.from_params(params)
     problems = report_dir_problems(plan.report_dir)
     problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
+    problems += orientation_problems(plan, devices)
     try:
         rendered = programs(plan)
     except StationError as exc:
@@ -852,6 +907,31 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
             gate.check_program(prog.program, q_start=None)
         except StationError as exc:
             problems.append(f"program {name!r}: {exc}")
+    return problems
+
+
+def orientation_problems(plan: IsoPlan, devices) -> list[str]:
+    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits on a position-only tracker."""
+    from station.analysis.iso9283.table import characteristics
+
+    problems = []
+    if plan.orientation:
+        cls = devices.drivers.get("tracker") if devices is not None else None
+        if cls is None and devices is not None and "tracker" in devices.urls:
+            from drivers.tracker_url import tracker_class
+
+            try:
+                cls = tracker_class(devices.urls["tracker"])
+            except StationError:
+                cls = None  # the URL's own problem is told by the rate check
+        if cls is not None and not getattr(cls, "measures_orientation", False):
+            problems.append(f"devices.tracker.six_dof: this tracker ({getattr(cls, 'protocol', '?')}) streams "
+                            "positions only, not a 6-DoF target's orientation")
+    else:
+        angles = sorted(k for k in plan.limits if any(c.key == k and c.with_orientation for c in characteristics()))
+        if angles:
+            problems.append(f"limits {', '.join(angles)}: orientation limits need a 6-DoF tracker "
+                            "(devices.tracker.six_dof = true); this one measures positions only")
     return problems
 
 

@@ -115,6 +115,11 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
             f"{k} {v:.3f} mm" for k, v in ctx.outputs["register base frame"].get("uncertainty_at_poses_mm", {}).items()),
         "ISO conformant": "yes" if main.iso_conformant else "no: " + "; ".join(main.iso_reasons),
     }
+    if plan.orientation:
+        facts["tool orientation"] = (
+            f"6-DoF target on the tool (emScon 6D continuous time), angle reading sd {plan.angle_sd_deg:g} deg; "
+            "a, b, c about the base x, y, z axes (R = Rz(c) Ry(b) Rx(a)) against the commanded tool-down "
+            "orientation")
     figs: list[tuple[str, str]] = []
     f = _first_cycles_figure(t, xyz, main)
     if f:

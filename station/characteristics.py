@@ -82,6 +82,8 @@ class Characteristic:
     source: str = ""
     #: the test that states it (:data:`PROGRAMMES`)
     programme: str = "pose"
+    #: a row of every run whose data carry the tool's orientation (a 6-DoF tracker), limited or not
+    with_orientation: bool = False
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
@@ -161,7 +163,8 @@ _ROWS: tuple[Characteristic, ...] = (
     *(Characteristic(f"{kind}{ax}_deg", "deg", "pose", f"{kind.lower()}{ax}_limit_deg",
                      f"Orientation {'accuracy' if kind == 'AP' else 'repeatability'} {kind}{ax}",
                      _angle(kind, j), "no orientation data", needs_stream=kind == "AP", in_json=False,
-                     source="ISO 9283 orientation")
+                     source="ISO 9283 orientation (seed 000 sec. 3.1; eqs. (1)-(2) per angle)",
+                     with_orientation=True)
       for j, ax in enumerate("abc") for kind in ("AP", "RP")),
     Characteristic("n_cycles", "1", "pose", None, "Attained cycles", lambda pr: pr.n_cycles, stated=True),
     Characteristic("AD_mm", "mm", "pair", "ad_limit_mm", "Distance accuracy AD", lambda d: d.AD_mm,
@@ -246,6 +249,11 @@ def history_names() -> tuple[str, ...]:
     """The figures every run states, to follow across a robot's runs (counts left out): the pose test's and
     the compliance test's."""
     return tuple(c.key for c in _ROWS if c.stated and c.unit != "1" and c.programme in ("pose", "compliance"))
+
+
+def has_orientation(result) -> bool:
+    """Whether an analysis result states the tool's orientation at some pose (its data were 6-DoF)."""
+    return any(getattr(pr, "orientation", None) is not None for pr in getattr(result, "poses", {}).values())
 
 
 def subjects(result, level: str) -> list[tuple[str, Any]]:

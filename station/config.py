@@ -53,11 +53,21 @@ class DeviceConfig(_Strict):
     timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
     #: Modbus register layout of a ``modbus+ftp`` controller (default: the documented one)
     register_map: RegisterMap | None = None
+    #: the tracker measures a 6-DoF target on the tool (a Leica T-Mac over emScon, its frame calibrated to the
+    #: TCP): the ISO 9283 procedure then streams in the 6D continuous time mode and states orientation AP, RP
+    six_dof: bool = False
+    #: standard deviation of each angle of a 6-DoF reading, deg (the uncertainty of the orientation figures)
+    angle_sd_deg: float = Field(0.01, gt=0, le=1, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _map_only_for_controllers(self) -> "DeviceConfig":
         if self.register_map is not None and not self.url.lower().startswith("modbus+ftp:"):
             raise ValueError("register_map applies to modbus+ftp controllers only")
+        if self.six_dof and parse_device_url(self.url).scheme != "emscon":
+            raise ValueError(f"six_dof needs an emScon tracker (a 6-DoF target over the emScon 6D modes); "
+                             f"{parse_device_url(self.url).scheme}:// measures positions only")
+        if "angle_sd_deg" in self.model_fields_set and not self.six_dof:
+            raise ValueError("angle_sd_deg applies to a 6-DoF tracker only (six_dof: true)")
         return self
 
     @field_validator("url")

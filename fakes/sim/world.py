@@ -68,6 +68,13 @@ class TrackerSource:
 
         return self.tracker.measure(t_sim, self._arm.tool_position_mm, noise_fn=noise)
 
+    def orientation(self, t_sim) -> np.ndarray:
+        """Rotation matrices (N, 3, 3) a 6-DoF target on the tool reports at world times ``t_sim``: the arm's
+        true TCP rotation in the tracker frame, with the tracker's angle noise (:mod:`fakes.sim.six_dof`)."""
+        from fakes.sim.six_dof import target_rotation
+
+        return target_rotation(self.tracker, self._arm.tool_pose, t_sim)
+
     def sample_times(self, t_start: float, t_end: float) -> np.ndarray:
         """World times of the device's grid samples in ``[t_start, t_end)``."""
         return self.tracker.sample_times(t_start, t_end)
