@@ -912,7 +912,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
 
 def orientation_problems(plan: IsoPlan, devices) -> list[str]:
     """A 6-DoF plan whose tracker cannot stream orientation; orientation limits on a position-only tracker."""
-    from station.analysis.iso9283.table import characteristics
+    from station.characteristics import characteristics
 
     problems = []
     if plan.orientation:

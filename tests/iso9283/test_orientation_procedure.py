@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.sim.six_dof import T_MAC_ANGLE_SD_DEG
 from fakes.station import FakeStation
 from procedures.devices import DeviceSet
@@ -42,8 +42,8 @@ def _run(tmp, seed, *, six_dof: bool, run_id: str):
         d["uncertainty"] = {"mc_trials": 4000}
         devices = DeviceSet(urls={"tracker": station.tracker_url, "controller": station.controller_url},
                             time_scale=station.world.clock.time_scale)
-        out = run_procedure(config_from_dict(d), "iso9283", devices=devices, operator=ScriptedOperator(True),
-                            quiet=True, run_id=run_id, config_dir=tmp)
+        out = run_procedure(RunRequest(config_from_dict(d), "iso9283", devices=devices,
+                                       operator=ScriptedOperator(True), quiet=True, run_id=run_id, config_dir=tmp))
         assert out.status == "done", out.error
         with RunStore(tmp / "s.sqlite") as store:
             truth = _true_orientation(store, run_id, station.world) if six_dof else None
