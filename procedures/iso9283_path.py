@@ -168,7 +168,7 @@ def rows_of(plan: PathPlan, results: Mapping) -> list[dict]:
 def _streams(ctx: StepContext, plan: PathPlan) -> dict:
     out = {}
     for name, steps in step_names(plan).items():
-        t, xyz, status = iso._stream_in_base(ctx, steps)
+        t, xyz, status, _abc = iso._stream_in_base(ctx, steps)  # no reorientation path yet: angles unused
         out[name] = (t, xyz, (np.asarray(status) == 0) & np.all(np.isfinite(xyz), axis=1))
     return out
 
