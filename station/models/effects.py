@@ -363,9 +363,13 @@ class JointEffect:
         raise NotImplementedError
 
     def offsets(self, params, dh, q_rad, ctx: EffectContext) -> np.ndarray:
-        """``dq`` (N, 6), rad, of these parameters at ``(dh, q_rad)``."""
+        """``dq = sum_m B_jm P_jm`` (N, 6), rad, of these parameters at ``(dh, q_rad)``."""
+        m = len(self.per_joint)
+        P = _params(params, 6 * m, self.name).reshape(6, m)
         q = _q_array(q_rad)
-        return self.apply(params, dh, q, ctx)[1] - q
+        if not np.any(P):
+            return np.zeros_like(q)
+        return np.einsum("njm,jm->nj", self.joint_basis(dh, q, ctx, P), P)
 
     def apply(self, params, dh, q_rad, ctx: EffectContext):
         m = len(self.per_joint)
