@@ -67,6 +67,12 @@ class EffectSpec:
     acts_on: str
     params: tuple
 
+    @classmethod
+    def from_table(cls, name: str, acts_on: str, table: dict) -> "EffectSpec":
+        """From ``{parameter: (lowest, highest, unit)}``, the form the motion model's ranges have
+        (:data:`station.models.motion_effects.LIMITS`)."""
+        return cls(name, acts_on, tuple(ParamSpec(k, unit, (lo, hi)) for k, (lo, hi, unit) in table.items()))
+
     @property
     def param_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.params)
