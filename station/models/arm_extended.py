@@ -46,6 +46,7 @@ from station.models.effects import (
     JointCompliance,
     ThermalDrift,
     motion_directions,
+    scale_lengths,
 )
 
 __all__ = ["EffectTerm", "ExtendedArm", "effect_set_of", "terms_from_json", "terms_to_json", "motion_directions"]
@@ -174,9 +175,7 @@ class ExtendedArm:
     def _table(self, n: int, scale) -> np.ndarray:
         if scale is None:
             return self.dh
-        dh = np.repeat(self.dh[None], n, axis=0)
-        dh[:, :, [0, 2]] *= (1.0 + scale)[:, None, None]
-        return dh
+        return scale_lengths(np.broadcast_to(self.dh, (n, 7, 5)), scale)
 
     def predict(self, q_rad, *, last_dir=None, t_s=None, temperature_c=None, load_kg=None) -> np.ndarray:
         """Tool points (N, 3), mm: instrument frame with a base transform, the robot's base frame without."""

@@ -99,6 +99,8 @@ __all__ = [
     "JointEffect",
     "motion_directions",
     "unit_mass_torques",
+    "scale_lengths",
+    "LENGTH_PARAMS",
     "EffectContext",
     "Geometric",
     "ThermalDrift",
@@ -322,16 +324,28 @@ class ThermalDrift:
 
     def apply(self, params, dh, q_rad, ctx: EffectContext):
         q = _q_array(q_rad)
-        n = q.shape[0]
-        dh = np.asarray(dh, dtype=float)
-        scale = 1.0 + self.length_scale(params, ctx, n)  # (N,)
-        if np.all(scale == scale[0]) and dh.ndim == 2:
-            out = dh.copy()
-            out[:, [0, 2]] *= scale[0]
-            return out, q_rad
-        out = np.array(np.broadcast_to(dh, (n, 7, 5)))
-        out[:, :, [0, 2]] *= scale[:, None, None]
-        return out, q_rad
+        return scale_lengths(dh, self.length_scale(params, ctx, q.shape[0])), q_rad
+
+
+#: the columns of the kinematic table that are lengths (``a``, ``d``), which the thermal drift scales
+LENGTH_COLUMNS = (0, 2)
+#: their places in the flat 35-parameter vector (``dh.ravel()``)
+LENGTH_PARAMS = np.array([5 * r + c for r in range(7) for c in LENGTH_COLUMNS])
+
+
+def scale_lengths(dh, growth) -> np.ndarray:
+    """The table with its lengths ``a, d`` grown by ``1 + growth`` (per sample, (N,)): (7, 5) when the growth is
+    the same for every sample and ``dh`` is one table, else (N, 7, 5)."""
+    dh = np.asarray(dh, dtype=float)
+    scale = 1.0 + np.asarray(growth, dtype=float)  # (N,)
+    cols = list(LENGTH_COLUMNS)
+    if np.all(scale == scale[0]) and dh.ndim == 2:
+        out = dh.copy()
+        out[:, cols] *= scale[0]
+        return out
+    out = np.array(np.broadcast_to(dh, (scale.size, 7, 5)))
+    out[:, :, cols] *= scale[:, None, None]
+    return out
 
 
 class JointEffect:
