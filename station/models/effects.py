@@ -238,8 +238,22 @@ _DH_COLS = (("a", "mm", "length_mm"), ("alpha", "rad", "delta_angle_rad"), ("d",
 _DH_ROWS = ("1", "2", "3", "4", "5", "6", "TCP")
 
 
+class _Declared:
+    """What every effect says of itself: its parameters' names and its :class:`EffectSpec` (from ``param_specs``)."""
+
+    acts_on = "table"
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.param_specs)
+
+    @property
+    def spec(self) -> EffectSpec:
+        return EffectSpec(self.name, self.acts_on, self.param_specs)
+
+
 @dataclass(frozen=True)
-class Geometric:
+class Geometric(_Declared):
     """Deviations of the 35 kinematic parameters (mm, rad).
 
     Its linearisation is the parameter Jacobian of the kinematics (seed 002
@@ -251,14 +265,6 @@ class Geometric:
     @property
     def param_specs(self) -> tuple:
         return tuple(ParamSpec.of_kind(f"{c}{r}_{u}", kind, u) for r in _DH_ROWS for c, u, kind in _DH_COLS)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.param_specs)
-
-    @property
-    def spec(self) -> EffectSpec:
-        return EffectSpec(self.name, "table", self.param_specs)
 
     def apply(self, params, dh, q_rad, ctx: EffectContext):
         p = _params(params, 35, self.name)
@@ -273,7 +279,7 @@ def _check_alpha(alpha_per_K) -> float:
 
 
 @dataclass(frozen=True)
-class ThermalDrift:
+class ThermalDrift(_Declared):
     """Link lengths ``a, d`` grow by ``alpha_per_K * dT``; params ``[dT_max_K, tau_s]``.
 
     :meth:`length_scale` is the relative growth ``alpha dT`` (N,);
@@ -291,14 +297,6 @@ class ThermalDrift:
     @property
     def param_specs(self) -> tuple:
         return (ParamSpec.of_kind("dT_max_K", "dT_max_K"), ParamSpec.of_kind("tau_s", "tau_s"))
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return ("dT_max_K", "tau_s")
-
-    @property
-    def spec(self) -> EffectSpec:
-        return EffectSpec(self.name, "table", self.param_specs)
 
     def temperature_rise_K(self, params, ctx: EffectContext, n: int) -> np.ndarray:
         """``dT`` per sample (N,): measured if the context has it, else the warm-up model."""
@@ -348,7 +346,7 @@ def scale_lengths(dh, growth) -> np.ndarray:
     return out
 
 
-class JointEffect:
+class JointEffect(_Declared):
     """An effect on the joint angles, linear in its parameters: ``dq_j = sum_m B_jm(dh, q, ctx) P_jm``.
 
     ``P`` is the parameter vector as (6, m), joint by joint; the basis ``B``
@@ -360,18 +358,11 @@ class JointEffect:
     """
 
     per_joint: tuple = ()
+    acts_on = "joint"
 
     @property
     def param_specs(self) -> tuple:
         return tuple(ParamSpec.of_kind(t.format(j=j), kind, unit) for j in range(1, 7) for t, kind, unit in self.per_joint)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.param_specs)
-
-    @property
-    def spec(self) -> EffectSpec:
-        return EffectSpec(self.name, "joint", self.param_specs)
 
     def joint_basis(self, dh, q_rad, ctx: EffectContext, params=None) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
