@@ -17,7 +17,7 @@ import numpy as np
 
 from fakes.sim.arm_measurements import instrument_frame, random_poses
 from station.models import kinematics as kin
-from station.models.effects import EffectContext, EffectSet
+from station.models.effects import EffectContext, EffectSet, motion_directions
 
 __all__ = ["ArmDataset", "simulate_arm_data"]
 
@@ -40,18 +40,8 @@ class ArmDataset:
                        self.load_kg, self.base_T, np.zeros((self.q_rad.shape[0], 6)))
 
 
-def _last_dir(q: np.ndarray) -> np.ndarray:
-    d = np.zeros_like(q)
-    cur = np.zeros(6)
-    for k in range(1, q.shape[0]):
-        step = q[k] - q[k - 1]
-        cur = np.where(np.abs(step) > 1e-7, np.sign(step), cur)
-        d[k] = cur
-    return d
-
-
 def _points(robot, effects, q, t, load, base_T, stop_offsets):
-    ctx = EffectContext(robot=robot, last_dir=_last_dir(q), warmup_s=t, payload_kg=float(load[0]))
+    ctx = EffectContext(robot=robot, last_dir=motion_directions(q), warmup_s=t, payload_kg=float(load[0]))
     dh_eff, q_eff = effects.apply(robot.dh_nominal, q, ctx)
     p = kin.tool_position(dh_eff, q_eff + stop_offsets)
     return p @ base_T[:3, :3].T + base_T[:3, 3]

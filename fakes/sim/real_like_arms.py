@@ -32,6 +32,7 @@ import numpy as np
 
 from fakes.sim.arm_measurements import instrument_frame
 from station.models import kinematics as kin
+from station.models.effects import motion_directions
 
 __all__ = ["LookalikeSet", "fanuc_like", "rokae_like", "FANUC_LIKE_DEG", "ROKAE_LIKE_DEG"]
 
@@ -91,16 +92,6 @@ def _true_table(dh_nom: np.ndarray, rng, target_mm: tuple, q_probe) -> np.ndarra
     return dh_nom + s * d
 
 
-def _directions(q):
-    d = np.zeros_like(q)
-    cur = np.zeros(6)
-    for k in range(1, q.shape[0]):
-        st = q[k] - q[k - 1]
-        cur = np.where(np.abs(st) > 1e-7, np.sign(st), cur)
-        d[k] = cur
-    return d
-
-
 def _link_mass_torques(dh, q) -> np.ndarray:
     """Gravity torques (N m) of masses along the links (not the diagnosis' elbow/TCP basis)."""
     F = kin.frames(dh, q)
@@ -127,7 +118,7 @@ def _hidden(rng, q, dh_true, noise_mm, motion_order: bool, max_effects: int = 2)
     picks = [pool[i] for i in rng.choice(len(pool), n_eff, replace=False)]
     dq = np.zeros_like(q)
     tau = _link_mass_torques(dh_true, q)
-    dirs = _directions(q)
+    dirs = motion_directions(q)
     out = []
     for effect, j in picks:
         shape = np.zeros_like(q)

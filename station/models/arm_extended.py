@@ -1,8 +1,11 @@
 """An arm model with named effects: evaluated at joint angles (predict) and inverted (compensate).
 
 The kinematic table (seed 002 eq. (3), (5)) and the instrument <- base
-transform of an arm model file, plus the effects a diagnosis named, each in
-the linear form the diagnosis fitted (:mod:`station.analysis.diagnose.terms`):
+transform of an arm model file, plus the effects a diagnosis named. The
+effects are the objects of :mod:`station.models.effects` (an
+:class:`~station.models.effects.EffectSet` built from the file's records,
+:func:`effect_set_of`), evaluated to first order as the diagnosis fitted
+them (:meth:`EffectSet.joint_offsets`, :meth:`EffectSet.length_scale`):
 
 ``encoder_eccentricity`` (joint j)
     ``dq_j = s_j sin q_j + c_j cos q_j``; params ``s{j}_rad``, ``c{j}_rad``.
@@ -16,7 +19,8 @@ the linear form the diagnosis fitted (:mod:`station.analysis.diagnose.terms`):
     tool point, ``k{j}_elbow_rad_per_kg`` 1 kg at the elbow (frame 3 origin).
 ``thermal_drift``
     Lengths ``a, d`` scaled by ``1 + alpha_per_K (T - reference_temperature_c)``
-    (a temperature column), or by ``1 + 1.2e-5 dT_max_K (1 - exp(-(t - t0_s) / tau_s))``.
+    (a temperature column), or by ``1 + alpha dT_max_K (1 - exp(-(t - t0_s) / tau_s))``
+    at steel's ``alpha`` (:data:`~station.models.effects.STEEL_ALPHA_PER_K`).
 
 ``P = R p(dh', q + dq) + t``: the file's points are in the instrument frame
 when it has a ``base``, in the robot's base frame otherwise. Lengths mm,
@@ -31,48 +35,81 @@ import numpy as np
 
 from station.errors import ConfigError, DataError
 from station.models import kinematics as kin
+from station.models.effects import (
+    COMPLIANCE_BASES,
+    STEEL_ALPHA_PER_K,
+    THERMAL_ALPHA,
+    Backlash,
+    EffectContext,
+    EffectSet,
+    EncoderEccentricity,
+    JointCompliance,
+    ThermalDrift,
+    motion_directions,
+    scale_lengths,
+)
 
-__all__ = ["EffectTerm", "ExtendedArm", "terms_from_json", "terms_to_json", "motion_directions"]
-
-STEEL_ALPHA_PER_K = 1.2e-5
-_THERMAL_KEYS = ({"alpha_per_K"}, {"dT_max_K"})
+__all__ = ["EffectTerm", "ExtendedArm", "effect_set_of", "terms_from_json", "terms_to_json", "motion_directions"]
 
 
 @dataclass(frozen=True)
 class EffectTerm:
+    """One effect record of a model file: effect, joint (None for thermal drift), named parameters."""
+
     effect: str
     joint: int | None
     params: dict          # name -> value (file units: rad, rad per N m, rad per kg, 1/K, K)
     extra: dict = field(default_factory=dict)   # tau_s, t0_s, reference_temperature_c
 
 
-def motion_directions(q_rad: np.ndarray, tol_rad: float = 1e-7) -> np.ndarray:
-    """Sign of each joint's last motion (N, 6) when the rows are in motion order (0 before it first moved)."""
-    q = np.asarray(q_rad, dtype=float)
-    d = np.zeros_like(q)
-    cur = np.zeros(q.shape[1])
-    for k in range(1, q.shape[0]):
-        step = q[k] - q[k - 1]
-        cur = np.where(np.abs(step) > tol_rad, np.sign(step), cur)
-        d[k] = cur
-    return d
+def _compliance_basis(terms) -> tuple:
+    """The compliance basis the records' parameter names use, in :data:`COMPLIANCE_BASES` order."""
+    used = set()
+    for t in terms:
+        if t.effect == "joint_compliance":
+            for name in t.params:
+                used.update(b for b, (tmpl, _) in COMPLIANCE_BASES.items() if tmpl.format(j=t.joint) == name)
+    return tuple(b for b in COMPLIANCE_BASES if b in used) or ("mass_model",)
 
 
-def _unit_mass_torques(dh, q_rad, frame_index: int) -> np.ndarray:
-    from station.models.robots import GRAVITY_M_S2
-
-    F = kin.frames(dh, q_rad)
-    c = F[:, frame_index, :3, 3]
-    z = F[:, :6, :3, 2]
-    o = F[:, :6, :3, 3]
-    tau = GRAVITY_M_S2 * 1e-3 * np.cross(z, c[:, None, :] - o)[:, :, 2]
-    tau[:, frame_index:] = 0.0
-    return tau
+def effect_set_of(terms) -> EffectSet:
+    """The :class:`EffectSet` of a model file's effect records: each record's parameters at their place in its
+    effect's vector (zero elsewhere), the named effects switched on; a thermal drift from a temperature column
+    carries its fitted ``alpha_per_K`` as the effect's coefficient (its parameters then unused)."""
+    ecc, back, comp = EncoderEccentricity(), Backlash(), JointCompliance(basis=_compliance_basis(terms))
+    vecs = {e.name: np.zeros(len(e.param_names)) for e in (ecc, back, comp)}
+    index = {e.name: {n: i for i, n in enumerate(e.param_names)} for e in (ecc, back, comp)}
+    options = {"joint_compliance": {"basis": comp.basis}}
+    on = set()
+    for t in terms:
+        on.add(t.effect)
+        if t.effect == "thermal_drift":
+            if "alpha_per_K" in t.params:
+                options["thermal_drift"] = {"alpha_per_K": float(t.params["alpha_per_K"])}
+                vecs["thermal_drift"] = np.array([0.0, 3600.0])
+            else:
+                options["thermal_drift"] = {"alpha_per_K": STEEL_ALPHA_PER_K}
+                vecs["thermal_drift"] = np.array([float(t.params["dT_max_K"]), float(t.extra["tau_s"])])
+            continue
+        try:
+            idx = index[t.effect]
+        except KeyError:
+            raise ConfigError(f"unknown joint effect {t.effect!r}") from None
+        for name, v in t.params.items():
+            if name not in idx:
+                raise ConfigError(f"{t.effect} of joint {t.joint}: unknown parameter {name!r}")
+            vecs[t.effect][idx[name]] = float(v)
+    return EffectSet.from_params(vecs, enabled=on, options=options)
 
 
 @dataclass
 class ExtendedArm:
-    """Table, optional base transform, named effects, and the mass model compliance needs."""
+    """Table, optional base transform, named effects, and the mass model compliance needs.
+
+    ``terms`` are the file's effect records; :attr:`effects` the
+    :class:`EffectSet` of :mod:`station.models.effects` they make, which is
+    what is evaluated.
+    """
 
     name: str
     dh: np.ndarray
@@ -80,6 +117,10 @@ class ExtendedArm:
     joint_limits_rad: np.ndarray
     terms: list = field(default_factory=list)
     gravity_model: object = None          # RobotSpec or None
+    effects: EffectSet = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.effects = effect_set_of(self.terms)
 
     @property
     def needs(self) -> set:
@@ -92,67 +133,49 @@ class ExtendedArm:
                 out.add("temperature" if "alpha_per_K" in t.params else "t")
         return out
 
+    def _thermal(self):
+        return next((t for t in self.terms if t.effect == "thermal_drift"), None)
+
+    def _joint_context(self, last_dir, load_kg) -> EffectContext:
+        """The joint effects' context: the directions (backlash), the mass model and the load (compliance)."""
+        if last_dir is None and "direction" in self.needs:
+            raise DataError("the model has backlash: it needs each joint's direction of motion "
+                            "(rows in motion order)")
+        if self.gravity_model is None:
+            for t in self.terms:
+                for name in t.params:
+                    if t.effect == "joint_compliance" and name.endswith("_rad_per_Nm"):
+                        raise ConfigError(f"{name}: the model names no gravity_model (a library robot's mass model)")
+        return EffectContext(robot=self.gravity_model, last_dir=last_dir,
+                             payload_kg=0.0 if load_kg is None else np.asarray(load_kg, dtype=float))
+
+    def _thermal_context(self, t_s, temperature_c) -> EffectContext:
+        """The thermal drift's context: the rise from the reference temperature, or the time since ``t0_s``."""
+        th = self._thermal()
+        if th is None:
+            return EffectContext()
+        if "alpha_per_K" in th.params:
+            if temperature_c is None:
+                raise DataError("the model has thermal drift from a temperature column: give `temperature`")
+            dT = np.asarray(temperature_c, float) - th.extra.get("reference_temperature_c", 20.0)
+            return EffectContext(temperature_rise_K=dT)
+        if t_s is None:
+            raise DataError("the model has a warm-up drift: give `t` (s since the arm started working)")
+        return EffectContext(warmup_s=np.asarray(t_s, float) - th.extra.get("t0_s", 0.0))
+
     def joint_offsets(self, q_rad, *, last_dir=None, load_kg=None) -> np.ndarray:
         """``dq`` (N, 6) of the joint effects at the commanded angles, rad."""
         q = np.asarray(q_rad, dtype=float)
-        dq = np.zeros_like(q)
-        for term in self.terms:
-            if term.joint is None:
-                continue
-            j = term.joint - 1
-            p = term.params
-            if term.effect == "encoder_eccentricity":
-                dq[:, j] += p[f"s{term.joint}_rad"] * np.sin(q[:, j]) + p[f"c{term.joint}_rad"] * np.cos(q[:, j])
-            elif term.effect == "backlash":
-                if last_dir is None:
-                    raise DataError("the model has backlash: it needs each joint's direction of motion "
-                                    "(rows in motion order)")
-                dq[:, j] -= p[f"b{term.joint}_rad"] * np.asarray(last_dir, dtype=float)[:, j]
-            elif term.effect == "joint_compliance":
-                for name, v in p.items():
-                    dq[:, j] -= v * self._torque_basis(name, q, load_kg)[:, j]
-            else:
-                raise ConfigError(f"unknown joint effect {term.effect!r}")
-        return dq
-
-    def _torque_basis(self, name: str, q, load_kg) -> np.ndarray:
-        if name.endswith("_tcp_rad_per_kg"):
-            return _unit_mass_torques(self.dh, q, 7)
-        if name.endswith("_elbow_rad_per_kg"):
-            return _unit_mass_torques(self.dh, q, 3)
-        if name.endswith("_rad_per_Nm"):
-            if self.gravity_model is None:
-                raise ConfigError(f"{name}: the model names no gravity_model (a library robot's mass model)")
-            from station.models.robots import gravity_torques
-
-            g = gravity_torques(self.gravity_model, self.dh, q, payload_kg=0.0)
-            if load_kg is not None:
-                g = g + np.asarray(load_kg, dtype=float)[:, None] * _unit_mass_torques(self.dh, q, 7)
-            return g
-        raise ConfigError(f"joint_compliance parameter {name!r}: expected c<j>_rad_per_Nm, k<j>_tcp_rad_per_kg "
-                          "or k<j>_elbow_rad_per_kg")
+        return self.effects.joint_offsets(self.dh, q, self._joint_context(last_dir, load_kg))
 
     def length_scale(self, n: int, *, t_s=None, temperature_c=None) -> np.ndarray | None:
-        for term in self.terms:
-            if term.effect != "thermal_drift":
-                continue
-            if "alpha_per_K" in term.params:
-                if temperature_c is None:
-                    raise DataError("the model has thermal drift from a temperature column: give `temperature`")
-                dT = np.asarray(temperature_c, float) - term.extra.get("reference_temperature_c", 20.0)
-                return term.params["alpha_per_K"] * dT
-            if t_s is None:
-                raise DataError("the model has a warm-up drift: give `t` (s since the arm started working)")
-            t = np.maximum(np.asarray(t_s, float) - term.extra.get("t0_s", 0.0), 0.0)
-            return STEEL_ALPHA_PER_K * term.params["dT_max_K"] * -np.expm1(-t / term.extra["tau_s"])
-        return None
+        """Relative growth of the lengths (N,) of the thermal drift, None without one."""
+        return self.effects.length_scale(n, self._thermal_context(t_s, temperature_c))
 
     def _table(self, n: int, scale) -> np.ndarray:
         if scale is None:
             return self.dh
-        dh = np.repeat(self.dh[None], n, axis=0)
-        dh[:, :, [0, 2]] *= (1.0 + scale)[:, None, None]
-        return dh
+        return scale_lengths(np.broadcast_to(self.dh, (n, 7, 5)), scale)
 
     def predict(self, q_rad, *, last_dir=None, t_s=None, temperature_c=None, load_kg=None) -> np.ndarray:
         """Tool points (N, 3), mm: instrument frame with a base transform, the robot's base frame without."""
@@ -220,20 +243,14 @@ _EFFECTS = ("encoder_eccentricity", "backlash", "joint_compliance", "thermal_dri
 _EXTRA = ("tau_s", "t0_s", "reference_temperature_c")
 
 
-#: the screen (:data:`station.models.arm_ranges.LIMITS`) of each effect parameter, by the end of its name
-_PARAM_KINDS = (("_rad_per_Nm", "compliance"), ("_rad_per_kg", "compliance"), ("_rad", "joint_offset_rad"),
-                ("alpha_per_K", "alpha_per_K"), ("dT_max_K", "dT_max_K"))
-
-
-def _param_names(effect: str, joint) -> set | None:
-    """The parameter names an effect of ``joint`` may have (None: thermal drift, checked on its own)."""
-    if effect == "encoder_eccentricity":
-        return {f"s{joint}_rad", f"c{joint}_rad"}
-    if effect == "backlash":
-        return {f"b{joint}_rad"}
-    if effect == "joint_compliance":
-        return {f"c{joint}_rad_per_Nm", f"k{joint}_tcp_rad_per_kg", f"k{joint}_elbow_rad_per_kg"}
-    return None
+def _param_specs(effect: str, joint) -> dict:
+    """``{name: ParamSpec}`` an effect record of ``joint`` may have, from the effects' own vocabulary."""
+    if effect == "thermal_drift":
+        return {THERMAL_ALPHA.name: THERMAL_ALPHA, **{p.name: p for p in ThermalDrift().param_specs[:1]}}
+    eff = {"encoder_eccentricity": EncoderEccentricity(), "backlash": Backlash(),
+           "joint_compliance": JointCompliance(basis=tuple(COMPLIANCE_BASES))}[effect]
+    m = len(eff.per_joint)
+    return {p.name: p for p in eff.param_specs[(joint - 1) * m: joint * m]}
 
 
 def terms_from_json(data, source: str) -> list:
@@ -269,17 +286,15 @@ def terms_from_json(data, source: str) -> list:
         params = d.get("params")
         if not isinstance(params, dict) or not params:
             raise ConfigError(f"{where}: 'params' must be an object of named numbers")
-        allowed = _param_names(d["effect"], joint)
-        if allowed is not None and not set(params) <= allowed:
+        specs = _param_specs(d["effect"], joint)
+        allowed = set(specs)
+        if d["effect"] != "thermal_drift" and not set(params) <= allowed:
             bad = sorted(str(n)[:40] for n in set(params) - allowed)
             raise ConfigError(f"{where}: {d['effect']} of joint {joint} has the param{'s' if len(allowed) > 1 else ''} "
                               f"{', '.join(sorted(allowed))}, not {', '.join(bad)}")
-        if allowed is None and not set(params) <= {"alpha_per_K", "dT_max_K"}:
+        if d["effect"] == "thermal_drift" and not set(params) <= allowed:
             raise ConfigError(f"{where}: thermal_drift has the params alpha_per_K or dT_max_K")
-        values = {}
-        for name, v in params.items():
-            kind = next(kd for end, kd in _PARAM_KINDS if name.endswith(end))
-            values[name] = number_in(v, f"{where}.params.{name}", kind)
+        values = {name: specs[name].check(v, f"{where}.params.{name}") for name, v in params.items()}
         extra = {key_: number_in(d[key_], f"{where}.{key_}", key_) for key_ in _EXTRA if key_ in d}
         if d["effect"] == "thermal_drift" and not ("alpha_per_K" in params or ("dT_max_K" in params
                                                                                and "tau_s" in extra)):

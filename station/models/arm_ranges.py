@@ -15,7 +15,7 @@ import math
 from station.errors import ConfigError
 from station.numeric import short_repr as _short
 
-__all__ = ["LIMITS", "number_in", "MAX_EFFECTS"]
+__all__ = ["LIMITS", "number_in", "check_number", "MAX_EFFECTS"]
 
 #: (lowest, highest, unit) of each kind of value a model file holds
 LIMITS = {
@@ -48,6 +48,11 @@ MAX_EFFECTS = 19
 def number_in(value, where: str, kind: str) -> float:
     """``value`` as a float if it is a finite number (not a bool) within ``LIMITS[kind]``; ConfigError naming ``where``."""
     lo, hi, unit = LIMITS[kind]
+    return check_number(value, where, lo, hi, unit)
+
+
+def check_number(value, where: str, lo: float, hi: float, unit: str) -> float:
+    """``value`` as a float if it is a finite number (not a bool) within ``[lo, hi]``; ConfigError naming ``where``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{where} must be a number, got {_short(value)}")
     try:

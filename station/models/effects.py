@@ -22,8 +22,9 @@ Effects
     context's measured ``temperature_rise_K`` when given, otherwise a
     first-order warm-up ``dT(t) = dT_max (1 - exp(-t / tau))`` of the
     context's ``warmup_s``. Parameters ``[dT_max_K, tau_s]``; the expansion
-    coefficient ``alpha_per_K`` is a fixed property (default 1.2e-5 /K,
-    steel and cast iron; aluminium castings are ~2.3e-5 /K).
+    coefficient ``alpha_per_K`` is a fixed property (default
+    :data:`STEEL_ALPHA_PER_K`, steel and cast iron; aluminium castings are
+    ~2.3e-5 /K).
 ``encoder_eccentricity``
     First harmonic of the joint-angle error over one turn of the output
     (eccentric encoder disc or reducer output):
@@ -45,6 +46,25 @@ Effects
     ``tcp_force_N``: the load of a static compliance test, ISO 9283 clause
     10) adds its holding torque ``-J_v^T F``, so the TCP gives way by
     ``C F`` with the compliance matrix :func:`tcp_compliance_mm_per_N`.
+    Option ``basis``: further torque columns per joint, 1 kg at the elbow or
+    at the tool point (:data:`COMPLIANCE_BASES`), for a mass model known
+    only roughly (the diagnosis's candidate, an extended model file).
+
+Each effect declares its parameters with units and ranges
+(:attr:`param_specs`, :mod:`station.models.effect_params`).
+
+Linearisation
+-------------
+The diagnosis (:mod:`station.analysis.diagnose.terms`) and the extended
+model (:mod:`station.models.arm_extended`) use these effects to first order
+about the nominal arm: every joint effect is linear in its parameters,
+``dq = B(dh, q, ctx) P`` (:meth:`JointEffect.joint_basis`, the Jacobian with
+respect to ``P``), the thermal drift a length scale linear in ``dT_max`` or
+``alpha`` (:meth:`ThermalDrift.scale_jacobian`), the geometry the parameter
+Jacobian of the kinematics. :meth:`EffectSet.joint_offsets` and
+:meth:`EffectSet.length_scale` evaluate that first-order composition (all
+joint effects at the same table and angles); :meth:`EffectSet.apply` the
+composition below. They differ by second-order terms.
 
 Composition order (:data:`EFFECT_ORDER`)
 ----------------------------------------
@@ -70,9 +90,17 @@ from typing import Any
 import numpy as np
 
 from station.errors import ConfigError, DataError
+from station.models.effect_params import EffectSpec, ParamSpec
 
 __all__ = [
     "EFFECT_ORDER",
+    "STEEL_ALPHA_PER_K",
+    "COMPLIANCE_BASES",
+    "JointEffect",
+    "motion_directions",
+    "unit_mass_torques",
+    "scale_lengths",
+    "LENGTH_PARAMS",
     "EffectContext",
     "Geometric",
     "ThermalDrift",
@@ -89,6 +117,11 @@ __all__ = [
 
 N_JOINTS = 6
 ARCMIN_RAD = math.radians(1.0 / 60.0)
+
+#: linear expansion of steel and cast iron, 1/K (aluminium castings are ~2.3e-5 /K)
+STEEL_ALPHA_PER_K = 1.2e-5
+#: the thermal expansion coefficient, an option of :class:`ThermalDrift` (a fitted one in a model file)
+THERMAL_ALPHA = ParamSpec.of_kind("alpha_per_K", "alpha_per_K")
 
 #: the order in which an :class:`EffectSet` applies its effects
 EFFECT_ORDER = ("geometric", "thermal_drift", "encoder_eccentricity", "backlash", "joint_compliance")
@@ -112,7 +145,7 @@ class EffectContext:
         ``thermal_drift``); ``None`` = 0 (cold).
     temperature_rise_K : float or array_like, shape (N,), optional
         Measured temperature rise; overrides the warm-up model when given.
-    payload_kg : float
+    payload_kg : float or array_like, shape (N,)
         Mass at the TCP (``joint_compliance``).
     tcp_force_N : array_like, shape (N, 3) or (3,), optional
         External force on the TCP, base frame (``joint_compliance``); ``None`` = none.
@@ -159,41 +192,111 @@ def _params(params, n: int, name: str) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------
+# helpers the effects and their linearisation share
+# --------------------------------------------------------------------------
+def motion_directions(q_rad, tol_rad: float = 1e-7) -> np.ndarray:
+    """Sign of each joint's last motion (N, 6), the rows in motion order; 0 before a joint first moved.
+
+    The context ``last_dir`` of :class:`Backlash` for poses visited one
+    after another: a joint that moves less than ``tol_rad`` keeps the
+    direction it had.
+    """
+    q = np.asarray(q_rad, dtype=float)
+    d = np.zeros_like(q)
+    cur = np.zeros(q.shape[1])
+    for k in range(1, q.shape[0]):
+        step = q[k] - q[k - 1]
+        cur = np.where(np.abs(step) > tol_rad, np.sign(step), cur)
+        d[k] = cur
+    return d
+
+
+def unit_mass_torques(dh, q_rad, frame_index: int) -> np.ndarray:
+    """Gravity holding torques (N, 6) of 1 kg at the origin of frame ``frame_index`` (3: elbow, 7: TCP), N m.
+
+    The torque of :func:`station.models.robots.gravity_torques` for a point
+    mass: ``g e_z . (z_i x (c - o_i))``; the joints after the point do not carry it.
+    """
+    from station.models import kinematics as kin
+    from station.models.robots import GRAVITY_M_S2
+
+    F = kin.frames(dh, _q_array(q_rad))
+    c = F[:, frame_index, :3, 3]
+    z = F[:, :6, :3, 2]
+    o = F[:, :6, :3, 3]
+    lever = np.cross(z, c[:, None, :] - o)[:, :, 2]  # mm
+    tau = GRAVITY_M_S2 * 1e-3 * lever
+    tau[:, frame_index:] = 0.0
+    return tau
+
+
+# --------------------------------------------------------------------------
 # the effects
 # --------------------------------------------------------------------------
-_DH_COLS = (("a", "mm"), ("alpha", "rad"), ("d", "mm"), ("theta", "rad"), ("beta", "rad"))
+_DH_COLS = (("a", "mm", "length_mm"), ("alpha", "rad", "delta_angle_rad"), ("d", "mm", "length_mm"),
+            ("theta", "rad", "delta_angle_rad"), ("beta", "rad", "delta_angle_rad"))
 _DH_ROWS = ("1", "2", "3", "4", "5", "6", "TCP")
 
 
+class _Declared:
+    """What every effect says of itself: its parameters' names and its :class:`EffectSpec` (from ``param_specs``)."""
+
+    acts_on = "table"
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.param_specs)
+
+    @property
+    def spec(self) -> EffectSpec:
+        return EffectSpec(self.name, self.acts_on, self.param_specs)
+
+
 @dataclass(frozen=True)
-class Geometric:
-    """Deviations of the 35 kinematic parameters (mm, rad)."""
+class Geometric(_Declared):
+    """Deviations of the 35 kinematic parameters (mm, rad).
+
+    Its linearisation is the parameter Jacobian of the kinematics (seed 002
+    eq. (7)-(8), :func:`station.models.kinematics.fk_and_param_jacobian`).
+    """
 
     name: str = field(default="geometric", init=False)
 
     @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(f"{c}{r}_{u}" for r in _DH_ROWS for c, u in _DH_COLS)
+    def param_specs(self) -> tuple:
+        return tuple(ParamSpec.of_kind(f"{c}{r}_{u}", kind, u) for r in _DH_ROWS for c, u, kind in _DH_COLS)
 
     def apply(self, params, dh, q_rad, ctx: EffectContext):
         p = _params(params, 35, self.name)
         return np.asarray(dh, dtype=float) + p.reshape(7, 5), q_rad
 
 
-@dataclass(frozen=True)
-class ThermalDrift:
-    """Link lengths ``a, d`` grow by ``alpha_per_K * dT``; params ``[dT_max_K, tau_s]``."""
+def _check_alpha(alpha_per_K) -> float:
+    lo, hi = THERMAL_ALPHA.bounds
+    if not (isinstance(alpha_per_K, (int, float)) and math.isfinite(alpha_per_K) and lo <= alpha_per_K <= hi):
+        raise ConfigError(f"`alpha_per_K` must be finite and within {lo:g}..{hi:g} /K, got {alpha_per_K!r}")
+    return float(alpha_per_K)
 
-    alpha_per_K: float = 1.2e-5
+
+@dataclass(frozen=True)
+class ThermalDrift(_Declared):
+    """Link lengths ``a, d`` grow by ``alpha_per_K * dT``; params ``[dT_max_K, tau_s]``.
+
+    :meth:`length_scale` is the relative growth ``alpha dT`` (N,);
+    :meth:`scale_jacobian` its derivative with respect to the parameter a
+    fit can take as linear: ``dT_max_K`` (warm-up model, ``tau`` fixed) or,
+    with a measured temperature rise, ``alpha_per_K``.
+    """
+
+    alpha_per_K: float = STEEL_ALPHA_PER_K
     name: str = field(default="thermal_drift", init=False)
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.alpha_per_K) and self.alpha_per_K >= 0):
-            raise ConfigError(f"`alpha_per_K` must be finite and >= 0, got {self.alpha_per_K!r}")
+        _check_alpha(self.alpha_per_K)
 
     @property
-    def param_names(self) -> tuple[str, ...]:
-        return ("dT_max_K", "tau_s")
+    def param_specs(self) -> tuple:
+        return (ParamSpec.of_kind("dT_max_K", "dT_max_K"), ParamSpec.of_kind("tau_s", "tau_s"))
 
     def temperature_rise_K(self, params, ctx: EffectContext, n: int) -> np.ndarray:
         """``dT`` per sample (N,): measured if the context has it, else the warm-up model."""
@@ -205,80 +308,172 @@ class ThermalDrift:
             raise DataError(f"`thermal_drift` tau_s must be > 0, got {p[1]!r}")
         return p[0] * -np.expm1(-np.maximum(warm, 0.0) / p[1])
 
+    def length_scale(self, params, ctx: EffectContext, n: int) -> np.ndarray:
+        """Relative growth of the lengths, ``alpha_per_K dT`` (N,)."""
+        return self.alpha_per_K * self.temperature_rise_K(params, ctx, n)
+
+    def scale_jacobian(self, params, ctx: EffectContext, n: int) -> tuple[np.ndarray, tuple[str, ...]]:
+        """``(d length_scale / d theta (N, 1), (name of theta,))``: ``theta`` is ``alpha_per_K`` when the context
+        has a measured rise, else ``dT_max_K`` at the parameters' ``tau_s``. Exact: the scale is linear in both."""
+        p = _params(params, 2, self.name)
+        if ctx.temperature_rise_K is not None:
+            return self.temperature_rise_K(p, ctx, n)[:, None], ("alpha_per_K",)
+        return self.length_scale([1.0, p[1]], ctx, n)[:, None], ("dT_max_K",)
+
     def apply(self, params, dh, q_rad, ctx: EffectContext):
         q = _q_array(q_rad)
-        n = q.shape[0]
-        dT = self.temperature_rise_K(params, ctx, n)
-        dh = np.asarray(dh, dtype=float)
-        scale = 1.0 + self.alpha_per_K * dT  # (N,)
-        if np.all(scale == scale[0]) and dh.ndim == 2:
-            out = dh.copy()
-            out[:, [0, 2]] *= scale[0]
-            return out, q_rad
-        out = np.array(np.broadcast_to(dh, (n, 7, 5)))
-        out[:, :, [0, 2]] *= scale[:, None, None]
-        return out, q_rad
+        return scale_lengths(dh, self.length_scale(params, ctx, q.shape[0])), q_rad
+
+
+#: the columns of the kinematic table that are lengths (``a``, ``d``), which the thermal drift scales
+LENGTH_COLUMNS = (0, 2)
+#: their places in the flat 35-parameter vector (``dh.ravel()``)
+LENGTH_PARAMS = np.array([5 * r + c for r in range(7) for c in LENGTH_COLUMNS])
+
+
+def scale_lengths(dh, growth) -> np.ndarray:
+    """The table with its lengths ``a, d`` grown by ``1 + growth`` (per sample, (N,)): (7, 5) when the growth is
+    the same for every sample and ``dh`` is one table, else (N, 7, 5)."""
+    dh = np.asarray(dh, dtype=float)
+    scale = 1.0 + np.asarray(growth, dtype=float)  # (N,)
+    cols = list(LENGTH_COLUMNS)
+    if np.all(scale == scale[0]) and dh.ndim == 2:
+        out = dh.copy()
+        out[:, cols] *= scale[0]
+        return out
+    out = np.array(np.broadcast_to(dh, (scale.size, 7, 5)))
+    out[:, :, cols] *= scale[:, None, None]
+    return out
+
+
+class JointEffect(_Declared):
+    """An effect on the joint angles, linear in its parameters: ``dq_j = sum_m B_jm(dh, q, ctx) P_jm``.
+
+    ``P`` is the parameter vector as (6, m), joint by joint; the basis ``B``
+    (:meth:`joint_basis`, (N, 6, m)) is the effect's Jacobian with respect
+    to its parameters, at any parameters: the diagnosis's candidate terms are
+    its columns (:mod:`station.analysis.diagnose.terms`). Subclasses give
+    ``per_joint`` (``(name template with {j}, ParamSpec kind, unit)`` per
+    basis column) and ``joint_basis``.
+    """
+
+    per_joint: tuple = ()
+    acts_on = "joint"
+
+    @property
+    def param_specs(self) -> tuple:
+        return tuple(ParamSpec.of_kind(t.format(j=j), kind, unit) for j in range(1, 7) for t, kind, unit in self.per_joint)
+
+    def joint_basis(self, dh, q_rad, ctx: EffectContext, params=None) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def offsets(self, params, dh, q_rad, ctx: EffectContext) -> np.ndarray:
+        """``dq = sum_m B_jm P_jm`` (N, 6), rad, of these parameters at ``(dh, q_rad)``."""
+        m = len(self.per_joint)
+        P = _params(params, 6 * m, self.name).reshape(6, m)
+        q = _q_array(q_rad)
+        if not np.any(P):
+            return np.zeros_like(q)
+        return np.einsum("njm,jm->nj", self.joint_basis(dh, q, ctx, P), P)
+
+    def apply(self, params, dh, q_rad, ctx: EffectContext):
+        m = len(self.per_joint)
+        P = _params(params, 6 * m, self.name).reshape(6, m)
+        q = _q_array(q_rad)
+        if not np.any(P):
+            return dh, q
+        B = self.joint_basis(dh, q, ctx, P)
+        out = q
+        for k in range(m):
+            out = out + B[:, :, k] * P[:, k]
+        return dh, out
 
 
 @dataclass(frozen=True)
-class EncoderEccentricity:
+class EncoderEccentricity(JointEffect):
     """First-harmonic joint error ``s_i sin q_i + c_i cos q_i`` (rad)."""
 
     name: str = field(default="encoder_eccentricity", init=False)
+    per_joint = (("s{j}_rad", "joint_offset_rad", "rad"), ("c{j}_rad", "joint_offset_rad", "rad"))
 
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(f"{k}{i}_rad" for i in range(1, 7) for k in ("s", "c"))
-
-    def apply(self, params, dh, q_rad, ctx: EffectContext):
-        p = _params(params, 12, self.name).reshape(6, 2)
+    def joint_basis(self, dh, q_rad, ctx: EffectContext, params=None) -> np.ndarray:
         q = _q_array(q_rad)
-        return dh, q + p[:, 0] * np.sin(q) + p[:, 1] * np.cos(q)
+        return np.stack([np.sin(q), np.cos(q)], axis=2)
 
 
 @dataclass(frozen=True)
-class Backlash:
-    """Half-width ``b_i`` (rad) against the direction of the last motion."""
+class Backlash(JointEffect):
+    """Half-width ``b_i`` (rad) against the direction of the last motion (``-b_i sign_i``)."""
 
     name: str = field(default="backlash", init=False)
+    per_joint = (("b{j}_rad", "joint_offset_rad", "rad"),)
 
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(f"b{i}_rad" for i in range(1, 7))
-
-    def apply(self, params, dh, q_rad, ctx: EffectContext):
-        p = _params(params, 6, self.name)
+    def joint_basis(self, dh, q_rad, ctx: EffectContext, params=None) -> np.ndarray:
         q = _q_array(q_rad)
         if ctx.last_dir is None:
-            return dh, q
-        sgn = np.sign(np.broadcast_to(np.asarray(ctx.last_dir, dtype=float), q.shape))
-        return dh, q - p * sgn
+            return np.zeros(q.shape + (1,))
+        return -np.sign(np.broadcast_to(np.asarray(ctx.last_dir, dtype=float), q.shape))[:, :, None]
+
+
+#: the gravity-torque columns joint compliance can carry, in this order: the robot's mass model (with the
+#: context's payload and TCP force), 1 kg at the elbow (origin of frame 3), 1 kg at the tool point
+COMPLIANCE_BASES = {"mass_model": ("c{j}_rad_per_Nm", "rad/(N m)"), "elbow": ("k{j}_elbow_rad_per_kg", "rad/kg"),
+                    "tcp": ("k{j}_tcp_rad_per_kg", "rad/kg")}
 
 
 @dataclass(frozen=True)
-class JointCompliance:
-    """Gravity deflection ``-c_i g_i(q)`` (``c_i`` in rad per N m)."""
+class JointCompliance(JointEffect):
+    """Gravity deflection ``-sum_b c_ib g_ib(q)`` over the torque columns of ``basis``.
 
+    ``basis`` (a subset of :data:`COMPLIANCE_BASES`, in its order): the
+    default, the robot's mass model alone, has the parameters
+    ``c{i}_rad_per_Nm``; ``elbow`` and ``tcp`` add a column per joint of 1
+    kg at that point (``k{i}_elbow_rad_per_kg``, ``k{i}_tcp_rad_per_kg``),
+    which absorbs a mass distribution (or payload) known only roughly.
+    """
+
+    basis: tuple = ("mass_model",)
     name: str = field(default="joint_compliance", init=False)
 
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return tuple(f"c{i}_rad_per_Nm" for i in range(1, 7))
+    def __post_init__(self) -> None:
+        b = tuple(self.basis) if isinstance(self.basis, (tuple, list)) else ()
+        if not b or any(x not in COMPLIANCE_BASES for x in b) or list(b) != sorted(set(b), key=list(COMPLIANCE_BASES).index):
+            raise ConfigError(f"`basis` of joint_compliance must be a non-empty subset of {', '.join(COMPLIANCE_BASES)} "
+                              f"in that order, got {self.basis!r}")
+        object.__setattr__(self, "basis", b)
 
-    def apply(self, params, dh, q_rad, ctx: EffectContext):
-        p = _params(params, 6, self.name)
+    @property
+    def per_joint(self) -> tuple:
+        return tuple((COMPLIANCE_BASES[b][0], "compliance", COMPLIANCE_BASES[b][1]) for b in self.basis)
+
+    def holding_torques(self, dh, q_rad, ctx: EffectContext, which: str) -> np.ndarray:
+        """The torque column ``which`` of :data:`COMPLIANCE_BASES` (N, 6), N m."""
         q = _q_array(q_rad)
-        if not np.any(p):
-            return dh, q
+        dh_arr = np.asarray(dh, dtype=float)
+        if which == "elbow":
+            return unit_mass_torques(dh_arr, q, 3)
+        if which == "tcp":
+            return unit_mass_torques(dh_arr, q, 7)
         if ctx.robot is None:
             raise DataError("`joint_compliance` needs `robot` (mass model) in the effect context")
         from station.models.robots import gravity_torques
 
-        dh_arr = np.asarray(dh, dtype=float)
-        tau = np.reshape(gravity_torques(ctx.robot, dh_arr, q, payload_kg=float(ctx.payload_kg)), q.shape)
+        if np.ndim(ctx.payload_kg) == 0:
+            tau = np.reshape(gravity_torques(ctx.robot, dh_arr, q, payload_kg=float(ctx.payload_kg)), q.shape)
+        else:  # a payload per sample: the arm's own torque plus that mass at the tool point
+            load = _per_sample(ctx.payload_kg, q.shape[0], "payload_kg")
+            tau = np.reshape(gravity_torques(ctx.robot, dh_arr, q, payload_kg=0.0), q.shape)
+            tau = tau + load[:, None] * unit_mass_torques(dh_arr, q, 7)
         if ctx.tcp_force_N is not None:
             tau = tau - _force_torques_Nm(dh_arr, q, ctx.tcp_force_N)
-        return dh, q - p * tau
+        return tau
+
+    def joint_basis(self, dh, q_rad, ctx: EffectContext, params=None) -> np.ndarray:
+        q = _q_array(q_rad)
+        P = None if params is None else np.reshape(params, (6, len(self.basis)))
+        cols = [np.zeros(q.shape) if P is not None and not np.any(P[:, k]) else -self.holding_torques(dh, q, ctx, b)
+                for k, b in enumerate(self.basis)]
+        return np.stack(cols, axis=2)
 
 
 def _force_torques_Nm(dh, q: np.ndarray, force_N) -> np.ndarray:
@@ -539,6 +734,29 @@ class EffectSet:
                 dh_out, q_out = eff.apply(p, dh_out, q_out, ctx)
         return dh_out, q_out
 
+    def joint_offsets(self, dh, q_rad, ctx: EffectContext | None = None) -> np.ndarray:
+        """First-order joint error ``dq`` (N, 6), rad: every enabled joint effect at the same ``(dh, q_rad)``, summed.
+
+        The linear model the diagnosis fits (:mod:`station.analysis.diagnose.terms`)
+        and an extended model evaluates (:mod:`station.models.arm_extended`);
+        :meth:`apply` composes the effects instead, which differs by second-order terms.
+        """
+        ctx = ctx or EffectContext()
+        q = _q_array(q_rad)
+        dq = np.zeros_like(q)
+        for eff, p, on in zip(self.effects, self.params, self.enabled):
+            if on and isinstance(eff, JointEffect):
+                dq = dq + eff.offsets(p, dh, q, ctx)
+        return dq
+
+    def length_scale(self, n: int, ctx: EffectContext | None = None) -> np.ndarray | None:
+        """Relative growth of the lengths ``a, d`` (N,) of the enabled thermal drift, None without one."""
+        ctx = ctx or EffectContext()
+        for eff, p, on in zip(self.effects, self.params, self.enabled):
+            if on and isinstance(eff, ThermalDrift):
+                return eff.length_scale(p, ctx, n)
+        return None
+
     # records --------------------------------------------------------------
     def to_dict(self) -> dict:
         """JSON-able description: ``{name: {"enabled", "params": {pname: value}}}``."""
@@ -547,6 +765,8 @@ class EffectSet:
             entry = {"enabled": on, "params": dict(zip(eff.param_names, p.tolist()))}
             if isinstance(eff, ThermalDrift):
                 entry["alpha_per_K"] = eff.alpha_per_K
+            if isinstance(eff, JointCompliance) and eff.basis != ("mass_model",):
+                entry["basis"] = list(eff.basis)
             out[eff.name] = entry
         return out
 
@@ -559,7 +779,12 @@ class EffectSet:
         for name, entry in data.items():
             if name not in _EFFECT_TYPES:
                 raise ConfigError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_ORDER)}")
-            eff = make_effect(name)
+            opts = {}
+            if "alpha_per_K" in entry:
+                opts["alpha_per_K"] = float(entry["alpha_per_K"])
+            if "basis" in entry:
+                opts["basis"] = tuple(entry["basis"]) if isinstance(entry["basis"], list) else entry["basis"]
+            eff = make_effect(name, **opts)
             values = entry.get("params", {})
             unknown = set(values) - set(eff.param_names)
             if unknown:
@@ -567,8 +792,8 @@ class EffectSet:
             params[name] = [float(values.get(p, 0.0)) for p in eff.param_names]
             if entry.get("enabled", True):
                 enabled.append(name)
-            if "alpha_per_K" in entry:
-                options[name] = {"alpha_per_K": float(entry["alpha_per_K"])}
+            if opts:
+                options[name] = opts
         return cls.from_params(params, enabled=enabled, options=options)
 
 

@@ -83,7 +83,9 @@ from station.analysis.arm.pose_structure import pose_structure, structured_folds
 from station.analysis.arm.split import workspace_split
 from .geometry_cv import beats_nominal, fold_errors
 from .summary_json import core_json
-from .terms import Term, joint_terms, last_motion_direction, thermal_terms
+from station.models.effects import motion_directions
+
+from .terms import Term, joint_terms, thermal_terms
 
 #: most poses a diagnosis takes (the reader's limit, station.readers.arm_csv.MAX_ROWS)
 MAX_POSES = 20_000
@@ -668,7 +670,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     folds_tr = inner_folds(train.size, int(folds), seed)
     structure = pose_structure(q[train])
     folds_geo = structured_folds(structure, int(folds), seed)
-    last_dir = last_motion_direction(q)
+    last_dir = motion_directions(q)
     not_testable: dict = {}
     th_terms, why = thermal_terms(t_w, temp_w)
     if why:

@@ -23,13 +23,14 @@ from scipy.spatial.transform import Rotation
 
 from station.analysis.arm.identification import rigid_fit
 from station.models import kinematics as kin
+from station.models.effects import LENGTH_PARAMS, scale_lengths
 
 from .terms import Term
 
 __all__ = ["ModelState", "predict", "jacobian", "fit", "fit_report", "robust_cov"]
 
 _THETA_COLS = np.arange(6) * 5 + 3
-_LEN_COLS = np.array([5 * r + c for r in range(7) for c in (0, 2)])
+_LEN_COLS = LENGTH_PARAMS
 
 
 @dataclass
@@ -76,11 +77,7 @@ def _evaluate(state: ModelState, q: np.ndarray, rows: np.ndarray):
         elif term.kind == "scale":
             s = term.features[rows] @ th
             scale = s if scale is None else scale + s
-    if scale is None:
-        dh = dh0
-    else:
-        dh = np.repeat(dh0[None], rows.size, axis=0)
-        dh[:, :, [0, 2]] *= (1.0 + scale)[:, None, None]
+    dh = dh0 if scale is None else scale_lengths(np.broadcast_to(dh0, (rows.size, 7, 5)), scale)
     return dh0, dh, q[rows] + dq
 
 
