@@ -7,6 +7,10 @@ moves an hour), a loop, a creep and a structural mode hidden in it, from the
 test generator (tests/motion/motion_stream.py, integrated here on a 2 kHz grid
 to bound its memory). Prints the generation and diagnosis times, the moves
 used and what was named.
+
+``--minutes 60`` (3.12 M samples, 52.1 min, 1060 moves), OMP_NUM_THREADS=1, load ~2:
+85.6 s CPU before the shifted evaluation of the approach responses, 37.5 s after,
+the same effects named and the same held-out RMS (9.42 -> 0.82 um).
 """
 
 from __future__ import annotations

@@ -30,13 +30,13 @@ def main(seed: int = 1, repeats: int = 3) -> None:
     t, xyz, paths, truths = simarm.whole_test(rng, n_cycles=10, noise=0.01)
     specs = parse_paths({"paths": paths})
     valid = np.ones(t.size, bool)
-    best = np.inf
+    best = best_cpu = np.inf
     for _ in range(repeats):  # loop over repeats
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = analyze_paths(specs, t, xyz, valid, noise_sd_mm=0.01)
-        best = min(best, time.perf_counter() - t0)
-    print(f"{t.size} samples ({t.size / 1000:.1f} s at 1 kHz), {len(specs)} paths: analysed in {best:.3f} s "
-          f"(best of {repeats})")
+        best, best_cpu = min(best, time.perf_counter() - t0), min(best_cpu, time.process_time() - c0)
+    print(f"{t.size} samples ({t.size / 1000:.1f} s at 1 kHz), {len(specs)} paths: analysed in {best:.3f} s wall, "
+          f"{best_cpu:.3f} s CPU (best of {repeats})")
     for name, r in res.items():  # loop over paths
         print(f"{name} ({r.kind}, {r.n_cycles} cycles)")
         for fig, v in r.figures.items():  # loop over figures

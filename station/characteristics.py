@@ -218,10 +218,21 @@ def _check_unique(rows) -> None:
 _check_unique(_ROWS)
 
 
+#: (programme, id of the table) -> (the table, its rows of the programme): the JSON asks once per pose
+_BY_PROGRAMME: dict[tuple[str, int], tuple[tuple, tuple]] = {}
+
+
 def characteristics(programme: str = "pose") -> tuple[Characteristic, ...]:
     """The characteristics ``programme`` states, in the table's order (the order of verdicts and rows within
     a level); ``"*"``: every row."""
-    return _ROWS if programme == "*" else tuple(c for c in _ROWS if c.programme == programme)
+    hit = _BY_PROGRAMME.get((programme, id(_ROWS)))
+    if hit is not None and hit[0] is _ROWS:  # the same table (:func:`added` makes a new one)
+        return hit[1]
+    out = _ROWS if programme == "*" else tuple(c for c in _ROWS if c.programme == programme)
+    if len(_BY_PROGRAMME) > 64:  # tables of :func:`added` that are gone
+        _BY_PROGRAMME.clear()
+    _BY_PROGRAMME[(programme, id(_ROWS))] = (_ROWS, out)
+    return out
 
 
 def get(key: str, programme: str = "pose") -> Characteristic | None:

@@ -64,7 +64,11 @@ def finite_or_none(x, nd: int | None = None):
 
 def finite_list(a, nd: int | None = 6) -> list:
     """An array as a flat list of JSON numbers (:func:`finite_or_none` of each)."""
-    return [finite_or_none(x, nd) for x in np.asarray(a, dtype=float).ravel()]
+    xs = np.asarray(a, dtype=float).ravel().tolist()  # Python floats: no numpy scalar per element
+    isfinite = math.isfinite
+    if nd is None:
+        return [x if isfinite(x) else None for x in xs]
+    return [round(x, nd) if isfinite(x) else None for x in xs]
 
 
 def json_default(obj):

@@ -23,6 +23,9 @@ short of it).
 
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 
 __all__ = ["free_decay", "ramp_response", "decel_response", "command_position", "creep", "servo_position",
@@ -76,7 +79,13 @@ def ramp_response(tau, omega: float, zeta: float, tj: float) -> np.ndarray:
 
 def _mode_poles(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
     """Poles and residues of a mode (``omega_m``, ``zeta_m``, unit static gain) driven by the acceleration of a
-    loop (``omega_s``, ``zeta_s``) that follows its command: ``Hm(p) Hs(p)``, both of unit static gain."""
+    loop (``omega_s``, ``zeta_s``) that follows its command: ``Hm(p) Hs(p)``, both of unit static gain
+    (the same four numbers recur in every evaluation of a fit's step: kept, read-only)."""
+    return _mode_poles_cached(float(omega_s), float(zeta_s), float(omega_m), float(zeta_m))
+
+
+@functools.lru_cache(maxsize=256)
+def _mode_poles_cached(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
     if abs(omega_s - omega_m) < 1e-6 * omega_m and abs(zeta_s - zeta_m) < 1e-6:
         omega_m *= 1.0 + 1e-5  # coincident poles: the closed form needs them distinct
     num = np.polymul([omega_m ** 2], [2.0 * zeta_s * omega_s, omega_s ** 2])
@@ -85,7 +94,9 @@ def _mode_poles(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
     R = np.polyval(num, p) / np.polyval(np.polyder(den), p)
     # a conjugate pair's terms are each other's conjugates: one of each, doubled, with the real poles once
     keep = p.imag >= 0.0
-    return p[keep], np.where(p[keep].imag > 0.0, 2.0, 1.0) * R[keep]
+    poles, residues = p[keep], np.where(p[keep].imag > 0.0, 2.0, 1.0) * R[keep]
+    poles.flags.writeable = residues.flags.writeable = False
+    return poles, residues
 
 
 def _pr_decay(tau, p, R) -> np.ndarray:
@@ -118,6 +129,9 @@ def mode_response(tau, a, v, D, tj: float, loop: tuple[float, float], mode: tupl
     p, R = _mode_poles(loop[0], loop[1], mode[0], mode[1])
     tj = float(tj)
     tau = np.asarray(tau, dtype=float)
+    fast = _ShiftedEdges.of(tau, a, v, D, tj, [abs(float(pi.real)) for pi in p])
+    if fast is not None:
+        return fast.mode(p, R)
 
     def ramp(x):  # unit level falling over [-tj, 0] (a step below STEP_TJ_S)
         if tj <= STEP_TJ_S:
@@ -166,6 +180,9 @@ def _edges(tau, a, v, D, tj: float, ramp) -> np.ndarray:
 
 def decel_response(tau, a, v, D, tj: float, omega: float, zeta: float) -> np.ndarray:
     """A second-order system (unit static gain) driven by the level of :func:`_edges`."""
+    fast = _ShiftedEdges.of(tau, a, v, D, tj, _decay_rates(omega, zeta))
+    if fast is not None:
+        return fast.servo(omega, zeta)
     return _edges(tau, a, v, D, tj, lambda x: ramp_response(x, omega, zeta, tj))
 
 
@@ -176,3 +193,123 @@ def servo_position(tau, a, tj: float, omega: float, zeta: float, v=None, D=None)
     a = np.asarray(a, dtype=float)
     resp = ramp_response(tau, omega, zeta, tj) if v is None else decel_response(tau, a, v, D, tj, omega, zeta)
     return command_position(tau, a, tj, v) + a / omega ** 2 * resp
+
+
+# --------------------------------------------------------------------------
+# the same responses with one evaluation of exp, cos and sin per call
+# --------------------------------------------------------------------------
+#: the shifted evaluation multiplies exp(-r t) by exp(-r s); it is used while r (t + s) stays below this
+_SHIFT_EXP_MAX = 600.0
+
+
+def _decay_rates(omega: float, zeta: float) -> list[float]:
+    """The decay rates (1/s, >= 0) of :func:`_decay_after`'s exponentials."""
+    z = float(zeta)
+    if abs(z - 1.0) < _CRITICAL_EPS:
+        z = 1.0 + _CRITICAL_EPS
+    if z < 1.0:
+        return [z * omega]
+    return [abs(-z * omega - omega * np.sqrt(z * z - 1.0))]
+
+
+class _ShiftedEdges:
+    """:func:`_edges` of a response evaluated at ``tau + s`` for the eight shifts ``s`` of the four edges (each
+    at ``x`` and ``x + tj``), with ``exp``, ``cos`` and ``sin`` computed once at ``tau`` and moved to each
+    shift by ``e^(p (t + s)) = e^(p t) e^(p s)`` (the angle-sum formulas): the same values to rounding, an
+    eighth of the transcendental functions (they are most of the motion fit's time). The positions ``x``
+    (``tau + shift``, formed as :func:`_edges` forms them) decide before/after, as there."""
+
+    def __init__(self, tau, xs, shifts, tj):
+        self.tau, self.xs, self.shifts, self.tj = tau, xs, shifts, tj
+        # times before every edge are used by none: the base starts at the largest shift back
+        with np.errstate(invalid="ignore"):
+            self.tb = np.maximum(tau, -(shifts[-1] + tj))
+
+    @classmethod
+    def of(cls, tau, a, v, D, tj: float, rates) -> "_ShiftedEdges | None":
+        """The shifts of ``tau`` (None where an exponential of ``rates`` over the span would leave the floats:
+        the direct evaluation is used there)."""
+        tau = np.asarray(tau, dtype=float)
+        a = np.asarray(a, dtype=float)
+        t_dec = np.asarray(v, dtype=float) / a
+        t_cr = np.maximum(np.asarray(D, dtype=float) / np.asarray(v, dtype=float) - t_dec, 0.0)
+        x1 = tau + t_dec
+        x2 = x1 + t_cr  # as _edges: ((tau + t_dec) + t_cr)
+        x3 = tau + 2.0 * t_dec + t_cr
+        zero = np.zeros_like(t_dec)
+        shifts = (zero, t_dec, t_dec + t_cr, 2.0 * t_dec + t_cr)
+        if tau.size == 0 or not all(np.all(np.isfinite(s)) for s in shifts):
+            return None
+        with np.errstate(invalid="ignore"):
+            t_hi = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else 0.0
+        span = float(np.max(shifts[-1])) + tj + max(t_hi, 0.0)
+        if not math.isfinite(span) or max(rates, default=0.0) * span > _SHIFT_EXP_MAX:
+            return None
+        return cls(tau, (tau, x1, x2, x3), shifts, tj)
+
+    def _combine(self, value) -> np.ndarray:
+        """``ramp(x0) - ramp(x1) - ramp(x2) + ramp(x3)`` with ``value(x, s, integral)`` the response (``integral``:
+        its integral, for the ramp of a jerk time) at ``x = tau + s``."""
+        tj = self.tj
+        out = []
+        for x, s in zip(self.xs, self.shifts):
+            if tj <= STEP_TJ_S:
+                out.append(value(x, s, False))
+            else:
+                out.append((value(x + tj, s + tj, True) - value(x, s, True)) / tj)
+        return out[0] - out[1] - out[2] + out[3]
+
+    def servo(self, omega: float, zeta: float) -> np.ndarray:
+        """:func:`decel_response`."""
+        z = float(zeta)
+        if abs(z - 1.0) < _CRITICAL_EPS:
+            z = 1.0 + _CRITICAL_EPS
+        zw = 2.0 * float(zeta) * omega
+        tb = self.tb
+        with np.errstate(invalid="ignore"):
+            if z < 1.0:
+                wd = omega * np.sqrt(1.0 - z * z)
+                E, C, S = np.exp(-z * omega * tb), np.cos(wd * tb), np.sin(wd * tb)
+                k, q = z * omega / wd, omega * omega / wd
+
+                def decay(s):
+                    e = E * np.exp(-z * omega * s)
+                    cs, ss = np.cos(wd * s), np.sin(wd * s)
+                    sn = S * cs + C * ss
+                    return e * ((C * cs - S * ss) + k * sn), -q * e * sn
+            else:
+                r = omega * np.sqrt(z * z - 1.0)
+                l1, l2 = -z * omega + r, -z * omega - r
+                E1, E2 = np.exp(l1 * tb), np.exp(l2 * tb)
+
+                def decay(s):
+                    e1, e2 = E1 * np.exp(l1 * s), E2 * np.exp(l2 * s)
+                    return (l2 * e1 - l1 * e2) / (l2 - l1), l1 * l2 * (e1 - e2) / (l2 - l1)
+
+            def value(x, s, integral):
+                ga, gd = decay(s)
+                after = x >= 0.0
+                if integral:
+                    return np.where(after, (zw - gd - zw * ga) / omega ** 2, x)
+                return np.where(after, ga, 1.0)
+
+            return self._combine(value)
+
+    def mode(self, p, R) -> np.ndarray:
+        """:func:`mode_response` of the poles ``p`` and residues ``R`` of :func:`_mode_poles`."""
+        tb = self.tb
+        with np.errstate(invalid="ignore"):
+            base = [(np.exp(pi.real * tb), np.cos(pi.imag * tb), np.sin(pi.imag * tb)) for pi in p]
+
+            def value(x, s, integral):
+                total = 0.0
+                for pi, Ri, (E, C, S) in zip(p, R, base):
+                    c = Ri / pi ** 2 if integral else Ri / pi
+                    e = E * np.exp(pi.real * s)
+                    cs, ss = np.cos(pi.imag * s), np.sin(pi.imag * s)
+                    re = e * (c.real * (C * cs - S * ss) - c.imag * (S * cs + C * ss))
+                    total = total + ((re - c.real) if integral else re)
+                after = x >= 0.0
+                return np.where(after, -total, x if integral else 1.0)
+
+            return self._combine(value)

@@ -1269,7 +1269,10 @@ def _verdicts(lim, result) -> list[LimitCheck]:
 
 
 def _il(a):
-    return [int(x) for x in np.asarray(a).ravel()]
+    a = np.asarray(a).ravel()
+    if a.dtype.kind in "iub":  # integers (and bools) as Python ints without a numpy scalar each
+        return a.astype(np.int64).tolist()
+    return [int(x) for x in a]
 
 
 def pose_to_dict(pr: PoseResult) -> dict:

@@ -45,6 +45,8 @@ from station.analysis.iso9283.characteristics import (
     LimitCheck,
     MultiDirectional,
     OrientationAR,
+    PoseAccuracy,
+    PoseRepeatability,
     PoseResult,
     _verdicts,
     check_limits,
@@ -94,11 +96,11 @@ class StopListResult(Judged):
             **figures_dict(self, "0-based stop of the stop list", source="stop list"),
             "stops": {
                 "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": finite_or_none(self.assign_tol_mm, 6),
-                "pose": list(self.stop_pose), "cycle": [int(c) for c in self.stop_cycle],
+                "pose": list(self.stop_pose), "cycle": np.asarray(self.stop_cycle, dtype=np.int64).tolist(),
                 "approach": None if self.stop_approach is None else list(self.stop_approach),
                 "x_mm": finite_list(self.stop_position_mm[:, 0]), "y_mm": finite_list(self.stop_position_mm[:, 1]),
                 "z_mm": finite_list(self.stop_position_mm[:, 2]), "fit_rms_mm": finite_list(self.stop_fit_rms_mm),
-                "distance_to_pose_mm": finite_list(self.stop_distance_mm), "far": [bool(x) for x in self.stop_far],
+                "distance_to_pose_mm": finite_list(self.stop_distance_mm), "far": np.asarray(self.stop_far, dtype=bool).tolist(),
             },
         }
 
@@ -257,7 +259,8 @@ def analyze_stop_list(
     fit_rms = np.full(K, np.nan)
     poses: dict[str, PoseResult] = {}
     primary: dict[str, np.ndarray] = {}
-    for name in order:  # loop over poses
+    picked = []
+    for name in order:  # loop over poses: the stops of each and its main approach
         k_pose = by_pose.get(name, np.zeros(0, np.int64))
         k_pose = k_pose[~far[k_pose]]
         k_pose = k_pose[np.argsort(cyc[k_pose], kind="stable")]
@@ -274,25 +277,24 @@ def analyze_stop_list(
                     leave(k, "AP, RP, AD, RD, orientation",
                           f"approached from {lab} ({kg.size} stop(s)); {name}'s main direction is {groups[gp][0]} "
                           f"({kp.size} stops); vAP uses it")
-        if kp.size and np.unique(cyc[kp]).size != kp.size:
+        picked.append((name, groups, gp, kp))
+    stats = _pose_statistics(centroid, [kp for _, _, _, kp in picked],
+                             None if cmd is None else np.array([cmd[name] for name in order]))
+    for (name, groups, gp, kp), (acc, rep, mean) in zip(picked, stats):  # loop over poses: their results
+        ck = cyc[kp]  # in cycle order (sorted above): a repeated cycle is next to itself
+        if kp.size > 1 and bool(np.any(ck[1:] == ck[:-1])):
             raise DataError(f"pose {name}: a cycle appears twice among the stops of one approach")
         a = centroid[kp]
-        acc = rep = None
-        if kp.size and cmd is not None:
-            acc = position_accuracy(a, cmd[name], kp)
-        elif cmd is None and kp.size:
-            pass  # AP needs the commanded pose
-        else:
+        if not kp.size:
             warnings.append(f"{name}: no stop, AP and RP not computed")
             partial = True
-        if kp.size >= 2:
-            rep = position_repeatability(a, kp)
         elif kp.size == 1:
             warnings.append(f"{name}: RP needs at least 2 stops, got 1")
             partial = True
         if 0 < kp.size < ISO_CYCLES:
             warnings.append(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
-        gl = tuple(ApproachGroup(lab, np.zeros(3), centroid[kg].mean(axis=0), int(kg.size), kg) for lab, kg in groups)
+        gl = tuple(ApproachGroup(lab, np.zeros(3), mean.copy() if kg is kp else centroid[kg].mean(axis=0),
+                                 int(kg.size), kg) for lab, kg in groups)
         vap = vany = pair = None
         if len(gl) >= 2:
             vany, (h, k2) = multidirectional_accuracy(np.array([g.mean_mm for g in gl]))
@@ -340,6 +342,39 @@ def analyze_stop_list(
     )
 
 
+def _pose_statistics(centroid, kps, cmd) -> list[tuple]:
+    """``(accuracy, repeatability, mean)`` of every pose from its stops ``kps[i]``: AP, eq. (1) (with the commanded
+    positions ``cmd`` (P, 3), else None), RP, eq. (2) (None below 2 stops), the barycentre (None without a stop).
+
+    The figures of :func:`position_accuracy` and :func:`position_repeatability` to the bit, for the poses of
+    one number of stops at once: a stop list of 100,000 poses spent most of its time in their per-pose calls.
+    """
+    out: list[tuple] = [(None, None, None)] * len(kps)
+    by_n: dict[int, list[int]] = {}
+    for i, kp in enumerate(kps):
+        if kp.size:
+            by_n.setdefault(int(kp.size), []).append(i)
+    for n, idx in by_n.items():  # loop over the numbers of stops: the poses with n stops at once
+        X = centroid[np.array([kps[i] for i in idx])]                      # (G, n, 3)
+        means = X.mean(axis=1)
+        d = None if cmd is None else means - cmd[idx]
+        if n >= 2:
+            L = np.linalg.norm(X - means[:, None, :], axis=2)
+            lb = L.mean(axis=1)
+            S = np.sqrt(np.sum((L - lb[:, None]) ** 2, axis=1) / (n - 1))
+        for j, i in enumerate(idx):  # loop over those poses: their result records
+            kp, m = kps[i], means[j]
+            acc = rep = None
+            if d is not None:
+                acc = PoseAccuracy(float(np.linalg.norm(d[j])), float(d[j, 0]), float(d[j, 1]), float(d[j, 2]),
+                                   m.copy(), n, kp)
+            if n >= 2:
+                lbj, Sj = float(lb[j]), float(S[j])
+                rep = PoseRepeatability(lbj + 3.0 * Sj, lbj, Sj, L[j].copy(), n, kp)
+            out[i] = (acc, rep, m)
+    return out
+
+
 def _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave) -> list[DistanceAR]:
     """AD and RD, eqs. (8)-(9), over the cycles where both poses were attained (main approach)."""
     names = list(poses)
@@ -376,10 +411,10 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
         reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
     all_cycles = set()
     for kp in primary.values():
-        all_cycles |= {int(c) for c in cyc[kp]}
+        all_cycles.update(cyc[kp].tolist())
     gaps = []
     for n, kp in primary.items():
-        lack = sorted(all_cycles - {int(c) for c in cyc[kp]})
+        lack = sorted(all_cycles.difference(cyc[kp].tolist()))
         if lack:
             gaps.append(f"{n} in cycle(s) {', '.join(str(c) for c in lack)}")
     if gaps:

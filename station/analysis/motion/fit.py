@@ -128,6 +128,7 @@ def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISAN
     T = w.T0_s.copy() if T is None else np.array(T, dtype=float)
     m = timing.astype(float)
     X = np.nan_to_num(w.x_mm)
+    dt = np.gradient(np.nan_to_num(w.t_s), axis=1)  # the same at every iteration
     for _ in range(iterations):
         x0 = predict(w, p, a, T)
         r = np.where(timing, X - x0, 0.0)
@@ -135,8 +136,7 @@ def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISAN
         da = 1e-4 * a
         ja = np.where(timing, (predict(w, p, a + da, T) - x0) / da[:, None], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros
-            jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / np.gradient(np.nan_to_num(w.t_s), axis=1),
-                          0.0)
+            jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / dt, 0.0)
         h11, h12, h22 = (ja * ja * m).sum(1), (ja * jT * m).sum(1), (jT * jT * m).sum(1)
         g1, g2 = (ja * r).sum(1), (jT * r).sum(1)
         det = h11 * h22 - h12 * h12
