@@ -22,10 +22,13 @@ Steps:
 4. ``wait v`` (between visits): the arm holds while the device clock runs to
    visit ``v + 1``'s time (the first visit's start + v x ``interval_s``), a
    dwell the controller runs (on the fakes the simulated clock runs it in
-   lockstep, faster than real time). The time comes from the tracker's
-   device time of the last samples; a resumed wait knows only those, so a
-   visit after a resume may start later than planned by the time the resume
-   took (its own time is what is recorded and used);
+   lockstep, faster than real time); its last :data:`HELD_S` are streamed,
+   so the device time of its end is stored with the run. The time comes from
+   the tracker's device time of the last stored samples; a resumed wait knows
+   only those, so a visit after a resume may start later than planned by the
+   time the resume took (its own time is what is recorded and used). A visit
+   found to start before its planned time (a device clock that went back)
+   leaves the run undecided;
 5. ``analyse``, ``report``: offline.
 
 Everything a visit measured is committed to the run store as it arrives; a
@@ -81,7 +84,19 @@ RESULT = "iso9283_drift"
 # --------------------------------------------------------------------------- the plan
 def drift_params(params: Mapping) -> dict:
     """The drift entry of a plan, checked; ConfigError names the bad key (``drift.interval_s``)."""
-    d = dict(params["drift"])
+    d = _checked_numbers(params["drift"])
+    poses = d["poses"]
+    have = list(params["poses_mm"])
+    if not isinstance(poses, (list, tuple)) or not poses or len(set(poses)) != len(poses) \
+            or any(p not in have for p in poses):
+        raise ConfigError(f"drift.poses must be distinct poses of the plan ({', '.join(have)}), got {poses!r}")
+    d["poses"] = [p for p in have if p in poses]  # in the cycle's order
+    return d
+
+
+def _checked_numbers(entry: Mapping) -> dict:
+    """The drift entry with its span, interval and cycles checked (the poses are the plan's to check)."""
+    d = dict(entry)
     if sorted(d) != sorted(DEFAULTS):
         raise ConfigError(f"drift plan: expected {', '.join(sorted(DEFAULTS))}, got {', '.join(sorted(d))}")
     for key, lo in (("span_s", 0.0), ("interval_s", MIN_INTERVAL_S)):
@@ -96,12 +111,6 @@ def drift_params(params: Mapping) -> dict:
     c = d["cycles_per_visit"]
     if isinstance(c, bool) or not isinstance(c, int) or not 2 <= c <= 100:
         raise ConfigError(f"drift.cycles_per_visit must be an integer within 2-100, got {c!r}")
-    poses = d["poses"]
-    have = list(params["poses_mm"])
-    if not isinstance(poses, (list, tuple)) or not poses or len(set(poses)) != len(poses) \
-            or any(p not in have for p in poses):
-        raise ConfigError(f"drift.poses must be distinct poses of the plan ({', '.join(have)}), got {poses!r}")
-    d["poses"] = [p for p in have if p in poses]  # in the cycle's order
     return d
 
 
@@ -120,9 +129,10 @@ def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
     if unknown:
         raise ConfigError(f"iso9283-drift plan: unknown key(s) {', '.join(unknown)} (drift keys: "
                           f"{', '.join(DEFAULTS)})")
+    d = {k: overrides.get(k, v) for k, v in DEFAULTS.items()}
+    _checked_numbers(d)  # before the cube is laid out (that takes a while): a bad number is refused at once
     iso_over = {k: v for k, v in overrides.items() if k not in DEFAULTS}
     params = plan_from_config(cfg, robot, **{"report_dir": report_dir, **iso_over}).params()
-    d = {k: overrides.get(k, v) for k, v in DEFAULTS.items()}
     if d["poses"] is None:
         d["poses"] = list(params["poses_mm"])
     params["drift"] = {**d, "poses": list(d["poses"]) if isinstance(d["poses"], (list, tuple)) else d["poses"]}
@@ -140,7 +150,7 @@ def visit_program(plan: IsoPlan, d: Mapping, v: int, *, cycles: int | None = Non
     return render_rapid(prog)
 
 
-def wait_program(plan: IsoPlan, d: Mapping, v: int, seconds: float):
+def wait_program(plan: IsoPlan, d: Mapping, v: int, seconds: float, name: str | None = None):
     """The arm holds at the cycle's last pose (where a visit leaves it: a move of no length, the direction of
     each joint's last motion kept) for ``seconds`` (dwells of at most an hour each), rendered."""
     first = d["poses"][0]
@@ -150,7 +160,7 @@ def wait_program(plan: IsoPlan, d: Mapping, v: int, seconds: float):
     rest = seconds - _DWELL_MAX_S * len(chunks)
     if rest > 1e-6 or not chunks:
         chunks.append(max(rest, 0.0))
-    prog = Program(name=f"DRIFT_WAIT_{v}", robot_name=plan.robot.name,
+    prog = Program(name=name or f"DRIFT_WAIT_{v}", robot_name=plan.robot.name,
                    rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
                    statements=(hold,) + tuple(Dwell(float(s)) for s in chunks), accel_frac=0.5,
                    title=f"station: hold after drift visit {v}", rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot))
@@ -207,20 +217,42 @@ def _visit_times(ctx: StepContext, v: int) -> tuple[float, float]:
     return float(t.min()), float(t.max())
 
 
+#: the end of a wait is measured: the tracker streams the held arm this long, s (the device time of the wait's
+#: end, stored; a fake cell started again to resume goes on from the last stored sample)
+HELD_S = 0.5
+
+
+def _last_device_time(ctx: StepContext, v: int) -> float:
+    """The latest device time stored by visit ``v`` or by any attempt of this wait (its measured end), s."""
+    by_name = {s.name: i for i, s in enumerate(ctx.runner.procedure.steps)}
+    t = ctx.store.samples(ctx.run_id, STREAM, finished_only=False, steps=[by_name[f"visit {v}"], ctx.idx]).get("t")
+    t = np.asarray([] if t is None else t, dtype=float)
+    t = t[np.isfinite(t)]
+    if not t.size:
+        raise DataError(f"visit {v}: no tracker samples stored")
+    return float(t.max())
+
+
 def step_wait(v: int):
     def run(ctx: StepContext) -> dict:
         plan, d = _plan(ctx), drift_params(ctx.params)
         t_start, _ = _visit_times(ctx, 1)
-        _, now = _visit_times(ctx, v)
+        now = _last_device_time(ctx, v)
         target = t_start + v * float(d["interval_s"])
         hold = target - now
-        out = {"target_since_start_s": round(target - t_start, 3), "visit_end_since_start_s": round(now - t_start, 3)}
-        if hold <= 0:  # the visit took longer than the interval: the next one starts at once, late
-            return {**out, "held_s": 0.0, "late_s": round(-hold, 3)}
-        _run_program(ctx, wait_program(plan, d, v, hold), timeout_s=_timeout(ctx, hold + 60.0), stream=False)
+        out = {"target_since_start_s": round(target - t_start, 3), "from_since_start_s": round(now - t_start, 3)}
+        if hold <= 0:  # the visit took longer than the interval (or this wait ended before a kill): go on at once
+            return {**out, "held_s": 0.0, "late_s": round(max(-hold - HELD_S, 0.0), 3)}
+        if hold > HELD_S:
+            _run_program(ctx, wait_program(plan, d, v, hold - HELD_S), timeout_s=_timeout(ctx, hold + 60.0),
+                         stream=False)
+        # the wait's last moments measured: the device time of its end is stored with the run
+        _run_program(ctx, wait_program(plan, d, v, min(hold, HELD_S), name=f"DRIFT_HELD_{v}"),
+                     timeout_s=_timeout(ctx, 60.0), stream=True)
+        held = step_stop_stream(ctx)
         if ctx.session.moved_by == f"visit {v}":  # the arm stands as the visit left it (a dwell does not move it)
             ctx.session.moved_by = ctx.step.name
-        return {**out, "held_s": round(hold, 3), "late_s": 0.0}
+        return {**out, "held_s": round(hold, 3), "late_s": 0.0, "stream": held}
     return run
 
 
@@ -252,7 +284,8 @@ def analyse_run(plan: IsoPlan, d: Mapping, streams: list, outputs: Mapping):
     budget, source = budget_of(plan, outputs)
     cmd = {p: plan.poses_mm[p] for p in d["poses"]}
     visits, drifts, warnings = drift_figures(stops, cmd, t_start, budget)
-    return visits, drifts, warnings, source, t_start
+    starts = [float(t.min()) - t_start for t, _ in streams]  # each visit's first sample since the start
+    return visits, drifts, warnings, source, t_start, starts
 
 
 def _streams(ctx: StepContext, d: Mapping) -> list:
@@ -288,7 +321,7 @@ def _analysis(ctx: StepContext):
 
 def step_analyse(ctx: StepContext) -> dict:
     plan, d = _plan(ctx), drift_params(ctx.params)
-    visits, drifts, warnings, source, t_start = _analysis(ctx)
+    visits, drifts, warnings, source, t_start, starts = _analysis(ctx)
     rows = characteristic_rows(plan, drifts)
     ctx.store.put_characteristics(ctx.run_id, rows)
     waits = {k: v for k, v in ctx.outputs.items() if k.startswith("wait ")}
@@ -296,10 +329,15 @@ def step_analyse(ctx: StepContext) -> dict:
     if late:
         warnings = warnings + [f"{k}: the visit before took longer than the interval; the next one started "
                                f"{s:.0f} s late" for k, s in late.items()]
+    # a visit measured before its time rests on a clock that went back (a device restarted): said, not decided
+    early = [f"visit {v}: started {since:.0f} s after the start, planned at {(v - 1) * float(d['interval_s']):.0f} s: "
+             f"the device clock went back" for v, since in enumerate(starts, start=1)
+             if since < (v - 1) * float(d["interval_s"]) - 1.0]
     ctx.store.put_result(ctx.run_id, RESULT, {
-        "programme": "drift", "span_s": d["span_s"], "interval_s": d["interval_s"],
+        "early": early, "programme": "drift", "span_s": d["span_s"], "interval_s": d["interval_s"],
         "cycles_per_visit": d["cycles_per_visit"], "visits_planned": n_visits(d),
         "visits_analysed": len({vp.visit for vp in visits}), "t_start_device_s": t_start,
+        "visit_starts_since_start_s": [round(x, 3) for x in starts],
         "budget": source, "visits": [vp.to_dict() for vp in visits],
         "drift": {p: pd.to_dict() for p, pd in drifts.items()}, "warnings": warnings})
     return {"n_rows": len(rows), "warnings": warnings}
@@ -309,7 +347,7 @@ def step_report(ctx: StepContext) -> dict:
     from station.report import Report, plot_xy, write_report
 
     plan, d = _plan(ctx), drift_params(ctx.params)
-    visits, drifts, warnings, source, _ = _analysis(ctx)
+    visits, drifts, warnings, source, _, _ = _analysis(ctx)
     run = ctx.store.run(ctx.run_id)
     res = ctx.store.result(ctx.run_id, RESULT)
     rep = Report(title=f"ISO 9283 drift of pose characteristics - {run.model} {run.serial}",
@@ -399,6 +437,7 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
         return Checks(("no drift analysis stored",))
     if res["visits_analysed"] < res["visits_planned"]:
         undecided.append(f"{res['visits_analysed']} of {res['visits_planned']} visits analysed")
+    undecided += res.get("early") or []
     rows = store.characteristics(run_id)
     judged = {r["name"] for r in rows if r["limit"] is not None}
     for name in ("dAP_mm", "dRP_mm"):
