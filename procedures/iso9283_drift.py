@@ -38,9 +38,11 @@ again for the same device time. Nothing measured is lost, and a resume never
 measures a visit twice.
 
 The plan is the ISO plan of the config (cube, poses, registration, tracker
-rate, limits) with a ``drift`` entry: ``span_s`` (8 h), ``interval_s`` (600 s),
-``cycles_per_visit`` (10) and ``poses`` (all of the cube's); overrides of those
-names reach it (:data:`DEFAULTS`).
+rate, limits ``dap_limit_mm``, ``drp_limit_mm``) with a ``drift`` entry from the
+config's ``[iso9283_drift]`` section (:class:`station.config.DriftProgrammeConfig`):
+``span_s`` (8 h), ``interval_s`` (600 s), ``cycles_per_visit`` (10) and ``poses``
+(all of the cube's); overrides of those names reach it (:data:`DEFAULTS`). A
+config without the section does not offer the programme.
 """
 
 from __future__ import annotations
@@ -83,13 +85,14 @@ RESULT = "iso9283_drift"
 
 # --------------------------------------------------------------------------- the plan
 def drift_params(params: Mapping) -> dict:
-    """The drift entry of a plan, checked; ConfigError names the bad key (``drift.interval_s``)."""
+    """The drift entry of a plan, checked; ConfigError names the bad key (``iso9283_drift.interval_s``)."""
     d = _checked_numbers(params["drift"])
     poses = d["poses"]
     have = list(params["poses_mm"])
     if not isinstance(poses, (list, tuple)) or not poses or len(set(poses)) != len(poses) \
             or any(p not in have for p in poses):
-        raise ConfigError(f"drift.poses must be distinct poses of the plan ({', '.join(have)}), got {poses!r}")
+        raise ConfigError(f"iso9283_drift.poses must be distinct poses of the plan ({', '.join(have)}), "
+                          f"got {poses!r}")
     d["poses"] = [p for p in have if p in poses]  # in the cycle's order
     return d
 
@@ -98,19 +101,21 @@ def _checked_numbers(entry: Mapping) -> dict:
     """The drift entry with its span, interval and cycles checked (the poses are the plan's to check)."""
     d = dict(entry)
     if sorted(d) != sorted(DEFAULTS):
-        raise ConfigError(f"drift plan: expected {', '.join(sorted(DEFAULTS))}, got {', '.join(sorted(d))}")
+        raise ConfigError(f"iso9283_drift plan: expected {', '.join(sorted(DEFAULTS))}, got {', '.join(sorted(d))}")
     for key, lo in (("span_s", 0.0), ("interval_s", MIN_INTERVAL_S)):
         v = d[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < lo or v <= 0:
-            raise ConfigError(f"drift.{key} must be a finite number of seconds >= {lo:g} (and > 0), got {v!r}")
+            raise ConfigError(f"iso9283_drift.{key} must be a finite number of seconds >= {lo:g} (and > 0), "
+                              f"got {v!r}")
     if d["interval_s"] > d["span_s"]:
-        raise ConfigError(f"drift.interval_s ({d['interval_s']:g} s) must not exceed drift.span_s "
+        raise ConfigError(f"iso9283_drift.interval_s ({d['interval_s']:g} s) must not exceed iso9283_drift.span_s "
                           f"({d['span_s']:g} s): two visits at least")
     if n_visits(d) > MAX_VISITS:
-        raise ConfigError(f"drift.interval_s: {n_visits(d)} visits over drift.span_s, at most {MAX_VISITS}")
+        raise ConfigError(f"iso9283_drift.interval_s: {n_visits(d)} visits over iso9283_drift.span_s, "
+                          f"at most {MAX_VISITS}")
     c = d["cycles_per_visit"]
     if isinstance(c, bool) or not isinstance(c, int) or not 2 <= c <= 100:
-        raise ConfigError(f"drift.cycles_per_visit must be an integer within 2-100, got {c!r}")
+        raise ConfigError(f"iso9283_drift.cycles_per_visit must be an integer within 2-100, got {c!r}")
     return d
 
 
@@ -123,13 +128,24 @@ def _iso_fields() -> set[str]:
     return {f.name for f in fields(IsoPlan)}
 
 
+def subject(cfg, robot: str):
+    """The configured robot; the programme is offered where the config has its ``[iso9283_drift]`` section."""
+    if cfg.iso9283_drift is None:
+        raise ConfigError("iso9283_drift: the config has no drift programme section ([iso9283_drift] with "
+                          "span_s, interval_s, cycles_per_visit, poses)")
+    return robot_subject(cfg, robot)
+
+
 def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
-    """The ISO plan of the config with the drift entry (unknown override keys refused, named)."""
+    """The ISO plan of the config with the drift entry: the config's ``[iso9283_drift]``, then the overrides
+    (unknown override keys refused, named)."""
     unknown = sorted(set(overrides) - set(DEFAULTS) - _iso_fields())
     if unknown:
         raise ConfigError(f"iso9283-drift plan: unknown key(s) {', '.join(unknown)} (drift keys: "
                           f"{', '.join(DEFAULTS)})")
-    d = {k: overrides.get(k, v) for k, v in DEFAULTS.items()}
+    subject(cfg, robot)
+    section = cfg.iso9283_drift.model_dump()
+    d = {k: overrides.get(k, section.get(k, v)) for k, v in DEFAULTS.items()}
     _checked_numbers(d)  # before the cube is laid out (that takes a while): a bad number is refused at once
     iso_over = {k: v for k, v in overrides.items() if k not in DEFAULTS}
     params = plan_from_config(cfg, robot, **{"report_dir": report_dir, **iso_over}).params()
@@ -163,7 +179,8 @@ def wait_program(plan: IsoPlan, d: Mapping, v: int, seconds: float, name: str | 
     prog = Program(name=name or f"DRIFT_WAIT_{v}", robot_name=plan.robot.name,
                    rated_tcp_speed_mm_s=float(plan.robot.max_tcp_speed_mm_s),
                    statements=(hold,) + tuple(Dwell(float(s)) for s in chunks), accel_frac=0.5,
-                   title=f"station: hold after drift visit {v}", rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot))
+                   title=f"station: hold after drift visit {v}",
+                   rated_tcp_accel_mm_s2=rated_tcp_accel_mm_s2(plan.robot))
     return render_rapid(prog)
 
 
@@ -405,7 +422,7 @@ def build_procedure(params: Mapping) -> Procedure:
 
 # --------------------------------------------------------------------------- the registry's entry
 def device_roles(cfg, robot: str) -> dict[str, str]:
-    robot_subject(cfg, robot)
+    subject(cfg, robot)
     return {"tracker": "tracker", "controller": cfg.robots[robot].controller}
 
 
@@ -472,7 +489,7 @@ SPEC = ProcedureSpec(
     new_params=new_params,
     build=build_procedure,
     new_session=lambda devices: DriftSession(devices),
-    subject=robot_subject,
+    subject=subject,
     device_roles=device_roles,
     fake_cell="fakes.cells:iso9283_cell",
     result_key=RESULT,

@@ -37,7 +37,7 @@ def _warmup(rng) -> tuple[float, float]:
     return float(rng.uniform(3.0, 6.0)), float(rng.uniform(900.0, 2400.0))
 
 
-def _cfg(cell_or_none, tmp_path, limits=None):
+def _cfg(cell_or_none, tmp_path, limits=None, drift=None):
     if cell_or_none is not None:
         d = cell_or_none.config_dict(store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
                                      iso9283={"cycles": 3, "vap_cycles": 2}, limits=limits)
@@ -45,6 +45,8 @@ def _cfg(cell_or_none, tmp_path, limits=None):
         from fakes.cells import demo_config
 
         d = demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=100.0)
+    if drift is not None:
+        d["iso9283_drift"] = dict(drift)
     return config_from_dict(d)
 
 
@@ -64,12 +66,13 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
     warmup = _warmup(rng)
     span, interval = 3600.0, 1200.0
     with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, warmup=warmup) as cell:
-        cfg = _cfg(cell, tmp_path, limits={"rp_limit_mm": 0.5, "dap_limit_mm": 1.0})
+        # the programme from the config's section (a plan override would reach it the same way)
+        cfg = _cfg(cell, tmp_path, limits={"rp_limit_mm": 0.5, "dap_limit_mm": 1.0},
+                   drift={"span_s": span, "interval_s": interval, "cycles_per_visit": CYCLES})
         devices = DeviceSet(urls={"tracker": cell.tracker_url, "controller": cell.controller_url},
                             time_scale=LOCKSTEP)
         out = run_procedure(cfg, "iso9283-drift", devices=devices, quiet=True, run_id="d1", config_dir=tmp_path,
-                            yes=True, plan_overrides={"span_s": span, "interval_s": interval,
-                                                      "cycles_per_visit": CYCLES})
+                            yes=True)
         with RunStore(tmp_path / "s.sqlite") as store:
             assert out.status == "done", out.error
             res = store.result("d1", RESULT)
@@ -143,7 +146,7 @@ def test_a_drift_run_killed_mid_span_resumes_to_the_same_visits_and_figures(tmp_
     for name, kill in (("whole", None), ("killed", where)):
         d = tmp_path / name
         d.mkdir()
-        cfg = _cfg(None, d)
+        cfg = _cfg(None, d, drift={})
         control = RunControl()
         out = run_procedure(cfg, "iso9283-drift", run_id="r", yes=True, quiet=True, time_scale=LOCKSTEP,
                             seed=test_seed, config_dir=d, plan_overrides=plan, fake_options=fake, control=control,
@@ -190,21 +193,32 @@ def test_a_drift_run_killed_mid_span_resumes_to_the_same_visits_and_figures(tmp_
 
 
 @pytest.mark.parametrize("override, key", [
-    ({"interval_s": 10.0}, "drift.interval_s"),
-    ({"interval_s": 7200.0, "span_s": 3600.0}, "drift.interval_s"),
-    ({"span_s": float("nan")}, "drift.span_s"),
-    ({"span_s": "8h"}, "drift.span_s"),
-    ({"cycles_per_visit": 1}, "drift.cycles_per_visit"),
-    ({"cycles_per_visit": 2.5}, "drift.cycles_per_visit"),
-    ({"poses": ["P1", "P9"]}, "drift.poses"),
-    ({"poses": []}, "drift.poses"),
-    ({"span_s": 86400.0, "interval_s": 60.0}, "drift.interval_s"),
+    ({"interval_s": 10.0}, "iso9283_drift.interval_s"),
+    ({"interval_s": 7200.0, "span_s": 3600.0}, "iso9283_drift.interval_s"),
+    ({"span_s": float("nan")}, "iso9283_drift.span_s"),
+    ({"span_s": "8h"}, "iso9283_drift.span_s"),
+    ({"cycles_per_visit": 1}, "iso9283_drift.cycles_per_visit"),
+    ({"cycles_per_visit": 2.5}, "iso9283_drift.cycles_per_visit"),
+    ({"poses": ["P1", "P9"]}, "iso9283_drift.poses"),
+    ({"poses": []}, "iso9283_drift.poses"),
+    ({"span_s": 86400.0, "interval_s": 60.0}, "iso9283_drift.interval_s"),
     ({"intervall_s": 600.0}, "intervall_s"),
 ])
 def test_bad_drift_plan_refused_naming_the_key_and_nothing_recorded(tmp_path, override, key):
-    cfg = _cfg(None, tmp_path)
+    cfg = _cfg(None, tmp_path, drift={})
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         run_procedure(cfg, "iso9283-drift", run_id="bad", yes=True, quiet=True, time_scale=LOCKSTEP,
                       config_dir=tmp_path, plan_overrides=override)
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         assert "bad" not in [r.run_id for r in store.runs()]
+
+
+def test_the_config_section_offers_the_programme_and_its_bad_values_are_refused_naming_them(tmp_path):
+    from procedures.registry import runnable_procedures
+
+    assert "iso9283-drift" not in runnable_procedures(_cfg(None, tmp_path))
+    assert "iso9283-drift" in runnable_procedures(_cfg(None, tmp_path, drift={"interval_s": 900.0}))
+    with pytest.raises(ConfigError, match="no drift programme section"):
+        run_procedure(_cfg(None, tmp_path), "iso9283-drift", run_id="x", yes=True, quiet=True, config_dir=tmp_path)
+    with pytest.raises(Exception, match="interval_s"):
+        _cfg(None, tmp_path, drift={"interval_s": 5.0})
