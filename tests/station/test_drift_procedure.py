@@ -65,7 +65,9 @@ def _truth_ap(world, plan: IsoPlan, reg, t_device_s: np.ndarray) -> np.ndarray:
 def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_path, rng, test_seed):
     warmup = _warmup(rng)
     span, interval = 3600.0, 1200.0
-    with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, warmup=warmup) as cell:
+    # a precise arm (stops scattering 5-20 um per coordinate at home), so that the warm-up stands out of U
+    scatter_mm = float(rng.uniform(0.005, 0.02))
+    with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, warmup=warmup, stop_sigma_mm=scatter_mm) as cell:
         # the programme from the config's section (a plan override would reach it the same way)
         cfg = _cfg(cell, tmp_path, limits={"rp_limit_mm": 0.5, "dap_limit_mm": 1.0},
                    drift={"span_s": span, "interval_s": interval, "cycles_per_visit": CYCLES})
@@ -93,7 +95,6 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
         # the truth at each pose's first and last visit, through the run's frame
         by = {(v["visit"], v["pose"]): v for v in visits}
         dT_max, tau = warmup
-        shift_seen = []
         for j, pose in enumerate(names):
             first, last = by[(1, pose)], by[(4, pose)]
             ts = np.array([t0 + first["t_since_start_s"], t0 + last["t_since_start_s"]])
@@ -104,9 +105,10 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
                   f"shift {d['shift_mm'] * 1e3:.1f} um")
             # five poses at once: each within 2 U (k = 4), so an honest U fails this about 1 time in 3000
             assert abs(d["dAP_mm"] - dap_true) <= 2.0 * d["U_dAP_mm"], (pose, d, dap_true)
+            if dap_true > 3.0 * d["U_dAP_mm"]:  # a drift well above U is found: stated above its U
+                assert d["dAP_mm"] > d["U_dAP_mm"], (pose, d, dap_true)
             # the visit's own AP follows the truth between them: AP(t_n) - AP(t_1) with its sign
             assert abs((last["AP_mm"] - first["AP_mm"]) - (ap_true[1] - ap_true[0])) <= 2.0 * d["U_dAP_mm"]
-            shift_seen.append(d["shift_mm"])
             # the warm-up between the two visits moved the arm: the barycentres moved as the noise-free arm
             # did, within what the stops' scatter leaves in two means of CYCLES stops
             geo = RunGeometry.of(plan)
@@ -116,8 +118,8 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
             scatter = math.sqrt(first["RP_mm"] ** 2 + last["RP_mm"] ** 2) / 3.0 / math.sqrt(CYCLES)
             assert abs(d["shift_mm"] - true_shift) <= 4.0 * scatter + 0.005, (pose, d["shift_mm"], true_shift)
         # something to find: the links grew by alpha dT between the visits, tens of micrometres at the poses
-        grown = STEEL_ALPHA_PER_K * dT_max * (math.exp(-by[(1, "P1")]["t_since_start_s"] / tau)
-                                              - math.exp(-by[(4, "P1")]["t_since_start_s"] / tau))
+        t1, t4 = (t0 + by[(k, "P1")]["t_since_start_s"] for k in (1, 4))  # the world warms from its clock's 0
+        grown = STEEL_ALPHA_PER_K * dT_max * (math.exp(-t1 / tau) - math.exp(-t4 / tau))
         assert grown * 1500.0 > 0.02  # the poses are 1.5 m and more from the base
     # rows of the drift programme's characteristics, judged against the config's limit
     got = {(r["pose"], r["name"]): r for r in rows}
