@@ -58,8 +58,8 @@ import numpy as np
 from procedures.cell import prompt_step, robot_subject
 from procedures.decision import Checks
 from procedures.iso9283 import (STREAM, IsoPlan, IsoSession, _plan, _run_program, _stream_in_base, _timeout,
-                                plan_from_config, registration_of, safe_state, step_check_programs, step_connect,
-                                step_home, step_register, step_stop_stream)
+                                plan_from_config, registration_of, safe_state, step_check_programs, step_stop_stream)
+from procedures.iso9283 import build_procedure as build_iso_procedure
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 from station.analysis.iso9283 import table
@@ -402,13 +402,12 @@ def _um(x) -> str:
 def build_procedure(params: Mapping) -> Procedure:
     d = drift_params(params)
     V = n_visits(d)
-    steps = [
-        Step("check programs", step_check_all, every_session=True),
-        Step("mount reflector", prompt_step("Mount the tracker reflector on the tool flange (SMR in its nest)")),
-        Step("clear the cell", prompt_step("Clear the robot cell and close the safety fence")),
-        Step("connect devices", step_connect, every_session=True),
-        Step("home", step_home, every_session=True),
-        Step("register base frame", step_register),
+    # the pose test's own steps up to its registration (prompts, connect, home, register), its check widened
+    iso = build_iso_procedure(IsoPlan.from_params(params)).steps
+    upto = [s.name for s in iso].index("register base frame")
+    steps = [Step("check programs", step_check_all, every_session=True)] + [s for s in iso[: upto + 1]
+                                                                          if s.name != "check programs"]
+    steps += [
         Step("cold start", prompt_step("The arm starts cold (switched off or at rest until at room temperature): "
                                        "the drift programme's time counts from its first visit")),
     ]
