@@ -81,6 +81,7 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
             rec = store.run("d1")
             outputs = {s.name: s.output for s in store.done_steps("d1").values()}
             rows = store.characteristics("d1")
+            history = store.history(rec_serial(store), "dAP_mm")
         plan = IsoPlan.from_params(rec.params)
         reg = registration_of(outputs)
         visits = res["visits"]
@@ -128,9 +129,17 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
             assert got[(pose, c.key)]["unit"] == c.unit
         assert got[(pose, "dAP_mm")]["limit"] == 1.0
         assert got[(pose, "dAP_mm")]["passed"] is (got[(pose, "dAP_mm")]["value"] <= 1.0)
+    # the robot's history (its page, `station store fleet`) follows dAP across its runs
+    assert "dAP_mm" in table.history_names() and "dRP_mm" in table.history_names()
+    assert sorted(h["pose"] for h in history) == sorted(names)
+    assert {h["pose"]: h["value"] for h in history} == {p: got[(p, "dAP_mm")]["value"] for p in names}
     html = open(store_result_report(tmp_path)).read()
     assert "AP against the time since the cold start" in html and "RP against the time" in html and "<svg" in html
     assert any("dAP mm" in line for line in out.summary)
+
+
+def rec_serial(store) -> str:
+    return store.run("d1").serial
 
 
 def store_result_report(tmp_path) -> str:
