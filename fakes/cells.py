@@ -40,8 +40,10 @@ class FakeCell:
 
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
 #: more (``stop_sigma_mm``, mm per coordinate at home), a tracker whose beam is broken (``beam_breaks``, pairs of
-#: simulated s) or an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`)
-WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect", "tracker_mpe_a_um", "tracker_mpe_b_um_per_m")
+#: simulated s), an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`) or an arm that
+#: warms from its cold start so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth)
+WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect", "tracker_mpe_a_um", "tracker_mpe_b_um_per_m",
+                 "warmup")
 
 
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:

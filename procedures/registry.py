@@ -26,6 +26,7 @@ REGISTRY: dict[str, str] = {
     "trailer": "procedures.trailer",
     "arm-calibration": "procedures.arm_calibration",
     "compliance": "procedures.compliance",
+    "iso9283-drift": "procedures.iso9283_drift",
 }
 
 

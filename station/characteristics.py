@@ -30,7 +30,9 @@ pose test (``station run iso9283``, ``station analyze iso9283``; it also
 states AT/RT of straight moves in its stream), ``path`` the path test's
 analysis (``station analyze path``, clauses 8.2-8.5 and 11), ``compliance``
 the static compliance test (clause 10), ``fleet`` the figures over several
-robots' stored runs (exchangeability, 7.8). The functions below answer for
+robots' stored runs (exchangeability, 7.8), ``drift`` the drift programme
+(``station run iso9283-drift``: the pose test repeated over hours from a cold
+start, :mod:`station.analysis.iso9283.drift_programme`). The functions below answer for
 the pose test unless a programme is named.
 """
 
@@ -46,7 +48,7 @@ from typing import Any
 LEVELS = ("pose", "pair", "move", "path", "direction", "run")
 
 #: the tests that state characteristics (see the module's docstring)
-PROGRAMMES = ("pose", "path", "compliance", "fleet")
+PROGRAMMES = ("pose", "path", "compliance", "fleet", "drift")
 
 
 @dataclass(frozen=True)
@@ -204,6 +206,14 @@ _ROWS: tuple[Characteristic, ...] = (
                    lambda e: getattr(e, "exchangeability_mm", None), "fewer than 2 robots",
                    source="ISO 9283 7.8: largest distance between the barycentres of the robots at a pose",
                    programme="fleet"),
+    # the drift programme (station.analysis.iso9283.drift_programme): one value per pose, first visit against
+    # last; the same config limits as the pose test's drift over blocks of cycles
+    Characteristic("dAP_mm", "mm", "pose", "dap_limit_mm", "Drift of position accuracy dAP over the programme",
+                   lambda d: getattr(d, "dAP_mm", None), "attained at fewer than two visits", stated=True,
+                   source="ISO 9283 drift: |AP(t_1) - AP(t_n)|, AP by eq. (1)", programme="drift"),
+    Characteristic("dRP_mm", "mm", "pose", "drp_limit_mm", "Drift of position repeatability dRP over the programme",
+                   lambda d: getattr(d, "dRP_mm", None), "fewer than two stops at the first or last visit",
+                   stated=True, source="ISO 9283 drift: |RP(t_1) - RP(t_n)|, RP by eq. (2)", programme="drift"),
 )
 
 
@@ -257,9 +267,10 @@ def unit_of(key: str) -> str:
 
 
 def history_names() -> tuple[str, ...]:
-    """The figures every run states, to follow across a robot's runs (counts left out): the pose test's and
-    the compliance test's."""
-    return tuple(c.key for c in _ROWS if c.stated and c.unit != "1" and c.programme in ("pose", "compliance"))
+    """The figures every run states, to follow across a robot's runs (counts left out): the pose test's, the
+    compliance test's and the drift programme's (each key once)."""
+    keys = [c.key for c in _ROWS if c.stated and c.unit != "1" and c.programme in ("pose", "compliance", "drift")]
+    return tuple(dict.fromkeys(keys))
 
 
 def has_orientation(result) -> bool:

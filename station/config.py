@@ -225,6 +225,18 @@ class ISOProcedureConfig(_Strict):
         return v
 
 
+class DriftProgrammeConfig(_Strict):
+    """The ISO 9283 drift programme (``station run iso9283-drift``): a visit of ``cycles_per_visit`` pose cycles
+    every ``interval_s`` over ``span_s`` from a cold start, at ``poses`` (default every pose of the cube); its
+    limits are the robot's ``dap_limit_mm`` and ``drp_limit_mm``. Without this section the programme is not
+    offered."""
+
+    span_s: float = Field(8 * 3600.0, gt=0, le=7 * 86400.0)
+    interval_s: float = Field(600.0, ge=60.0, le=86400.0)
+    cycles_per_visit: int = Field(10, ge=2, le=100)
+    poses: list[str] | None = None
+
+
 class ArmCalibrationConfig(_Strict):
     """The arm calibration of seed 002 (poses chosen for observability), with a tracker or a 3D scanner.
 
@@ -398,6 +410,7 @@ class StationConfig(_Strict):
     robots: dict[str, RobotConfig] = Field(default_factory=dict)
     iso9283: ISOProcedureConfig = ISOProcedureConfig()
     arm_calibration: ArmCalibrationConfig = ArmCalibrationConfig()
+    iso9283_drift: DriftProgrammeConfig | None = None
     trailer: TrailerConfig | None = None
     #: the plant's measurements per procedure (every robot)
     measurements: Measurements = Field(default_factory=dict)

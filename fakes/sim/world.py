@@ -233,6 +233,7 @@ def make_world(
     base_T_scanner=None,
     start_s: float = 0.0,
     joint_defect=None,
+    warmup=None,
 ) -> World:
     """Build a simulated cell.
 
@@ -291,6 +292,10 @@ def make_world(
         A localised flaw of one joint (``{"joint", "centre_deg", "width_deg",
         "amplitude_deg"}``, :mod:`fakes.sim.joint_defect`): the "one pose out"
         robot of the acceptance fixtures.
+    warmup : (float, float), optional
+        The arm's warm-up from its cold start, ``(dT_max_K, tau_s)``: the first-order temperature rise
+        ``dT_max (1 - exp(-t / tau))`` of its links (:class:`station.models.effects.ThermalDrift`, steel) from
+        the clock's 0, in place of the one drawn with the effects (a drift test's known truth); needs effects.
 
     Returns
     -------
@@ -346,6 +351,16 @@ def make_world(
         breaks = [(float(a), float(b)) for a, b in beam_breaks]
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"`beam_breaks` must be (t_start, t_end) pairs: {exc}") from exc
+    if warmup is not None:
+        try:
+            dT_max, tau = (float(v) for v in warmup)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"`warmup` must be (dT_max_K, tau_s), got {warmup!r}") from exc
+        finite_number(dT_max, "warmup dT_max_K", nonneg=True)
+        finite_number(tau, "warmup tau_s", positive=True)
+        if effects is None:
+            raise ConfigError("`warmup` needs the arm's effects (effects=None is the nominal arm)")
+        warmup = (dT_max, tau)
     if jig is not None and not isinstance(jig, CornerJig):
         raise ConfigError(f"`jig` must be a CornerJig, got {type(jig).__name__}")
 
@@ -357,6 +372,8 @@ def make_world(
         effect_set = realistic_effects(spec, np.random.default_rng(s_eff))
     else:
         effect_set = effects
+    if warmup is not None:
+        effect_set = effect_set.with_params("thermal_drift", warmup).switched("thermal_drift", True)
     servo_params = realistic_servo(np.random.default_rng(s_servo)) if servo == "realistic" else servo
     rng_stop = np.random.default_rng(s_stop)
     if stop_sigma_mm == "auto":
