@@ -62,13 +62,13 @@ from procedures.iso9283 import (STREAM, IsoPlan, IsoSession, _plan, _run_program
 from procedures.iso9283 import build_procedure as build_iso_procedure
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import analyze_iso9283
 from station.analysis.iso9283.drift_programme import drift_figures
 from station.analysis.uncertainty import Budget
 from station.errors import ConfigError, DataError, StationError
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2
-from station.programs.model import CartesianTarget, Dwell, Move, Program, quat_from_matrix
+from station.programs.program import CartesianTarget, Dwell, Move, Program, quat_from_matrix
 from station.programs.rapid import render_rapid
 from station.runner import Procedure, Step, StepContext
 

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.analysis.iso9283.characteristics import position_accuracy, position_repeatability
 from station.analysis.iso9283.lab_files import stop_scatter_mm
 from station.analysis.iso9283.stop_list import _pose_statistics

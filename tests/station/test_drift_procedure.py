@@ -14,13 +14,13 @@ import math
 import numpy as np
 import pytest
 
-from app.assemble import run_procedure
+from app.assemble import RunRequest, run_procedure
 from fakes.station import FakeStation
 from procedures.devices import DeviceSet
 from procedures.iso9283 import IsoPlan, registration_of
 from procedures.iso9283_drift import RESULT
 from procedures.iso9283_truth import RunGeometry, _true_positions
-from station.analysis.iso9283 import table
+from station import characteristics as table
 from station.config import config_from_dict
 from station.errors import ConfigError
 from station.models.arm_extended import STEEL_ALPHA_PER_K
@@ -73,8 +73,8 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
                    drift={"span_s": span, "interval_s": interval, "cycles_per_visit": CYCLES})
         devices = DeviceSet(urls={"tracker": cell.tracker_url, "controller": cell.controller_url},
                             time_scale=LOCKSTEP)
-        out = run_procedure(cfg, "iso9283-drift", devices=devices, quiet=True, run_id="d1", config_dir=tmp_path,
-                            yes=True)
+        out = run_procedure(RunRequest(cfg, "iso9283-drift", devices=devices, quiet=True, run_id="d1", config_dir=tmp_path,
+                            yes=True))
         with RunStore(tmp_path / "s.sqlite") as store:
             assert out.status == "done", out.error
             res = store.result("d1", RESULT)
@@ -159,15 +159,15 @@ def test_a_drift_run_killed_mid_span_resumes_to_the_same_visits_and_figures(tmp_
         d.mkdir()
         cfg = _cfg(None, d, drift={})
         control = RunControl()
-        out = run_procedure(cfg, "iso9283-drift", run_id="r", yes=True, quiet=True, time_scale=LOCKSTEP,
+        out = run_procedure(RunRequest(cfg, "iso9283-drift", run_id="r", yes=True, quiet=True, time_scale=LOCKSTEP,
                             seed=test_seed, config_dir=d, plan_overrides=plan, fake_options=fake, control=control,
-                            progress=AbortAtStep(control, kill) if kill else None)
+                            progress=AbortAtStep(control, kill) if kill else None))
         db = cfg.station.store_file(d)
         if kill:
             assert out.status == "aborted", out.error
             with RunStore(db) as store:
                 before = store.samples("r", "tracker", finished_only=False)
-            out = run_procedure(cfg, None, resume="r", yes=True, quiet=True, time_scale=LOCKSTEP, config_dir=d)
+            out = run_procedure(RunRequest(cfg, None, resume="r", yes=True, quiet=True, time_scale=LOCKSTEP, config_dir=d))
         assert out.status == "done", out.error
         with RunStore(db) as store:
             results[name] = store.result("r", RESULT)
@@ -218,8 +218,8 @@ def test_a_drift_run_killed_mid_span_resumes_to_the_same_visits_and_figures(tmp_
 def test_bad_drift_plan_refused_naming_the_key_and_nothing_recorded(tmp_path, override, key):
     cfg = _cfg(None, tmp_path, drift={})
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        run_procedure(cfg, "iso9283-drift", run_id="bad", yes=True, quiet=True, time_scale=LOCKSTEP,
-                      config_dir=tmp_path, plan_overrides=override)
+        run_procedure(RunRequest(cfg, "iso9283-drift", run_id="bad", yes=True, quiet=True, time_scale=LOCKSTEP,
+                      config_dir=tmp_path, plan_overrides=override))
     with RunStore(cfg.station.store_file(tmp_path)) as store:
         assert "bad" not in [r.run_id for r in store.runs()]
 
@@ -230,6 +230,6 @@ def test_the_config_section_offers_the_programme_and_its_bad_values_are_refused_
     assert "iso9283-drift" not in runnable_procedures(_cfg(None, tmp_path))
     assert "iso9283-drift" in runnable_procedures(_cfg(None, tmp_path, drift={"interval_s": 900.0}))
     with pytest.raises(ConfigError, match="no drift programme section"):
-        run_procedure(_cfg(None, tmp_path), "iso9283-drift", run_id="x", yes=True, quiet=True, config_dir=tmp_path)
+        run_procedure(RunRequest(_cfg(None, tmp_path), "iso9283-drift", run_id="x", yes=True, quiet=True, config_dir=tmp_path))
     with pytest.raises(Exception, match="interval_s"):
         _cfg(None, tmp_path, drift={"interval_s": 5.0})
