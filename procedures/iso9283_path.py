@@ -66,8 +66,17 @@ class PathPlan(iso.IsoPlan):
 
 
 def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> PathPlan:
-    """The pose test's plan of the config with the path parameters of ``overrides``."""
-    path_kw = {k: overrides.pop(k) for k in PATH_KEYS if k in overrides}
+    """The pose test's plan of the config with the path parameters of its ``[iso9283_path]`` section, those of
+    ``overrides`` on top."""
+    section = cfg.iso9283_path.model_dump(exclude_none=True) if cfg.iso9283_path is not None else {}
+    path_kw = {k: section[k] for k in PATH_KEYS if k in section}
+    path_kw |= {k: overrides.pop(k) for k in PATH_KEYS if k in overrides}
+    for k in ("path_speed_fracs", "path_kinds"):
+        if k in path_kw:
+            path_kw[k] = tuple(path_kw[k])
+    unknown = [k for k in path_kw.get("path_kinds", ()) if k not in PATH_KINDS]
+    if unknown:
+        raise ConfigError(f"iso9283_path.path_kinds: unknown path {unknown[0]!r} (known: {', '.join(PATH_KINDS)})")
     base = iso.plan_from_config(cfg, robot_name, **overrides)
     plan = PathPlan(**{f.name: getattr(base, f.name) for f in dataclasses.fields(iso.IsoPlan)}, **path_kw)
     if plan.path_cycles < 2:
@@ -242,12 +251,20 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     return problems
 
 
+def subject(cfg, robot: str):
+    """The configured robot; the path test is offered where the config has its ``[iso9283_path]`` section."""
+    if cfg.iso9283_path is None:
+        raise ConfigError("iso9283_path: the config has no path test section ([iso9283_path] with path_cycles, "
+                          "path_speed_fracs, path_kinds, blend_mm, path_side_mm, path_limits)")
+    return iso.subject(cfg, robot)
+
+
 SPEC = ProcedureSpec(
     name=RESULT,
     new_params=new_params,
     build=lambda params: build_procedure(PathPlan.from_params(params)),
     new_session=lambda devices: iso.IsoSession(devices),
-    subject=iso.subject,
+    subject=subject,
     device_roles=iso.device_roles,
     fake_cell="fakes.cells:iso9283_cell",
     result_key=RESULT,

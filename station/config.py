@@ -237,6 +237,22 @@ class DriftProgrammeConfig(_Strict):
     poses: list[str] | None = None
 
 
+class PathProgrammeConfig(_Strict):
+    """The ISO 9283 path test (``station run iso9283-path``, clauses 8.2-8.6): each of ``path_kinds`` at each of
+    ``path_speed_fracs`` of the rated speed, ``path_cycles`` times, in the pose test's cube (edge
+    ``path_side_mm``, default the pose cube's), the blended rectangle's corner zone ``blend_mm``; limits of path
+    figures in ``path_limits`` (``{"CR_mm" = 2.0, "rectangle_blend_100.CO_mm" = 1.0}``) beside the robot's AT/RT.
+    Without this section the path test is not offered (its default plan runs for an hour)."""
+
+    path_cycles: int = Field(10, ge=2, le=100)
+    path_speed_fracs: list[Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]] = Field(
+        default_factory=lambda: [1.0, 0.5, 0.1], min_length=1, max_length=10)
+    path_kinds: list[str] | None = Field(None, min_length=1, max_length=20)
+    blend_mm: float = Field(20.0, ge=0, le=500, allow_inf_nan=False)
+    path_side_mm: float | None = Field(None, gt=0, le=3000, allow_inf_nan=False)
+    path_limits: dict[str, Annotated[float, Field(ge=0, allow_inf_nan=False)]] = Field(default_factory=dict)
+
+
 class ArmCalibrationConfig(_Strict):
     """The arm calibration of seed 002 (poses chosen for observability), with a tracker or a 3D scanner.
 
@@ -411,6 +427,7 @@ class StationConfig(_Strict):
     iso9283: ISOProcedureConfig = ISOProcedureConfig()
     arm_calibration: ArmCalibrationConfig = ArmCalibrationConfig()
     iso9283_drift: DriftProgrammeConfig | None = None
+    iso9283_path: PathProgrammeConfig | None = None
     trailer: TrailerConfig | None = None
     #: the plant's measurements per procedure (every robot)
     measurements: Measurements = Field(default_factory=dict)

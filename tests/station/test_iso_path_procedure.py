@@ -42,10 +42,12 @@ def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
     if robot == "ur5e":  # a cobot's joint-2 circle stays inside its smaller box over +/- 20 deg (as the demo's)
         iso["axis_sweep_deg"] = [25.0, 20.0]
     with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, robot=robot) as station:
-        cfg = config_from_dict(station.config_dict(store_path=str(tmp_path / "s.sqlite"),
-                                                   report_dir=str(tmp_path / "reports"), iso9283=iso))
+        d = station.config_dict(store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
+                                iso9283=iso)
+        d["iso9283_path"] = {k: list(v) if isinstance(v, tuple) else v for k, v in OVERRIDES.items()}
+        cfg = config_from_dict(d)  # the plan from the config's section, no override
         code = run_procedure(RunRequest(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True,
-                                        run_id="p1", config_dir=tmp_path, plan_overrides=dict(OVERRIDES)))
+                                        run_id="p1", config_dir=tmp_path))
         store = RunStore(tmp_path / "s.sqlite")
         assert code.status == "done", (code.error, store.steps("p1")[-1].message)
         world = station.world
@@ -86,7 +88,7 @@ def _run(cfg, base, run_id, seed, *, cut_at=None, resume=False):
 
 
 def test_a_path_run_cut_in_a_cycle_resumes_to_the_same_characteristics(test_seed, tmp_path, rng):
-    cfg = config_from_dict(demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=500.0))
+    cfg = config_from_dict(demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=500.0) | {"iso9283_path": {}})
     code, reports = _run(cfg, tmp_path, "ref", test_seed)
     assert code.status == "done", code.error
     store = RunStore(tmp_path / "station.sqlite")
@@ -100,3 +102,25 @@ def test_a_path_run_cut_in_a_cycle_resumes_to_the_same_characteristics(test_seed
     assert keys("cut") == keys("ref") and len(keys("ref")) == (5 + 1) + (2 + 1)  # line: 5 and n, rectangle: 2 and n
     values = {(r["pose"], r["name"]): r["value"] for r in store.characteristics("cut")}
     assert all(v is not None for v in values.values()), values
+
+
+def test_the_path_test_is_offered_with_its_section_and_its_bad_values_are_refused_naming_them(tmp_path):
+    from pydantic import ValidationError  # noqa: F401  (config_from_dict turns it into a ConfigError)
+
+    from procedures.iso9283_path import plan_from_config
+    from procedures.registry import runnable_procedures
+    from station.errors import ConfigError
+
+    base = demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=500.0)
+    assert "iso9283-path" not in runnable_procedures(config_from_dict(base))
+    assert "iso9283-path" in runnable_procedures(config_from_dict(base | {"iso9283_path": {"path_cycles": 3}}))
+    for bad, key in (({"path_cycles": 1}, "path_cycles"), ({"path_speed_fracs": [1.5]}, "path_speed_fracs"),
+                     ({"blend_mm": -1}, "blend_mm"), ({"pathcycles": 3}, "pathcycles")):
+        with pytest.raises(ConfigError, match=key):
+            config_from_dict(base | {"iso9283_path": bad})
+    cfg = config_from_dict(base | {"iso9283_path": {"path_kinds": ["line", "spiral"]}})
+    with pytest.raises(ConfigError, match="iso9283_path.path_kinds: unknown path 'spiral'"):
+        plan_from_config(cfg, "r1")
+    plan = plan_from_config(config_from_dict(base | {"iso9283_path": {"path_cycles": 4, "path_kinds": ["line"]}}),
+                            "r1", path_cycles=3)
+    assert plan.path_cycles == 3 and plan.path_kinds == ("line",)  # the override over the section
