@@ -40,10 +40,21 @@ class FakeCell:
 
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
 #: more (``stop_sigma_mm``, mm per coordinate at home), a tracker whose beam is broken (``beam_breaks``, pairs of
-#: simulated s), an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`) or an arm that
-#: warms from its cold start so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth)
+#: simulated s), an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`), an arm that
+#: warms from its cold start so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth) or one that moves as a
+#: diagnosed motion model says (``motion_model``: its file, as the config's ``robots.X.motion_model`` resolved it)
 WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect", "tracker_mpe_a_um", "tracker_mpe_b_um_per_m",
-                 "warmup")
+                 "warmup", "motion_model")
+
+
+def _world_options(fake: Mapping) -> dict:
+    """The ``make_world`` keywords of a fake's parameters (a motion model's file read and checked)."""
+    world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
+    if world.get("motion_model") is not None:
+        from station.models.motion_model_file import read_motion_model
+
+        world["motion_model"] = read_motion_model(world["motion_model"])
+    return world
 
 
 def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
@@ -52,7 +63,7 @@ def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
     asks for, ``rtde_hz``)."""
     from fakes.station import FakeStation
 
-    world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
+    world = _world_options(fake)
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
                                 robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
                                 start_s=float(fake.get("start_s", 0.0)), rtde_hz=fake.get("rtde_hz"), **world)
@@ -67,7 +78,7 @@ def compliance_cell(params: Mapping, fake: Mapping) -> FakeCell:
     from fakes.sim.hand import SimulatedHand
     from fakes.station import FakeStation
 
-    world = {k: fake[k] for k in WORLD_OPTIONS if k in fake}
+    world = _world_options(fake)
     station = FakeStation.start(seed=int(fake["seed"]), time_scale=float(fake["time_scale"]),
                                 robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
                                 start_s=float(fake.get("start_s", 0.0)), **world)

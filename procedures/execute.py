@@ -82,6 +82,9 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
         scatter = getattr(rc, "stop_scatter_mm", None)
         if scatter is not None:  # the configured robot's simulated arm scatters so (unless the fake says)
             params["fake"].setdefault("stop_sigma_mm", float(scatter))
+        model = getattr(rc, "motion_model", None)
+        if model is not None:  # ... and moves with its diagnosed motion model (the file, read by the cell)
+            params["fake"].setdefault("motion_model", str(model))
     if acceptance:  # what the run's verdict asks beyond the procedure (procedures.decision)
         params["acceptance"] = dict(acceptance)
     run_id = run_id or f"{subject.serial}-{time.strftime('%Y%m%d-%H%M%S')}"

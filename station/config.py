@@ -174,11 +174,30 @@ class RobotConfig(_Strict):
     #: the stop scatter of this robot's simulated arm (a fake cell), mm, 1 sigma per coordinate of the tool at
     #: home (None: drawn from the model's range, station.models.robots.RobotSpec.stop_scatter_mm)
     stop_scatter_mm: float | None = Field(None, ge=0, le=1, allow_inf_nan=False)
+    #: a diagnosed motion model of this robot (``station diagnose motion --model-out``) its simulated arm (a fake
+    #: cell) runs with: its loop, creep, structural mode and the tracker's drift. A path relative to the config
+    #: file's folder; checked when the config is read, and kept here as the absolute path it resolved to
+    motion_model: str | None = Field(None, min_length=1, max_length=4096)
     controller: str
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()
     #: this robot's own measurements per procedure, added to the station's
     measurements: Measurements = Field(default_factory=dict)
+
+    @field_validator("motion_model")
+    @classmethod
+    def _readable_motion_model(cls, v: str | None, info) -> str | None:
+        if v is None:
+            return v
+        from station.models.motion_model_file import read_motion_model
+
+        base = (info.context or {}).get("base_dir")
+        path = _under(Path(base) if base is not None else Path.cwd(), v)
+        try:
+            read_motion_model(path)
+        except (ConfigError, DataError) as exc:
+            raise ValueError(f"file {path}: {exc}") from None
+        return str(path.resolve())
 
     @field_validator("model")
     @classmethod
@@ -474,10 +493,11 @@ def _format_validation_error(exc: ValidationError, source: str) -> str:
     return f"{source}: invalid station config:\n  " + "\n  ".join(lines)
 
 
-def config_from_dict(data: dict, source: str = "config") -> StationConfig:
-    """Validate a dict into a StationConfig or raise ConfigError naming every bad field."""
+def config_from_dict(data: dict, source: str = "config", base_dir: str | Path | None = None) -> StationConfig:
+    """Validate a dict into a StationConfig or raise ConfigError naming every bad field; relative file paths
+    (``robots.X.motion_model``) are read from ``base_dir`` (default the working folder)."""
     try:
-        return StationConfig.model_validate(data)
+        return StationConfig.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as exc:
         raise ConfigError(_format_validation_error(exc, source)) from None
 
@@ -507,7 +527,7 @@ def load_config(path: str | Path) -> StationConfig:
     depth = _depth(data)
     if depth > MAX_CONFIG_DEPTH:
         raise ConfigError(f"{path}: nested {depth} levels deep; a station config has at most {MAX_CONFIG_DEPTH}")
-    return config_from_dict(data, str(path))
+    return config_from_dict(data, str(path), base_dir=path.parent)
 
 
 #: bounds on what a config file can be (a real one is a few KiB and 4-5 levels deep)

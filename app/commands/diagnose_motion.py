@@ -17,8 +17,12 @@
     give the rate); a clock that fails states no time figure and writes no
     model. ``--model-out`` writes the extended motion model for
     ``station simulate iso9283 --motion-model``. ``--hold`` takes a held-pose
-    record of the same tracker: its noise and wander are stated beside the
-    diagnosis.
+    record of the same tracker: its noise is fitted (white, wander and its
+    time constant, as ``station analyze hold --noise-out``) and the wander
+    sets the drift the tracker can put into an approach window (JSON
+    ``hold_drift``); where that is below what the held-out test can see, the
+    ``tracker_drift`` candidate is not tested (``not_testable`` says why: a
+    drift in the stream is then not the tracker's).
 """
 
 from __future__ import annotations
@@ -38,7 +42,9 @@ def register_motion(dsub: argparse._SubParsersAction) -> None:
     m.add_argument("--program", metavar="FILE", help="the lab's program, as simulate iso9283 --program reads it (its "
                                                      "dwell_s, and rate_hz when stated, check the clock)")
     m.add_argument("--rate-hz", type=float, metavar="R", help="the tracker's sampling rate (overrides the stamps)")
-    m.add_argument("--hold", metavar="H", help="a held-pose stream of the same tracker (noise and wander)")
+    m.add_argument("--hold", metavar="H", help="a held-pose stream of the same tracker: its fitted wander sets the "
+                                              "drift the tracker can show over an approach window; tracker_drift "
+                                              "is tested only when that is visible")
     m.add_argument("--alpha", type=float, default=0.01, help="false-discovery rate of each test (default 0.01)")
     m.add_argument("--json", metavar="D", help="write the result as JSON")
     m.add_argument("--report", metavar="R.html", help="write the HTML report (approach curves of held-out moves)")
@@ -47,25 +53,19 @@ def register_motion(dsub: argparse._SubParsersAction) -> None:
 
 
 def _hold_figures(path, rate_hz) -> dict:
-    """Noise (sample to sample) and wander (of 1 s means) of a held pose, per axis, mm."""
-    import numpy as np
-
+    """The tracker's noise fitted from a held pose (eq. (N2): white, wander sd and time constant), mm and s."""
     from app.commands.analyze_inputs import load_stream
-    from station.analysis.iso9283.motion_clock import noise_3d_mm
+    from station.analysis.iso9283.tracker_noise_fit import fit_tracker_noise
+    from station.errors import DataError
 
     si = load_stream(path, rate_hz=rate_hz, command="diagnose motion --hold")
-    xyz = si.points.xyz_mm[si.points.valid] if si.points.valid is not None else si.points.xyz_mm
-    t = si.t_s[si.points.valid] if si.points.valid is not None else si.t_s
-    out = {"hold": str(path), "noise_mm_per_axis": noise_3d_mm(xyz) / np.sqrt(3.0)}
-    if not si.refused and t.size > 10:
-        b = np.floor((t - t[0]) / 1.0).astype(int)
-        n = np.bincount(b)
-        ok = n > 0
-        means = np.stack([np.bincount(b, xyz[:, j])[ok] / n[ok] for j in range(3)], axis=1)
-        out["wander_1s_mm_per_axis"] = float(np.sqrt(np.mean(np.var(means, axis=0, ddof=1)))) if ok.sum() > 2 else None
-    else:
-        out["wander_1s_mm_per_axis"] = None
-    return out
+    if si.refused:
+        raise DataError(f"--hold {path}: the wander's time constant would rest on a clock that failed its check "
+                        f"({si.refused}); give --rate-hz")
+    ok = si.points.valid if si.points.valid is not None else slice(None)
+    fit = fit_tracker_noise(si.t_s[ok], si.points.xyz_mm[ok])
+    return {"source": str(path), "white_mm": fit.white_um / 1000.0, "wander_mm": fit.wander_um / 1000.0,
+            "wander_tau_s": fit.wander_tau_s}
 
 
 def _motion(args: argparse.Namespace) -> int:
@@ -87,7 +87,7 @@ def _motion(args: argparse.Namespace) -> int:
     hold = _hold_figures(args.hold, rate) if args.hold else None
     ps = si.points
     res = diagnose_motion(si.t_s, ps.xyz_mm, poses, names, valid=ps.valid, alpha=args.alpha,
-                          time_refused=si.refused)
+                          time_refused=si.refused, hold=hold)
     doc = res.to_json()
     doc.update({"stream": str(args.stream), "poses_file": str(args.poses),
                 "program": None if program is None else str(args.program),
@@ -140,7 +140,8 @@ def _print(doc: dict) -> None:
         print(f"{p['pose']} ({p['n_moves']} held-out): " + "; ".join(cells))
     for key, why in doc["not_testable"].items():
         print(f"not testable: {key}: {why}")
-    if doc.get("hold"):
-        h = doc["hold"]
-        print(f"held pose: noise {_fmt(h['noise_mm_per_axis'], 'um', 1000, 2)} per axis, wander of 1 s means "
-              f"{_fmt(h['wander_1s_mm_per_axis'], 'um', 1000, 2)}")
+    if doc.get("hold_drift"):
+        h = doc["hold_drift"]
+        print(f"held pose: white {_fmt(h['white_mm'], 'um', 1000, 2)}, wander {_fmt(h['wander_mm'], 'um', 1000, 2)} "
+              f"per axis; over a {h['window_s']:.2g} s window the reading drifts {_fmt(h['expected_drift_mm'], 'um', 1000, 2)} "
+              f"(the held-out test sees {_fmt(h['visible_mm'], 'um', 1000, 2)})")

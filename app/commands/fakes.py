@@ -50,6 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="robot model of the simulated arm (default: the fake's own, ur5e for ur, else industrial-3100)")
     s.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                    help="fault injection, repeatable (see the fake's docs)")
+    s.add_argument("--motion-model", metavar="M.json", default=None,
+                   help="a diagnosed motion model (station diagnose motion --model-out): the simulated arm moves "
+                        "with its loop, and its creep, structural mode and the tracker's drift show in the readings")
     s.set_defaults(func=_serve)
 
 
@@ -60,6 +63,10 @@ def _serve(args: argparse.Namespace) -> int:
     faults = parse_faults(args.fault)
     module = fake_module(args.name)
     world_kwargs = {"seed": args.seed, "time_scale": args.time_scale}
+    if args.motion_model:
+        from station.models.motion_model_file import read_motion_model
+
+        world_kwargs["motion_model"] = read_motion_model(args.motion_model)
     # a fake simulates the robot its protocol belongs to unless told otherwise (a UR fake is a UR)
     robot = args.robot or getattr(module, "DEFAULT_ROBOT", None)
     if robot:

@@ -249,10 +249,13 @@ def _run_program(args: argparse.Namespace, breaks, options: dict) -> int:
     if given:
         raise ConfigError(f"{given[0]} and --program: the program sets the cycles, dwell, rate, wait and moves "
                           f"(edit the program, or leave --program out)")
+    from station.models.motion_model_file import read_motion_model
+
     program = read_motion_program(args.program)
+    motion = read_motion_model(args.motion_model) if args.motion_model else None
     _out_dir(args.out, create=False)
     summary = simulate_program(args.out, program, seed=args.seed, robot=args.robot, effects=args.effects,
-                               beam_breaks=breaks, world_options=options)
+                               beam_breaks=breaks, world_options=options, motion_model=motion)
     n_poses = len(program.poses)
     print(
         f"wrote {summary['stream_csv']} ({summary['n_samples']} samples, {summary['n_invalid']} invalid, "

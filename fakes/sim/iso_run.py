@@ -107,19 +107,6 @@ def true_figures(names, commanded_tracker_mm, stops) -> dict:
     return out
 
 
-def _motion_offsets(t, stops, names, cmd_trk, model, seed, start: str = "P1"):
-    """The motion model's effects (tracker frame) at world times ``t`` for the moves made so far (the first
-    from pose ``start``)."""
-    from station.models.motion_effects import approach_offsets_mm
-
-    moves, prev = [], start
-    for s in stops:
-        moves.append({"t_start_s": s["t_start_s"], "t_end_s": s["t_end_s"], "from_mm": cmd_trk[names.index(prev)],
-                      "to_mm": cmd_trk[names.index(s["pose"])]})
-        prev = s["pose"]
-    return approach_offsets_mm(t, moves, model, seed)
-
-
 def simulate_iso9283(
     out_dir,
     *,
@@ -187,16 +174,9 @@ def simulate_iso9283(
     tp = cube_test_poses(cube.corners_mm, inset_mm=cube.inset_mm)
     names = list(tp.names)
     positions = np.array(tp.positions_mm, dtype=float)
-    motion_kw = {}
-    if motion_model is not None:
-        from station.models.motion import ServoParams
-        from station.models.motion_effects import servo_of
-
-        motion_kw = {"servo": ServoParams.uniform(*servo_of(motion_model)),
-                     "profile": "trapezoid" if motion_model.jerk_time_s < 0.01 else "scurve"}
     world = make_world(robot=robot, seed=seed, clock=ManualClock(),
                        effects="realistic" if effects == "realistic" else None, tracker_rate_hz=rate_hz,
-                       **{**(world_options or {}), **motion_kw})
+                       **{**(world_options or {}), "motion_model": motion_model})
     try:
         targets, q_cmd = commanded_joints(world.robot, positions)
         arm = world.arm
@@ -210,7 +190,7 @@ def simulate_iso9283(
         sequence = [(names.index(n), go, {}) for n in CYCLE_ORDER]
         return record_run(out_dir, world, names=names, positions_base_mm=positions, q_cmd_rad=q_cmd,
                           start=names.index("P1"), sequence=sequence, cycles=cycles, dwell_s=dwell_s, wait_s=wait_s,
-                          rate_hz=rate_hz, beam_breaks=beam_breaks, chunk_s=chunk_s, motion_model=motion_model,
+                          rate_hz=rate_hz, beam_breaks=beam_breaks, chunk_s=chunk_s,
                           truth_head={"description": "truth of a simulated ISO 9283 run (seed 000 sec. 3.1.3); "
                                                      "mm, s, deg", "move": move})
     finally:
@@ -219,7 +199,7 @@ def simulate_iso9283(
 
 def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: int, sequence, cycles: int,
                dwell_s: float, wait_s: float, rate_hz: float, beam_breaks=(), chunk_s: float = 60.0,
-               truth_head: dict | None = None, motion_model=None) -> dict:
+               truth_head: dict | None = None) -> dict:
     """Drive the world's arm through ``cycles`` of ``sequence`` and write ``stream.csv``, ``poses.csv`` and
     ``truth.json`` to ``out_dir`` (the files of the module docstring).
 
@@ -227,8 +207,8 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
     starts: ``wait_s`` at ``start``, then every cycle runs ``sequence``, a list
     of ``(pose index, go(pose index, cycle) -> Move, info)``, each move
     followed by a dwell of ``dwell_s``; ``info`` (JSON-able) is put on the
-    stop's truth entry. ``motion_model`` (a diagnosed arm's motion) adds its creep, mode and drift to
-    the readings along each move.
+    stop's truth entry. A world built with a motion model (a diagnosed arm's) shows its creep, mode and
+    drift in the readings (:mod:`fakes.sim.motion_offsets`).
     """
     from station.readers.out_files import output_dir, output_file, write_output
 
@@ -266,8 +246,6 @@ def record_run(out_dir, world, *, names, positions_base_mm, q_cmd_rad, start: in
                 check_samples(n_samples + t.size, f"the run of {cycles} --cycles at --rate {float(rate_hz):g} Hz "
                               f"(the moves included)")
                 xyz, valid = source.measure(t)
-                if motion_model is not None:
-                    xyz = xyz + _motion_offsets(t, stops, names, cmd_trk, motion_model, world.seed, names[start])
                 status = np.where(valid, STATUS_VALID, STATUS_BEAM_BROKEN)
                 rows = np.column_stack([source.device_time(t), xyz, status])
                 np.savetxt(fh, rows, fmt=["%.6f", "%.4f", "%.4f", "%.4f", "%d"], delimiter=",")

@@ -127,12 +127,16 @@ def joint_fractions(q_from, q_to, robot, speed_deg_s: float, accel_deg_s2: float
 
 
 def simulate_program(out_dir, program, *, seed: int = 0, robot: str | None = None, effects: str = "realistic",
-                     beam_breaks=(), world_options: dict | None = None, chunk_s: float = 60.0) -> dict:
+                     beam_breaks=(), world_options: dict | None = None, chunk_s: float = 60.0,
+                     motion_model=None) -> dict:
     """Replay ``program`` (a :class:`~station.readers.motion_program.MotionProgram`) on the simulated cell and
     write ``stream.csv``, ``poses.csv``, ``truth.json`` to ``out_dir`` (see the module docstring).
 
     ``robot``: the model when the program names none (a program's own ``robot`` wins only when ``robot`` is
-    None; the two must agree otherwise). Returns the summary of :func:`fakes.sim.iso_run.record_run`.
+    None; the two must agree otherwise). ``motion_model`` (a
+    :class:`~station.models.motion_effects.MotionModel`, ``station diagnose motion --model-out``): the arm moves
+    with its loop and its creep, mode and drift show in the readings (a dry run of a diagnosed arm); the
+    program's profiles stand. Returns the summary of :func:`fakes.sim.iso_run.record_run`.
     """
     from fakes.sim.clock import ManualClock
     from fakes.sim.iso_run import record_run
@@ -160,7 +164,8 @@ def simulate_program(out_dir, program, *, seed: int = 0, robot: str | None = Non
                   f"{len(moves)} dwells of {program.dwell_s:g} s")
     world = make_world(robot=spec, seed=int(seed), clock=ManualClock(),
                        effects="realistic" if effects == "realistic" else None,
-                       tracker_rate_hz=program.rate_hz, payload_kg=program.payload_kg, **(world_options or {}))
+                       tracker_rate_hz=program.rate_hz, payload_kg=program.payload_kg,
+                       **{**(world_options or {}), "motion_model": motion_model})
     try:
         arm = world.arm
         last = {"q": q_cmd[names.index(program.start)]}

@@ -27,6 +27,7 @@ from station.models import kinematics as kin
 from station.models.effects import EffectSet, realistic_effects, realistic_stop_sigma_rad
 from station.models.jig import CornerJig
 from station.models.motion import PROFILE_KINDS, ServoParams
+from station.models.motion_effects import MotionModel, servo_of
 from station.models.robots import RobotSpec, get_robot
 from station.models.tracker_noise import TrackerNoise
 from station.numeric import finite_number
@@ -53,6 +54,9 @@ class TrackerSource:
     rate_hz: float
     tracker: TrackerModel
     _arm: SimArm = field(repr=False)
+    #: a diagnosed motion model whose creep, mode and drift the readings show (None: the arm alone)
+    _motion: Any = field(default=None, repr=False)
+    _seed: int = field(default=0, repr=False)
 
     def measure(self, t_sim) -> tuple[np.ndarray, np.ndarray]:
         """``(xyz_mm (N, 3) in the tracker frame, valid (N,))`` at world times ``t_sim``.
@@ -66,7 +70,16 @@ class TrackerSource:
         def noise(t):
             return self.tracker.epoch_noise(t, *self._arm.noise_epochs(t))
 
-        return self.tracker.measure(t_sim, self._arm.tool_position_mm, noise_fn=noise)
+        position = self._arm.tool_position_mm
+        if self._motion is not None:
+            from fakes.sim.motion_offsets import arm_motion_offsets_mm
+
+            def position(t, _arm=self._arm, _model=self._motion, _seed=self._seed):
+                tt = np.asarray(t, dtype=float)
+                p = _arm.tool_position_mm(tt)
+                return p + arm_motion_offsets_mm(_arm, tt, _model, _seed).reshape(p.shape)
+
+        return self.tracker.measure(t_sim, position, noise_fn=noise)
 
     def orientation(self, t_sim) -> np.ndarray:
         """Rotation matrices (N, 3, 3) a 6-DoF target on the tool reports at world times ``t_sim``: the arm's
@@ -114,6 +127,8 @@ class World:
     seed: int
     work_centre_mm: np.ndarray
     trailer: Any = None
+    #: the diagnosed motion model the cell runs with (station.models.motion_effects.MotionModel), or None
+    motion_model: Any = None
     _scan_rng: np.random.Generator = field(default=None, repr=False)
     _trailer_rng: np.random.Generator = field(default=None, repr=False)
     _closed: bool = field(default=False, repr=False)
@@ -125,7 +140,7 @@ class World:
 
     def tracker_source(self) -> TrackerSource:
         """The object a tracker fake measures (``clock``, ``rate_hz``, ``measure``)."""
-        return TrackerSource(self.clock, self.tracker.rate_hz, self.tracker, self.arm)
+        return TrackerSource(self.clock, self.tracker.rate_hz, self.tracker, self.arm, self.motion_model, self.seed)
 
     def scan(self, t_sim: float | None = None) -> ScanResult:
         """Scan the jig at the arm's true pose at ``t_sim`` (default now)."""
@@ -172,10 +187,20 @@ class World:
             "servo": None if self.arm.servo is None else self.arm.servo.to_dict(),
             "stop_sigma_rad": self.arm.stop_sigma_rad.tolist(),
             "profile": self.arm.profile,
+            "motion_model": None if self.motion_model is None else _model_dict(self.motion_model),
             "payload_kg": self.arm.payload_kg,
             "tracker": self.tracker.describe(),
             "scanner": self.scanner.describe(),
         }
+
+
+#: a motion model whose command's jerk time is shorter than this moves on a trapezoid, s
+MODEL_TRAPEZOID_JERK_S = 0.01
+
+
+def _model_dict(m: MotionModel) -> dict:
+    return {"servo_hz": m.servo_hz, "servo_damping": m.servo_zeta, "jerk_time_s": m.jerk_time_s,
+            "deceleration_mm_s2": m.deceleration_mm_s2, "effects": m.effects}
 
 
 def realistic_servo(rng: np.random.Generator) -> ServoParams:
@@ -234,6 +259,7 @@ def make_world(
     start_s: float = 0.0,
     joint_defect=None,
     warmup=None,
+    motion_model: MotionModel | None = None,
 ) -> World:
     """Build a simulated cell.
 
@@ -296,6 +322,13 @@ def make_world(
         The arm's warm-up from its cold start, ``(dT_max_K, tau_s)``: the first-order temperature rise
         ``dT_max (1 - exp(-t / tau))`` of its links (:class:`station.models.effects.ThermalDrift`, steel) from
         the clock's 0, in place of the one drawn with the effects (a drift test's known truth); needs effects.
+    motion_model : MotionModel, optional
+        A diagnosed arm's motion (``station diagnose motion --model-out``,
+        :mod:`station.models.motion_effects`): its loop on every axis (instead
+        of ``servo``), its profile when ``profile`` is not given (trapezoid when
+        its jerk time is short), and its creep, structural mode and the
+        tracker's drift on the readings along each move
+        (:mod:`fakes.sim.motion_offsets`).
 
     Returns
     -------
@@ -330,6 +363,12 @@ def make_world(
         raise ConfigError(f"`tracker_rate_hz` must be within {lo:g}-{hi:g} Hz, got {tracker_rate_hz!r}")
     if not (isinstance(servo, ServoParams) or servo is None or servo == "realistic"):
         raise ConfigError(f"`servo` must be 'realistic', a ServoParams or None, got {servo!r}")
+    if motion_model is not None:
+        if not isinstance(motion_model, MotionModel):
+            raise ConfigError(f"`motion_model` must be a MotionModel, got {type(motion_model).__name__}")
+        servo = ServoParams.uniform(*servo_of(motion_model))
+        if profile is None:
+            profile = "trapezoid" if motion_model.jerk_time_s < MODEL_TRAPEZOID_JERK_S else "scurve"
     if stop_sigma_mm in ("auto", "realistic") or stop_sigma_mm is None:
         pass
     else:
@@ -443,6 +482,7 @@ def make_world(
         rng=np.random.default_rng(s_user),
         seed=seed,
         work_centre_mm=np.asarray(centre, dtype=float),
+        motion_model=motion_model,
         _scan_rng=np.random.default_rng(s_scan),
         _trailer_rng=np.random.default_rng(s_trailer),
     )

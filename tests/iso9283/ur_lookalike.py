@@ -84,16 +84,21 @@ def lab_lookalike(rng, *, cycles=3, wait_s=2.0, speed=1.0) -> LabLookalike:
     sigma = rng.uniform(0.3e-3, 1e-3)
     xyz = clean + rng.normal(0.0, sigma, clean.shape)
     cmd = tool_points(np.stack([q1, q1 + dq])) @ R.T + off + rng.uniform(-0.05, 0.05, (2, 3))
-    # the PC's stamps: 1 s apart, each on a burst of 66-444 samples, most bursts small (the logger falls behind)
+    return LabLookalike(xyz, cmd, pc_stamps(rng, t.size), float(T), waits[:-1], 2 * cycles)
+
+
+def pc_stamps(rng, n: int) -> np.ndarray:
+    """Samples per stamp of a PC clock stamping ``n`` samples: 1 s apart, each on a burst of 66-444 samples, most
+    bursts small (the logger falls behind), one of 66 and one of 444 somewhere."""
     per, z, med = [], 0.0, rng.uniform(100.0, 150.0)
-    i66, i444 = rng.choice(np.arange(1, t.size // 444 - 1), 2, replace=False)  # whole stamps, whatever follows
-    while sum(per) < t.size:  # the logger's pace wanders slowly (a log-normal AR(1) process)
+    i66, i444 = rng.choice(np.arange(1, n // 444 - 1), 2, replace=False)  # whole stamps, whatever follows
+    while sum(per) < n:  # the logger's pace wanders slowly (a log-normal AR(1) process)
         z = 0.9 * z + 0.44 * rng.normal(0.0, 0.45)
         per.append(int(np.clip(round(med * np.exp(z)), 66, 444)))
         if len(per) - 1 in (i66, i444):
             per[-1] = 66 if len(per) - 1 == i66 else 444
-    per[-1] = t.size - (sum(per) - per[-1])  # the last stamp: the samples left (a part of a second)
-    return LabLookalike(xyz, cmd, np.array(per), float(T), waits[:-1], 2 * cycles)
+    per[-1] = n - (sum(per) - per[-1])  # the last stamp: the samples left (a part of a second)
+    return np.array(per)
 
 
 def write_lab_export(path, la: LabLookalike, t0=datetime(2025, 3, 11, 14, 7, 52)):

@@ -144,6 +144,8 @@ class MotionDiagnosis:
     time_refused: str = ""
     alpha: float = 0.01
     elapsed_s: float = 0.0
+    #: what a held-pose record of the tracker says of its drift over an approach window (None: no record given)
+    hold: dict | None = None
 
     @property
     def gain(self) -> float:
@@ -185,7 +187,8 @@ class MotionDiagnosis:
                 "poses": self.poses, "time_refused": self.time_refused or None,
                 "rate_hz": w.rate_hz, "alpha": self.alpha, "fits": self.fits,
                 "converged": all(f["converged"] for f in self.fits),
-                "extended_model": self.motion_model(), "elapsed_s": self.elapsed_s}
+                "extended_model": self.motion_model(), "elapsed_s": self.elapsed_s,
+                "hold_drift": self.hold}
 
 
 def split(w: Windows) -> tuple[np.ndarray, np.ndarray]:
@@ -264,6 +267,31 @@ def _same_pole(p: F.Params) -> str:
     return ""
 
 
+def hold_drift(w: Windows, hold: dict) -> dict:
+    """What a held-pose record of the tracker says of the reading's drift over one approach window.
+
+    ``hold``: the record's fit of eq. (N2) (:mod:`station.analysis.iso9283.tracker_noise_fit`): ``white_mm``,
+    ``wander_mm`` and ``wander_tau_s`` (None without wander). Over a window of ``D`` s (the windows' median
+    span) the wander moves the reading by ``sqrt(2 gamma_w(D)) = wander sqrt(2 (1 - exp(-D / tau)))`` per axis
+    (1 sd; eq. (N2) without its white part). The ``tracker_drift`` candidate is tested only when that
+    exceeds what the held-out test can see, ``RELEVANCE`` times the stream's noise: a tracker that does not
+    wander so much cannot be the cause of a drift the stream shows (``reason`` says why it is left out).
+    """
+    spans = np.nanmax(w.t_s, axis=1) - np.nanmin(w.t_s, axis=1) if w.n else np.zeros(0)
+    D = float(np.median(spans)) if spans.size else 0.0
+    wander, tau = float(hold.get("wander_mm") or 0.0), hold.get("wander_tau_s")
+    moved = wander * math.sqrt(2.0 * (1.0 - math.exp(-D / tau))) if wander > 0.0 and tau else 0.0
+    visible = RELEVANCE * w.noise_mm
+    out = {"source": hold.get("source", "a held-pose record"), "white_mm": hold.get("white_mm"),
+           "wander_mm": wander, "wander_tau_s": tau, "window_s": D, "expected_drift_mm": moved,
+           "visible_mm": visible, "reason": ""}
+    if moved < visible:
+        out["reason"] = (f"the held-pose record ({out['source']}) shows the tracker's reading wander by "
+                         f"{1000 * moved:.2g} um over a {D:.2g} s window, under the {1000 * visible:.2g} um the "
+                         "held-out test can see: a drift in the stream is not the tracker's")
+    return out
+
+
 def _not_testable(w: Windows, tr: Windows) -> dict:
     out = {}
     if w.rate_hz < 4.0 * F.EFFECT_PARAMS["structural_mode"][0][1]:
@@ -274,7 +302,7 @@ def _not_testable(w: Windows, tr: Windows) -> dict:
 
 
 def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 0.01, time_refused: str = "",
-                    max_steps: int = 3) -> MotionDiagnosis:
+                    max_steps: int = 3, hold: dict | None = None) -> MotionDiagnosis:
     """Diagnose the motion model against a measured stream (see the module's docstring).
 
     Parameters
@@ -285,6 +313,8 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
     valid : (N,) bool, optional; rows to leave out are False.
     alpha : family-wise false-discovery rate of a round (training test) and of each held-out test.
     time_refused : why the clock may not give time figures ("" when it may).
+    hold : a held-pose record's fit of the tracker's noise (:func:`hold_drift`), optional: the
+        ``tracker_drift`` candidate is tested only when the tracker wanders enough to be seen.
     """
     t0 = time.perf_counter()
     if not (0.0 < alpha < 0.5):
@@ -307,6 +337,9 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
     r_sim, _ = F.approach_residual(ho, base)
     sim_rms = _rms(F.approach_residual(ho_full, base)[0])
     not_testable = _not_testable(w, tr)
+    hd = hold_drift(w, hold) if hold is not None else None
+    if hd is not None and hd["reason"] and "tracker_drift" not in not_testable:
+        not_testable["tracker_drift"] = hd["reason"]
     remaining = [e for e in F.EFFECTS if e not in not_testable]
     cur, r_cur, full_rms = base, r_sim, sim_rms
     steps, rounds = [], []
@@ -354,7 +387,7 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
         steps[[s.effect for s in steps].index("tracker_drift")].details["rate_sd_mm_per_s"] = sd_drift
     poses, curves = _figures(ho_full, base, cur, time_refused)
     return MotionDiagnosis(steps, rounds, not_testable, sim_rms, full_rms, noise, base, cur, w, train, held,
-                           poses, curves, sd_drift, fits, time_refused, alpha, time.perf_counter() - t0)
+                           poses, curves, sd_drift, fits, time_refused, alpha, time.perf_counter() - t0, hd)
 
 
 def _drift_sd(w: Windows) -> float:
