@@ -564,12 +564,13 @@ def _abc_in_base(s: Mapping, reg: Registration, order) -> np.ndarray | None:
 
 
 def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None, reg_u_at_poses=None, *,
-            pose_abc_rad=None):
+            pose_abc_rad=None, vap_abc_rad=None):
     """Both analyses of the procedure's data (pure: arrays in, results out).
 
     ``pose_abc_rad`` (N, 3): the tool's angles a, b, c of the pose cycles' samples in the base frame (a 6-DoF
     tracker's): orientation AP and RP per pose against the programs' commanded orientation (tool down,
-    :data:`~station.programs.builders.TOOL_DOWN`), their uncertainty with the plan's ``angle_sd_deg``.
+    :data:`~station.programs.builders.TOOL_DOWN`), their uncertainty with the plan's ``angle_sd_deg``;
+    ``vap_abc_rad``: the same of the multi-directional cycles (orientation vAP_a, vAP_b, vAP_c per pose).
 
     With a stated budget (``plan.uncertainty``) every verdict carries its uncertainty and is decided by
     ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget);
@@ -581,10 +582,11 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
     # vAP is judged on the multi-directional cycles (below), not on the single-direction pose cycles
     several = {c.key for c in table.characteristics() if c.several_approaches}
     main_limits = {k: v for k, v in plan.limits.items() if k not in several}
-    ori = {}
-    if pose_abc_rad is not None:
-        ori = dict(orientation_rad=pose_abc_rad,
-                   commanded_orientation_rad=np.repeat(abc_of_matrices(TOOL_DOWN), len(names), axis=0))
+    def oriented(abc_rad, n_poses):
+        return {} if abc_rad is None else dict(
+            orientation_rad=abc_rad, commanded_orientation_rad=np.repeat(abc_of_matrices(TOOL_DOWN), n_poses, axis=0))
+
+    ori = oriented(pose_abc_rad, len(names))
     main = analyze_iso9283(pose_t, pose_xyz, commanded, names=names, limits=main_limits,
                            band_mm=plan.band_mm, mpt_repeats=min(3, plan.cycles), **ori)
     vap = None
@@ -595,7 +597,7 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
         order = [n for n in vnames for _ in range(3)]
         vlim = {k: v for k, v in plan.limits.items() if k in several}
         vap = analyze_iso9283(vap_t, vap_xyz, vcmd, names=vnames, order=order, limits=vlim,
-                              distance_pairs=None, band_mm=plan.band_mm)
+                              distance_pairs=None, band_mm=plan.band_mm, **oriented(vap_abc_rad, len(vnames)))
     if plan.uncertainty is not None:
         from station.analysis.iso9283.uncertainty import figure_uncertainties, apply_rule
         from station.analysis.uncertainty import Budget
@@ -642,14 +644,15 @@ def characteristic_rows(main, vap) -> list[dict]:
 
 
 def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``{"pose": (t, xyz), "vap": (t, xyz), "pose_abc_rad": (N, 3) or None}`` in the registered base frame,
-    read once per session (``pose_abc_rad``: the tool's angles of a 6-DoF stream's pose cycles)."""
+    """``{"pose": (t, xyz), "vap": (t, xyz), "pose_abc_rad": (N, 3) or None, "vap_abc_rad": ...}`` in the
+    registered base frame, read once per session (``pose_abc_rad``, ``vap_abc_rad``: the tool's angles of a
+    6-DoF stream's pose cycles, of its multi-directional cycles)."""
     streams = ctx.session.streams
     if streams is None:
         pose_steps, vap_steps = stream_steps(plan)
-        pose = _stream_in_base(ctx, pose_steps)
+        pose, vap = _stream_in_base(ctx, pose_steps), _stream_in_base(ctx, vap_steps)
         streams = ctx.session.streams = {
-            "pose": pose[:2], "vap": _stream_in_base(ctx, vap_steps)[:2], "pose_abc_rad": pose[3]}
+            "pose": pose[:2], "vap": vap[:2], "pose_abc_rad": pose[3], "vap_abc_rad": vap[3]}
     return streams
 
 
@@ -658,7 +661,7 @@ def _analyse_streams(ctx: StepContext, plan: IsoPlan):
     streams = measured_streams(ctx, plan)
     return analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
                    reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"),
-                   pose_abc_rad=streams["pose_abc_rad"])
+                   pose_abc_rad=streams["pose_abc_rad"], vap_abc_rad=streams["vap_abc_rad"])
 
 
 def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
@@ -687,7 +690,7 @@ def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
     pose, vap = stream(pose_steps), stream(vap_steps)
     if not len(pose[0]):
         raise DataError(f"run {run_id}: no tracker samples of finished pose cycles")
-    main, vres = analyse(plan, *pose[:2], *vap[:2], pose_abc_rad=pose[2])
+    main, vres = analyse(plan, *pose[:2], *vap[:2], pose_abc_rad=pose[2], vap_abc_rad=vap[2])
     return {"pose": main.to_dict(), "vap": vres.to_dict() if vres is not None else None}, characteristic_rows(main, vres)
 
 

@@ -141,6 +141,13 @@ def _angle(kind: str, j: int):
     return get
 
 
+def _angle_vap(j: int):
+    def get(pr):
+        v = pr.multidirectional.vAP_rad
+        return None if v is None else math.degrees(float(v[j]))
+    return get
+
+
 _BAND = "no limit band or no complete approach"
 _DRIFT = "too few cycles for two drift blocks"
 
@@ -168,6 +175,12 @@ _ROWS: tuple[Characteristic, ...] = (
                      source="ISO 9283 orientation (seed 000 sec. 3.1; eqs. (1)-(2) per angle)",
                      with_orientation=True)
       for j, ax in enumerate("abc") for kind in ("AP", "RP")),
+    *(Characteristic(f"vAP{ax}_deg", "deg", "pose", f"vap{ax}_limit_deg",
+                     f"Multi-directional orientation accuracy variation vAP{ax}", _angle_vap(j),
+                     "no orientation data or fewer than 3 approach directions", several_approaches=True,
+                     in_json=False, source="ISO 9283 7.2.2 orientation (eq. (7) per angle: max - min of the "
+                                           "directions' mean angles)", with_orientation=True)
+      for j, ax in enumerate("abc")),
     Characteristic("n_cycles", "1", "pose", None, "Attained cycles", lambda pr: pr.n_cycles, stated=True),
     Characteristic("AD_mm", "mm", "pair", "ad_limit_mm", "Distance accuracy AD", lambda d: d.AD_mm,
                    "fewer than 2 cycles", stated=True, source="eq. (8)"),
@@ -268,8 +281,10 @@ def unit_of(key: str) -> str:
 
 def history_names() -> tuple[str, ...]:
     """The figures every run states, to follow across a robot's runs (counts left out): the pose test's, the
-    compliance test's and the drift programme's (each key once)."""
-    keys = [c.key for c in _ROWS if c.stated and c.unit != "1" and c.programme in ("pose", "compliance", "drift")]
+    compliance test's and the drift programme's (each key once), and the orientation figures a run with a
+    6-DoF target states (a robot measured with positions only has no values of them, and its page skips them)."""
+    keys = [c.key for c in _ROWS if (c.stated or c.with_orientation) and c.unit != "1"
+            and c.programme in ("pose", "compliance", "drift")]
     return tuple(dict.fromkeys(keys))
 
 

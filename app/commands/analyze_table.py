@@ -60,7 +60,9 @@ def _tail(res, estimated_rate: bool = False, clock_refused: bool = False) -> lis
             o = pr.orientation
             ap = "-" if o.AP_rad is None else ", ".join(f"{math.degrees(v):+.4f}" for v in o.AP_rad)
             rp = ", ".join(f"{math.degrees(v):.4f}" for v in o.RP_rad)
-            lines.append(f"orientation {name}: AP(a,b,c) {ap} deg, RP(a,b,c) {rp} deg (n={o.n})")
+            vap = pr.multidirectional.vAP_rad
+            vtxt = "" if vap is None else ", vAP(a,b,c) " + ", ".join(f"{math.degrees(v):.4f}" for v in vap) + " deg"
+            lines.append(f"orientation {name}: AP(a,b,c) {ap} deg, RP(a,b,c) {rp} deg (n={o.n}){vtxt}")
         if pr.drift is not None:
             lines.append(f"drift {name}: dAP {pr.drift.dAP_mm:.4f} mm, dRP {pr.drift.dRP_mm:.4f} mm "
                          f"over {pr.drift.AP_mm.size} blocks")

@@ -685,6 +685,27 @@ def vap_uncertainty(groups_mm, value, budget: Budget, subject="") -> FigureUncer
                     dof=welch_satterthwaite(parts))
 
 
+def spread_uncertainty(ch, subject, groups, value, budget: Budget) -> FigureUncertainty | None:
+    """A figure that is the largest minus the smallest of the means of several groups of scalar
+    observations (orientation vAP of one angle, eq. (7) per angle): each group's population mean by a t with
+    n_g - 1 degrees of freedom and scale ``s_g / sqrt(n_g)`` (n_g >= :data:`MIN_STOPS`); a frame error is
+    common to the groups of one pose and cancels."""
+    gs = [np.asarray(g, dtype=float).ravel() for g in groups]
+    if len(gs) < 2 or any(g.size < MIN_STOPS or not np.all(np.isfinite(g)) for g in gs):
+        return None
+    M = int(budget.trials)
+    rng = _rng(budget, ch, subject)
+    means = np.array([g.mean() for g in gs])
+    scales = np.array([max(float(np.std(g, ddof=1)), 1e-12) / math.sqrt(g.size) for g in gs])
+    mus = means[None, :] + scales[None, :] * np.stack([rng.standard_t(g.size - 1, size=M) for g in gs], axis=1)
+    truth = mus.max(axis=1) - mus.min(axis=1)
+    h, k = int(np.argmax(means)), int(np.argmin(means))
+    parts = [(float(scales[j]), gs[j].size - 1) for j in (h, k)]
+    comp = {"sampling": math.hypot(parts[0][0], parts[1][0])}
+    return _summary(ch, subject, value, truth, budget, comp["sampling"], comp, sum(g.size for g in gs),
+                    dof=welch_satterthwaite(parts))
+
+
 def drift_uncertainty(blocks_mm, commanded_mm, dAP, dRP, budget: Budget, subject="") -> dict:
     """dAP and dRP: |AP of the last block - AP of the first| and the same of RP (blocks (b, 3), b >= 4).
 

@@ -1,7 +1,7 @@
 """Every limit `station analyze iso9283 --limit` accepts can be set in a station config and reaches the verdict.
 
 One long synthetic run carries every characteristic of the table (orientation, drift, a linear path, an
-overshooting servo) and a multi-directional run carries vAP. For each limit key of the table: the config's
+overshooting servo) and a multi-directional run carries vAP (of the position and the orientation). For each limit key of the table: the config's
 ``robots.r1.limits.<limit_key>`` set at half the largest measured figure gives the characteristic in the plan's
 limits and a FAIL verdict; set at twice it, a PASS.
 """
@@ -9,6 +9,7 @@ limits and a FAIL verdict; set at twice it, a PASS.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -52,7 +53,12 @@ def runs(request):
                abc_noise_rad=5e-5, **SERVO)
     mp = multidirection_programme(rng, commanded=CMD, pose=0, dir_offsets_mm=rng.normal(0, 0.4, (3, 3)), n_each=5,
                                   scatter_mm=0.02)
-    sv = render(rng, mp, start_mm=CMD[0] - [0, 0, 150.0], rate_hz=RATE, noise_mm=0.005, speed_mm_s=500.0, **SERVO)
+    # the tool's orientation too: an offset per approach direction (orientation vAP) and a scatter
+    d = mp.direction
+    mp = replace(mp, target_abc_rad=abc_cmd[0] + np.where(d[:, None] >= 0, rng.normal(0, 2e-3, (3, 3))[d], 0.0)
+                 + rng.normal(0.0, 2e-4, (d.size, 3)))
+    sv = render(rng, mp, start_mm=CMD[0] - [0, 0, 150.0], start_abc_rad=abc_cmd[0], rate_hz=RATE, noise_mm=0.005,
+                abc_noise_rad=5e-5, speed_mm_s=500.0, **SERVO)
 
     def analyse(limits):
         one = {k: v for k, v in limits.items() if not table.get(k).several_approaches}
@@ -60,7 +66,8 @@ def runs(request):
         main = analyze_iso9283(s.t, s.xyz, CMD, names=NAMES5, orientation_rad=s.abc,
                                commanded_orientation_rad=abc_cmd, drift_block=10, linear_paths=[("P2", "P3")],
                                n_planes=5, band_mm=0.05, limits=one)
-        vap = analyze_iso9283(sv.t, sv.xyz, CMD[[0]], names=[NAMES5[0]], limits=several)
+        vap = analyze_iso9283(sv.t, sv.xyz, CMD[[0]], names=[NAMES5[0]], orientation_rad=sv.abc,
+                              commanded_orientation_rad=abc_cmd[[0]], limits=several)
         return main, vap
 
     return analyse

@@ -13,7 +13,9 @@ Formulas are those of seed 000 (section 3), equation numbers as there:
 * MPT, minimum posing time, eq. (10).
 
 Beyond the seed, where the data carry them (ISO 9283 clauses on the same
-pattern): orientation accuracy and repeatability (a, b, c) from 6-DOF data;
+pattern): orientation accuracy and repeatability (a, b, c) from 6-DOF data
+and the multi-directional orientation accuracy variation vAP_a, vAP_b, vAP_c
+(eq. (7) per angle, :func:`multidirectional_orientation`);
 drift of AP and RP over a long run; path accuracy AT and repeatability RT of
 linear paths.
 
@@ -122,6 +124,8 @@ class ApproachGroup:
     mean_mm: np.ndarray  # (3,)
     n: int
     rows: np.ndarray
+    #: (n, 3) the tool's angles a, b, c of the stops less the pose's reference orientation, rad (6-DOF data)
+    angles_rad: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,8 @@ class MultiDirectional:
     vAP_any_mm: float | None
     groups: tuple[ApproachGroup, ...]
     pair: tuple[str, str] | None
+    #: (3,) vAP_a, vAP_b, vAP_c of 6-DOF data with three directions or more, rad (else None)
+    vAP_rad: np.ndarray | None = None
 
     @property
     def n_directions(self) -> int:
@@ -391,6 +397,21 @@ def multidirectional_accuracy(means_mm) -> tuple[float, tuple[int, int]]:
     d = np.linalg.norm(m[:, None, :] - m[None, :, :], axis=2)
     h, k = np.unravel_index(int(np.argmax(d)), d.shape)
     return float(d[h, k]), (int(min(h, k)), int(max(h, k)))
+
+
+def multidirectional_orientation(group_means_rad) -> np.ndarray:
+    """Orientation vAP per angle: eq. (7) applied to the angles a, b, c (ISO 9283 7.2.2), the largest
+    difference between the directions' mean angles, ``vAP_a = max_h a_bar_h - min_h a_bar_h`` (so for b, c).
+
+    ``group_means_rad`` (k, 3): the mean angles of k >= 2 directions, as deviations from one reference (so
+    that no difference wraps); returns (3,) rad.
+    """
+    m = np.asarray(group_means_rad, dtype=float)
+    if m.ndim != 2 or m.shape[1] != 3 or not np.all(np.isfinite(m)):
+        raise DataError(f"group_means_rad must be finite with shape (k, 3), got {m.shape}")
+    if m.shape[0] < 2:
+        raise InsufficientDataError(f"orientation vAP needs at least 2 approach directions, got {m.shape[0]}")
+    return m.max(axis=0) - m.min(axis=0)
 
 
 def distance_accuracy(D_mm, Dc_mm) -> tuple[float, float | None]:
@@ -958,20 +979,26 @@ def _stage_pose_results(run: _Stages, pose_info: dict, settle: dict, ori, cori, 
             )
         elif kp.size:
             run.warn(f"{name}: no limit band (own RP not available), POS/PST not computed", partial=True)
-        # vAP
+        # vAP (and per angle with 6-DOF data: deviations from the commanded orientation or the first stop's)
         gl = []
+        ref_o = None
+        if ori is not None and kp.size:
+            ref_o = cori[p] if cori is not None else ori[st.i_center[kp[0]]]
         for kg, u in info["groups"]:
             if not kg.size:
                 continue
+            ga = None if ref_o is None else _wrap(ori[st.i_center[kg]] - ref_o)
             gl.append(ApproachGroup(_direction_label(u) if np.any(u) else "start", u,
-                                    st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg]))
-        vap = vany = pair = None
+                                    st.position_mm[kg].mean(axis=0), int(kg.size), st.row[kg], ga))
+        vap = vany = pair = vap_o = None
         if len(gl) >= 2:
             vany, (h, k) = multidirectional_accuracy(np.array([g.mean_mm for g in gl]))
             pair = (gl[h].label, gl[k].label)
             if len(gl) >= 3:
                 vap = vany
-        md = MultiDirectional(vap, vany, tuple(gl), pair)
+                if ref_o is not None:
+                    vap_o = multidirectional_orientation(np.array([g.angles_rad.mean(axis=0) for g in gl]))
+        md = MultiDirectional(vap, vany, tuple(gl), pair, vap_o)
         # orientation
         oar = None
         if ori is not None and kp.size >= 2:
@@ -1317,6 +1344,8 @@ def pose_to_dict(pr: PoseResult) -> dict:
             "APc_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[2]), 6),
             "RPa_deg": finite_or_none(math.degrees(o.RP_rad[0]), 6), "RPb_deg": finite_or_none(math.degrees(o.RP_rad[1]), 6),
             "RPc_deg": finite_or_none(math.degrees(o.RP_rad[2]), 6), "n": o.n,
+            **{f"vAP{ax}_deg": None if md.vAP_rad is None else finite_or_none(math.degrees(md.vAP_rad[j]), 6)
+               for j, ax in enumerate("abc")},
         },
         "drift": None if dr is None else {
             "dAP_mm": finite_or_none(dr.dAP_mm, 6), "dRP_mm": finite_or_none(dr.dRP_mm, 6), "shift_mm": finite_or_none(dr.shift_mm, 6),

@@ -28,6 +28,7 @@ from station.analysis.uncertainty import (
     overshoot_uncertainty,
     path_uncertainty,
     pose_uncertainty,
+    spread_uncertainty,
     three_s_uncertainty,
     three_s_uncertainty_stats,
     vap_uncertainty,
@@ -63,6 +64,10 @@ def figure_uncertainties(res, budget: Budget, points_by_row=None) -> dict[Key, F
         if xyz is not None and md.vAP_mm is not None:
             groups = [xyz[np.asarray(g.rows, dtype=np.int64)] for g in md.groups]
             put(vap_uncertainty(groups, md.vAP_mm, budget, name))
+        if md.vAP_rad is not None:
+            for j, ax in enumerate("abc"):
+                put(spread_uncertainty(f"vAP{ax}_deg", name, [np.degrees(g.angles_rad[:, j]) for g in md.groups],
+                                       math.degrees(float(md.vAP_rad[j])), budget))
         ovs = pr.overshoot
         if ovs is not None and ovs.POS_mm is not None:
             good = ~np.asarray(ovs.incomplete, dtype=bool)
