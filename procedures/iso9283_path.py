@@ -17,7 +17,9 @@ without a corner zone, at 100, 50 and 10 % of the rated speed):
    geometry (:mod:`station.analysis.path`), AT, RT, AV, RV, FV, CR, CO with
    their U; rows in the characteristics table (one per path and figure),
    judged against the limits of the plan (the robot's configured AT/RT and
-   the plan's ``path_limits``).
+   the plan's ``path_limits``);
+6. ``report`` — the run's HTML report (:mod:`procedures.iso9283_path_report`): per path its cycles against
+   the commanded path, the deviation and the speed along it, and the figures with U and verdicts.
 
 A run killed at any moment resumes at the cycle it was in (the interrupted
 cycle is redone whole; its partial samples stay under their attempt, outside
@@ -29,11 +31,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from procedures import iso9283 as iso
-from procedures.decision import Checks
+from procedures.decision import Checks, decide
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 from station import characteristics as table
@@ -149,9 +152,14 @@ def step_names(plan: PathPlan) -> dict[str, list[str]]:
             for t in path_tests(plan)}
 
 
+def specs_of(plan: PathPlan) -> dict:
+    """``{path name: PathSpec}`` of the plan's commanded paths."""
+    return {s.name: s for s in parse_paths({"paths": [t.path for t in path_tests(plan)]})}
+
+
 def analyse(plan: PathPlan, streams: Mapping[str, tuple]) -> dict:
     """Each path's figures (pure): ``streams`` ``{path name: (t_s, xyz_mm base frame, valid)}``."""
-    specs = {s.name: s for s in parse_paths({"paths": [t.path for t in path_tests(plan)]})}
+    specs = specs_of(plan)
     out = {}
     for name, (t, xyz, valid) in streams.items():
         out[name] = analyze_path(specs[name], t, xyz, valid, seed=0)
@@ -182,13 +190,37 @@ def _streams(ctx: StepContext, plan: PathPlan) -> dict:
     return out
 
 
+def _analysed(ctx: StepContext, plan: PathPlan) -> tuple[dict, dict]:
+    """``(streams, results)`` of this session, read and analysed once (a resumed run's report step again)."""
+    if ctx.session.analysis is None:
+        ctx.session.streams = _streams(ctx, plan)
+        ctx.session.analysis = analyse(plan, ctx.session.streams)
+    return ctx.session.streams, ctx.session.analysis
+
+
 def step_analyse(ctx: StepContext) -> dict:
     plan = _plan(ctx)
-    results = analyse(plan, _streams(ctx, plan))
+    _, results = _analysed(ctx, plan)
     rows = rows_of(plan, results)
     ctx.store.put_characteristics(ctx.run_id, rows)
     ctx.store.put_result(ctx.run_id, RESULT, {n: r.to_dict() for n, r in results.items()})
     return {"n_rows": len(rows), "cycles": {n: r.n_cycles for n, r in results.items()}}
+
+
+def step_report(ctx: StepContext) -> dict:
+    """The run's HTML report (:mod:`procedures.iso9283_path_report`) in the plan's report directory, with the
+    run's verdict as decided from the stored rows."""
+    from procedures.iso9283_path_report import build_report
+    from station.report import write_report
+
+    plan = _plan(ctx)
+    streams, results = _analysed(ctx, plan)
+    report = build_report(plan, ctx.store.run(ctx.run_id), ctx.store.characteristics(ctx.run_id), specs_of(plan),
+                          results, streams)
+    decision = decide(SPEC, ctx.store, ctx.run_id, finished=True)
+    report.outcome, report.reasons = decision.outcome, list(decision.reasons)
+    path = write_report(report, Path(plan.report_dir) / f"{ctx.run_id}.html")
+    return {"report": str(path.resolve()), "verdict": report.verdict}
 
 
 def build_procedure(plan: PathPlan) -> Procedure:
@@ -203,7 +235,8 @@ def build_procedure(plan: PathPlan) -> Procedure:
     for i, t in enumerate(path_tests(plan)):
         steps += [Step(f"path {t.path['name']} cycle {k}", _cycle_step(i, k), label=f"{k}/{plan.path_cycles}")
                   for k in range(1, plan.path_cycles + 1)]
-    steps += [Step("stop stream", iso.step_stop_stream), Step("analyse", step_analyse, offline=True)]
+    steps += [Step("stop stream", iso.step_stop_stream), Step("analyse", step_analyse, offline=True),
+              Step("report", step_report, offline=True)]
     return Procedure(RESULT, steps, safe_state=iso.safe_state)
 
 

@@ -281,10 +281,11 @@ def unit_of(key: str) -> str:
 
 def history_names() -> tuple[str, ...]:
     """The figures every run states, to follow across a robot's runs (counts left out): the pose test's, the
-    compliance test's and the drift programme's (each key once), and the orientation figures a run with a
-    6-DoF target states (a robot measured with positions only has no values of them, and its page skips them)."""
-    keys = [c.key for c in _ROWS if (c.stated or c.with_orientation) and c.unit != "1"
-            and c.programme in ("pose", "compliance", "drift")]
+    path test's (every figure of each of its paths, :func:`procedures.iso9283_path.rows_of`), the compliance
+    test's and the drift programme's (each key once), and the orientation figures a run with a 6-DoF target
+    states (a robot measured with positions only has no values of them, and its page skips them)."""
+    keys = [c.key for c in _ROWS if c.unit != "1" and (c.programme == "path" or (
+        (c.stated or c.with_orientation) and c.programme in ("pose", "compliance", "drift")))]
     return tuple(dict.fromkeys(keys))
 
 

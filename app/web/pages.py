@@ -84,7 +84,7 @@ def robot_page(serial: str, names: list[str], history: dict[str, list[dict]], cs
         runs = worst_per_run(rows)
         svg = Markup(plot_history([r["created_at"] for r in runs], [r["value"] for r in runs],
                                   [r["limit"] for r in runs], [r["failed"] for r in runs], ylabel=shown(name),
-                                  title=f"{shown(name)}: worst pose of each run", events=events)) if runs else ""
+                                  title=f"{shown(name)}: worst pose or path of each run", events=events)) if runs else ""
         for r in runs:
             r["date"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime(r["created_at"]))
         histories.append({"name": name, "runs": runs, "svg": svg})

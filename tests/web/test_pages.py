@@ -39,6 +39,35 @@ def test_robot_history_shows_the_worst_pose_of_each_finished_run(rng, served, cl
     assert "run-other" in page and "9.0" not in page
 
 
+def test_robot_history_follows_the_path_tests_figures_worst_path_of_each_run(rng, served, client):
+    from station.characteristics import history_names
+
+    names = ("AT_mm", "RT_mm", "CR_mm", "CO_mm", "AV_percent", "RV_percent", "FV_percent")
+    assert all(n in history_names() for n in names) and "n_cycles" not in history_names()
+    worst = []
+    for k in range(3):
+        store = served.store
+        store.create_run(f"path-{k}", "iso9283-path", model="industrial-3100", serial="SN-3", overhaul_state="after",
+                         config={}, params={})
+        cr = {f"rectangle_blend_{v}": float(rng.uniform(0.1, 3.0)) for v in (10, 50, 100)}
+        av = {f"line_{v}": float(rng.uniform(-4.0, 4.0)) for v in (10, 50, 100)}
+        store.put_characteristics(f"path-{k}", [
+            *({"pose": p, "name": "CR_mm", "value": v, "unit": "mm", "limit": 2.0, "passed": v <= 2.0}
+              for p, v in cr.items()),
+            *({"pose": p, "name": "AV_percent", "value": v, "unit": "%", "limit": None, "passed": None}
+              for p, v in av.items()),
+            {"pose": "line_50", "name": "n_cycles", "value": 10.0, "unit": "", "limit": None, "passed": None}])
+        store.set_run_status(f"path-{k}", "done")
+        worst.append((max(cr.values()), max(av.values(), key=abs)))
+    status, _, html = client.get("/robots/SN-3")
+    assert status == 200
+    assert html.count("<figure class='history'>") == 2  # CR_mm and AV_percent; no plot of the count
+    for j, name in enumerate(("CR_mm", "AV_percent")):
+        part = html[html.index(f"<h2>{name}</h2>"):]
+        rows = re.findall(r"<tr><td>path-\d</td><td>\w+</td><td>([0-9.e-]+)</td>", part)[:3]
+        assert np.allclose([float(v) for v in rows], [w[j] for w in worst], rtol=1e-3), name
+
+
 def test_a_run_left_running_by_a_dead_process_is_not_resumed_from_the_page(served, client):
     _stored_run(served.store, "orphan", "SN-9", "after", {"P1": 0.1}, status="running")
     st = client.state("orphan")
