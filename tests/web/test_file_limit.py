@@ -37,6 +37,19 @@ server.close()
 """
 
 
+
+def _close(socks, proc) -> None:
+    """Close the slow clients, then let the served child end (killed, and the test failed, if it will not)."""
+    for s in socks:
+        s.close()
+    proc.stdin.close()
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise
+
 def _slow_clients(port: int, count: int) -> list[socket.socket]:
     """``count`` connections that send half a request head and wait (those the server refuses are left out)."""
     socks = []
@@ -73,15 +86,7 @@ def test_the_token_holder_is_served_and_the_log_stays_small_with_the_file_table_
             for _ in range(3):
                 assert token_holder.get("/")[0] == 200
         finally:
-            for s in socks:
-                s.close()
-            proc.stdin.close()
-            try:
-                proc.wait(60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-                raise
+            _close(socks, proc)
     text = log_path.read_text()
     assert "accept() refused" in text and "EMFILE" in text, text[-2000:]  # the table was full indeed
     assert "Traceback" not in text, text[:3000]
@@ -191,12 +196,4 @@ def test_the_page_serves_as_many_connections_again_once_descriptors_are_free(tmp
             assert len(steps) >= 3 and steps == sorted(steps), caps  # in steps, up
             assert all(b - a <= max(1, a // 4) for a, b in zip(steps, steps[1:])), caps
         finally:
-            for s in socks:
-                s.close()
-            proc.stdin.close()
-            try:
-                proc.wait(60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-                raise
+            _close(socks, proc)

@@ -7,6 +7,16 @@ import time
 import numpy as np
 
 
+
+def _station_state_of(evil: str) -> dict:
+    """A station page's state whose every shown string is ``evil``."""
+    return {"station": evil, "armed": False, "active": None,
+            "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil,
+                         "last_fault": {"run_id": evil, "step": evil, "when": evil, "message": evil}}],
+            "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
+            "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
+                      "verdict": evil}]}
+
 def _stored_run(store, run_id, serial, state, rp_by_pose, limit=0.5, status="done"):
     store.create_run(run_id, "iso9283", model="industrial-3100", serial=serial, overhaul_state=state,
                      config={}, params={})
@@ -155,12 +165,7 @@ def test_every_page_escapes_what_it_shows():
     from app.web import pages
 
     evil = "<script>alert(1)</script>'\""
-    state = {"station": evil, "armed": False, "active": None,
-             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil,
-                          "last_fault": {"run_id": evil, "step": evil, "when": evil, "message": evil}}],
-             "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
-             "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
-                       "verdict": evil}]}
+    state = _station_state_of(evil)
     run = {"run_id": evil, "steps": [], "note": "</script><script>alert(2)</script>"}
     rows = [{"run_id": evil, "created_at": 1.7e9, "overhaul_state": evil, "pose": "P1", "value": 0.1, "limit": 0.5,
              "passed": True}]
@@ -198,12 +203,7 @@ def test_the_station_and_robot_pages_show_control_characters_visibly(rng):
     from station.shown import shown
 
     evil = _hostile_name(rng)
-    state = {"station": evil, "armed": False, "active": None,
-             "devices": [{"name": evil, "kind": evil, "url": evil, "state": evil, "target": evil,
-                          "last_fault": {"run_id": evil, "step": evil, "when": evil, "message": evil}}],
-             "robots": [{"key": evil, "model": evil, "serial": evil, "overhaul_state": evil}],
-             "runs": [{"run_id": evil, "procedure": evil, "serial": evil, "status": evil, "live": True,
-                       "verdict": evil}]}
+    state = _station_state_of(evil)
     rows = [{"run_id": evil, "created_at": 1.7e9, "overhaul_state": evil, "pose": "P1", "value": 0.1, "limit": 0.5,
              "passed": True}]
     html = {"station": pages.station_page(state, "t", [evil]),
