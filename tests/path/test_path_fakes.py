@@ -57,7 +57,10 @@ def test_the_zone_rounds_the_corner_and_the_servo_lags_more_when_faster(test_see
 def test_the_interpolator_ripples_the_path_speed(test_seed, rng):
     world = make_world("industrial-3100", seed=test_seed, clock=ManualClock(), effects=None)
     side = float(rng.uniform(350.0, 450.0))
-    pt = _test(world, "line", 0.5, side, cycles=1)
+    # at 10 % of the rated speed the cruise between 0.3 and 0.7 of the line lasts about a second: two periods or
+    # more of the slowest ripple (2 Hz). At 50 % it lasted 0.2 s, one period of a 5.2 Hz ripple, and a sine that
+    # short is half the constant and the trend (amplitude 0.0026 fitted against 0.0034, CI seed 1517814602)
+    pt = _test(world, "line", 0.1, side, cycles=1)
     r = fakerun.run(world, pt)
     a, b = (np.asarray(pt.path[k]) for k in ("start_mm", "end_mm"))
     u = (r.commanded - a) @ (b - a) / np.linalg.norm(b - a) ** 2
@@ -66,10 +69,11 @@ def test_the_interpolator_ripples_the_path_speed(test_seed, rng):
     cruise = forward & (u > 0.3) & (u < 0.7)
     ripple = ripple_of(world.seed)
     t = r.t[cruise]
+    assert np.ptp(t) * ripple.frequency_Hz >= 1.8, (np.ptp(t), ripple.frequency_Hz)
     X = np.column_stack([np.ones(t.size), t - t.mean(), np.sin(2 * np.pi * ripple.frequency_Hz * t),
                          np.cos(2 * np.pi * ripple.frequency_Hz * t)])
     coef = np.linalg.lstsq(X, v[cruise], rcond=None)[0]
-    assert coef[0] == pytest.approx(0.5 * world.robot.max_tcp_speed_mm_s, rel=0.002)
+    assert coef[0] == pytest.approx(0.1 * world.robot.max_tcp_speed_mm_s, rel=0.002)
     assert math.hypot(coef[2], coef[3]) / coef[0] == pytest.approx(ripple.amplitude, rel=0.1)
 
 

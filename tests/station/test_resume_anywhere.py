@@ -107,19 +107,21 @@ def _figures(attained: np.ndarray, commanded: np.ndarray) -> tuple[float, float]
 
 
 def _tolerance(attained: np.ndarray, commanded: np.ndarray, first_redone: int, sigma_mm: float,
-               rng: np.random.Generator, draws: int = 4000) -> tuple[float, float]:
-    """99.9 % quantile of |dAP|, |dRP| when the attained poses from ``first_redone`` on get another
-    two-sample tracker noise draw (see the module docstring)."""
+               rng: np.random.Generator, draws: int = 4000, checks: int = 1) -> tuple[float, float]:
+    """The 1 - 0.001 / ``checks`` quantile of |dAP|, |dRP| when the attained poses from ``first_redone`` on get
+    another two-sample tracker noise draw (see the module docstring): 99.9 % for one check, the same family-wise
+    for ``checks`` of them (``draws`` grows with it, so the quantile stays about 4 draws deep)."""
     ap0, rp0 = _figures(attained, commanded)
     m = attained.shape[0] - first_redone
-    d_ap, d_rp = [], []
-    for _ in range(draws):  # Monte Carlo over noise draws (draws x a few poses: small)
-        a = attained.copy()
-        a[first_redone:] += rng.normal(0.0, np.sqrt(2.0) * sigma_mm, (m, 3))
-        ap, rp = _figures(a, commanded)
-        d_ap.append(abs(ap - ap0))
-        d_rp.append(abs(rp - rp0))
-    return float(np.quantile(d_ap, 0.999)), float(np.quantile(d_rp, 0.999))
+    n = int(draws * max(checks, 1))
+    a = np.broadcast_to(attained, (n, *attained.shape)).copy()  # Monte Carlo over noise draws, all at once
+    a[:, first_redone:] += rng.normal(0.0, np.sqrt(2.0) * sigma_mm, (n, m, 3))
+    bary = a.mean(axis=1)
+    ap = np.linalg.norm(bary - commanded, axis=1)
+    d = np.linalg.norm(a - bary[:, None], axis=2)
+    rp = d.mean(axis=1) + 3.0 * d.std(axis=1, ddof=1)
+    q = 1.0 - 0.001 / max(checks, 1)
+    return float(np.quantile(np.abs(ap - ap0), q)), float(np.quantile(np.abs(rp - rp0), q))
 
 
 def test_a_run_cut_anywhere_resumes_as_if_never_interrupted(test_seed, tmp_path):
