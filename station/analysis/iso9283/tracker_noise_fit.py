@@ -36,6 +36,8 @@ _MAX_LAG_FRACTION = 0.1
 _N_LAGS = 40
 #: a wander whose variance is below this fraction of the white one is not resolved
 _MIN_WANDER_FRACTION = 0.02
+#: a wander's rise over the lags must exceed this many standard errors of the semivariogram of white noise
+_RISE_SE = 5.0
 
 
 @dataclass(frozen=True)
@@ -134,6 +136,12 @@ def fit_tracker_noise(t_s, xyz_mm) -> NoiseFit:
         w2, g2, tau, note = w2 + g2, 0.0, None, "the wander is as fast as the samples: folded into the white noise"
     elif g2 < _MIN_WANDER_FRACTION * max(w2, 1e-30):
         w2, g2, tau, note = w2 + g2, 0.0, None, "no wander resolved (below 2 % of the white variance)"
+    elif g2 * (1.0 - math.exp(-lag_s[-1] / tau)) < _RISE_SE * w2 * math.sqrt(2.0 / (3.0 * (t.size - m[-1]))):
+        # the rise the wander makes over the lags is within the scatter white noise gives the semivariogram at its
+        # longest lag (each lag's mean of (dx)^2 / 2 over 3 (N - m) pairs: relative sd sqrt(2 / (3 (N - m)))): on
+        # white noise a slow "wander" was fitted to that scatter on 1 in 8 drawn holds
+        w2, g2, tau, note = w2 + g2, 0.0, None, ("no wander resolved (its rise over the lags is within "
+                                                 f"{_RISE_SE:g} standard errors of white noise's)")
     elif tau >= tau_hi * 0.999:
         note = ("the wander's correlation time reaches a third of the hold: it is at least that long (a longer "
                 "hold tells it)")
