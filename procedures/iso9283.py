@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import NamedTuple
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -544,14 +545,24 @@ def registration_of(outputs: Mapping) -> Registration:
                         n=len(out["residuals_mm"]))
 
 
-def _stream_in_base(ctx: StepContext, step_names: list[str]):
+class BaseStream(NamedTuple):
+    """The tracker's samples of some steps in the registered base frame, in time order: times (s), positions
+    (mm), the tracker's status per sample and the tool's angles a, b, c (rad; None without a 6-DoF target)."""
+
+    t: np.ndarray
+    xyz: np.ndarray
+    status: np.ndarray
+    abc: np.ndarray | None
+
+
+def _stream_in_base(ctx: StepContext, step_names: list[str]) -> BaseStream:
     s = ctx.samples(STREAM, steps=step_names)
     if not s:
         raise InsufficientDataError(f"no tracker samples recorded for {step_names[0]}..{step_names[-1]}")
     reg = registration_of(ctx.outputs)
     xyz = reg.to_base(np.column_stack([s["x"], s["y"], s["z"]]))
     order = np.argsort(s["t"], kind="stable")
-    return s["t"][order], xyz[order], s["status"][order], _abc_in_base(s, reg, order)
+    return BaseStream(s["t"][order], xyz[order], s["status"][order], _abc_in_base(s, reg, order))
 
 
 def _abc_in_base(s: Mapping, reg: Registration, order) -> np.ndarray | None:
@@ -652,7 +663,7 @@ def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndar
         pose_steps, vap_steps = stream_steps(plan)
         pose, vap = _stream_in_base(ctx, pose_steps), _stream_in_base(ctx, vap_steps)
         streams = ctx.session.streams = {
-            "pose": pose[:2], "vap": vap[:2], "pose_abc_rad": pose[3], "vap_abc_rad": vap[3]}
+            "pose": (pose.t, pose.xyz), "vap": (vap.t, vap.xyz), "pose_abc_rad": pose.abc, "vap_abc_rad": vap.abc}
     return streams
 
 

@@ -310,8 +310,8 @@ def _streams(ctx: StepContext, d: Mapping) -> list:
     out = []
     for v in range(1, n_visits(d) + 1):
         if f"visit {v}" in done:
-            t, xyz = _stream_in_base(ctx, [f"visit {v}"])[:2]
-            out.append((t, xyz))
+            b = _stream_in_base(ctx, [f"visit {v}"])
+            out.append((b.t, b.xyz))
     if not out:
         raise DataError("no finished visit: nothing to analyse")
     return out

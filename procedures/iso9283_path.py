@@ -185,8 +185,8 @@ def rows_of(plan: PathPlan, results: Mapping) -> list[dict]:
 def _streams(ctx: StepContext, plan: PathPlan) -> dict:
     out = {}
     for name, steps in step_names(plan).items():
-        t, xyz, status, _abc = iso._stream_in_base(ctx, steps)  # no reorientation path yet: angles unused
-        out[name] = (t, xyz, (np.asarray(status) == 0) & np.all(np.isfinite(xyz), axis=1))
+        b = iso._stream_in_base(ctx, steps)  # no reorientation path yet: its angles unused
+        out[name] = (b.t, b.xyz, (np.asarray(b.status) == 0) & np.all(np.isfinite(b.xyz), axis=1))
     return out
 
 
