@@ -402,9 +402,9 @@ def _drift_sd(w: Windows) -> float:
 
 def _figures(ho: Windows, base: F.Params, ext: F.Params, time_refused: str):
     """Per held-out pose the mean figures of the measured, simulated and extended curves; the curves."""
-    a_b, T_b = F.nuisances(ho, base)
-    a_e, T_e = F.nuisances(ho, ext)
-    xs, xe = F.predict(ho, base, a_b, T_b), F.predict(ho, ext, a_e, T_e)
+    a_b, T_b, v_b = F.nuisances(ho, base)
+    a_e, T_e, v_e = F.nuisances(ho, ext)
+    xs, xe = F.predict(ho, base, a_b, T_b, v_b), F.predict(ho, ext, a_e, T_e, v_e)
     per: dict = {}
     curves = []
     for i in range(ho.n):

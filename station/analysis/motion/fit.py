@@ -16,13 +16,17 @@ Every approach window is predicted by the closed forms of
   rest's, carried back over the window, times ``shrinkage`` (0: none, 1:
   all of the measured drift).
 
-Per move, ``a_m`` and ``T_m`` are nuisances: they are fitted (Gauss-Newton,
+Per move, ``a_m``, ``T_m`` and the cruise speed ``v_m`` are nuisances: they are fitted (Gauss-Newton,
 all moves at once) on the window's *timing part*, the samples more than
 :data:`TIMING_MM` short of the end, given the global parameters; the global
 parameters are fitted on the *approach part* (the rest of the window) of the
 training moves with the nuisances so profiled out. A held-out move is
-predicted the same way: its own timing part sets its ``a_m, T_m``, its
-approach part is never fitted.
+predicted the same way: its own timing part sets its ``a_m, T_m, v_m``, its
+approach part is never fitted. The speed is a nuisance because the loop's
+transients of the profile's earlier edges (:func:`~station.models.approach_response.servo_position`)
+are placed by it: a ringing loop lifts the stream's speed around the cruise
+(3.5 % on a loop of 6 Hz, damping 0.24), and the speed read off it put those
+transients 0.3 mm out of place (the windows' estimate is the start).
 """
 
 from __future__ import annotations
@@ -93,12 +97,13 @@ class Params:
         return {name: float(v) for (name, _, _), v in zip(EFFECT_PARAMS[effect], self.values[effect])}
 
 
-def predict(w: Windows, p: Params, a, T) -> np.ndarray:
-    """The model's position along the travel (M, L), mm."""
+def predict(w: Windows, p: Params, a, T, v=None) -> np.ndarray:
+    """The model's position along the travel (M, L), mm (``v``: the moves' cruise speeds, the windows' without)."""
     tau = w.t_s - np.asarray(T)[:, None]
     a2 = np.asarray(a)[:, None]
     f, z, tj = p.values["servo"]
-    v, D = w.v_mm_s[:, None], w.D_mm[:, None]
+    v = (w.v_mm_s if v is None else np.asarray(v, dtype=float))[:, None]
+    D = w.D_mm[:, None]
     x = ar.servo_position(tau, a2, tj, 2.0 * math.pi * f, z, v, D)
     if "creep" in p.values:
         A, tc = p.values["creep"]
@@ -120,40 +125,57 @@ def parts(w: Windows) -> tuple[np.ndarray, np.ndarray]:
     return timing, fin & ~timing
 
 
-def nuisances(w: Windows, p: Params, a=None, T=None, *, iterations: int = NUISANCE_ITERATIONS
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """``(a_m, T_m)`` of every move fitted on its timing part, the global parameters ``p`` given."""
+#: the cruise speed's prior sd as a fraction of the windows' estimate (holds it where the timing part has no cruise)
+V_PRIOR_FRACTION = 0.05
+
+
+def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int = NUISANCE_ITERATIONS
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(a_m, T_m, v_m)`` of every move fitted on its timing part, the global parameters ``p`` given.
+
+    Gauss-Newton on the three per move at once (3 x 3 normal equations per move); the speed carries a weak prior
+    at the windows' estimate (sd :data:`V_PRIOR_FRACTION` of it, in units of the stream's noise), which only
+    matters where the timing part holds no cruise.
+    """
     timing, _ = parts(w)
     a = w.a0_mm_s2.copy() if a is None else np.array(a, dtype=float)
     T = w.T0_s.copy() if T is None else np.array(T, dtype=float)
+    v = w.v_mm_s.copy() if v is None else np.array(v, dtype=float)
     m = timing.astype(float)
     X = np.nan_to_num(w.x_mm)
     dt = np.gradient(np.nan_to_num(w.t_s), axis=1)  # the same at every iteration
+    prior = (max(w.noise_mm, 1e-6) / (V_PRIOR_FRACTION * w.v_mm_s)) ** 2
     for _ in range(iterations):
-        x0 = predict(w, p, a, T)
+        x0 = predict(w, p, a, T, v)
         r = np.where(timing, X - x0, 0.0)
-        # a later end moves the curve later
-        da = 1e-4 * a
-        ja = np.where(timing, (predict(w, p, a + da, T) - x0) / da[:, None], 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros
+        da, dv = 1e-4 * a, 1e-4 * v
+        ja = np.where(timing, (predict(w, p, a + da, T, v) - x0) / da[:, None], 0.0)
+        jv = np.where(timing, (predict(w, p, a, T, v + dv) - x0) / dv[:, None], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the padding's zeros; a later end moves the curve later
             jT = np.where(timing, -np.gradient(np.nan_to_num(x0), axis=1) / dt, 0.0)
-        h11, h12, h22 = (ja * ja * m).sum(1), (ja * jT * m).sum(1), (jT * jT * m).sum(1)
-        g1, g2 = (ja * r).sum(1), (jT * r).sum(1)
-        det = h11 * h22 - h12 * h12
-        good = det > 1e-12 * np.maximum(h11 * h22, 1e-300)
-        step_a = np.where(good, (h22 * g1 - h12 * g2) / np.where(good, det, 1.0), 0.0)
-        step_T = np.where(good, (h11 * g2 - h12 * g1) / np.where(good, det, 1.0), 0.0)
-        a = np.clip(a + step_a, 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
-        T = T + np.clip(step_T, -0.05, 0.05)
-        if np.max(np.abs(step_T)) < 1e-7:
+        J = np.stack([ja, jT, jv], axis=2) * np.sqrt(m)[:, :, None]
+        H = np.einsum("mli,mlj->mij", J, J)
+        g = np.einsum("mli,ml->mi", J, r)
+        H[:, 2, 2] += prior
+        g[:, 2] -= prior * (v - w.v_mm_s)
+        scale = np.sqrt(np.maximum(np.einsum("mii->mi", H), 1e-300))
+        Hs = H / scale[:, :, None] / scale[:, None, :]
+        good = np.linalg.cond(Hs) < 1e10
+        step = np.zeros_like(g)
+        if good.any():
+            step[good] = np.linalg.solve(Hs[good], (g / scale)[good][:, :, None])[:, :, 0] / scale[good]
+        a = np.clip(a + step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
+        T = T + np.clip(step[:, 1], -0.05, 0.05)
+        v = np.clip(v + step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s)
+        if np.max(np.abs(step[:, 1])) < 1e-7:
             break
-    return a, T
+    return a, T, v
 
 
 def approach_residual(w: Windows, p: Params) -> tuple[np.ndarray, np.ndarray]:
     """``(residual (M, L) with NaN outside the approach part, prediction (M, L))``, nuisances profiled."""
-    a, T = nuisances(w, p)
-    x = predict(w, p, a, T)
+    a, T, v = nuisances(w, p)
+    x = predict(w, p, a, T, v)
     _, app = parts(w)
     return np.where(app, w.x_mm - x, np.nan), x
 
@@ -166,8 +188,8 @@ def _objective(w: Windows, p: Params):
 
     def f(v):
         q = p.from_vector(v)
-        a, T = nuisances(w, q, *start, iterations=2)
-        return (w.x_mm - predict(w, q, a, T))[app]
+        a, T, v = nuisances(w, q, *start, iterations=2)
+        return (w.x_mm - predict(w, q, a, T, v))[app]
 
     return f
 
@@ -199,22 +221,22 @@ def best_starts(w: Windows, p: Params, effect: str, grid, n: int = 1) -> list[Pa
         f, _, tj = p.values["servo"]
         starts += [q.with_("servo", (f, z, tj)) for q in starts for z in (0.7, 1.0)]
     if p.values:  # the current model's nuisances, held while the grid is scanned
-        a, T = nuisances(w, p)
+        a, T, v = nuisances(w, p)
     else:
-        a, T = w.a0_mm_s2, w.T0_s
+        a, T, v = w.a0_mm_s2, w.T0_s, w.v_mm_s
     _, app = parts(w)
     scored = []
     for q in starts:
         if effect == "structural_mode":  # the gain is linear: fitted at each frequency and damping
             q0 = q.with_(effect, (q.values[effect][0], q.values[effect][1], 0.0))
-            r = (w.x_mm - predict(w, q0, a, T))[app]
-            c = (predict(w, q.with_(effect, (q.values[effect][0], q.values[effect][1], 1.0)), a, T)
-                 - predict(w, q0, a, T))[app]
+            r = (w.x_mm - predict(w, q0, a, T, v))[app]
+            c = (predict(w, q.with_(effect, (q.values[effect][0], q.values[effect][1], 1.0)), a, T, v)
+                 - predict(w, q0, a, T, v))[app]
             g = float(c @ r) / max(float(c @ c), 1e-300)
             q = q.with_(effect, (q.values[effect][0], q.values[effect][1], g))
             r = r - g * c
         else:
-            r = (w.x_mm - predict(w, q, a, T))[app]
+            r = (w.x_mm - predict(w, q, a, T, v))[app]
         scored.append((float(r @ r), q))
     scored.sort(key=lambda sq: sq[0])
     return [q for _, q in scored[:n]]
