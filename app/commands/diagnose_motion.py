@@ -124,7 +124,7 @@ def _print(doc: dict) -> None:
         par = ", ".join(f"{n} {v:.4g}" for n, v in s["params"].items())
         print(f"{k:>2}. {s['effect']} ({par}): held-out {s['heldout_rms_before'] * 1000:.2f} -> "
               f"{s['heldout_rms_after'] * 1000:.2f} um ({100 * s['gain']:.1f} %), F {s['statistic']:.1f} > "
-              f"{s['threshold']:.1f}, held-out t {s['heldout_t']:.1f} > {s['heldout_threshold']:.1f}")
+              f"{s['threshold']:.1f}, held-out z {s['heldout_t']:.1f} > {s['heldout_threshold']:.1f} (signed ranks)")
     if not doc["steps"]:
         print("nothing named: the baseline explains the held-out approaches to the noise")
     print(f"extended model held-out RMS {doc['final_heldout_rms'] * 1000:.2f} um ({doc['gain_percent']:.1f} % less); "

@@ -2,8 +2,9 @@
 closed forms): the creep predicts the held-out moves at 0.7x the simulation's error or better, and a dry run with
 its model (``simulate iso9283 --program ... --motion-model M``) gives MPT within 20 % of the recording's (PST:
 not reliably, see the test).
-(That the creep is also *named* is not asserted: the held-out block t test cannot pass reliably on the lab's two
-held-out moves; see the branch's report.)
+(That the creep is also *named* is not asserted per draw: on the lab's two held-out moves the held-out test
+passes on 7 of 8 draws at 100 % speed (bench/bench_real_arm_naming.py); where one of the two moves disagrees
+(the reading's wander of 3 um over the late dwell) it cannot.)
 
 "Measured" and "dry run" figures come from one analysis: the diagnosis's windows and approach figures
 (:mod:`station.analysis.motion.windows`, :mod:`station.analysis.motion.figures`: PST and MPT into a 0.02 mm band,
@@ -56,8 +57,7 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
     res = diagnose_motion(ra.t_s, ra.xyz_mm, ra.poses_mm, ["P1", "P2"])
     # the creep, tested first against the refitted baseline, predicts the held-out moves at 0.7x the
     # simulation's error or better, and passes the training moves' F test
-    # (it is NAMED only when the held-out block t test also passes; on two held-out moves that t cannot exceed
-    # about 2.8 against a threshold of 2.5, see the report of this branch: not asserted here)
+    # (it is NAMED only when the held-out signed-rank test also passes: on 7 of 8 draws; not asserted here)
     creep = next(ct for ct in res.rounds[0] if ct.effect == "creep")
     assert creep.significant, (ra.truth, creep.to_json())
     assert creep.heldout_rms_after <= HELDOUT_RATIO * res.simulation_heldout_rms, (

@@ -1,0 +1,44 @@
+"""How often the motion diagnosis names the creep on look-alikes of issue 42's real UR arm (run by hand).
+
+    .venv/bin/python bench/bench_real_arm_naming.py --speed 1.0 --first 100 --draws 8
+
+Per draw (tests/motion/real_arm.py, seeds first .. first + draws - 1): what is named, the creep's held-out
+statistic against its threshold, its training F against its threshold, and the held-out rms of the creep's
+model against the simulation's (baseline's). The last line: how many draws named the creep first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from station.analysis.motion.diagnose import diagnose_motion  # noqa: E402
+from tests.motion.real_arm import draw, make  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--speed", type=float, default=1.0)
+    ap.add_argument("--first", type=int, default=100)
+    ap.add_argument("--draws", type=int, default=8)
+    a = ap.parse_args()
+    first_creep = 0
+    for seed in range(a.first, a.first + a.draws):
+        ra = make(draw(np.random.default_rng(seed), speed=a.speed))
+        res = diagnose_motion(ra.t_s, ra.xyz_mm, ra.poses_mm, ["P1", "P2"])
+        c = next(ct for ct in res.rounds[0] if ct.effect == "creep")
+        first_creep += res.named[:1] == ["creep"]
+        print(f"speed {a.speed:g} seed {seed}: named {res.named}; creep held-out z {c.heldout_t:.2f} "
+              f"(threshold {c.heldout_threshold:.2f}), F {c.statistic:.0f} ({c.threshold:.1f}); held-out rms "
+              f"{1000 * c.heldout_rms_after:.1f} um against the simulation's {1000 * res.simulation_heldout_rms:.1f}",
+              flush=True)
+    print(f"creep named first on {first_creep} of {a.draws} draws")
+
+
+if __name__ == "__main__":
+    main()
