@@ -477,7 +477,8 @@ def _change(i: int, dh_new, dh_old) -> float:
 def _correlations(Jf: np.ndarray) -> np.ndarray:
     sc = np.linalg.norm(Jf, axis=0)
     sc[sc == 0] = 1.0
-    C = np.linalg.pinv((Jf / sc).T @ (Jf / sc))
+    Js = Jf / sc
+    C = np.linalg.pinv(Js.T @ Js)
     d = np.sqrt(np.maximum(np.diag(C), 1e-300))
     return C / np.outer(d, d)
 
