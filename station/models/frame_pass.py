@@ -29,7 +29,7 @@ import numpy as np
 from station.errors import DataError
 from station.models import kinematics as kin
 
-__all__ = ["FramePass", "frame_pass", "turned", "tool_points", "param_jacobian"]
+__all__ = ["FramePass", "frame_pass", "turn", "tool_points", "param_jacobian"]
 
 
 class FramePass(NamedTuple):
@@ -90,10 +90,16 @@ def frame_pass(dh, q_rad, rotation=None) -> FramePass:
     return FramePass(axes, tr, np.cos(al), np.sin(al))
 
 
-def turned(fp: FramePass, rotation) -> FramePass:
-    """The same pass with every frame turned by ``rotation`` (3, 3) (as if it had started from it)."""
+def turn(fp: FramePass, rotation) -> FramePass:
+    """Turn every frame of the pass by ``rotation`` (3, 3) in place (as if it had started from it); returns it.
+
+    Frame by frame: no second pass-sized array (fresh memory costs page faults).
+    """
     R = np.asarray(rotation, dtype=float)
-    return FramePass(np.matmul(R, fp.axes), np.matmul(R, fp.turned), fp.cos_alpha, fp.sin_alpha)
+    for block in (fp.axes, fp.turned):
+        for k in range(block.shape[0]):
+            block[k] = np.matmul(R, block[k])
+    return fp
 
 
 def tool_points(fp: FramePass) -> np.ndarray:
@@ -129,8 +135,8 @@ def param_jacobian(fp: FramePass, out=None) -> np.ndarray:
     # frame after Rz(theta): its x axis carries a, its y axis (after Rx(alpha)) is the Hayati beta axis;
     # alpha and beta rotate about o_i, theta about o_{i-1}
     y_b = fp.cos_alpha * y_m + fp.sin_alpha * z_prev
-    r_prev = p - o[:kin.N_ROWS]
-    r_i = p - o[1:]
+    r = p - o                                            # from every origin to the tool point
+    r_prev, r_i = r[:kin.N_ROWS], r[1:]
     J[..., 0] = x_m                     # d p / d a_i
     _cross(x_m, r_i, J[..., 1])         # d p / d alpha_i
     J[..., 2] = z_prev                  # d p / d d_i

@@ -33,10 +33,14 @@ def test_frames_tool_points_and_jacobian_are_the_kinematics_turned_by_the_base_r
     _close(fp.axes, np.einsum("ic,nkcj->kjin", R, F[:, :, :3, :]))
     _close(fpass.tool_points(fp), kin.tool_position(dh, q) @ R.T)
     _close(fpass.param_jacobian(fp), np.matmul(R, kin.param_jacobian(dh, q)))
-    # without a rotation: the kinematics themselves; turned afterwards: the same as turned from the start
+    # without a rotation: the kinematics themselves; turned afterwards (in place): as turned from the start
     fp0 = fpass.frame_pass(dh, q)
     _close(fpass.param_jacobian(fp0), kin.param_jacobian(dh, q))
-    _close(fpass.param_jacobian(fpass.turned(fp0, R)), fpass.param_jacobian(fp))
+    axes0 = fp0.axes
+    assert fpass.turn(fp0, R).axes is axes0
+    _close(fp0.axes, fp.axes)
+    _close(fp0.turned, fp.turned)
+    _close(fpass.param_jacobian(fp0), fpass.param_jacobian(fp))
 
 
 def test_the_jacobian_is_written_into_a_view_of_a_wider_matrix(rng, robot):

@@ -201,9 +201,9 @@ def _base_T(x_base: np.ndarray) -> np.ndarray:
 def _absolute_problem(dh, x_base, q, meas, *, lazy: bool = False, start_pass=None):
     """``(r, J)`` of the absolute formulation; ``lazy``: ``J`` is a function that computes it from the same
     forward pass (the solver calls it only for a state it accepts); ``start_pass``: the caller's
-    :func:`frame_pass.frame_pass` of ``dh, q`` (from the identity), turned here by the base rotation."""
+    :func:`frame_pass.frame_pass` of ``dh, q`` (from the identity), turned here in place by the base rotation."""
     R = rotvec_to_matrix(x_base[:3])
-    fp = frame_pass.frame_pass(dh, q, R) if start_pass is None else frame_pass.turned(start_pass, R)
+    fp = frame_pass.frame_pass(dh, q, R) if start_pass is None else frame_pass.turn(start_pass, R)
     r = (meas - (frame_pass.tool_points(fp) + x_base[3:])).reshape(-1)
 
     def jac():
@@ -603,10 +603,11 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     else:
         n_p = kin.N_PARAMS + 6
         fp_start = frame_pass.frame_pass(dh, q)
-        p_start = frame_pass.tool_points(fp_start)
+        p_start = frame_pass.tool_points(fp_start).copy()   # not a view: the pass is let go below
         B0 = rigid_fit(p_start, meas) if base_T_start is None else np.asarray(base_T_start, float)
         x_base = np.concatenate([matrix_to_rotvec(B0[:3, :3]), B0[:3, 3]])
         r, J = _absolute_problem(dh, x_base, q, meas, start_pass=fp_start)
+        del fp_start
         order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
     dh_ideal = ideal_structure(dh)
     if not np.array_equal(dh_ideal, dh):
@@ -624,6 +625,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     order = prefer + [i for i in order if i not in prefer]
     fixed0.update(fixed_extra or {})
     ident = analyse_identifiability(J_id, fixed0, n_params=n_p, order=order)
+    del J_id
     unseen = _unseen_by_poses(dh_ideal, ident, method, fixed0, n_p, order)
     # independent numbers in the data: K points carry 3K coordinates, and distances lose the 6 of a rigid motion
     info = 3 * n - (6 if method == "distance" else 0)
@@ -670,16 +672,20 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     state = (dh, x_base)
     hist_states, hist_rms = [state], [math.sqrt(float(r @ r) / r.size)]
     it1 = 0
-    at_state = (r, J)   # each fit starts where the last ended, with its residual and Jacobian
+    # each fit starts where the last ended, with its residual and Jacobian, handed over (popped) so that the
+    # fit alone holds them: a Jacobian of 1,000 poses is 1 MB, and fresh memory costs page faults
+    at_state = [(r, J)]
+    del r, J
     if 0 < stage1.size < free.size:
         s1 = levenberg_marquardt(evaluate, apply, state, free=stage1, max_iter=max_iter, rtol=tol,
-                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
+                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state.pop())
         state, it1 = s1.state, s1.iterations
-        at_state = (s1.r, s1.J)
+        at_state = [(s1.r, s1.J)]
         hist_states += s1.states[1:]
         hist_rms += s1.rms_history[1:]
+        del s1
     sol = levenberg_marquardt(evaluate, apply, state, free=free, max_iter=max_iter, rtol=tol,
-                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
+                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state.pop())
     hist_states += sol.states[1:]
     hist_rms += sol.rms_history[1:]
     prior_note = None
