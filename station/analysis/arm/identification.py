@@ -1,7 +1,9 @@
 """Kinematic identification of an arm (seed 002 section 3): which parameters, and their values.
 
 Two formulations, both solved by Levenberg-Marquardt on the analytic
-parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8)):
+parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8);
+the absolute one from the poses-last forward pass of
+:mod:`station.models.frame_pass`, in the instrument frame):
 
 ``distance``
     Seed 002 eq. (9)-(16): the distance between two measured tool points
