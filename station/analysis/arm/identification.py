@@ -1,7 +1,9 @@
 """Kinematic identification of an arm (seed 002 section 3): which parameters, and their values.
 
 Two formulations, both solved by Levenberg-Marquardt on the analytic
-parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8)):
+parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8);
+the absolute one from the poses-last forward pass of
+:mod:`station.models.frame_pass`, in the instrument frame):
 
 ``distance``
     Seed 002 eq. (9)-(16): the distance between two measured tool points
@@ -62,11 +64,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from station.errors import DataError, InsufficientDataError
+from station.models import frame_pass
 from station.models import kinematics as kin
+from station.models.rotation import matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = [
     "BASE_NAMES", "Identifiability", "IdentificationResult", "analyse_identifiability", "identify",
@@ -192,47 +195,44 @@ def _distance_problem(dh, q, meas, pairs):
 
 def _base_T(x_base: np.ndarray) -> np.ndarray:
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(x_base[:3]).as_matrix()
+    T[:3, :3] = rotvec_to_matrix(x_base[:3])
     T[:3, 3] = x_base[3:]
     return T
 
 
-def _absolute_problem(dh, x_base, q, meas, *, lazy: bool = False, frames=None):
+def _absolute_problem(dh, x_base, q, meas, *, lazy: bool = False, start_pass=None):
     """``(r, J)`` of the absolute formulation; ``lazy``: ``J`` is a function that computes it from the same
-    frames (the solver calls it only for a state it accepts); ``frames``: :func:`kin.frames` of ``dh, q``
-    when the caller has them."""
-    F = kin.frames(dh, q) if frames is None else frames
-    p = F[:, -1, :3, 3]
-    B = _base_T(x_base)
-    R = B[:3, :3]
-    pw = p @ R.T + B[:3, 3]
-    r = (meas - pw).reshape(-1)
+    forward pass (the solver calls it only for a state it accepts); ``start_pass``: the caller's
+    :func:`frame_pass.frame_pass` of ``dh, q`` (from the identity), turned here in place by the base rotation."""
+    R = rotvec_to_matrix(x_base[:3])
+    fp = frame_pass.frame_pass(dh, q, R) if start_pass is None else frame_pass.turn(start_pass, R)
+    r = (meas - (frame_pass.tool_points(fp) + x_base[3:])).reshape(-1)
 
     def jac():
-        return _absolute_jacobian(dh, q, F, p, R)
+        return _absolute_jacobian(fp)
 
     return (r, jac) if lazy else (r, jac())
 
 
-def _absolute_jacobian(dh, q, F, p, R):
-    J = kin.param_jacobian_from_frames(dh, q, F)
-    n = q.shape[0]
-    out = np.zeros((n, 3, kin.N_PARAMS + 6))
-    np.matmul(R, J, out=out[:, :, :kin.N_PARAMS])   # (n, 3, 35) in the instrument frame
+def _absolute_jacobian(fp: frame_pass.FramePass) -> np.ndarray:
+    """``d(R p + t) / d(dh, w, t)`` (3N, 41) from the pass turned by the base rotation ``R``."""
+    Rp = frame_pass.tool_points(fp)
+    n = Rp.shape[0]
+    out = np.empty((n, 3, kin.N_PARAMS + 6))
+    frame_pass.param_jacobian(fp, out=out[:, :, :kin.N_PARAMS])   # already in the instrument frame
     # a small rotation w applied on the left: d(R p) = w x (R p)
-    Rp = p @ R.T
     Jb = out[:, :, kin.N_PARAMS:]
+    Jb[:, 0, 0] = Jb[:, 1, 1] = Jb[:, 2, 2] = 0.0
     Jb[:, 0, 1], Jb[:, 0, 2] = Rp[:, 2], -Rp[:, 1]
     Jb[:, 1, 0], Jb[:, 1, 2] = -Rp[:, 2], Rp[:, 0]
     Jb[:, 2, 0], Jb[:, 2, 1] = Rp[:, 1], -Rp[:, 0]
-    Jb[:, 0, 3] = Jb[:, 1, 4] = Jb[:, 2, 5] = 1.0
+    Jb[:, :, 3:] = np.eye(3)
     return out.reshape(3 * n, -1)
 
 
 def _update_base(x_base: np.ndarray, step: np.ndarray) -> np.ndarray:
-    R = Rotation.from_rotvec(step[:3]) * Rotation.from_rotvec(x_base[:3])
     out = np.empty(6)
-    out[:3] = R.as_rotvec()
+    out[:3] = matrix_to_rotvec(rotvec_to_matrix(step[:3]) @ rotvec_to_matrix(x_base[:3]))
     out[3:] = x_base[3:] + step[3:]
     return out
 
@@ -262,6 +262,27 @@ def _structural(dh: np.ndarray, use_beta: bool = True) -> dict:
     return fixed
 
 
+#: rows of one block of the QR below: 32768 doubles (256 KiB) a block, so that each stays in a core's cache
+_QR_BLOCK_DOUBLES = 32768
+
+
+def _r_factor(J: np.ndarray) -> np.ndarray:
+    """An ``R`` (n, n) with ``R^T R = J^T J`` for a tall ``J`` (m, n), by Householder QR in blocks of rows.
+
+    Each block's ``R`` and then the stacked ``R``s are reduced by QR (every step orthogonal, as stable as
+    one QR of ``J``); a block the size of a core's cache runs about twice as fast as one QR of 3,000 rows.
+    """
+    m, n = J.shape
+    b = max(2 * n, _QR_BLOCK_DOUBLES // max(n, 1))
+    if m <= 2 * b:
+        return np.linalg.qr(J, mode="r")
+    k = m // b
+    parts = [np.linalg.qr(J[:k * b].reshape(k, b, n), mode="r").reshape(k * n, n)]
+    if k * b < m:
+        parts.append(np.linalg.qr(J[k * b:], mode="r"))
+    return np.linalg.qr(np.concatenate(parts), mode="r")
+
+
 def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params: int,
                             order: list[int] | None = None) -> Identifiability:
     """Decide the identified parameters from the Jacobian ``J`` (m, n_params) at the start.
@@ -272,16 +293,21 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     kept ones.
     """
     m = J.shape[0]
-    if m > J.shape[1]:
-        # every decision below depends on J only through J^T J = R^T R: work on the small R
-        J = np.linalg.qr(J, mode="r")
     norms = np.linalg.norm(J, axis=0)
     # a column this much smaller than the largest is numerically zero (e.g. theta1 in the distances)
     norms = np.where(norms < 1e-9 * max(float(norms.max()), 1e-300), 0.0, norms)
     fixed = dict(n_kin_start_fixed)
+    # every decision below depends on the columns not fixed beforehand, and on them only through their
+    # inner products: work on a small R of those columns (R^T R = J^T J) when J is tall
+    cols = np.array([j for j in range(n_params) if _name(j) not in fixed], dtype=np.int64)
+    at = np.full(n_params, -1)
+    at[cols] = np.arange(cols.size)
+    Jc = J[:, cols]
+    if m > cols.size:
+        Jc = _r_factor(Jc)
     order = list(range(n_params)) if order is None else order
     kept: list[int] = []
-    Q = np.zeros((J.shape[0], 0))
+    Q = np.zeros((Jc.shape[0], 0))
     for j in order:
         name = _name(j)
         if name in fixed:
@@ -289,13 +315,13 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
         if norms[j] == 0.0 or not np.isfinite(norms[j]):
             fixed[name] = "no effect on the measurements (zero column)"
             continue
-        c = J[:, j] / norms[j]
+        c = Jc[:, at[j]] / norms[j]
         r = c - Q @ (Q.T @ c)
         r = r - Q @ (Q.T @ r)  # re-orthogonalise
         rn = float(np.linalg.norm(r))
         if rn < REDUNDANCY_TOL:
             # name the kept parameters it is a combination of (largest coefficients)
-            coef = np.linalg.lstsq(J[:, kept] / norms[kept], c, rcond=None)[0] if kept else np.zeros(0)
+            coef = (np.linalg.lstsq(Jc[:, at[kept]] / norms[kept], c, rcond=None)[0] if kept else np.zeros(0))
             big = [_name(kept[i]) for i in np.argsort(-np.abs(coef))[:3] if abs(coef[i]) > 1e-3]
             fixed[name] = "redundant with " + (", ".join(big) if big else "the other parameters")
             continue
@@ -304,7 +330,7 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     free = np.array(sorted(kept), dtype=np.int64)
     if free.size == 0:
         raise InsufficientDataError("no parameter is identifiable from these poses")
-    Js = J[:, free] / norms[free]
+    Js = Jc[:, at[free]] / norms[free]
     s = np.linalg.svd(Js, compute_uv=False)
     cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
     obs = {"O1": float(np.prod(s ** (1.0 / s.size)) / math.sqrt(m)), "O3": float(s[-1]),
@@ -427,6 +453,12 @@ PRIOR_BASE_DEG = 0.1
 PRIOR_CONSISTENCY_P = 1e-3
 
 
+@functools.lru_cache(maxsize=256)
+def _chi2_isf(p: float, dof: int) -> float:
+    """``chi2.isf(p, dof)`` (scipy's distributions cost about half a millisecond a call)."""
+    return float(chi2.isf(p, dof))
+
+
 def prior_sd(name: str) -> float:
     """1-sigma of the prior of a parameter in internal units (mm, rad)."""
     if name.startswith("base_"):
@@ -453,7 +485,8 @@ def _change(i: int, dh_new, dh_old) -> float:
 def _correlations(Jf: np.ndarray) -> np.ndarray:
     sc = np.linalg.norm(Jf, axis=0)
     sc[sc == 0] = 1.0
-    C = np.linalg.pinv((Jf / sc).T @ (Jf / sc))
+    Js = Jf / sc
+    C = np.linalg.pinv(Js.T @ Js)
     d = np.sqrt(np.maximum(np.diag(C), 1e-300))
     return C / np.outer(d, d)
 
@@ -577,11 +610,12 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         order = _kin_order()
     else:
         n_p = kin.N_PARAMS + 6
-        F_start = kin.frames(dh, q)
-        p_start = F_start[:, -1, :3, 3]
+        fp_start = frame_pass.frame_pass(dh, q)
+        p_start = frame_pass.tool_points(fp_start).copy()   # not a view: the pass is let go below
         B0 = rigid_fit(p_start, meas) if base_T_start is None else np.asarray(base_T_start, float)
-        x_base = np.concatenate([Rotation.from_matrix(B0[:3, :3]).as_rotvec(), B0[:3, 3]])
-        r, J = _absolute_problem(dh, x_base, q, meas, frames=F_start)
+        x_base = np.concatenate([matrix_to_rotvec(B0[:3, :3]), B0[:3, 3]])
+        r, J = _absolute_problem(dh, x_base, q, meas, start_pass=fp_start)
+        del fp_start
         order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
     dh_ideal = ideal_structure(dh)
     if not np.array_equal(dh_ideal, dh):
@@ -599,6 +633,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     order = prefer + [i for i in order if i not in prefer]
     fixed0.update(fixed_extra or {})
     ident = analyse_identifiability(J_id, fixed0, n_params=n_p, order=order)
+    del J_id
     unseen = _unseen_by_poses(dh_ideal, ident, method, fixed0, n_p, order)
     # independent numbers in the data: K points carry 3K coordinates, and distances lose the 6 of a rigid motion
     info = 3 * n - (6 if method == "distance" else 0)
@@ -645,16 +680,20 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     state = (dh, x_base)
     hist_states, hist_rms = [state], [math.sqrt(float(r @ r) / r.size)]
     it1 = 0
-    at_state = (r, J)   # each fit starts where the last ended, with its residual and Jacobian
+    # each fit starts where the last ended, with its residual and Jacobian, handed over (popped) so that the
+    # fit alone holds them: a Jacobian of 1,000 poses is 1 MB, and fresh memory costs page faults
+    at_state = [(r, J)]
+    del r, J
     if 0 < stage1.size < free.size:
         s1 = levenberg_marquardt(evaluate, apply, state, free=stage1, max_iter=max_iter, rtol=tol,
-                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
+                                 step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state.pop())
         state, it1 = s1.state, s1.iterations
-        at_state = (s1.r, s1.J)
+        at_state = [(s1.r, s1.J)]
         hist_states += s1.states[1:]
         hist_rms += s1.rms_history[1:]
+        del s1
     sol = levenberg_marquardt(evaluate, apply, state, free=free, max_iter=max_iter, rtol=tol,
-                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state)
+                              step_tol_sigma=STEP_TOL_SIGMA, keep_states=True, start=at_state.pop())
     hist_states += sol.states[1:]
     hist_rms += sol.rms_history[1:]
     prior_note = None
@@ -709,7 +748,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         for keep in tries:
             cand = with_prior(keep)
             r_c = cand.r[:m_data]   # the data's part of its residual
-            if float(r_c @ r_c) - sol.cost <= chi2.isf(PRIOR_CONSISTENCY_P, int(keep.sum())) * s_noise ** 2:
+            if float(r_c @ r_c) - sol.cost <= _chi2_isf(PRIOR_CONSISTENCY_P, int(keep.sum())) * s_noise ** 2:
                 solp, used = cand, keep
                 break
         if solp is not None:
@@ -743,13 +782,14 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     # uncertainties from the residuals at the solution; a held parameter's is its prior's (the poses add
     # next to nothing to it), and it takes no part in the warnings (its change is the prior's to keep small)
     seen = np.array([i for i in free if _name(i) not in held], dtype=np.int64)
-    sd = _parameter_sd(J[:, seen], cost, info, method, meas, pairs)
+    J_seen = J[:, seen]
+    sd = _parameter_sd(J_seen, cost, info, method, meas, pairs)
     sd_seen = dict(zip(seen.tolist(), sd.tolist()))
     sigma = {}
     for i in free:
         v = prior_sd(_name(i)) if _name(i) in held else float(sd_seen[int(i)])
         sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
-    warnings = parameter_warnings(dh, dh_start_arr, seen, J[:, seen], sigma)
+    warnings = parameter_warnings(dh, dh_start_arr, seen, J_seen, sigma)
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,
                                 math.sqrt(cost / m), time.perf_counter() - t0,

@@ -71,6 +71,7 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
         ``(r, J)`` at ``state`` when the caller has them (the end of a previous fit): not evaluated again.
     """
     r, J = evaluate(state) if start is None else start
+    start = None   # the solver alone holds the Jacobian it replaces (its memory is let go with it)
     J = _jac(J)
     n = J.shape[1]
     free = np.arange(n) if free is None else np.asarray(free, dtype=np.int64)
@@ -94,6 +95,7 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
         scale[scale == 0] = 1.0
         A /= np.outer(scale, scale)
         g = (r @ Jf) / scale
+        del Jf
         try:
             gn = np.linalg.lstsq(A, g, rcond=1e-12)[0]
             decrease = float(g @ gn)
@@ -136,6 +138,7 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
             break
         rel = (cost - c_c) / max(cost, 1e-300)
         state, r, J, cost = cand, r_c, _jac(J_c), c_c
+        J_c = None   # a lazy Jacobian holds its forward pass
         hist.append(math.sqrt(cost / max(m, 1)))
         if keep_states:
             states.append(state)

@@ -1,0 +1,145 @@
+"""One forward pass of a DH + Hayati table over many poses, laid out for the parameter Jacobian.
+
+The same quantities as :func:`station.models.kinematics.frames` and
+:func:`~station.models.kinematics.param_jacobian` (seed 002 eq. (3), (5),
+(7)-(8)), computed for what an identification iterates on: one table (7, 5)
+and N poses, with the poses on the last axis so that every product runs over
+contiguous memory.
+
+Each row's link transform, eq. (3), is ``T_i = Rz(theta_i + q_i) C_i`` with
+``C_i = Tz(d_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)`` the same for every pose, so
+the chain ``F_i = F_{i-1} T_i`` is a turn of the previous frame's x and y
+axes by the joint angle (two products over the poses) and one small matrix
+product with ``C_i``; the turned axes are the Jacobian's own ``x`` and ``y``
+after ``Rz(theta_i)``, kept rather than computed again. The chain may start
+from a rotation ``R`` (the instrument's orientation of the robot base): the
+frames, the tool point and the Jacobian's columns are then in the turned
+frame at no extra cost (a rotation turns axes and differences of points
+alike, and a cross product of turned vectors is the turned cross product).
+
+Units: mm and rad.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from station.errors import DataError
+from station.models import kinematics as kin
+
+__all__ = ["FramePass", "frame_pass", "turn", "tool_points", "param_jacobian"]
+
+
+class FramePass(NamedTuple):
+    """Frames of one table over N poses, poses last.
+
+    ``axes[k]`` (4, 3, N): the x, y, z axes and the origin of frame k
+    (k = 0 the base, as turned by the start rotation, .. 7 the TCP);
+    ``turned[i]`` (2, 3, N): frame i's x and y axes after row i's
+    ``Rz(theta_i + q_i)``; ``cos_alpha``, ``sin_alpha`` (7, 1, 1): the rows'
+    twists, for the Hayati beta axis.
+    """
+
+    axes: np.ndarray
+    turned: np.ndarray
+    cos_alpha: np.ndarray
+    sin_alpha: np.ndarray
+
+
+def frame_pass(dh, q_rad, rotation=None) -> FramePass:
+    """Forward kinematics, seed 002 eq. (3) and (5), of one table ``dh`` (7, 5) over ``q_rad`` (N, 6).
+
+    ``rotation`` (3, 3): the base frame's orientation (default the identity); every frame, and the tool
+    point, is turned by it.
+    """
+    dh = kin.validate_dh(dh)
+    if dh.shape != (kin.N_ROWS, 5):
+        raise DataError(f"`dh` must have shape (7, 5) (one table for every pose), got {dh.shape}")
+    q = np.asarray(q_rad, dtype=float)
+    if q.ndim != 2 or q.shape[1] != kin.N_JOINTS:
+        raise DataError(f"`q_rad` must have shape (N, {kin.N_JOINTS}), got {q.shape}")
+    n = q.shape[0]
+    # each row's constant part C_i: the link transform with theta 0
+    flat = dh.copy()
+    flat[:, 3] = 0.0
+    C = kin.link_transforms(flat, np.zeros(kin.N_JOINTS))          # (7, 4, 4)
+    th = np.empty((kin.N_ROWS, n))
+    th[:kin.N_JOINTS] = q.T
+    th[kin.N_JOINTS] = 0.0
+    th += dh[:, 3, None]
+    ct, st = np.cos(th), np.sin(th)
+    axes = np.empty((kin.N_ROWS + 1, 4, 3, n))
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    axes[0, :3] = R.T[:, :, None]       # column j of R is the base's axis j
+    axes[0, 3] = 0.0
+    tr = np.empty((kin.N_ROWS, 2, 3, n))
+    for i in range(kin.N_ROWS):
+        x, y = axes[i, 0], axes[i, 1]
+        np.multiply(ct[i], x, out=tr[i, 0])
+        tr[i, 0] += st[i] * y
+        np.multiply(ct[i], y, out=tr[i, 1])
+        tr[i, 1] -= st[i] * x
+        # column j of F_i is sum_l (column l of F_{i-1} Rz) C_i[l, j]; the origin also keeps its own
+        Ct = C[i].T
+        nxt = axes[i + 1].reshape(4, -1)
+        np.matmul(Ct[:, :2], tr[i].reshape(2, -1), out=nxt)
+        nxt += Ct[:, 2:] @ axes[i, 2:].reshape(2, -1)
+    al = dh[:, 1, None, None]
+    return FramePass(axes, tr, np.cos(al), np.sin(al))
+
+
+def turn(fp: FramePass, rotation) -> FramePass:
+    """Turn every frame of the pass by ``rotation`` (3, 3) in place (as if it had started from it); returns it.
+
+    Frame by frame: no second pass-sized array (fresh memory costs page faults).
+    """
+    R = np.asarray(rotation, dtype=float)
+    for block in (fp.axes, fp.turned):
+        for k in range(block.shape[0]):
+            block[k] = np.matmul(R, block[k])
+    return fp
+
+
+def tool_points(fp: FramePass) -> np.ndarray:
+    """TCP positions (N, 3), mm (in the turned frame when the pass started from a rotation)."""
+    return fp.axes[kin.N_ROWS, 3].T
+
+
+def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Cross product over the second axis (3) into ``out``."""
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+
+def param_jacobian(fp: FramePass, out=None) -> np.ndarray:
+    """Position Jacobian w.r.t. the 35 kinematic parameters, seed 002 eq. (7)-(8), shape (N, 3, 35).
+
+    As :func:`station.models.kinematics.param_jacobian` (column ``5*i + k``: row ``i``, parameter ``k`` of
+    ``[a, alpha, d, theta, beta]``), turned by the pass's start rotation. ``out``: an (N, 3, 35) array or view
+    (e.g. the first 35 columns of a larger Jacobian) to write into.
+    """
+    n = fp.axes.shape[-1]
+    if out is None:
+        out = np.empty((n, 3, kin.N_PARAMS))
+    elif out.shape != (n, 3, kin.N_PARAMS):
+        raise DataError(f"`out` must have shape ({n}, 3, {kin.N_PARAMS}), got {out.shape}")
+    # (7 rows, 3 coordinates, N, 5 parameters) view of out (splitting its last axis is always a view)
+    J = out.transpose(1, 0, 2).reshape(3, n, kin.N_ROWS, 5).transpose(2, 0, 1, 3)
+    x_m, y_m = fp.turned[:, 0], fp.turned[:, 1]         # (7, 3, N)
+    z_prev = fp.axes[:kin.N_ROWS, 2]
+    o = fp.axes[:, 3]                                    # (8, 3, N) frame origins
+    p = o[kin.N_ROWS:]                                   # tool point
+    # frame after Rz(theta): its x axis carries a, its y axis (after Rx(alpha)) is the Hayati beta axis;
+    # alpha and beta rotate about o_i, theta about o_{i-1}
+    y_b = fp.cos_alpha * y_m + fp.sin_alpha * z_prev
+    r = p - o                                            # from every origin to the tool point
+    r_prev, r_i = r[:kin.N_ROWS], r[1:]
+    J[..., 0] = x_m                     # d p / d a_i
+    _cross(x_m, r_i, J[..., 1])         # d p / d alpha_i
+    J[..., 2] = z_prev                  # d p / d d_i
+    _cross(z_prev, r_prev, J[..., 3])   # d p / d theta_i
+    _cross(y_b, r_i, J[..., 4])         # d p / d beta_i
+    return out
