@@ -174,11 +174,19 @@ INDENTED_POSES_MAX = 2000
 
 
 def _write_json(path, d) -> None:
-    from station.readers.out_files import write_output
+    """``d`` as JSON (indented up to :data:`INDENTED_POSES_MAX` poses); poses made in pieces
+    (:class:`~station.json_pieces.Pieces`) are written a batch at a time."""
+    from station.json_pieces import Pieces, dump_json
+    from station.readers.out_files import output_file, write_output
 
     poses = d.get("poses") if isinstance(d, dict) else None
-    big = isinstance(poses, (dict, list)) and len(poses) > INDENTED_POSES_MAX
-    write_output(path, (json.dumps(d) if big else json.dumps(d, indent=1)) + "\n", "--json")
+    if isinstance(poses, Pieces):
+        with output_file(path, "--json") as fh:
+            dump_json(fh, d)
+            fh.write("\n")
+    else:
+        big = isinstance(poses, (dict, list)) and len(poses) > INDENTED_POSES_MAX
+        write_output(path, (json.dumps(d) if big else json.dumps(d, indent=1)) + "\n", "--json")
     print(f"results written to {path}")
 
 
@@ -374,6 +382,7 @@ def _read_stops(args):
 
 def _run_stops(args, limits) -> int:
     from station.analysis.iso9283.lab_files import analyze_stops, reflector_repeatability, stop_scatter_mm
+    from station.analysis.iso9283.stop_list import POSES_PER_BATCH
 
     for opt in ("format", "group", "rate_hz", "dwell_s", "window_samples", "order", "linear_paths", "date_order"):
         if getattr(args, opt) not in (None, False):
@@ -406,7 +415,8 @@ def _run_stops(args, limits) -> int:
     res, unc = _uncertainty(args, lab.result, reg, None)
     per_refl = reflector_repeatability(sl.pose, pts, sl.reflectors) if len(sl.reflectors) > 1 else []
     print(format_stop_table(res, sl.source, reflector_rp=per_refl))
-    d = res.to_dict()
+    # many poses: their JSON made as it is written (a batch at a time), never whole
+    d = res.to_dict(poses_per_piece=POSES_PER_BATCH if len(res.poses) > INDENTED_POSES_MAX else None)
     d["input"] = {"file": sl.source, "format": "stops", "reflectors": [r for r in sl.reflectors if r]}
     d["stops"]["line"] = [int(x) for x in sl.lines.min(axis=1)]
     d["reflector_RP"] = [r.to_dict() for r in per_refl]

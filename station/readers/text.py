@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from station.errors import DataError
@@ -170,27 +171,28 @@ def is_number(cell: str) -> bool:
     return True
 
 
-def csv_records(path, required: tuple, *, what: str, optional: tuple | None = None) -> Iterator[tuple[int, dict]]:
-    """``(line number, {column: stripped cell})`` for every data row of a CSV with a header line.
+def _cells(line: str, p, ln: int) -> list[str]:
+    """The stripped cells of one CSV line (the csv module's reading, which a line without quotes or CR is split to)."""
+    if '"' in line or "\r" in line or "\x00" in line:
+        import csv
+        import io
 
-    The header (names lower-cased) must hold ``required``; with ``optional``
-    given, no other column is accepted; no column twice. A row with another
-    field count, or a file without a header, is a DataError naming the line.
-    ``what`` names the kind of file in the messages.
-    """
-    import csv
-    import io
+        try:
+            return [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        except csv.Error as exc:
+            raise DataError(f"{p}: line {ln}: not CSV ({exc})") from None
+    return [c.strip() for c in line.split(",")]
 
-    p = Path(path)
+
+def _csv_rows(p: Path, required: tuple, what: str, optional: tuple | None) -> Iterator:
+    """The header (names lower-cased), then ``(line number, cells)`` for every data row: :func:`csv_records`'s
+    checks."""
     header = None
     rows = 0
     for ln, line in numbered_lines(p):
         if not line.strip():
             continue
-        try:
-            cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
-        except csv.Error as exc:
-            raise DataError(f"{p}: line {ln}: not CSV ({exc})") from None
+        cells = _cells(line, p, ln)
         if header is None:
             header = [c.lower() for c in cells]
             missing = [c for c in required if c not in header]
@@ -203,13 +205,56 @@ def csv_records(path, required: tuple, *, what: str, optional: tuple | None = No
                 raise DataError(f"{p}: line {ln}: unknown column(s) {', '.join(unknown)}")
             if len(set(header)) != len(header):
                 raise DataError(f"{p}: line {ln}: a column appears twice")
+            yield header
             continue
         if len(cells) != len(header):
             raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
         rows += 1
         if rows > MAX_ROWS:
             raise DataError(f"{p}: line {ln}: more than {MAX_ROWS} rows")
-        yield ln, dict(zip(header, cells))
+        yield ln, cells
     if header is None:
         raise DataError(f"{p}: line 1: empty file or missing header")
 
+
+def csv_records(path, required: tuple, *, what: str, optional: tuple | None = None) -> Iterator[tuple[int, dict]]:
+    """``(line number, {column: stripped cell})`` for every data row of a CSV with a header line.
+
+    The header (names lower-cased) must hold ``required``; with ``optional``
+    given, no other column is accepted; no column twice. A row with another
+    field count, or a file without a header, is a DataError naming the line.
+    ``what`` names the kind of file in the messages.
+    """
+    rows = _csv_rows(Path(path), required, what, optional)
+    header = next(rows)
+    for ln, cells in rows:  # loop over data rows
+        yield ln, dict(zip(header, cells))
+
+
+@dataclass(frozen=True)
+class CsvColumns:
+    """The data rows of a CSV read whole (:func:`csv_columns`): ``lines`` (line number of each row) and
+    ``cells[column]`` (a tuple of the stripped cells), and the DataError that ended the reading early, if any
+    (the rows before it are here: a reader checks them first, so the first fault in the file is named)."""
+
+    lines: list[int]
+    cells: dict[str, tuple[str, ...]]
+    error: DataError | None
+
+
+def csv_columns(path, required: tuple, *, what: str, optional: tuple | None = None) -> CsvColumns:
+    """The rows of :func:`csv_records` as columns, in one pass: for readers that check whole columns at once."""
+    p = Path(path)
+    header: list[str] = []
+    lines: list[int] = []
+    rows: list[list[str]] = []
+    error = None
+    try:
+        it = _csv_rows(p, required, what, optional)
+        header = next(it)
+        for ln, cells in it:  # loop over data rows
+            lines.append(ln)
+            rows.append(cells)
+    except DataError as exc:
+        error = exc
+    return CsvColumns(lines, dict(zip(header, zip(*rows))) if rows else {h: () for h in header}, error)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Iterator
 from types import SimpleNamespace
 
 import numpy as np
@@ -55,10 +56,16 @@ from station.analysis.iso9283.characteristics import (
     position_accuracy,
     position_repeatability,
 )
+from station.analysis.iso9283.pose_json import pose_dicts
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
+from station.json_pieces import Pieces
 from station.numeric import finite_list, finite_or_none
 from station.verdict import Outcome
+
+
+#: poses whose JSON is made at a time (their numbers rounded together)
+POSES_PER_BATCH = 4096
 
 
 @dataclass(frozen=True)
@@ -90,10 +97,17 @@ class StopListResult(Judged):
     def n_far(self) -> int:
         return int(np.count_nonzero(self.stop_far))
 
-    def to_dict(self) -> dict:
-
+    def to_dict(self, poses_per_piece: int | None = None) -> dict:
+        """The JSON; with ``poses_per_piece`` its ``poses`` are :class:`~station.json_pieces.Pieces`, made that many
+        at a time as :func:`~station.json_pieces.dump_json` writes them."""
+        if poses_per_piece is None:
+            poses: dict | Pieces = {}
+            for batch in self._pose_batches(POSES_PER_BATCH):  # loop over batches of poses
+                poses.update(batch)
+        else:
+            poses = Pieces(len(self.poses), lambda: self._pose_batches(poses_per_piece))
         return {
-            **figures_dict(self, "0-based stop of the stop list", source="stop list"),
+            **figures_dict(self, "0-based stop of the stop list", poses=poses, source="stop list"),
             "stops": {
                 "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": finite_or_none(self.assign_tol_mm, 6),
                 "pose": list(self.stop_pose), "cycle": np.asarray(self.stop_cycle, dtype=np.int64).tolist(),
@@ -103,6 +117,14 @@ class StopListResult(Judged):
                 "distance_to_pose_mm": finite_list(self.stop_distance_mm), "far": np.asarray(self.stop_far, dtype=bool).tolist(),
             },
         }
+
+
+    def _pose_batches(self, n: int) -> Iterator[dict]:
+        """The poses' JSON (:func:`pose_dicts`), ``n`` poses at a time."""
+        names = list(self.poses)
+        for a in range(0, len(names), n):  # loop over batches of poses
+            part = names[a:a + n]
+            yield dict(zip(part, pose_dicts([self.poses[k] for k in part])))
 
 
 def rotation_abc(R) -> np.ndarray:
