@@ -94,8 +94,12 @@ def _rounded_list(x: np.ndarray, nd: int) -> list:
         ay = np.abs(y)
         sure = (ay < 2.0 ** 50) & (np.abs(np.abs(y - r) - 0.5) > 4.0 * np.spacing(ay))
     out = (r / scale).tolist()
-    for i in np.flatnonzero(~sure).tolist():  # loop over the numbers near a half, huge or not finite
-        out[i] = finite_or_none(float(x[i]), nd)
+    if not sure.all():
+        finite = np.isfinite(x)
+        for i in np.flatnonzero(~finite).tolist():  # loop over the numbers not finite
+            out[i] = None
+        for i in np.flatnonzero(~sure & finite).tolist():  # loop over the numbers near a half or huge
+            out[i] = round(float(x[i]), nd)
     return out
 
 
