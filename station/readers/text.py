@@ -27,6 +27,8 @@ MAX_ABS_S = 1.0e10
 #: (a reader keeps every row, so an endless pipe of good rows must end well before time and memory do); a
 #: larger input is given as the file itself
 MAX_PIPE_BYTES = 16 << 20
+#: largest regular file a reader taking every line reads in one piece (:func:`numbered_lines`), bytes
+WHOLE_FILE_BYTES = 64 << 20
 
 
 def pipe_too_long(shown, limit: int) -> DataError:
@@ -53,11 +55,14 @@ def read_small_text(path, most_bytes: int, label: str, too_large: str, error: ty
         raise error(f"{label}: line {line}: not UTF-8 text") from None
 
 
-def numbered_lines(path) -> Iterator[tuple[int, str]]:
+def numbered_lines(path, whole: bool = False) -> Iterator[tuple[int, str]]:
     """``(line number from 1, text without the line end)`` for every line of a UTF-8 file (BOM allowed).
 
     Every line is bounded (:data:`MAX_LINE_CHARS`) and decoded on its own, so
-    a bad byte is named on its own line and byte.
+    a bad byte is named on its own line and byte. ``whole``: a regular file of
+    at most :data:`WHOLE_FILE_BYTES` is read and decoded in one piece (for a
+    reader that takes every line); a file that does not pass as one piece
+    (a bad byte, an overlong line) is then read line by line, naming the fault.
     """
     import os
     import stat
@@ -68,8 +73,15 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
     with fh:
+        st = os.fstat(fh.fileno())
+        if whole and stat.S_ISREG(st.st_mode) and st.st_size <= WHOLE_FILE_BYTES:
+            lines = _all_lines(fh, p)
+            if lines is not None:
+                yield from enumerate(lines, 1)
+                return
+            fh.seek(0)
         # a pipe or a device is read where it is (no copy): bounded in bytes too, as a copy would be
-        limit = None if stat.S_ISREG(os.fstat(fh.fileno()).st_mode) else MAX_PIPE_BYTES
+        limit = None if stat.S_ISREG(st.st_mode) else MAX_PIPE_BYTES
         ln = total = 0
         while True:
             ln += 1
@@ -96,6 +108,30 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
                     if "\r" in line.rstrip("\r\n") else ""
                 raise DataError(f"{p}: line {ln}: longer than {MAX_LINE_CHARS} characters{cr}")
             yield ln, line.rstrip("\r\n")
+
+
+def _all_lines(fh, p) -> list[str] | None:
+    """Every line of a regular file read in one piece, as :func:`numbered_lines` gives them one by one; None when
+    the file is not UTF-8 or a line is too long (its line-by-line reading names which)."""
+    try:
+        raw = fh.read(WHOLE_FILE_BYTES + 1)
+    except OSError as exc:
+        raise DataError(f"{p}: line 1: cannot read ({exc.strerror})") from None
+    if len(raw) > WHOLE_FILE_BYTES:
+        return None  # grown since: line by line
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    lines = text.split("\n")
+    if lines[-1] == "":
+        lines.pop()  # the file ends with a line end
+    lines = [line.rstrip("\r") for line in lines]
+    if lines and max(map(len, lines)) > MAX_LINE_CHARS:
+        return None
+    return lines
 
 
 def max_line_bytes(path, limit: int = 4 * MAX_LINE_CHARS) -> tuple[int, int] | None:
@@ -184,12 +220,12 @@ def _cells(line: str, p, ln: int) -> list[str]:
     return [c.strip() for c in line.split(",")]
 
 
-def _csv_rows(p: Path, required: tuple, what: str, optional: tuple | None) -> Iterator:
+def _csv_rows(p: Path, required: tuple, what: str, optional: tuple | None, whole: bool = False) -> Iterator:
     """The header (names lower-cased), then ``(line number, cells)`` for every data row: :func:`csv_records`'s
     checks."""
     header = None
     rows = 0
-    for ln, line in numbered_lines(p):
+    for ln, line in numbered_lines(p, whole):
         if not line.strip():
             continue
         cells = _cells(line, p, ln)
@@ -250,7 +286,7 @@ def csv_columns(path, required: tuple, *, what: str, optional: tuple | None = No
     rows: list[list[str]] = []
     error = None
     try:
-        it = _csv_rows(p, required, what, optional)
+        it = _csv_rows(p, required, what, optional, whole=True)
         header = next(it)
         for ln, cells in it:  # loop over data rows
             lines.append(ln)

@@ -1,4 +1,4 @@
-"""The stop list's reader and analysis as they were before issue 47 item 10's batching: the per-pose reference.
+"""The stop list's and the poses file's readers and the analysis as they were before issue 47 item 10's batching: the per-pose reference.
 
 Kept for the tests only (:mod:`tests.iso9283.test_stop_list_reference`): the reader, the
 analysis and the JSON built one row, one pose at a time, as they stood at commit 29ae52d. The
@@ -34,7 +34,8 @@ from station.errors import ConfigError, DataError, InsufficientDataError
 from station.numeric import finite_list, finite_or_none
 from station.readers import stop_list as reader
 from station.readers.stop_list import MAX_CYCLE, OPTIONAL, REQUIRED
-from station.readers.text import MAX_ROWS, csv_records, parse_number
+from station.readers.stream_csv import ORIENTATION
+from station.readers.text import MAX_ABS_MM, MAX_ROWS, csv_records, parse_number
 from station.verdict import Outcome
 from pathlib import Path
 
@@ -379,3 +380,34 @@ def read_stop_list(path) -> StopList:
                     points_mm=pts, reflectors=tuple(all_refl),
                     approach=tuple(k[2] for k in keys) if has_app else None,
                     lines=lines, source=str(p))
+
+
+def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
+    """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None.
+
+    Every line bounded and decoded on its own (:func:`~station.readers.text.numbered_lines`).
+    """
+    path = Path(path)
+    need = ("name", "x", "y", "z")
+    names, rows, seen = [], [], set()
+    cols = None
+    for ln, c in csv_records(path, need, what="a poses file"):
+        if cols is None:
+            abc = [k for k in ORIENTATION if k in c]
+            if abc and len(abc) != 3:
+                raise DataError(f"{path}: orientation needs all of a,b,c, got {','.join(abc)}")
+            cols = ["x", "y", "z"] + abc
+        name = c["name"]
+        if not name:
+            raise DataError(f"{path}: line {ln}, column 'name': empty")
+        if name in seen:
+            raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name[:40]!r}")
+        seen.add(name)
+        names.append(name)
+        rows.append([parse_number(c[k], path, ln, k, MAX_ABS_MM if k in "xyz" else 3600.0) for k in cols])
+        if len(rows) > MAX_ROWS:
+            raise DataError(f"{path}: more than {MAX_ROWS} poses")
+    if not rows:
+        raise DataError(f"{path}: no poses after the header")
+    arr = np.array(rows)
+    return names, arr[:, :3], (arr[:, 3:] if len(cols) > 3 else None)

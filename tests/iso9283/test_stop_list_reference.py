@@ -20,6 +20,7 @@ from station.errors import DataError
 from station.json_pieces import Pieces, dump_json
 from station.numeric import finite_list, finite_or_none
 from station.readers.stop_list import read_stop_list
+from station.readers.stream_csv import read_poses_csv
 from tests.iso9283 import stop_list_reference as ref
 
 
@@ -157,6 +158,36 @@ def test_the_reader_gives_the_reference_stops_and_refusals(rng, tmp_path):
             assert got == want
         else:
             assert got[:7] == want[:7] and got[7:] == want[7:]
+
+
+def test_the_poses_reader_gives_the_reference_poses_and_refusals(rng, tmp_path):
+    path = tmp_path / "poses.csv"
+    for trial in range(80):  # loop over random files, most with faults
+        P = int(rng.integers(0, 40))
+        header = ["name", "x", "y", "z"] + (["a", "b", "c"] if rng.random() < 0.3 else [])
+        if rng.random() < 0.05:
+            header = header[:5]  # a without b, c
+        rows = [header] + [[f"P{i}"] + [f"{v:.{int(rng.integers(0, 7))}f}" for v in rng.uniform(-2000, 2000, len(header) - 1)]
+                           for i in range(P)]
+        for _ in range(int(rng.integers(0, 3)) if trial % 4 else 0):  # faults in random cells and lines
+            i = int(rng.integers(0, len(rows)))
+            kind = rng.random()
+            if kind < 0.6:
+                rows[i] = rows[i][:]
+                rows[i][int(rng.integers(0, len(rows[i])))] = str(rng.choice(_FAULTS + ["4000", "P3", "-3599"]))
+            elif kind < 0.8 and len(rows) > 1:
+                rows.insert(i, rows[max(i, 1)][:])  # a pose twice
+            else:
+                rows[i] = rows[i][:-1]  # a field short
+        path.write_text("\n".join(",".join(r) for r in rows) + "\n", encoding="utf-8")
+        out = []
+        for reader in (ref.read_poses_csv, read_poses_csv):
+            try:
+                names, xyz, abc = reader(path)
+                out.append((names, xyz.tolist(), None if abc is None else abc.tolist(), xyz.flags.c_contiguous))
+            except DataError as exc:
+                out.append(f"DataError: {exc}")
+        assert out[1] == out[0]
 
 
 @pytest.mark.parametrize("nd", [None, 0, 4, 6])

@@ -44,8 +44,8 @@ def _int_texts(arrays) -> list[str]:
 
 def _is_simple(pr: PoseResult) -> bool:
     """A pose of one attained point per cycle and no overshoot or drift figures (a stop list's)."""
-    return (pr.overshoot is None and pr.drift is None
-            and pr.attained_mm.shape[0] == np.size(pr.attained_t_s) == np.size(pr.attained_cycle) == pr.n_cycles)
+    return (pr.overshoot is None and pr.drift is None and pr.attained_mm.ndim == 2
+            and len(pr.attained_mm) == len(pr.attained_t_s) == len(pr.attained_cycle) == len(pr.attained_row))
 
 
 def pose_texts(prs: list[PoseResult]) -> list[str]:
@@ -91,9 +91,9 @@ def pose_texts(prs: list[PoseResult]) -> list[str]:
         if pr.repeatability is None:
             sc[4:] = ("null",) * 3
         ng = len(md.groups)
-        dirs = join(f'{{"label": {_str(g.label)}, "direction": [{join(g_dir[3 * j:3 * j + 3])}], '
-                    f'"mean_mm": [{join(g_mean[3 * j:3 * j + 3])}], "n": {int(g.n)!r}, "rows": [{g_rows[j]}]}}'
-                    for j, g in zip(range(g0, g0 + ng), md.groups))
+        dirs = join([f'{{"label": {_str(g.label)}, "direction": [{join(g_dir[3 * j:3 * j + 3])}], '
+                     f'"mean_mm": [{join(g_mean[3 * j:3 * j + 3])}], "n": {int(g.n)!r}, "rows": [{g_rows[j]}]}}'
+                     for j, g in enumerate(md.groups, g0)])
         text = (
             f'{{"commanded_mm": {"null" if pr.commanded_mm is None else "[" + join(cmd[3 * i:3 * i + 3]) + "]"}, '
             f'"n_cycles": {n!r}, "AP_mm": {sc[0]}, "APx_mm": {sc[1]}, "APy_mm": {sc[2]}, "APz_mm": {sc[3]}, '

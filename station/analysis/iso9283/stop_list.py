@@ -294,7 +294,8 @@ def analyze_stop_list(
         cmd_arr = np.asarray(commanded_mm, dtype=float)
         if names is None or cmd_arr.shape != (len(names), 3) or not np.all(np.isfinite(cmd_arr)):
             raise DataError("commanded_mm must be finite with shape (P, 3) and come with P names")
-        cmd = {str(n): cmd_arr[i] for i, n in enumerate(names)}
+        cmd_row = {str(n): i for i, n in enumerate(names)}  # a name given twice: its last row
+        cmd = {n: cmd_arr[i] for n, i in cmd_row.items()}
         unknown = sorted({p for p in pose if p not in cmd})
         if unknown:
             raise DataError(f"the stop list names pose(s) {', '.join(unknown)} that the commanded poses lack "
@@ -312,7 +313,7 @@ def analyze_stop_list(
     dist = np.full(K, np.nan)
     far = np.zeros(K, bool)
     if cmd is not None:
-        dist = np.linalg.norm(centroid - np.array([cmd[p] for p in pose]), axis=1)
+        dist = np.linalg.norm(centroid - cmd_arr[np.fromiter((cmd_row[p] for p in pose), np.int64, K)], axis=1)
         far = dist > assign_tol_mm
         for k in np.flatnonzero(far):
             leave(k, "all", f"{dist[k]:.3f} mm from its commanded pose {pose[k]}, farther than the assignment "
@@ -334,7 +335,7 @@ def analyze_stop_list(
                           f"({kp.size} stops); vAP uses it")
         picked.append((name, groups, gp, kp))
     stats = _pose_statistics(centroid, [kp for _, _, _, kp in picked],
-                             None if cmd is None else np.array([cmd[name] for name in order]))
+                             None if cmd is None else cmd_arr[np.fromiter(cmd_row.values(), np.int64, len(order))])
     # the main approach's stops of all poses, one after another: each pose's attained points are a view
     main = np.concatenate([kp for _, _, _, kp in picked]) if picked else np.zeros(0, np.int64)
     att, att_cyc, att_t = centroid[main], cyc[main], np.full(main.size, np.nan)
