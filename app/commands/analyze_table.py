@@ -32,12 +32,15 @@ def _pose_rows(res, estimated_rate: bool = False) -> list[str]:
 
     lines = [f"{'pose':<6}{'n':>5}" + cells(one, head) + f"{'band_mm':>9} {'src':<7}" + cells(several, head)
              + f"{'dirs':>5}"]
-    for name, pr in res.poses.items():
+    # each figure's cell format, made once (100,000 poses: a line each)
+    w_one = [(c.value, f"{{:>{max(9, len(head(c)) + 2)}}}".format) for c in one]
+    w_several = [(c.value, f"{{:>{max(9, len(head(c)) + 2)}}}".format) for c in several]
+    for name, pr in res.poses.items():  # loop over poses: a line each
         ovs = pr.overshoot
         lines.append(
-            f"{name:<6}{pr.n_cycles:>5}" + cells(one, lambda c: _n(c.value(pr)))
+            f"{name:<6}{pr.n_cycles:>5}" + "".join([cell(_n(value(pr))) for value, cell in w_one])
             + f"{_n(ovs.band_mm if ovs else None):>9} {(ovs.band_source if ovs else '-'):<7}"
-            + cells(several, lambda c: _n(c.value(pr))) + f"{pr.multidirectional.n_directions:>5}"
+            + "".join([cell(_n(value(pr))) for value, cell in w_several]) + f"{pr.multidirectional.n_directions:>5}"
         )
     return lines
 

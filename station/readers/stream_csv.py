@@ -21,7 +21,7 @@ from station.errors import DataError
 from station.readers.once import reads_once
 from station.readers.stream import PointStream
 from station.readers.text import (
-    MAX_ABS_MM, MAX_ABS_S, MAX_LINE_CHARS, MAX_ROWS, csv_records, max_line_bytes, numbered_lines, parse_number,
+    MAX_ABS_MM, MAX_ABS_S, MAX_LINE_CHARS, MAX_ROWS, csv_columns, max_line_bytes, numbered_lines, parse_number,
 )
 
 #: status values that mean "valid sample" (case-insensitive)
@@ -157,29 +157,48 @@ def read_stream_csv(path) -> PointStream:
 def read_poses_csv(path) -> tuple[list[str], np.ndarray, np.ndarray | None]:
     """Read ``name,x,y,z[,a,b,c]``; returns names, positions (P,3) mm, orientation (P,3) deg or None.
 
-    Every line bounded and decoded on its own (:func:`~station.readers.text.numbered_lines`).
+    Every line bounded and decoded on its own (:func:`~station.readers.text.numbered_lines`). The columns are
+    checked whole; anything they do not pass is checked again row by row, naming the first fault.
     """
     path = Path(path)
-    need = ("name", "x", "y", "z")
-    names, rows, seen = [], [], set()
-    cols = None
-    for ln, c in csv_records(path, need, what="a poses file"):
-        if cols is None:
-            abc = [k for k in ORIENTATION if k in c]
-            if abc and len(abc) != 3:
-                raise DataError(f"{path}: orientation needs all of a,b,c, got {','.join(abc)}")
-            cols = ["x", "y", "z"] + abc
-        name = c["name"]
-        if not name:
-            raise DataError(f"{path}: line {ln}, column 'name': empty")
-        if name in seen:
-            raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name[:40]!r}")
-        seen.add(name)
-        names.append(name)
-        rows.append([parse_number(c[k], path, ln, k, MAX_ABS_MM if k in "xyz" else 3600.0) for k in cols])
-        if len(rows) > MAX_ROWS:
-            raise DataError(f"{path}: more than {MAX_ROWS} poses")
-    if not rows:
-        raise DataError(f"{path}: no poses after the header")
-    arr = np.array(rows)
-    return names, arr[:, :3], (arr[:, 3:] if len(cols) > 3 else None)
+    got = csv_columns(path, ("name", "x", "y", "z"), what="a poses file")
+    c = got.cells
+    abc = [k for k in ORIENTATION if k in c]
+    if got.lines and abc and len(abc) != 3:  # checked at the first row
+        raise DataError(f"{path}: orientation needs all of a,b,c, got {','.join(abc)}")
+    cols = ["x", "y", "z"] + abc
+    arr = None if got.error is not None or not got.lines else _poses_whole(c, cols)
+    if arr is None:
+        seen: set[str] = set()
+        rows = []
+        for i, ln in enumerate(got.lines):  # loop over rows: the first fault named
+            name = c["name"][i]
+            if not name:
+                raise DataError(f"{path}: line {ln}, column 'name': empty")
+            if name in seen:
+                raise DataError(f"{path}: line {ln}, column 'name': duplicate pose {name[:40]!r}")
+            seen.add(name)
+            rows.append([parse_number(c[k][i], path, ln, k, MAX_ABS_MM if k in "xyz" else 3600.0) for k in cols])
+            if len(rows) > MAX_ROWS:
+                raise DataError(f"{path}: more than {MAX_ROWS} poses")
+        if got.error is not None:
+            raise got.error
+        if not rows:
+            raise DataError(f"{path}: no poses after the header")
+        arr = np.array(rows)
+    return list(c["name"]), arr[:, :3], (arr[:, 3:] if len(cols) > 3 else None)
+
+
+def _poses_whole(c: dict, cols: list[str]) -> np.ndarray | None:
+    """The poses' numbers (P, 3 or 6), checked whole; None when a check fails (the rows then say which)."""
+    names = c["name"]
+    if "" in names or len(set(names)) != len(names):
+        return None
+    try:
+        arr = np.array([list(map(float, c[k])) for k in cols]).T
+    except ValueError:
+        return None
+    bound = np.array([MAX_ABS_MM if k in "xyz" else 3600.0 for k in cols])
+    if not (np.all(np.isfinite(arr)) and np.all(np.abs(arr) <= bound)):
+        return None
+    return np.ascontiguousarray(arr)

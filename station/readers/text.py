@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from station.errors import DataError
@@ -26,6 +27,8 @@ MAX_ABS_S = 1.0e10
 #: (a reader keeps every row, so an endless pipe of good rows must end well before time and memory do); a
 #: larger input is given as the file itself
 MAX_PIPE_BYTES = 16 << 20
+#: largest regular file a reader taking every line reads in one piece (:func:`numbered_lines`), bytes
+WHOLE_FILE_BYTES = 64 << 20
 
 
 def pipe_too_long(shown, limit: int) -> DataError:
@@ -52,11 +55,14 @@ def read_small_text(path, most_bytes: int, label: str, too_large: str, error: ty
         raise error(f"{label}: line {line}: not UTF-8 text") from None
 
 
-def numbered_lines(path) -> Iterator[tuple[int, str]]:
+def numbered_lines(path, whole: bool = False) -> Iterator[tuple[int, str]]:
     """``(line number from 1, text without the line end)`` for every line of a UTF-8 file (BOM allowed).
 
     Every line is bounded (:data:`MAX_LINE_CHARS`) and decoded on its own, so
-    a bad byte is named on its own line and byte.
+    a bad byte is named on its own line and byte. ``whole``: a regular file of
+    at most :data:`WHOLE_FILE_BYTES` is read and decoded in one piece (for a
+    reader that takes every line); a file that does not pass as one piece
+    (a bad byte, an overlong line) is then read line by line, naming the fault.
     """
     import os
     import stat
@@ -67,8 +73,15 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
     with fh:
+        st = os.fstat(fh.fileno())
+        if whole and stat.S_ISREG(st.st_mode) and st.st_size <= WHOLE_FILE_BYTES:
+            lines = _all_lines(fh, p)
+            if lines is not None:
+                yield from enumerate(lines, 1)
+                return
+            fh.seek(0)
         # a pipe or a device is read where it is (no copy): bounded in bytes too, as a copy would be
-        limit = None if stat.S_ISREG(os.fstat(fh.fileno()).st_mode) else MAX_PIPE_BYTES
+        limit = None if stat.S_ISREG(st.st_mode) else MAX_PIPE_BYTES
         ln = total = 0
         while True:
             ln += 1
@@ -95,6 +108,30 @@ def numbered_lines(path) -> Iterator[tuple[int, str]]:
                     if "\r" in line.rstrip("\r\n") else ""
                 raise DataError(f"{p}: line {ln}: longer than {MAX_LINE_CHARS} characters{cr}")
             yield ln, line.rstrip("\r\n")
+
+
+def _all_lines(fh, p) -> list[str] | None:
+    """Every line of a regular file read in one piece, as :func:`numbered_lines` gives them one by one; None when
+    the file is not UTF-8 or a line is too long (its line-by-line reading names which)."""
+    try:
+        raw = fh.read(WHOLE_FILE_BYTES + 1)
+    except OSError as exc:
+        raise DataError(f"{p}: line 1: cannot read ({exc.strerror})") from None
+    if len(raw) > WHOLE_FILE_BYTES:
+        return None  # grown since: line by line
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    lines = text.split("\n")
+    if lines[-1] == "":
+        lines.pop()  # the file ends with a line end
+    lines = [line.rstrip("\r") for line in lines]
+    if lines and max(map(len, lines)) > MAX_LINE_CHARS:
+        return None
+    return lines
 
 
 def max_line_bytes(path, limit: int = 4 * MAX_LINE_CHARS) -> tuple[int, int] | None:
@@ -170,27 +207,28 @@ def is_number(cell: str) -> bool:
     return True
 
 
-def csv_records(path, required: tuple, *, what: str, optional: tuple | None = None) -> Iterator[tuple[int, dict]]:
-    """``(line number, {column: stripped cell})`` for every data row of a CSV with a header line.
+def _cells(line: str, p, ln: int) -> list[str]:
+    """The stripped cells of one CSV line (the csv module's reading, which a line without quotes or CR is split to)."""
+    if '"' in line or "\r" in line or "\x00" in line:
+        import csv
+        import io
 
-    The header (names lower-cased) must hold ``required``; with ``optional``
-    given, no other column is accepted; no column twice. A row with another
-    field count, or a file without a header, is a DataError naming the line.
-    ``what`` names the kind of file in the messages.
-    """
-    import csv
-    import io
-
-    p = Path(path)
-    header = None
-    rows = 0
-    for ln, line in numbered_lines(p):
-        if not line.strip():
-            continue
         try:
-            cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+            return [c.strip() for c in next(csv.reader(io.StringIO(line)))]
         except csv.Error as exc:
             raise DataError(f"{p}: line {ln}: not CSV ({exc})") from None
+    return [c.strip() for c in line.split(",")]
+
+
+def _csv_rows(p: Path, required: tuple, what: str, optional: tuple | None, whole: bool = False) -> Iterator:
+    """The header (names lower-cased), then ``(line number, cells)`` for every data row: :func:`csv_records`'s
+    checks."""
+    header = None
+    rows = 0
+    for ln, line in numbered_lines(p, whole):
+        if not line.strip():
+            continue
+        cells = _cells(line, p, ln)
         if header is None:
             header = [c.lower() for c in cells]
             missing = [c for c in required if c not in header]
@@ -203,13 +241,56 @@ def csv_records(path, required: tuple, *, what: str, optional: tuple | None = No
                 raise DataError(f"{p}: line {ln}: unknown column(s) {', '.join(unknown)}")
             if len(set(header)) != len(header):
                 raise DataError(f"{p}: line {ln}: a column appears twice")
+            yield header
             continue
         if len(cells) != len(header):
             raise DataError(f"{p}: line {ln}: {len(cells)} fields, the header has {len(header)}")
         rows += 1
         if rows > MAX_ROWS:
             raise DataError(f"{p}: line {ln}: more than {MAX_ROWS} rows")
-        yield ln, dict(zip(header, cells))
+        yield ln, cells
     if header is None:
         raise DataError(f"{p}: line 1: empty file or missing header")
 
+
+def csv_records(path, required: tuple, *, what: str, optional: tuple | None = None) -> Iterator[tuple[int, dict]]:
+    """``(line number, {column: stripped cell})`` for every data row of a CSV with a header line.
+
+    The header (names lower-cased) must hold ``required``; with ``optional``
+    given, no other column is accepted; no column twice. A row with another
+    field count, or a file without a header, is a DataError naming the line.
+    ``what`` names the kind of file in the messages.
+    """
+    rows = _csv_rows(Path(path), required, what, optional)
+    header = next(rows)
+    for ln, cells in rows:  # loop over data rows
+        yield ln, dict(zip(header, cells))
+
+
+@dataclass(frozen=True)
+class CsvColumns:
+    """The data rows of a CSV read whole (:func:`csv_columns`): ``lines`` (line number of each row) and
+    ``cells[column]`` (a tuple of the stripped cells), and the DataError that ended the reading early, if any
+    (the rows before it are here: a reader checks them first, so the first fault in the file is named)."""
+
+    lines: list[int]
+    cells: dict[str, tuple[str, ...]]
+    error: DataError | None
+
+
+def csv_columns(path, required: tuple, *, what: str, optional: tuple | None = None) -> CsvColumns:
+    """The rows of :func:`csv_records` as columns, in one pass: for readers that check whole columns at once."""
+    p = Path(path)
+    header: list[str] = []
+    lines: list[int] = []
+    rows: list[list[str]] = []
+    error = None
+    try:
+        it = _csv_rows(p, required, what, optional, whole=True)
+        header = next(it)
+        for ln, cells in it:  # loop over data rows
+            lines.append(ln)
+            rows.append(cells)
+    except DataError as exc:
+        error = exc
+    return CsvColumns(lines, dict(zip(header, zip(*rows))) if rows else {h: () for h in header}, error)

@@ -1338,21 +1338,26 @@ def pose_to_dict(pr: PoseResult) -> dict:
             "z_mm": finite_list(pr.attained_mm[:, 2]), "t_s": finite_list(pr.attained_t_s),
             "row": _il(pr.attained_row), "cycle": _il(pr.attained_cycle),
         },
-        "orientation": None if o is None else {
-            "APa_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[0]), 6),
-            "APb_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[1]), 6),
-            "APc_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[2]), 6),
-            "RPa_deg": finite_or_none(math.degrees(o.RP_rad[0]), 6), "RPb_deg": finite_or_none(math.degrees(o.RP_rad[1]), 6),
-            "RPc_deg": finite_or_none(math.degrees(o.RP_rad[2]), 6), "n": o.n,
-            **{f"vAP{ax}_deg": None if md.vAP_rad is None else finite_or_none(math.degrees(md.vAP_rad[j]), 6)
-               for j, ax in enumerate("abc")},
-        },
+        "orientation": None if o is None else orientation_to_dict(o, md),
         "drift": None if dr is None else {
             "dAP_mm": finite_or_none(dr.dAP_mm, 6), "dRP_mm": finite_or_none(dr.dRP_mm, 6), "shift_mm": finite_or_none(dr.shift_mm, 6),
             "block_t_s": finite_list(dr.block_t_s), "AP_mm": finite_list(dr.AP_mm), "RP_mm": finite_list(dr.RP_mm),
             "n_per_block": _il(dr.n_per_block),
         },
     }, pr, "pose")
+
+
+def orientation_to_dict(o: OrientationAR, md: MultiDirectional) -> dict:
+    """The JSON of a pose's orientation figures (``vAPa``... from its approach groups ``md``)."""
+    return {
+        "APa_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[0]), 6),
+        "APb_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[1]), 6),
+        "APc_deg": None if o.AP_rad is None else finite_or_none(math.degrees(o.AP_rad[2]), 6),
+        "RPa_deg": finite_or_none(math.degrees(o.RP_rad[0]), 6), "RPb_deg": finite_or_none(math.degrees(o.RP_rad[1]), 6),
+        "RPc_deg": finite_or_none(math.degrees(o.RP_rad[2]), 6), "n": o.n,
+        **{f"vAP{ax}_deg": None if md.vAP_rad is None else finite_or_none(math.degrees(md.vAP_rad[j]), 6)
+           for j, ax in enumerate("abc")},
+    }
 
 
 def _with_figures(d: dict, subject, level: str) -> dict:
@@ -1397,13 +1402,14 @@ def _result_to_dict(r: Iso9283Result) -> dict:
     return d
 
 
-def figures_dict(r, rows: str, **head) -> dict:
+def figures_dict(r, rows: str, poses=None, **head) -> dict:
     """The JSON keys the stream and the stop-list analyses share (``head`` after the schema), in their order;
-    ``rows``: what a row number of the result counts."""
+    ``rows``: what a row number of the result counts; ``poses``: the poses' JSON when made elsewhere (else one
+    :func:`pose_to_dict` each)."""
     d = {
         "schema": "station.iso9283/1", **head,
         "units": {"position": "mm", "time": "s", "angle": "deg", "row": rows},
-        "poses": {name: pose_to_dict(pr) for name, pr in r.poses.items()},
+        "poses": {name: pose_to_dict(pr) for name, pr in r.poses.items()} if poses is None else poses,
         "distance": [distance_to_dict(x) for x in r.distances],
         "MPT": [
             _with_figures({"from": m.from_pose, "to": m.to_pose, "MPT_s": finite_or_none(m.MPT_s, 6), "n": m.n,

@@ -240,23 +240,24 @@ def rest_noise_mm(t, xyz) -> float:
 
 def stop_scatter_mm(centroid_mm, pose) -> float:
     """Per-axis scatter of the stops (K, 3) about their pose's mean, pooled, mm (bounds the points' noise)."""
-    from station.analysis.iso9283.stop_list import rows_by_label
-
     c = np.asarray(centroid_mm, dtype=float)
-    groups = [m for m in rows_by_label(pose).values() if m.size >= 2]
+    ids: dict[str, int] = {}
+    label = np.fromiter((ids.setdefault(p, len(ids)) for p in pose), np.int64, len(pose))  # poses by first appearance
+    order = np.argsort(label, kind="stable")  # each pose's stops together, in their order
+    sizes = np.bincount(label, minlength=len(ids))
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     # each pose's sum of squares, computed for the poses of one number of stops at once (100,000 poses took
     # seconds one by one), then added in the poses' order as before
-    ss = np.zeros(len(groups))
-    by_n: dict[int, list[int]] = {}
-    for i, m in enumerate(groups):
-        by_n.setdefault(int(m.size), []).append(i)
-    for n, idx in by_n.items():  # loop over the numbers of stops
-        X = c[np.array([groups[i] for i in idx])]                          # (G, n, 3)
+    ss = np.zeros(len(ids))
+    for n in np.unique(sizes[sizes >= 2]).tolist():  # loop over the numbers of stops
+        idx = np.flatnonzero(sizes == n)
+        X = c[order[starts[idx][:, None] + np.arange(n)]]                    # (G, n, 3)
         ss[idx] = np.sum(((X - X.mean(axis=1)[:, None, :]) ** 2).reshape(len(idx), -1), axis=1)
     dev, dof = 0.0, 0
-    for m, s in zip(groups, ss.tolist()):  # loop over poses (floats): the pooled sum in their order
-        dev += s
-        dof += 3 * (m.size - 1)
+    for n, s in zip(sizes.tolist(), ss.tolist()):  # loop over poses (floats): the pooled sum in their order
+        if n >= 2:
+            dev += s
+            dof += 3 * (n - 1)
     return math.sqrt(dev / dof) if dof else 0.0
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Iterator
 from types import SimpleNamespace
 
 import numpy as np
@@ -55,10 +56,16 @@ from station.analysis.iso9283.characteristics import (
     position_accuracy,
     position_repeatability,
 )
+from station.analysis.iso9283.pose_json import pose_texts
 from station.analysis.registration import fit_rigid
 from station.errors import ConfigError, DataError, InsufficientDataError
+from station.json_pieces import Pieces
 from station.numeric import finite_list, finite_or_none
 from station.verdict import Outcome
+
+
+#: poses whose JSON is made at a time (their numbers rounded together)
+POSES_PER_BATCH = 4096
 
 
 @dataclass(frozen=True)
@@ -90,10 +97,14 @@ class StopListResult(Judged):
     def n_far(self) -> int:
         return int(np.count_nonzero(self.stop_far))
 
-    def to_dict(self) -> dict:
-
+    def to_dict(self, poses_per_piece: int | None = None) -> dict:
+        """The JSON; with ``poses_per_piece`` its ``poses`` are :class:`~station.json_pieces.Pieces`, made that many
+        at a time as :func:`~station.json_pieces.dump_json` writes them."""
+        poses = Pieces(len(self.poses), lambda: self._pose_batches(poses_per_piece or POSES_PER_BATCH))
+        if poses_per_piece is None:
+            poses = poses.whole()
         return {
-            **figures_dict(self, "0-based stop of the stop list", source="stop list"),
+            **figures_dict(self, "0-based stop of the stop list", poses=poses, source="stop list"),
             "stops": {
                 "n": len(self.stop_pose), "reflectors": list(self.reflectors), "assign_tol_mm": finite_or_none(self.assign_tol_mm, 6),
                 "pose": list(self.stop_pose), "cycle": np.asarray(self.stop_cycle, dtype=np.int64).tolist(),
@@ -103,6 +114,14 @@ class StopListResult(Judged):
                 "distance_to_pose_mm": finite_list(self.stop_distance_mm), "far": np.asarray(self.stop_far, dtype=bool).tolist(),
             },
         }
+
+
+    def _pose_batches(self, n: int) -> Iterator[list[tuple[str, str]]]:
+        """The poses' names and JSON texts (:func:`pose_texts`), ``n`` poses at a time."""
+        names = list(self.poses)
+        for a in range(0, len(names), n):  # loop over batches of poses
+            part = names[a:a + n]
+            yield list(zip(part, pose_texts([self.poses[k] for k in part])))
 
 
 def rotation_abc(R) -> np.ndarray:
@@ -156,14 +175,58 @@ def rows_by_label(labels) -> dict[str, np.ndarray]:
     return {lab: np.array(ks, dtype=np.int64) for lab, ks in rows.items()}
 
 
-def _groups(k_pose: np.ndarray, approach) -> list[tuple[str, np.ndarray]]:
-    """(label, stops) per approach label, in order of first appearance."""
-    if approach is None:
-        return [("-", k_pose)] if k_pose.size else []
-    labels: dict[str, list[int]] = {}
-    for k in k_pose:
-        labels.setdefault(approach[k], []).append(int(k))
-    return [(lab, np.array(ks, dtype=np.int64)) for lab, ks in labels.items()]
+@dataclass(frozen=True)
+class PoseGroups:
+    """The stops of each pose by approach (:func:`_pose_groups`)."""
+
+    #: per pose: its groups ``[(label, stops)]`` (stops in cycle order) in order of first appearance, and the
+    #: index of its main group (the largest; ties: the first to appear; -1 without a stop)
+    per_pose: list[tuple[list[tuple[str, np.ndarray]], int]]
+    #: the poses whose main group holds a cycle twice
+    repeated: set[str]
+
+
+def _pose_groups(order, pose, cyc, far, approach) -> PoseGroups:
+    """Each pose's stops (of ``order``; those ``far`` left out) by approach label (``"-"`` without labels): one
+    sort of all stops by pose, cycle and row, then by the first appearance of each pose's labels in that order.
+
+    One pass over the stops: a scan of every stop per pose took K x P steps (100,000 poses, over a minute).
+    """
+    K, P = len(pose), len(order)
+    number = {name: i for i, name in enumerate(order)}
+    pidx = np.fromiter((number.get(p, P) for p in pose), np.int64, K)
+    ids: dict[str, int] = {}
+    lab = np.zeros(K, np.int64) if approach is None else \
+        np.fromiter((ids.setdefault(a, len(ids)) for a in approach), np.int64, K)
+    labels = ["-"] if approach is None else list(ids)
+    kept = np.flatnonzero(~far & (pidx < P))
+    s = kept[np.lexsort((cyc[kept], pidx[kept]))]  # by pose, cycle, row
+    _, first, inv = np.unique(pidx[s] * len(labels) + lab[s], return_index=True, return_inverse=True)
+    rank = np.empty(first.size, np.int64)
+    rank[np.argsort(first)] = np.arange(first.size)  # groups in order of first appearance
+    grank = rank[inv.ravel()]
+    o = np.argsort(grank, kind="stable")
+    s, grank = s[o], grank[o]
+    starts = np.searchsorted(grank, np.arange(first.size + 1))
+    g_pose = pidx[s[starts[:-1]]]
+    g_lab = lab[s[starts[:-1]]].tolist()
+    g_at = np.searchsorted(g_pose, np.arange(P + 1)).tolist()  # groups g_at[i]:g_at[i + 1] are pose i's
+    sizes = np.diff(starts).tolist()
+    st = starts.tolist()
+    cs = cyc[s]
+    twice = set(grank[1:][(grank[1:] == grank[:-1]) & (cs[1:] == cs[:-1])].tolist())
+    per_pose, repeated = [], set()
+    for i, name in enumerate(order):  # loop over poses: their groups
+        ga, gb = g_at[i], g_at[i + 1]
+        groups = [(labels[g_lab[g]], s[st[g]:st[g + 1]]) for g in range(ga, gb)]
+        gp = -1
+        if groups:
+            n = sizes[ga:gb]
+            gp = n.index(max(n))  # ties: the first to appear
+            if ga + gp in twice:
+                repeated.add(name)
+        per_pose.append((groups, gp))
+    return PoseGroups(per_pose, repeated)
 
 
 def analyze_stop_list(
@@ -231,7 +294,8 @@ def analyze_stop_list(
         cmd_arr = np.asarray(commanded_mm, dtype=float)
         if names is None or cmd_arr.shape != (len(names), 3) or not np.all(np.isfinite(cmd_arr)):
             raise DataError("commanded_mm must be finite with shape (P, 3) and come with P names")
-        cmd = {str(n): cmd_arr[i] for i, n in enumerate(names)}
+        cmd_row = {str(n): i for i, n in enumerate(names)}  # a name given twice: its last row
+        cmd = {n: cmd_arr[i] for n, i in cmd_row.items()}
         unknown = sorted({p for p in pose if p not in cmd})
         if unknown:
             raise DataError(f"the stop list names pose(s) {', '.join(unknown)} that the commanded poses lack "
@@ -249,50 +313,45 @@ def analyze_stop_list(
     dist = np.full(K, np.nan)
     far = np.zeros(K, bool)
     if cmd is not None:
-        dist = np.linalg.norm(centroid - np.array([cmd[p] for p in pose]), axis=1)
+        dist = np.linalg.norm(centroid - cmd_arr[np.fromiter((cmd_row[p] for p in pose), np.int64, K)], axis=1)
         far = dist > assign_tol_mm
         for k in np.flatnonzero(far):
             leave(k, "all", f"{dist[k]:.3f} mm from its commanded pose {pose[k]}, farther than the assignment "
                             f"tolerance {assign_tol_mm:g} mm")
     order = list(cmd) if cmd is not None else list(dict.fromkeys(pose))
-    by_pose = rows_by_label(pose)
     fit_rms = np.full(K, np.nan)
     poses: dict[str, PoseResult] = {}
     primary: dict[str, np.ndarray] = {}
     picked = []
-    for name in order:  # loop over poses: the stops of each and its main approach
-        k_pose = by_pose.get(name, np.zeros(0, np.int64))
-        k_pose = k_pose[~far[k_pose]]
-        k_pose = k_pose[np.argsort(cyc[k_pose], kind="stable")]
-        groups = _groups(k_pose, approach)
-        if groups:
-            gp = int(np.argmax([kg.size for _, kg in groups]))  # ties: the first to appear
-            kp = groups[gp][1]
-        else:
-            gp, kp = -1, np.zeros(0, np.int64)
+    pg = _pose_groups(order, pose, cyc, far, approach)
+    for name, (groups, gp) in zip(order, pg.per_pose):  # loop over poses: the stops of each and its main approach
+        kp = groups[gp][1] if groups else np.zeros(0, np.int64)
         primary[name] = kp
         for g, (lab, kg) in enumerate(groups):
             if g != gp:
-                for k in kg:
+                for k in kg.tolist():
                     leave(k, "AP, RP, AD, RD, orientation",
                           f"approached from {lab} ({kg.size} stop(s)); {name}'s main direction is {groups[gp][0]} "
                           f"({kp.size} stops); vAP uses it")
         picked.append((name, groups, gp, kp))
     stats = _pose_statistics(centroid, [kp for _, _, _, kp in picked],
-                             None if cmd is None else np.array([cmd[name] for name in order]))
+                             None if cmd is None else cmd_arr[np.fromiter(cmd_row.values(), np.int64, len(order))])
+    # the main approach's stops of all poses, one after another: each pose's attained points are a view
+    main = np.concatenate([kp for _, _, _, kp in picked]) if picked else np.zeros(0, np.int64)
+    att, att_cyc, att_t = centroid[main], cyc[main], np.full(main.size, np.nan)
+    at = 0
     for (name, groups, gp, kp), (acc, rep, mean) in zip(picked, stats):  # loop over poses: their results
-        ck = cyc[kp]  # in cycle order (sorted above): a repeated cycle is next to itself
-        if kp.size > 1 and bool(np.any(ck[1:] == ck[:-1])):
+        n = kp.size
+        if n > 1 and name in pg.repeated:
             raise DataError(f"pose {name}: a cycle appears twice among the stops of one approach")
-        a = centroid[kp]
-        if not kp.size:
+        if not n:
             warnings.append(f"{name}: no stop, AP and RP not computed")
             partial = True
-        elif kp.size == 1:
+        elif n == 1:
             warnings.append(f"{name}: RP needs at least 2 stops, got 1")
             partial = True
-        if 0 < kp.size < ISO_CYCLES:
-            warnings.append(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
+        if 0 < n < ISO_CYCLES:
+            warnings.append(f"{name}: {n} cycles; ISO 9283 prescribes {ISO_CYCLES}")
         gl = tuple(ApproachGroup(lab, np.zeros(3), mean.copy() if kg is kp else centroid[kg].mean(axis=0),
                                  int(kg.size), kg) for lab, kg in groups)
         vap = vany = pair = None
@@ -302,18 +361,19 @@ def analyze_stop_list(
             if len(gl) >= 3:
                 vap = vany
         oar = None
-        if R >= 3 and kp.size >= 2:
+        if R >= 3 and n >= 2:
             try:
                 abc, rms = orientation_by_rigid_fit(pts[kp])
             except DataError as exc:
                 raise DataError(f"pose {name}: {exc}") from None
             fit_rms[kp] = rms
             S = abc.std(axis=0, ddof=1)
-            oar = OrientationAR(None, 3.0 * S, abc.mean(axis=0), S, int(kp.size), kp)
+            oar = OrientationAR(None, 3.0 * S, abc.mean(axis=0), S, int(n), kp)
         poses[name] = PoseResult(
-            name, None if cmd is None else cmd[name].copy(), a, np.full(kp.size, np.nan), kp, cyc[kp],
-            acc, rep, None, MultiDirectional(vap, vany, gl, pair), oar, None,
+            name, None if cmd is None else cmd[name].copy(), att[at:at + n], att_t[at:at + n], kp,
+            att_cyc[at:at + n], acc, rep, None, MultiDirectional(vap, vany, gl, pair), oar, None,
         )
+        at += n
     dists = _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave)
     if any(d.RD_mm is None for d in dists):
         partial = True
@@ -362,14 +422,17 @@ def _pose_statistics(centroid, kps, cmd) -> list[tuple]:
             L = np.linalg.norm(X - means[:, None, :], axis=2)
             lb = L.mean(axis=1)
             S = np.sqrt(np.sum((L - lb[:, None]) ** 2, axis=1) / (n - 1))
+        dl = None if d is None else d.tolist()
+        lbl, Sl = (lb.tolist(), S.tolist()) if n >= 2 else (None, None)
         for j, i in enumerate(idx):  # loop over those poses: their result records
             kp, m = kps[i], means[j]
             acc = rep = None
-            if d is not None:
-                acc = PoseAccuracy(float(np.linalg.norm(d[j])), float(d[j, 0]), float(d[j, 1]), float(d[j, 2]),
-                                   m.copy(), n, kp)
+            if dl is not None:
+                dj = d[j]
+                # np.linalg.norm of a vector: the square root of its dot product with itself
+                acc = PoseAccuracy(math.sqrt(dj.dot(dj)), *dl[j], m.copy(), n, kp)
             if n >= 2:
-                lbj, Sj = float(lb[j]), float(S[j])
+                lbj, Sj = lbl[j], Sl[j]
                 rep = PoseRepeatability(lbj + 3.0 * Sj, lbj, Sj, L[j].copy(), n, kp)
             out[i] = (acc, rep, m)
     return out
@@ -409,14 +472,19 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
     short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
     if short:
         reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
-    all_cycles = set()
-    for kp in primary.values():
-        all_cycles.update(cyc[kp].tolist())
+    kps = list(primary.values())
+    main = np.concatenate(kps) if kps else np.zeros(0, np.int64)
+    all_cycles = set(np.unique(cyc[main]).tolist())
+    # the poses that may lack a cycle: those with fewer distinct cycles than there are
+    sizes = np.array([kp.size for kp in kps], dtype=np.int64)
+    owner = np.repeat(np.arange(len(kps)), sizes)
+    pairs = np.unique(np.stack([owner, cyc[main]]), axis=1) if main.size else np.zeros((2, 0), np.int64)
+    distinct = np.bincount(pairs[0], minlength=len(kps))
     gaps = []
-    for n, kp in primary.items():
-        lack = sorted(all_cycles.difference(cyc[kp].tolist()))
-        if lack:
-            gaps.append(f"{n} in cycle(s) {', '.join(str(c) for c in lack)}")
+    names = list(primary)
+    for i in np.flatnonzero(distinct < len(all_cycles)).tolist():  # loop over the poses short of a cycle
+        lack = sorted(all_cycles.difference(cyc[kps[i]].tolist()))
+        gaps.append(f"{names[i]} in cycle(s) {', '.join(str(c) for c in lack)}")
     if gaps:
         reasons.append("missing stops: " + "; ".join(gaps))
     if far.any():
