@@ -1,11 +1,14 @@
 """``station run iso9283-path`` on the fake cell over the real protocols (FTP + Modbus controller or the UR's
 RTDE and script ports, emScon tracker):
 the path figures lie within their U of what the tracker reads of the simulated arm's true motion, in the run's
-registered frame; a run cut inside a path cycle and resumed states the same characteristics."""
+registered frame; a run cut inside a path cycle and resumed states the same characteristics; one seed states
+the same characteristics at any pace and load."""
 
 from __future__ import annotations
 
 import io
+import multiprocessing
+import time
 
 import numpy as np
 import pytest
@@ -124,3 +127,50 @@ def test_the_path_test_is_offered_with_its_section_and_its_bad_values_are_refuse
     plan = plan_from_config(config_from_dict(base | {"iso9283_path": {"path_cycles": 4, "path_kinds": ["line"]}}),
                             "r1", path_cycles=3)
     assert plan.path_cycles == 3 and plan.path_kinds == ("line",)  # the override over the section
+
+
+class _Stalling(Recorder):
+    """A consumer that stalls: at every progress report it sleeps a random 0-30 ms of wall time."""
+
+    def __init__(self, control: RunControl, rng) -> None:
+        super().__init__(control)
+        self.rng = rng
+
+    def update(self, idx: int, step, detail: str = "") -> None:
+        super().update(idx, step, detail)
+        time.sleep(float(self.rng.uniform(0.0, 0.03)))
+
+
+def _burn(stop) -> None:  # a busy process (a child: it takes a core from the run)
+    x = 0
+    while not stop.is_set():
+        x = (x * 7 + 1) % 1000003
+
+
+def test_one_seed_gives_the_same_path_figures_at_any_pace_and_load(test_seed, tmp_path, rng):
+    """The same seed run at the lockstep pace and again at 50x beside two busy processes with a stalling
+    consumer states every path characteristic bit for bit the same (the lockstep clock: tests/sim/test_lockstep.py)."""
+    cfg = config_from_dict(demo_config(tmp_path, cycles=3, vap_cycles=2, rate_hz=500.0) | {"iso9283_path": {}})
+    code, _ = _run(cfg, tmp_path, "fast", test_seed)
+    assert code.status == "done", code.error
+    ctx = multiprocessing.get_context("spawn")
+    stop = ctx.Event()
+    burners = [ctx.Process(target=_burn, args=(stop,), daemon=True) for _ in range(2)]
+    for b in burners:
+        b.start()
+    try:
+        control = RunControl()
+        code = run_procedure(RunRequest(cfg, "iso9283-path", run_id="loaded", time_scale=50.0, seed=test_seed,
+                                        quiet=True, config_dir=tmp_path, operator=CallableOperator(lambda _m: True),
+                                        control=control, progress=_Stalling(control, rng), stdout=io.StringIO(),
+                                        plan_overrides=dict(OVERRIDES)))
+    finally:
+        stop.set()
+        for b in burners:
+            b.join(10.0)
+    assert code.status == "done", code.error
+    store = RunStore(tmp_path / "station.sqlite")
+    rows = lambda run: {(r["pose"], r["name"]): r["value"] for r in store.characteristics(run)}  # noqa: E731
+    fast, loaded = rows("fast"), rows("loaded")
+    assert len(fast) == (5 + 1) + (2 + 1) and all(v is not None for v in fast.values())
+    assert loaded == fast
