@@ -91,7 +91,8 @@ OVERSAMPLE = 10
 _INTERVAL_WEIGHTS = np.concatenate([[0.5], np.ones(OVERSAMPLE - 1), [0.5]]) / OVERSAMPLE
 
 
-def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz: float = 20.0) -> tuple[dict, dict]:
+def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz: float = 20.0,
+                     psi_sigma_rad: float | None = None) -> tuple[dict, dict]:
     """``(columns t, kappa, psi, v, truth)`` of a trailer record with the effects ``hidden`` drawn in it.
 
     The trailer follows the joint-angle dynamics of eq. (D) as an ideal trailer
@@ -103,7 +104,9 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
     should find beside the hidden effects: the ideal trailer's own
     relaxation over L2 (``baseline_dynamics``), or with ``hitch_dynamics``
     hidden the drawn relaxation; ``relaxation_m`` is the relaxation the
-    diagnosis's interval should contain either way.
+    diagnosis's interval should contain either way. ``psi_sigma_rad``: the
+    joint-angle sensor's noise (default drawn, U(2, 5) mrad); a precise one
+    leaves the curvature's noise dominant.
     """
     from fakes.sim.trailer_diagnosis_data import make_trailer_case
 
@@ -113,7 +116,7 @@ def simulate_trailer(*, hidden=(), seed: int, duration_s: float = 180.0, rate_hz
     rng = np.random.default_rng(seed)
     L2 = 2.48
     rec = make_trailer_case(list(hidden), rng, L2_m=L2, ideal=True, duration_s=duration_s,
-                            rate_hz=rate_hz * OVERSAMPLE)
+                            rate_hz=rate_hz * OVERSAMPLE, psi_sigma=psi_sigma_rad)
     n = (rec["t"].size - 1) // OVERSAMPLE
     end = np.arange(1, n + 1) * OVERSAMPLE  # the fine sample at each written t
     blocks = end[:, None] - np.arange(OVERSAMPLE, -1, -1)[None, :]  # the fine samples spanning the interval

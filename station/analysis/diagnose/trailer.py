@@ -59,7 +59,10 @@
    and the step says so.
 
 Parameters come with 95 % intervals (HAC-robust covariance of the
-refit, t quantile with ``n_train / L`` degrees of freedom). Units: rad (RMS and
+refit, t quantile with ``n_train / L`` degrees of freedom), the curvature
+noise's share that the robust window cannot see propagated through the
+model and added (:mod:`.trailer_input_noise`: filtered by the relaxation,
+that noise is correlated longer than the window reaches). Units: rad (RMS and
 noise floor of the joint angle), m, 1/m, s.
 """
 
@@ -80,6 +83,7 @@ from station.numeric import finite_or_none
 
 from .candidate_significance import model_basis, refit_step, wald_block
 from .summary_json import core_json
+from .trailer_input_noise import unseen_input_meat
 from .trailer_fit import (EFFECT_PARAMS, PARAM_NAMES, SAMPLINGS, columns, hac_bandwidth, hac_cov, loo_smooth,
                             null_params, predict, rms, segments, stamp_curvature)
 
@@ -341,14 +345,26 @@ def _robust(resid_train: np.ndarray, seg: np.ndarray, ctx: dict, theta: np.ndarr
 
 
 def _cov(theta, active, ctx) -> tuple[list, np.ndarray, float]:
-    """``(indices, covariance, dof)`` of the active parameters (HAC-robust, the refit's curvature and rows)."""
+    """``(indices, covariance, dof)`` of the active parameters (HAC-robust, the refit's curvature and rows).
+
+    The curvature noise the model is driven by is correlated in the residual
+    over the relaxation's memory, longer than the robust window reaches: its
+    share the window cannot see is propagated from the curvature's measured
+    noise and added (:mod:`.trailer_input_noise`).
+    """
+    key = (np.asarray(theta, dtype=float).tobytes(), tuple(active))
+    if key in ctx["covariances"]:  # a step's model is the final one's when it is the last step
+        return ctx["covariances"][key]
     train, seg = _rows(theta, ctx)
     idx = _idx(active)
     kappa = _fit_input(theta, ctx)
     J = columns(theta, kappa, ctx["dist"], idx)[train]
     r = (ctx["psi"] - predict(theta, kappa, ctx["dist"]))[train]
     L, dof = _robust(r, seg, ctx, theta)
-    return idx, hac_cov(J, r, seg, L), max(dof, 1.0)
+    unseen = unseen_input_meat(theta, J, train, seg, L, kappa_in=kappa, to_input=_input_map(theta, ctx),
+                               dist_m=ctx["dist"], sigma=ctx["kappa_sigma"])
+    ctx["covariances"][key] = idx, hac_cov(J, r, seg, L, unseen), max(dof, 1.0)
+    return ctx["covariances"][key]
 
 
 def _params_ci(theta, active, effect, ctx, speed_known) -> tuple[dict, dict]:
@@ -462,8 +478,21 @@ def _fit_input(theta: np.ndarray, ctx: dict) -> np.ndarray:
     millimetres at the ideal trailer's ``L2``: there the measured curvature
     drives the fit.
     """
+    return ctx["kappa_s"] if _smoothed_input(theta, ctx) else ctx["kappa"]
+
+
+def _smoothed_input(theta: np.ndarray, ctx: dict) -> bool:
+    """Is a refit at ``theta`` driven by the leave-out smoothing (see :func:`_fit_input`)?"""
     window_m = (2 * ctx["half_window"] + 1) * ctx["dist_median"]
-    return ctx["kappa"] if float(theta[4]) > window_m else ctx["kappa_s"]
+    return float(theta[4]) <= window_m
+
+
+def _input_map(theta: np.ndarray, ctx: dict):
+    """The linear map from the measured curvature's noise to its part of :func:`_fit_input`."""
+    t, sampling = ctx["t"], ctx["sampling"]
+    if _smoothed_input(theta, ctx):
+        return lambda noise: loo_smooth(t, noise, ctx["half_window"], sampling)[0]
+    return lambda noise: stamp_curvature(t, noise, sampling)
 
 
 def _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now):
@@ -541,7 +570,8 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
 
     sensor_noise = {"psi_sigma_rad": float(noise_sigma(ps)), "kappa_sigma_1_m": float(noise_sigma(kap))}
     kap = stamp_curvature(t, kap, sampling)  # the curvature the model is driven by, at the stamps
-    ctx = {"kappa": kap, "kappa_s": ks, "kappa_rate": ksr, "dist": dist, "v": vv, "psi": ps, "train": train,
+    ctx = {"t": t, "sampling": sampling, "kappa_sigma": sensor_noise["kappa_sigma_1_m"], "covariances": {},
+           "kappa": kap, "kappa_s": ks, "kappa_rate": ksr, "dist": dist, "v": vv, "psi": ps, "train": train,
            "travel": np.cumsum(dist) - dist[0],
            "dist_median": max(float(np.median(dist[1:])), 1e-9), "half_window": half,
            "heldout": held, "seg": segments(train),

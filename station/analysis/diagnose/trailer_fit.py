@@ -62,7 +62,8 @@ import math
 import numpy as np
 
 __all__ = ["PARAM_NAMES", "EFFECT_PARAMS", "SAMPLINGS", "null_params", "predict", "lag_column", "columns",
-           "stamp_curvature", "sample_positions", "loo_smooth", "segments", "hac_cov", "hac_bandwidth"]
+           "stamp_curvature", "sample_positions", "loo_smooth", "segments", "hac_cov", "hac_bandwidth",
+           "bartlett_weight"]
 
 PARAM_NAMES = ("L1_m", "L2_m", "offset_rad", "gain", "relaxation_m")
 #: candidate effect -> indices of its parameters
@@ -96,8 +97,10 @@ def predict(theta: np.ndarray, kappa: np.ndarray, dist_m: np.ndarray) -> np.ndar
     ----------
     theta : ndarray, shape (5,)
         ``L1_m, L2_m, offset_rad, gain, relaxation_m``.
-    kappa : ndarray, shape (N,)
-        Curvature of each sample, 1/m.
+    kappa : ndarray, shape (N,) or (N, K)
+        Curvature of each sample, 1/m; ``K`` curvature records at once (the
+        columns of a 2-D array, e.g. perturbed by noise draws) give ``K``
+        predictions, shape (N, K).
     dist_m : ndarray, shape (N,)
         Distance travelled since the previous sample (``v dt``; the first is unused), m.
     """
@@ -105,6 +108,8 @@ def predict(theta: np.ndarray, kappa: np.ndarray, dist_m: np.ndarray) -> np.ndar
     e, c = _steady(g * kappa, L1, L2)
     if ell <= 0.0:
         return e + off
+    if np.ndim(kappa) == 2:
+        return _relax_many(e, g * kappa, L1, np.maximum(dist_m, 0.0) / ell) + off
     K = g * kappa
     r_l = (np.sqrt(1.0 + (K * L1) ** 2)).tolist()
     a_l = np.arctan(K * L1).tolist()
@@ -127,6 +132,24 @@ def predict(theta: np.ndarray, kappa: np.ndarray, dist_m: np.ndarray) -> np.ndar
             p = p  # no travel: the joint holds
         out[k] = p
     return np.asarray(out) + off
+
+
+def _relax_many(eq: np.ndarray, K: np.ndarray, L1: float, s: np.ndarray) -> np.ndarray:
+    """:func:`predict`'s relaxation step for ``K`` curvature records at once (columns), shape (N, K)."""
+    r = np.sqrt(1.0 + (K * L1) ** 2)
+    a = np.arctan(K * L1)
+    out = np.empty_like(eq)
+    p = eq[0].copy()
+    out[0] = p
+    for k in range(1, eq.shape[0]):  # sequential in time, vectorised over the records
+        e0, e1 = eq[k - 1], eq[k]
+        if s[k] > 0.0:  # no travel: the joint holds
+            half = 0.5 * (p - e1)
+            h = np.where(half == 0.0, 1e-20, half)  # the secant's sinc at d = 0 is 1
+            z = np.maximum(s[k] * r[k] * np.cos(p - half - a[k]) * (np.sin(h) / h), 1e-12)
+            p = e1 + (p - e0) * np.exp(-z) + (e1 - e0) * np.expm1(-z) / z
+        out[k] = p
+    return out
 
 
 def lag_column(theta: np.ndarray, kappa: np.ndarray, kappa_rate: np.ndarray, v_m_s: np.ndarray) -> np.ndarray:
@@ -260,14 +283,22 @@ def hac_bandwidth(resid: np.ndarray, seg: np.ndarray, max_lag: int, tol: float =
     return int(max_lag)
 
 
-def hac_cov(X: np.ndarray, resid: np.ndarray, seg: np.ndarray, bandwidth: int) -> np.ndarray:
+def bartlett_weight(lag, bandwidth: int):
+    """Weight of lag ``lag`` (an int or an array of them) in :func:`hac_cov`'s sum."""
+    return 1.0 - lag / (bandwidth + 1.0)
+
+
+def hac_cov(X: np.ndarray, resid: np.ndarray, seg: np.ndarray, bandwidth: int,
+            extra_meat: np.ndarray | None = None) -> np.ndarray:
     """Heteroscedasticity- and autocorrelation-robust covariance of least-squares coefficients (N, p).
 
     ``(X'X)^-1 M (X'X)^-1`` with ``M = G_0 + sum_l (1 - l/(L+1)) (G_l + G_l')``,
     ``G_l = sum_k s_k s_{k-l}'``, ``s_k = x_k r_k`` (Bartlett weights, lags
     counted inside each contiguous stretch of the training record): the
     residuals of a trailer are correlated over the joint angle's relaxation,
-    and their variance changes with the curvature.
+    and their variance changes with the curvature. ``extra_meat`` (p, p),
+    in the units of ``X' r``'s square, is added to ``M``: a part of the
+    scores' variance the window cannot see (see :mod:`.trailer_input_noise`).
     """
     scale = np.linalg.norm(X, axis=0)
     scale[scale == 0] = 1.0
@@ -275,9 +306,11 @@ def hac_cov(X: np.ndarray, resid: np.ndarray, seg: np.ndarray, bandwidth: int) -
     bread = np.linalg.pinv(Xs.T @ Xs)
     S = Xs * resid[:, None]
     meat = S.T @ S
+    if extra_meat is not None:
+        meat = meat + extra_meat / np.outer(scale, scale)
     for lag in range(1, bandwidth + 1):
         g = _lag_products(S, S, seg, lag)
-        meat += (1.0 - lag / (bandwidth + 1.0)) * (g + g.T)
+        meat += bartlett_weight(lag, bandwidth) * (g + g.T)
     n = X.shape[0]
     cov = bread @ meat @ bread * (n / max(n - X.shape[1], 1))
     return cov / np.outer(scale, scale)
