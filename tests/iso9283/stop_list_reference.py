@@ -15,6 +15,8 @@ import numpy as np
 from station import characteristics as table
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
+    fold_warnings,
+    listed,
     ApproachGroup,
     DistanceAR,
     LeftOut,
@@ -140,6 +142,7 @@ def analyze_stop_list(
     refl = tuple(reflectors) if reflectors is not None else tuple(str(k) for k in range(R))
     centroid = pts.mean(axis=1)
     warnings: list[str] = []
+    few: list[tuple[int, str]] = []  # (index in warnings, "pose n") of the poses of fewer than ISO_CYCLES cycles
     partial = False
     left: list[LeftOut] = []
 
@@ -192,6 +195,7 @@ def analyze_stop_list(
             warnings.append(f"{name}: RP needs at least 2 stops, got 1")
             partial = True
         if 0 < kp.size < ISO_CYCLES:
+            few.append((len(warnings), f"{name} {kp.size}"))
             warnings.append(f"{name}: {kp.size} cycles; ISO 9283 prescribes {ISO_CYCLES}")
         gl = tuple(ApproachGroup(lab, np.zeros(3), mean.copy() if kg is kp else centroid[kg].mean(axis=0),
                                  int(kg.size), kg) for lab, kg in groups)
@@ -214,6 +218,9 @@ def analyze_stop_list(
             name, None if cmd is None else cmd[name].copy(), a, np.full(kp.size, np.nan), kp, cyc[kp],
             acc, rep, None, MultiDirectional(vap, vany, gl, pair), oar, None,
         )
+    warnings[:] = fold_warnings(warnings, [i for i, _ in few],
+                                f"{len(few)} poses of fewer than {ISO_CYCLES} cycles ({listed(f for _, f in few)}); "
+                                f"ISO 9283 prescribes {ISO_CYCLES}")
     dists = _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave)
     if any(d.RD_mm is None for d in dists):
         partial = True
@@ -308,7 +315,7 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
     reasons = []
     short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
     if short:
-        reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
+        reasons.append(f"fewer than {ISO_CYCLES} cycles at {listed(short)}")
     all_cycles = set()
     for kp in primary.values():
         all_cycles.update(cyc[kp].tolist())

@@ -49,6 +49,28 @@ from station.verdict import Outcome, combine
 
 #: ISO 9283 prescribes 30 cycles for AP and RP
 ISO_CYCLES = 30
+#: a sentence names at most this many poses (a stop list may hold 100,000): the rest are counted
+MOST_LISTED = 12
+
+
+def listed(items, most: int = MOST_LISTED) -> str:
+    """``items`` joined by commas, the first ``most`` of them and ``and N more`` beyond."""
+    items = list(items)
+    if len(items) <= most:
+        return ", ".join(items)
+    return ", ".join(items[:most]) + f" and {len(items) - most} more"
+
+
+def fold_warnings(warnings: list, flagged: list, summary: str, most: int = MOST_LISTED) -> list:
+    """``warnings`` with the entries at the indices ``flagged`` (one per pose, of one kind) replaced by one
+    ``summary`` where there are more than ``most`` of them: a stop list of 100,000 poses of 3 cycles gave 100,000
+    lines of "3 cycles; ISO 9283 prescribes 30"."""
+    if len(flagged) <= most:
+        return warnings
+    drop = set(flagged)
+    out = [w for i, w in enumerate(warnings) if i not in drop]
+    out.insert(flagged[0], summary)
+    return out
 
 
 
@@ -1244,7 +1266,7 @@ def iso_conformance_reasons(poses: dict, ex: Extraction, verdicts, limits: dict 
     reasons = []
     short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
     if short:
-        reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
+        reasons.append(f"fewer than {ISO_CYCLES} cycles at {listed(short)}")
     if ex.missing:
         by_pose: dict[str, list[int]] = {}
         for m in ex.missing:

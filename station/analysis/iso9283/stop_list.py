@@ -39,6 +39,8 @@ import numpy as np
 from station import characteristics as table
 from station.analysis.iso9283.characteristics import (
     ISO_CYCLES,
+    fold_warnings,
+    listed,
     ApproachGroup,
     Judged,
     DistanceAR,
@@ -304,6 +306,7 @@ def analyze_stop_list(
     refl = tuple(reflectors) if reflectors is not None else tuple(str(k) for k in range(R))
     centroid = pts.mean(axis=1)
     warnings: list[str] = []
+    few: list[tuple[int, str]] = []  # (index in warnings, "pose n") of the poses of fewer than ISO_CYCLES cycles
     partial = False
     left: list[LeftOut] = []
 
@@ -351,6 +354,7 @@ def analyze_stop_list(
             warnings.append(f"{name}: RP needs at least 2 stops, got 1")
             partial = True
         if 0 < n < ISO_CYCLES:
+            few.append((len(warnings), f"{name} {n}"))
             warnings.append(f"{name}: {n} cycles; ISO 9283 prescribes {ISO_CYCLES}")
         gl = tuple(ApproachGroup(lab, np.zeros(3), mean.copy() if kg is kp else centroid[kg].mean(axis=0),
                                  int(kg.size), kg) for lab, kg in groups)
@@ -374,6 +378,9 @@ def analyze_stop_list(
             att_cyc[at:at + n], acc, rep, None, MultiDirectional(vap, vany, gl, pair), oar, None,
         )
         at += n
+    warnings[:] = fold_warnings(warnings, [i for i, _ in few],
+                                f"{len(few)} poses of fewer than {ISO_CYCLES} cycles ({listed(f for _, f in few)}); "
+                                f"ISO 9283 prescribes {ISO_CYCLES}")
     dists = _distances(poses, primary, cyc, centroid, cmd, distance_pairs, warnings, leave)
     if any(d.RD_mm is None for d in dists):
         partial = True
@@ -471,7 +478,7 @@ def _conformance(poses, primary, cyc, far, verdicts, limits) -> list[str]:
     reasons = []
     short = [f"{n} {pr.n_cycles}" for n, pr in poses.items() if pr.n_cycles < ISO_CYCLES]
     if short:
-        reasons.append(f"fewer than {ISO_CYCLES} cycles at {', '.join(short)}")
+        reasons.append(f"fewer than {ISO_CYCLES} cycles at {listed(short)}")
     kps = list(primary.values())
     main = np.concatenate(kps) if kps else np.zeros(0, np.int64)
     all_cycles = set(np.unique(cyc[main]).tolist())
