@@ -16,7 +16,7 @@
    (b) on the held-out moves, which chose nothing, the mean-square residual
    falls: per block of :data:`BLOCK_S` of their approach parts, the
    reduction's one-sided Wilcoxon signed-rank test at ``alpha`` (stated as
-   a normal quantile, :func:`_block_t`),
+   a normal quantile, :func:`_heldout_z`),
    and the reduction at least ``(RELEVANCE * noise)^2``. Of those, the one
    with the lowest held-out RMS is named and the model refitted; again until
    none is left.
@@ -221,7 +221,7 @@ def _rms(r) -> float:
     return float(np.sqrt(np.mean(v * v))) if v.size else math.nan
 
 
-def _block_t(w: Windows, r0: np.ndarray, r1: np.ndarray) -> tuple[float, int]:
+def _heldout_z(w: Windows, r0: np.ndarray, r1: np.ndarray) -> tuple[float, int]:
     """The held-out test of the mean-square reduction over blocks of :data:`BLOCK_S` of the approach parts:
     ``(z, blocks)`` (:func:`signed_rank_z` of the blocks' reductions)."""
     d = []
@@ -380,7 +380,7 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
             ct.threshold = float(stats.f.isf(alpha / max(len(remaining), 1), k, max(n_app - p_all, 1)))
             r1, _ = F.approach_residual(ho, q)
             ct.heldout_rms_after = _rms(r1)
-            ct.heldout_t, nb = _block_t(ho, r_cur, r1)
+            ct.heldout_t, _ = _heldout_z(ho, r_cur, r1)
             ct.heldout_threshold = float(stats.norm.isf(alpha))
             ms0, ms1 = _rms(r_cur) ** 2, ct.heldout_rms_after ** 2
             ct.relevant = bool(ms0 - ms1 >= (RELEVANCE * noise) ** 2)
