@@ -38,9 +38,17 @@ def test_the_zone_rounds_the_corner_and_the_servo_lags_more_when_faster(test_see
     pt = _test(world, "rectangle_blend", 0.1, side, blend_mm=blend)
     r = fakerun.run(world, pt)
     corner = np.asarray(pt.path["corners_mm"][2])
-    # the controller's path passes blend / (2 sqrt 2) from a right-angled corner (the Bezier's midpoint)
-    assert np.min(np.linalg.norm(r.commanded - corner, axis=1)) == pytest.approx(blend / (2 * math.sqrt(2)),
-                                                                                 rel=2e-3, abs=0.01)
+    # the controller's path passes blend / (2 sqrt 2) from a right-angled corner (the Bezier's midpoint), up to
+    # what the axes' cubic spline through the interpolation knots (h mm apart at the apex) makes of a curve of
+    # radius blend / sqrt 2 there: of order (5/384) h^4 / R^3 times the Bezier's curvature change, measured at
+    # most 0.031 h^4 / R^3 over 30 draws of 5-12 mm zones (CI seed 2906433913: an 8 mm zone, h 3.05 mm, 0.011 mm
+    # outside the Bezier, which a fixed 0.01 mm refused)
+    d = np.linalg.norm(r.commanded - corner, axis=1)
+    i = int(np.argmin(d))
+    h = 0.5 * float(np.linalg.norm(r.commanded[i + 1] - r.commanded[i - 1])) * fakerun.RATE_HZ * world.arm.ipo_period_s
+    R = blend / math.sqrt(2)
+    apex = blend / (2 * math.sqrt(2))
+    assert abs(d[i] - apex) <= 0.002 + 0.06 * h ** 4 / R ** 3, (d[i], apex, h)
     # the servo: the true path leaves the commanded one, by more on a circle driven faster
     lag = {}
     for frac in (0.1, 0.5):
