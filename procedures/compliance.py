@@ -7,7 +7,8 @@ Steps (the cell's, as in :mod:`procedures.iso9283`, then the loads):
 3. ``connect devices`` (every session) — tracker, controller and the force gauge (its model and serial);
 4. ``home``, ``register base frame`` — as the ISO procedure (the tracker tied to the base frame);
 5. ``go to P1`` (every session) — the arm to the test pose (the cube's centre, ISO 9283 clause 10), where
-   it holds under servo;
+   it holds under servo; ``hold`` — stationary points of the unloaded tool at the loading's pace (the
+   tracker's scatter on that time scale, for the slope's uncertainty);
 6. ``load +x`` ... ``load -z`` — one step per direction of the base frame: the operator takes every load off
    the tool, the gauge is zeroed, then for each level of :func:`load_levels_N` (up to the rated load in
    ``steps`` steps and back down) the operator pulls the tool along the direction until the gauge reads it
@@ -20,7 +21,8 @@ Steps (the cell's, as in :mod:`procedures.iso9283`, then the loads):
 The plan is the ISO plan of the config (cube, registration) with a ``compliance`` entry:
 ``rated_load_N`` (default the arm's rated payload times g), ``steps`` (10), ``directions`` (all six),
 ``gauge_readings`` (3), ``measure_s`` (0.5: the tracker's averaging), ``u_F_rel`` (0.005: the gauge's
-relative standard uncertainty); ``--set``-style overrides of those names reach it.
+relative standard uncertainty), ``hold_readings`` (null: as many as the load levels; 0: no hold);
+``--set``-style overrides of those names reach it.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from station.runner import Procedure, Step, StepContext
 
 #: the plan's compliance entry: name -> default (None: from the arm)
 DEFAULTS: dict[str, Any] = {"rated_load_N": None, "steps": 10, "directions": list(DIRECTIONS), "gauge_readings": 3,
-                            "measure_s": 0.5, "u_F_rel": 0.005, "pose": "P1"}
+                            "measure_s": 0.5, "u_F_rel": 0.005, "pose": "P1", "hold_readings": None}
 G_M_S2 = 9.80665
 
 
@@ -73,6 +75,11 @@ def compliance_params(params: Mapping) -> dict:
         raise ConfigError(f"compliance.measure_s must be within 0.05-60 s, got {c['measure_s']!r}")
     if not (isinstance(c["u_F_rel"], (int, float)) and 0 <= c["u_F_rel"] < 0.5):
         raise ConfigError(f"compliance.u_F_rel must be within [0, 0.5), got {c['u_F_rel']!r}")
+    if c["hold_readings"] is not None and not (isinstance(c["hold_readings"], int)
+                                               and not isinstance(c["hold_readings"], bool)
+                                               and (c["hold_readings"] == 0 or 3 <= c["hold_readings"] <= 1000)):
+        raise ConfigError(f"compliance.hold_readings must be 0 (no hold), an integer within 3-1000 or null (as many "
+                          f"as the load levels), got {c['hold_readings']!r}")
     if c["pose"] not in params["poses_mm"]:
         raise ConfigError(f"compliance.pose {c['pose']!r} is not a pose of the plan ({', '.join(params['poses_mm'])})")
     return c
@@ -92,6 +99,28 @@ def step_go_to_pose(ctx: StepContext) -> dict:
     prog = render_rapid(_point_program(plan, name, plan.poses_mm[name], dwell_s=1.0))
     ctx.session.moved_by = ctx.step.name
     return {"pose": name, **_run_program(ctx, prog, timeout_s=_timeout(ctx, 60), stream=False)}
+
+
+def hold_readings(c: Mapping) -> int:
+    """How many stationary points the hold takes (the load levels' count unless the plan says)."""
+    n = c["hold_readings"]
+    return len(load_levels_N(float(c["rated_load_N"]), int(c["steps"]))) if n is None else int(n)
+
+
+def step_hold(ctx: StepContext) -> dict:
+    """The unloaded tool held at the test pose: as many stationary points as a direction has load levels, at
+    its pace (the gauge read before and after each, as there): the tracker's scatter on the loading's time
+    scale, which the slope's residuals do not show of a slow wander (:mod:`station.analysis.iso9283.compliance`)."""
+    c = compliance_params(ctx.params)
+    gauge, tracker = ctx.session.gauge, ctx.session.tracker
+    points = []
+    for _ in range(hold_readings(c)):
+        ctx.checkpoint()
+        gauge.read_force_avg_N(int(c["gauge_readings"]))
+        m = tracker.measure_stationary(duration_s=float(c["measure_s"]))
+        gauge.read_force_avg_N(int(c["gauge_readings"]))
+        points.append([float(v) for v in m.xyz_mm])
+    return {"tracker_mm": points}
 
 
 def step_load(direction: str):
@@ -127,13 +156,16 @@ def analyse_outputs(params: Mapping, outputs: Mapping) -> list:
     """Every measured direction's :class:`DirectionCompliance` from the steps' outputs (base frame)."""
     c = compliance_params(params)
     reg = registration_of(outputs)
+    held = (outputs.get("hold") or {}).get("tracker_mm")
+    hold = reg.to_base(np.asarray(held, dtype=float)) if held and len(held) >= 3 else None
     results = []
     for d in c["directions"]:
         out = outputs.get(f"load {d}")
         if out is None:
             continue
         P = reg.to_base(np.asarray(out["tracker_mm"], dtype=float))
-        results.append(direction_compliance(d, out["load_N"], P, out["loading"], u_F_rel=float(c["u_F_rel"])))
+        results.append(direction_compliance(d, out["load_N"], P, out["loading"], u_F_rel=float(c["u_F_rel"]),
+                                            hold_mm=hold))
     return results
 
 
@@ -156,14 +188,15 @@ def step_report(ctx: StepContext) -> dict:
                  facts={"run": ctx.run_id, "test pose": f"{c['pose']} {list(plan.poses_mm[c['pose']])} mm",
                         "rated load": f"{c['rated_load_N']:.0f} N in {c['steps']} steps, up and down",
                         "gauge": str(ctx.outputs.get("connect devices", {}).get("gauge", "")),
-                        "uncertainty": "U = 2 u, u^2 = se(slope)^2 + (slope u_F_rel)^2, "
-                                       f"u_F_rel = {c['u_F_rel']:g}"},
+                        "uncertainty": "U = k u (k: Student's t at 95 %), u^2 = max(se(slope), se_noise)^2 + "
+                                       f"(slope u_F_rel)^2, u_F_rel = {c['u_F_rel']:g}; se_noise from a hold of "
+                                       f"{hold_readings(c)} points (0: none)"},
                  rows=[{"pose": r.direction, "name": COMPLIANCE.key, "value": r.compliance_mm_per_N,
                         "unit": COMPLIANCE.unit, "limit": None, "passed": None} for r in results])
     rep.figures.append(("Displacement along the load against the load",
                         plot_load_displacement({r.direction: (np.array(r.load_N), np.array(r.displacement_mm),
                                                               np.array(r.loading)) for r in results})))
-    rep.notes += [f"{r.direction}: {r.compliance_mm_per_N:.4g} mm/N, U = {r.U_mm_per_N:.2g} mm/N (k = 2), "
+    rep.notes += [f"{r.direction}: {r.compliance_mm_per_N:.4g} mm/N, U = {r.U_mm_per_N:.2g} mm/N (k = {r.k:.2f}), "
                   f"hysteresis {r.hysteresis_mm * 1000:.1f} um, residual sd {r.residual_sd_mm * 1000:.1f} um"
                   for r in results]
     path = write_report(rep, Path(plan.report_dir) / f"{ctx.run_id}.html")
@@ -185,6 +218,8 @@ def build_procedure(params: Mapping) -> Procedure:
         Step("register base frame", step_register),
         Step(f"go to {c['pose']}", step_go_to_pose, every_session=True),
     ]
+    if hold_readings(c):
+        steps.append(Step("hold", step_hold))
     steps += [Step(f"load {d}", step_load(d), label=d) for d in c["directions"]]
     steps += [Step("analyse", step_analyse, offline=True), Step("report", step_report, offline=True)]
     return Procedure("compliance", steps, safe_state=safe_state)

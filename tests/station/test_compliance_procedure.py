@@ -54,7 +54,11 @@ def test_compliance_in_every_direction_is_the_simulated_arms_within_its_uncertai
         truth = float(np.asarray(u) @ C @ np.asarray(u))
         print(f"{name}: {r['compliance_mm_per_N']:.5g} mm/N, U {r['U_mm_per_N']:.2g}, truth {truth:.5g}, "
               f"hysteresis {r['hysteresis_mm'] * 1000:.2f} um")
-        # six directions at once: each within 2 U (k = 4), so an honest U fails this 1 time in 3000
+        # six directions at once: each within 2 U (about 4.4 u), so an honest U fails this 1 time in 1000. The
+        # tracker's 1 s wander over a loading of a few seconds went into the slope unseen by its residuals
+        # (error 1.6 u in rms over 72 draws, 2.2 % against a U of 1.1 %, CI seed 241016535); the hold's scatter
+        # now enters u (rms 1.0-1.2 u over 144 draws)
+        assert r["noise_se_mm_per_N"] is not None and r["hold_sd_mm"] > 0, r
         assert abs(r["compliance_mm_per_N"] - truth) <= 2.0 * r["U_mm_per_N"], (name, r, truth)
         assert r["U_mm_per_N"] < 0.3 * max(abs(truth), 2e-5), (name, r["U_mm_per_N"], truth)  # U says something
         assert len(r["load_N"]) == 2 * STEPS + 1 and r["max_load_N"] == pytest.approx(rated, rel=0.1)

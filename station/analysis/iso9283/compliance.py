@@ -14,7 +14,29 @@ is the slope of the displacement *along that direction* against the load::
 degrees of freedom), which holds the instruments' noise and whatever the
 line does not (hysteresis between loading and unloading), and the
 gauge's relative uncertainty ``u_F_rel`` (a force read 1 % high gives a
-slope 1 % low): ``u(s)^2 = se^2 + (s u_F_rel)^2``, ``U = 2 u`` (k = 2).
+slope 1 % low): ``u(s)^2 = se^2 + (s u_F_rel)^2``.
+
+The residuals do not show a tracker's slow wander: over a loading that
+takes a few of its correlation times, the wander's excursion rises and
+falls with the load (both are humps in time) and goes into the slope,
+leaving the residuals small (on the simulated cell, with 2 um of wander
+correlated over 1 s, the slope's error was 1.6 times the residual
+standard error). A hold of as many stationary points at the unloaded pose,
+taken at the pace of the loading, measures the readings' variance ``s_h^2``
+on that time scale; the wander's correlation time is not known, so the
+noise's share of the slope is the largest over correlations ``rho^|i - j|``
+between readings ``i`` and ``j`` of the loading (rho in [0, 1))::
+
+    c = row of the slope in (A^T A)^-1 A^T      A = [1, F]
+    se_noise^2 = s_h^2 max_rho sum_ij c_i c_j rho^|i - j|
+
+A constant (rho -> 1) drops out with the intercept, and white noise is
+rho = 0. The larger of ``se`` and ``se_noise`` stands for the scatter
+(each holds the white noise; the sum would count it twice):
+``u(s)^2 = max(se, se_noise)^2 + (s u_F_rel)^2``, ``U = k u`` with ``k``
+Student's t at 95 % for the Welch-Satterthwaite degrees of freedom
+(``n - 2`` for ``se``, ``3 (n_h - 1)`` for the hold's pooled variance, the
+gauge's infinite).
 Hysteresis is stated too: the largest gap between the unloading and the
 loading displacement at one load level.
 
@@ -29,6 +51,7 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from station import characteristics as table
 from station.errors import ConfigError, DataError, InsufficientDataError
@@ -90,13 +113,37 @@ class DirectionCompliance:
     #: True for a step on the way up (the first half), False on the way down
     loading: tuple[bool, ...]
     max_load_N: float
+    #: the hold's standard deviation of one reading (mm, per coordinate) and the slope's noise share from it
+    #: (None without a hold); the coverage factor and its degrees of freedom
+    hold_sd_mm: float | None = None
+    noise_se_mm_per_N: float | None = None
+    k: float = 2.0
+    dof: float | None = None
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
-def direction_compliance(direction: str, load_N, position_mm, loading, *, u_F_rel: float = 0.005
-                         ) -> DirectionCompliance:
+def correlated_noise_factor(c) -> float:
+    """``max over rho in [0, 1) of sum_ij c_i c_j rho^|i - j|`` for a reading weight vector ``c`` (its sum 0)."""
+    from scipy.optimize import minimize_scalar
+
+    c = np.asarray(c, dtype=float).reshape(-1)
+    n = c.size
+    lag = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    cc = np.outer(c, c)
+
+    def neg(rho: float) -> float:
+        return -float(np.sum(cc * rho ** lag))
+
+    grid = np.linspace(0.0, 0.999, 200)
+    best = grid[int(np.argmin([neg(r) for r in grid]))]
+    res = minimize_scalar(neg, bounds=(max(0.0, best - 0.01), min(0.9999, best + 0.01)), method="bounded")
+    return max(-float(res.fun), -neg(best), float(c @ c))
+
+
+def direction_compliance(direction: str, load_N, position_mm, loading, *, u_F_rel: float = 0.005,
+                         hold_mm=None) -> DirectionCompliance:
     """The compliance in ``direction`` from one load programme.
 
     Parameters
@@ -111,6 +158,9 @@ def direction_compliance(direction: str, load_N, position_mm, loading, *, u_F_re
         True on the way up, False on the way down.
     u_F_rel : float
         Relative standard uncertainty of the gauge's readings.
+    hold_mm : array_like, shape (n_h, 3), optional
+        Stationary points of the unloaded tool taken at the loading's pace (the tracker's scatter on the
+        loading's time scale); None: the residuals alone.
     """
     if direction not in DIRECTIONS:
         raise ConfigError(f"direction {direction!r} is not one of {', '.join(DIRECTIONS)}")
@@ -138,9 +188,24 @@ def direction_compliance(direction: str, load_N, position_mm, loading, *, u_F_re
     s2 = float(resid @ resid) / dof
     cov = s2 * np.linalg.inv(A.T @ A)
     slope, se = float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
-    uc = math.hypot(se, slope * u_F_rel)
+    hold_sd = noise_se = None
+    scatter, scatter_dof = se, float(dof)
+    if hold_mm is not None:
+        H = np.asarray(hold_mm, dtype=float)
+        if H.ndim != 2 or H.shape[1] != 3 or H.shape[0] < 3 or not np.all(np.isfinite(H)):
+            raise DataError(f"{direction}: the hold needs at least 3 finite points (n, 3), got shape {H.shape}")
+        hold_dof = 3 * (H.shape[0] - 1)
+        hold_sd = math.sqrt(float(np.sum((H - H.mean(axis=0)) ** 2)) / hold_dof)
+        c = np.linalg.solve(A.T @ A, A.T)[1]
+        noise_se = hold_sd * math.sqrt(correlated_noise_factor(c))
+        if noise_se > se:
+            scatter, scatter_dof = noise_se, float(hold_dof)
+    uc = math.hypot(scatter, slope * u_F_rel)
+    nu = uc ** 4 / (scatter ** 4 / scatter_dof) if scatter > 0 else math.inf
+    k = float(stats.t.ppf(0.975, nu)) if math.isfinite(nu) else 2.0
     return DirectionCompliance(
-        direction=direction, compliance_mm_per_N=slope, se_mm_per_N=se, u_mm_per_N=uc, U_mm_per_N=2.0 * uc,
+        direction=direction, compliance_mm_per_N=slope, se_mm_per_N=se, u_mm_per_N=uc, U_mm_per_N=k * uc,
+        hold_sd_mm=hold_sd, noise_se_mm_per_N=noise_se, k=k, dof=None if not math.isfinite(nu) else nu,
         intercept_mm=float(coef[0]), hysteresis_mm=_hysteresis(F, d, up), residual_sd_mm=math.sqrt(s2),
         load_N=tuple(F.tolist()), displacement_mm=tuple(d.tolist()), loading=tuple(bool(b) for b in up),
         max_load_N=float(np.max(F)))
@@ -167,4 +232,5 @@ def characteristic_rows(results: list[DirectionCompliance]) -> list[dict]:
 
 
 __all__ = ["DIRECTIONS", "COMPLIANCE", "load_prompt", "parse_load_prompt", "load_levels_N", "DirectionCompliance", "direction_compliance",
+           "correlated_noise_factor",
            "characteristic_rows"]
