@@ -35,7 +35,7 @@ import numpy as np
 from drivers import emscon_codec as ec
 from drivers.tracker import (BeamBroken, EventKind, StationaryMeasurement, StreamBuffer,
                              StreamRecord, TrackerBase, TrackerInfo)
-from drivers.transport import Deadline, check_positive, tcp_factory, transport_or_factory
+from drivers.transport import ListeningDeadline, check_positive, tcp_factory, transport_or_factory
 from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady,
                             DeviceTimeout, ProtocolError, StationError)
@@ -44,6 +44,12 @@ from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotR
 MAX_RANGE_MM = 200_000.0
 
 _COMMAND_NAMES = {int(c): c.name for c in ec.Command}
+
+#: the longest a wait for the tracker blocks between two looks at its deadlines, s: a longer gap between two
+#: looks is a host that did not run this process (nor its reader thread, which takes the tracker's packets
+#: off the socket), and only this much of it counts as the tracker's silence
+#: (:class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 0.05
 
 #: commands that may be sent again after a lost reply: they read state, set it to a value, or stop (stopping
 #: a stopped measurement is answered OK); Initialize and StartMeasurement are sent once
@@ -54,6 +60,15 @@ def _cmd_name(command: int) -> str:
     return f"{_COMMAND_NAMES.get(command, 'command')} ({command})"
 
 
+def _listening(timeout_s: float) -> ListeningDeadline:
+    return ListeningDeadline(max(0.0, timeout_s), LISTEN_SLICE_S)
+
+
+def _left(deadlines) -> float:
+    """Seconds of listening left on the first of ``deadlines`` to expire (each one looked at)."""
+    return min(d.time_left() for d in deadlines)
+
+
 class EmsconTracker(TrackerBase):
     """emScon TPI client.
 
@@ -62,7 +77,8 @@ class EmsconTracker(TrackerBase):
     transport : Transport or callable returning a Transport
         A factory enables reconnection; a bare transport does not.
     reply_timeout_s : float
-        Time allowed for each command reply (host seconds).
+        Time allowed for each command reply (seconds of the tracker's silence: counted only while this
+        process runs, see :data:`LISTEN_SLICE_S`; every timeout of this driver is counted so).
     reconnect_timeout_s : float
         How long to keep trying after the link drops before giving up.
     backoff_initial_s, backoff_max_s : float
@@ -86,12 +102,12 @@ class EmsconTracker(TrackerBase):
         self._backoff = (float(backoff_initial_s), float(backoff_max_s))
         self._max_packet = int(max_packet_bytes)
         self._rx = bytearray()
-        self._rx_time = 0.0
+        self._stall: ListeningDeadline | None = None  # the rest of an incomplete packet, from its last bytes
         #: the last skipped byte runs as (bytes, reason), newest last: what a garbage count was made of
         self.rejections: deque = deque(maxlen=32)
         #: quiet time after which received packets are final (host s)
         self.quiet_s = 0.02
-        #: time an incomplete packet may wait for its rest before it is skipped (host s)
+        #: time an incomplete packet may wait for its rest before it is skipped (s of the tracker's silence)
         self.stall_s = 0.5
         self._write_lock = threading.Lock()
         self._cmd_lock = threading.Lock()
@@ -136,7 +152,7 @@ class EmsconTracker(TrackerBase):
                 raise ConnectionLost("the driver was closed and a bare transport cannot be reopened")
             self._stop, self._failure, self._transport = threading.Event(), None, None
             self._rx.clear()
-        deadline = Deadline(timeout_s)
+        deadline = _listening(timeout_s)
         if self._transport is None:
             self._transport = self._factory()
         self._link_up.set()
@@ -145,8 +161,9 @@ class EmsconTracker(TrackerBase):
         try:
             self._initialise(deadline, timeout_s)
             values = self._command(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS),
-                                   timeout_s=min(self.reply_timeout_s, deadline.time_left() or 1e-3)).values
-            self._configure(min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
+                                   timeout_s=min(self.reply_timeout_s, deadline.time_left() or 1e-3),
+                                   within=(deadline,)).values
+            self._configure(min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)), within=(deadline,))
         except BaseException:
             self.close()
             raise
@@ -165,20 +182,22 @@ class EmsconTracker(TrackerBase):
             raise DeviceError("a continuous stream is running; stop it before a stationary measurement")
         if not (isinstance(duration_s, (int, float)) and 0 < duration_s <= 3600):
             raise ConfigError(f"duration_s must be in (0, 3600], got {duration_s!r}")
-        deadline = Deadline(timeout_s)
-        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.STATIONARY,)))
+        # the measurement's timeout counts from here, through its commands, as the tracker's silence
+        deadline = _listening(timeout_s)
+        self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (ec.MeasMode.STATIONARY,)),
+                      timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)), within=(deadline,))
         meas_ms = max(1, int(round(duration_s * 1000)))
-        self._command(ec.CommandPacket(ec.Command.SET_STATIONARY_MODE_PARAMS, (meas_ms, 0)))
+        self._command(ec.CommandPacket(ec.Command.SET_STATIONARY_MODE_PARAMS, (meas_ms, 0)),
+                      timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)), within=(deadline,))
         while not self._singles.empty():  # stale results of an abandoned measurement
             self._singles.get_nowait()
         self._awaiting_single = True
         try:
             self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT),
-                          timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)))
-            try:
-                result = self._singles.get(timeout=deadline.time_left())
-            except queue.Empty:
-                raise DeviceTimeout(f"no stationary result within {timeout_s} s") from None
+                          timeout_s=min(self.reply_timeout_s, max(deadline.time_left(), 1e-3)), within=(deadline,))
+            result = self._await(self._singles, (deadline,))
+            if result is None:
+                raise DeviceTimeout(f"no stationary result within {timeout_s} s")
         finally:
             self._awaiting_single = False
         if isinstance(result, BaseException):
@@ -267,45 +286,59 @@ class EmsconTracker(TrackerBase):
         return ec.CommandPacket(ec.Command.SET_UNITS, (int(unit), ec.AngleUnit.RADIAN, ec.TemperatureUnit.CELSIUS,
                                                        ec.PressureUnit.MBAR, 0))
 
-    def _configure(self, timeout_s: float) -> None:
-        self._command(self._units_packet(self._length_unit), timeout_s=timeout_s)
+    def _configure(self, timeout_s: float, within: tuple = ()) -> None:
+        self._command(self._units_packet(self._length_unit), timeout_s=timeout_s, within=within)
         self._command(ec.CommandPacket(ec.Command.SET_COORDINATE_SYSTEM_TYPE, (ec.CoordinateSystemType.RHR,)),
-                      timeout_s=timeout_s)
+                      timeout_s=timeout_s, within=within)
 
-    def _initialise(self, deadline: Deadline, timeout_s: float) -> None:
-        """GetSystemStatus; Initialize until the tracker processor reports initialised."""
+    def _initialise(self, deadline: ListeningDeadline, timeout_s: float, within: tuple = ()) -> None:
+        """GetSystemStatus; Initialize until the tracker processor reports initialised (``deadline``, and
+        ``within``: enclosing deadlines, looked at through every wait)."""
         delay, last, was_not_ready = self._backoff[0], None, False
+        deadlines = (deadline, *within)
         while True:
             left = deadline.time_left()
             status = self._command(ec.CommandPacket(ec.Command.GET_SYSTEM_STATUS),
-                                   timeout_s=min(self.reply_timeout_s, max(left, 1e-3))).values
+                                   timeout_s=min(self.reply_timeout_s, max(left, 1e-3)), within=deadlines).values
             if status[1] == ec.TrackerProcessorStatus.INITIALIZED:
                 if was_not_ready:
                     self._event(EventKind.READY, "tracker initialised")
                 return
             try:
-                self._command(ec.CommandPacket(ec.Command.INITIALIZE), timeout_s=max(deadline.time_left(), 1e-3))
+                self._command(ec.CommandPacket(ec.Command.INITIALIZE), timeout_s=max(deadline.time_left(), 1e-3),
+                              within=deadlines)
                 continue
             except DeviceNotReady as exc:
                 last = exc
                 if not was_not_ready:
                     self._event(EventKind.NOT_READY, str(exc))
                 was_not_ready = True
-            if deadline.time_left() <= delay:
+            if _left(deadlines) <= delay:
                 raise DeviceNotReady(f"tracker not ready within {timeout_s:g} s: {last}")
-            if self._stop.wait(delay):
+            if self._back_off(delay, deadlines):
                 raise ConnectionLost("driver closed while waiting for the tracker")
             delay = min(2 * delay, self._backoff[1])
 
-    def _restore(self) -> None:
-        """After a reconnection: same units, coordinates and, if running, the stream."""
-        self._initialise(Deadline(self.reply_timeout_s * 4), self.reply_timeout_s * 4)
-        self._configure(self.reply_timeout_s)
+    def _back_off(self, delay_s: float, deadlines: tuple) -> bool:
+        """Wait ``delay_s`` (host s: a pause between attempts, not a timeout) looking at ``deadlines`` every
+        :data:`LISTEN_SLICE_S`; True when the driver was closed meanwhile."""
+        end = time.monotonic() + delay_s
+        while (wait := end - time.monotonic()) > 0:
+            if self._stop.wait(min(wait, LISTEN_SLICE_S)):
+                return True
+            _left(deadlines)
+        return self._stop.is_set()
+
+    def _restore(self, within: tuple = ()) -> None:
+        """After a reconnection: same units, coordinates and, if running, the stream (``within``: the
+        reconnection's deadline, looked at through every wait)."""
+        self._initialise(_listening(self.reply_timeout_s * 4), self.reply_timeout_s * 4, within)
+        self._configure(self.reply_timeout_s, within)
         if self._stream_active and self._separation_ms:
-            self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (self._stream_mode,)))
+            self._command(ec.CommandPacket(ec.Command.SET_MEASUREMENT_MODE, (self._stream_mode,)), within=within)
             self._command(ec.CommandPacket(ec.Command.SET_CONTINUOUS_TIME_MODE_PARAMS,
-                                           (self._separation_ms, 0, 0, 0)))
-            self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT))
+                                           (self._separation_ms, 0, 0, 0)), within=within)
+            self._command(ec.CommandPacket(ec.Command.START_MEASUREMENT), within=within)
 
     # ------------------------------------------------------------------ commands
     def _status_error(self, command: int, status: int) -> DeviceError:
@@ -314,7 +347,8 @@ class EmsconTracker(TrackerBase):
             return DeviceNotReady(text)
         return DeviceError(text)
 
-    def _command(self, packet: ec.CommandPacket, *, timeout_s: float | None = None) -> ec.CommandReply:
+    def _command(self, packet: ec.CommandPacket, *, timeout_s: float | None = None,
+                 within: tuple = ()) -> ec.CommandReply:
         """Send one command and wait for its reply (the reader thread pumps inline).
 
         An idempotent command (:data:`IDEMPOTENT`: asking again changes
@@ -322,20 +356,22 @@ class EmsconTracker(TrackerBase):
         data packet just before it, is sent again every ``retry_after_s``
         while ``timeout_s`` lasts; the surplus late reply is discarded. Other
         commands (start a measurement, initialise) are sent once and wait the
-        whole ``timeout_s``.
+        whole ``timeout_s``. ``within``: enclosing deadlines (of a measurement, a connection), looked at
+        through every wait and ending it too. Every wait looks every :data:`LISTEN_SLICE_S` at least.
         """
         timeout_s = self.reply_timeout_s if timeout_s is None else timeout_s
-        deadline = Deadline(timeout_s)
+        deadline = _listening(timeout_s)
+        deadlines = (deadline, *within)
         on_reader = threading.current_thread() is self._reader
         retry = packet.command in IDEMPOTENT
         if self._failure is not None:
             raise ConnectionLost(f"emScon link is down: {self._failure}")
         if not on_reader:
-            if not self._link_up.wait(deadline.time_left()):
+            if not self._wait_for(lambda t: self._link_up.wait(t), deadlines):
                 raise DeviceTimeout(f"{_cmd_name(packet.command)}: link not restored within {timeout_s} s")
             if self._failure is not None:
                 raise ConnectionLost(f"emScon link is down: {self._failure}")
-        if not self._cmd_lock.acquire(timeout=deadline.time_left()):
+        if not self._wait_for(lambda t: self._cmd_lock.acquire(timeout=t), deadlines):
             raise DeviceTimeout(f"{_cmd_name(packet.command)}: another command still waits for its reply")
         attempts = 0
         try:
@@ -344,15 +380,15 @@ class EmsconTracker(TrackerBase):
                     self._replies.get_nowait()
                 self._pending = packet.command
             while True:
-                self._write(packet.encode(), deadline.time_left())
+                self._write(packet.encode(), _left(deadlines))
                 attempts += 1
-                attempt = Deadline(min(self.retry_after_s, deadline.time_left())) if retry else deadline
-                reply = self._await_reply(attempt, on_reader)
+                attempt = (_listening(min(self.retry_after_s, _left(deadlines))),) if retry else ()
+                reply = self._await_reply((*attempt, *deadlines), on_reader)
                 if reply is not None:
                     break
                 with self._reply_lock:
                     self._abandoned[packet.command] += 1  # its reply, should it come after all, is surplus
-                if not retry or deadline.expired():
+                if not retry or _left(deadlines) <= 0.0:
                     more = f" ({attempts} attempts)" if attempts > 1 else ""
                     raise DeviceTimeout(f"no reply to {_cmd_name(packet.command)} within {timeout_s:g} s{more}")
                 self.retries += 1
@@ -366,22 +402,48 @@ class EmsconTracker(TrackerBase):
             raise self._status_error(reply.command, reply.status)
         return reply
 
-    def _await_reply(self, deadline: Deadline, on_reader: bool):
-        """The reply to the pending command, or None when ``deadline`` passed without one."""
+    @staticmethod
+    def _wait_for(wait, deadlines: tuple) -> bool:
+        """``wait(t)`` (True when what it waits for came within ``t`` s) again every :data:`LISTEN_SLICE_S`
+        until it comes (True) or one of ``deadlines`` expires (False)."""
         while True:
+            left = _left(deadlines)
+            if wait(min(left, LISTEN_SLICE_S)):
+                return True
+            if left <= 0.0:
+                return False
+
+    def _await(self, box: queue.Queue, deadlines: tuple):
+        """The next item of ``box`` (filled by the reader thread), or None when one of ``deadlines``
+        expired without one; looks every :data:`LISTEN_SLICE_S`."""
+        while True:
+            left = _left(deadlines)
             try:
-                if on_reader:
-                    return self._replies.get_nowait()
-                return self._replies.get(timeout=max(deadline.time_left(), 0))
+                return box.get(timeout=min(left, LISTEN_SLICE_S))
             except queue.Empty:
-                if on_reader and not deadline.expired():
-                    self._pump(min(0.05, deadline.time_left()))
-                    continue
-                with self._reply_lock:
-                    try:
-                        return self._replies.get_nowait()
-                    except queue.Empty:
-                        return None
+                if left <= 0.0:
+                    return None
+
+    def _await_reply(self, deadlines: tuple, on_reader: bool):
+        """The reply to the pending command, or None when one of ``deadlines`` passed without one."""
+        if not on_reader:
+            reply = self._await(self._replies, deadlines)
+            if reply is not None:
+                return reply
+        else:
+            while True:
+                try:
+                    return self._replies.get_nowait()
+                except queue.Empty:
+                    left = _left(deadlines)
+                    if left <= 0.0:
+                        break
+                    self._pump(min(LISTEN_SLICE_S, left))
+        with self._reply_lock:
+            try:
+                return self._replies.get_nowait()
+            except queue.Empty:
+                return None
 
     def _write(self, data: bytes, timeout_s: float) -> None:
         transport = self._transport
@@ -420,14 +482,13 @@ class EmsconTracker(TrackerBase):
         ``stall_s`` is skipped as truncated.
         """
         data = self._transport.read(1 << 16, min(timeout_s, self.quiet_s) if self._rx else timeout_s)
-        now = time.monotonic()
         if data:
             self._rx += data
-            self._rx_time = now
+            self._stall = ListeningDeadline(self.stall_s, max(LISTEN_SLICE_S, self.quiet_s))  # looked at every quiet_s
             self._decode(flowing=True)
         elif self._rx:
             self._decode(flowing=False)
-            if self._rx and now - self._rx_time > self.stall_s:
+            if self._rx and (self._stall is None or self._stall.expired()):
                 consumed, frame = ec.skip_stalled(bytes(self._rx), max_packet_bytes=self._max_packet)
                 del self._rx[:consumed]
                 self._handle(frame)
@@ -523,14 +584,22 @@ class EmsconTracker(TrackerBase):
         if self._factory is None:
             self._fail(ConnectionLost("emScon link dropped and no transport factory was given to reconnect"))
             return False
-        deadline = Deadline(self.reconnect_timeout_s)
+        # the tracker's absence, counted only while this process runs: a host that did not run it meanwhile
+        # (or did not run the tracker's simulation on this host) does not use up the attempts
+        deadline = _listening(self.reconnect_timeout_s)
         delay, last, attempts = self._backoff[0], None, 0
         while not self._stop.is_set():
             attempts += 1
             try:
-                self._transport = self._factory()
+                deadline.time_left()
+                t_connect = time.monotonic()
+                try:
+                    self._transport = self._factory()
+                except DeviceTimeout:  # a connect that timed out on its own clock: that long unanswered
+                    deadline.count_gap(time.monotonic() - t_connect)
+                    raise
                 self._rx.clear()
-                self._restore()
+                self._restore((deadline,))
             except (ConnectionLost, DeviceTimeout, DeviceError) as exc:
                 last = exc
                 if self._transport is not None:
@@ -541,7 +610,7 @@ class EmsconTracker(TrackerBase):
                 return True
             if deadline.time_left() <= delay:
                 break
-            if self._stop.wait(delay):
+            if self._back_off(delay, (deadline,)):
                 return False
             delay = min(2 * delay, self._backoff[1])
         if not self._stop.is_set():

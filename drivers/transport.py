@@ -103,6 +103,15 @@ class ListeningDeadline:
     def expired(self) -> bool:
         return self.time_left() <= 0.0
 
+    def count_gap(self, seconds: float) -> None:
+        """A look at which the time since the previous look counts as ``seconds``, however long it was: 0.0
+        for the caller's own work (not listening), or the whole of a call that timed out on its own clock
+        (the device was silent for it, e.g. a TCP connect)."""
+        self._left -= max(0.0, float(seconds))
+        self._last = self._now()
+        if self._host_delay is not None:
+            self._last_delay = max(self._host_delay(), self._last_delay)
+
 
 def run_queue_delay_s(pid: int) -> float:
     """Seconds process ``pid``'s main thread has spent ready to run while this host ran others (Linux

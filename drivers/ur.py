@@ -227,10 +227,11 @@ def _sidecar_entry() -> None:
 #: the longest a fresh receive process may take to start and import ``ur_rtde`` (real s): the host's time, not the
 #: device's; an idle host takes about 0.3 s, one loaded by two busy processes per core several seconds
 SIDECAR_START_S = 120.0
-#: the driver looks at the receive process at least this often while it waits for the handshake (real s): a
-#: longer gap between two looks is a host that did not run the driver (nor a simulated controller in its
-#: process), and only this much of it counts (:class:`drivers.transport.ListeningDeadline`)
-HANDSHAKE_LOOK_S = 0.1
+#: the driver looks at the receive process at least this often while it waits for the controller (the
+#: handshake, a sample, a program's start and end, the arm's rest; real s): a longer gap between two looks is
+#: a host that did not run the driver (nor a simulated controller in its process), and only this much of it
+#: counts; nor does the time the receive process waited for this host (:class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 0.1
 #: lockstep: the host's own wait for the handshake lasts at least this (real s). A simulated controller's clock
 #: stands still through a handshake, so no device time can bound it, and it runs on this host, whose load
 #: alone makes it late (a real controller is never in lockstep; its handshake keeps the driver's timeout)
@@ -303,15 +304,20 @@ class RtdeSidecar:
                                              "the receive process did not start")
         if kind == "started":
             wait_s = max(timeout_s, LOCKSTEP_HANDSHAKE_S) if self.stored_register is not None else timeout_s
-            deadline = ListeningDeadline(wait_s, HANDSHAKE_LOOK_S, host_delay=lambda: run_queue_delay_s(proc.pid))
+            deadline = ListeningDeadline(wait_s, LISTEN_SLICE_S, host_delay=lambda: run_queue_delay_s(proc.pid))
             kind, info = self._handshake_message(deadline, wait_s, "no handshake")
         if kind != "ready":
             self._kill()
             raise ConnectionLost(f"RTDE {self.host}:30004: ur_rtde could not connect: {info}")
 
+    def host_delay_s(self) -> float:
+        """Seconds the receive process has waited for this host to run it (0.0 when none runs)."""
+        proc = self._proc
+        return run_queue_delay_s(proc.pid) if proc is not None else 0.0
+
     def _handshake_message(self, deadline, timeout_s: float, what: str):
         """The receive process's next message during the start, or the process killed and an error."""
-        while not self._conn.poll(min(HANDSHAKE_LOOK_S, deadline.time_left())):
+        while not self._conn.poll(min(LISTEN_SLICE_S, deadline.time_left())):
             if deadline.expired():
                 self._kill()
                 raise DeviceTimeout(f"RTDE {self.host}:30004: {what} within {timeout_s:g} s")
@@ -564,9 +570,11 @@ class URDriver:
         Rated linear acceleration; ``accel_mm_s2 / this`` is checked against
         the gate's acceleration cap.
     connect_timeout_s, start_timeout_s, motion_timeout_s, stale_after_s, settle_timeout_s : float
-        Real (host) seconds: handshake; until a sent program reports that it
+        Real seconds: handshake; until a sent program reports that it
         started; until it reports done; without a new RTDE sample before the
-        link counts as lost; for the arm to settle on its target.
+        link counts as lost; for the arm to settle on its target. Each counts
+        only while this host runs the driver and its receive process
+        (:data:`LISTEN_SLICE_S`): a loaded host's gaps are not the controller's.
     q_tol_rad, rest_speed_mm_s, rest_hold_s : float
         A move is done when every joint is within ``q_tol_rad`` of the target
         and the TCP slower than ``rest_speed_mm_s``, for ``rest_hold_s`` of
@@ -648,7 +656,7 @@ class URDriver:
         self._n_rows = 0
         self._dropped = 0
         self._latest: np.ndarray | None = None
-        self._latest_at = 0.0
+        self._silence: ListeningDeadline | None = None  # stale_after_s from the newest sample's arrival
         self._last_collected_t: float | None = None
         self._seq = 0
         self._lock = threading.RLock()
@@ -725,9 +733,14 @@ class URDriver:
         self.close()
 
     # ------------------------------------------------------------------ state
+    def _listening(self, timeout_s: float) -> ListeningDeadline:
+        """A timeout on the controller's silence or slowness: it counts while this host runs the driver, looking
+        every :data:`LISTEN_SLICE_S`, and the receive process (its wait for the host does not count)."""
+        delay = getattr(self._rtde, "host_delay_s", None)
+        return ListeningDeadline(max(0.0, float(timeout_s)), LISTEN_SLICE_S, host_delay=delay)
+
     def _pull(self) -> None:
         rows, dropped, connected = self._rtde.drain()
-        now = time.monotonic()
         with self._lock:
             self._dropped += dropped
             if len(rows):
@@ -736,7 +749,7 @@ class URDriver:
                     self._chunks.append(fresh)
                     self._n_rows += len(fresh)
                     self._latest = fresh[-1]
-                    self._latest_at = now
+                    self._silence = self._listening(self.stale_after_s)
                 while self._n_rows > self.max_buffer_samples:  # oldest first, counted
                     excess = self._n_rows - self.max_buffer_samples
                     head = self._chunks[0]
@@ -759,23 +772,25 @@ class URDriver:
         Raises
         ------
         ConnectionLost
-            The link dropped, or no new sample for ``stale_after_s``.
+            The link dropped, or no new sample for ``stale_after_s`` (both counted while listening:
+            :meth:`_listening`; time between two calls counts :data:`LISTEN_SLICE_S` at most).
         """
         wait_s = self.stale_after_s if timeout_s is None else timeout_s
         first_wait_s = max(wait_s, LOCKSTEP_HANDSHAKE_S) if self.lockstep else wait_s
-        started = time.monotonic()
+        first, again = self._listening(first_wait_s), self._listening(wait_s)
         while True:
             self._pull()
             with self._lock:
-                latest, at = self._latest, self._latest_at
-            now = time.monotonic()
-            if latest is not None and (self.lockstep or now - at <= self.stale_after_s):
+                latest, silence = self._latest, self._silence
+            first_left, again_left = first.time_left(), again.time_left()
+            if latest is not None and (self.lockstep or silence.time_left() > 0.0):
                 return URState.from_row(latest)  # lockstep: a standing clock sends no new sample
-            if now - started >= (first_wait_s if latest is None else wait_s):
+            if (first_left if latest is None else again_left) <= 0.0:
                 if latest is None:
                     raise DeviceTimeout(f"RTDE {self.host}: no sample within {first_wait_s:g} s")
                 raise ConnectionLost(
-                    f"RTDE {self.host}: no new sample for {now - at:.1f} s (last t = {latest[_C_T]:.3f} s)"
+                    f"RTDE {self.host}: no new sample for {self.stale_after_s:g} s of listening "
+                    f"(last t = {latest[_C_T]:.3f} s)"
                 )
             time.sleep(0.002)
 
@@ -898,16 +913,17 @@ class URDriver:
         """Send one program whose registers carry ``seq``; watch RTDE until it is done and the arm settled."""
         timeout_s = self.motion_timeout_s if timeout_s is None else float(timeout_s)
         self._send_script(text, label)
-        t_sent = time.monotonic()
-        in_caller = 0.0  # the time on_state took: the caller's own work, not the motion's (see the timeout)
+        # both count while this host runs the driver and the receive process (a simulated controller's motion
+        # waits for the host as the driver does); the time on_state takes is the caller's, not the motion's
+        start, motion = self._listening(self.start_timeout_s), self._listening(timeout_s)
         started = False
         try:
             while True:
                 st = self.state()
                 if on_state is not None and started:
-                    called = time.monotonic()
+                    motion.time_left()
                     on_state(st)
-                    in_caller += time.monotonic() - called
+                    motion.count_gap(0.0)
                 if st.protective_stopped or st.emergency_stopped:
                     self._after_fault(label)
                     raise DeviceFault(
@@ -919,7 +935,7 @@ class URDriver:
                     break
                 if st.register_start == seq:
                     started = True
-                elif not started and time.monotonic() - t_sent > self.start_timeout_s:
+                elif not started and start.expired():
                     raise DeviceError(
                         f"{label}: the controller did not start program {name} within "
                         f"{self.start_timeout_s} s (refused by the controller? robot_mode {st.robot_mode})"
@@ -928,7 +944,7 @@ class URDriver:
                     self._after_fault(label)
                     raise DeviceError(f"{label}: program {name} stopped before its motion finished "
                                       f"({st.register_moves} moves done); the robot is at rest")
-                if time.monotonic() - t_sent - in_caller > timeout_s:
+                if motion.expired():
                     self.stop_motion()
                     raise DeviceTimeout(f"{label}: motion not done within {timeout_s:g} s; robot stopped")
                 time.sleep(0.001)
@@ -938,7 +954,7 @@ class URDriver:
             raise
 
     def _settle(self, q_target: np.ndarray, label: str) -> URState:
-        deadline = time.monotonic() + self.settle_timeout_s
+        deadline = self._listening(self.settle_timeout_s)
         rest = _RestWatch(self.rest_hold_s)
         while True:
             st = self.state()
@@ -952,7 +968,7 @@ class URDriver:
                 return st
             if st.protective_stopped:
                 raise DeviceFault(f"{label}: protective stop while settling on the target")
-            if time.monotonic() > deadline:
+            if deadline.expired():
                 raise DeviceError(
                     f"{label}: arm did not come to rest within {self.q_tol_rad:g} rad of the target "
                     f"(off by {err:.3g} rad, TCP at {speed:.3g} mm/s after {self.settle_timeout_s} s)"
@@ -966,9 +982,9 @@ class URDriver:
                 self._dashboard.stop()
         except RuntimeError:
             pass
-        deadline = time.monotonic() + self.settle_timeout_s
+        deadline = self._listening(self.settle_timeout_s)
         rest = _RestWatch(self.rest_hold_s)
-        while time.monotonic() < deadline:
+        while not deadline.expired():
             st = self.state()
             if self._rested(rest, st):
                 return
@@ -1031,7 +1047,7 @@ class URDriver:
             last = [-1.0, -1]
 
             def report(s: URState) -> None:  # progress at most every status_period_s, and at every move done
-                now = time.monotonic()
+                now = time.monotonic()  # a pace of the caller's reports (host time), no deadline
                 if now - last[0] >= self.status_period_s or s.register_moves != last[1]:
                     last[0], last[1] = now, s.register_moves
                     on_status(URProgramStatus.of(s, seq))
@@ -1082,14 +1098,15 @@ class URDriver:
                 f"{'program running' if st.program_running else 'no program running'}")
 
     def wait_settled(self, timeout_s: float) -> URState:
-        """Until no program runs and the TCP is slower than ``rest_speed_mm_s``; DeviceTimeout after ``timeout_s``."""
-        deadline = time.monotonic() + float(timeout_s)
+        """Until no program runs and the TCP is slower than ``rest_speed_mm_s``; DeviceTimeout after ``timeout_s``
+        (counted while listening: :meth:`_listening`)."""
+        deadline = self._listening(timeout_s)
         rest = _RestWatch(self.rest_hold_s)
         while True:
             st = self.state()
             if self._rested(rest, st):
                 return st
-            if time.monotonic() > deadline:
+            if deadline.expired():
                 raise DeviceTimeout(f"UR: arm not at rest within {timeout_s:g} s")
             time.sleep(0.002)
 
@@ -1190,12 +1207,12 @@ class URDriver:
         return self._wait_mode({ROBOT_MODE_POWER_OFF}, timeout_s, "power off")
 
     def _wait_mode(self, modes: set, timeout_s: float, what: str) -> URState:
-        deadline = time.monotonic() + timeout_s
+        deadline = self._listening(timeout_s)
         while True:
             st = self.state()
             if st.robot_mode in modes:
                 return st
-            if time.monotonic() > deadline:
+            if deadline.expired():
                 raise DeviceTimeout(f"{what}: robot mode still {st.robot_mode} after {timeout_s} s")
             time.sleep(0.005)
 
@@ -1204,14 +1221,14 @@ class URDriver:
 
         Retries while the controller answers that it is too early.
         """
-        deadline = time.monotonic() + timeout_s
+        deadline = self._listening(timeout_s)
         while True:
             try:
                 self._dashboard.unlockProtectiveStop()
             except (RuntimeError, ValueError) as exc:  # ur_rtde raises logic_error -> RuntimeError
                 if "5s" not in str(exc) and "Cannot unlock" not in str(exc):
                     raise DeviceError(f"unlock protective stop refused: {exc}") from exc
-                if time.monotonic() > deadline:
+                if deadline.expired():
                     raise DeviceTimeout(f"protective stop still locked after {timeout_s} s: {exc}") from exc
                 time.sleep(0.05)
                 continue
@@ -1220,6 +1237,6 @@ class URDriver:
             st = self.state()
             if not st.protective_stopped:
                 return st
-            if time.monotonic() > deadline:
+            if deadline.expired():
                 raise DeviceTimeout(f"protective stop still reported {timeout_s} s after unlocking")
             time.sleep(0.005)

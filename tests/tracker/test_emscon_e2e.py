@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import struct
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from drivers.tracker_url import open_tracker
 from drivers.transport import TcpTransport, tcp_factory
 from fakes.emscon import start_fake
 from station.errors import ConfigError, DeviceNotReady, DeviceTimeout
+from tests.host_pause import pause_host
 
 from .conftest import CircleWorld
 from .helpers import check_stream_invariants, collect, finish
@@ -388,3 +390,125 @@ def test_fake_binds_loopback_only(world):
         start_fake(world, faults={"bogus": "1"})
     with pytest.raises(ConfigError, match="beam_break"):
         start_fake(world, faults={"beam_break": "soon"})
+
+
+# ---------------------------------------------------------------- a host that does not run (issue 46)
+def _host_pause_on(monkeypatch, command: int, pause_s: float, *, lose: bool = False) -> dict:
+    """Once ``hold["armed"]``, the fake's next reply to ``command`` goes out after this host was stopped for
+    ``pause_s`` (the fake's session thread stops the whole process, itself and the driver included, then
+    replies): the tracker answered at once, late only by the host's absence. ``lose``: the tracker then stays
+    silent (the reply is never sent). ``hold["taken"]`` counts the pauses."""
+    from fakes import emscon as fake_emscon
+
+    hold = {"armed": False, "taken": 0}
+    original = fake_emscon._Session._command
+
+    def held(session, cmd, params):
+        reply = original(session, cmd, params)
+        if hold["armed"] and cmd == command:
+            if not hold["taken"]:
+                hold["taken"] += 1
+                pause_host(pause_s)
+            if lose:
+                return None
+        return reply
+
+    monkeypatch.setattr(fake_emscon._Session, "_command", held)
+    return hold
+
+
+def _start_then_stop(tracker, timeout_s):
+    tracker.start_stream(RATE)
+    tracker.stop_stream(timeout_s=timeout_s)
+
+
+_PAUSED_CALLS = {
+    "connect": (ec.Command.GET_SYSTEM_STATUS, lambda tracker, t: tracker.connect(timeout_s=t)),
+    "set_units": (ec.Command.SET_UNITS, lambda tracker, t: tracker.set_units("m")),
+    "stationary": (ec.Command.START_MEASUREMENT, lambda tracker, t: tracker.measure_stationary(0.1, timeout_s=t)),
+    "stop_stream": (ec.Command.STOP_MEASUREMENT, _start_then_stop),
+}
+
+
+@pytest.mark.parametrize("call", sorted(_PAUSED_CALLS))
+def test_a_host_that_did_not_run_is_no_silence_of_the_tracker(rig, monkeypatch, rng, call):
+    """The tracker answers a command at once, but this host (driver, reader thread and all) is stopped for a
+    drawn 2-4 times the timeout before the answer is read: the call succeeds, sent once. Counting the host's
+    wall time as the tracker's silence, each of these timed out."""
+    command, act = _PAUSED_CALLS[call]
+    timeout_s = float(rng.uniform(0.2, 0.4))
+    pause_s = float(rng.uniform(2.0, 4.0)) * timeout_s
+    hold = _host_pause_on(monkeypatch, int(command), pause_s)
+    world, fake, tracker = rig(connect=call != "connect", reply_timeout_s=timeout_s)
+    hold["armed"] = True
+    act(tracker, timeout_s)
+    assert hold["taken"] == 1 and tracker.retries == 0
+    if call == "stationary":
+        assert np.all(np.isfinite(tracker.measure_stationary(0.1).xyz_mm))
+
+
+def test_a_host_that_did_not_run_before_a_stationary_result_is_no_silence_of_the_tracker(rig, monkeypatch, rng):
+    """The stationary result is due, and this host is stopped for 2-4 times the measurement's timeout
+    before the fake sends it: the result is taken, not a timeout."""
+    from fakes import emscon as fake_emscon
+
+    timeout_s = float(rng.uniform(0.3, 0.5))
+    pause_s = float(rng.uniform(2.0, 4.0)) * timeout_s
+    world, fake, tracker = rig()
+    taken = []
+    original = fake_emscon._Session._finish_pending
+
+    def held(session):
+        window = session.single_window
+        if window is not None and not taken and session.fake._clock.now() >= window[1]:
+            taken.append(pause_s)
+            pause_host(pause_s)
+        original(session)
+
+    monkeypatch.setattr(fake_emscon._Session, "_finish_pending", held)
+    m = tracker.measure_stationary(0.1, timeout_s=timeout_s)
+    assert taken and np.all(np.isfinite(m.xyz_mm))
+
+
+@pytest.mark.parametrize("call", ["connect", "set_units", "stationary"])
+def test_a_silent_tracker_still_times_out_naming_what_was_awaited(rig, monkeypatch, rng, call):
+    """The tracker never answers (and the host is stopped once meanwhile, for longer than the timeout): a
+    DeviceTimeout naming the command, after the timeout's whole length of listening beside the pause."""
+    from drivers.emscon import LISTEN_SLICE_S
+
+    command, act = _PAUSED_CALLS[call]
+    timeout_s = float(rng.uniform(0.2, 0.4))
+    pause_s = float(rng.uniform(2.0, 4.0)) * timeout_s
+    hold = _host_pause_on(monkeypatch, int(command), pause_s, lose=True)
+    world, fake, tracker = rig(connect=call != "connect", reply_timeout_s=timeout_s)
+    tracker.retry_after_s = timeout_s / 3
+    hold["armed"] = True
+    started = time.monotonic()
+    with pytest.raises(DeviceTimeout, match=rf"no reply to {command.name} \({int(command)}\) within ([0-9.]+) s") as err:
+        act(tracker, timeout_s)
+    waited = time.monotonic() - started
+    stated_s = float(err.value.args[0].split(" within ")[1].split(" s")[0])
+    # the call's timeout, less what its setup used (the message rounds it to 6 digits)
+    assert timeout_s - LISTEN_SLICE_S <= stated_s <= timeout_s * (1 + 1e-5)
+    assert waited >= pause_s + stated_s - LISTEN_SLICE_S  # the pause counted one slice at most
+    assert hold["taken"] == 1
+
+
+def test_a_stationary_result_that_never_comes_times_out_naming_it(rig, monkeypatch, rng):
+    """The measurement starts but the tracker never sends its result: 'no stationary result within T s',
+    after T of listening at least."""
+    from fakes import emscon as fake_emscon
+
+    timeout_s = float(rng.uniform(0.3, 0.5))
+    world, fake, tracker = rig()
+    original = fake_emscon._Session._finish_pending
+
+    def silent(session):
+        session.single_window = None  # the result is never sent
+        original(session)
+
+    monkeypatch.setattr(fake_emscon._Session, "_finish_pending", silent)
+    started = time.monotonic()
+    with pytest.raises(DeviceTimeout, match=rf"no stationary result within {timeout_s} s$"):
+        tracker.measure_stationary(0.1, timeout_s=timeout_s)
+    assert time.monotonic() - started >= timeout_s

@@ -220,3 +220,22 @@ def test_a_helpers_wait_for_the_host_does_not_count_as_the_devices_silence(rng):
             break
         assert counted < 2.0 + 1e-9
     assert counted >= 2.0 - 1e-9
+
+
+def test_a_gap_counted_as_given_counts_that_and_the_looks_go_on_from_it(rng):
+    """``count_gap``: the time since the last look counts as told (0 for the caller's own work, the whole of a
+    call that timed out on its own clock), however long it was; later looks count from it as before."""
+    t = [0.0]
+    timeout = float(rng.uniform(1.0, 2.0))
+    d = ListeningDeadline(timeout, 0.1, now=lambda: t[0])
+    t[0] += 50.0
+    d.count_gap(0.0)  # the caller's own work: nothing counted
+    assert d.time_left() == pytest.approx(timeout)
+    told = float(rng.uniform(0.2, 0.8)) * timeout
+    t[0] += 0.01
+    d.count_gap(told)  # a connect that timed out after `told`: all of it, not the slice
+    assert d.time_left() == pytest.approx(timeout - told)
+    t[0] += 0.05
+    assert d.time_left() == pytest.approx(timeout - told - 0.05)
+    t[0] += 10.0
+    assert d.time_left() == pytest.approx(max(0.0, timeout - told - 0.15))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import struct
 import threading
@@ -13,8 +14,9 @@ import pytest
 import script_client
 from fakes import rtde_protocol as rp
 from fakes.urscript import Pose, parse_program
-from station.errors import ConnectionLost, DeviceFault, DeviceNotReady, SafetyError
+from station.errors import ConnectionLost, DeviceError, DeviceFault, DeviceNotReady, SafetyError
 from station.models import kinematics
+from tests.host_pause import pause_host
 from tests.ur.conftest import TIME_SCALE, box_gate, finish_probe, start_probe
 
 
@@ -398,3 +400,115 @@ def test_a_real_controller_that_does_not_answer_still_times_out(fake, monkeypatc
     finally:
         release.set()
         side.close()
+
+
+# ---------------------------------------------------------------- a host that does not run (issue 46)
+def _pause_host_once_in(monkeypatch, owner, name: str, pause_s: float, pids) -> dict:
+    """Once ``hold["armed"]``, the first call of ``owner.name`` in the fake (a program received, a move begun)
+    stops this whole host for ``pause_s`` first - the test process (the fake controller, the driver) and the
+    driver's receive process - then goes on: the controller does its part, late only by the host's absence."""
+    hold = {"armed": False, "taken": 0}
+    original = getattr(owner, name)
+
+    def held(self, *args, **kwargs):
+        if hold["armed"] and not hold["taken"]:
+            hold["taken"] += 1
+            pause_host(pause_s, pids())
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(owner, name, held)
+    return hold
+
+
+def test_a_host_that_did_not_run_when_a_program_came_is_no_fault_of_the_controller(world, fake, make_driver,
+                                                                                    monkeypatch, rng):
+    """The host stops when the fake receives the program, for a drawn 1.5-2.5 times the start timeout: the
+    move still ends settled on its target. Counting the host's wall time, the driver called the program
+    refused ('did not start')."""
+    from fakes import ur as fake_ur
+
+    start_timeout_s = float(rng.uniform(0.8, 1.2))
+    pause_s = float(rng.uniform(1.5, 2.5)) * start_timeout_s
+    d = make_driver(fake, start_timeout_s=start_timeout_s, stale_after_s=5.0)  # the start watch, not staleness
+    hold = _pause_host_once_in(monkeypatch, fake_ur.URFake, "run_script", pause_s,
+                               lambda: [os.getpid(), d._rtde._proc.pid])
+    q_goal = world.robot.home_q_rad + rng.uniform(-0.1, 0.1, 6)
+    hold["armed"] = True
+    st = d.move_joint(q_goal, speed_frac=0.2, accel_frac=0.5)
+    assert hold["taken"] == 1
+    assert np.max(np.abs(st.q_rad - q_goal)) <= d.q_tol_rad
+
+
+def test_a_host_that_did_not_run_mid_program_is_no_fault_of_a_simulated_controller(monkeypatch, rng):
+    """A lockstep controller (simulated on this host: its clock stands while the host does not run it) begins
+    a move and the host stops for a drawn 1.5-2.5 times the start and motion timeouts (3 s): the move still
+    ends settled on its target. Counting the host's wall time, the driver gave up at once on a program that
+    'did not start' (its start stands with the clock) or a motion 'not done', and stopped the arm."""
+    from drivers.ur import URDriver
+    from fakes import ur as fake_ur
+    from fakes.sim.clock import SimClock
+    from fakes.sim.world import make_world
+    from station.safety import SafetyGate, default_limits
+
+    world = make_world(robot="ur5e", seed=int(rng.integers(2**31)),
+                       clock=SimClock(2.0, start=float(rng.uniform(1.0, 100.0)), lockstep=True))
+    motion_timeout_s = 3.0
+    pause_s = float(rng.uniform(1.5, 2.5)) * motion_timeout_s
+    fake = fake_ur.start_fake(world, lockstep=True)
+    d = URDriver(fake.endpoint["host"], world.robot, SafetyGate(world.robot, default_limits(world.robot)),
+                 rtde_frequency_hz=125.0, lockstep=True, start_timeout_s=motion_timeout_s,
+                 motion_timeout_s=motion_timeout_s)
+    try:
+        d.connect()
+        hold = _pause_host_once_in(monkeypatch, fake_ur._Interpreter, "_move", pause_s,
+                                   lambda: [os.getpid(), d._rtde._proc.pid])
+        q_goal = world.robot.home_q_rad + rng.choice([-1.0, 1.0], 6) * rng.uniform(0.3, 0.4, 6)
+        hold["armed"] = True
+        st = d.move_joint(q_goal, speed_frac=0.2, accel_frac=0.5)
+        assert hold["taken"] == 1
+        assert np.max(np.abs(st.q_rad - q_goal)) <= d.q_tol_rad
+    finally:
+        d.close()
+        fake.close()
+        world.close()
+
+
+def test_a_program_the_controller_never_starts_still_times_out_naming_it(world, make_fake, make_driver, rng):
+    """The controller refuses the program (it never starts): 'did not start program ... within T s', after T
+    of listening at least."""
+    fake = make_fake({"refuse_script": "1"})
+    timeout_s = float(rng.uniform(0.3, 0.6))
+    d = make_driver(fake, start_timeout_s=timeout_s)
+    started = time.monotonic()
+    with pytest.raises(DeviceError, match=rf"did not start program station_move_\d+ within {timeout_s} s"):
+        d.move_joint(world.robot.home_q_rad + 0.05, speed_frac=0.2, accel_frac=0.5)
+    assert time.monotonic() - started >= timeout_s
+
+
+def test_a_controller_whose_rtde_stream_falls_silent_is_a_lost_link(world, fake, make_driver, monkeypatch, rng):
+    """The controller keeps the RTDE connection open but sends nothing more: the next state is a
+    ConnectionLost naming the silence, after stale_after_s of listening at least."""
+    from fakes import ur as fake_ur
+
+    stale_s = float(rng.uniform(0.3, 0.6))
+    silent, release = threading.Event(), threading.Event()
+    columns = fake_ur._Controller.columns
+
+    def held(ctl, *args, **kwargs):
+        if silent.is_set():
+            release.wait(60.0)
+        return columns(ctl, *args, **kwargs)
+
+    monkeypatch.setattr(fake_ur._Controller, "columns", held)
+    d = make_driver(fake, stale_after_s=stale_s)
+    try:
+        d.state()
+        silent.set()
+        started = time.monotonic()
+        with pytest.raises(ConnectionLost, match=rf"no new sample for {stale_s:g} s of listening"):
+            for _ in range(10_000):
+                d.state()
+                time.sleep(0.01)
+        assert time.monotonic() - started >= stale_s - 0.1  # a sample may have been on its way when it fell silent
+    finally:
+        release.set()
