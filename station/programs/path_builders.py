@@ -28,7 +28,8 @@ coordinates (mm from the centre):
   sine of amplitude ``weave_amplitude_mm`` (half the stroke) at
   ``weave_frequency_Hz`` across a base line along the plane's diagonal
   (``weave_periods`` wavelengths of ``weave_speed_mm_s / weave_frequency_Hz``,
-  centred), in the plane, normal to the base; realised as corner-zoned linear
+  centred, entered and left along the base over ``WEAVE_LEAD_MM``), in the
+  plane, normal to the base; realised as corner-zoned linear
   moves through ``weave_points_per_period`` vertices a period
   (:mod:`station.programs.weave`: the vertices' offset and zones chosen so the
   rounded path's fundamental is the commanded sine, one path speed so a period
@@ -69,6 +70,9 @@ ALL_PATH_KINDS = PATH_KINDS + ("reorientation", "weaving")
 #: the weave's parameters unless given: amplitude mm, frequency Hz, base speed mm/s, periods, vertices a period
 WEAVE_DEFAULTS = {"weave_amplitude_mm": 2.0, "weave_frequency_Hz": 1.0, "weave_speed_mm_s": 10.0,
                   "weave_periods": 10, "weave_points_per_period": 8}
+#: the weave's straight lead-in and lead-out along its base, mm: more than an arm that is not calibrated is off
+#: along it, so every cycle enters the woven part from before its first normal plane and leaves it after its last
+WEAVE_LEAD_MM = 15.0
 #: the reorientation's turn either side of the programmes' orientation, deg
 REORIENT_DEG = 30.0
 #: share of the plane the line and the rectangle span, and the large circle's diameter over the cube side
@@ -156,28 +160,33 @@ def _reorientation(plane, quat, v_frac, turn_deg, dwell, tag):
 
 
 def _weaving(plane, quat, design, periods: int, dwell, rated_mm_s: float, tag):
-    """The weave's targets along the plane's diagonal, centred; its path file entry (kind weaving)."""
+    """The weave's targets along the plane's diagonal, centred, between a straight lead-in and lead-out of
+    :data:`WEAVE_LEAD_MM`; its path file entry (kind weaving: the woven part)."""
     c, e_u, e_v, hu, hv = plane
     d = (hu * e_u + hv * e_v) / math.hypot(hu, hv)  # the base line's direction
     w = (-hv * e_u + hu * e_v) / math.hypot(hu, hv)  # across it, in the plane
     n = design.points_per_period
     length = periods * design.wavelength_mm
-    if length > 2 * SPAN * math.hypot(hu, hv):
+    room = 2 * SPAN * math.hypot(hu, hv) - 2 * WEAVE_LEAD_MM
+    if length > room:
         raise ConfigError(f"a weave of weave_periods {periods} x {design.wavelength_mm:g} mm (weave_speed_mm_s / "
-                          f"weave_frequency_Hz) is {length:g} mm long, more than the test plane's "
-                          f"{2 * SPAN * math.hypot(hu, hv):.0f} mm: fewer periods or a shorter wavelength")
+                          f"weave_frequency_Hz) is {length:g} mm long, more than the test plane's {room:.0f} mm "
+                          f"(its diagonal less the lead-in and lead-out): fewer periods or a shorter wavelength")
     a = c - 0.5 * length * d
     pts = [np.round(a + (k * design.wavelength_mm / n) * d + design.offsets_mm[k % n] * w, 3) + 0.0
            for k in range(periods * n + 1)]
+    lead_in, lead_out = (np.round(p, 3) + 0.0 for p in (pts[0] - WEAVE_LEAD_MM * d, pts[-1] + WEAVE_LEAD_MM * d))
     ts = [_target(f"W{tag}_{k}", p, quat, f"weave vertex {k}") for k, p in enumerate(pts)]
+    t_in, t_out = (_target(f"W{tag}_{n}", p, quat, f"weave {n}") for n, p in (("IN", lead_in), ("OUT", lead_out)))
     frac = design.path_speed_mm_s / rated_mm_s
-    body = [Move(t, "linear", frac, zone_mm=design.zones_mm[k % n] if k < len(ts) - 1 else 0.0)
-            for k, t in enumerate(ts) if k > 0]
-    body += [dwell, Move(ts[0], "linear", frac), dwell, CycleMark()]
+    body = [Move(t, "linear", frac, zone_mm=design.zones_mm[k % n]) for k, t in enumerate(ts)]
+    body += [Move(t_out, "linear", frac), dwell, Move(t_in, "linear", frac), dwell, CycleMark()]
+    t = (pts[-1] - pts[0]) / np.linalg.norm(pts[-1] - pts[0])  # the base as the texts carry it (micrometres)
+    across = w - (w @ t) * t
     path = {"kind": "weaving", "start_mm": pts[0].tolist(), "end_mm": pts[-1].tolist(),
-            "direction_mm": [float(x) for x in np.round(w, 12)], "amplitude_mm": design.amplitude_mm,
+            "direction_mm": (across / np.linalg.norm(across)).tolist(), "amplitude_mm": design.amplitude_mm,
             "frequency_Hz": design.frequency_Hz}
-    return ts[0], body, path, frac
+    return t_in, body, path, frac
 
 
 def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_fracs=SPEED_FRACS,
