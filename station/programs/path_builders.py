@@ -1,4 +1,5 @@
-"""ISO 9283 path test programmes (path accuracy, cornering, path velocity) as dialect-neutral models.
+"""ISO 9283 path test programmes (path accuracy, also on reorientation, cornering, path velocity, weaving) as
+dialect-neutral models.
 
 The paths lie in the test plane: the diagonal plane of the test cube that
 holds the base x axis (through the cube's centre, spanned by ``e_u = x`` and
@@ -23,7 +24,10 @@ coordinates (mm from the centre):
   the controller turns the tool in proportion to the distance along each
   move. Its path file entry is the line (the position's AT and RT in the
   line's normal planes: what the turning wrist does to the path); without a
-  ``velocity_mm_s`` (the joints may slow the line where the wrist turns fast);
+  ``velocity_mm_s`` (the joints may slow the line where the wrist turns fast).
+  The path file's own ``reorientation`` kind, the point held while the tool
+  turns (AT, RT against the angle turned, from a 6-DoF stream), has no
+  programme here: the fake controllers plan no move that only turns;
 * **weaving** (clause 11, weaving stroke and frequency errors WS, WF): a
   sine of amplitude ``weave_amplitude_mm`` (half the stroke) at
   ``weave_frequency_Hz`` across a base line along the plane's diagonal
@@ -33,10 +37,9 @@ coordinates (mm from the centre):
   moves through ``weave_points_per_period`` vertices a period
   (:mod:`station.programs.weave`: the vertices' offset and zones chosen so the
   rounded path's fundamental is the commanded sine, one path speed so a period
-  takes ``1 / weave_frequency_Hz``). The standard leaves stroke, frequency and
-  base speed to the application; 2 mm at 1 Hz along 10 mm/s are the
-  station's choice. One programme, not one per path speed (its speed is the
-  weave's own);
+  takes ``1 / weave_frequency_Hz``). The defaults, 2 mm at 1 Hz along
+  10 mm/s, are the station's choice, not values of the standard. One
+  programme, not one per path speed (its speed is the weave's own);
 
 the others each at 100, 50 and 10 % of the rated speed, ``cycles`` times. Every
 programme goes with its entry of the path file
@@ -51,9 +54,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.errors import ConfigError
 from scipy.spatial.transform import Rotation
 
+from station.errors import ConfigError
 from station.programs.builders import TOOL_DOWN, _orientation, _program, quat_from_matrix, rated_tcp_accel_mm_s2
 from station.programs.program import CartesianTarget, CycleMark, Dwell, Loop, Move, Program, check_number
 from station.programs.weave import design_weave

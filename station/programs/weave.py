@@ -1,41 +1,48 @@
-"""A weaving pattern (ISO 9283 clause 11) as blended linear moves: the zigzag whose rounded path weaves like a sine.
+"""A weaving pattern (ISO 9283 clause 11) as blended linear moves: the polyline whose rounded path weaves a sine.
 
 Clause 11 asks for the weaving stroke error WS and frequency error WF of a
 robot weaving across a straight base path with a commanded amplitude (half
-the stroke) and frequency; the standard leaves the pattern's stroke, frequency
-and the speed along the base to the application (the station's defaults are
-its own choice, see :func:`station.programs.path_builders.iso_path_tests`).
+the stroke) and frequency. Amplitude, frequency and the speed along the base
+are parameters here; the defaults of
+:func:`station.programs.path_builders.iso_path_tests` are the station's choice,
+not values taken from the standard.
 The analysis (:mod:`station.analysis.path.weaving`) fits a sine of free
 amplitude and frequency to each cycle's displacement across the base line in
 time, so the commanded pattern is that sine's amplitude ``A_c`` and frequency
 ``F_c``.
 
 A controller without a weaving function (a plain RAPID, KRL or URScript
-programme) weaves through corner-zoned linear moves. The pattern here, along
-the base at ``x`` and across it at ``y``, per period ``lambda = v_base / F_c``:
+programme) weaves through corner-zoned linear moves. Along the base at ``x``
+and across it at ``y``, a period ``lambda = v_base / F_c`` long:
 
-* the targets lie on the base line at every half period (the zero crossings)
-  and at ``+P``, ``-P`` across it at the quarter periods (the peaks): four legs
-  a period, each ``L = sqrt((lambda / 4)^2 + P^2)`` long;
-* every move has the corner zone ``z`` just under ``L / 2`` (the controllers
-  shrink a zone to half its segment; a UR refuses overlapping blends): each
-  peak is rounded by the interpolator's quadratic Bezier from ``z`` before it
-  to ``z`` after it (the corner the Bezier controls, apex ``z`` in), the zero
-  crossings are straight (their legs are collinear, nothing to round);
-* every move has the same path speed ``v = S F_c`` with ``S`` the length of one
-  period of that rounded path, so a period takes ``1 / F_c`` at cruise;
+* ``N`` vertices a period (a multiple of 4: the zero crossings and the peaks
+  are vertices), vertex ``k`` at ``x = k lambda / N``,
+  ``y = P sin(2 pi k / N)`` (rounded to the micrometre the texts carry);
+* each vertex has the corner zone ``z_k`` = :data:`ZONE_SHARE` of the shorter
+  of its two segments: the interpolator rounds it by the quadratic Bezier from
+  ``z_k`` before the vertex to ``z_k`` after it (the vertex its control
+  point), and every segment keeps a straight middle (no controller shrinks a
+  zone of a third of its segment or less; a UR refuses overlapping blends);
+  where the two segments are collinear (the zero crossings of ``N = 4``) there
+  is nothing to round;
+* every move has the same path speed ``v = S F_c``, ``S`` the length of one
+  period of the rounded path: at cruise a period takes ``1 / F_c``;
 * ``P`` is solved (Brent) so that the fundamental of the rounded path's
-  displacement across the base, traversed at constant path speed (what the
-  interpolator does at cruise), has amplitude ``A_c``: the displacement in time
-  is a wave of straight flanks and parabolic crests, its fundamental from its
-  Fourier sine coefficient ``b1 = (2 / T) int y(t) sin(2 pi t / T) dt`` (the
-  wave is odd with half-wave symmetry: no cosine term, no even harmonics).
+  displacement across the base, traversed at the constant path speed, has
+  amplitude ``A_c``: ``sqrt(a1^2 + b1^2)`` with
+  ``b1 = (2 / S) int_0^S y(s) sin(2 pi s / S) ds`` (and ``a1`` with the
+  cosine), ``s`` the arc length. ``P`` comes out 5-45 % above ``A_c``: the
+  corners cut the crests, the straight flanks and the constant path speed
+  (slow across the base where the path is steep) make the wave squarer.
 
-The lateral acceleration on the crests, ``v^2 kappa`` with the Bezier's
-curvature ``kappa = |B' x B''| / |B'|^3`` at its apex, must stay under the
-path acceleration the interpolator may use, or it would slow there and the
+The lateral acceleration in the rounded corners, ``v^2 kappa`` with a Bezier's
+curvature ``kappa = |B' x B''| / |B'|^3``, must stay under the path
+acceleration the interpolator may use, or it would slow there and the
 frequency would no longer be the commanded one: :func:`design_weave` refuses
-such a pattern by name. Lengths mm, times s, frequencies Hz.
+such a pattern by name. The path speed is constant, not the base speed: a
+steep weave (much amplitude over a short wavelength) needs the path speed of
+its flanks on its crests too, and is refused sooner than a weaving function
+that keeps the base speed would be. Lengths mm, times s, frequencies Hz.
 """
 
 from __future__ import annotations
@@ -48,7 +55,7 @@ from scipy.optimize import brentq
 
 from station.errors import ConfigError
 
-__all__ = ["WeaveDesign", "design_weave", "crest_shape"]
+__all__ = ["WeaveDesign", "design_weave", "rounded_period"]
 
 #: a vertex's zone is this share of the shorter of its two segments (a third at most: a segment keeps a
 #: straight middle however its two ends are rounded, and no controller shrinks the zone)
