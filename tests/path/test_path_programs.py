@@ -196,6 +196,8 @@ def test_the_weave_is_a_sine_of_blended_vertices_in_every_dialect(robot, rng):
     assert theirs[0].speed_frac == pytest.approx(moves[0].speed_frac, abs=5e-4 / robot.max_tcp_speed_mm_s)
     krl = render_krl(t.program).text
     assert len(re.findall(r"^\s*LIN p_\w+ C_DIS$", krl, re.M)) == periods * n + 1
+    v_krl = float(re.search(r"\$VEL.CP = ([0-9.]+)", krl).group(1)) * 1000.0  # m/s
+    assert v_krl == pytest.approx(moves[0].speed_frac * robot.max_tcp_speed_mm_s, abs=6e-4)
     qs, q = [], robot.home_q_rad
     for m in executed(t.program):
         if isinstance(m, Move):

@@ -100,7 +100,7 @@ def test_weaving_and_reorientation_state_WS_WF_and_AT_RT_within_U_of_the_arm(rob
     weave = {"weave_amplitude_mm": round(float(rng.uniform(1.0, 3.0)), 2),
              "weave_frequency_Hz": round(float(rng.uniform(0.6, 1.5)), 2),
              "weave_speed_mm_s": round(float(rng.uniform(8.0, 15.0)), 1), "weave_periods": 6,
-             "reorient_deg": round(float(rng.uniform(10.0, 25.0)), 1)}
+             "reorient_deg": round(float(rng.uniform(10.0, 30.0)), 1)}
     overrides = {"path_cycles": 2, "path_speed_fracs": (0.5,), "path_kinds": ("weaving", "reorientation"),
                  "path_limits": {"WS_percent": 50.0, "reorientation_50.AT_mm": 50.0}, **weave}
     _, plan, rows = _run_on_the_cell(robot, test_seed, tmp_path, overrides, "w1")
