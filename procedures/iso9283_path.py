@@ -1,10 +1,13 @@
-"""ISO 9283 path test procedure (clauses 8.2-8.5): path accuracy and repeatability, cornering, path velocity.
+"""ISO 9283 path test procedure (clauses 8.2-8.5, 11): path accuracy and repeatability (also on reorientation),
+cornering, path velocity, weaving.
 
 The pose procedure's cell, connection, home and registration
 (:mod:`procedures.iso9283`), then the path programmes of
 :func:`station.programs.path_builders.iso_path_tests` on the test plane of
 the pose test's inset cube (line, large and small circle, rectangle with and
-without a corner zone, at 100, 50 and 10 % of the rated speed):
+without a corner zone, at 100, 50 and 10 % of the rated speed; on request the
+line driven while the tool turns, ``reorientation``, and the weave,
+``weaving``, at its own speed):
 
 1. ``check programs`` — every path programme through the safety gate before
    anything connects;
@@ -14,8 +17,8 @@ without a corner zone, at 100, 50 and 10 % of the rated speed):
    path's start first, so a cycle is entered the same way in a resumed run),
    the tracker streaming;
 5. ``stop stream``, ``analyse`` — each path's cycles against its commanded
-   geometry (:mod:`station.analysis.path`), AT, RT, AV, RV, FV, CR, CO with
-   their U; rows in the characteristics table (one per path and figure),
+   geometry (:mod:`station.analysis.path`), AT, RT, AV, RV, FV, CR, CO, WS, WF
+   with their U; rows in the characteristics table (one per path and figure),
    judged against the limits of the plan (the robot's configured AT/RT and
    the plan's ``path_limits``);
 6. ``report`` — the run's HTML report (:mod:`procedures.iso9283_path_report`): per path its cycles against
@@ -45,12 +48,21 @@ from station.analysis.path.figures import SIGNED
 from station.analysis.path.path_file import parse_paths
 from station.errors import ConfigError, StationError
 from station.programs import render_rapid
-from station.programs.path_builders import PATH_KINDS, SPEED_FRACS, PathTest, iso_path_tests
+from station.programs.path_builders import (
+    ALL_PATH_KINDS,
+    PATH_KINDS,
+    REORIENT_DEG,
+    SPEED_FRACS,
+    WEAVE_DEFAULTS,
+    PathTest,
+    iso_path_tests,
+)
 from station.runner import Procedure, Step, StepContext
 
 RESULT = "iso9283-path"
 #: plan keys of the path test (the rest is the pose test's plan)
-PATH_KEYS = ("path_cycles", "path_speed_fracs", "path_kinds", "blend_mm", "path_side_mm", "path_limits")
+PATH_KEYS = ("path_cycles", "path_speed_fracs", "path_kinds", "blend_mm", "path_side_mm", "path_limits",
+             "reorient_deg", *WEAVE_DEFAULTS)
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,15 @@ class PathPlan(iso.IsoPlan):
     path_side_mm: float | None = None
     #: limits of path figures, ``{"CR_mm": 2.0, "rectangle_blend_100.CO_mm": 1.0, ...}``
     path_limits: dict[str, float] = field(default_factory=dict)
+    #: the reorientation's turn either side of the middle of its line, deg (path kind "reorientation")
+    reorient_deg: float = REORIENT_DEG
+    #: the weave (path kind "weaving"): amplitude (half the stroke), frequency, speed along the base, its
+    #: periods and the vertices a period of its programme (:mod:`station.programs.weave`)
+    weave_amplitude_mm: float = WEAVE_DEFAULTS["weave_amplitude_mm"]
+    weave_frequency_Hz: float = WEAVE_DEFAULTS["weave_frequency_Hz"]
+    weave_speed_mm_s: float = WEAVE_DEFAULTS["weave_speed_mm_s"]
+    weave_periods: int = WEAVE_DEFAULTS["weave_periods"]
+    weave_points_per_period: int = WEAVE_DEFAULTS["weave_points_per_period"]
     # params() and from_params() are the pose plan's: they follow the fields of the class they are called on
 
 
@@ -77,9 +98,9 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> PathPlan:
     for k in ("path_speed_fracs", "path_kinds"):
         if k in path_kw:
             path_kw[k] = tuple(path_kw[k])
-    unknown = [k for k in path_kw.get("path_kinds", ()) if k not in PATH_KINDS]
+    unknown = [k for k in path_kw.get("path_kinds", ()) if k not in ALL_PATH_KINDS]
     if unknown:
-        raise ConfigError(f"iso9283_path.path_kinds: unknown path {unknown[0]!r} (known: {', '.join(PATH_KINDS)})")
+        raise ConfigError(f"iso9283_path.path_kinds: unknown path {unknown[0]!r} (known: {', '.join(ALL_PATH_KINDS)})")
     base = iso.plan_from_config(cfg, robot_name, **overrides)
     plan = PathPlan(**{f.name: getattr(base, f.name) for f in dataclasses.fields(iso.IsoPlan)}, **path_kw)
     if plan.path_cycles < 2:
@@ -104,7 +125,8 @@ def path_tests(plan: PathPlan) -> list[PathTest]:
     """The plan's path programmes, one cycle each (a step runs one)."""
     centre, side = cube_of(plan)
     return iso_path_tests(plan.robot, centre, side, cycles=1, speed_fracs=plan.path_speed_fracs,
-                          kinds=plan.path_kinds, blend_mm=plan.blend_mm)
+                          kinds=plan.path_kinds, blend_mm=plan.blend_mm, reorient_deg=plan.reorient_deg,
+                          weave={k: getattr(plan, k) for k in WEAVE_DEFAULTS})
 
 
 def cycle_program(plan: PathPlan, index: int, k: int):

@@ -144,7 +144,7 @@ def render_krl(program: Program) -> RenderedProgram:
         if ins.interpolation != "joint":
             if state["cp"] != ins.speed_frac:
                 v = ins.speed_frac * program.rated_tcp_speed_mm_s / 1000.0
-                emit(f"$VEL.CP = {fmt_num(v, 4)}", depth)
+                emit(f"$VEL.CP = {fmt_num(v, 7)}", depth)  # to the micrometre a second: a weave's period rests on it
                 state["cp"] = ins.speed_frac
         elif state["axis"] != ins.speed_frac:
             pct = fmt_num(ins.speed_frac * 100.0, 3)

@@ -150,3 +150,103 @@ def test_bad_path_parameters_are_refused_by_name(robot):
         Move(iso_path_tests(robot, CENTRE, 600.0, kinds=("line",))[0].program.statements[0].target, "joint",
              0.5, zone_mm=5.0)
     assert math.isfinite(iso_path_tests(robot, CENTRE, 600.0, kinds=("line",))[0].path["tube_mm"])
+
+
+def _weave_draw(rng) -> dict:
+    return {"weave_amplitude_mm": round(float(rng.uniform(1.0, 3.0)), 3),
+            "weave_frequency_Hz": round(float(rng.uniform(0.6, 1.5)), 3),
+            "weave_speed_mm_s": round(float(rng.uniform(8.0, 15.0)), 2), "weave_periods": int(rng.integers(3, 9)),
+            "weave_points_per_period": int(rng.choice([4, 8, 12]))}
+
+
+def test_the_weave_is_a_sine_of_blended_vertices_in_every_dialect(robot, rng):
+    wv = _weave_draw(rng)
+    A, F, vb, periods, n = (wv[k] for k in ("weave_amplitude_mm", "weave_frequency_Hz", "weave_speed_mm_s",
+                                            "weave_periods", "weave_points_per_period"))
+    t = iso_path_tests(robot, CENTRE, 600.0, cycles=2, kinds=("weaving",), weave=wv)[0]
+    spec = parse_paths({"paths": [t.path]})[0]
+    g = spec.geometry
+    assert (g.amplitude_mm, g.frequency_Hz) == (A, F)
+    lam = vb / F
+    assert g.length_mm == pytest.approx(periods * lam, abs=3e-3)
+    moves = _loop_moves(t.program)
+    # lead-in to vertex 0, the vertices, the lead-out, the way back
+    assert len(moves) == periods * n + 3 and all(m.interpolation == "linear" for m in moves)
+    assert len({m.speed_frac for m in moves}) == 1
+    verts = np.array([m.target.xyz_mm for m in moves[:periods * n + 1]])
+    along = (verts - g.base.start_mm) @ g.base.tangent_at(0.0)[0]
+    across = (verts - g.base.start_mm) @ g.direction
+    k = np.arange(verts.shape[0])
+    assert np.allclose(along, k * lam / n, atol=3e-3)
+    # the vertices lie on one sine across the base, a little wider than the commanded (the corners round it)
+    peak = float(np.max(across))
+    assert np.allclose(across, peak * np.sin(2 * np.pi * k / n), atol=2e-3)
+    assert A < peak < 1.5 * A
+    # every zone rounds its vertex within a third of its shorter segment (no controller shrinks it)
+    seg = np.linalg.norm(np.diff(verts, axis=0), axis=1)
+    zones = np.array([m.zone_mm for m in moves[:periods * n + 1]])
+    assert np.all(zones[1:-1] > 0) and np.all(zones[1:-1] <= np.minimum(seg[:-1], seg[1:]) / 3 + 1e-9)
+    assert moves[-2].zone_mm == 0 and moves[-1].zone_mm == 0  # the lead-out and the way back stop
+    gate = SafetyGate(robot, default_limits(robot))
+    gate.check_program(t.program)
+    back = compile_rapid(render_rapid(t.program).text, robot, gate).program
+    theirs = _loop_moves(back)
+    assert [(m.zone_mm, m.target.xyz_mm) for m in theirs] == [(m.zone_mm, m.target.xyz_mm) for m in moves]
+    # the text carries the speed to the micrometre a second
+    assert theirs[0].speed_frac == pytest.approx(moves[0].speed_frac, abs=5e-4 / robot.max_tcp_speed_mm_s)
+    krl = render_krl(t.program).text
+    assert len(re.findall(r"^\s*LIN p_\w+ C_DIS$", krl, re.M)) == periods * n + 1
+    v_krl = float(re.search(r"\$VEL.CP = ([0-9.]+)", krl).group(1)) * 1000.0  # m/s
+    assert v_krl == pytest.approx(moves[0].speed_frac * robot.max_tcp_speed_mm_s, abs=6e-4)
+    qs, q = [], robot.home_q_rad
+    for m in executed(t.program):
+        if isinstance(m, Move):
+            q = gate.check_move(m, q, t.program)[0]
+            qs.append(q)
+    ur = render_urscript(t.program, np.array(qs), robot=robot, seq=3).text
+    rs = [float(x) for x in re.findall(r"movel\(p\[[^\]]+\], a=[^,]+, v=[^,]+, r=([0-9.e-]+)\)", ur)]
+    assert rs == pytest.approx(list(zones / 1000.0) * 2)
+
+
+def test_the_reorientation_drives_the_line_while_the_tool_turns_about_x(robot, rng):
+    turn = float(np.round(rng.uniform(5.0, 30.0), 2))
+    frac = float(rng.choice(SPEED_FRACS))
+    t = iso_path_tests(robot, CENTRE, 600.0, cycles=2, kinds=("reorientation",), speed_fracs=(frac,),
+                       reorient_deg=turn)[0]
+    line = iso_path_tests(robot, CENTRE, 600.0, cycles=2, kinds=("line",), speed_fracs=(frac,))[0]
+    assert t.path["kind"] == "line" and "velocity_mm_s" not in t.path
+    assert (t.path["start_mm"], t.path["end_mm"]) == (line.path["start_mm"], line.path["end_mm"])
+    mid, end, start = _loop_moves(t.program)
+    assert [m.target.xyz_mm for m in (mid, end, start)] == [m.target.xyz_mm for m in _loop_moves(line.program)]
+    R = {k: m.target.pose[:3, :3] for k, m in (("A", start), ("M", mid), ("B", end))}
+    for key, sign in (("A", -1), ("B", 1)):  # each end turned by the turn about the base x axis
+        rel = R[key] @ R["M"].T
+        c, s = math.cos(math.radians(sign * turn)), math.sin(math.radians(sign * turn))
+        assert np.allclose(rel, [[1, 0, 0], [0, c, -s], [0, s, c]], atol=1e-6)
+    gate = SafetyGate(robot, default_limits(robot))
+    gate.check_program(t.program)
+    back = _loop_moves(compile_rapid(render_rapid(t.program).text, robot, gate).program)
+    assert np.allclose([m.target.quat_wxyz for m in back], [m.target.quat_wxyz for m in (mid, end, start)],
+                       atol=1e-8)
+    dat = next(v for k, v in render_krl(t.program).files.items() if k.endswith(".dat"))
+    bs = [float(x) for x in re.findall(r"DECL POS p_O\w+=\{[^}]*,C ([-0-9.]+)\}", dat)]
+    assert sorted(abs(abs(b) - 180.0) for b in bs) == pytest.approx([0.0, turn, turn], abs=1e-4)
+
+
+def test_bad_weave_and_reorientation_parameters_are_refused_by_name(robot):
+    def build(**kw):
+        return iso_path_tests(robot, CENTRE, 600.0, **kw)
+
+    with pytest.raises(ConfigError, match="weave_amplitude_mm 5 at weave_frequency_Hz 3"):
+        build(kinds=("weaving",), weave={"weave_amplitude_mm": 5.0, "weave_frequency_Hz": 3.0})
+    with pytest.raises(ConfigError, match="weave_periods 200"):
+        build(kinds=("weaving",), weave={"weave_periods": 200})
+    with pytest.raises(ConfigError, match="unknown parameters \\['weave_amp'\\]"):
+        build(kinds=("weaving",), weave={"weave_amp": 2.0})
+    with pytest.raises(ConfigError, match="weave_points_per_period"):
+        build(kinds=("weaving",), weave={"weave_points_per_period": 6})
+    with pytest.raises(ConfigError, match="weave_frequency_Hz"):
+        build(kinds=("weaving",), weave={"weave_frequency_Hz": -1.0})
+    for bad in (0.0, 120.0):
+        with pytest.raises(ConfigError, match="reorient_deg"):
+            build(kinds=("reorientation",), reorient_deg=bad)

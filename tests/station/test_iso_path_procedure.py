@@ -39,44 +39,75 @@ def _stream(store, run_id, steps, reg):
     return s["t"][order], np.column_stack([s["x"], s["y"], s["z"]])[order], reg
 
 
-@pytest.mark.parametrize("robot", ["industrial-3100", "ur5e"])
-def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
+def _run_on_the_cell(robot, test_seed, tmp_path, overrides, run_id):
+    """A run of the path test with ``overrides`` as the config's section (weave keys as plan overrides) on the
+    fake cell of ``robot``; returns (store, plan, rows, world)."""
     iso = {"cycles": 3, "vap_cycles": 2, "tracker_rate_hz": 500.0}
     if robot == "ur5e":  # a cobot's joint-2 circle stays inside its smaller box over +/- 20 deg (as the demo's)
         iso["axis_sweep_deg"] = [25.0, 20.0]
+    section = {k: v for k, v in overrides.items() if not k.startswith(("weave_", "reorient"))}
+    extra = {k: v for k, v in overrides.items() if k not in section}
     with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, robot=robot) as station:
         d = station.config_dict(store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
                                 iso9283=iso)
-        d["iso9283_path"] = {k: list(v) if isinstance(v, tuple) else v for k, v in OVERRIDES.items()}
-        cfg = config_from_dict(d)  # the plan from the config's section, no override
+        d["iso9283_path"] = {k: list(v) if isinstance(v, tuple) else v for k, v in section.items()}
+        cfg = config_from_dict(d)  # the plan from the config's section
         code = run_procedure(RunRequest(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True,
-                                        run_id="p1", config_dir=tmp_path))
+                                        run_id=run_id, config_dir=tmp_path, plan_overrides=extra or None))
         store = RunStore(tmp_path / "s.sqlite")
-        assert code.status == "done", (code.error, store.steps("p1")[-1].message)
-        world = station.world
-        plan = PathPlan.from_params(store.run("p1").params)
-        reg = registration_of({s.name: s.output for s in store.done_steps("p1").values()})
-        rows = {(r["pose"], r["name"]): r for r in store.characteristics("p1")}
-        specs = {s.name: s for s in parse_paths({"paths": [t.path for t in path_tests(plan)]})}
-        tr = world.tracker
-        for name, steps in step_names(plan).items():
-            t, xyz_tracker, _ = _stream(store, "p1", steps, reg)
-            measured = reg.to_base(xyz_tracker)
-            # what the tracker reads of the true tool, noise aside, through the run's own registration
-            read = tr.reading(tr.to_tracker_frame(world.arm.tool_position_mm(t - tr.clock_offset_s - tr.latency_s)))
-            truth = analyze_path(specs[name], t, reg.to_base(read), np.ones(t.size, bool), noise_sd_mm=1e-6,
-                                 trials=10, seed=0)
-            mine = analyze_path(specs[name], t, measured, np.ones(t.size, bool), seed=0)
-            assert rows[(name, "n_cycles")]["value"] == 2 == truth.n_cycles
-            for fig, value in truth.figures.items():
-                row = rows[(name, fig)]
-                assert row["value"] == mine.figures[fig]  # the stored row is the analysis of the stream
-                # within 2U of the truth (the bench measures the 95 % of one U)
-                assert abs(row["value"] - value) <= 2 * mine.uncertainty[fig].U, (name, fig, row["value"], value)
-        assert rows[("rectangle_blend_50", "CR_mm")]["limit"] == 50.0
-        assert rows[("rectangle_blend_50", "CR_mm")]["passed"] is True
-        assert rows[("line_50", "AT_mm")]["passed"] is True
+        assert code.status == "done", (code.error, store.steps(run_id)[-1].message)
         assert code.verdict is not None
+        plan = PathPlan.from_params(store.run(run_id).params)
+        rows = {(r["pose"], r["name"]): r for r in store.characteristics(run_id)}
+        _within_U_of_the_arm(store, run_id, plan, rows, station.world)
+        return store, plan, rows
+
+
+def _within_U_of_the_arm(store, run_id, plan, rows, world):
+    """Every stored figure is the analysis of the run's stream and lies within 2U of the figure of what the
+    tracker reads of the arm's true motion, noise aside, through the run's own registration."""
+    reg = registration_of({s.name: s.output for s in store.done_steps(run_id).values()})
+    specs = {s.name: s for s in parse_paths({"paths": [t.path for t in path_tests(plan)]})}
+    tr = world.tracker
+    for name, steps in step_names(plan).items():
+        t, xyz_tracker, _ = _stream(store, run_id, steps, reg)
+        measured = reg.to_base(xyz_tracker)
+        read = tr.reading(tr.to_tracker_frame(world.arm.tool_position_mm(t - tr.clock_offset_s - tr.latency_s)))
+        truth = analyze_path(specs[name], t, reg.to_base(read), np.ones(t.size, bool), noise_sd_mm=1e-6,
+                             trials=10, seed=0)
+        mine = analyze_path(specs[name], t, measured, np.ones(t.size, bool), seed=0)
+        assert rows[(name, "n_cycles")]["value"] == plan.path_cycles == truth.n_cycles
+        assert truth.figures and all(v is not None for v in truth.figures.values()), truth.refused
+        for fig, value in truth.figures.items():
+            row = rows[(name, fig)]
+            assert row["value"] == mine.figures[fig]  # the stored row is the analysis of the stream
+            # within 2U of the truth (the bench measures the 95 % of one U)
+            assert abs(row["value"] - value) <= 2 * mine.uncertainty[fig].U, (name, fig, row["value"], value)
+
+
+@pytest.mark.parametrize("robot", ["industrial-3100", "ur5e"])
+def test_path_procedure_figures_within_U_of_the_arm(robot, test_seed, tmp_path):
+    _, _, rows = _run_on_the_cell(robot, test_seed, tmp_path, OVERRIDES, "p1")
+    assert rows[("rectangle_blend_50", "CR_mm")]["limit"] == 50.0
+    assert rows[("rectangle_blend_50", "CR_mm")]["passed"] is True
+    assert rows[("line_50", "AT_mm")]["passed"] is True
+
+
+@pytest.mark.parametrize("robot", ["industrial-3100", "ur5e"])
+def test_weaving_and_reorientation_state_WS_WF_and_AT_RT_within_U_of_the_arm(robot, test_seed, tmp_path, rng):
+    """The weave (its amplitude, frequency and base speed drawn) states WS and WF, the line driven while the tool
+    turns states AT and RT, each within 2U of the arm's true motion; the limits judge them."""
+    weave = {"weave_amplitude_mm": round(float(rng.uniform(1.0, 3.0)), 2),
+             "weave_frequency_Hz": round(float(rng.uniform(0.6, 1.5)), 2),
+             "weave_speed_mm_s": round(float(rng.uniform(8.0, 15.0)), 1), "weave_periods": 6,
+             "reorient_deg": round(float(rng.uniform(10.0, 30.0)), 1)}
+    overrides = {"path_cycles": 2, "path_speed_fracs": (0.5,), "path_kinds": ("weaving", "reorientation"),
+                 "path_limits": {"WS_percent": 50.0, "reorientation_50.AT_mm": 50.0}, **weave}
+    _, plan, rows = _run_on_the_cell(robot, test_seed, tmp_path, overrides, "w1")
+    assert plan.weave_frequency_Hz == weave["weave_frequency_Hz"] and plan.reorient_deg == weave["reorient_deg"]
+    assert {k for k in rows if k[1] != "n_cycles"} == {("weaving", "WS_percent"), ("weaving", "WF_percent"),
+                                                        ("reorientation_50", "AT_mm"), ("reorientation_50", "RT_mm")}
+    assert rows[("weaving", "WS_percent")]["passed"] is True and rows[("reorientation_50", "AT_mm")]["passed"] is True
 
 
 def _run(cfg, base, run_id, seed, *, cut_at=None, resume=False):
