@@ -717,15 +717,23 @@ def three_s_uncertainty_stats(ch, subject, s, n, value, budget: Budget, *, noise
     is (n - 1) s^2 / chi^2_{n-1}."""
     if n < MIN_STOPS or not math.isfinite(s):
         return None
-    M = int(budget.trials)
     rng = _rng(budget, ch, subject)
-    s2 = s * s
-    var = (n - 1) * max(s2, 1e-30) / rng.chisquare(n - 1, size=M)
-    truth = 3.0 * np.sqrt(np.clip(var - noise_var, 0.0, None))
-    bias = 3.0 * (s - math.sqrt(max(s2 - noise_var, 0.0)))
-    comp = {"sampling": 3.0 * s / math.sqrt(2.0 * (n - 1)), "bias": bias}
-    nu = welch_satterthwaite([(comp["sampling"], n - 1), (bias, None)])
+    truth = _three_s_draws(s, n, noise_var, int(budget.trials), rng)
+    comp = _three_s_components(s, n, noise_var)
+    nu = welch_satterthwaite([(comp["sampling"], n - 1), (comp["bias"], None)])
     return _summary(ch, subject, value, truth, budget, math.hypot(*comp.values()), comp, n, dof=nu)
+
+
+def _three_s_draws(s, n, noise_var, M, rng) -> np.ndarray:
+    """Draws (M,) of 3 x the robot's population sd behind n observations of sd ``s``: the variance's posterior
+    (n - 1) s^2 / chi^2_{n-1} less the instrument's ``noise_var`` (clipped at 0)."""
+    var = (n - 1) * max(s * s, 1e-30) / rng.chisquare(n - 1, size=M)
+    return 3.0 * np.sqrt(np.clip(var - noise_var, 0.0, None))
+
+
+def _three_s_components(s, n, noise_var) -> dict:
+    """First-order components of a 3 S figure: its sampling sd and the bias of the noise in it."""
+    return {"sampling": 3.0 * s / math.sqrt(2.0 * (n - 1)), "bias": 3.0 * (s - math.sqrt(max(s * s - noise_var, 0.0)))}
 
 
 # --------------------------------------------------------------------------
@@ -803,6 +811,43 @@ def drift_uncertainty(blocks_mm, commanded_mm, dAP, dRP, budget: Budget, subject
     nu = welch_satterthwaite([(d0.rp_gum, d0.rp_dof), (d1.rp_gum, d1.rp_dof)])
     out["dRP_mm"] = _summary("dRP_mm", subject, dRP, np.abs(d1.RP - d0.RP), budget, comp["sampling"], comp, n,
                              dof=nu)
+    return out
+
+
+def angle_drift_uncertainty(first_deg, last_deg, budget: Budget, subject="") -> dict[str, FigureUncertainty]:
+    """The drift of the orientation figures between two visits of a pose: dAPa = |APa(t_n) - APa(t_1)| (AP of an
+    angle: the mean of its stops less the commanded angle) and dRPa = |RPa(t_n) - RPa(t_1)| (RP = 3 S), and so
+    for b and c; keys ``dAPa_deg`` ... ``dRPc_deg``.
+
+    ``first_deg``, ``last_deg`` (n, 3): the stops' angles a, b, c less the commanded ones, deg (n >=
+    :data:`MIN_STOPS`). Each visit's mean by a t with n - 1 degrees of freedom, its scatter by the posterior
+    of :func:`three_s_uncertainty_stats` (the instrument's angle noise ``budget.angle_sd_deg`` taken out). The
+    frame's errors (the registration's rotation, the instrument's systematic angles) are common to the two
+    visits of a pose and cancel.
+    """
+    a0, a1 = (np.asarray(x, dtype=float).reshape(-1, 3) for x in (first_deg, last_deg))
+    if min(a0.shape[0], a1.shape[0]) < MIN_STOPS or not (np.all(np.isfinite(a0)) and np.all(np.isfinite(a1))):
+        return {}
+    M = int(budget.trials)
+    noise_var = budget.angle_sd_deg ** 2
+    n0, n1 = a0.shape[0], a1.shape[0]
+    out = {}
+    for j, ax in enumerate("abc"):
+        rng = _rng(budget, "angle drift", subject, ax)
+        m0, m1 = float(a0[:, j].mean()), float(a1[:, j].mean())
+        s0, s1 = float(np.std(a0[:, j], ddof=1)), float(np.std(a1[:, j], ddof=1))
+        mu0 = m0 + max(s0, 1e-12) / math.sqrt(n0) * rng.standard_t(n0 - 1, size=M)
+        mu1 = m1 + max(s1, 1e-12) / math.sqrt(n1) * rng.standard_t(n1 - 1, size=M)
+        parts = [(s0 / math.sqrt(n0), n0 - 1), (s1 / math.sqrt(n1), n1 - 1)]
+        comp = {"sampling": math.hypot(parts[0][0], parts[1][0])}
+        out[f"dAP{ax}_deg"] = _summary(f"dAP{ax}_deg", subject, abs(m1 - m0), np.abs(mu1 - mu0), budget,
+                                       comp["sampling"], comp, n0 + n1, dof=welch_satterthwaite(parts))
+        r0, r1 = _three_s_draws(s0, n0, noise_var, M, rng), _three_s_draws(s1, n1, noise_var, M, rng)
+        c0, c1 = _three_s_components(s0, n0, noise_var), _three_s_components(s1, n1, noise_var)
+        comp = {"sampling": math.hypot(c0["sampling"], c1["sampling"]), "bias": math.hypot(c0["bias"], c1["bias"])}
+        nu = welch_satterthwaite([(c0["sampling"], n0 - 1), (c1["sampling"], n1 - 1), (comp["bias"], None)])
+        out[f"dRP{ax}_deg"] = _summary(f"dRP{ax}_deg", subject, abs(3.0 * (s1 - s0)), np.abs(r1 - r0), budget,
+                                       math.hypot(*comp.values()), comp, n0 + n1, dof=nu)
     return out
 
 
