@@ -11,6 +11,8 @@ frame (the frame is common to the visits: its rotation drops out of the drift).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -20,13 +22,13 @@ from fakes.station import FakeStation
 from procedures.devices import DeviceSet
 from procedures.iso9283 import IsoPlan, registration_of
 from procedures.iso9283_drift import RESULT, summary
-from procedures.iso9283_truth import RunGeometry
+from procedures.iso9283_truth import RunGeometry, _noise_free
 from station import characteristics as table
 from station.analysis.iso9283.orientation import abc_of_matrices
 from station.config import config_from_dict
 from station.models import kinematics as kin
 from station.models.effects import EffectContext
-from station.models.rotation import rotvec_to_matrix
+from station.models.rotation import rotvec_of, rotvec_to_matrix
 from station.programs.builders import TOOL_DOWN
 from station.store import RunStore
 from tests.pace import LOCKSTEP
@@ -35,6 +37,8 @@ from tests.pace import LOCKSTEP
 pytestmark = pytest.mark.timeout(900)
 
 CYCLES = 5  # per visit: four stops at least for a drift's U
+#: one-sided tail of each check on drawn data
+TAIL = 1e-5
 KEYS = tuple(f"d{kind}{ax}_deg" for kind in ("AP", "RP") for ax in "abc")
 
 
@@ -75,6 +79,31 @@ def _true_abc_deg(world, plan: IsoPlan, reg, t_device_s: float) -> np.ndarray:
     return (dev + 180.0) % 360.0 - 180.0
 
 
+def _stops_truth_deg(store, run_id: str, world, plan: IsoPlan, frame) -> dict[str, np.ndarray]:
+    """Per pose: the mean (3,), deg, of the arm's true angles a, b, c less the commanded tool down at visit 1's
+    attained stops (the programme's own extraction of its stream), as the T-Mac reads them, its noise aside,
+    through ``frame``."""
+    from procedures.iso9283 import STREAM, QUAT_COLUMNS
+    from procedures.iso9283_drift import drift_params, visit_stops
+    from station.analysis.iso9283.orientation import abc_in_base
+
+    index = {s.name: i for i, s in store.done_steps(run_id).items()}
+    smp = store.samples(run_id, STREAM, steps=[index["visit 1"]])
+    order = np.argsort(smp["t"], kind="stable")
+    reg = registration_of({s.name: s.output for s in store.done_steps(run_id).values()})
+    xyz = reg.to_base(np.column_stack([smp[c] for c in "xyz"]))[order]
+    abc = abc_in_base(np.column_stack([smp[c] for c in QUAT_COLUMNS])[order], reg.R)
+    stops = visit_stops(plan, drift_params(store.run(run_id).params), smp["t"][order], xyz, abc)
+    tr = world.tracker
+    R_read = rotvec_to_matrix(tr.systematic_rotvec_rad) @ tr.tracker_T_base[:3, :3]
+    out = {}
+    for pose, (_, t, _) in stops.items():
+        R_base = world.arm.tool_pose(np.asarray(t) - tr.latency_s)[:, :3, :3]
+        dev = np.degrees(abc_of_matrices(frame.R.T @ R_read @ R_base) - abc_of_matrices(TOOL_DOWN))
+        out[pose] = np.mean((dev + 180.0) % 360.0 - 180.0, axis=0)
+    return out
+
+
 def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_its_uncertainty(
         tmp_path, rng, test_seed):
     warmup = (float(rng.uniform(3.0, 6.0)), float(rng.uniform(900.0, 2400.0)))
@@ -109,6 +138,32 @@ def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_
         by = {(v["visit"], v["pose"]): v for v in res["visits"]}
         assert res["visits_analysed"] == 4 and all(v["n"] == CYCLES for v in res["visits"])
         truth = {k: _true_abc_deg(cell.world, plan, reg, t0 + by[(k, "P1")]["t_since_start_s"]) for k in (1, 4)}
+        # the frame a noise-free registration gives (the same circles of the true arm, read by the same tracker):
+        # the run's frame is off it by the noise of its sweep points, which its jackknife states
+        geo = RunGeometry.of(plan)
+        tr = cell.world.tracker
+        _, reg_nf = _noise_free(plan, cell.world.arm.effects, geo, 0.0)
+        R_frame = rotvec_to_matrix(tr.systematic_rotvec_rad) @ tr.tracker_T_base[:3, :3] @ reg_nf.R
+        frame = replace(reg, R=R_frame)
+        with RunStore(tmp_path / "s.sqlite") as store:
+            truth_nf = _stops_truth_deg(store, "d6", cell.world, plan, frame)
+    # the run's frame's rotation error against the noise-free frame, in units of its stated (jackknife) sd
+    cov = np.asarray(outputs["register base frame"]["rotation_cov_deg2"])
+    delta = np.degrees(rotvec_of(R_frame.T @ reg.R).ravel())
+    print(f"frame rotation error {delta} deg, stated sd {np.sqrt(np.diag(cov))} deg")
+    assert np.all(np.abs(delta) <= stats.norm.isf(TAIL / 6) * np.sqrt(np.diag(cov))), (delta, cov)
+    # each pose's orientation AP at visit 1 against the truth of its stops in the noise-free frame: within its
+    # U, which carries the frame's rotation (an error common to the poses: each within k = 4, the count printed)
+    far = []
+    for j, pose in enumerate(names):
+        for i, ax in enumerate("abc"):
+            v = by[(1, pose)]
+            e = abs(v[f"AP{ax}_deg"] - truth_nf[pose][i])
+            print(f"{pose} AP{ax} visit 1: {v[f'AP{ax}_deg']:.5f} U {v[f'U_AP{ax}_deg']:.5f}; truth "
+                  f"{truth_nf[pose][i]:.5f}")
+            assert e <= 2.0 * v[f"U_AP{ax}_deg"], (pose, ax, v[f"AP{ax}_deg"], truth_nf[pose][i], v[f"U_AP{ax}_deg"])
+            far += [(pose, ax)] if e > v[f"U_AP{ax}_deg"] else []
+    print(f"visit 1 orientation AP outside U of the noise-free frame's truth: {far}")
     outside, found, checked = [], 0, 0
     for j, pose in enumerate(names):
         dr = res["drift"][pose]
