@@ -488,29 +488,53 @@ def step_register(ctx: StepContext) -> dict:
             return fit_rigid(base[keep], measured[keep])
     n = len(names)
     reg = fit(np.ones(n, bool))
-    u = registration_uncertainty(fit, n, reg, np.array(list(plan.poses_mm.values())))
+    refits = jackknife_refits(fit, n)
+    u = registration_uncertainty(refits, np.array(list(plan.poses_mm.values())))
+    rot = np.degrees(np.degrees(rotation_covariance(refits, reg)))
     return {"method": plan.registration, "R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
             "residuals_mm": reg.residuals_mm.tolist(), "points": names, "points_tracker_mm": measured.tolist(),
-            "uncertainty_at_poses_mm": dict(zip(plan.poses_mm, np.round(u, 4).tolist()))}
+            "uncertainty_at_poses_mm": dict(zip(plan.poses_mm, np.round(u, 4).tolist())),
+            "rotation_cov_deg2": rot.tolist()}
 
 
-def registration_uncertainty(fit, n: int, reg: Registration, poses_mm: np.ndarray) -> np.ndarray:
+def jackknife_refits(fit, n: int) -> list[Registration]:
+    """The frame refitted with each of the ``n`` points left out in turn (``fit(keep)``, keep a mask)."""
+    out = []
+    for k in range(n):
+        keep = np.ones(n, bool)
+        keep[k] = False
+        out.append(fit(keep))
+    return out
+
+
+def registration_uncertainty(refits: list[Registration], poses_mm: np.ndarray) -> np.ndarray:
     """Jackknife standard error of where the registered frame puts each pose, mm (one per pose).
 
-    Each point is left out in turn and the frame refitted; the spread of the
+    Each point is left out in turn and the frame refitted (:func:`jackknife_refits`); the spread of the
     poses' tracker coordinates over the refits, scaled by sqrt(n - 1), is the
     frame's own uncertainty at the poses (from the robot's stop scatter and the
     tracker's noise in the registration points). It bounds how much of AP is
     the registration's.
     """
-    refs = []
-    for k in range(n):
-        keep = np.ones(n, bool)
-        keep[k] = False
-        refs.append(fit(keep).to_tracker(poses_mm))
-    refs = np.array(refs)  # (n, P, 3)
+    n = len(refits)
+    refs = np.array([r.to_tracker(poses_mm) for r in refits])  # (n, P, 3)
     dev = refs - refs.mean(axis=0)
     return np.sqrt((n - 1) / n * np.sum(dev**2, axis=(0, 2)))
+
+
+def rotation_covariance(refits: list[Registration], reg: Registration) -> np.ndarray:
+    """Jackknife covariance (3, 3), rad^2, of the frame's rotation about the base x, y, z axes.
+
+    A refit ``R_k = R exp([delta_k])`` differs from the fit ``R`` by a small rotation ``delta_k`` of the base
+    frame (``rotvec(R^T R_k)``); the covariance of the ``delta_k``, scaled by ``n - 1``, is the rotation's
+    (what turns every measured orientation, :meth:`~station.analysis.uncertainty.Budget.registration_angle_sd_deg`).
+    """
+    from station.models.rotation import rotvec_of
+
+    n = len(refits)
+    d = np.array([rotvec_of(reg.R.T @ r.R) for r in refits]).reshape(n, 3)
+    dev = d - d.mean(axis=0)
+    return (n - 1) / n * dev.T @ dev
 
 
 def _cycle_step(kind: str, k: int, sim_s_per_dwell: float):
@@ -575,7 +599,7 @@ def _abc_in_base(s: Mapping, reg: Registration, order) -> np.ndarray | None:
 
 
 def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None, reg_u_at_poses=None, *,
-            pose_abc_rad=None, vap_abc_rad=None):
+            pose_abc_rad=None, vap_abc_rad=None, reg_rotation_cov_deg2=None):
     """Both analyses of the procedure's data (pure: arrays in, results out).
 
     ``pose_abc_rad`` (N, 3): the tool's angles a, b, c of the pose cycles' samples in the base frame (a 6-DoF
@@ -586,7 +610,8 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
     With a stated budget (``plan.uncertainty``) every verdict carries its uncertainty and is decided by
     ``plan.decision_rule``; ``reg``: the registration the streams went through (its fit enters the budget);
     ``reg_u_at_poses``: ``{pose: jackknife standard error (3-D), mm}`` of the frame at the test poses, used
-    instead of the fit's rms when given.
+    instead of the fit's rms when given; ``reg_rotation_cov_deg2`` (3 x 3): the jackknife covariance of the
+    frame's rotation about the base axes (orientation AP's frame term).
     """
     names = list(plan.poses_mm)
     commanded = np.array([plan.poses_mm[n] for n in names])
@@ -614,15 +639,27 @@ def analyse(plan: IsoPlan, pose_t, pose_xyz, vap_t=None, vap_xyz=None, reg=None,
         from station.analysis.uncertainty import Budget
 
         angle = {"angle_sd_deg": plan.angle_sd_deg} if pose_abc_rad is not None else {}
-        budget = Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz, **angle).with_registration(reg)
-        if reg_u_at_poses:
-            budget = replace(budget, registration_at_points=tuple(
-                (tuple(plan.poses_mm[k]), float(v) / math.sqrt(3.0)) for k, v in reg_u_at_poses.items()
-                if k in plan.poses_mm))
+        budget = registered_budget(plan, Budget(**plan.uncertainty, rate_hz=plan.tracker_rate_hz, **angle), reg,
+                                   reg_u_at_poses, reg_rotation_cov_deg2)
         main = apply_rule(main, figure_uncertainties(main, budget, pose_xyz), plan.decision_rule)
         if vap is not None:
             vap = apply_rule(vap, figure_uncertainties(vap, budget, vap_xyz), plan.decision_rule)
     return main, vap
+
+
+def registered_budget(plan: IsoPlan, budget, reg, reg_u_at_poses=None, reg_rotation_cov_deg2=None):
+    """``budget`` through the run's registration ``reg``: its fit, and its jackknife where the run stored one
+    (the frame's standard uncertainty at the poses, ``{pose: 3-D sd, mm}``; the covariance of its rotation,
+    deg^2), which replace what the fit's rms says."""
+    budget = budget.with_registration(reg)
+    if reg_u_at_poses:
+        budget = replace(budget, registration_at_points=tuple(
+            (tuple(plan.poses_mm[k]), float(v) / math.sqrt(3.0)) for k, v in reg_u_at_poses.items()
+            if k in plan.poses_mm))
+    if reg_rotation_cov_deg2 is not None and getattr(reg, "n", 0) >= 3:  # a jackknife of the fit's n points
+        budget = replace(budget, registration_rotation_cov_deg2=tuple(
+            tuple(float(x) for x in row) for row in reg_rotation_cov_deg2), registration_rotation_dof=float(reg.n - 1))
+    return budget
 
 
 def run_verdicts(main, vap) -> dict:
@@ -670,8 +707,9 @@ def measured_streams(ctx: StepContext, plan: IsoPlan) -> dict[str, tuple[np.ndar
 def _analyse_streams(ctx: StepContext, plan: IsoPlan):
     """:func:`analyse` of the session's measured streams in the run's registered frame."""
     streams = measured_streams(ctx, plan)
+    out = ctx.outputs["register base frame"]
     return analyse(plan, *streams["pose"], *streams["vap"], reg=registration_of(ctx.outputs),
-                   reg_u_at_poses=ctx.outputs["register base frame"].get("uncertainty_at_poses_mm"),
+                   reg_u_at_poses=out.get("uncertainty_at_poses_mm"), reg_rotation_cov_deg2=out.get("rotation_cov_deg2"),
                    pose_abc_rad=streams["pose_abc_rad"], vap_abc_rad=streams["vap_abc_rad"])
 
 
@@ -701,7 +739,10 @@ def reanalyse(store, run_id: str) -> tuple[dict, list[dict]]:
     pose, vap = stream(pose_steps), stream(vap_steps)
     if not len(pose[0]):
         raise DataError(f"run {run_id}: no tracker samples of finished pose cycles")
-    main, vres = analyse(plan, *pose[:2], *vap[:2], pose_abc_rad=pose[2], vap_abc_rad=vap[2])
+    reg_out = outputs["register base frame"]
+    main, vres = analyse(plan, *pose[:2], *vap[:2], reg=reg, reg_u_at_poses=reg_out.get("uncertainty_at_poses_mm"),
+                         reg_rotation_cov_deg2=reg_out.get("rotation_cov_deg2"), pose_abc_rad=pose[2],
+                         vap_abc_rad=vap[2])
     return {"pose": main.to_dict(), "vap": vres.to_dict() if vres is not None else None}, characteristic_rows(main, vres)
 
 

@@ -6,6 +6,9 @@ The arm starts cold; the station measures a visit of a few pose cycles (seed
 between, and states the drift of AP and RP from the first visit to the last
 (:mod:`station.analysis.iso9283.drift_programme`), AP(t) and RP(t) of every
 visit with their U, and the plot of both against the time since the start.
+With a 6-DoF target on the tool (``devices.tracker.six_dof``, as the pose
+test) the orientation's too: dAPa, dAPb, dAPc and dRPa, dRPb, dRPc per pose
+with their U, APa..RPc of every visit, and the plots of APa, APb, APc(t).
 
 Steps:
 
@@ -49,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -58,13 +61,15 @@ import numpy as np
 from procedures.cell import prompt_step, robot_subject
 from procedures.decision import Checks
 from procedures.iso9283 import (STREAM, IsoPlan, IsoSession, _plan, _run_program, _stream_in_base, _timeout,
-                                plan_from_config, registration_of, safe_state, step_check_programs, step_stop_stream)
+                                plan_from_config, registered_budget, registration_of, safe_state, step_check_programs,
+                                step_stop_stream)
 from procedures.iso9283 import build_procedure as build_iso_procedure
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
 from station import characteristics as table
 from station.analysis.iso9283.characteristics import analyze_iso9283
-from station.analysis.iso9283.drift_programme import drift_figures
+from station.analysis.iso9283.drift_programme import DRIFT_ANGLE_KEYS, drift_figures
+from station.analysis.iso9283.orientation import abc_of_matrices
 from station.analysis.uncertainty import Budget
 from station.errors import ConfigError, DataError, StationError
 from station.programs.builders import TOOL_DOWN, iso_pose_program, rated_tcp_accel_mm_s2
@@ -277,31 +282,47 @@ def budget_of(plan: IsoPlan, outputs: Mapping) -> tuple[Budget, str]:
     """The uncertainty's inputs (the config's budget, else the default one, said so) through the run's frame."""
     reg_out = outputs["register base frame"]
     kw = dict(plan.uncertainty) if plan.uncertainty is not None else {}
-    budget = Budget(**kw, rate_hz=plan.tracker_rate_hz).with_registration(registration_of(outputs))
-    at = reg_out.get("uncertainty_at_poses_mm") or {}
-    if at:
-        budget = replace(budget, registration_at_points=tuple(
-            (tuple(plan.poses_mm[k]), float(u) / math.sqrt(3.0)) for k, u in at.items() if k in plan.poses_mm))
+    if plan.orientation:
+        kw["angle_sd_deg"] = plan.angle_sd_deg
+    budget = registered_budget(plan, Budget(**kw, rate_hz=plan.tracker_rate_hz), registration_of(outputs),
+                               reg_out.get("uncertainty_at_poses_mm"), reg_out.get("rotation_cov_deg2"))
     return budget, "config" if plan.uncertainty is not None else "default (no [uncertainty] in the config)"
 
 
-def visit_stops(plan: IsoPlan, d: Mapping, t, xyz) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``{pose: (attained_mm, attained_t_s)}`` of one visit's stream (base frame): the pose test's extraction."""
+def visit_stops(plan: IsoPlan, d: Mapping, t, xyz, abc_rad=None) -> dict[str, tuple]:
+    """``{pose: (attained_mm, attained_t_s)}`` of one visit's stream (base frame): the pose test's extraction;
+    with the samples' angles ``abc_rad`` (N, 3) of a 6-DoF target, ``(attained_mm, attained_t_s, the attained
+    stops' angles (n, 3), rad)``."""
     names = list(d["poses"])
     cmd = np.array([plan.poses_mm[p] for p in names])
     res = analyze_iso9283(t, xyz, cmd, names=names, limits={}, band_mm=plan.band_mm, distance_pairs=None,
-                          mpt_repeats=min(3, int(d["cycles_per_visit"])))
-    return {p: (pr.attained_mm, pr.attained_t_s) for p, pr in res.poses.items() if pr.n_cycles}
+                          mpt_repeats=min(3, int(d["cycles_per_visit"])),
+                          **({} if abc_rad is None else {"orientation_rad": abc_rad}))
+    out = {}
+    for p, pr in res.poses.items():
+        if not pr.n_cycles:
+            continue
+        o = pr.orientation
+        if abc_rad is None:
+            out[p] = (pr.attained_mm, pr.attained_t_s)
+        elif o is None:  # a single stop: no orientation figures, its angles still known
+            out[p] = (pr.attained_mm, pr.attained_t_s, None)
+        else:
+            out[p] = (pr.attained_mm, pr.attained_t_s, np.asarray(abc_rad)[o.rows])
+    return out
 
 
 def analyse_run(plan: IsoPlan, d: Mapping, streams: list, outputs: Mapping):
-    """The drift figures of the visits' streams (``[(t, xyz)]`` per finished visit, base frame)."""
+    """The drift figures of the visits' streams (``[(t, xyz, abc_rad or None)]`` per finished visit, base
+    frame; the angles of a 6-DoF target give the orientation's drift against the programs' tool down)."""
     t_start = float(streams[0][0].min())
-    stops = [visit_stops(plan, d, t, xyz) for t, xyz in streams]
+    stops = [visit_stops(plan, d, t, xyz, abc) for t, xyz, abc in streams]
     budget, source = budget_of(plan, outputs)
     cmd = {p: plan.poses_mm[p] for p in d["poses"]}
-    visits, drifts, warnings = drift_figures(stops, cmd, t_start, budget)
-    starts = [float(t.min()) - t_start for t, _ in streams]  # each visit's first sample since the start
+    oriented = all(abc is not None for _, _, abc in streams)
+    cabc = {p: abc_of_matrices(TOOL_DOWN)[0] for p in d["poses"]} if oriented else None
+    visits, drifts, warnings = drift_figures(stops, cmd, t_start, budget, cabc)
+    starts = [float(t.min()) - t_start for t, _, _ in streams]  # each visit's first sample since the start
     return visits, drifts, warnings, source, t_start, starts
 
 
@@ -311,17 +332,21 @@ def _streams(ctx: StepContext, d: Mapping) -> list:
     for v in range(1, n_visits(d) + 1):
         if f"visit {v}" in done:
             b = _stream_in_base(ctx, [f"visit {v}"])
-            out.append((b.t, b.xyz))
+            out.append((b.t, b.xyz, b.abc))
     if not out:
         raise DataError("no finished visit: nothing to analyse")
     return out
 
 
 def characteristic_rows(plan: IsoPlan, drifts: Mapping) -> list[dict]:
-    """One row per pose and drift figure of the table (programme ``drift``), judged against the config's limits."""
+    """One row per pose and drift figure of the table (programme ``drift``), judged against the config's limits;
+    the orientation's rows where the visits measured the tool's angles (a 6-DoF target)."""
     rows = []
+    oriented = any(pd.orientation is not None for pd in drifts.values())
     for pose, pd in drifts.items():
         for c in table.characteristics("drift"):
+            if c.with_orientation and not oriented:
+                continue
             value = c.value(pd)
             lim = plan.limits.get(c.key)
             rows.append({"pose": pose, "name": c.key, "value": value, "unit": c.unit, "limit": lim,
@@ -385,9 +410,24 @@ def step_report(ctx: StepContext) -> dict:
         rep.figures.append((f"{label} against the time since the cold start",
                             plot_xy(series, xlabel="time since the cold start [h]", ylabel=f"{label} [mm]",
                                     title=f"{label}(t) per pose")))
+    for j, ax in enumerate("abc"):  # the orientation's AP per angle, with a 6-DoF target
+        key = f"AP{ax}_deg"
+        series = []
+        for pose in d["poses"]:
+            vs = [vp for vp in visits if vp.pose == pose and (vp.orientation or {}).get(key) is not None]
+            if vs:
+                series.append((pose, np.array([vp.t_since_start_s / 3600.0 for vp in vs]),
+                               np.array([vp.orientation[key] for vp in vs]), "-"))
+        if series:
+            rep.figures.append((f"AP{ax} against the time since the cold start",
+                                plot_xy(series, xlabel="time since the cold start [h]", ylabel=f"AP{ax} [deg]",
+                                        title=f"AP{ax}(t) per pose (orientation, angle {ax})")))
     rep.notes += [f"{p}: dAP = {pd.dAP_mm * 1000:.1f} um (U {_um(pd.U_dAP_mm)}), dRP = {_um(pd.dRP_mm)} "
                   f"(U {_um(pd.U_dRP_mm)}), shift of the barycentre {pd.shift_mm * 1000:.1f} um, visits "
                   f"{pd.first_visit}-{pd.last_visit} over {pd.span_s / 3600:.2f} h" for p, pd in drifts.items()]
+    rep.notes += [f"{p}: " + ", ".join(f"{k[:-4]} = {pd.orientation[k]:.4f} deg (U {_deg(pd.orientation[f'U_{k}'])})"
+                                       for k in DRIFT_ANGLE_KEYS)
+                  for p, pd in drifts.items() if pd.orientation is not None]
     rep.notes += warnings
     path = write_report(rep, Path(plan.report_dir) / f"{ctx.run_id}.html")
     out = {"report": str(path.resolve())}
@@ -397,6 +437,10 @@ def step_report(ctx: StepContext) -> dict:
 
 def _um(x) -> str:
     return "-" if x is None else f"{x * 1000:.1f} um"
+
+
+def _deg(x) -> str:
+    return "-" if x is None else f"{x:.4f} deg"
 
 
 def build_procedure(params: Mapping) -> Procedure:
@@ -439,6 +483,11 @@ def summary(store, run_id: str) -> list[str]:
     for p, r in res["drift"].items():
         lines.append(f"{p:<6}{f(r['dAP_mm'], 10)}{f(r['U_dAP_mm'], 9)}{f(r['dRP_mm'], 10)}{f(r['U_dRP_mm'], 9)}"
                      f"{f(r['shift_mm'], 10)}")
+    oriented = [(p, r) for p, r in res["drift"].items() if r.get("dAPa_deg") is not None]
+    if oriented:
+        lines.append(f"{'pose':<6}" + "".join(f"{k[:-4] + ' deg':>11}{'U':>8}" for k in DRIFT_ANGLE_KEYS))
+        for p, r in oriented:
+            lines.append(f"{p:<6}" + "".join(f"{f(r[k], 11)}{f(r.get(f'U_{k}'), 8)}" for k in DRIFT_ANGLE_KEYS))
     if res.get("report"):
         lines.append(f"report: {res['report']}")
     return lines
@@ -462,7 +511,7 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
             undecided.append(f"limit {name} <= {lim:g} configured, but {name} was not computed")
     U = {}
     for p, r in res["drift"].items():
-        for name in ("dAP_mm", "dRP_mm"):
+        for name in ("dAP_mm", "dRP_mm") + DRIFT_ANGLE_KEYS:
             if r.get(f"U_{name}") is not None:
                 U[(p, name)] = r[f"U_{name}"]
     return Checks(tuple(undecided), None, (), U)

@@ -227,6 +227,15 @@ _ROWS: tuple[Characteristic, ...] = (
     Characteristic("dRP_mm", "mm", "pose", "drp_limit_mm", "Drift of position repeatability dRP over the programme",
                    lambda d: getattr(d, "dRP_mm", None), "fewer than two stops at the first or last visit",
                    stated=True, source="ISO 9283 drift: |RP(t_1) - RP(t_n)|, RP by eq. (2)", programme="drift"),
+    # with a 6-DoF target, the orientation's per angle (stated, not judged: a station config's limits are the
+    # pose test's)
+    *(Characteristic(f"d{kind}{ax}_deg", "deg", "pose", None,
+                     f"Drift of orientation {'accuracy' if kind == 'AP' else 'repeatability'} d{kind}{ax} over the "
+                     "programme", lambda d, k=f"d{kind}{ax}_deg": (getattr(d, "orientation", None) or {}).get(k),
+                     "no orientation at the first or last visit (a 6-DoF target)",
+                     source=f"ISO 9283 drift: |{kind}{ax}(t_1) - {kind}{ax}(t_n)|, {kind}{ax} per angle "
+                            "(seed 000 sec. 3.1)", programme="drift", with_orientation=True)
+      for kind in ("AP", "RP") for ax in "abc"),
 )
 
 

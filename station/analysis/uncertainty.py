@@ -37,6 +37,17 @@ The budget (:class:`Budget`) names every input:
   ``s^2 (1/n + d^2 / sum d_i^2)``, ``s^2 = n r^2 / (3n - 6)`` the per-axis
   residual variance and ``d`` the distance from the fit's centroid: a shift
   common to every stop at a pose (systematic for AP, nothing for RP or AD);
+* **registration's rotation** (orientation AP): an error ``delta`` of the
+  fitted frame's rotation (a small rotation about the base axes) turns every
+  measured orientation by ``delta``; the angles a, b, c of ``R = Rz(c) Ry(b)
+  Rx(a)`` move by ``J^-1 delta``, ``J`` the columns ``Rz(c) Ry(b) x, Rz(c) y,
+  z`` (the base-frame rotation of a unit step of each angle). Its covariance is
+  stated (a jackknife of the fit) or, for a point-pair fit with base-frame
+  points ``p_i`` about their centroid ``d_i``, ``s^2 (sum |d_i|^2 I - d_i
+  d_i^T)^-1`` with ``s^2`` the per-axis residual variance above: fewer or
+  closer points turn the frame more. Systematic, common to every stop and
+  every pose (orientation AP), nothing for orientation RP, vAP or drift (a
+  fixed rotation changes no scatter and no difference of two means);
 * **sampling**: the finite number of cycles, by the posterior of the robot's
   mean and scatter given the n stops (a Type A evaluation in the sense of
   GUM S1 6.4.9: a multivariate t for the mean; the scale of the scatter by a
@@ -119,6 +130,11 @@ class Budget:
     #: the frame's own standard uncertainty at given points, ((x, y, z), sd per axis) each (e.g. a jackknife of
     #: the registration at the test poses): used at the nearest of them instead of the fit's rms
     registration_at_points: tuple | None = None
+    #: covariance (3 x 3, deg^2) of the registered frame's small rotation about the base x, y, z axes (a
+    #: jackknife of the fit, or :meth:`with_registration` from the point pairs): orientation AP's frame term
+    registration_rotation_cov_deg2: tuple | None = None
+    #: degrees of freedom of that covariance (3n - 6 of a point-pair fit, n - 1 of a jackknife; None: exact)
+    registration_rotation_dof: float | None = None
     temperature_u_K: float = 0.0
     angle_sd_deg: float = 0.0  # instrument sd of a 6-DOF angle
     #: the reading noise of one sample (sd per coordinate, um; white and wander together): when given, the
@@ -150,6 +166,15 @@ class Budget:
             raise ConfigError(f"uncertainty budget: k must be > 0, got {self.k!r}")
         if self.rate_hz is not None and not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ConfigError(f"uncertainty budget: rate_hz must be > 0, got {self.rate_hz!r}")
+        if self.registration_rotation_cov_deg2 is not None:
+            c = np.asarray(self.registration_rotation_cov_deg2, dtype=float)
+            if c.shape != (3, 3) or not np.all(np.isfinite(c)) or np.any(np.diag(c) < 0) \
+                    or not np.allclose(c, c.T, rtol=1e-9, atol=1e-15):
+                raise ConfigError("uncertainty budget: registration_rotation_cov_deg2 must be a finite symmetric "
+                                  f"3 x 3 covariance (deg^2), got {self.registration_rotation_cov_deg2!r}")
+        d = self.registration_rotation_dof
+        if d is not None and not (isinstance(d, (int, float)) and math.isfinite(d) and d > 0):
+            raise ConfigError(f"uncertainty budget: registration_rotation_dof must be > 0, got {d!r}")
 
     # -- the instrument -------------------------------------------------
     def accuracy_sd_mm(self, points_mm) -> np.ndarray:
@@ -208,6 +233,25 @@ class Budget:
             var = var + s2 * d2 / self.registration_spread_mm2
         return np.sqrt(var)
 
+    def registration_angle_sd_deg(self, abc_rad) -> np.ndarray:
+        """Standard uncertainty (3,), deg, of the angles a, b, c of an orientation ``abc_rad`` (R = Rz(c) Ry(b)
+        Rx(a)) from the registered frame's rotation (zeros without a stated one).
+
+        A rotation ``delta`` (base axes) of the frame turns a measured orientation into ``exp([delta]) R``;
+        to first order its angles move by ``J^-1 delta``, the columns of ``J`` the base-frame rotations of a unit
+        step of a, b and c: ``Rz(c) Ry(b) x``, ``Rz(c) y``, ``z``. Infinite at b = +/-90 deg (a and c are not
+        defined there)."""
+        if self.registration_rotation_cov_deg2 is None:
+            return np.zeros(3)
+        _, b, c = (float(v) for v in np.asarray(abc_rad, dtype=float).reshape(3))
+        cb, sb, cc, sc = math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+        J = np.array([[cc * cb, -sc, 0.0], [sc * cb, cc, 0.0], [-sb, 0.0, 1.0]])
+        if abs(cb) < 1e-9:
+            return np.full(3, math.inf)
+        Ji = np.linalg.inv(J)
+        cov = Ji @ np.asarray(self.registration_rotation_cov_deg2, dtype=float) @ Ji.T
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
     # -- the temperature ------------------------------------------------
     def scale_sd(self) -> float:
         """Standard deviation of the common scale error from the air temperature (dimensionless)."""
@@ -220,8 +264,10 @@ class Budget:
         The tracker's origin moves into the base frame; a fitted registration
         (residuals present) adds its rms and number of pairs, and with the
         pairs' base-frame points ``base_points_mm`` their centroid and spread
-        (the rotation's share).  A given transform without residuals adds no
-        registration term (its uncertainty is not stated).
+        (the rotation's share) and the covariance of the frame's rotation,
+        ``s^2 (sum |d_i|^2 I - d_i d_i^T)^-1`` (:func:`rigid_fit_rotation_cov_rad2`).
+        A given transform without residuals adds no registration term (its
+        uncertainty is not stated).
         """
         if reg is None:
             return self
@@ -229,13 +275,17 @@ class Budget:
         out = replace(self, tracker_origin_mm=tuple(float(x) for x in origin))
         if getattr(reg, "n", 0) < 3 or not len(getattr(reg, "residuals_mm", ())):
             return out
-        cen = spread = None
+        cen = spread = rot = None
         if base_points_mm is not None:
             b = np.asarray(base_points_mm, dtype=float)
             c = b.mean(axis=0)
             cen, spread = tuple(float(x) for x in c), float(np.sum((b - c) ** 2))
+            cov = np.degrees(np.degrees(rigid_fit_rotation_cov_rad2(b, float(reg.rms_mm))))
+            rot = tuple(tuple(float(x) for x in row) for row in cov)
         return replace(out, registration_rms_mm=float(reg.rms_mm), registration_n=int(reg.n),
-                       registration_centroid_mm=cen, registration_spread_mm2=spread)
+                       registration_centroid_mm=cen, registration_spread_mm2=spread,
+                       registration_rotation_cov_deg2=rot,
+                       registration_rotation_dof=None if rot is None else float(3 * int(reg.n) - 6))
 
     def to_dict(self) -> dict:
         return {
@@ -255,12 +305,31 @@ class Budget:
                 "rms_mm": self.registration_rms_mm, "n_pairs": self.registration_n,
                 "sd_at_points_mm": None if not self.registration_at_points else
                 [[list(a), b] for a, b in self.registration_at_points]},
+            "registration_rotation_sd_deg": None if self.registration_rotation_cov_deg2 is None else [
+                float(math.sqrt(max(self.registration_rotation_cov_deg2[i][i], 0.0))) for i in range(3)],
             "temperature_u_K": self.temperature_u_K,
             "angle_sd_deg": self.angle_sd_deg,
             "rate_hz": self.rate_hz,
             "method": "GUM S1 Monte Carlo, checked against the GUM first-order law",
             "trials": int(self.trials), "seed": int(self.seed), "k": self.k,
         }
+
+
+def rigid_fit_rotation_cov_rad2(base_points_mm, rms_mm: float) -> np.ndarray:
+    """Covariance (3, 3), rad^2, of the rotation of a rigid point-pair fit about the base axes: ``s^2 (sum
+    |d_i|^2 I - d_i d_i^T)^-1`` (the normal equations of the linearised fit), ``d_i`` the base-frame points
+    about their centroid and ``s^2 = n rms^2 / (3n - 6)`` the per-axis residual variance.
+
+    Raises DataError for fewer than 3 points or collinear ones (the rotation about their line is free)."""
+    b = np.asarray(base_points_mm, dtype=float)
+    n = b.shape[0]
+    d = b - b.mean(axis=0)
+    N = np.sum(d * d) * np.eye(3) - d.T @ d
+    w = np.linalg.eigvalsh(N)
+    if n < 3 or not w[0] > 1e-9 * max(float(w[-1]), 1e-300):
+        raise DataError(f"registration points: {n} point(s), collinear or too few: the rotation is not determined")
+    s2 = n * float(rms_mm) ** 2 / max(3 * n - 6, 1)
+    return s2 * np.linalg.inv(N)
 
 
 _TRACKER_RE = re.compile(r"^\s*(?:(mpe|sd)\s*:)?\s*([0-9.eE+-]+?)\s*(?:\+\s*([0-9.eE+-]+)\s*/\s*m)?\s*$")
@@ -594,11 +663,14 @@ def mean_uncertainty(ch, subject, values, value, budget: Budget, *, reference=0.
 
 
 def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, dof=None, reference=0.0,
-                           systematic_sd=0.0, resolution=0.0, absolute=False) -> FigureUncertainty | None:
+                           systematic_sd=0.0, resolution=0.0, absolute=False,
+                           systematic_name: str = "systematic", systematic_dof=None) -> FigureUncertainty | None:
     """A figure that is the mean of n observations (mean ``mean``, sd ``s``) minus ``reference``.
 
     The population mean by a t with ``dof`` (default n - 1, at least 3) degrees of freedom and scale
-    ``s / sqrt(n)``; a common systematic error of sd ``systematic_sd``; a resolution ``resolution`` of each
+    ``s / sqrt(n)``; a common systematic error of sd ``systematic_sd`` (its component named
+    ``systematic_name``; a sd estimated with ``systematic_dof`` degrees of freedom is drawn as a scaled t,
+    GUM S1 6.4.9, with at least 3); a resolution ``resolution`` of each
     observation (a difference of two time stamps: two rectangles; it also stands in for ``s`` when every
     observation was the same, GUM F.2.2.1).  ``absolute``: the figure is ``|mean - reference|``.
     """
@@ -610,7 +682,8 @@ def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, do
     s_eff = s if s > 0 else resolution / math.sqrt(6.0)
     mu = mean + s_eff / math.sqrt(n) * rng.standard_t(dof, size=M)
     if systematic_sd > 0:
-        mu = mu + systematic_sd * rng.standard_normal(M)
+        mu = mu + systematic_sd * (rng.standard_normal(M) if systematic_dof is None
+                                   else rng.standard_t(max(float(systematic_dof), 3.0), size=M))
     if resolution > 0:
         mu = mu + (rng.uniform(-0.5, 0.5, M) - rng.uniform(-0.5, 0.5, M)) * resolution / math.sqrt(n)
     truth = mu - reference
@@ -618,12 +691,13 @@ def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, do
         truth = np.abs(truth)
     comp = {"sampling": s_eff / math.sqrt(n)}
     if systematic_sd:
-        comp["systematic"] = systematic_sd
+        comp[systematic_name] = systematic_sd
     if resolution:
         comp["resolution"] = resolution / math.sqrt(6.0 * n)
     u_g = math.sqrt(sum(c ** 2 for c in comp.values()))
     nu = welch_satterthwaite([(comp["sampling"], dof if s > 0 else None)]
-                             + [(c, None) for k, c in comp.items() if k != "sampling"])
+                             + [(c, systematic_dof if k == systematic_name else None)
+                                for k, c in comp.items() if k != "sampling"])
     return _summary(ch, subject, value, truth, budget, u_g, comp, n, dof=nu)
 
 
@@ -643,15 +717,23 @@ def three_s_uncertainty_stats(ch, subject, s, n, value, budget: Budget, *, noise
     is (n - 1) s^2 / chi^2_{n-1}."""
     if n < MIN_STOPS or not math.isfinite(s):
         return None
-    M = int(budget.trials)
     rng = _rng(budget, ch, subject)
-    s2 = s * s
-    var = (n - 1) * max(s2, 1e-30) / rng.chisquare(n - 1, size=M)
-    truth = 3.0 * np.sqrt(np.clip(var - noise_var, 0.0, None))
-    bias = 3.0 * (s - math.sqrt(max(s2 - noise_var, 0.0)))
-    comp = {"sampling": 3.0 * s / math.sqrt(2.0 * (n - 1)), "bias": bias}
-    nu = welch_satterthwaite([(comp["sampling"], n - 1), (bias, None)])
+    truth = _three_s_draws(s, n, noise_var, int(budget.trials), rng)
+    comp = _three_s_components(s, n, noise_var)
+    nu = welch_satterthwaite([(comp["sampling"], n - 1), (comp["bias"], None)])
     return _summary(ch, subject, value, truth, budget, math.hypot(*comp.values()), comp, n, dof=nu)
+
+
+def _three_s_draws(s, n, noise_var, M, rng) -> np.ndarray:
+    """Draws (M,) of 3 x the robot's population sd behind n observations of sd ``s``: the variance's posterior
+    (n - 1) s^2 / chi^2_{n-1} less the instrument's ``noise_var`` (clipped at 0)."""
+    var = (n - 1) * max(s * s, 1e-30) / rng.chisquare(n - 1, size=M)
+    return 3.0 * np.sqrt(np.clip(var - noise_var, 0.0, None))
+
+
+def _three_s_components(s, n, noise_var) -> dict:
+    """First-order components of a 3 S figure: its sampling sd and the bias of the noise in it."""
+    return {"sampling": 3.0 * s / math.sqrt(2.0 * (n - 1)), "bias": 3.0 * (s - math.sqrt(max(s * s - noise_var, 0.0)))}
 
 
 # --------------------------------------------------------------------------
@@ -729,6 +811,43 @@ def drift_uncertainty(blocks_mm, commanded_mm, dAP, dRP, budget: Budget, subject
     nu = welch_satterthwaite([(d0.rp_gum, d0.rp_dof), (d1.rp_gum, d1.rp_dof)])
     out["dRP_mm"] = _summary("dRP_mm", subject, dRP, np.abs(d1.RP - d0.RP), budget, comp["sampling"], comp, n,
                              dof=nu)
+    return out
+
+
+def angle_drift_uncertainty(first_deg, last_deg, budget: Budget, subject="") -> dict[str, FigureUncertainty]:
+    """The drift of the orientation figures between two visits of a pose: dAPa = |APa(t_n) - APa(t_1)| (AP of an
+    angle: the mean of its stops less the commanded angle) and dRPa = |RPa(t_n) - RPa(t_1)| (RP = 3 S), and so
+    for b and c; keys ``dAPa_deg`` ... ``dRPc_deg``.
+
+    ``first_deg``, ``last_deg`` (n, 3): the stops' angles a, b, c less the commanded ones, deg (n >=
+    :data:`MIN_STOPS`). Each visit's mean by a t with n - 1 degrees of freedom, its scatter by the posterior
+    of :func:`three_s_uncertainty_stats` (the instrument's angle noise ``budget.angle_sd_deg`` taken out). The
+    frame's errors (the registration's rotation, the instrument's systematic angles) are common to the two
+    visits of a pose and cancel.
+    """
+    a0, a1 = (np.asarray(x, dtype=float).reshape(-1, 3) for x in (first_deg, last_deg))
+    if min(a0.shape[0], a1.shape[0]) < MIN_STOPS or not (np.all(np.isfinite(a0)) and np.all(np.isfinite(a1))):
+        return {}
+    M = int(budget.trials)
+    noise_var = budget.angle_sd_deg ** 2
+    n0, n1 = a0.shape[0], a1.shape[0]
+    out = {}
+    for j, ax in enumerate("abc"):
+        rng = _rng(budget, "angle drift", subject, ax)
+        m0, m1 = float(a0[:, j].mean()), float(a1[:, j].mean())
+        s0, s1 = float(np.std(a0[:, j], ddof=1)), float(np.std(a1[:, j], ddof=1))
+        mu0 = m0 + max(s0, 1e-12) / math.sqrt(n0) * rng.standard_t(n0 - 1, size=M)
+        mu1 = m1 + max(s1, 1e-12) / math.sqrt(n1) * rng.standard_t(n1 - 1, size=M)
+        parts = [(s0 / math.sqrt(n0), n0 - 1), (s1 / math.sqrt(n1), n1 - 1)]
+        comp = {"sampling": math.hypot(parts[0][0], parts[1][0])}
+        out[f"dAP{ax}_deg"] = _summary(f"dAP{ax}_deg", subject, abs(m1 - m0), np.abs(mu1 - mu0), budget,
+                                       comp["sampling"], comp, n0 + n1, dof=welch_satterthwaite(parts))
+        r0, r1 = _three_s_draws(s0, n0, noise_var, M, rng), _three_s_draws(s1, n1, noise_var, M, rng)
+        c0, c1 = _three_s_components(s0, n0, noise_var), _three_s_components(s1, n1, noise_var)
+        comp = {"sampling": math.hypot(c0["sampling"], c1["sampling"]), "bias": math.hypot(c0["bias"], c1["bias"])}
+        nu = welch_satterthwaite([(c0["sampling"], n0 - 1), (c1["sampling"], n1 - 1), (comp["bias"], None)])
+        out[f"dRP{ax}_deg"] = _summary(f"dRP{ax}_deg", subject, abs(3.0 * (s1 - s0)), np.abs(r1 - r0), budget,
+                                       math.hypot(*comp.values()), comp, n0 + n1, dof=nu)
     return out
 
 

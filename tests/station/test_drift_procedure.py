@@ -126,6 +126,9 @@ def test_drift_programme_finds_the_simulated_warm_up_within_its_uncertainty(tmp_
     got = {(r["pose"], r["name"]): r for r in rows}
     for pose in names:
         for c in table.characteristics("drift"):
+            if c.with_orientation:  # a position-only tracker states no orientation drift
+                assert (pose, c.key) not in got
+                continue
             assert got[(pose, c.key)]["unit"] == c.unit
         assert got[(pose, "dAP_mm")]["limit"] == 1.0
         assert got[(pose, "dAP_mm")]["passed"] is (got[(pose, "dAP_mm")]["value"] <= 1.0)

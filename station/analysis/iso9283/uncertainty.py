@@ -84,18 +84,9 @@ def figure_uncertainties(res, budget: Budget, points_by_row=None) -> dict[Key, F
             for fu in drift_uncertainty([blocks[0], blocks[-1]], pr.commanded_mm, dr.dAP_mm, dr.dRP_mm, budget,
                                         name).values():
                 put(fu)
-        o = pr.orientation
-        if o is not None:
-            sd = math.radians(budget.angle_sd_deg)
-            for j, ax in enumerate("abc"):
-                s = float(o.S_rad[j])
-                if o.AP_rad is not None:
-                    v = math.degrees(float(o.AP_rad[j]))
-                    put(mean_uncertainty_stats(f"AP{ax}_deg", name, v, math.degrees(s), o.n, v, budget,
-                                               absolute=False))
-                put(three_s_uncertainty_stats(f"RP{ax}_deg", name, math.degrees(s), o.n,
-                                              math.degrees(float(o.RP_rad[j])), budget,
-                                              noise_var=math.degrees(sd) ** 2))
+        if pr.orientation is not None:
+            for fu in orientation_uncertainty(pr.orientation, budget, name).values():
+                put(fu)
     for d in res.distances:
         subj = f"{d.pose_a}-{d.pose_b}"
         pa, pb = res.poses[d.pose_a], res.poses[d.pose_b]
@@ -126,6 +117,32 @@ def figure_uncertainties(res, budget: Budget, points_by_row=None) -> dict[Key, F
         for fu in path_uncertainty(pa.crossings_mm, planes, pa.AT_mm, pa.RT_mm, budget,
                                    f"{pa.from_pose}->{pa.to_pose}").values():
             put(fu)
+    return out
+
+
+def orientation_uncertainty(o, budget: Budget, subject: str) -> dict[str, FigureUncertainty]:
+    """``{"APa_deg": ..., "RPa_deg": ..., ...}``: the uncertainties of one pose's orientation figures
+    (:class:`~station.analysis.iso9283.characteristics.OrientationAR`), the keys that could be computed.
+
+    AP per angle (the mean of the n stops' angle less the commanded one): the stops' scatter, and the
+    registered frame's rotation (:meth:`Budget.registration_angle_sd_deg` at the pose's mean orientation, with
+    the degrees of freedom of its estimate), a systematic error common to the stops. RP per angle (3 S): the scatter's posterior less the instrument's
+    angle noise (``budget.angle_sd_deg``); a fixed frame rotation does not change it."""
+    out: dict[str, FigureUncertainty] = {}
+    sd = math.radians(budget.angle_sd_deg)
+    frame = budget.registration_angle_sd_deg(o.mean_rad)
+    for j, ax in enumerate("abc"):
+        s = float(o.S_rad[j])
+        figs = []
+        if o.AP_rad is not None:
+            v = math.degrees(float(o.AP_rad[j]))
+            figs.append(mean_uncertainty_stats(f"AP{ax}_deg", subject, v, math.degrees(s), o.n, v, budget,
+                                               systematic_sd=float(frame[j]), systematic_name="registration",
+                                               systematic_dof=budget.registration_rotation_dof))
+        figs.append(three_s_uncertainty_stats(f"RP{ax}_deg", subject, math.degrees(s), o.n,
+                                              math.degrees(float(o.RP_rad[j])), budget,
+                                              noise_var=math.degrees(sd) ** 2))
+        out.update({fu.characteristic: fu for fu in figs if fu is not None})
     return out
 
 
@@ -188,6 +205,9 @@ def format_uncertainty_lines(uncertainties: dict[Key, FigureUncertainty], budget
         inst += f" systematic, reading noise {b.instrument_noise_um:g} um"
     reg = ("none" if b.registration_rms_mm is None
            else f"fit rms {b.registration_rms_mm:.4f} mm over {b.registration_n} pairs")
+    if b.registration_rotation_cov_deg2 is not None:
+        reg += ", rotation sd " + "/".join(f"{math.sqrt(max(b.registration_rotation_cov_deg2[i][i], 0.0)):.2g}"
+                                           for i in range(3)) + " deg about x/y/z"
     lines = [f"decision rule: {rule}; uncertainty budget: instrument {inst}; registration {reg}; "
              f"temperature u {b.temperature_u_K:g} K; GUM S1 Monte Carlo, {b.trials} trials, seed {b.seed}, "
              f"k = {b.k:g}"]
