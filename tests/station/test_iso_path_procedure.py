@@ -158,6 +158,19 @@ def test_the_path_test_is_offered_with_its_section_and_its_bad_values_are_refuse
     plan = plan_from_config(config_from_dict(base | {"iso9283_path": {"path_cycles": 4, "path_kinds": ["line"]}}),
                             "r1", path_cycles=3)
     assert plan.path_cycles == 3 and plan.path_kinds == ("line",)  # the override over the section
+    # the weave and the reorientation are set from the section too, and reach their programmes
+    section = {"path_kinds": ["weaving", "reorientation"], "path_speed_fracs": [0.5], "reorient_deg": 20.0,
+               "weave_amplitude_mm": 1.5, "weave_frequency_Hz": 0.8, "weave_speed_mm_s": 8.0, "weave_periods": 4,
+               "weave_points_per_period": 8}
+    plan = plan_from_config(config_from_dict(base | {"iso9283_path": section}), "r1")
+    assert {k: getattr(plan, k) for k in section if k not in ("path_kinds", "path_speed_fracs")} == \
+        {k: v for k, v in section.items() if k not in ("path_kinds", "path_speed_fracs")}
+    weave = next(t for t in path_tests(plan) if t.path["kind"] == "weaving")
+    assert weave.path["amplitude_mm"] == 1.5 and weave.path["frequency_Hz"] == 0.8, weave.path
+    for bad, key in (({"reorient_deg": 0}, "reorient_deg"), ({"weave_amplitude_mm": -2}, "weave_amplitude_mm"),
+                     ({"weave_frequency_Hz": float("nan")}, "weave_frequency_Hz"), ({"weave_periods": 0}, "weave_periods")):
+        with pytest.raises(ConfigError, match=key):
+            config_from_dict(base | {"iso9283_path": bad})
 
 
 class _Stalling(Recorder):
