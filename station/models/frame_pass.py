@@ -35,7 +35,8 @@ import numpy as np
 from station.errors import DataError
 from station.models import kinematics as kin
 
-__all__ = ["FramePass", "PassBuffers", "frame_pass", "frame_passes", "turn", "tool_points", "param_jacobian"]
+__all__ = ["FramePass", "PassBuffers", "frame_pass", "frame_passes", "turn", "tool_points", "param_jacobian",
+           "param_jacobian_t"]
 
 
 class FramePass(NamedTuple):
@@ -172,20 +173,20 @@ def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
 
 
-def param_jacobian(fp: FramePass, out=None) -> np.ndarray:
-    """Position Jacobian w.r.t. the 35 kinematic parameters, seed 002 eq. (7)-(8), shape (N, 3, 35).
+def param_jacobian_t(fp: FramePass, out=None) -> np.ndarray:
+    """Position Jacobian w.r.t. the 35 kinematic parameters, seed 002 eq. (7)-(8), poses last: shape (35, 3, N).
 
-    As :func:`station.models.kinematics.param_jacobian` (column ``5*i + k``: row ``i``, parameter ``k`` of
-    ``[a, alpha, d, theta, beta]``), turned by the pass's start rotation. ``out``: an (N, 3, 35) array or view
-    (e.g. the first 35 columns of a larger Jacobian) to write into.
+    ``out[5*i + k, c, n]``: row ``i``, parameter ``k`` of ``[a, alpha, d, theta, beta]``, coordinate ``c``,
+    pose ``n`` (turned by the pass's start rotation); every column is written as contiguous memory, as the
+    pass lays it out. ``out``: a C-contiguous (35, 3, N) array or view (e.g. the first 35 rows of a larger
+    one) to write into.
     """
     n = fp.axes.shape[-1]
     if out is None:
-        out = np.empty((n, 3, kin.N_PARAMS))
-    elif out.shape != (n, 3, kin.N_PARAMS):
-        raise DataError(f"`out` must have shape ({n}, 3, {kin.N_PARAMS}), got {out.shape}")
-    # (7 rows, 3 coordinates, N, 5 parameters) view of out (splitting its last axis is always a view)
-    J = out.transpose(1, 0, 2).reshape(3, n, kin.N_ROWS, 5).transpose(2, 0, 1, 3)
+        out = np.empty((kin.N_PARAMS, 3, n))
+    elif out.shape != (kin.N_PARAMS, 3, n) or not out.flags.c_contiguous:
+        raise DataError(f"`out` must be a C-contiguous ({kin.N_PARAMS}, 3, {n}) array, got {out.shape}")
+    J = out.reshape(kin.N_ROWS, 5, 3, n)               # (7 rows, 5 parameters, 3 coordinates, N)
     x_m, y_m = fp.turned[:, 0], fp.turned[:, 1]         # (7, 3, N)
     z_prev = fp.axes[:kin.N_ROWS, 2]
     o = fp.axes[:, 3]                                    # (8, 3, N) frame origins
@@ -195,9 +196,26 @@ def param_jacobian(fp: FramePass, out=None) -> np.ndarray:
     y_b = fp.cos_alpha * y_m + fp.sin_alpha * z_prev
     r = p - o                                            # from every origin to the tool point
     r_prev, r_i = r[:kin.N_ROWS], r[1:]
-    J[..., 0] = x_m                     # d p / d a_i
-    _cross(x_m, r_i, J[..., 1])         # d p / d alpha_i
-    J[..., 2] = z_prev                  # d p / d d_i
-    _cross(z_prev, r_prev, J[..., 3])   # d p / d theta_i
-    _cross(y_b, r_i, J[..., 4])         # d p / d beta_i
+    J[:, 0] = x_m                       # d p / d a_i
+    _cross(x_m, r_i, J[:, 1])           # d p / d alpha_i
+    J[:, 2] = z_prev                    # d p / d d_i
+    _cross(z_prev, r_prev, J[:, 3])     # d p / d theta_i
+    _cross(y_b, r_i, J[:, 4])           # d p / d beta_i
+    return out
+
+
+def param_jacobian(fp: FramePass, out=None) -> np.ndarray:
+    """Position Jacobian w.r.t. the 35 kinematic parameters, seed 002 eq. (7)-(8), shape (N, 3, 35).
+
+    As :func:`station.models.kinematics.param_jacobian` (column ``5*i + k``: row ``i``, parameter ``k`` of
+    ``[a, alpha, d, theta, beta]``), turned by the pass's start rotation: :func:`param_jacobian_t` laid out
+    poses first. ``out``: an (N, 3, 35) array or view (e.g. the first 35 columns of a larger Jacobian) to
+    write into.
+    """
+    n = fp.axes.shape[-1]
+    if out is None:
+        out = np.empty((n, 3, kin.N_PARAMS))
+    elif out.shape != (n, 3, kin.N_PARAMS):
+        raise DataError(f"`out` must have shape ({n}, 3, {kin.N_PARAMS}), got {out.shape}")
+    np.copyto(out, param_jacobian_t(fp).transpose(2, 1, 0))
     return out

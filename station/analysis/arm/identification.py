@@ -229,6 +229,21 @@ def _absolute_jacobian(fp: frame_pass.FramePass, out=None) -> np.ndarray:
     return out.reshape(3 * n, -1)
 
 
+def _absolute_jacobian_t(fp: frame_pass.FramePass, out: np.ndarray) -> np.ndarray:
+    """:func:`_absolute_jacobian` laid out poses last, ``out`` (41, 3, N) (every column contiguous); returns
+    its (41, 3N) view, columns ordered coordinate-major (``c N + n``)."""
+    P = fp.axes[kin.N_ROWS, 3]                                     # (3, N): R p
+    frame_pass.param_jacobian_t(fp, out=out[:kin.N_PARAMS])
+    w = out[kin.N_PARAMS:kin.N_PARAMS + 3]                        # e_k x (R p)
+    w[0, 0] = w[1, 1] = w[2, 2] = 0.0
+    w[1, 0], w[2, 0] = P[2], -P[1]
+    np.negative(P[2], out=w[0, 1])
+    w[2, 1] = P[0]
+    w[0, 2], w[1, 2] = P[1], -P[0]
+    out[kin.N_PARAMS + 3:] = np.eye(3)[:, :, None]
+    return out.reshape(kin.N_PARAMS + 6, -1)
+
+
 #: poses per block of the absolute problem's blockwise pass: a block's Jacobian (1,536 x 41) and pass stay
 #: in a core's cache (1 MB on this project's hosts), and no array of the whole problem's size is taken
 _POSE_BLOCK = 512
@@ -251,8 +266,8 @@ class _Work:
         return max(-(-n_poses // max(-(-n_poses // _POSE_BLOCK), 1)), 1)
 
     def jac(self, k: int) -> np.ndarray:
-        """A contiguous (k, 3, 41) array for a block of ``k`` poses."""
-        return self._jac[:k * 3 * (kin.N_PARAMS + 6)].reshape(k, 3, kin.N_PARAMS + 6)
+        """A contiguous (41, 3, k) array for a block of ``k`` poses."""
+        return self._jac[:k * 3 * (kin.N_PARAMS + 6)].reshape(kin.N_PARAMS + 6, 3, k)
 
     def qr_rows(self, rows: int, c: int) -> np.ndarray:
         """A contiguous (rows, c) array, ``rows <= c + max(3 block, 32768 / c)``."""
@@ -291,18 +306,18 @@ def _absolute_normal(dh, x_base, q, meas, *, r_cols=None):
         filled = 0
     for s, fp in frame_pass.frame_passes(dh, q, R, buffers=work.passes, block=block):
         k = fp.axes.shape[-1]
-        rb = r[s:s + k]
-        np.subtract(meas[s:s + k], frame_pass.tool_points(fp), out=rb)
-        rb -= x_base[3:]
-        Jb = _absolute_jacobian(fp, out=work.jac(k))
-        JtJ += Jb.T @ Jb
-        Jtr += rb.reshape(-1) @ Jb
+        # the block's residual coordinate-major (3, k), as its Jacobian's columns
+        rb = meas[s:s + k].T - fp.axes[kin.N_ROWS, 3] - x_base[3:, None]
+        r[s:s + k] = rb.T
+        Jt = _absolute_jacobian_t(fp, work.jac(k))      # (41, 3k): J^T of the block
+        JtJ += Jt @ Jt.T
+        Jtr += Jt @ rb.reshape(-1)
         if r_cols is not None:
             if filled + 3 * k > W.shape[0]:
                 Rr = np.linalg.qr(W[:filled], mode="r")
                 filled = Rr.shape[0]
                 W[:filled] = Rr
-            np.take(Jb, r_cols, axis=1, out=W[filled:filled + 3 * k])
+            W[filled:filled + 3 * k] = Jt[r_cols].T
             filled += 3 * k
     Rc = None
     if r_cols is not None:
