@@ -55,9 +55,11 @@ class FramePass(NamedTuple):
     sin_alpha: np.ndarray
 
 
-def _prepare(dh, q_rad, rotation):
+def _prepare(dh, q_rad, rotation, buffers=None):
     """Validated inputs of a pass: the rows' constant parts ``C`` (7, 4, 4), ``cos``/``sin`` of
-    ``theta_i + q_i`` (7, N), the start rotation (3, 3) and the rows' twists' cosines and sines (7, 1, 1)."""
+    ``theta_i + q_i`` (7, N), the start rotation (3, 3) and the rows' twists' cosines and sines (7, 1, 1).
+    With ``buffers``, the joint angles' own cosines and sines are the ones they keep for these poses, turned
+    by the offsets (``cos(q + theta) = cos q cos theta - sin q sin theta``)."""
     dh = kin.validate_dh(dh)
     if dh.shape != (kin.N_ROWS, 5):
         raise DataError(f"`dh` must have shape (7, 5) (one table for every pose), got {dh.shape}")
@@ -69,12 +71,23 @@ def _prepare(dh, q_rad, rotation):
     flat = dh.copy()
     flat[:, 3] = 0.0
     C = kin.link_transforms(flat, np.zeros(kin.N_JOINTS))          # (7, 4, 4)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    al = dh[:, 1, None, None]
+    if buffers is not None:
+        cq, sq = buffers.joint_trig(q)
+        c0, s0 = np.cos(dh[:, 3, None]), np.sin(dh[:, 3, None])
+        ct, st = np.empty((kin.N_ROWS, n)), np.empty((kin.N_ROWS, n))
+        j = kin.N_JOINTS
+        np.multiply(cq, c0[:j], out=ct[:j])
+        ct[:j] -= sq * s0[:j]
+        np.multiply(sq, c0[:j], out=st[:j])
+        st[:j] += cq * s0[:j]
+        ct[j], st[j] = c0[j], s0[j]
+        return C, ct, st, R, np.cos(al), np.sin(al)
     th = np.empty((kin.N_ROWS, n))
     th[:kin.N_JOINTS] = q.T
     th[kin.N_JOINTS] = 0.0
     th += dh[:, 3, None]
-    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-    al = dh[:, 1, None, None]
     return C, np.cos(th), np.sin(th), R, np.cos(al), np.sin(al)
 
 
@@ -120,6 +133,14 @@ class PassBuffers:
         self.capacity = int(capacity)
         self._axes = np.empty((kin.N_ROWS + 1) * 4 * 3 * self.capacity)
         self._turned = np.empty(kin.N_ROWS * 2 * 3 * self.capacity)
+        self._q = self._cq = self._sq = None
+
+    def joint_trig(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``cos q``, ``sin q`` (6, N) of the poses ``q`` (N, 6), kept for the next pass over the same poses
+        (an identification's every step)."""
+        if self._q is None or self._q.shape != q.shape or not np.array_equal(self._q, q):
+            self._q, self._cq, self._sq = q.copy(), np.cos(q.T), np.sin(q.T)
+        return self._cq, self._sq
 
     def views(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """``axes`` (8, 4, 3, k) and ``turned`` (7, 2, 3, k) for a block of ``k <= capacity`` poses."""
@@ -140,7 +161,7 @@ def frame_passes(dh, q_rad, rotation=None, *, buffers: PassBuffers, block: int |
     block = buffers.capacity if block is None else int(block)
     if not 1 <= block <= buffers.capacity:
         raise DataError(f"`block` must be 1..{buffers.capacity} (the buffers' capacity), got {block}")
-    C, ct, st, R, ca, sa = _prepare(dh, q_rad, rotation)
+    C, ct, st, R, ca, sa = _prepare(dh, q_rad, rotation, buffers)
     n = ct.shape[1]
     for s in range(0, n, block):
         k = min(block, n - s)

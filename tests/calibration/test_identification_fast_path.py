@@ -138,3 +138,9 @@ def test_the_blockwise_normal_equations_are_those_of_the_whole_jacobian(rng, mon
         Jc = J[:, cols]
         assert R.shape == (min(3 * n, cols.size), cols.size) and np.allclose(R, np.triu(R), rtol=0, atol=0)
         np.testing.assert_allclose(R.T @ R, Jc.T @ Jc, rtol=0, atol=1e-12 * scale ** 2 * 3 * n)
+    # the joint angles' cosines are kept between passes over the same poses: poses changed in place are new
+    q[int(rng.integers(n)), int(rng.integers(6))] += rng.uniform(0.1, 1.0)
+    r_ref, J = _reference_absolute_problem(dh, x_base, q, meas)
+    r, N, _ = ident_mod._absolute_normal(dh, x_base, q, meas)
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9 * float(np.abs(J).max()))
+    np.testing.assert_allclose(N.JtJ, J.T @ J, rtol=0, atol=1e-12 * float(np.abs(J).max()) ** 2 * 3 * n)
