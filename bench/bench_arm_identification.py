@@ -18,7 +18,13 @@ Our time is the median (and the best) of the calls after the first, wall
 and CPU (user + system: fresh memory's page faults are system time), with
 the page faults per call (the identification sums the Jacobian over blocks
 of poses in memory each thread keeps, so a call after the first takes none;
-the first also checks the start model on 200 reference poses). BLAS
+the first also checks the start model on 200 reference poses). Where a
+call's time goes (cProfile, this problem): three evaluations of the
+blockwise pass and its normal equations (the start and two accepted steps;
+about half), the identifiability analysis (about 15 %), the solver's small
+dense solves (a least-squares convergence test per step, five a call), the
+uncertainties and warnings; the base stage and the prior's fit converge at
+their start. BLAS
 runs on one thread unless ``--blas-threads`` says otherwise (0: the
 library's own choice), for both solvers alike: the matrices are small
 (3,000 x 41), and on a shared 2-core host OpenBLAS's two threads wait for
