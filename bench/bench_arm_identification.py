@@ -15,7 +15,16 @@ time to convergence, the final residual RMS and the largest difference of
 the identified tool positions over the poses. No assertion on time.
 
 Our time is the median (and the best) of the calls after the first, wall
-and CPU (user + system: fresh memory's page faults are system time). BLAS
+and CPU (user + system: fresh memory's page faults are system time), with
+the page faults per call (the identification sums the Jacobian over blocks
+of poses in memory each thread keeps, so a call after the first takes none;
+the first also checks the start model on 200 reference poses). Where a
+call's time goes (cProfile, this problem): three evaluations of the
+blockwise pass and its normal equations (the start and two accepted steps;
+about half), the identifiability analysis (about 15 %), the solver's small
+dense solves (a least-squares convergence test per step, five a call), the
+uncertainties and warnings; the base stage and the prior's fit converge at
+their start. BLAS
 runs on one thread unless ``--blas-threads`` says otherwise (0: the
 library's own choice), for both solvers alike: the matrices are small
 (3,000 x 41), and on a shared 2-core host OpenBLAS's two threads wait for
@@ -27,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import sys
 import time
 from pathlib import Path
@@ -89,13 +99,15 @@ def main(args: argparse.Namespace) -> None:
     meas = measure(truth.dh_nominal, q, base_true, args.noise_mm, rng)
     dh0 = nominal.dh_nominal
 
-    wall, cpu = [], []
+    wall, cpu, faults = [], [], []
     for _ in range(args.repeats):
+        f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
         t0, c0 = time.perf_counter(), time.process_time()
         res = identify(dh0, q, meas, method="absolute")
         c1 = time.process_time()
         wall.append(time.perf_counter() - t0)
         cpu.append(c1 - c0)
+        faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
     free = res.identifiability.free
     p_ours = kin.tool_position(res.dh, q) @ res.base_T[:3, :3].T + res.base_T[:3, 3]
     threads = "the library's default" if args.blas_threads == 0 else str(args.blas_threads)
@@ -105,7 +117,8 @@ def main(args: argparse.Namespace) -> None:
     med, best = float(np.median(wall[1:])), min(wall[1:])
     print(f"  ours (LM, analytic Jacobian): first call {1e3 * wall[0]:.1f} ms (checks the start model's "
           f"identifiable set on 200 reference poses once), then {1e3 * med:.1f} ms median, {1e3 * best:.1f} ms best "
-          f"of {len(wall) - 1} (CPU {1e3 * float(np.median(cpu[1:])):.1f} ms median), "
+          f"of {len(wall) - 1} (CPU {1e3 * float(np.median(cpu[1:])):.1f} ms median, "
+          f"{int(np.median(faults[1:]))} page faults median), "
           f"{res.iterations} iterations, rms {res.residual_rms_mm:.5f} mm ({res.message})")
 
     # scipy from the same start (the rigid fit identify starts from)

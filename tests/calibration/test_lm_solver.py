@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.analysis.arm.lm_solver import levenberg_marquardt
+from station.analysis.arm.lm_solver import Normal, levenberg_marquardt
 
 
 def _plateau(rng, step_sigma: float):
@@ -77,3 +77,28 @@ def test_a_lazy_jacobian_is_computed_only_for_accepted_states_and_changes_nothin
     c = levenberg_marquardt(lazy, lambda x, s: x + s, b.state, start=(b.r, b.J), keep_states=True)
     assert calls["J"] == len(c.states) - 1   # the start's Jacobian was given
     assert c.converged and np.allclose(c.state, b.state, rtol=1e-6)
+
+
+def test_a_jacobian_given_by_its_normal_equations_takes_the_same_path(rng):
+    """The solver needs only ``J^T J`` and ``J^T r`` of a state (the arm's absolute problem sums them over blocks
+    of poses): given so, from a start far off and with a column held, the fit takes the same steps as with
+    ``J`` itself, to rounding."""
+    t = np.linspace(0.0, 3.0, int(rng.integers(20, 60)))
+    truth = np.array([rng.uniform(1, 3), rng.uniform(0.5, 2.0), rng.uniform(-0.5, 0.5)])
+    y = truth[0] * np.sin(truth[1] * t) + truth[2] + rng.normal(0, 0.01, t.size)
+
+    def eager(x):
+        return y - x[0] * np.sin(x[1] * t) - x[2], np.column_stack([np.sin(x[1] * t), x[0] * t * np.cos(x[1] * t),
+                                                                     np.ones_like(t)])
+
+    def normal(x):
+        r, J = eager(x)
+        return r, Normal(J.T @ J, J.T @ r)
+
+    start = np.array([0.2 * truth[0], 0.7 * truth[1], 0.0])
+    for free in (None, np.array([0, 1])):
+        a = levenberg_marquardt(eager, lambda x, s: x + s, start, free=free, keep_states=True)
+        b = levenberg_marquardt(normal, lambda x, s: x + s, start, free=free, keep_states=True)
+        assert a.converged and b.converged and a.iterations == b.iterations >= 3
+        np.testing.assert_allclose(np.array(b.states), np.array(a.states), rtol=1e-9, atol=1e-12)
+        assert isinstance(b.J, Normal) and np.allclose(b.J.JtJ, a.J.T @ a.J, rtol=1e-12)

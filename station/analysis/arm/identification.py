@@ -3,7 +3,9 @@
 Two formulations, both solved by Levenberg-Marquardt on the analytic
 parameter Jacobian of :mod:`station.models.kinematics` (seed 002 eq. (7)-(8);
 the absolute one from the poses-last forward pass of
-:mod:`station.models.frame_pass`, in the instrument frame):
+:mod:`station.models.frame_pass`, in the instrument frame, summed over
+blocks of poses into its normal equations and the ``R`` of its columns, so
+that the 3N x 41 Jacobian is never held whole):
 
 ``distance``
     Seed 002 eq. (9)-(16): the distance between two measured tool points
@@ -60,12 +62,14 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
 
+from station.analysis.arm.lm_solver import Normal
 from station.errors import DataError, InsufficientDataError
 from station.models import frame_pass
 from station.models import kinematics as kin
@@ -200,25 +204,20 @@ def _base_T(x_base: np.ndarray) -> np.ndarray:
     return T
 
 
-def _absolute_problem(dh, x_base, q, meas, *, lazy: bool = False, start_pass=None):
-    """``(r, J)`` of the absolute formulation; ``lazy``: ``J`` is a function that computes it from the same
-    forward pass (the solver calls it only for a state it accepts); ``start_pass``: the caller's
-    :func:`frame_pass.frame_pass` of ``dh, q`` (from the identity), turned here in place by the base rotation."""
-    R = rotvec_to_matrix(x_base[:3])
-    fp = frame_pass.frame_pass(dh, q, R) if start_pass is None else frame_pass.turn(start_pass, R)
+def _absolute_problem(dh, x_base, q, meas):
+    """``(r, J)`` of the absolute formulation, the whole Jacobian (3N, 41) at once (the reference poses'
+    check and the pose selection; the identification sums it over blocks, :func:`_absolute_normal`)."""
+    fp = frame_pass.frame_pass(dh, q, rotvec_to_matrix(x_base[:3]))
     r = (meas - (frame_pass.tool_points(fp) + x_base[3:])).reshape(-1)
-
-    def jac():
-        return _absolute_jacobian(fp)
-
-    return (r, jac) if lazy else (r, jac())
+    return r, _absolute_jacobian(fp)
 
 
-def _absolute_jacobian(fp: frame_pass.FramePass) -> np.ndarray:
-    """``d(R p + t) / d(dh, w, t)`` (3N, 41) from the pass turned by the base rotation ``R``."""
+def _absolute_jacobian(fp: frame_pass.FramePass, out=None) -> np.ndarray:
+    """``d(R p + t) / d(dh, w, t)`` (3N, 41) from the pass turned by the base rotation ``R``; ``out``: an
+    (N, 3, 41) array to write into."""
     Rp = frame_pass.tool_points(fp)
     n = Rp.shape[0]
-    out = np.empty((n, 3, kin.N_PARAMS + 6))
+    out = np.empty((n, 3, kin.N_PARAMS + 6)) if out is None else out
     frame_pass.param_jacobian(fp, out=out[:, :, :kin.N_PARAMS])   # already in the instrument frame
     # a small rotation w applied on the left: d(R p) = w x (R p)
     Jb = out[:, :, kin.N_PARAMS:]
@@ -228,6 +227,117 @@ def _absolute_jacobian(fp: frame_pass.FramePass) -> np.ndarray:
     Jb[:, 2, 0], Jb[:, 2, 1] = Rp[:, 1], -Rp[:, 0]
     Jb[:, :, 3:] = np.eye(3)
     return out.reshape(3 * n, -1)
+
+
+def _absolute_jacobian_t(fp: frame_pass.FramePass, out: np.ndarray) -> np.ndarray:
+    """:func:`_absolute_jacobian` laid out poses last, ``out`` (41, 3, N) (every column contiguous); returns
+    its (41, 3N) view, columns ordered coordinate-major (``c N + n``)."""
+    P = fp.axes[kin.N_ROWS, 3]                                     # (3, N): R p
+    frame_pass.param_jacobian_t(fp, out=out[:kin.N_PARAMS])
+    w = out[kin.N_PARAMS:kin.N_PARAMS + 3]                        # e_k x (R p)
+    w[0, 0] = w[1, 1] = w[2, 2] = 0.0
+    w[1, 0], w[2, 0] = P[2], -P[1]
+    np.negative(P[2], out=w[0, 1])
+    w[2, 1] = P[0]
+    w[0, 2], w[1, 2] = P[1], -P[0]
+    out[kin.N_PARAMS + 3:] = np.eye(3)[:, :, None]
+    return out.reshape(kin.N_PARAMS + 6, -1)
+
+
+#: poses per block of the absolute problem's blockwise pass: a block's Jacobian (1,536 x 41) and pass stay
+#: in a core's cache (1 MB on this project's hosts), and no array of the whole problem's size is taken
+_POSE_BLOCK = 512
+
+
+class _Work:
+    """Memory of the absolute problem's blockwise pass, Jacobian and QR, kept by each thread from one
+    identification to the next (fresh memory costs page faults: 1,100 a call, 3-4 ms of system time, when
+    every evaluation took its own 3 MB)."""
+
+    def __init__(self):
+        nc = kin.N_PARAMS + 6
+        self.passes = frame_pass.PassBuffers(_POSE_BLOCK)
+        self._jac = np.empty(_POSE_BLOCK * 3 * nc)
+        self._qr = np.empty(nc * nc + max(3 * _POSE_BLOCK * nc, _QR_BLOCK_DOUBLES + nc))
+
+    @staticmethod
+    def block(n_poses: int) -> int:
+        """Poses per block for ``n_poses``: blocks of equal size, at most :data:`_POSE_BLOCK`."""
+        return max(-(-n_poses // max(-(-n_poses // _POSE_BLOCK), 1)), 1)
+
+    def jac(self, k: int) -> np.ndarray:
+        """A contiguous (41, 3, k) array for a block of ``k`` poses."""
+        return self._jac[:k * 3 * (kin.N_PARAMS + 6)].reshape(kin.N_PARAMS + 6, 3, k)
+
+    def qr_rows(self, rows: int, c: int) -> np.ndarray:
+        """A contiguous (rows, c) array, ``rows <= c + max(3 block, 32768 / c)``."""
+        return self._qr[:rows * c].reshape(rows, c)
+
+
+_WORK = threading.local()
+
+
+def _work() -> _Work:
+    """This thread's :class:`_Work` (made on its first identification)."""
+    work = getattr(_WORK, "work", None)
+    if work is None or work.passes.capacity != _POSE_BLOCK:
+        work = _WORK.work = _Work()
+    return work
+
+
+def _absolute_normal(dh, x_base, q, meas, *, r_cols=None):
+    """``(r, Normal, R)`` of the absolute formulation, summed over blocks of poses.
+
+    ``r`` (3N,): measured minus modelled; the normal equations (:class:`Normal`) of the Jacobian of
+    :func:`_absolute_jacobian` (41 columns), never held whole; ``R``: when ``r_cols`` (column indices) is
+    given, an upper-triangular ``R`` with ``R^T R = J[:, r_cols]^T J[:, r_cols]`` (the identifiability
+    analysis's), by Householder QR of the blocks stacked on the running ``R`` (every step orthogonal);
+    None otherwise.
+    """
+    work, block = _work(), _Work.block(q.shape[0])
+    R = rotvec_to_matrix(x_base[:3])
+    n, nc = q.shape[0], kin.N_PARAMS + 6
+    r = np.empty((n, 3))
+    JtJ, Jtr = np.zeros((nc, nc)), np.zeros(nc)
+    if r_cols is not None:
+        c = len(r_cols)
+        # rows gathered before each QR: about 32768 doubles (256 KiB), at least a block
+        W = work.qr_rows(c + max(3 * block, _QR_BLOCK_DOUBLES // max(c, 1)), c)
+        filled = 0
+    for s, fp in frame_pass.frame_passes(dh, q, R, buffers=work.passes, block=block):
+        k = fp.axes.shape[-1]
+        # the block's residual coordinate-major (3, k), as its Jacobian's columns
+        rb = meas[s:s + k].T - fp.axes[kin.N_ROWS, 3] - x_base[3:, None]
+        r[s:s + k] = rb.T
+        Jt = _absolute_jacobian_t(fp, work.jac(k))      # (41, 3k): J^T of the block
+        JtJ += Jt @ Jt.T
+        Jtr += Jt @ rb.reshape(-1)
+        if r_cols is not None:
+            if filled + 3 * k > W.shape[0]:
+                Rr = np.linalg.qr(W[:filled], mode="r")
+                filled = Rr.shape[0]
+                W[:filled] = Rr
+            W[filled:filled + 3 * k] = Jt[r_cols].T
+            filled += 3 * k
+    Rc = None
+    if r_cols is not None:
+        Rc = np.linalg.qr(W[:filled], mode="r") if filled > len(r_cols) else W[:filled].copy()
+    return r.reshape(-1), Normal(JtJ, Jtr), Rc
+
+
+def _tool_points(dh, q) -> np.ndarray:
+    """Tool points (N, 3) of ``dh`` over the poses, from the blockwise pass."""
+    p = np.empty((q.shape[0], 3))
+    for s, fp in frame_pass.frame_passes(dh, q, buffers=_work().passes, block=_Work.block(q.shape[0])):
+        p[s:s + fp.axes.shape[-1]] = frame_pass.tool_points(fp)
+    return p
+
+
+@dataclass(frozen=True)
+class _WithPrior(Normal):
+    """Normal equations with a prior's rows added, and those of the data alone (``data``)."""
+
+    data: Normal | None = None
 
 
 def _update_base(x_base: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -292,19 +402,31 @@ def analyse_identifiability(J: np.ndarray, n_kin_start_fixed: dict, *, n_params:
     when more than :data:`REDUNDANCY_TOL` of it lies outside the span of the
     kept ones.
     """
-    m = J.shape[0]
-    norms = np.linalg.norm(J, axis=0)
+    cols = _open_columns(n_kin_start_fixed, n_params)
+    Jc = J[:, cols]
+    if J.shape[0] > cols.size:
+        Jc = _r_factor(Jc)
+    return _identifiability(np.linalg.norm(J, axis=0), Jc, J.shape[0], n_kin_start_fixed, n_params=n_params,
+                            order=order)
+
+
+def _open_columns(n_kin_start_fixed: dict, n_params: int) -> np.ndarray:
+    """Indices of the columns not fixed beforehand (the identifiability analysis works on these alone)."""
+    return np.array([j for j in range(n_params) if _name(j) not in n_kin_start_fixed], dtype=np.int64)
+
+
+def _identifiability(norms: np.ndarray, Jc: np.ndarray, m: int, n_kin_start_fixed: dict, *, n_params: int,
+                     order: list[int] | None = None) -> Identifiability:
+    """:func:`analyse_identifiability` from the Jacobian's column norms (n_params,), its row count ``m`` and
+    ``Jc``: the columns of :func:`_open_columns` or any ``Q^T`` of them (``Q`` orthogonal; e.g. their ``R``)."""
     # a column this much smaller than the largest is numerically zero (e.g. theta1 in the distances)
     norms = np.where(norms < 1e-9 * max(float(norms.max()), 1e-300), 0.0, norms)
     fixed = dict(n_kin_start_fixed)
     # every decision below depends on the columns not fixed beforehand, and on them only through their
     # inner products: work on a small R of those columns (R^T R = J^T J) when J is tall
-    cols = np.array([j for j in range(n_params) if _name(j) not in fixed], dtype=np.int64)
+    cols = _open_columns(fixed, n_params)
     at = np.full(n_params, -1)
     at[cols] = np.arange(cols.size)
-    Jc = J[:, cols]
-    if m > cols.size:
-        Jc = _r_factor(Jc)
     order = list(range(n_params)) if order is None else order
     kept: list[int] = []
     Q = np.zeros((Jc.shape[0], 0))
@@ -365,7 +487,8 @@ def _kin_order() -> list[int]:
     return [5 * r + c for r in range(kin.N_ROWS) for c in per_row]
 
 
-def _parameter_sd(Jf: np.ndarray, cost: float, info: int, method: str, meas: np.ndarray, pairs) -> np.ndarray:
+def _parameter_sd(H: np.ndarray, cost: float, info: int, method: str, meas: np.ndarray, pairs,
+                  Jf: np.ndarray | None = None) -> np.ndarray:
     """1-sigma of the free parameters from the residuals at the solution.
 
     The absolute residuals are the measured coordinates' noise itself. The
@@ -374,14 +497,14 @@ def _parameter_sd(Jf: np.ndarray, cost: float, info: int, method: str, meas: np.
     root of the pairs per pose. Both are written as the noise ``e`` of the
     measured points (isotropic, variance ``s_p^2``) mapped into the residuals,
     ``r = D e``, and the covariance is the sandwich
-    ``H^-1 (s_p^2 J^T D D^T J) H^-1`` with ``H = J^T J``.
+    ``H^-1 (s_p^2 J^T D D^T J) H^-1`` with ``H = J^T J`` (given; the distance method also needs ``Jf``,
+    the free columns of ``J``).
     """
-    H = Jf.T @ Jf
     try:
         Hi = np.linalg.pinv(H)
     except np.linalg.LinAlgError:
-        return np.full(Jf.shape[1], np.nan)
-    dof = max(info - Jf.shape[1], 1)
+        return np.full(H.shape[0], np.nan)
+    dof = max(info - H.shape[0], 1)
     if method != "distance":
         return np.sqrt(np.clip(np.diag(Hi) * cost / dof, 0.0, None))
     m = Jf.shape[0]
@@ -482,11 +605,11 @@ def _change(i: int, dh_new, dh_old) -> float:
     return math.degrees(v) if _is_angle(i) else v
 
 
-def _correlations(Jf: np.ndarray) -> np.ndarray:
-    sc = np.linalg.norm(Jf, axis=0)
+def _correlations(H: np.ndarray) -> np.ndarray:
+    """Correlations of the parameters from ``H = J^T J`` of their columns (scaled to unit norm first)."""
+    sc = np.sqrt(np.diag(H))
     sc[sc == 0] = 1.0
-    Js = Jf / sc
-    C = np.linalg.pinv(Js.T @ Js)
+    C = np.linalg.pinv(H / np.outer(sc, sc))
     d = np.sqrt(np.maximum(np.diag(C), 1e-300))
     return C / np.outer(d, d)
 
@@ -495,7 +618,13 @@ def parameter_warnings(dh_new, dh_start, free, Jf, sigma: dict) -> list[dict]:
     """Implausible changes and near-perfect correlations among the identified kinematic parameters.
 
     Each warning: ``kind`` (``"implausible"`` or ``"correlated"``), ``parameters`` (names), ``message``.
+    ``Jf``: the Jacobian's columns of ``free``.
     """
+    return _warnings(dh_new, dh_start, free, Jf.T @ Jf, sigma)
+
+
+def _warnings(dh_new, dh_start, free, H, sigma: dict) -> list[dict]:
+    """:func:`parameter_warnings` from ``H = Jf^T Jf``."""
     out = []
     kin_free = [int(i) for i in free if i < kin.N_PARAMS]
     for i in kin_free:
@@ -509,7 +638,7 @@ def parameter_warnings(dh_new, dh_start, free, Jf, sigma: dict) -> list[dict]:
                                    "nearly free, and the fit uses it to absorb something else"})
     if len(kin_free) >= 2:
         pos = [k for k, i in enumerate(free) if i < kin.N_PARAMS]
-        rho = _correlations(Jf)[np.ix_(pos, pos)]
+        rho = _correlations(H)[np.ix_(pos, pos)]
         a, b = np.nonzero(np.triu(np.abs(rho) > CORRELATION_WARN, 1))
         for x, y in zip(a, b):
             n1, n2 = _name(kin_free[x]), _name(kin_free[y])
@@ -600,40 +729,40 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     if both:
         raise DataError(f"{', '.join(sorted(both))}: asked to be both fixed and free")
     n = q.shape[0]
-    if method == "distance":
-        pairs = distance_pairs(n) if pairs is None else np.asarray(pairs, dtype=np.int64)
-        if pairs.ndim != 2 or pairs.shape[1] != 2 or pairs.size == 0 or pairs.min() < 0 or pairs.max() >= n:
-            raise DataError(f"`pairs` must be (M, 2) pose indices in 0..{n - 1}")
-        n_p = kin.N_PARAMS
-        x_base = None
-        r, J = _distance_problem(dh, q, meas, pairs)
-        order = _kin_order()
-    else:
-        n_p = kin.N_PARAMS + 6
-        fp_start = frame_pass.frame_pass(dh, q)
-        p_start = frame_pass.tool_points(fp_start).copy()   # not a view: the pass is let go below
-        B0 = rigid_fit(p_start, meas) if base_T_start is None else np.asarray(base_T_start, float)
-        x_base = np.concatenate([matrix_to_rotvec(B0[:3, :3]), B0[:3, 3]])
-        r, J = _absolute_problem(dh, x_base, q, meas, start_pass=fp_start)
-        del fp_start
-        order = list(range(kin.N_PARAMS, n_p)) + _kin_order()
-    dh_ideal = ideal_structure(dh)
-    if not np.array_equal(dh_ideal, dh):
-        # identifiability is the structure's: judge it where the near-zero offsets are zero
-        if method == "distance":
-            _, J_id = _distance_problem(dh_ideal, q, meas, pairs)
-        else:
-            _, J_id = _absolute_problem(dh_ideal, x_base, q, meas)
-    else:
-        J_id = J
+    n_p = kin.N_PARAMS if method == "distance" else kin.N_PARAMS + 6
+    order = _kin_order() if method == "distance" else list(range(kin.N_PARAMS, n_p)) + _kin_order()
     fixed0 = _structural(dh, use_beta)
     prefer = [i for i in range(n_p) if _name(i) in set(free_extra)]
     for nm in free_extra:
         fixed0.pop(nm, None)
     order = prefer + [i for i in order if i not in prefer]
     fixed0.update(fixed_extra or {})
-    ident = analyse_identifiability(J_id, fixed0, n_params=n_p, order=order)
-    del J_id
+    dh_ideal = ideal_structure(dh)
+    # identifiability is the structure's: judged where the near-zero offsets are zero
+    same_structure = np.array_equal(dh_ideal, dh)
+    if method == "distance":
+        pairs = distance_pairs(n) if pairs is None else np.asarray(pairs, dtype=np.int64)
+        if pairs.ndim != 2 or pairs.shape[1] != 2 or pairs.size == 0 or pairs.min() < 0 or pairs.max() >= n:
+            raise DataError(f"`pairs` must be (M, 2) pose indices in 0..{n - 1}")
+        x_base = None
+        r, J = _distance_problem(dh, q, meas, pairs)
+        J_id = J if same_structure else _distance_problem(dh_ideal, q, meas, pairs)[1]
+        ident = analyse_identifiability(J_id, fixed0, n_params=n_p, order=order)
+        del J_id
+    else:
+        # the Jacobian is never held whole: its normal equations, and the R of its open columns for the
+        # identifiability analysis, are summed over blocks of poses
+        p_start = _tool_points(dh, q)
+        B0 = rigid_fit(p_start, meas) if base_T_start is None else np.asarray(base_T_start, float)
+        x_base = np.concatenate([matrix_to_rotvec(B0[:3, :3]), B0[:3, 3]])
+        cols = _open_columns(fixed0, n_p)
+        r, J, Rc = _absolute_normal(dh, x_base, q, meas, r_cols=cols if same_structure else None)
+        N_id = J
+        if not same_structure:
+            _, N_id, Rc = _absolute_normal(dh_ideal, x_base, q, meas, r_cols=cols)
+        norms = np.sqrt(np.diag(N_id.JtJ)) if isinstance(N_id, Normal) else np.linalg.norm(N_id, axis=0)
+        ident = _identifiability(norms, Rc, 3 * n, fixed0, n_params=n_p, order=order)
+        del N_id, Rc
     unseen = _unseen_by_poses(dh_ideal, ident, method, fixed0, n_p, order)
     # independent numbers in the data: K points carry 3K coordinates, and distances lose the 6 of a rigid motion
     info = 3 * n - (6 if method == "distance" else 0)
@@ -664,7 +793,7 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     def evaluate(st):
         dh_, xb_ = st
         return (_distance_problem(dh_, q, meas, pairs) if method == "distance" else
-                _absolute_problem(dh_, xb_, q, meas, lazy=True))
+                _absolute_normal(dh_, xb_, q, meas)[:2])
 
     def apply(st, full):
         dh_, xb_ = st
@@ -724,7 +853,12 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
 
             def rows(st, r_, J_):
                 rp = w * (x_start[idx] - flat(st)[idx])
-                Jp = np.zeros((idx.size, sol.J.shape[1]))
+                if isinstance(J_, Normal):   # the prior's rows w e_idx add w^2 to the diagonal and w rp to J^T r
+                    JtJ, Jtr = J_.JtJ.copy(), J_.Jtr.copy()
+                    JtJ[idx, idx] += w * w
+                    Jtr[idx] += w * rp
+                    return np.concatenate([r_, rp]), _WithPrior(JtJ, Jtr, J_)
+                Jp = np.zeros((idx.size, n_p))
                 Jp[np.arange(idx.size), idx] = w
                 return np.concatenate([r_, rp]), lambda: np.concatenate([J_() if callable(J_) else J_, Jp])
 
@@ -767,7 +901,8 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
         if solp is not None:
             hist_states += solp.states[1:]
             hist_rms += [math.sqrt(float(np.sum(evaluate(st)[0] ** 2)) / m_data) for st in solp.states[1:]]
-            r_d, J_d = solp.r[:m_data], solp.J[:m_data]
+            r_d = solp.r[:m_data]
+            J_d = solp.J.data if isinstance(solp.J, _WithPrior) else solp.J[:m_data]
             # the solution is the fit with the prior: it converged or not. The fit without it is its start and
             # the reference of the chi-square check; along directions the poses barely see it may wander
             # without end (36 poses, joint 4 moved 15 deg: a3 crept 3.7 mm per 20 steps at 1e-6 relative gain
@@ -782,14 +917,15 @@ def identify(dh_start, q_rad, measured_mm, *, method: str = "distance", pairs=No
     # uncertainties from the residuals at the solution; a held parameter's is its prior's (the poses add
     # next to nothing to it), and it takes no part in the warnings (its change is the prior's to keep small)
     seen = np.array([i for i in free if _name(i) not in held], dtype=np.int64)
-    J_seen = J[:, seen]
-    sd = _parameter_sd(J_seen, cost, info, method, meas, pairs)
+    J_seen = None if isinstance(J, Normal) else J[:, seen]
+    H_seen = J.JtJ[np.ix_(seen, seen)] if J_seen is None else J_seen.T @ J_seen
+    sd = _parameter_sd(H_seen, cost, info, method, meas, pairs, J_seen)
     sd_seen = dict(zip(seen.tolist(), sd.tolist()))
     sigma = {}
     for i in free:
         v = prior_sd(_name(i)) if _name(i) in held else float(sd_seen[int(i)])
         sigma[_name(i)] = math.degrees(v) if _is_angle(int(i)) else v
-    warnings = parameter_warnings(dh, dh_start_arr, seen, J_seen, sigma)
+    warnings = _warnings(dh, dh_start_arr, seen, H_seen, sigma)
     base_T = _base_T(x_base) if x_base is not None else None
     return IdentificationResult(dh, base_T, ident, sigma, hist_rms, it1 + sol.iterations, sol.converged, sol.message,
                                 math.sqrt(cost / m), time.perf_counter() - t0,

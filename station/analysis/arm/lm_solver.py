@@ -3,7 +3,9 @@
 Both problems are ``min ||r(x)||^2`` over a parameter state with an analytic
 Jacobian (seed 002 eq. (7)-(8) for the kinematic columns). The solver is
 generic over the state: the caller gives ``evaluate(state) -> (r, J)`` and
-``apply(state, step) -> state`` (rotations compose, lengths add). Each
+``apply(state, step) -> state`` (rotations compose, lengths add); the
+Jacobian may be given by its normal equations (:class:`Normal`), which is
+all the solver uses of it. Each
 iteration solves the column-scaled, damped normal equations (Marquardt's
 scaling: ``(A + lambda diag(A)) s = g``), accepts a step only when it lowers
 the cost, and shrinks ``lambda`` after a success and grows it after a
@@ -29,7 +31,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["LMResult", "levenberg_marquardt"]
+__all__ = ["LMResult", "Normal", "levenberg_marquardt"]
+
+
+@dataclass(frozen=True)
+class Normal:
+    """A Jacobian ``J`` (m, n) at a state given by its normal equations: ``JtJ = J^T J`` (n, n) and
+    ``Jtr = J^T r`` (n,), all the solver needs of it. A caller that sums them over blocks of rows never
+    holds the whole ``J`` (the arm's absolute problem: 3,000 x 41 for 1,000 poses)."""
+
+    JtJ: np.ndarray
+    Jtr: np.ndarray
 
 
 @dataclass
@@ -62,7 +74,8 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
         ``evaluate(state) -> (r (m,), J (m, n))``; ``J = dr/dx`` with the sign of ``-d prediction``
         folded in by the caller so that the step solves ``J s = r`` (the measured minus the modelled).
         ``J`` may be a function of no arguments that returns it: it is then called only for a state the
-        solver accepts (a rejected trial step costs the residual alone).
+        solver accepts (a rejected trial step costs the residual alone). ``J`` may also be given by its
+        normal equations (:class:`Normal`); the result's ``J`` is then the final state's.
     apply : callable
         ``apply(state, step (n,)) -> state``.
     free : array_like of int, optional
@@ -73,7 +86,7 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
     r, J = evaluate(state) if start is None else start
     start = None   # the solver alone holds the Jacobian it replaces (its memory is let go with it)
     J = _jac(J)
-    n = J.shape[1]
+    n = J.JtJ.shape[0] if isinstance(J, Normal) else J.shape[1]
     free = np.arange(n) if free is None else np.asarray(free, dtype=np.int64)
     m = r.size
     cost = float(r @ r)
@@ -89,13 +102,18 @@ def levenberg_marquardt(evaluate: Callable, apply: Callable, state, *, free=None
     all_free = free.size == n and np.array_equal(free, np.arange(n))
     for it in range(1, max_iter + 1):
         # the scaled normal equations from one product of the free columns (no scaled copy of J)
-        Jf = J if all_free else J[:, free]
-        A = Jf.T @ Jf
+        if isinstance(J, Normal):
+            A = J.JtJ if all_free else J.JtJ[np.ix_(free, free)]
+            A, g = A.copy(), J.Jtr[free]
+        else:
+            Jf = J if all_free else J[:, free]
+            A = Jf.T @ Jf
+            g = r @ Jf
+            del Jf
         scale = np.sqrt(np.diag(A))
         scale[scale == 0] = 1.0
         A /= np.outer(scale, scale)
-        g = (r @ Jf) / scale
-        del Jf
+        g = g / scale
         try:
             gn = np.linalg.lstsq(A, g, rcond=1e-12)[0]
             decrease = float(g @ gn)
