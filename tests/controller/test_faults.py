@@ -198,6 +198,18 @@ def _pause_host_in_a_read(monkeypatch, pause_s: float, *, silent: bool = False) 
     return hold
 
 
+def _run_beside_a_pause(monkeypatch, start_controller, make_driver, program, pause_s: float):
+    """A fake controller running ``program`` and the pause of :func:`_pause_host_in_a_read` ready (not
+    armed): (hold, fake, driver)."""
+    hold = _pause_host_in_a_read(monkeypatch, pause_s)
+    fake = start_controller()
+    drv = make_driver(fake)
+    drv.upload(render_rapid(program))
+    drv.select()
+    drv.start()
+    return hold, fake, drv
+
+
 def test_a_host_that_did_not_run_while_a_program_ran_is_no_timeout_of_the_program(rng, monkeypatch, start_controller,
                                                                                     make_driver, robot, iso_poses):
     """The controller said 'running' (its program then ended), and the host was stopped for a drawn 1.5-2.5
@@ -208,12 +220,8 @@ def test_a_host_that_did_not_run_while_a_program_ran_is_no_timeout_of_the_progra
 
     timeout_s = LISTEN_SLICE_S + float(rng.uniform(0.5, 1.0))
     pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
-    hold = _pause_host_in_a_read(monkeypatch, pause_s)
-    fake = start_controller()
-    drv = make_driver(fake)
-    drv.upload(render_rapid(iso_pose_program(robot, iso_poses, cycles=1, speed_frac=0.5)))
-    drv.select()
-    drv.start()
+    hold, fake, drv = _run_beside_a_pause(monkeypatch, start_controller, make_driver,
+                                          iso_pose_program(robot, iso_poses, cycles=1, speed_frac=0.5), pause_s)
     running = fake.core.snapshot()
     assert drv.status().state == State.RUNNING
     drv.wait_settled(60.0)  # the program ends on the controller; its 'running' reply is yet to be read
@@ -233,12 +241,8 @@ def test_a_program_that_does_not_finish_still_times_out_beside_a_host_pause(rng,
 
     timeout_s = float(rng.uniform(0.5, 1.0))
     pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
-    hold = _pause_host_in_a_read(monkeypatch, pause_s)
-    fake = start_controller()
-    drv = make_driver(fake)
-    drv.upload(render_rapid(iso_pose_program(robot, iso_poses, cycles=30, speed_frac=0.1)))
-    drv.select()
-    drv.start()
+    hold, fake, drv = _run_beside_a_pause(monkeypatch, start_controller, make_driver,
+                                          iso_pose_program(robot, iso_poses, cycles=30, speed_frac=0.1), pause_s)
     hold["armed"] = True
     started = time.monotonic()
     with pytest.raises(DeviceTimeout, match=rf"program did not finish within {timeout_s:g} s"):
