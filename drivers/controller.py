@@ -368,17 +368,18 @@ class ControllerDriver:
         """One Modbus request; ``retry``: an idempotent one (a read) whose reply does not come is asked
         again, on a new connection, up to :data:`READ_ATTEMPTS` times within the same ``timeout_s``.
 
-        An attempt that outlasted its own wait by far says that this process did not run meanwhile (a busy
-        or paused host): the controller's silence was not measured, so that time does not use up the
-        deadline (the next attempt still gets its wait)."""
+        The deadline counts the controller's silence (:class:`drivers.transport.ListeningDeadline`): an
+        attempt without reply counts as its own wait at most, however long it took, since one that outlasted
+        its wait says this process did not run meanwhile (a busy or paused host) and the controller's silence
+        was not measured for that time; the next attempt still gets its wait."""
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
-        deadline = time.monotonic() + self.timeout_s
+        deadline = ListeningDeadline(self.timeout_s, self.timeout_s)
         attempts = 0
         while True:
             attempts += 1
             t_sent = time.monotonic()
-            wait_s = min(self.timeout_s / READ_ATTEMPTS, deadline - t_sent) if retry else self.timeout_s
+            wait_s = min(self.timeout_s / READ_ATTEMPTS, deadline.time_left()) if retry else self.timeout_s
             self._reply_timeout(wait_s)
             try:
                 rr = fn(*args, device_id=self.map.device_id, **kwargs)
@@ -387,10 +388,8 @@ class ControllerDriver:
                 raise ConnectionLost(f"Modbus {what}: connection to {self.host}:{self.modbus_port} lost ({exc})") from exc
             except ModbusIOException as exc:
                 self._drop()  # a late reply must not be taken for the next one
-                now = time.monotonic()
-                if now - t_sent > 2.0 * max(wait_s, 0.0) + 0.5:  # the host did not run (docstring)
-                    deadline = max(deadline, now + self.timeout_s / READ_ATTEMPTS)
-                if retry and attempts < READ_ATTEMPTS and deadline - now > 0:
+                deadline.count_gap(min(time.monotonic() - t_sent, wait_s))  # the host's absence: docstring
+                if retry and attempts < READ_ATTEMPTS and deadline.time_left() > 0:
                     continue
                 tries = f" ({attempts} attempts)" if attempts > 1 else ""
                 raise DeviceTimeout(
@@ -649,7 +648,10 @@ class ControllerDriver:
         Parameters
         ----------
         timeout_s : float
-            Host seconds to wait at most, not counting the time ``on_status`` takes.
+            Seconds the program may run at most, counted only while this process polls
+            (:class:`drivers.transport.ListeningDeadline`: a host that did not run it for longer than
+            :data:`LISTEN_SLICE_S` between two status reads counts that slice only), not counting the time
+            ``on_status`` takes.
         on_status : callable, optional
             Called with every status read (progress for the caller's journal). The time it takes is the
             caller's own work (committing samples to a disk that may stall in a sync for many seconds): it
@@ -668,15 +670,15 @@ class ControllerDriver:
         DeviceTimeout, ConnectionLost, ModbusExceptionError
             After a best-effort STOP (noted in the message).
         """
-        deadline = time.monotonic() + float(timeout_s)
+        deadline = ListeningDeadline(float(timeout_s), max(LISTEN_SLICE_S, self.poll_interval_s))
         pauses = poll_pauses(self.poll_interval_s)
         try:
             while True:
                 st = self.status()
                 if on_status is not None:
-                    called = time.monotonic()
+                    deadline.time_left()  # the polling up to here counts, the caller's work does not
                     on_status(st)
-                    deadline += time.monotonic() - called
+                    deadline.count_gap(0.0)
                 if st.state == State.FINISHED:
                     self._running = False
                     return st
@@ -690,7 +692,7 @@ class ControllerDriver:
                 if st.state in (State.STOPPED, State.READY, State.NO_PROGRAM):
                     self._running = False
                     raise CommandRefused(f"program is no longer running ({st.summary()})", int(st.result), st)
-                if time.monotonic() >= deadline:
+                if deadline.expired():
                     raise DeviceTimeout(f"program did not finish within {timeout_s:g} s ({st.summary()})")
                 time.sleep(next(pauses))
         except ControllerFault:

@@ -38,7 +38,7 @@ from drivers.tracker import (BeamBroken, EventKind, guarded, StationaryMeasureme
 from drivers.geocom_codec import (GeoComReply, INCLINATION_AUTO, MeasureProgram, RC_NAMES, RC_WARNINGS,
                                   REPLY_VALUES, Rpc, encode_request, geocom_error, idempotent, parse_float,
                                   parse_int, parse_reply, rc_name)
-from drivers.transport import (Deadline, LineReader, ListeningDeadline, check_positive, serial_factory,
+from drivers.transport import (LineReader, ListeningDeadline, check_positive, serial_factory,
                                transport_or_factory)
 from station.device_urls import parse_device_url
 from station.errors import (ConfigError, ConnectionLost, DeviceError, DeviceNotReady, DeviceTimeout, ProtocolError,
@@ -104,7 +104,9 @@ class GeoComTracker(TrackerBase):
 
     # ------------------------------------------------------------------ public API
     def connect(self, timeout_s: float = 30.0) -> TrackerInfo:
-        deadline = Deadline(timeout_s)
+        # the instrument's silence, counted only while this process runs: opening the line and clearing the
+        # instrument's buffer block up to one reply's time when it runs; a longer gap is a host that did not
+        deadline = ListeningDeadline(timeout_s, self.reply_timeout_s + LISTEN_SLICE_S)
         if self._transport is None or self._transport.closed:
             if self._factory is None:
                 raise ConnectionLost("the driver was closed and a bare transport cannot be reopened")
@@ -360,7 +362,11 @@ class GeoComTracker(TrackerBase):
     def _revive(self, buf: StreamBuffer, cause: BaseException | None = None) -> bool:
         """Reopen a silent line with backoff and restart tracking; False when giving up."""
         buf.event(EventKind.CONNECTION_LOST, f"line silent: {cause or 'no replies'}")
-        deadline = Deadline(self.reconnect_timeout_s)
+        # the line's silence, counted only while this process runs: it is looked at after each request and
+        # each pause, which block up to a reply's time or the longest pause when it runs; a longer gap is a
+        # host that did not run (the instrument's replies were not read), and counts that much only
+        deadline = ListeningDeadline(self.reconnect_timeout_s,
+                                     max(self.reply_timeout_s, self._backoff[1]) + LISTEN_SLICE_S)
         delay, last = self._backoff[0], cause
         while not self._stop.is_set():
             if self._factory is not None:
@@ -371,7 +377,9 @@ class GeoComTracker(TrackerBase):
                 except (ConnectionLost, DeviceTimeout) as exc:
                     last = exc
             try:
+                deadline.time_left()
                 self.request(Rpc.NULL_PROC)
+                deadline.time_left()
                 self.request(Rpc.DO_MEASURE, (MeasureProgram.TRACK, INCLINATION_AUTO))
             except (ConnectionLost, DeviceTimeout, DeviceError) as exc:
                 last = exc

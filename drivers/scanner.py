@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.ply import read_ply
+from drivers.transport import ListeningDeadline
 from station.device_urls import parse_device_url
 from station.errors import ConfigError, DataError, DeviceError, DeviceFault, DeviceTimeout
 
@@ -64,6 +65,10 @@ class ScannerInfo:
     folder: str
 
 
+#: s: what the driver's look at the folder between two polls may take when this process runs
+LOOK_S = 0.05
+
+
 class ScannerDriver:
     """A 3D scanner behind a hot folder (see the module docstring).
 
@@ -72,7 +77,8 @@ class ScannerDriver:
     folder : str or os.PathLike
         The exchange folder.
     timeout_s : float
-        Default time a capture may take (s).
+        Default time a capture may take (s), counted only while this process runs
+        (:class:`drivers.transport.ListeningDeadline`).
     poll_s : float
         How often the folder is looked at while waiting (s).
     """
@@ -149,7 +155,9 @@ class ScannerDriver:
             os.replace(tmp, trigger)
         except OSError as exc:
             raise DeviceError(f"scanner: cannot write the trigger {trigger}: {exc}") from exc
-        deadline = time.monotonic() + wait_s
+        # the scanner's silence, counted only while this process looks: a gap longer than a poll (and the
+        # looks' own time) is a host that did not run, and counts that much only
+        deadline = ListeningDeadline(wait_s, self.poll_s + LOOK_S)
         while True:
             if answer.exists():
                 return self._read(answer)
@@ -160,7 +168,7 @@ class ScannerDriver:
                 except OSError as exc:
                     why = f"(unreadable: {exc})"
                 raise DeviceFault(f"scanner could not scan {name!r}: {why or '(no reason given)'}")
-            if time.monotonic() >= deadline:
+            if deadline.expired():
                 self._take_back(trigger)
                 raise DeviceTimeout(f"scanner: no {answer.name} in {self.folder} within {wait_s:g} s "
                                     "(is the scanner software watching the folder?)")

@@ -40,6 +40,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from drivers.transport import ListeningDeadline
 from station.errors import ConfigError, DeviceError
 
 
@@ -180,6 +181,10 @@ class TrackerInfo:
 
 def _empty_batch(events=()) -> SampleBatch:
     return SampleBatch(np.empty(0), np.empty((0, 3)), np.empty(0, dtype=np.int8), tuple(events))
+
+
+#: s: the longest :meth:`StreamBuffer.take` waits between two looks at its deadline
+TAKE_LOOK_S = 0.05
 
 
 class StreamBuffer:
@@ -340,14 +345,16 @@ class StreamBuffer:
 
     # -- reader side (procedure) -------------------------------------------------------
     def take(self, timeout_s: float, max_samples: int | None = None) -> SampleBatch:
-        """Samples and events buffered so far; waits up to ``timeout_s`` for any."""
-        deadline = time.monotonic() + max(0.0, timeout_s)
+        """Samples and events buffered so far; waits up to ``timeout_s`` for any, counted only while this
+        process runs (:class:`drivers.transport.ListeningDeadline`: a longer gap than :data:`TAKE_LOOK_S`
+        between two looks is a host that did not run the driver's reader either)."""
+        deadline = ListeningDeadline(max(0.0, timeout_s), TAKE_LOOK_S)
         with self._cond:
             while not self._chunks and not self._pending_events and self._failure is None:
-                left = deadline - time.monotonic()
+                left = deadline.time_left()
                 if left <= 0:
                     break
-                self._cond.wait(left)
+                self._cond.wait(min(left, TAKE_LOOK_S))
             events = tuple(self._pending_events)
             self._pending_events.clear()
             if not self._chunks:

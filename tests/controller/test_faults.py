@@ -13,6 +13,7 @@ from station.device_urls import parse_device_url
 from station.errors import ConnectionLost, DeviceError, DeviceTimeout
 from station.programs import expected_stops, iso_pose_program, render_rapid
 from station.protocols.handshake import Fault, State
+from tests.host_pause import pause_host
 
 
 @pytest.fixture
@@ -159,6 +160,113 @@ def test_a_read_whose_wait_the_host_did_not_run_through_is_asked_again(rng, star
     drv = make_driver(fake, timeout_s=timeout_s, modbus_client=client)  # connect() reads the status
     assert client.paused == 1 and fake._modbus._silenced
     assert drv.status().state == State.NO_PROGRAM
+
+
+# ---------------------------------------------------------------- a host that does not run (issue 46)
+def _pause_host_in_a_read(monkeypatch, pause_s: float, *, silent: bool = False) -> dict:
+    """Once ``hold["armed"]`` and the controller runs a program, the fake's next status reply goes out after
+    this host was stopped for ``pause_s`` (the fake's server thread stops the whole process, driver included,
+    then replies with the registers it read before): the controller answered at once, late only by the host's
+    absence. ``hold["stale"]``: the registers that reply carries instead (a snapshot of the controller taken
+    earlier, while its program ran). ``silent``: from then on the controller answers no read (until it
+    closes)."""
+    from fakes import controller as fake_controller
+
+    hold = {"armed": False, "taken": 0, "stale": None}
+    original = fake_controller._ModbusServer._action
+
+    async def held(server, fc, start_address, address, count, registers, values):
+        reply = await original(server, fc, start_address, address, count, registers, values)
+        stale = hold["stale"]
+        if hold["armed"] and values is None and (silent or stale is not None or server.core.state == State.RUNNING):
+            if not hold["taken"]:
+                hold["taken"] += 1
+                if stale is not None:
+                    for a in range(address, address + count):
+                        registers[a - start_address] = stale.get(a, 0)
+                pause_host(pause_s)
+            if silent:
+                import asyncio
+
+                from pymodbus.constants import ExcCodes
+
+                await asyncio.wait_for(server._closing.wait(), timeout=30.0)
+                return ExcCodes.DEVICE_BUSY
+        return reply
+
+    monkeypatch.setattr(fake_controller._ModbusServer, "_action", held)
+    return hold
+
+
+def _run_beside_a_pause(monkeypatch, start_controller, make_driver, program, pause_s: float):
+    """A fake controller running ``program`` and the pause of :func:`_pause_host_in_a_read` ready (not
+    armed): (hold, fake, driver)."""
+    hold = _pause_host_in_a_read(monkeypatch, pause_s)
+    fake = start_controller()
+    drv = make_driver(fake)
+    drv.upload(render_rapid(program))
+    drv.select()
+    drv.start()
+    return hold, fake, drv
+
+
+def test_a_host_that_did_not_run_while_a_program_ran_is_no_timeout_of_the_program(rng, monkeypatch, start_controller,
+                                                                                    make_driver, robot, iso_poses):
+    """The controller said 'running' (its program then ended), and the host was stopped for a drawn 1.5-2.5
+    times the program's timeout before the driver read that reply: the driver reads on and finds the
+    program finished. Counting the host's wall time, it said 'program did not finish' every time. (The
+    reply is a snapshot taken while the program ran, so the program's own pace on this host plays no part.)"""
+    from drivers.controller import LISTEN_SLICE_S
+
+    timeout_s = LISTEN_SLICE_S + float(rng.uniform(0.5, 1.0))
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    hold, fake, drv = _run_beside_a_pause(monkeypatch, start_controller, make_driver,
+                                          iso_pose_program(robot, iso_poses, cycles=1, speed_frac=0.5), pause_s)
+    running = fake.core.snapshot()
+    assert drv.status().state == State.RUNNING
+    drv.wait_settled(60.0)  # the program ends on the controller; its 'running' reply is yet to be read
+    hold["stale"], hold["armed"] = running, True
+    started = time.monotonic()
+    final = drv.wait_done(timeout_s)
+    assert hold["taken"] == 1 and time.monotonic() - started > pause_s
+    assert final.state == State.FINISHED and final.cycle_count == 1
+
+
+def test_a_program_that_does_not_finish_still_times_out_beside_a_host_pause(rng, monkeypatch, start_controller,
+                                                                              make_driver, world, robot, iso_poses):
+    """A program far longer than the timeout, and the host stopped once meanwhile for longer than the
+    timeout: 'program did not finish within T s', after T of polling beside the pause (it counted one slice
+    at most), and the program is stopped."""
+    from drivers.controller import LISTEN_SLICE_S
+
+    timeout_s = float(rng.uniform(0.5, 1.0))
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    hold, fake, drv = _run_beside_a_pause(monkeypatch, start_controller, make_driver,
+                                          iso_pose_program(robot, iso_poses, cycles=30, speed_frac=0.1), pause_s)
+    hold["armed"] = True
+    started = time.monotonic()
+    with pytest.raises(DeviceTimeout, match=rf"program did not finish within {timeout_s:g} s"):
+        drv.wait_done(timeout_s)
+    assert hold["taken"] == 1
+    assert time.monotonic() - started >= pause_s + timeout_s - LISTEN_SLICE_S
+    assert_safe(fake, world)
+
+
+def test_a_silent_controller_still_times_out_beside_a_host_pause(rng, monkeypatch, start_controller, make_driver):
+    """The controller answers no status read any more, and the host is stopped for longer than the driver's
+    timeout during the first attempt: 'no reply ... within T s (3 attempts)', after the pause and the other
+    attempts' waits (the paused one counted its own wait)."""
+    timeout_s = float(rng.uniform(0.6, 1.2))
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    hold = _pause_host_in_a_read(monkeypatch, pause_s, silent=True)
+    fake = start_controller()
+    drv = make_driver(fake, timeout_s=timeout_s)
+    hold["armed"] = True
+    started = time.monotonic()
+    with pytest.raises(DeviceTimeout, match=rf"no reply .* within {timeout_s:g} s \(3 attempts\)"):
+        drv.status()
+    assert hold["taken"] == 1
+    assert time.monotonic() - started >= pause_s + 2 * timeout_s / 3 * 0.99
 
 
 def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, program):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 import numpy as np
 import pytest
@@ -31,6 +32,7 @@ from station.config import StationConfig, config_from_dict
 from station.errors import ConfigError, DataError, DeviceFault, DeviceTimeout
 from station.store import RunStore
 from tests.calibration.judge import assert_calibrated
+from tests.host_pause import pause_host
 from tests.calibration.test_arm_calibration import independent_fk
 from tests.station.abort_at import AbortAtStep
 from tests.pace import LOCKSTEP
@@ -160,6 +162,42 @@ def test_hot_folder_capture_returns_the_scan_and_refuses_bad_answers(folder_scan
         drv.capture("home-1")
     with pytest.raises(ConfigError, match="capture name"):
         drv.capture("../escape")
+
+
+@pytest.mark.parametrize("silent", [False, True])
+def test_a_host_that_did_not_run_during_a_capture_is_no_silence_of_the_scanner(folder_scanner, monkeypatch, rng,
+                                                                                silent):
+    """The scanner software takes the trigger, and this host is stopped for a drawn 1.5-2.5 times the
+    capture's timeout before it writes its answer: the capture returns the scan (counting the host's wall
+    time, the driver gave up as soon as it ran again). ``silent``: the scanner then writes nothing, and the
+    capture still times out naming the answer it awaited, after the pause and the timeout less one look."""
+    from drivers.scanner import LOOK_S
+    from fakes.scanner_folder import ScannerFolderFake
+
+    world, fake, drv, folder = folder_scanner
+    timeout_s = float(rng.uniform(0.3, 0.6))
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    original, paused = ScannerFolderFake._answer, []
+
+    def answer(scanner, trig):
+        if not paused:
+            paused.append(pause_s)
+            pause_host(pause_s)
+        if silent:
+            scanner.sim_ignore_next()
+        original(scanner, trig)
+
+    monkeypatch.setattr(ScannerFolderFake, "_answer", answer)
+    started = time.monotonic()
+    if silent:
+        with pytest.raises(DeviceTimeout, match=rf"no home-5\.ply in .* within {timeout_s:g} s"):
+            drv.capture("home-5", timeout_s=timeout_s)
+        assert time.monotonic() - started >= pause_s + timeout_s - (drv.poll_s + LOOK_S)
+        assert not (folder / "home-5.trigger").exists()
+    else:
+        cloud = drv.capture("home-5", timeout_s=timeout_s)
+        assert cloud.shape[0] > 1000 and fake.answered == ["home-5"]
+    assert paused == [pause_s]
 
 
 def test_scanner_driver_refuses_a_missing_folder_and_a_non_ply_url(tmp_path):

@@ -16,6 +16,8 @@ from fakes.geocom import start_fake
 from station.errors import (ConfigError, DeviceError, DeviceFault, DeviceNotReady, DeviceTimeout,
                             ProtocolError)
 
+from tests.host_pause import pause_host
+
 from .conftest import CircleWorld
 
 
@@ -141,6 +143,45 @@ def test_truncated_replies_are_rejected_or_lost_never_wrong(rig):
     assert record.rejected + record.lost >= 1
     assert record.rejected + record.lost <= fake.stats["truncated"]
     np.testing.assert_allclose(xyz, world.source.truth(t), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("silent", [False, True])
+def test_a_host_that_did_not_run_during_connect_is_no_silence_of_the_instrument(monkeypatch, rng, silent):
+    """This host is stopped for 1.5-2.5 times the connect's timeout while the line opens: an instrument that
+    answers is connected (counting the host's wall time, connect gave its first request 0 s and failed);
+    a silent one still times out naming the request, after the pause and a reply's time of listening."""
+    from fakes import geocom as fake_geocom
+
+    if silent:
+        monkeypatch.setattr(fake_geocom.GeoComFake, "_line", lambda fake, line: None)
+    reply_timeout_s = float(rng.uniform(0.2, 0.4))
+    timeout_s = float(rng.uniform(2.0, 3.0)) * reply_timeout_s
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    world = CircleWorld()
+    paused = []
+    with start_fake(world) as fake:
+        opener = serial_factory(fake.endpoint["device"])
+
+        def factory():
+            if not paused:
+                paused.append(pause_s)
+                pause_host(pause_s)
+            return opener()
+
+        tracker = GeoComTracker(factory, reply_timeout_s=reply_timeout_s)
+        try:
+            started = time.monotonic()
+            if silent:
+                with pytest.raises(DeviceTimeout, match=rf"no reply to GeoCOM rpc 0 within {reply_timeout_s:g} s"):
+                    tracker.connect(timeout_s=timeout_s)
+                assert time.monotonic() - started >= pause_s + reply_timeout_s
+            else:
+                assert tracker.connect(timeout_s=timeout_s).name == "AT960"
+                m = tracker.measure_stationary()
+                np.testing.assert_allclose(m.xyz_mm, world.source.truth([m.t_device_s])[0], rtol=0, atol=1e-9)
+            assert paused == [pause_s]
+        finally:
+            tracker.close()
 
 
 def test_an_idempotent_request_whose_reply_is_lost_is_sent_again_within_its_deadline(rig):

@@ -86,3 +86,37 @@ def test_polled_stream_counts_duplicates():
 def test_rate_validated():
     with pytest.raises(ConfigError, match="rate_hz"):
         StreamBuffer("x", 0.0)
+
+
+@pytest.mark.parametrize("silent", [False, True])
+def test_a_host_that_did_not_run_is_no_silence_of_the_stream(rng, silent):
+    """The driver's reader has samples ready, and this host is stopped for a drawn 1.5-2.5 times ``take``'s
+    timeout before it adds them: ``take`` returns them (counting the host's wall time, it returned nothing
+    when the reader ran again). ``silent``: nothing comes, and ``take`` returns empty after the pause and the
+    timeout less one look."""
+    import time
+
+    from drivers.tracker import TAKE_LOOK_S
+    from tests.host_pause import pause_host
+
+    buf = StreamBuffer("x", 1000.0)
+    timeout_s = float(rng.uniform(0.3, 0.6))
+    pause_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    n = int(rng.integers(3, 20))
+
+    def reader():
+        pause_host(pause_s)
+        if not silent:
+            buf.add(np.arange(n) * 1e-3, np.zeros((n, 3)), np.zeros(n, dtype=int))
+
+    started = time.monotonic()
+    thread = threading.Thread(target=reader)
+    thread.start()
+    try:
+        batch = buf.take(timeout_s)
+    finally:
+        thread.join()
+    if silent:
+        assert len(batch) == 0 and time.monotonic() - started >= pause_s + timeout_s - TAKE_LOOK_S
+    else:
+        assert len(batch) == n
