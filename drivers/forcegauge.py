@@ -25,6 +25,10 @@ from drivers.transport import Deadline, LineReader, check_positive, serial_facto
 from station.device_urls import parse_device_url
 from station.errors import ConfigError, ConnectionLost, DeviceFault, DeviceTimeout, ProtocolError
 
+#: how often the reply wait looks at the line: a longer gap between two looks is a host that did not run, and only
+#: this much of it counts as the gauge's silence (:class:`drivers.transport.ListeningDeadline`)
+LISTEN_SLICE_S = 0.05
+
 
 class GaugeOverload(DeviceFault):
     """The gauge reports a load beyond its capacity."""
@@ -143,7 +147,7 @@ class ForceGauge:
             raise ConnectionLost(f"{self.description}: connect() first")
         self._transport.write(encode_command(command), self.reply_timeout_s)
         try:
-            line = self._lines.read_line(self.reply_timeout_s)
+            line = self._lines.read_line(self.reply_timeout_s, LISTEN_SLICE_S)
         except DeviceTimeout:
             self._flush()
             raise DeviceTimeout(f"no reply from {self.description} to {command!r} within "

@@ -410,9 +410,11 @@ class LineReader:
         self._buf.clear()
         self._discarding = False
 
-    def read_line(self, timeout_s: float) -> bytes:
-        """Next line without its terminator; DeviceTimeout if none in time."""
-        deadline = Deadline(timeout_s)
+    def read_line(self, timeout_s: float, slice_s: float | None = None) -> bytes:
+        """Next line without its terminator; DeviceTimeout if none in time. With ``slice_s`` the time is the
+        device's silence (:class:`ListeningDeadline`, looking at least every ``slice_s``): a host that did not
+        run is not a device that did not answer."""
+        deadline = Deadline(timeout_s) if slice_s is None else ListeningDeadline(timeout_s, slice_s)
         looked = False
         while True:
             idx = self._buf.find(self._term)
@@ -439,7 +441,7 @@ class LineReader:
                     continue
                 raise DeviceTimeout(f"no complete line from {self.transport.description} "
                                     f"within {timeout_s} s")
-            self._buf += self.transport.read(4096, left)
+            self._buf += self.transport.read(4096, left if slice_s is None else min(left, slice_s))
 
 
 def tcp_factory(host: str, port: int, *, connect_timeout_s: float = 5.0) -> TransportFactory:

@@ -139,3 +139,55 @@ def test_overload_is_a_fault_naming_the_gauge(world, rng):
 def test_unknown_fault_is_refused_naming_it(world):
     with pytest.raises(ConfigError, match="unknown force gauge fault.*smoke"):
         start_fake(world, faults={"smoke": "1"})
+
+
+def _pause_before_reply(monkeypatch, pause_s: float, *, lose: bool = False) -> dict:
+    """Once ``hold["armed"]``, the fake's next request is answered after this host was stopped for ``pause_s``
+    (the fake's thread stops the whole process, itself and the driver included), then 0.1 s later: the gauge
+    answered in a third of the timeout, late only by the host's absence. ``lose``: then it stays silent."""
+    import time
+
+    from fakes import forcegauge as fake_gauge
+    from tests.host_pause import pause_host
+
+    hold = {"armed": False, "taken": 0}
+    original = fake_gauge.ForceGaugeFake._request
+
+    def held(fake, command):
+        if hold["armed"] and not hold["taken"]:
+            hold["taken"] += 1
+            time.sleep(0.05)  # the driver is waiting for the reply by now (its request reached the fake at once)
+            pause_host(pause_s)
+            if lose:
+                fake.stats["unanswered"] += 1
+                return None
+            time.sleep(0.1)  # the gauge's own reply time after the host runs again, a third of the timeout
+        return original(fake, command)
+
+    monkeypatch.setattr(fake_gauge.ForceGaugeFake, "_request", held)
+    return hold
+
+
+def test_a_host_that_did_not_run_is_not_a_gauge_that_did_not_answer(world, monkeypatch, rng):
+    """Issue 46: the reply wait counts the gauge's silence, not the time this host was stopped (1.5-2.5x the
+    timeout, at the moment the gauge answers); a gauge that then stays silent still times out, naming the
+    request, after the pause and its whole timeout."""
+    import time
+
+    timeout = 0.3
+    pause = float(rng.uniform(1.5, 2.5)) * timeout
+    hold = _pause_before_reply(monkeypatch, pause)
+    with start_fake(world) as fake, ForceGauge.from_url(fake.url, timeout_s=timeout) as g:
+        g.connect()
+        hold["armed"] = True
+        assert np.isfinite(g.read_force_N())
+        assert hold["taken"] == 1 and fake.stats["unanswered"] == 0
+    hold = _pause_before_reply(monkeypatch, pause, lose=True)
+    with start_fake(world) as fake, ForceGauge.from_url(fake.url, timeout_s=timeout) as g:
+        g.connect()
+        hold["armed"] = True
+        t0 = time.monotonic()
+        with pytest.raises(DeviceTimeout, match="'\\?' within 0.3 s"):
+            g.read_force_N()
+        assert time.monotonic() - t0 >= pause + timeout - 0.06
+        assert np.isfinite(g.read_force_N())  # the next request is answered
