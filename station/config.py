@@ -278,7 +278,7 @@ class PathProgrammeConfig(_Strict):
     weave_amplitude_mm: float | None = Field(None, gt=0, le=50, allow_inf_nan=False)
     weave_frequency_Hz: float | None = Field(None, gt=0, le=20, allow_inf_nan=False)
     weave_speed_mm_s: float | None = Field(None, gt=0, le=500, allow_inf_nan=False)
-    weave_periods: int | None = Field(None, ge=1, le=100)
+    weave_periods: int | None = Field(None, ge=2, le=100)
     weave_points_per_period: int | None = Field(None, ge=4, le=12)
 
 
