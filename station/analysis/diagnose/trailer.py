@@ -36,10 +36,13 @@
    test rejected a true null 3 to 6 times too often.) The columns are built
    from a leave-one-out smoothing of the curvature, so the curvature noise
    of a sample cannot correlate a column with its own residual.
-4. Forward selection: of the significant candidates that also lower the
-   held-out RMS (linearised refit), the one that lowers it most is added and
-   the model refitted (nonlinear least squares) until nothing significant
-   is left. When significant candidates are left but none lowers the
+4. Forward selection: each significant candidate whose linearised step
+   lowers the held-out RMS is refitted (nonlinear least squares); of those
+   whose refit lowers it, the one that lowers it most is added, until
+   nothing significant is left. A candidate whose refit runs a parameter to
+   the edge of the model's domain (L2 of 1 mm, a gain of 5) is refused as
+   not testable: no trailer is that, and the Wald test holds only at an
+   interior optimum. When no significant candidate lowers the
    held-out RMS alone, one that does so together with a second candidate
    (significant after it) is added, and its step says so: an offset and a
    curvature gain of opposite effect can cancel on the held-out blocks. The refit is driven by the same leave-out curvature: driven
@@ -637,7 +640,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
         fits = []
         for ct in sig:
             # the linearised step tests the candidates; their refits choose: a relaxation enters the model far
-            # from linearly (its step from 0 ranked an offset first that refitted to 0.05 % of its step, and a
+            # from linearly (its step from 0 ranked an offset first that refitted to about 1 % of its step, and a
             # refit of link lengths after it ran L2 to 1 mm, CI seed 2906433913). One whose refit runs a
             # parameter to the edge of the model's domain (L2 of 1 mm, a gain of 5) is no trailer, and its
             # test, a Wald test at an interior optimum, does not hold there
@@ -654,7 +657,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
         if fits:
             _, best, new_active, new_theta = min(fits, key=lambda f: f[0])
         elif sig:
-            pass  # every significant candidate refused: nothing is added
+            pass  # significant ones, but no refit lowers the held-out RMS (or each ran to an edge): nothing added
         elif best is None:
             # two effects whose residuals cancel on the held-out blocks: each alone lowers nothing there
             found = _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now)
