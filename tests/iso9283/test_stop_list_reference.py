@@ -142,7 +142,8 @@ def test_the_reader_gives_the_reference_stops_and_refusals(rng, tmp_path):
                 rows[i] = rows[i][:]
                 rows[i][int(rng.integers(0, len(rows[i])))] = str(rng.choice(_FAULTS))
             elif kind < 0.75:
-                rows.insert(i, rows[i][:] if i else rows[1][:])  # a row twice
+                # a row twice (the header when nothing else is left: an earlier fault cut the list short)
+                rows.insert(i, rows[i][:] if i or len(rows) < 2 else rows[1][:])
             elif kind < 0.85:
                 rows[i] = rows[i][:-1]  # a field short
             elif kind < 0.92 and i:
