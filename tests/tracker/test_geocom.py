@@ -172,7 +172,9 @@ def test_a_host_that_did_not_run_during_connect_is_no_silence_of_the_instrument(
         try:
             started = time.monotonic()
             if silent:
-                with pytest.raises(DeviceTimeout, match=rf"no reply to GeoCOM rpc 0 within {reply_timeout_s:g} s"):
+                # the wait named is the reply timeout or, when less is left of connect's budget, what was left
+                # (CI seed 2373777377: 0.324476 of 0.324531 s)
+                with pytest.raises(DeviceTimeout, match=r"no reply to GeoCOM rpc 0 within [0-9.]+ s"):
                     tracker.connect(timeout_s=timeout_s)
                 assert time.monotonic() - started >= pause_s + reply_timeout_s
             else:
