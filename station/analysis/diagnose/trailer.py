@@ -656,9 +656,7 @@ def diagnose_trailer(t_s, kappa, psi, *, L1_m: float, L2_m: float, v_m_s=None, k
                 fits.append((ho, ct, trial_active, trial))
         if fits:
             _, best, new_active, new_theta = min(fits, key=lambda f: f[0])
-        elif sig:
-            pass  # significant ones, but no refit lowers the held-out RMS (or each ran to an edge): nothing added
-        elif best is None:
+        elif not sig:  # (significant ones whose refits lower nothing or run to an edge: nothing is added)
             # two effects whose residuals cancel on the held-out blocks: each alone lowers nothing there
             found = _pair_lookahead(theta, active, remaining, tests, ctx, alpha, ho_now)
             if found is not None:
