@@ -37,7 +37,12 @@ Safe state: when anything goes wrong while a program may be running
 sends STOP before raising (reconnecting once if the link dropped) and says in
 the message whether the stop was confirmed. If it cannot be, the
 controller's communication watchdog (``watchdog_ms``, written at start)
-stops the program on its own once the station falls silent.
+stops the program on its own once the station falls silent. While
+:meth:`wait_done` hands a status to the caller (``on_status``: journaling,
+which a loaded disk can stall for seconds), a keep-alive thread reads one
+register every quarter of the watchdog, for at most ``keepalive_max_s``: a
+station that is alive but busy is not taken for a dead one, and one whose
+caller hangs still falls silent and is stopped.
 
 Measurement data: this driver never holds measurements. The tracker driver
 streams samples to the run's journal as they arrive (the runner journals
@@ -57,8 +62,10 @@ import logging
 import math
 import re
 import socket
+import threading
 import time
 import zlib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -201,6 +208,7 @@ FIRST_POLL_S = 0.002
 # operator's terminal across the progress bar; the driver's own errors name the request, the peer and the
 # deadline, and a retried read needs no word. A user who wants pymodbus's frames sets its level again.
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+_log = logging.getLogger(__name__)
 
 #: a read (idempotent) whose reply does not come is asked again, on a new connection, this many times in
 #: all within the driver's ``timeout_s`` (writes are not repeated: a command is acted on once)
@@ -254,6 +262,9 @@ class ControllerDriver:
         doubling from 2 ms, :func:`poll_pauses`).
     watchdog_ms : int
         Communication watchdog written at start (0 = off).
+    keepalive_max_s : float
+        How long the keep-alive speaks for a caller's ``on_status`` that has not returned (0 = no
+        keep-alive); after that the station falls silent and the watchdog stops the program.
     ftp_factory : callable, optional
         ``ftp_factory(timeout_s) -> ftplib.FTP``-like object (injected transport).
     dialect : {"rapid", "krl"}
@@ -279,6 +290,7 @@ class ControllerDriver:
         timeout_s: float = 5.0,
         poll_interval_s: float = 0.02,
         watchdog_ms: int = 2000,
+        keepalive_max_s: float = 60.0,
         ftp_factory: Callable[[float], Any] | None = None,
         modbus_client: Any = None,
         dialect: str = "rapid",
@@ -290,6 +302,8 @@ class ControllerDriver:
                 raise ConfigError(f"{name} must be a positive number, got {val!r}")
         if not (isinstance(watchdog_ms, int) and 0 <= watchdog_ms <= 65535):
             raise ConfigError(f"watchdog_ms must be an integer in [0, 65535], got {watchdog_ms!r}")
+        if not (isinstance(keepalive_max_s, (int, float)) and math.isfinite(keepalive_max_s) and keepalive_max_s >= 0):
+            raise ConfigError(f"keepalive_max_s must be a number >= 0, got {keepalive_max_s!r}")
         for name, port in (("ftp_port", ftp_port), ("modbus_port", modbus_port)):
             if not (isinstance(port, int) and 0 < port < 65536):
                 raise ConfigError(f"{name} must be in 1..65535, got {port!r}")
@@ -307,6 +321,9 @@ class ControllerDriver:
         self.timeout_s = float(timeout_s)
         self.poll_interval_s = float(poll_interval_s)
         self.watchdog_ms = watchdog_ms
+        self.keepalive_max_s = float(keepalive_max_s)
+        self._io_lock = threading.RLock()  # one request at a time on the link (the keep-alive's thread too)
+        self.keepalive_reads = 0
         self._ftp_factory = ftp_factory or (lambda t: ftplib.FTP(timeout=t))
         if modbus_client is None:
             from pymodbus.client import ModbusTcpClient
@@ -372,6 +389,10 @@ class ControllerDriver:
         attempt without reply counts as its own wait at most, however long it took, since one that outlasted
         its wait says this process did not run meanwhile (a busy or paused host) and the controller's silence
         was not measured for that time; the next attempt still gets its wait."""
+        with self._io_lock:
+            return self._call_locked(what, fn, *args, retry=retry, **kwargs)
+
+    def _call_locked(self, what: str, fn, *args, retry: bool = False, **kwargs):
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
         deadline = ListeningDeadline(self.timeout_s, self.timeout_s)
@@ -677,7 +698,8 @@ class ControllerDriver:
                 st = self.status()
                 if on_status is not None:
                     deadline.time_left()  # the polling up to here counts, the caller's work does not
-                    on_status(st)
+                    with self._keeping_alive():
+                        on_status(st)
                     deadline.count_gap(0.0)
                 if st.state == State.FINISHED:
                     self._running = False
@@ -701,6 +723,38 @@ class ControllerDriver:
             raise
         except (DeviceError, DeviceTimeout, ConnectionLost) as exc:
             raise self._stop_after(exc)
+
+    @contextmanager
+    def _keeping_alive(self):
+        """While the body runs (the caller's ``on_status``), read the state register every quarter of the
+        watchdog, for at most ``keepalive_max_s``: the controller hears a live station.
+
+        The first read comes a quarter watchdog after entry, so a callback that returns at once costs no
+        request. A failed read ends the keep-alive quietly: the next status read of :meth:`wait_done`
+        meets the same link and reports it."""
+        if not (self.watchdog_ms and self.keepalive_max_s > 0):
+            yield
+            return
+        done = threading.Event()
+        every_s = self.watchdog_ms / 4000.0
+
+        def speak() -> None:
+            end = time.monotonic() + self.keepalive_max_s
+            while not done.wait(every_s) and time.monotonic() < end:
+                try:
+                    self._read(self.map.state, 1)
+                except (DeviceError, DeviceTimeout, ConnectionLost) as exc:
+                    _log.debug("keep-alive ended: %s", exc)
+                    return
+                self.keepalive_reads += 1
+
+        thread = threading.Thread(target=speak, name="controller-keepalive", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            thread.join()
 
     def run(self, rendered, *, timeout_s: float, on_status=None) -> ControllerStatus:
         """Gate, upload, verify, select, start and wait: the whole sequence.

@@ -341,6 +341,70 @@ def test_watchdog_stops_a_program_when_the_station_falls_silent(start_controller
     assert_safe(fake, world, allowed=(State.FAULT,))
 
 
+def _stalling_run(start_controller, make_driver, robot, iso_poses, *, keepalive_max_s, stall_s=None):
+    """A 20-cycle run (about 4.6 s of host time) whose caller stalls in its first ``on_status`` after the
+    first move: ``stall_s`` seconds, or (None) until the controller has stopped the program (at most 10 s).
+    Returns (fake, driver, outcome, the stall's start and end on the host clock)."""
+    program = render_rapid(iso_pose_program(robot, iso_poses, cycles=20))
+    fake = start_controller()
+    drv = make_driver(fake, watchdog_ms=600, keepalive_max_s=keepalive_max_s)
+    stall = []
+
+    def on_status(st):
+        if stall or st.moves_done < 1:
+            return
+        t0 = time.monotonic()
+        if stall_s is not None:
+            time.sleep(stall_s)  # a journal commit stalled by a loaded disk: the station is alive, busy
+        else:
+            end = t0 + 10.0
+            while fake.core.state == State.RUNNING and time.monotonic() < end:
+                time.sleep(0.01)  # a caller that hangs
+        stall.append((t0, time.monotonic()))
+
+    try:
+        outcome = drv.run(program, timeout_s=120.0, on_status=on_status)
+    except ControllerFault as exc:
+        outcome = exc
+    return fake, drv, outcome, stall
+
+
+def test_a_caller_busy_in_on_status_keeps_the_program_running(start_controller, make_driver, world, robot, iso_poses):
+    """The keep-alive speaks for the caller: a 2 s stall (3x the 0.6 s watchdog) in ``on_status`` does not stop
+    the program, which finishes every move."""
+    fake, drv, outcome, stall = _stalling_run(start_controller, make_driver, robot, iso_poses,
+                                              keepalive_max_s=60.0, stall_s=2.0)
+    assert not isinstance(outcome, ControllerFault), outcome
+    assert outcome.state == State.FINISHED and fake.core.fault == Fault.NONE
+    assert len(stall) == 1 and stall[0][1] - stall[0][0] >= 2.0
+    assert drv.keepalive_reads >= 3  # a read every 0.15 s while the caller was away
+
+
+@pytest.mark.parametrize("keepalive_max_s", [0.0, 1.2])
+def test_a_caller_that_hangs_falls_silent_and_the_watchdog_stops_the_program(
+    start_controller, make_driver, world, robot, iso_poses, keepalive_max_s
+):
+    """Without a keep-alive, or once it has spoken its ``keepalive_max_s``, a hung caller is a silent station:
+    the controller's watchdog stops the program, and the run ends in the COMM_WATCHDOG fault."""
+    fake, drv, outcome, stall = _stalling_run(start_controller, make_driver, robot, iso_poses,
+                                              keepalive_max_s=keepalive_max_s)
+    assert isinstance(outcome, ControllerFault), outcome
+    assert outcome.status.fault == Fault.COMM_WATCHDOG and fake.core.fault == Fault.COMM_WATCHDOG
+    t0, t1 = stall[0]
+    # with a keep-alive, the program ran on for the keep-alive's time (2x the watchdog: impossible without it)
+    # and was stopped once it was out (else the program would have finished)
+    if keepalive_max_s:
+        assert t1 - t0 >= keepalive_max_s and drv.keepalive_reads >= 1
+    else:
+        assert drv.keepalive_reads == 0
+    assert outcome.status.moves_done < len(expected_stops(program_of(robot, iso_poses)))
+    assert_safe(fake, world, allowed=(State.FAULT,))
+
+
+def program_of(robot, iso_poses):
+    return iso_pose_program(robot, iso_poses, cycles=20)
+
+
 def test_unknown_fault_keys_are_refused(start_controller):
     from station.errors import ConfigError
 
