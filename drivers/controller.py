@@ -210,8 +210,8 @@ FIRST_POLL_S = 0.002
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 _log = logging.getLogger(__name__)
 
-#: a read (idempotent) whose reply does not come is asked again, on a new connection, this many times in
-#: all within the driver's ``timeout_s`` (writes are not repeated: a command is acted on once)
+#: a read, or a write of a parameter register, whose reply does not come is asked again, on a new connection,
+#: this many times in all within the driver's ``timeout_s`` (a command is never repeated: it is acted on once)
 READ_ATTEMPTS = 3
 #: s: while it waits for an acknowledge or for rest the driver looks at least every poll interval (a status
 #: read between), so a longer gap between two looks is a host that did not run this process (nor a simulated
@@ -447,8 +447,12 @@ class ControllerDriver:
             raise ProtocolError(f"Modbus read of {count} registers at {address} returned {len(regs)}")
         return regs
 
-    def _write(self, address: int, values: list[int]) -> None:
-        self._call(f"write of registers {address}..{address + len(values) - 1}", self._mb.write_registers, address, values)
+    def _write(self, address: int, values: list[int], *, repeatable: bool = True) -> None:
+        """Write registers. ``repeatable``: writing the same values again does nothing more (a parameter
+        register), so a write whose reply does not come is sent again like a read; a command is not
+        (:meth:`_command` learns from the acknowledge whether it arrived)."""
+        self._call(f"write of registers {address}..{address + len(values) - 1}", self._mb.write_registers, address,
+                   values, retry=repeatable)
 
     # ------------------------------------------------------------------ status
     def status(self) -> ControllerStatus:
@@ -479,7 +483,13 @@ class ControllerDriver:
             self._write(address, values)
         self._seq = self._seq % 65535 + 1
         seq = self._seq
-        self._write(self.map.command, [int(command), seq])
+        unanswered = ""
+        try:
+            self._write(self.map.command, [int(command), seq], repeatable=False)
+        except DeviceTimeout as exc:
+            # the request may have arrived and only its reply be late (a host that did not run while it came):
+            # the acknowledge tells, and the command is never sent twice
+            unanswered = f"; its write had no reply either ({exc})"
         deadline = ListeningDeadline(self.timeout_s, max(LISTEN_SLICE_S, self.poll_interval_s))
         pauses = poll_pauses(self.poll_interval_s)
         while True:
@@ -489,7 +499,7 @@ class ControllerDriver:
             if deadline.expired():
                 raise DeviceTimeout(
                     f"controller did not acknowledge {command.name} (seq {seq}) within {self.timeout_s:g} s "
-                    f"({st.summary()})"
+                    f"({st.summary()}){unanswered}"
                 )
             time.sleep(next(pauses))
         if st.result != Result.OK:

@@ -269,6 +269,43 @@ def test_a_silent_controller_still_times_out_beside_a_host_pause(rng, monkeypatc
     assert time.monotonic() - started >= pause_s + 2 * timeout_s / 3 * 0.99
 
 
+@pytest.mark.parametrize("register", ["watchdog_ms", "command"])
+def test_a_write_whose_reply_is_lost_is_no_failed_start(rng, monkeypatch, start_controller, make_driver, robot,
+                                                         iso_poses, register):
+    """The controller acts on START's write (or the watchdog's, written just before) but its reply does not
+    come within the driver's timeout (it is 1.5-2.5 timeouts late): the watchdog is written again, START is
+    not (its acknowledge says it arrived), and the program runs once to its end. A driver that took the
+    missing reply for a failed write refused the start and stopped the program."""
+    import asyncio
+
+    from fakes import controller as fake_controller
+
+    timeout_s = float(rng.uniform(0.4, 0.8))
+    late_s = float(rng.uniform(1.5, 2.5)) * timeout_s
+    hold = {"armed": False, "taken": 0}
+    original = fake_controller._ModbusServer._action
+
+    async def held(server, fc, start_address, address, count, registers, values):
+        reply = await original(server, fc, start_address, address, count, registers, values)
+        if hold["armed"] and values is not None and address == getattr(server.core.map, register) and not hold["taken"]:
+            hold["taken"] += 1
+            await asyncio.sleep(late_s)  # acted on, the reply lost on the way
+        return reply
+
+    monkeypatch.setattr(fake_controller._ModbusServer, "_action", held)
+    fake = start_controller()
+    drv = make_driver(fake, timeout_s=timeout_s)
+    drv.upload(render_rapid(iso_pose_program(robot, iso_poses, cycles=1, speed_frac=0.5)))
+    drv.select()
+    hold["armed"] = True
+    st = drv.start()
+    assert hold["taken"] == 1
+    assert st.state in (State.RUNNING, State.FINISHED) and st.fault == Fault.NONE
+    final = drv.wait_done(60.0)
+    assert final.state == State.FINISHED and final.cycle_count == 1
+    assert sum(fake.core._runs_by_name.values()) == 1  # START acted on once
+
+
 def test_missing_acknowledge_is_a_timeout(start_controller, make_driver, world, program):
     fake = start_controller({"ack_stall": "start"})
     drv = make_driver(fake, timeout_s=0.5)
