@@ -21,6 +21,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
@@ -166,6 +167,42 @@ class MeasurementConfig(_Strict):
 Measurements = dict[str, list[MeasurementConfig]]
 
 
+class MountingConfig(_Strict):
+    """The mounting a robot stands on (its base plate or pedestal in the cell), for ISO 9283 7.8: robots of one
+    model exchanged on one mounting are compared in the mounting's frame, not each in its own registered one.
+
+    ``frame``: a frame file (``p_tracker = R @ p_mounting + t_mm``, the form ``station run`` writes beside its
+    report as ``<run>.frame.json``) giving the mounting's frame in the tracker's, the tracker left standing
+    where it stood when it was measured; typically the first robot's registered frame, kept for the others.
+    Without it a run takes its own registered frame as the mounting's (the first robot's run). A path relative
+    to the config file's folder; read when the config is, and kept here as the absolute path it resolved to."""
+
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
+    frame: str | None = Field(None, min_length=1, max_length=4096)
+
+    @field_validator("frame")
+    @classmethod
+    def _readable_frame(cls, v: str | None, info) -> str | None:
+        if v is None:
+            return v
+        from station.readers.registration_files import read_frame_json
+
+        base = (info.context or {}).get("base_dir")
+        path = _under(Path(base) if base is not None else Path.cwd(), v)
+        try:
+            R, _, _ = read_frame_json(path)
+        except (ConfigError, DataError) as exc:
+            raise ValueError(f"file {path}: {exc}") from None
+        if np.abs(R.T @ R - np.eye(3)).max() > FRAME_ROTATION_TOL or np.linalg.det(R) <= 0:
+            raise ValueError(f"file {path}: key 'R' is not a rotation (R^T R = I, det R = +1 within "
+                             f"{FRAME_ROTATION_TOL:g})")
+        return str(path.resolve())
+
+
+#: how far from a rotation a mounting frame's R may be (the rounding of a frame file's numbers)
+FRAME_ROTATION_TOL = 1e-6
+
+
 class RobotConfig(_Strict):
     model: str
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
@@ -179,6 +216,8 @@ class RobotConfig(_Strict):
     #: file's folder; checked when the config is read, and kept here as the absolute path it resolved to
     motion_model: str | None = Field(None, min_length=1, max_length=4096)
     controller: str
+    #: the mounting this robot stands on (ISO 9283 7.8 exchangeability; None: not recorded, not comparable)
+    mounting: MountingConfig | None = None
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()
     #: this robot's own measurements per procedure, added to the station's

@@ -33,7 +33,8 @@ from station.models.tracker_noise import TrackerNoise
 from station.numeric import finite_number
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
-__all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM"]
+__all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM", "work_centre_mm",
+           "draw_tracker_pose"]
 
 #: centre of the seed 000 Table 1 test cube (P1 of Table 2), robot base frame, mm
 ISO_CUBE_CENTRE_MM = (0.0, 1700.0, 1400.0)
@@ -212,7 +213,15 @@ def realistic_servo(rng: np.random.Generator) -> ServoParams:
     return ServoParams(2.0 * np.pi * rng.uniform(6.0, 12.0, 6), rng.uniform(0.6, 0.9, 6))
 
 
-def _draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def work_centre_mm(spec: RobotSpec) -> np.ndarray:
+    """Centre of a cell's working volume, base frame, mm: the ISO cube centre for ``industrial-3100``, else the
+    nominal TCP at home."""
+    if spec.name == "industrial-3100":
+        return np.array(ISO_CUBE_CENTRE_MM, dtype=float)
+    return np.asarray(kin.tool_position(spec.dh_nominal, spec.home_q_rad), dtype=float)
+
+
+def draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Tracker 2-4 m (horizontally) from ``centre``, levelled, random heading.
 
     Rejects spots within 1.5 m of the robot's base axis. Height 1.0-1.7 m
@@ -424,12 +433,9 @@ def make_world(
     else:
         stop_sigma = realistic_stop_sigma_rad(spec, rng_stop, sigma_mm=float(stop_sigma_mm))
 
-    if spec.name == "industrial-3100":
-        centre = np.array(ISO_CUBE_CENTRE_MM)
-    else:
-        centre = kin.tool_position(spec.dh_nominal, spec.home_q_rad)
+    centre = work_centre_mm(spec)
     rng_track = np.random.default_rng(s_track)
-    T_track = _draw_tracker_pose(centre, rng_track) if base_T_tracker is None else base_T_tracker
+    T_track = draw_tracker_pose(centre, rng_track) if base_T_tracker is None else base_T_tracker
     tracker_seed = int(np.random.default_rng(s_tnoise).integers(0, 2**31 - 1))
     try:
         tracker = TrackerModel(
