@@ -178,6 +178,14 @@ class World:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def carried(self) -> dict:
+        """What a cell started again to resume a run carries on from this one (``make_world`` keywords): the
+        arm's temperature rise now (``arm_rise``), when it has a thermal drift."""
+        if self.arm.heat is None:
+            return {}
+        t = float(self.clock.now())
+        return {"arm_rise": [t, float(self.arm.temperature_rise_K(t)[0])]}
+
     def describe(self) -> dict:
         """JSON-able truth of the world (for people, tests and truth files)."""
         return {
@@ -269,6 +277,7 @@ def make_world(
     joint_defect=None,
     warmup=None,
     motion_model: MotionModel | None = None,
+    arm_rise=None,
 ) -> World:
     """Build a simulated cell.
 
@@ -328,9 +337,14 @@ def make_world(
         "amplitude_deg"}``, :mod:`fakes.sim.joint_defect`): the "one pose out"
         robot of the acceptance fixtures.
     warmup : (float, float), optional
-        The arm's warm-up from its cold start, ``(dT_max_K, tau_s)``: the first-order temperature rise
-        ``dT_max (1 - exp(-t / tau))`` of its links (:class:`station.models.effects.ThermalDrift`, steel) from
-        the clock's 0, in place of the one drawn with the effects (a drift test's known truth); needs effects.
+        The arm's thermal drift ``(dT_max_K, tau_s)`` in place of the one drawn with the effects (a drift test's
+        known truth; needs effects): its links (steel) warm while its joints move and cool at rest, to the
+        steady rise ``dT_max`` under the heat input of continuous ISO 9283 cycling, with the time constant
+        ``tau`` (:mod:`fakes.sim.heat`); the arm is cold when the cell is built.
+    arm_rise : (float, float), optional
+        ``(t_s, dT_K)``: the arm's temperature rise ``dT_K`` at simulated time ``t_s`` (what a cell that ran
+        before left, :meth:`World.carried`): a cell started again to resume a run starts with its arm that
+        warm, cooled at rest from ``t_s`` to the new clock's start (default: cold).
     motion_model : MotionModel, optional
         A diagnosed arm's motion (``station diagnose motion --model-out``,
         :mod:`station.models.motion_effects`): its loop on every axis (instead
@@ -409,6 +423,14 @@ def make_world(
         if effects is None:
             raise ConfigError("`warmup` needs the arm's effects (effects=None is the nominal arm)")
         warmup = (dT_max, tau)
+    if arm_rise is not None:
+        try:
+            rise_t, rise_K = (float(v) for v in arm_rise)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"`arm_rise` must be (t_s, dT_K), got {arm_rise!r}") from exc
+        finite_number(rise_t, "arm_rise t_s")
+        finite_number(rise_K, "arm_rise dT_K", nonneg=True)
+        arm_rise = (rise_t, rise_K)
     if jig is not None and not isinstance(jig, CornerJig):
         raise ConfigError(f"`jig` must be a CornerJig, got {type(jig).__name__}")
 
@@ -479,6 +501,8 @@ def make_world(
     )
     if clock is None:
         arm.warmup_origin_s = 0.0
+    if arm_rise is not None and arm.heat is not None:
+        arm.heat = arm.heat.cooled_from(*arm_rise)
     return World(
         clock=clk,
         robot=spec,
