@@ -44,7 +44,7 @@ class FakeCell:
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
 #: more (``stop_sigma_mm``, mm per coordinate at home), a tracker whose beam is broken (``beam_breaks``, pairs of
 #: simulated s), an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`), an arm that
-#: warms from its cold start so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth) or one that moves as a
+#: warms with its motion so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth, :mod:`fakes.sim.heat`) or one that moves as a
 #: diagnosed motion model says (``motion_model``: its file, as the config's ``robots.X.motion_model`` resolved it);
 #: ``arm_rise`` is what a cell that ran before left (:meth:`fakes.sim.world.World.carried`), set by a resume
 WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect", "tracker_mpe_a_um", "tracker_mpe_b_um_per_m",

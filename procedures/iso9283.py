@@ -999,8 +999,9 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     return problems
 
 
-def orientation_problems(plan: IsoPlan, devices) -> list[str]:
-    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits on a position-only tracker."""
+def orientation_problems(plan: IsoPlan, devices, programme: str = "pose") -> list[str]:
+    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits (of ``programme``'s figures) on a
+    position-only tracker."""
     from station.characteristics import characteristics
 
     problems = []
@@ -1017,7 +1018,8 @@ def orientation_problems(plan: IsoPlan, devices) -> list[str]:
             problems.append(f"devices.tracker.six_dof: this tracker ({getattr(cls, 'protocol', '?')}) streams "
                             "positions only, not a 6-DoF target's orientation")
     else:
-        angles = sorted(k for k in plan.limits if any(c.key == k and c.with_orientation for c in characteristics()))
+        angles = sorted(k for k in plan.limits
+                        if any(c.key == k and c.with_orientation for c in characteristics(programme)))
         if angles:
             problems.append(f"limits {', '.join(angles)}: orientation limits need a 6-DoF tracker "
                             "(devices.tracker.six_dof = true); this one measures positions only")

@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from station.characteristics import config_limit_keys
+from station.characteristics import config_limit_keys, robot_limit_keys
 from station.errors import ConfigError, DataError
 from station.models.robots import get_robot
 from station.models.trailer import ESTIMATORS
@@ -90,8 +90,11 @@ class LimitsConfig(_Strict):
 
     One key per limited characteristic of the ISO 9283 table
     (:mod:`station.characteristics`: ``ap_limit_mm`` for ``AP_mm``, ...,
-    every key ``station analyze iso9283 --limit`` accepts), and the POS/PST
-    band ``pos_band_mm``. A key the table lacks is refused, naming it.
+    every key ``station analyze iso9283 --limit`` accepts), the drift
+    programme's (``dap_limit_mm``, ``drp_limit_mm``, and per angle of a 6-DoF
+    target ``dapa_limit_deg`` ... ``drpc_limit_deg``), and the POS/PST band
+    ``pos_band_mm``. A key the table lacks is refused, naming it; so is a
+    value that is not a number > 0.
     """
 
     model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
@@ -103,7 +106,7 @@ class LimitsConfig(_Strict):
     @classmethod
     def _known_keys(cls, data, handler):
         if isinstance(data, dict):
-            known = config_limit_keys()
+            known = robot_limit_keys()
             bad = [k for k in data if k not in known and k not in cls.model_fields]
             if bad:
                 why = PydanticCustomError(
@@ -117,14 +120,15 @@ class LimitsConfig(_Strict):
         try:
             return super().__getattr__(name)
         except AttributeError:
-            if name in config_limit_keys():
+            if name in robot_limit_keys():
                 return None  # a limit not configured
             raise
 
-    def by_characteristic(self) -> dict[str, float]:
-        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``), in the table's order."""
+    def by_characteristic(self, programme: str = "pose") -> dict[str, float]:
+        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``) that ``programme`` judges (the
+        pose test's, or the drift programme's), in the table's order."""
         given = self.model_extra or {}
-        return {key: float(given[k]) for k, key in config_limit_keys().items() if given.get(k) is not None}
+        return {key: float(given[k]) for k, key in config_limit_keys(programme).items() if given.get(k) is not None}
 
 
 class WorkspaceConfig(_Strict):

@@ -329,9 +329,10 @@ def make_world(
         Scanner pose; default 700 mm from the TCP at home, facing the tool.
     start_s : float
         Simulated time at which the new clock starts (>= 0; ignored when
-        ``clock`` is given). The cell was built at 0 (the arm's warm-up
-        counts from there): a cell started again to resume a run continues
-        the time of the one before, so device time never repeats.
+        ``clock`` is given). The cell was built at 0 (``warmup_origin_s``):
+        a cell started again to resume a run continues the time of the one
+        before, so device time never repeats (its arm cold at the start
+        unless ``arm_rise`` says how warm the last cell left it).
     joint_defect : dict or JointDefect, optional
         A localised flaw of one joint (``{"joint", "centre_deg", "width_deg",
         "amplitude_deg"}``, :mod:`fakes.sim.joint_defect`): the "one pose out"
