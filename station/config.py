@@ -191,16 +191,22 @@ class MountingConfig(_Strict):
             return v
         from station.readers.registration_files import read_frame_json
 
-        base = (info.context or {}).get("base_dir")
-        path = _under(Path(base) if base is not None else Path.cwd(), v)
-        try:
-            R, _, _ = read_frame_json(path)
-        except (ConfigError, DataError) as exc:
-            raise ValueError(f"file {path}: {exc}") from None
+        path, (R, _, _) = _read_named_file(v, info, read_frame_json)
         if np.abs(R.T @ R - np.eye(3)).max() > FRAME_ROTATION_TOL or np.linalg.det(R) <= 0:
             raise ValueError(f"file {path}: key 'R' is not a rotation (R^T R = I, det R = +1 within "
                              f"{FRAME_ROTATION_TOL:g})")
         return str(path.resolve())
+
+
+def _read_named_file(v: str, info, read):
+    """``(path, read(path))`` of a file a config names (relative to the config's folder, the validation
+    context's ``base_dir``); a file ``read`` refuses is a ValueError naming it."""
+    base = (info.context or {}).get("base_dir")
+    path = _under(Path(base) if base is not None else Path.cwd(), v)
+    try:
+        return path, read(path)
+    except (ConfigError, DataError) as exc:
+        raise ValueError(f"file {path}: {exc}") from None
 
 
 #: how far from a rotation a mounting frame's R may be (the rounding of a frame file's numbers)
@@ -234,12 +240,7 @@ class RobotConfig(_Strict):
             return v
         from station.models.motion_model_file import read_motion_model
 
-        base = (info.context or {}).get("base_dir")
-        path = _under(Path(base) if base is not None else Path.cwd(), v)
-        try:
-            read_motion_model(path)
-        except (ConfigError, DataError) as exc:
-            raise ValueError(f"file {path}: {exc}") from None
+        path, _ = _read_named_file(v, info, read_motion_model)
         return str(path.resolve())
 
     @field_validator("model")
