@@ -37,7 +37,7 @@ from procedures.execute import execute, prepare, preflight
 from station.config import StationConfig
 from station.errors import ConfigError, SafetyError
 from app.terminal import InteractiveOperator, ProgressLine
-from station.runner import RunControl, ScriptedOperator
+from station.runner import FAKE_CARRY_KEY, RunControl, ScriptedOperator
 from station.store import RunStore, StoreError
 from station.verdict import Outcome
 
@@ -274,6 +274,7 @@ def run_procedure(request: RunRequest) -> ProcedureOutcome:
         spec = prepared.spec
         if devices is None and prepared.fake is None:
             devices = configured_devices(cfg, spec.device_roles(cfg, request.robot))
+        cell = None
         if devices is None:
             cell = start_fake_cell(spec, prepared.params, prepared.fake)
             stack.callback(cell.close)
@@ -288,6 +289,8 @@ def run_procedure(request: RunRequest) -> ProcedureOutcome:
                 raise SafetyError("armed run not confirmed by the operator; nothing moved")
         forwarder = _start_forwarding(cfg, base, stack)
         ran = _drive(store, prepared, cfg, devices, operator, request.control, request.quiet, request.progress)
+        if getattr(cell, "carry", None) is not None:  # what a resumed cell carries on from this one's world
+            store.put_result(prepared.run_id, FAKE_CARRY_KEY, cell.carry())
         measured = record_measurements(store, prepared.run_id) if ran.status == "done" else []
         decision = decide(spec, store, prepared.run_id)
         if ran.status == "done":

@@ -27,6 +27,9 @@ class FakeCell:
     #: ``hand(operator) -> operator``: a cell whose simulated world acts on the operator's answers (the loads
     #: of a static compliance test) wraps the run's operator with it; None: the operator is left alone
     hand: Callable | None = None
+    #: ``carry() -> dict``: what of the simulated world a cell started again to resume the run carries on (fake
+    #: options: the arm's temperature rise, ``arm_rise``); None: nothing
+    carry: Callable | None = None
 
     def close(self) -> None:
         self._close()
@@ -41,10 +44,11 @@ class FakeCell:
 #: the fake options that shape the simulated world (``make_world`` keywords), e.g. an arm whose stops scatter
 #: more (``stop_sigma_mm``, mm per coordinate at home), a tracker whose beam is broken (``beam_breaks``, pairs of
 #: simulated s), an arm with a flaw on one joint (``joint_defect``, :mod:`fakes.sim.joint_defect`), an arm that
-#: warms from its cold start so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth) or one that moves as a
-#: diagnosed motion model says (``motion_model``: its file, as the config's ``robots.X.motion_model`` resolved it)
+#: warms with its motion so (``warmup``: ``[dT_max_K, tau_s]``, a drift test's truth, :mod:`fakes.sim.heat`) or one that moves as a
+#: diagnosed motion model says (``motion_model``: its file, as the config's ``robots.X.motion_model`` resolved it);
+#: ``arm_rise`` is what a cell that ran before left (:meth:`fakes.sim.world.World.carried`), set by a resume
 WORLD_OPTIONS = ("stop_sigma_mm", "beam_breaks", "joint_defect", "tracker_mpe_a_um", "tracker_mpe_b_um_per_m",
-                 "warmup", "motion_model")
+                 "warmup", "motion_model", "arm_rise")
 
 
 def _world_options(fake: Mapping) -> dict:
@@ -68,7 +72,7 @@ def iso9283_cell(params: Mapping, fake: Mapping) -> FakeCell:
                                 robot=params["robot"], payload_kg=float(params.get("payload_kg", 0.0)),
                                 start_s=float(fake.get("start_s", 0.0)), rtde_hz=fake.get("rtde_hz"), **world)
     return FakeCell({"tracker": station.tracker_url, "controller": station.controller_url},
-                    float(fake["time_scale"]), station.close)
+                    float(fake["time_scale"]), station.close, carry=station.world.carried)
 
 
 def compliance_cell(params: Mapping, fake: Mapping) -> FakeCell:

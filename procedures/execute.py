@@ -27,7 +27,7 @@ from pathlib import Path
 from procedures.devices import DeviceSet
 from procedures.registry import ProcedureSpec, Subject, get_procedure
 from station.errors import ConfigError, PreflightError
-from station.runner import Operator, Progress, RunControl, RunOutcome, Runner, resume_start_s
+from station.runner import Operator, Progress, RunControl, RunOutcome, Runner, resume_fake
 from station.store import RunStore
 
 
@@ -68,8 +68,9 @@ def prepare(cfg, store: RunStore, procedure: str | None = None, *, robot: str = 
         subject = Subject(rec.model, rec.serial, rec.overhaul_state, f"{rec.model} serial {rec.serial}")
         fake_again = params.get("fake")
         if fake_again is not None:
-            # the same cell, its clock going on after everything the run stored (time never repeats)
-            fake_again = {**fake_again, "start_s": resume_start_s(store, resume)}
+            # the same cell, its clock going on after everything the run stored (time never repeats), its world
+            # as the last cell left it (the arm's warmth)
+            fake_again = resume_fake(store, resume, fake_again)
         return PreparedRun(spec, resume, params, True, robot, subject, fake_again)
     if procedure is None:
         raise ConfigError("name a procedure or a run to resume")

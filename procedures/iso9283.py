@@ -111,6 +111,9 @@ class IsoPlan:
     orientation: bool = False
     #: sd of each 6-DoF angle reading, deg (the instrument term of the orientation figures' uncertainty)
     angle_sd_deg: float = 0.0
+    #: the mounting the robot stands on (robots.<r>.mounting): ``{"name", "frame_file", "R", "t_mm"}``, the frame
+    #: p_tracker = R p_mounting + t_mm (None: this run's registered frame is the mounting's); None: not recorded
+    mounting: dict | None = None
 
     def gate(self) -> SafetyGate:
         return SafetyGate(
@@ -191,11 +194,42 @@ def _plan_on_cube(cfg, robot_name: str, corners, inset_mm: float, vap_offset_mm:
     )
     if cfg.uncertainty is not None:
         kw.update(decision_rule=cfg.uncertainty.decision_rule, uncertainty=cfg.uncertainty.budget_kwargs())
+    if rc.mounting is not None:
+        kw.update(mounting=mounting_of(rc.mounting))
     tracker = cfg.devices.get(device_roles(cfg, robot_name)["tracker"])
     if tracker is not None and tracker.six_dof:
         kw.update(orientation=True, angle_sd_deg=tracker.angle_sd_deg)
     kw.update(overrides)
     return IsoPlan(**kw)
+
+
+def mounting_of(mc) -> dict:
+    """A plan's record of the robot's mounting (a :class:`~station.config.MountingConfig`): its name and the frame
+    its frame file gives (None: the run's own registered frame will be the mounting's)."""
+    if mc.frame is None:
+        return {"name": mc.name, "frame_file": None, "R": None, "t_mm": None}
+    from station.readers.registration_files import read_frame_json
+
+    R, t, _ = read_frame_json(mc.frame)
+    return {"name": mc.name, "frame_file": mc.frame, "R": R.tolist(), "t_mm": t.tolist()}
+
+
+def mounting_frame(plan: IsoPlan, reg: Registration) -> dict | None:
+    """What the run stores of its mounting (``register base frame``'s ``mounting``): the name, the frame
+    (``p_tracker = R p_mounting + t_mm``: the plan's, or the run's own registered frame when the plan gives
+    none), where it came from, and how far the run's registered base lies from it at the test poses, mm."""
+    from station.analysis.iso9283.exchangeability import base_offset_mm
+
+    m = plan.mounting
+    if m is None:
+        return None
+    if m.get("R") is None:
+        R, t, source = reg.R, reg.t_mm, "this run's registered frame"
+    else:
+        R, t, source = np.asarray(m["R"], dtype=float), np.asarray(m["t_mm"], dtype=float), f"frame file {m['frame_file']}"
+    offset = base_offset_mm(R, t, reg.R, reg.t_mm, list(plan.poses_mm.values()))
+    return {"name": m["name"], "R": np.asarray(R).tolist(), "t_mm": np.asarray(t).tolist(), "from": source,
+            "base_offset_mm": offset}
 
 
 # --------------------------------------------------------------------------
@@ -494,7 +528,7 @@ def step_register(ctx: StepContext) -> dict:
     return {"method": plan.registration, "R": reg.R.tolist(), "t_mm": reg.t_mm.tolist(), "rms_mm": reg.rms_mm,
             "residuals_mm": reg.residuals_mm.tolist(), "points": names, "points_tracker_mm": measured.tolist(),
             "uncertainty_at_poses_mm": dict(zip(plan.poses_mm, np.round(u, 4).tolist())),
-            "rotation_cov_deg2": rot.tolist()}
+            "rotation_cov_deg2": rot.tolist(), "mounting": mounting_frame(plan, reg)}
 
 
 def jackknife_refits(fit, n: int) -> list[Registration]:
@@ -965,8 +999,9 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
     return problems
 
 
-def orientation_problems(plan: IsoPlan, devices) -> list[str]:
-    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits on a position-only tracker."""
+def orientation_problems(plan: IsoPlan, devices, programme: str = "pose") -> list[str]:
+    """A 6-DoF plan whose tracker cannot stream orientation; orientation limits (of ``programme``'s figures) on a
+    position-only tracker."""
     from station.characteristics import characteristics
 
     problems = []
@@ -983,7 +1018,8 @@ def orientation_problems(plan: IsoPlan, devices) -> list[str]:
             problems.append(f"devices.tracker.six_dof: this tracker ({getattr(cls, 'protocol', '?')}) streams "
                             "positions only, not a 6-DoF target's orientation")
     else:
-        angles = sorted(k for k in plan.limits if any(c.key == k and c.with_orientation for c in characteristics()))
+        angles = sorted(k for k in plan.limits
+                        if any(c.key == k and c.with_orientation for c in characteristics(programme)))
         if angles:
             problems.append(f"limits {', '.join(angles)}: orientation limits need a 6-DoF tracker "
                             "(devices.tracker.six_dof = true); this one measures positions only")

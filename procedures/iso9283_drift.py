@@ -41,7 +41,8 @@ again for the same device time. Nothing measured is lost, and a resume never
 measures a visit twice.
 
 The plan is the ISO plan of the config (cube, poses, registration, tracker
-rate, limits ``dap_limit_mm``, ``drp_limit_mm``) with a ``drift`` entry from the
+rate, limits ``dap_limit_mm``, ``drp_limit_mm``, per angle of a 6-DoF target ``dapa_limit_deg`` ...
+``drpc_limit_deg``) with a ``drift`` entry from the
 config's ``[iso9283_drift]`` section (:class:`station.config.DriftProgrammeConfig`):
 ``span_s`` (8 h), ``interval_s`` (600 s), ``cycles_per_visit`` (10) and ``poses``
 (all of the cube's); overrides of those names reach it (:data:`DEFAULTS`). A
@@ -61,8 +62,8 @@ import numpy as np
 from procedures.cell import prompt_step, robot_subject
 from procedures.decision import Checks
 from procedures.iso9283 import (STREAM, IsoPlan, IsoSession, _plan, _run_program, _stream_in_base, _timeout,
-                                plan_from_config, registered_budget, registration_of, safe_state, step_check_programs,
-                                step_stop_stream)
+                                orientation_problems, plan_from_config, registered_budget, registration_of, safe_state,
+                                step_check_programs, step_stop_stream)
 from procedures.iso9283 import build_procedure as build_iso_procedure
 from procedures.preflight import report_dir_problems, tracker_rate_problems
 from procedures.registry import ProcedureSpec
@@ -154,6 +155,8 @@ def new_params(cfg, robot: str, report_dir: str, overrides: Mapping) -> dict:
     _checked_numbers(d)  # before the cube is laid out (that takes a while): a bad number is refused at once
     iso_over = {k: v for k, v in overrides.items() if k not in DEFAULTS}
     params = plan_from_config(cfg, robot, **{"report_dir": report_dir, **iso_over}).params()
+    if "limits" not in iso_over:  # the robot's drift limits beside the pose test's (dAP, dRP, per angle)
+        params["limits"] = {**params["limits"], **cfg.robots[robot].limits.by_characteristic("drift")}
     if d["poses"] is None:
         d["poses"] = list(params["poses_mm"])
     params["drift"] = {**d, "poses": list(d["poses"]) if isinstance(d["poses"], (list, tuple)) else d["poses"]}
@@ -504,11 +507,12 @@ def run_checks(store, run_id: str, params: Mapping) -> Checks:
         undecided.append(f"{res['visits_analysed']} of {res['visits_planned']} visits analysed")
     undecided += res.get("early") or []
     rows = store.characteristics(run_id)
-    judged = {r["name"] for r in rows if r["limit"] is not None}
-    for name in ("dAP_mm", "dRP_mm"):
-        lim = (params.get("limits") or {}).get(name)
-        if lim is not None and name not in judged:
-            undecided.append(f"limit {name} <= {lim:g} configured, but {name} was not computed")
+    judged = {r["name"] for r in rows if r["limit"] is not None and r["value"] is not None}
+    for c in table.characteristics("drift"):
+        lim = (params.get("limits") or {}).get(c.key)
+        if lim is not None and c.limit_key is not None and c.key not in judged:
+            why = " (orientation needs a 6-DoF target)" if c.with_orientation else ""
+            undecided.append(f"limit {c.key} <= {lim:g} configured, but {c.key} was not computed{why}")
     U = {}
     for p, r in res["drift"].items():
         for name in ("dAP_mm", "dRP_mm") + DRIFT_ANGLE_KEYS:
@@ -525,6 +529,7 @@ def preflight_problems(params: Mapping, cfg, devices) -> list[str]:
         return problems + [str(exc)]
     plan = IsoPlan.from_params(params)
     problems += tracker_rate_problems(devices, plan.tracker_rate_hz, field="iso9283.tracker_rate_hz")
+    problems += orientation_problems(plan, devices, programme="drift")
     try:
         plan.gate().check_program(visit_program(plan, d, 1).program, q_start=None)
     except StationError as exc:

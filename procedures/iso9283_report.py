@@ -115,6 +115,11 @@ def build_report(ctx, plan, run, rows, main, vap, *, streams, reg, vap_poses) ->
             f"{k} {v:.3f} mm" for k, v in ctx.outputs["register base frame"].get("uncertainty_at_poses_mm", {}).items()),
         "ISO conformant": "yes" if main.iso_conformant else "no: " + "; ".join(main.iso_reasons),
     }
+    mount = ctx.outputs["register base frame"].get("mounting")
+    if mount:
+        facts["mounting (ISO 9283 7.8)"] = (
+            f"{mount['name']}, its frame from {mount['from']}; the registered base lies up to "
+            f"{mount['base_offset_mm']:.3f} mm from it at the test poses")
     if plan.orientation:
         facts["tool orientation"] = (
             f"6-DoF target on the tool (emScon 6D continuous time), angle reading sd {plan.angle_sd_deg:g} deg; "

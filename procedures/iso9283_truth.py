@@ -51,12 +51,15 @@ class StaticPrediction:
 
 
 def _true_positions(plan: IsoPlan, effects: EffectSet | None, q_rad: np.ndarray, last_dir: np.ndarray,
-                    warmup_s: float) -> np.ndarray:
+                    warmup_s: float, temperature_rise_K: float | None = None) -> np.ndarray:
+    """The arm's true tool positions at joint angles ``q_rad``, warmed ``warmup_s`` by its effects' warm-up
+    model, or by ``temperature_rise_K`` when given (the simulated arm's rise from its motion, fakes.sim.heat)."""
     robot = plan.robot
     if effects is None:
         return kin.fk(robot.dh_nominal, q_rad)[:, :3, 3]
+    rise = None if temperature_rise_K is None else np.full(len(q_rad), float(temperature_rise_K))
     ctx = EffectContext(robot=robot, last_dir=last_dir, warmup_s=np.full(len(q_rad), float(warmup_s)),
-                        payload_kg=plan.payload_kg)
+                        temperature_rise_K=rise, payload_kg=plan.payload_kg)
     dh, q = effects.apply(robot.dh_nominal, q_rad, ctx)
     return kin.fk(dh, q)[:, :3, 3]
 
@@ -129,11 +132,13 @@ def _registration(plan: IsoPlan, geo: RunGeometry, p_sweep: np.ndarray):
     return register_by_axes(plan.robot.dh_nominal, q[:n1], p_sweep[:n1], q[n1:], p_sweep[n1:])
 
 
-def _noise_free(plan: IsoPlan, effects: EffectSet | None, geo: RunGeometry, warmup_s: float):
+def _noise_free(plan: IsoPlan, effects: EffectSet | None, geo: RunGeometry, warmup_s: float,
+                temperature_rise_K: float | None = None):
     """True attained positions of P1..P5 (base frame) and the frame the registration finds, without noise."""
     q_sweep = geo.q_sweep_rad
-    reg = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s))
-    return _true_positions(plan, effects, geo.q_pose_rad, geo.arrival_dir, warmup_s), reg
+    reg = _registration(plan, geo, _true_positions(plan, effects, q_sweep, np.ones_like(q_sweep), warmup_s,
+                                                   temperature_rise_K))
+    return _true_positions(plan, effects, geo.q_pose_rad, geo.arrival_dir, warmup_s, temperature_rise_K), reg
 
 
 def _distance_pair(names: list[str]) -> tuple[int, int] | None:
@@ -142,7 +147,7 @@ def _distance_pair(names: list[str]) -> tuple[int, int] | None:
 
 
 def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float = 0.0,
-                   geometry: RunGeometry | None = None) -> StaticPrediction:
+                   geometry: RunGeometry | None = None, temperature_rise_K: float | None = None) -> StaticPrediction:
     """Noise-free AP per pose and AD of P2-P4 of an arm with ``effects`` (``None``: nominal arm).
 
     Parameters
@@ -152,7 +157,9 @@ def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float 
     effects : EffectSet or None
         The arm's error effects.
     warmup_s : float
-        Time since the arm started working, s (thermal drift).
+        Time since the arm started working, s (thermal drift by the effects' warm-up model).
+    temperature_rise_K : float, optional
+        The links' temperature rise instead (a simulated arm's, from its motion: ``arm.temperature_rise_K(t)``).
     geometry : RunGeometry, optional
         ``RunGeometry.of(plan)``, when many arms are predicted for one plan.
 
@@ -161,7 +168,7 @@ def predict_static(plan: IsoPlan, effects: EffectSet | None, *, warmup_s: float 
     ConfigError
         The plan registers by a best fit (that frame depends on the noise of all points).
     """
-    p_true, reg = _noise_free(plan, effects, geometry or RunGeometry.of(plan), warmup_s)
+    p_true, reg = _noise_free(plan, effects, geometry or RunGeometry.of(plan), warmup_s, temperature_rise_K)
     names = list(plan.poses_mm)
     # the registration maps the (estimated) base frame into the true one: invert it
     p_base = (p_true - reg.t_mm) @ reg.R

@@ -227,9 +227,8 @@ _ROWS: tuple[Characteristic, ...] = (
     Characteristic("dRP_mm", "mm", "pose", "drp_limit_mm", "Drift of position repeatability dRP over the programme",
                    lambda d: getattr(d, "dRP_mm", None), "fewer than two stops at the first or last visit",
                    stated=True, source="ISO 9283 drift: |RP(t_1) - RP(t_n)|, RP by eq. (2)", programme="drift"),
-    # with a 6-DoF target, the orientation's per angle (stated, not judged: a station config's limits are the
-    # pose test's)
-    *(Characteristic(f"d{kind}{ax}_deg", "deg", "pose", None,
+    # with a 6-DoF target, the orientation's per angle, judged against the robot's d<kind><axis>_limit_deg
+    *(Characteristic(f"d{kind}{ax}_deg", "deg", "pose", f"d{kind.lower()}{ax}_limit_deg",
                      f"Drift of orientation {'accuracy' if kind == 'AP' else 'repeatability'} d{kind}{ax} over the "
                      "programme", lambda d, k=f"d{kind}{ax}_deg": (getattr(d, "orientation", None) or {}).get(k),
                      "no orientation at the first or last visit (a 6-DoF target)",
@@ -278,8 +277,22 @@ def limit_levels(programme: str = "pose") -> dict[str, str]:
 
 
 def config_limit_keys(programme: str = "pose") -> dict[str, str]:
-    """``{config limit key: characteristic key}`` (``{"ap_limit_mm": "AP_mm", ...}``)."""
+    """``{config limit key: characteristic key}`` (``{"ap_limit_mm": "AP_mm", ...}``) of ``programme``."""
     return {c.limit_key: c.key for c in characteristics(programme) if c.limit_key is not None}
+
+
+#: the programmes whose limits are a robot's (``robots.<r>.limits`` of a station config); the path test's are
+#: its own section's (``path_limits``)
+ROBOT_LIMIT_PROGRAMMES = ("pose", "drift")
+
+
+def robot_limit_keys() -> dict[str, str]:
+    """``{config limit key: characteristic key}`` a robot's limits may hold: the pose test's and the drift
+    programme's (``dap_limit_mm`` is both's dAP)."""
+    out: dict[str, str] = {}
+    for programme in ROBOT_LIMIT_PROGRAMMES:
+        out.update(config_limit_keys(programme))
+    return out
 
 
 def unit_of(key: str) -> str:

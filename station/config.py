@@ -21,10 +21,11 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from station.characteristics import config_limit_keys
+from station.characteristics import config_limit_keys, robot_limit_keys
 from station.errors import ConfigError, DataError
 from station.models.robots import get_robot
 from station.models.trailer import ESTIMATORS
@@ -89,8 +90,11 @@ class LimitsConfig(_Strict):
 
     One key per limited characteristic of the ISO 9283 table
     (:mod:`station.characteristics`: ``ap_limit_mm`` for ``AP_mm``, ...,
-    every key ``station analyze iso9283 --limit`` accepts), and the POS/PST
-    band ``pos_band_mm``. A key the table lacks is refused, naming it.
+    every key ``station analyze iso9283 --limit`` accepts), the drift
+    programme's (``dap_limit_mm``, ``drp_limit_mm``, and per angle of a 6-DoF
+    target ``dapa_limit_deg`` ... ``drpc_limit_deg``), and the POS/PST band
+    ``pos_band_mm``. A key the table lacks is refused, naming it; so is a
+    value that is not a number > 0.
     """
 
     model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
@@ -102,7 +106,7 @@ class LimitsConfig(_Strict):
     @classmethod
     def _known_keys(cls, data, handler):
         if isinstance(data, dict):
-            known = config_limit_keys()
+            known = robot_limit_keys()
             bad = [k for k in data if k not in known and k not in cls.model_fields]
             if bad:
                 why = PydanticCustomError(
@@ -116,14 +120,15 @@ class LimitsConfig(_Strict):
         try:
             return super().__getattr__(name)
         except AttributeError:
-            if name in config_limit_keys():
+            if name in robot_limit_keys():
                 return None  # a limit not configured
             raise
 
-    def by_characteristic(self) -> dict[str, float]:
-        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``), in the table's order."""
+    def by_characteristic(self, programme: str = "pose") -> dict[str, float]:
+        """``{characteristic key: limit}`` of the limits given (``{"AP_mm": 5.0}``) that ``programme`` judges (the
+        pose test's, or the drift programme's), in the table's order."""
         given = self.model_extra or {}
-        return {key: float(given[k]) for k, key in config_limit_keys().items() if given.get(k) is not None}
+        return {key: float(given[k]) for k, key in config_limit_keys(programme).items() if given.get(k) is not None}
 
 
 class WorkspaceConfig(_Strict):
@@ -166,6 +171,48 @@ class MeasurementConfig(_Strict):
 Measurements = dict[str, list[MeasurementConfig]]
 
 
+class MountingConfig(_Strict):
+    """The mounting a robot stands on (its base plate or pedestal in the cell), for ISO 9283 7.8: robots of one
+    model exchanged on one mounting are compared in the mounting's frame, not each in its own registered one.
+
+    ``frame``: a frame file (``p_tracker = R @ p_mounting + t_mm``, the form ``station run`` writes beside its
+    report as ``<run>.frame.json``) giving the mounting's frame in the tracker's, the tracker left standing
+    where it stood when it was measured; typically the first robot's registered frame, kept for the others.
+    Without it a run takes its own registered frame as the mounting's (the first robot's run). A path relative
+    to the config file's folder; read when the config is, and kept here as the absolute path it resolved to."""
+
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
+    frame: str | None = Field(None, min_length=1, max_length=4096)
+
+    @field_validator("frame")
+    @classmethod
+    def _readable_frame(cls, v: str | None, info) -> str | None:
+        if v is None:
+            return v
+        from station.readers.registration_files import read_frame_json
+
+        path, (R, _, _) = _read_named_file(v, info, read_frame_json)
+        if np.abs(R.T @ R - np.eye(3)).max() > FRAME_ROTATION_TOL or np.linalg.det(R) <= 0:
+            raise ValueError(f"file {path}: key 'R' is not a rotation (R^T R = I, det R = +1 within "
+                             f"{FRAME_ROTATION_TOL:g})")
+        return str(path.resolve())
+
+
+def _read_named_file(v: str, info, read):
+    """``(path, read(path))`` of a file a config names (relative to the config's folder, the validation
+    context's ``base_dir``); a file ``read`` refuses is a ValueError naming it."""
+    base = (info.context or {}).get("base_dir")
+    path = _under(Path(base) if base is not None else Path.cwd(), v)
+    try:
+        return path, read(path)
+    except (ConfigError, DataError) as exc:
+        raise ValueError(f"file {path}: {exc}") from None
+
+
+#: how far from a rotation a mounting frame's R may be (the rounding of a frame file's numbers)
+FRAME_ROTATION_TOL = 1e-6
+
+
 class RobotConfig(_Strict):
     model: str
     serial: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")
@@ -179,6 +226,8 @@ class RobotConfig(_Strict):
     #: file's folder; checked when the config is read, and kept here as the absolute path it resolved to
     motion_model: str | None = Field(None, min_length=1, max_length=4096)
     controller: str
+    #: the mounting this robot stands on (ISO 9283 7.8 exchangeability; None: not recorded, not comparable)
+    mounting: MountingConfig | None = None
     workspace: WorkspaceConfig
     limits: LimitsConfig = LimitsConfig()
     #: this robot's own measurements per procedure, added to the station's
@@ -191,12 +240,7 @@ class RobotConfig(_Strict):
             return v
         from station.models.motion_model_file import read_motion_model
 
-        base = (info.context or {}).get("base_dir")
-        path = _under(Path(base) if base is not None else Path.cwd(), v)
-        try:
-            read_motion_model(path)
-        except (ConfigError, DataError) as exc:
-            raise ValueError(f"file {path}: {exc}") from None
+        path, _ = _read_named_file(v, info, read_motion_model)
         return str(path.resolve())
 
     @field_validator("model")

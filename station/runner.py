@@ -37,7 +37,7 @@ from typing import Any, Protocol, TextIO
 import numpy as np
 
 from station.errors import RunStateError, StationError
-from station.store import RunStore
+from station.store import RunStore, StoreError
 from station.numeric import json_default
 
 
@@ -432,6 +432,21 @@ def error_origin(exc: BaseException) -> dict:
 
 #: a resumed fake cell starts its clock this long after the last stored sample, s (a gap, never a repeat)
 RESUME_GAP_S = 1.0
+
+
+#: the result under which a run keeps what its fake cell's world carries on to a resumed cell (fake options)
+FAKE_CARRY_KEY = "fake cell carries"
+
+
+def resume_fake(store: RunStore, run_id: str, fake: dict) -> dict:
+    """The fake cell's parameters of a resumed run: the stored ones, its clock going on after everything the
+    run stored (:func:`resume_start_s`), and what the last cell's world left (:data:`FAKE_CARRY_KEY`: the
+    arm's warmth), when it stored it."""
+    try:
+        carried = store.result(run_id, FAKE_CARRY_KEY)
+    except StoreError:
+        carried = {}
+    return {**fake, **(carried if isinstance(carried, dict) else {}), "start_s": resume_start_s(store, run_id)}
 
 
 def resume_start_s(store: RunStore, run_id: str) -> float:

@@ -3,8 +3,9 @@
     station store exchangeability --config C --model M [--central] [--json]
     station store exchangeability --config C --serials A,B,C [--central] [--json]
 
-Refused (exit 2, with the reason) when fewer than two robots have finished ISO 9283 runs, or when their runs
-are not one test programme (poses, payload, speed, dwell, cycles, model).
+Refused (exit 2, with the reason) when fewer than two robots have finished ISO 9283 runs, when their runs
+are not one test programme (poses, payload, speed, dwell, cycles, model), or not on one mounting in one frame
+(a run without a mounting frame, different mountings, frames that are not one, a base too far from the frame).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ def _exchangeability(args) -> int:
         print(json.dumps({**result.to_dict(), "runs": runs}, indent=2))
         return 0
     print(f"exchangeability (ISO 9283 7.8) of {len(runs)} robots: E = {result.exchangeability_mm:.4f} mm "
-          f"+/- {result.U_mm:.2g} mm (U, k = 2) at {result.pose}, in each robot's registered base frame")
+          f"+/- {result.U_mm:.2g} mm (U, k = 2) at {result.pose}, in the frame of mounting {result.mounting}")
     for pose, p in result.per_pose.items():
         print(f"  {pose:<6} E = {p['exchangeability_mm']:.4f} mm  U = {p['U_mm']:.2g} mm  between "
               f"{' and '.join(p['between'])}")

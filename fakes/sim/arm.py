@@ -13,8 +13,9 @@ The true arm then follows that reference through
 3. the **error effects** (:class:`station.models.effects.EffectSet`) with a
    context of the direction of the last motion of each joint (sign of the
    commanded velocity, kept while the joint rests; the small stopping
-   offsets do not flip it: they stay inside the reducer's dead band), the warm-up time since
-   ``warmup_origin_s`` and the payload,
+   offsets do not flip it: they stay inside the reducer's dead band), the links' temperature
+   rise from the joints' motion (:mod:`fakes.sim.heat`: moves warm the arm, rest cools it), the
+   time since ``warmup_origin_s`` and the payload,
 4. forward kinematics (``kinematics.fk``) of the resulting true table and
    joint angles.
 
@@ -53,6 +54,7 @@ from station.models import kinematics as kin
 from station.models import motion
 from station.models.effects import EffectContext, EffectSet
 from station.models.motion import PiecewiseCubic, ServoParams
+from fakes.sim.heat import ArmHeat, heat_input
 
 __all__ = ["Move", "SimArm", "ARM_STATES"]
 
@@ -267,6 +269,11 @@ class SimArm:
         self._lock = threading.RLock()
         t_now = float(clock.now())
         self.warmup_origin_s = t_now
+        #: the links' temperature rise from the joints' motion (fakes.sim.heat), with a thermal drift only
+        self.heat = None
+        if effects is not None and effects.is_enabled("thermal_drift"):
+            dT_max, tau = (float(v) for v in effects.get("thermal_drift"))
+            self.heat = ArmHeat(dT_max, tau, t_now)
         self.payload_kg = payload_kg
         q_home = np.asarray(robot.home_q_rad, dtype=float).copy()
         # the arm has rested at home "forever" before the clock's start, so
@@ -411,6 +418,11 @@ class SimArm:
             dirs,
         )
         t_end = t_start + traj_srv.duration_s
+        if self.heat is not None:  # the move heats the arm by its joints' travel over its time (fakes.sim.heat)
+            q_knots = np.concatenate([traj_srv.coeffs[:, 0, :], traj_srv.q_end[None]])
+            travel = np.sum(np.abs(np.diff(q_knots, axis=0)), axis=0)
+            self.heat.add_move(t_start, t_end, heat_input(travel, traj_srv.duration_s,
+                                                          self.robot.joint_speed_limits_rad_s))
         self._t_end = t_end
         self._q_cmd_end = traj_cmd.q_end.copy()
         self._delta_end = traj_srv.q_end - traj_cmd.q_end
@@ -618,6 +630,8 @@ class SimArm:
             for m in self._moves:
                 if m.t_end > t_s:
                     m.cancelled = True
+            if self.heat is not None:  # the moves cut short do not heat the arm
+                self.heat.cut(t_s)
             st = self._state_at(t_s)
             seg = self._seg
             # drop every segment that starts after the stop
@@ -801,9 +815,19 @@ class SimArm:
             robot=self.robot,
             last_dir=direction,
             warmup_s=np.asarray(t, dtype=float) - self.warmup_origin_s,
+            temperature_rise_K=None if self.heat is None else self.temperature_rise_K(t),
             payload_kg=self.payload_kg,
             tcp_force_N=self.tcp_force_N(np.asarray(t, dtype=float)) if loaded else None,
         )
+
+    def temperature_rise_K(self, t=None) -> np.ndarray:
+        """The links' temperature rise at ``t`` from the joints' motion (:mod:`fakes.sim.heat`), K: (N,) (zeros
+        without a thermal drift)."""
+        tt, _ = self._times(t)
+        if self.heat is None:
+            return np.zeros(tt.size)
+        with self._lock:
+            return self.heat.rise_K(tt)
 
     def true_model(self, t=None):
         """True kinematic table and joint angles at ``t``: ``(dh_eff, q_eff)``.

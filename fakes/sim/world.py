@@ -33,7 +33,8 @@ from station.models.tracker_noise import TrackerNoise
 from station.numeric import finite_number
 from station.tracker_rates import TRACKER_RATE_RANGE_HZ
 
-__all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM"]
+__all__ = ["World", "TrackerSource", "make_world", "realistic_servo", "ISO_CUBE_CENTRE_MM", "work_centre_mm",
+           "draw_tracker_pose"]
 
 #: centre of the seed 000 Table 1 test cube (P1 of Table 2), robot base frame, mm
 ISO_CUBE_CENTRE_MM = (0.0, 1700.0, 1400.0)
@@ -177,6 +178,14 @@ class World:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def carried(self) -> dict:
+        """What a cell started again to resume a run carries on from this one (``make_world`` keywords): the
+        arm's temperature rise now (``arm_rise``), when it has a thermal drift."""
+        if self.arm.heat is None:
+            return {}
+        t = float(self.clock.now())
+        return {"arm_rise": [t, float(self.arm.temperature_rise_K(t)[0])]}
+
     def describe(self) -> dict:
         """JSON-able truth of the world (for people, tests and truth files)."""
         return {
@@ -212,7 +221,15 @@ def realistic_servo(rng: np.random.Generator) -> ServoParams:
     return ServoParams(2.0 * np.pi * rng.uniform(6.0, 12.0, 6), rng.uniform(0.6, 0.9, 6))
 
 
-def _draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def work_centre_mm(spec: RobotSpec) -> np.ndarray:
+    """Centre of a cell's working volume, base frame, mm: the ISO cube centre for ``industrial-3100``, else the
+    nominal TCP at home."""
+    if spec.name == "industrial-3100":
+        return np.array(ISO_CUBE_CENTRE_MM, dtype=float)
+    return np.asarray(kin.tool_position(spec.dh_nominal, spec.home_q_rad), dtype=float)
+
+
+def draw_tracker_pose(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Tracker 2-4 m (horizontally) from ``centre``, levelled, random heading.
 
     Rejects spots within 1.5 m of the robot's base axis. Height 1.0-1.7 m
@@ -260,6 +277,7 @@ def make_world(
     joint_defect=None,
     warmup=None,
     motion_model: MotionModel | None = None,
+    arm_rise=None,
 ) -> World:
     """Build a simulated cell.
 
@@ -311,17 +329,23 @@ def make_world(
         Scanner pose; default 700 mm from the TCP at home, facing the tool.
     start_s : float
         Simulated time at which the new clock starts (>= 0; ignored when
-        ``clock`` is given). The cell was built at 0 (the arm's warm-up
-        counts from there): a cell started again to resume a run continues
-        the time of the one before, so device time never repeats.
+        ``clock`` is given). The cell was built at 0 (``warmup_origin_s``):
+        a cell started again to resume a run continues the time of the one
+        before, so device time never repeats (its arm cold at the start
+        unless ``arm_rise`` says how warm the last cell left it).
     joint_defect : dict or JointDefect, optional
         A localised flaw of one joint (``{"joint", "centre_deg", "width_deg",
         "amplitude_deg"}``, :mod:`fakes.sim.joint_defect`): the "one pose out"
         robot of the acceptance fixtures.
     warmup : (float, float), optional
-        The arm's warm-up from its cold start, ``(dT_max_K, tau_s)``: the first-order temperature rise
-        ``dT_max (1 - exp(-t / tau))`` of its links (:class:`station.models.effects.ThermalDrift`, steel) from
-        the clock's 0, in place of the one drawn with the effects (a drift test's known truth); needs effects.
+        The arm's thermal drift ``(dT_max_K, tau_s)`` in place of the one drawn with the effects (a drift test's
+        known truth; needs effects): its links (steel) warm while its joints move and cool at rest, to the
+        steady rise ``dT_max`` under the heat input of continuous ISO 9283 cycling, with the time constant
+        ``tau`` (:mod:`fakes.sim.heat`); the arm is cold when the cell is built.
+    arm_rise : (float, float), optional
+        ``(t_s, dT_K)``: the arm's temperature rise ``dT_K`` at simulated time ``t_s`` (what a cell that ran
+        before left, :meth:`World.carried`): a cell started again to resume a run starts with its arm that
+        warm, cooled at rest from ``t_s`` to the new clock's start (default: cold).
     motion_model : MotionModel, optional
         A diagnosed arm's motion (``station diagnose motion --model-out``,
         :mod:`station.models.motion_effects`): its loop on every axis (instead
@@ -400,6 +424,14 @@ def make_world(
         if effects is None:
             raise ConfigError("`warmup` needs the arm's effects (effects=None is the nominal arm)")
         warmup = (dT_max, tau)
+    if arm_rise is not None:
+        try:
+            rise_t, rise_K = (float(v) for v in arm_rise)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"`arm_rise` must be (t_s, dT_K), got {arm_rise!r}") from exc
+        finite_number(rise_t, "arm_rise t_s")
+        finite_number(rise_K, "arm_rise dT_K", nonneg=True)
+        arm_rise = (rise_t, rise_K)
     if jig is not None and not isinstance(jig, CornerJig):
         raise ConfigError(f"`jig` must be a CornerJig, got {type(jig).__name__}")
 
@@ -424,12 +456,9 @@ def make_world(
     else:
         stop_sigma = realistic_stop_sigma_rad(spec, rng_stop, sigma_mm=float(stop_sigma_mm))
 
-    if spec.name == "industrial-3100":
-        centre = np.array(ISO_CUBE_CENTRE_MM)
-    else:
-        centre = kin.tool_position(spec.dh_nominal, spec.home_q_rad)
+    centre = work_centre_mm(spec)
     rng_track = np.random.default_rng(s_track)
-    T_track = _draw_tracker_pose(centre, rng_track) if base_T_tracker is None else base_T_tracker
+    T_track = draw_tracker_pose(centre, rng_track) if base_T_tracker is None else base_T_tracker
     tracker_seed = int(np.random.default_rng(s_tnoise).integers(0, 2**31 - 1))
     try:
         tracker = TrackerModel(
@@ -473,6 +502,8 @@ def make_world(
     )
     if clock is None:
         arm.warmup_origin_s = 0.0
+    if arm_rise is not None and arm.heat is not None:
+        arm.heat = arm.heat.cooled_from(*arm_rise)
     return World(
         clock=clk,
         robot=spec,

@@ -111,8 +111,8 @@ def exchangeability_notes(store: RunStore) -> list[str]:
             notes.append(f"exchangeability of {html.escape(model)}: not stated ({html.escape(str(exc))})")
             continue
         notes.append(f"exchangeability (ISO 9283 7.8) of {html.escape(model)}: E = {res.exchangeability_mm:.4f} mm "
-                     f"+/- {res.U_mm:.2g} mm (k = 2) at {res.pose}, {len(runs)} robots, in each robot's registered "
-                     f"base frame")
+                     f"+/- {res.U_mm:.2g} mm (k = 2) at {res.pose}, {len(runs)} robots, in the frame of mounting "
+                     f"{html.escape(str(res.mounting))}")
     return notes
 
 

@@ -111,11 +111,14 @@ def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_
     theta = np.radians(rng.uniform(0.05, 0.1, 3) * rng.choice([-1.0, 1.0], 3))
     tau = float(rng.uniform(900.0, 2400.0))
     span, interval = 3600.0, 1200.0
+    # the robot's limits of the orientation drift, drawn about what the wrist's warm-up gives: some pass, some fail
+    limits = {f"d{kind.lower()}{ax}_limit_deg": float(rng.uniform(*((0.01, 0.15) if kind == "AP" else (5e-4, 0.01))))
+              for kind in ("AP", "RP") for ax in "abc"}
     with FakeStation.start(seed=test_seed, time_scale=LOCKSTEP, warmup=warmup,
                            stop_sigma_mm=float(rng.uniform(0.005, 0.02))) as cell:
         cell.world.arm.effects = _WristWarmup(cell.world.arm.effects, theta, tau)
         d = cell.config_dict(store_path=str(tmp_path / "s.sqlite"), report_dir=str(tmp_path / "reports"),
-                             iso9283={"cycles": 3, "vap_cycles": 2}, limits={"rp_limit_mm": 0.5})
+                             iso9283={"cycles": 3, "vap_cycles": 2}, limits={"rp_limit_mm": 0.5, **limits})
         d["devices"]["tracker"]["six_dof"] = True
         d["uncertainty"] = {"mc_trials": 4000}
         d["iso9283_drift"] = {"span_s": span, "interval_s": interval, "cycles_per_visit": CYCLES}
@@ -191,12 +194,18 @@ def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_
     assert len(outside) <= stats.binom.isf(1e-4, checked, 0.05), outside
     # the drawn warm-up of 0.05-0.1 deg a joint is found at most poses
     assert found >= 5, found
-    # the rows of the table, one per pose and figure, stated (no limit), in the robot's history and the console
+    # the rows of the table, one per pose and figure, judged against the robot's limit of it, in the robot's
+    # history and the console; a figure over its limit fails the run
+    by_key = {c.key: c.limit_key for c in table.characteristics("drift")}
+    over = []
     for pose in names:
         for key in KEYS:
             r = rows[(pose, key)]
-            assert r["unit"] == "deg" and r["limit"] is None and r["value"] == pytest.approx(
-                res["drift"][pose][key], abs=1e-6)
+            assert r["unit"] == "deg" and r["value"] == pytest.approx(res["drift"][pose][key], abs=1e-6)
+            assert r["limit"] == limits[by_key[key]] and r["passed"] is (r["value"] <= r["limit"])
+            over += [(pose, key)] if not r["passed"] else []
+    print(f"over their drawn limits: {over}")
+    assert (str(out.verdict) == "FAIL") == bool(over), (out.verdict, out.reasons, over)
     assert set(KEYS) <= set(table.history_names())
     for key in KEYS:
         assert {h["pose"]: h["value"] for h in history[key]} == {p: rows[(p, key)]["value"] for p in names}

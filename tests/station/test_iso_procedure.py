@@ -104,7 +104,9 @@ def _matches_the_noise_free_prediction(fake_cell, tmp_path, steps, result, chars
     plan = plan_from_config(_config(fake_cell, tmp_path, registration="axes"))
     t_all = np.concatenate([p["attained"]["t_s"] for p in result["poses"].values()])
     warm = float(t_all.mean() - world.arm.warmup_origin_s)
-    pred = predict_static(plan, world.arm.effects, warmup_s=warm)
+    # the arm as warm as its motion made it at the poses' mean time (fakes.sim.heat)
+    pred = predict_static(plan, world.arm.effects, warmup_s=warm,
+                          temperature_rise_K=float(world.arm.temperature_rise_K(float(t_all.mean()))[0]))
     tr = world.tracker
     scatter = prediction_scatter(plan, world.arm.effects, world.arm.stop_sigma_rad, cycles=CYCLES,
                                  tracker_sigma_mm=tr.noise.total_um * 1e-3, warmup_s=warm,
