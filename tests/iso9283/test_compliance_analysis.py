@@ -23,8 +23,11 @@ def _loading(rng, direction, slope, sigma_mm, hysteresis_mm=0.0, steps=10):
 
 
 def test_the_slope_is_found_within_its_U_and_U_is_not_too_wide(rng):
-    """Over many drawn loadings the true slope falls within U about 95 % of the time (k = 2; the gauge term
-    off) and within 2 U practically always."""
+    """Over many drawn loadings the true slope falls within U about 95 % of the time (the gauge term off), and
+    no draw lies beyond the Student t quantile that one in 10^4 runs of the 200 draws would reach (about
+    7.4 standard errors; 2.5 U, 5.2 of them, was reached on 3 % of runs: CI seed 1591909846)."""
+    from scipy import stats
+
     inside, n = 0, 200
     for _ in range(n):
         d = str(rng.choice(list(DIRECTIONS)))
@@ -32,7 +35,7 @@ def test_the_slope_is_found_within_its_U_and_U_is_not_too_wide(rng):
         F, P, up = _loading(rng, d, slope, sigma_mm=float(rng.uniform(0.002, 0.02)))
         r = direction_compliance(d, F, P, up, u_F_rel=0.0)
         inside += abs(r.compliance_mm_per_N - slope) <= r.U_mm_per_N
-        assert abs(r.compliance_mm_per_N - slope) <= 2.5 * r.U_mm_per_N
+        assert abs(r.compliance_mm_per_N - slope) <= stats.t.ppf(1 - 1e-4 / (2 * n), r.dof) * r.U_mm_per_N / r.k
     assert 0.88 * n <= inside <= n  # binomial(200, 0.95): below 176 one time in 1000 or so
 
 

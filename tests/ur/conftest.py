@@ -89,12 +89,15 @@ def make_driver(world):
         d.close()
 
 
-def run_probe(host: str, frequency_hz: float, duration_s: float, variables=(), timeout_s: float = 30.0) -> dict:
-    """Run ``ur_rtde``'s RTDEReceiveInterface in a child process; its JSON report."""
+def run_probe(host: str, frequency_hz: float, duration_s: float, variables=(), timeout_s: float = 30.0,
+              min_rows: int = 0) -> dict:
+    """Run ``ur_rtde``'s RTDEReceiveInterface in a child process; its JSON report (``min_rows``: as
+    :func:`start_probe`)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([ROOT, env.get("PYTHONPATH", "")])
     p = subprocess.run(
-        [sys.executable, PROBE, host, repr(float(frequency_hz)), repr(float(duration_s)), ",".join(variables)],
+        [sys.executable, PROBE, host, repr(float(frequency_hz)), repr(float(duration_s)), ",".join(variables),
+         str(int(min_rows))],
         capture_output=True, text=True, timeout=timeout_s, env=env,
     )
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
