@@ -15,7 +15,9 @@ ports, so several fakes run side by side on 127.0.0.2, 127.0.0.3, ...):
   ``stop``, ``pause``, ``load``, ``running``, ``programState``,
   ``robotmode``, ``safetymode``, ``power on``/``off``, ``brake release``,
   ``unlock protective stop``, ``PolyscopeVersion``, ``get serial number``...);
-  anything else gets ``could not understand: '<line>'``.
+  anything else gets ``could not understand: '<line>'``. ``play`` goes on
+  with a paused program, one sent to the script port too (as the pendant's
+  play does); otherwise it starts the loaded ``.urp``.
 * **Script** (30003): a URScript subset, one program per ``def ... end``
   block or per bare line. A new program replaces the running one (as on the
   real controller). Supported: ``movej``/``movel``/``movec`` (joint list or ``p[...]``
@@ -1323,11 +1325,13 @@ class URFake:
 
     # the dashboard's commands: (fake, controller state, line) -> reply or (reply, close)
     def _dash_play(self, ctl, line):
-        name, base = self._program_names()
-        if name is None or ctl.ready_to_move() is not None:
+        if ctl.ready_to_move() is not None:
             return "Failed to execute: play"
-        if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():
+        if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():  # a paused program (a script too)
             return "Starting program"
+        name, base = self._program_names()
+        if name is None:
+            return "Failed to execute: play"
         if ctl.runtime_state == RUNTIME_PLAYING:
             return "Failed to execute: play"
         self.interpreter.submit(parse_program(ctl.programs[name], base.rsplit(".", 1)[0]))

@@ -27,7 +27,10 @@ say how far it has turned), and the weave, ``weaving``, at its own speed):
 
 A run killed at any moment resumes at the cycle it was in (the interrupted
 cycle is redone whole; its partial samples stay under their attempt, outside
-the analysis).
+the analysis). A cycle whose programme was paused on the controller (a UR's
+pendant or dashboard) and played on fails its step the same way: the
+controller halted the path and went on from where it stood, so the pass is
+not one motion; a resume drives the cycle again from its start.
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ from station import characteristics as table
 from station.analysis.path.analysis import analyze_path, check_limits
 from station.analysis.path.figures import SIGNED
 from station.analysis.path.path_file import parse_paths
-from station.errors import ConfigError, DataError, StationError
+from station.errors import ConfigError, DataError, DeviceError, StationError
 from station.programs import render_rapid
 from station.programs.path_builders import (
     ALL_PATH_KINDS,
@@ -168,7 +171,15 @@ def _cycle_step(index: int, k: int):
         plan = _plan(ctx)
         rendered = cycle_program(plan, index, k)
         ctx.session.moved_by = ctx.step.name
-        return iso._run_program(ctx, rendered, timeout_s=iso._timeout(ctx, 120.0), stream=True)
+        out = iso._run_program(ctx, rendered, timeout_s=iso._timeout(ctx, 120.0), stream=True)
+        if out.get("paused"):
+            # a controller halts a paused path where it is and goes on from there on play: the pass is not one
+            # motion. The step fails (its samples stay under this attempt, outside the analysis) and a resume
+            # drives the cycle again from its start, as after any interruption
+            raise DeviceError(f"{ctx.step.name}: the program was paused on the controller while it drove the path; "
+                              "a paused path is halted, not taken up, so this cycle is no whole pass: resume the "
+                              "run to drive it again from its start")
+        return out
     return run
 
 

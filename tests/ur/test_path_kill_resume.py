@@ -91,3 +91,63 @@ def test_a_ur_path_run_killed_mid_path_is_taken_up_from_the_paths_start(tmp_path
     after = _batches(db)
     lost = [k for k, blob in before.items() if after.get(k) != blob]
     assert not lost, f"acknowledged batches changed or lost after resume: {lost[:5]}"
+
+
+def test_a_ur_path_paused_on_the_pendant_mid_path_fails_its_cycle_and_a_resume_drives_it_again(tmp_path, test_seed):
+    """A person pauses the cobot's programme inside a path (the dashboard, as the pendant does) and plays it on
+    after a while: the controller halted the path and went on from where it stood, so that cycle is no whole
+    pass; its step fails naming the pause, and the resumed run drives the cycle again from its start: every path
+    states its figures from all its cycles, within U of the arm's true motion."""
+    import threading
+
+    from app.assemble import RunRequest, run_procedure
+    from tests.person import person_typing_yes
+
+    rng = np.random.default_rng(test_seed)
+    fraction, hold_s = float(rng.uniform(0.1, 0.6)), float(rng.uniform(0.3, 1.5))
+    with FakeStation.start(seed=test_seed, time_scale=UR_AT_RTDE_HZ, robot="ur5e", rtde_hz=UR_RTDE_HZ) as cell:
+        d = cell.config_dict(store_path=str(tmp_path / "p.sqlite"), report_dir=str(tmp_path / "reports"),
+                             iso9283=UR_ISO)
+        d["iso9283_path"] = SECTION
+        cfg = config_from_dict(d)
+        arm, clock, ur = cell.world.arm, cell.world.clock, cell.controller
+        paused_at: list[float] = []
+        stop = threading.Event()
+
+        def person() -> None:  # pauses inside the first path it sees, plays on after hold_s of the cobot's time
+            while not stop.is_set() and not _in_path(arm, clock, fraction):
+                time.sleep(0.002)
+            if stop.is_set():
+                return
+            reply, _ = ur.dashboard_reply("pause")
+            assert reply == "Pausing program", reply
+            paused_at.append(float(clock.now()))
+            while not stop.is_set() and float(clock.now()) < paused_at[0] + hold_s:
+                time.sleep(0.002)
+            assert ur.dashboard_reply("play")[0] == "Starting program"
+
+        watcher = threading.Thread(target=person, daemon=True)
+        watcher.start()
+        try:
+            first = run_procedure(RunRequest(cfg, "iso9283-path", arm=True, operator=person_typing_yes(), quiet=True,
+                                             run_id="p1", config_dir=tmp_path))
+        finally:
+            stop.set()
+            watcher.join(10)
+        store = RunStore(tmp_path / "p.sqlite")
+        failed = [s for s in store.steps("p1") if s.status == "failed"]
+        print(f"paused {fraction:.2f} into a path move at t = {paused_at} s for {hold_s:.2f} s: "
+              f"{[s.name for s in failed]}")
+        assert paused_at and first.status == "failed", (paused_at, first.status, first.error)
+        assert failed[-1].name.startswith("path ") and "paused on the controller" in failed[-1].message, failed
+        again = run_procedure(RunRequest(cfg, None, resume="p1", arm=True, operator=person_typing_yes(), quiet=True,
+                                         config_dir=tmp_path))
+        assert again.status == "done", again.error
+        plan = PathPlan.from_params(store.run("p1").params)
+        rows = {(r["pose"], r["name"]): r for r in store.characteristics("p1")}
+        attempts = [s.status for s in store.steps("p1") if s.name == failed[-1].name]
+        assert attempts == ["failed", "done"], attempts
+        for name in step_names(plan):
+            assert rows[(name, "n_cycles")]["value"] == plan.path_cycles, name
+        assert all(r["value"] is not None for r in rows.values()), rows
+        _within_U_of_the_arm(store, "p1", plan, rows, cell.world)
