@@ -498,14 +498,16 @@ class URProgramStatus:
     line: int
     q_deg: np.ndarray
     t_s: float
+    #: the program was paused on the controller (pendant or dashboard) while it ran, and played on
+    paused: bool = False
 
     @classmethod
-    def of(cls, st: URState, seq: int, done: bool = False) -> "URProgramStatus":
+    def of(cls, st: URState, seq: int, done: bool = False, paused: bool = False) -> "URProgramStatus":
         ours = st.register_start == seq
         moves = st.register_moves if ours else 0
         return cls(state="finished" if done else "running", moves_done=int(moves),
                    cycle_count=int(st.register_cycles if ours else 0), line=int(moves),
-                   q_deg=np.degrees(st.q_rad), t_s=st.t_s)
+                   q_deg=np.degrees(st.q_rad), t_s=st.t_s, paused=paused)
 
     def summary(self) -> str:
         return f"{self.state}, moves {self.moves_done}, cycles {self.cycle_count}"
@@ -655,6 +657,8 @@ class URDriver:
         self._chunks: deque = deque()  # arrays of sample rows not yet collected by samples()
         self._n_rows = 0
         self._dropped = 0
+        #: samples received with the program paused (runtime_state PAUSED), every one counted as it arrives
+        self._n_paused = 0
         self._latest: np.ndarray | None = None
         self._silence: ListeningDeadline | None = None  # stale_after_s from the newest sample's arrival
         self._last_collected_t: float | None = None
@@ -748,6 +752,7 @@ class URDriver:
                 if len(fresh):
                     self._chunks.append(fresh)
                     self._n_rows += len(fresh)
+                    self._n_paused += int(np.count_nonzero(fresh[:, _C_RUNTIME] == RUNTIME_PAUSED))
                     self._latest = fresh[-1]
                     self._silence = self._listening(self.stale_after_s)
                 while self._n_rows > self.max_buffer_samples:  # oldest first, counted
@@ -909,9 +914,14 @@ class URDriver:
         return self._execute(text, seq, q_target, label, f"station_move_{seq}")
 
     def _execute(self, text: str, seq: int, q_target: np.ndarray, label: str, name: str, *,
-                 timeout_s: float | None = None, on_state=None) -> URState:
-        """Send one program whose registers carry ``seq``; watch RTDE until it is done and the arm settled."""
+                 timeout_s: float | None = None, on_state=None, paused: list | None = None) -> URState:
+        """Send one program whose registers carry ``seq``; watch RTDE until it is done and the arm settled.
+        ``paused``: a list that gets ``True`` when any sample received while the program ran (not only the ones
+        this loop looks at: a short pause falls between them) says it was paused."""
         timeout_s = self.motion_timeout_s if timeout_s is None else float(timeout_s)
+        self._pull()
+        with self._lock:
+            n_paused = self._n_paused  # the program before this one ended: no pause of ours yet
         self._send_script(text, label)
         # both count while this host runs the driver and the receive process (a simulated controller's motion
         # waits for the host as the driver does); the time on_state takes is the caller's, not the motion's
@@ -932,6 +942,8 @@ class URDriver:
                         f"halted and the program stopped; inspect the cause, then unlock_protective_stop()"
                     )
                 if st.register_done == seq:
+                    if paused is not None and self._n_paused > n_paused:
+                        paused.append(True)
                     break
                 if st.register_start == seq:
                     started = True
@@ -1051,9 +1063,10 @@ class URDriver:
                 if now - last[0] >= self.status_period_s or s.register_moves != last[1]:
                     last[0], last[1] = now, s.register_moves
                     on_status(URProgramStatus.of(s, seq))
+        paused: list = []
         final = self._execute(rendered.text, seq, q[-1] if len(q) else st.q_rad, label,
-                              prog.name.lower(), timeout_s=timeout_s, on_state=report)
-        return URProgramStatus.of(final, seq, done=True)
+                              prog.name.lower(), timeout_s=timeout_s, on_state=report, paused=paused)
+        return URProgramStatus.of(final, seq, done=True, paused=bool(paused))
 
     def move_to(self, target, *, speed_frac: float = 0.2, interpolation: str = "joint",
                 timeout_s: float | None = None) -> URState:

@@ -50,12 +50,14 @@ import numpy as np
 from fakes.sim import path_follow
 from station.errors import ConfigError, DataError, SafetyError, StationError
 from station.programs.builders import rated_tcp_accel_mm_s2
+from station.programs.rapid import DEFAULT_V_ORI
 from station.programs.program import (
     CartesianTarget,
     CycleMark,
     Dwell,
     JointTarget,
     Loop,
+    MAX_ORI_SPEED_DEG_S,
     MAX_ZONE_MM,
     Move,
     Program,
@@ -473,22 +475,24 @@ class _Compiler:
             out.append(vals)
         return out
 
-    def speed(self, e: Expr, line: int) -> float:
-        """``v_tcp`` of a speed argument, mm/s."""
+    def speed(self, e: Expr, line: int) -> tuple[float, float]:
+        """``(v_tcp mm/s, v_ori deg/s)`` of a speed argument (the predefined speeds turn at 500 deg/s)."""
         if e.kind == "id":
             name = e.args[0].lower()
             if name not in self.decls:
                 if name in _PREDEFINED_SPEEDS:
-                    return float(name[1:])
+                    return float(name[1:]), DEFAULT_V_ORI
                 if name == "vmax":
-                    return self.rated
+                    return self.rated, DEFAULT_V_ORI
         if e.kind == "id" or e.kind == "agg":
             d = self.decls.get(e.args[0].lower()) if e.kind == "id" else None
             if e.kind == "agg" or (d is not None and d.type == "speeddata"):
                 v = self.agg_flat(e, 4, "speeddata")
                 if v[0] <= 0:
                     raise RapidError(line, f"speeddata v_tcp {v[0]:g} must be > 0")
-                return v[0]
+                if not 0 < v[1] <= MAX_ORI_SPEED_DEG_S:
+                    raise RapidError(line, f"speeddata v_ori {v[1]:g} deg/s must be in (0, {MAX_ORI_SPEED_DEG_S:g}]")
+                return v[0], v[1]
         raise RapidError(line, "speed argument must be speeddata")
 
     def agg_flat(self, e: Expr, n: int, what: str) -> list[float]:
@@ -553,7 +557,7 @@ class _Compiler:
         for sw, val in ins.switches.items():
             if sw != "wobj" or val is None or val.kind != "id" or val.args[0].lower() != "wobj0":
                 raise RapidError(ins.line, f"{ins.name}: optional argument \\{sw} is not supported (only \\WObj:=wobj0)")
-        v = self.speed(speed_e, ins.line)
+        v, v_ori = self.speed(speed_e, ins.line)
         frac = v / self.rated
         if frac > 1.0 + 1e-9:
             raise RapidSafetyError(
@@ -588,8 +592,10 @@ class _Compiler:
         if prev != key:
             target = replace(target, name=f"L{ins.line}")
         interp = {"movel": "linear", "movec": "circular"}.get(op, "joint")
+        # the model's None is the dialect's default turn (what the generator writes for it)
+        ori = v_ori if interp == "linear" and v_ori != DEFAULT_V_ORI else None
         try:
-            return Move(target, interp, frac, source_line=ins.line, zone_mm=zone_mm, via=via)
+            return Move(target, interp, frac, source_line=ins.line, zone_mm=zone_mm, via=via, ori_speed_deg_s=ori)
         except ConfigError as exc:
             raise RapidError(ins.line, str(exc)) from None
 
@@ -843,9 +849,10 @@ class RapidRun:
                                      noise_key=key)
         else:
             self.gate.check_cartesian_target(t.pose, label, q_seed=self._q_queue_end())
+            # the tool turns at the speeddata's v_ori (a move that only turns: its point held)
             mv = self.arm.move_linear(
                 t.pose, speed_mm_s=ins.speed_frac * self.program.rated_tcp_speed_mm_s, accel_mm_s2=self._accel_mm_s2,
-                noise_key=key,
+                noise_key=key, orientation_speed_rad_s=math.radians(ins.ori_speed_deg_s or DEFAULT_V_ORI),
             )
         self._queued_moves += 1
         for kind, at in self.fault_at_move.items():

@@ -15,7 +15,9 @@ ports, so several fakes run side by side on 127.0.0.2, 127.0.0.3, ...):
   ``stop``, ``pause``, ``load``, ``running``, ``programState``,
   ``robotmode``, ``safetymode``, ``power on``/``off``, ``brake release``,
   ``unlock protective stop``, ``PolyscopeVersion``, ``get serial number``...);
-  anything else gets ``could not understand: '<line>'``.
+  anything else gets ``could not understand: '<line>'``. ``play`` goes on
+  with a paused program, one sent to the script port too (as the pendant's
+  play does); otherwise it starts the loaded ``.urp``.
 * **Script** (30003): a URScript subset, one program per ``def ... end``
   block or per bare line. A new program replaces the running one (as on the
   real controller). Supported: ``movej``/``movel``/``movec`` (joint list or ``p[...]``
@@ -39,7 +41,10 @@ pose_to, a, v, r, mode)`` moves on the circle through the start, the via
 pose's position and the target (fixed orientation).
 ``movej`` speed ``v`` (rad/s) and acceleration ``a`` (rad/s^2) are taken as
 fractions of the robot's slowest joint limits; ``movel``'s are the path speed
-and acceleration (m/s, m/s^2); ``t`` > 0 stretches either move to about that
+and acceleration (m/s, m/s^2), and a ``movel`` that only turns the tool (its
+TCP held, within a micrometre) takes them as the turn's speed and
+acceleration (rad/s, rad/s^2: the station's reading of UR's pure rotations,
+whose script manual names m/s only); ``t`` > 0 stretches either move to about that
 duration (trapezoid estimate; never faster than the limits allow).
 
 The reported ``actual_TCP_pose`` is what a controller computes: the nominal
@@ -132,6 +137,7 @@ from fakes.urscript import Call, Pose, ScriptError, ScriptProgram, ScriptSplitte
 from station.errors import ConfigError, DataError, ProtocolError
 from station.models import kinematics
 from station.models.cartesian_path import Segment
+from station.programs.urscript import TURN_ONLY_MM
 from station.protocols.ur import LOCKSTEP_STORED_REGISTER, JointMode, RobotMode, RuntimeState, SafetyMode
 
 #: the robot a UR fake simulates unless told otherwise (`station fakes serve ur --robot ...`)
@@ -732,16 +738,20 @@ class _Interpreter:
                 T = kinematics.fk(ctl.dh, np.asarray(target, dtype=float))
             v = float(b.get("v", 0.25)) * 1000.0
             a = float(b.get("a", 1.2)) * 1000.0
+            turn = {}
+            p_now = kinematics.tool_position(ctl.dh, q_now)
+            if float(np.linalg.norm(T[:3, 3] - p_now)) < TURN_ONLY_MM:  # only turns: v rad/s, a rad/s^2
+                turn = {"orientation_speed_rad_s": v / 1000.0 if v > 0 else 0.25,
+                        "orientation_accel_rad_s2": a / 1000.0 if a > 0 else 1.2}
             v = min(v, float(robot.max_tcp_speed_mm_s)) if v > 0 else float(robot.max_tcp_speed_mm_s)
             a = a if a > 0 else 1200.0
             t_req = float(b.get("t", 0.0))
             if t_req > 0:  # the path speed whose trapezoid over the straight distance lasts t
-                p_now = kinematics.tool_position(ctl.dh, q_now)
                 dist = np.array([float(np.linalg.norm(T[:3, 3] - p_now))])
                 if dist[0] > 0 and _trap_time(dist, np.array([v]), np.array([a])) < t_req:
                     frac = _speed_frac_for_time_1d(dist, t_req, v, a)
                     v = max(frac * v, 1e-3)
-            start = lambda: arm.move_linear(T, speed_mm_s=v, accel_mm_s2=a)  # noqa: E731
+            start = lambda: arm.move_linear(T, speed_mm_s=v, accel_mm_s2=a, **turn)  # noqa: E731
         with ctl.lock:
             ctl.motion_count += 1
             count = ctl.motion_count
@@ -1315,11 +1325,13 @@ class URFake:
 
     # the dashboard's commands: (fake, controller state, line) -> reply or (reply, close)
     def _dash_play(self, ctl, line):
-        name, base = self._program_names()
-        if name is None or ctl.ready_to_move() is not None:
+        if ctl.ready_to_move() is not None:
             return "Failed to execute: play"
-        if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():
+        if ctl.runtime_state == RUNTIME_PAUSED and self.interpreter.resume():  # a paused program (a script too)
             return "Starting program"
+        name, base = self._program_names()
+        if name is None:
+            return "Failed to execute: play"
         if ctl.runtime_state == RUNTIME_PLAYING:
             return "Failed to execute: play"
         self.interpreter.submit(parse_program(ctl.programs[name], base.rsplit(".", 1)[0]))

@@ -454,6 +454,8 @@ def _run_program(ctx: StepContext, rendered, *, timeout_s: float, stream: bool) 
     if not stream:
         record_robot_readings(ctx, controller, robot_counts)
     out = {"cycles": int(status.cycle_count), "moves": int(status.moves_done), "events": events}
+    if getattr(status, "paused", False):  # paused on the controller (a UR's pendant) and played on
+        out["paused"] = True
     if robot_counts:  # the arm's own readings (a robot that streams them: the UR)
         out["robot_samples"] = robot_counts
     record = tracker.stream_record() if stream else None

@@ -6,8 +6,9 @@ The pose procedure's cell, connection, home and registration
 :func:`station.programs.path_builders.iso_path_tests` on the test plane of
 the pose test's inset cube (line, large and small circle, rectangle with and
 without a corner zone, at 100, 50 and 10 % of the rated speed; on request the
-line driven while the tool turns, ``reorientation``, and the weave,
-``weaving``, at its own speed):
+line driven while the tool turns, ``reorientation``, the tool turned about
+its held point, ``reorientation_held`` (a 6-DoF target: the stream's angles
+say how far it has turned), and the weave, ``weaving``, at its own speed):
 
 1. ``check programs`` — every path programme through the safety gate before
    anything connects;
@@ -26,7 +27,10 @@ line driven while the tool turns, ``reorientation``, and the weave,
 
 A run killed at any moment resumes at the cycle it was in (the interrupted
 cycle is redone whole; its partial samples stay under their attempt, outside
-the analysis).
+the analysis). A cycle whose programme was paused on the controller (a UR's
+pendant or dashboard) and played on fails its step the same way: the
+controller halted the path and went on from where it stood, so the pass is
+not one motion; a resume drives the cycle again from its start.
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ from station import characteristics as table
 from station.analysis.path.analysis import analyze_path, check_limits
 from station.analysis.path.figures import SIGNED
 from station.analysis.path.path_file import parse_paths
-from station.errors import ConfigError, StationError
+from station.errors import ConfigError, DataError, DeviceError, StationError
 from station.programs import render_rapid
 from station.programs.path_builders import (
     ALL_PATH_KINDS,
@@ -105,6 +109,9 @@ def plan_from_config(cfg, robot_name: str = "r1", **overrides) -> PathPlan:
     plan = PathPlan(**{f.name: getattr(base, f.name) for f in dataclasses.fields(iso.IsoPlan)}, **path_kw)
     if plan.path_cycles < 2:
         raise ConfigError(f"path_cycles must be at least 2 (path repeatability), got {plan.path_cycles}")
+    if "reorientation_held" in plan.path_kinds and not plan.orientation:
+        raise ConfigError("iso9283_path.path_kinds: reorientation_held measures the angle the tool turns: it needs "
+                          "a 6-DoF target on the tracker (devices.tracker.six_dof = true)")
     try:
         check_limits(limits_of(plan), parse_paths({"paths": [t.path for t in path_tests(plan)]}))
     except ConfigError as exc:
@@ -164,7 +171,15 @@ def _cycle_step(index: int, k: int):
         plan = _plan(ctx)
         rendered = cycle_program(plan, index, k)
         ctx.session.moved_by = ctx.step.name
-        return iso._run_program(ctx, rendered, timeout_s=iso._timeout(ctx, 120.0), stream=True)
+        out = iso._run_program(ctx, rendered, timeout_s=iso._timeout(ctx, 120.0), stream=True)
+        if out.get("paused"):
+            # a controller halts a paused path where it is and goes on from there on play: the pass is not one
+            # motion. The step fails (its samples stay under this attempt, outside the analysis) and a resume
+            # drives the cycle again from its start, as after any interruption
+            raise DeviceError(f"{ctx.step.name}: the program was paused on the controller while it drove the path; "
+                              "a paused path is halted, not taken up, so this cycle is no whole pass: resume the "
+                              "run to drive it again from its start")
+        return out
     return run
 
 
@@ -179,12 +194,14 @@ def specs_of(plan: PathPlan) -> dict:
     return {s.name: s for s in parse_paths({"paths": [t.path for t in path_tests(plan)]})}
 
 
-def analyse(plan: PathPlan, streams: Mapping[str, tuple]) -> dict:
-    """Each path's figures (pure): ``streams`` ``{path name: (t_s, xyz_mm base frame, valid)}``."""
+def analyse(plan: PathPlan, streams: Mapping[str, tuple], angles: Mapping[str, np.ndarray] | None = None) -> dict:
+    """Each path's figures (pure): ``streams`` ``{path name: (t_s, xyz_mm base frame, valid)}``; ``angles``
+    ``{path name: (N, 3) tool angles a, b, c in the base frame, deg}`` of the paths that turn the tool about its
+    held point (a 6-DoF stream's)."""
     specs = specs_of(plan)
     out = {}
     for name, (t, xyz, valid) in streams.items():
-        out[name] = analyze_path(specs[name], t, xyz, valid, seed=0)
+        out[name] = analyze_path(specs[name], t, xyz, valid, abc_deg=(angles or {}).get(name), seed=0)
     return out
 
 
@@ -204,19 +221,26 @@ def rows_of(plan: PathPlan, results: Mapping) -> list[dict]:
     return rows
 
 
-def _streams(ctx: StepContext, plan: PathPlan) -> dict:
-    out = {}
+def _streams(ctx: StepContext, plan: PathPlan) -> tuple[dict, dict]:
+    """``({path: (t, xyz, valid)}, {path: tool angles a, b, c, deg})``: the angles of the held turns only."""
+    out, angles = {}, {}
+    held = {s.name for s in specs_of(plan).values() if s.kind == "reorientation"}
     for name, steps in step_names(plan).items():
-        b = iso._stream_in_base(ctx, steps)  # no reorientation path yet: its angles unused
+        b = iso._stream_in_base(ctx, steps)
         out[name] = (b.t, b.xyz, (np.asarray(b.status) == 0) & np.all(np.isfinite(b.xyz), axis=1))
-    return out
+        if name in held:
+            if b.abc is None:
+                raise DataError(f"path {name}: the tool turns about its held point and the stream has no "
+                                "orientation (a 6-DoF target: devices.tracker.six_dof)")
+            angles[name] = np.degrees(b.abc)
+    return out, angles
 
 
 def _analysed(ctx: StepContext, plan: PathPlan) -> tuple[dict, dict]:
     """``(streams, results)`` of this session, read and analysed once (a resumed run's report step again)."""
     if ctx.session.analysis is None:
-        ctx.session.streams = _streams(ctx, plan)
-        ctx.session.analysis = analyse(plan, ctx.session.streams)
+        ctx.session.streams, angles = _streams(ctx, plan)
+        ctx.session.analysis = analyse(plan, ctx.session.streams, angles)
     return ctx.session.streams, ctx.session.analysis
 
 

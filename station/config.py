@@ -305,8 +305,8 @@ class PathProgrammeConfig(_Strict):
     ``path_speed_fracs`` of the rated speed, ``path_cycles`` times, in the pose test's cube (edge
     ``path_side_mm``, default the pose cube's), the blended rectangle's corner zone ``blend_mm``; limits of path
     figures in ``path_limits`` (``{"CR_mm" = 2.0, "rectangle_blend_100.CO_mm" = 1.0}``) beside the robot's AT/RT.
-    ``path_kinds`` may add ``weaving`` (``weave_*``) and ``reorientation`` (``reorient_deg``), which the default
-    kinds leave out. Without this section the path test is not offered (its default plan runs for an hour)."""
+    ``path_kinds`` may add ``weaving`` (``weave_*``), ``reorientation`` and ``reorientation_held`` (the tool turned
+    about its held point, with a 6-DoF target; both ``reorient_deg``), which the default kinds leave out. Without this section the path test is not offered (its default plan runs for an hour)."""
 
     path_cycles: int = Field(10, ge=2, le=100)
     path_speed_fracs: list[Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]] = Field(
@@ -315,7 +315,7 @@ class PathProgrammeConfig(_Strict):
     blend_mm: float = Field(20.0, ge=0, le=500, allow_inf_nan=False)
     path_side_mm: float | None = Field(None, gt=0, le=3000, allow_inf_nan=False)
     path_limits: dict[str, Annotated[float, Field(ge=0, allow_inf_nan=False)]] = Field(default_factory=dict)
-    #: the reorientation path's turn either side of the programmes' orientation, deg (clause 8.3)
+    #: the reorientation paths' turn either side of the programmes' orientation, deg (clause 8.3)
     reorient_deg: float | None = Field(None, gt=0, le=90, allow_inf_nan=False)
     #: the weaving path (clause 11): amplitude and frequency of the weave, speed along its base, periods, and
     #: points per period (4, 8 or 12)

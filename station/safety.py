@@ -14,13 +14,18 @@ fake alike:
 * every target and every point of the path between targets lies in the
   configured workspace box (joint moves: the TCP path of the joint
   interpolation is sampled; linear moves: the segment is inside because the
-  box is convex, and sampled points along it must be reachable; circular
+  box is convex, and sampled points along it, every ``path_step_mm`` of
+  its line and every :data:`PATH_STEP_DEG` of its turn (a move that only
+  turns the tool about its held point is sampled along the turn), must be
+  reachable without a branch change; circular
   moves: sampled points of the arc must be inside the box and reachable; a
   corner zone only rounds a corner inside the convex hull of its segments);
 * speeds and accelerations are under the caps: the speed fraction, the
   linear TCP speed, the estimated peak TCP speed of a joint move (cruise
   joint velocities of the synchronised profile through the Jacobian along the
-  path) and the acceleration fraction.
+  path), the acceleration fraction and a linear move's programmed turn
+  (``ori_speed_deg_s``, under ``max_speed_frac`` of the rated turn,
+  :func:`~station.programs.program.rated_ori_speed_deg_s`).
 
 API (all raise :class:`~station.errors.SafetyError`, never move anything)::
 
@@ -62,9 +67,12 @@ from station.programs.program import (
     Move,
     Program,
     RenderedProgram,
+    rated_ori_speed_deg_s,
 )
 
 _AXES = "xyz"
+#: a linear move's turn is checked every this many degrees (and its line every ``path_step_mm``)
+PATH_STEP_DEG = 2.0
 
 
 class SafetyLimits(BaseModel):
@@ -418,11 +426,15 @@ class SafetyGate:
         points (a singularity or configuration change), refuses the move.
         """
         pa, pb = pose_a[:3, 3], pose_b[:3, 3]
-        n = int(np.clip(np.ceil(np.linalg.norm(pb - pa) / self.limits.path_step_mm), 1, 500)) + 1
+        turn_deg = math.degrees(float((Rotation.from_matrix(pose_b[:3, :3]) * Rotation.from_matrix(pose_a[:3, :3]).inv())
+                                      .magnitude()))
+        n = int(np.clip(max(np.ceil(np.linalg.norm(pb - pa) / self.limits.path_step_mm), np.ceil(turn_deg / PATH_STEP_DEG)),
+                        1, 500)) + 1
         if n <= 2:
             return
         s = np.linspace(0.0, 1.0, n)
-        self._check_sampled_path(pose_a, pose_b, pa + s[:, None] * (pb - pa), q_a, q_b, label, "straight")
+        self._check_sampled_path(pose_a, pose_b, pa + s[:, None] * (pb - pa), q_a, q_b, label,
+                                 "straight" if np.linalg.norm(pb - pa) > 0 else "turn's", s=s)
 
     def check_arc_path(self, pose_a: np.ndarray, via_mm, pose_b: np.ndarray, q_a, q_b, label: str) -> None:
         """Points along a circular move (from ``pose_a`` through ``via_mm`` to ``pose_b``) are inside the box
@@ -438,11 +450,14 @@ class SafetyGate:
             raise SafetyError(f"{label}: the arc leaves the workspace: {self._box_message(pts[int(out[0])])}")
         self._check_sampled_path(pose_a, pose_b, pts, q_a, q_b, label, "circular")
 
-    def _check_sampled_path(self, pose_a, pose_b, pts, q_a, q_b, label: str, what: str) -> None:
-        """IK at the inner points ``pts[1:-1]`` (orientation slerped), seeded from the joint interpolation."""
+    def _check_sampled_path(self, pose_a, pose_b, pts, q_a, q_b, label: str, what: str, s=None) -> None:
+        """IK at the inner points ``pts[1:-1]`` (orientation slerped), seeded from the joint interpolation;
+        ``s`` (n,): their fractions of the move (default: of the length along ``pts``)."""
         qa, qb = np.asarray(q_a, float), np.asarray(q_b, float)
-        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
-        s = (cum / cum[-1])[1:-1]
+        if s is None:
+            cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+            s = cum / cum[-1]
+        s = np.asarray(s, float)[1:-1]
         rots = Rotation.from_matrix(np.stack([pose_a[:3, :3], pose_b[:3, :3]]))
         poses = np.repeat(np.eye(4)[None], s.size, axis=0)
         poses[:, :3, :3] = Slerp([0.0, 1.0], rots)(s).as_matrix()
@@ -533,6 +548,11 @@ class SafetyGate:
         if ins.interpolation != "joint":
             v = ins.speed_frac * rated
             self.check_speed(label, tcp_speed_mm_s=v)
+            if ins.ori_speed_deg_s is not None:
+                cap = self.limits.max_speed_frac * rated_ori_speed_deg_s(self.robot)
+                if ins.ori_speed_deg_s > cap * (1 + 1e-9):
+                    raise SafetyError(f"{label}: the tool's turn {ins.ori_speed_deg_s:.6g} deg/s exceeds the cap "
+                                      f"{cap:.6g} deg/s")
             pose_a = kinematics.fk(self.robot.dh_nominal, q_prev)
             if ins.interpolation == "circular":
                 self.check_position(ins.via.xyz_mm, f"{label} circle point {ins.via.name}")

@@ -508,7 +508,8 @@ class SimArm:
             return self._append(t_start, plan.trajectory, traj_srv, "joint", noise_key)
 
     def move_linear(self, target, speed_mm_s: float = 250.0, accel_mm_s2: float = 2500.0, *,
-                    noise_key=None, profile: str | None = None) -> Move:
+                    noise_key=None, profile: str | None = None, orientation_speed_rad_s: float | None = None,
+                    orientation_accel_rad_s2: float | None = None) -> Move:
         """Queue a straight-line TCP move (nominal model, fixed or slerped orientation).
 
         Parameters
@@ -524,6 +525,10 @@ class SimArm:
             As in :meth:`move_joint`.
         profile : {"scurve", "trapezoid"}, optional
             This move's path profile (default the arm's).
+        orientation_speed_rad_s, orientation_accel_rad_s2 : float, optional
+            The programmed speed and acceleration of the tool's turn
+            (:func:`station.models.motion.plan_linear_move`); a move that only
+            turns is timed by them, its TCP held.
 
         Returns
         -------
@@ -558,6 +563,8 @@ class SimArm:
                     jerk_time_s=self.jerk_time_s,
                     profile=self.profile if profile is None else profile,
                     ipo_period_s=self.ipo_period_s,
+                    orientation_speed_rad_s=orientation_speed_rad_s,
+                    orientation_accel_rad_s2=orientation_accel_rad_s2,
                 )
             except motion.UnreachableTarget as exc:
                 raise DeviceFault(f"linear move refused: {exc}") from exc

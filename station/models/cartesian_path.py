@@ -227,6 +227,9 @@ def plan_path(start_pose, segments: list[Segment], *, accel_mm_s2: float, ipo_pe
     for seg in segments:
         pieces.append(_dense(p, seg))
         p = np.asarray(seg.end_pose, float)[:3, 3]
+    if not any(_cum(piece)[-1] > 0.0 for piece in pieces):
+        raise DataError("a run of blended moves that does not move the tool point has no path to blend: turn the "
+                        "tool about its held point with fine stops")
     # corners: each piece keeps its own points up to where the next blend starts
     out, seg_of = [], []
     cur = pieces[0]

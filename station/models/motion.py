@@ -638,6 +638,8 @@ def plan_linear_move(
     profile: str = "scurve",
     ipo_period_s: float = 0.02,
     orientation_radius_mm: float = 500.0,
+    orientation_speed_rad_s: float | None = None,
+    orientation_accel_rad_s2: float | None = None,
     ik_tol_mm: float = 1e-5,
 ) -> LinearMovePlan:
     """Straight-line TCP move from the pose at ``q_start`` to ``target``.
@@ -651,9 +653,7 @@ def plan_linear_move(
     target : array_like, shape (4, 4) or (3,)
         Target TCP pose, or a position (mm) keeping the start orientation.
     speed_mm_s, accel_mm_s2 : float
-        Path speed and acceleration (TCP, along the line). Rotations count
-        as ``angle * orientation_radius_mm`` of path (the larger of the two
-        lengths sets the profile).
+        Path speed and acceleration (TCP, along the line).
     joint_limits_rad : array_like, shape (6, 2)
     joint_speed_limits_rad_s, joint_accel_limits_rad_s2 : array_like, shape (6,)
         The move is slowed down (time-scaled) until no axis exceeds them.
@@ -663,7 +663,18 @@ def plan_linear_move(
     ipo_period_s : float
         Interpolation knot spacing before time scaling, s.
     orientation_radius_mm : float
-        Length that converts the orientation change (rad) into path length.
+        Without an orientation speed: the tool turns at ``speed_mm_s /
+        orientation_radius_mm`` rad/s, accelerating at ``accel_mm_s2 /
+        orientation_radius_mm`` rad/s^2.
+    orientation_speed_rad_s, orientation_accel_rad_s2 : float, optional
+        The programmed speed (and acceleration) of the tool's turn (RAPID
+        ``speeddata``'s ``v_ori``, KRL ``$VEL.ORI1``). Without an
+        acceleration the turn reaches its speed in the time the path
+        reaches its own. The turn has its own profile (angle, rad/s,
+        rad/s^2, the same jerk time) and the line its own; the slower of the
+        two times the move and the other follows it in proportion, like a
+        controller's. A move that only turns (the TCP held) is timed by its
+        turn alone: the TCP stays put at every knot while the tool slerps.
     ik_tol_mm : float
         IK tolerance at the knots.
 
@@ -699,7 +710,12 @@ def plan_linear_move(
     p0, p1 = T0[:3, 3], T1[:3, 3]
     rots = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
     angle = float((rots[1] * rots[0].inv()).magnitude())
-    length = max(float(np.linalg.norm(p1 - p0)), angle * r_rot)
+    w = v / r_rot if orientation_speed_rad_s is None else finite_number(
+        orientation_speed_rad_s, "orientation_speed_rad_s", positive=True, error=DataError)
+    alpha = a * w / v if orientation_accel_rad_s2 is None else finite_number(
+        orientation_accel_rad_s2, "orientation_accel_rad_s2", positive=True, error=DataError)
+    dist = float(np.linalg.norm(p1 - p0))
+    length = max(dist, angle)  # 0 only when the move neither moves nor turns
 
     # the end pose first, seeded from the start, to stay on its branch
     end = kin.ik(dh, T1[None], q0[None], lim, tol_mm=ik_tol_mm)
@@ -714,7 +730,9 @@ def plan_linear_move(
         traj = PiecewiseCubic(np.zeros(1), np.zeros((0, 4, N_AXES)), q1)
         return LinearMovePlan(traj, prof, np.zeros(1), np.ones(1), q1[None].copy(), 1.0, float(end.residual_mm[0]))
 
-    prof = make_profile(profile, length, v, a, a / tj)
+    # the line's profile (mm) and the turn's (rad): the slower one times the move
+    profs = [(make_profile(profile, d, vv, aa, aa / tj), d) for d, vv, aa in ((dist, v, a), (angle, w, alpha)) if d > 0]
+    prof, length = max(profs, key=lambda pr: pr[0].duration_s)
     n_k = max(int(math.ceil(prof.duration_s / dt_ipo)), 2)
     t_k = np.linspace(0.0, prof.duration_s, n_k + 1)
     s_k = prof.evaluate(t_k)[0] / length

@@ -19,7 +19,7 @@ Output: ``<NAME>.src`` (the program) and ``<NAME>.dat`` (its data list)::
 Conventions: motions without ``C_DIS`` stop exactly (ISO 9283
 fine stops); a move with a corner zone is ``LIN p C_DIS`` (or ``CIRC via, p
 C_DIS``) after ``$APO.CDIS`` = the blend radius in mm; Cartesian speed ``$VEL.CP`` is in m/s (``speed_frac`` x rated
-TCP speed), joint speed ``$VEL_AXIS[i]`` and acceleration ``$ACC_AXIS[i]``
+TCP speed), the tool's turn ``$VEL.ORI1``/``$VEL.ORI2`` in deg/s where a move programmes it (``ori_speed_deg_s``), joint speed ``$VEL_AXIS[i]`` and acceleration ``$ACC_AXIS[i]``
 in percent; ``$ACC.CP`` in m/s^2 needs the program's
 ``rated_tcp_accel_mm_s2``. Orientation is written as KUKA's A, B, C angles
 (degrees, rotation Rz(A)·Ry(B)·Rx(C)). Outputs 17..32 carry the finished
@@ -49,10 +49,11 @@ from station.programs.program import (
     Program,
     RenderedProgram,
     check_text,
+    iter_instructions,
     matrix_from_quat,
     with_lines,
 )
-from station.programs.rapid import fmt_num
+from station.programs.rapid import DEFAULT_V_ORI, fmt_num
 
 CYCLE_SIGNAL = "CYCLE_COUNT"
 CYCLE_SIGNAL_OUTPUTS = (17, 32)
@@ -133,7 +134,8 @@ def render_krl(program: Program) -> RenderedProgram:
         emit(f"$ACC.CP = {fmt_num(program.accel_frac * program.rated_tcp_accel_mm_s2 / 1000.0, 4)}", 1)
     emit(f"{CYCLE_SIGNAL} = 0", 1)
 
-    state = {"axis": None, "cp": None, "apo": None}
+    has_ori = any(isinstance(s, Move) and s.ori_speed_deg_s is not None for s in iter_instructions(program.statements))
+    state = {"axis": None, "cp": None, "apo": None, "ori": None}
 
     def set_zone(ins: Move, depth: int) -> None:
         if ins.zone_mm > 0 and state["apo"] != ins.zone_mm:
@@ -146,6 +148,11 @@ def render_krl(program: Program) -> RenderedProgram:
                 v = ins.speed_frac * program.rated_tcp_speed_mm_s / 1000.0
                 emit(f"$VEL.CP = {fmt_num(v, 7)}", depth)  # to the micrometre a second: a weave's period rests on it
                 state["cp"] = ins.speed_frac
+            ori = DEFAULT_V_ORI if ins.ori_speed_deg_s is None else ins.ori_speed_deg_s
+            if has_ori and state["ori"] != ori:  # a programme that turns sets every linear move's turn
+                for k in (1, 2):  # the tool's turn, deg/s (about its axis and about the path's)
+                    emit(f"$VEL.ORI{k} = {fmt_num(ori, 3)}", depth)
+                state["ori"] = ori
         elif state["axis"] != ins.speed_frac:
             pct = fmt_num(ins.speed_frac * 100.0, 3)
             for i in range(6):
@@ -173,12 +180,12 @@ def render_krl(program: Program) -> RenderedProgram:
     for s in program.statements:
         if isinstance(s, Loop):
             # speeds set inside the loop must be re-set at the top of each pass
-            state["axis"] = state["cp"] = state["apo"] = None
+            state["axis"] = state["cp"] = state["apo"] = state["ori"] = None
             stmt_lines.append(emit(f"FOR {LOOP_COUNTER} = 1 TO {s.count}", 1))
             for b in s.body:
                 stmt_lines.append(instruction(b, 2, LOOP_COUNTER))
             emit("ENDFOR", 1)
-            state["axis"] = state["cp"] = state["apo"] = None
+            state["axis"] = state["cp"] = state["apo"] = state["ori"] = None
         else:
             stmt_lines.append(instruction(s, 1, None))
     emit("END")

@@ -25,9 +25,18 @@ coordinates (mm from the centre):
   move. Its path file entry is the line (the position's AT and RT in the
   line's normal planes: what the turning wrist does to the path); without a
   ``velocity_mm_s`` (the joints may slow the line where the wrist turns fast).
-  The path file's own ``reorientation`` kind, the point held while the tool
-  turns (AT, RT against the angle turned, from a 6-DoF stream), has no
-  programme here: the fake controllers plan no move that only turns;
+  The held point's own test is ``reorientation_held``;
+* **reorientation_held** (clause 8.3 with the tool's point held): the tool
+  turns about the base x axis through its point, held at the plane's centre,
+  from ``-reorient_deg`` to ``+reorient_deg`` and back, each turn one
+  linear move that does not move the point (fine stops, a dwell at each
+  end), at ``speed_frac`` of the rated turn
+  (:func:`~station.programs.program.rated_ori_speed_deg_s`: RAPID
+  ``v_ori``, KRL ``$VEL.ORI1``, URScript ``v`` in rad/s). Its path file
+  entry is the ``reorientation`` kind: the point and the start and end
+  angles a, b, c (``R = Rz(c) Ry(b) Rx(a)``, degrees), so the analysis states
+  the held point's AT and RT (its deviation from the point over the turn,
+  the normal "planes" are angles turned) from a 6-DoF stream;
 * **weaving** (clause 11, weaving stroke and frequency errors WS, WF): a
   sine of amplitude ``weave_amplitude_mm`` (half the stroke) at
   ``weave_frequency_Hz`` across a base line along the plane's diagonal
@@ -58,7 +67,16 @@ from scipy.spatial.transform import Rotation
 
 from station.errors import ConfigError
 from station.programs.builders import TOOL_DOWN, _orientation, _program, quat_from_matrix, rated_tcp_accel_mm_s2
-from station.programs.program import CartesianTarget, CycleMark, Dwell, Loop, Move, Program, check_number
+from station.programs.program import (
+    CartesianTarget,
+    CycleMark,
+    Dwell,
+    Loop,
+    Move,
+    Program,
+    check_number,
+    rated_ori_speed_deg_s,
+)
 from station.programs.weave import design_weave
 
 __all__ = ["PathTest", "PATH_KINDS", "ALL_PATH_KINDS", "SPEED_FRACS", "WEAVE_DEFAULTS", "iso_path_tests",
@@ -68,8 +86,8 @@ __all__ = ["PathTest", "PATH_KINDS", "ALL_PATH_KINDS", "SPEED_FRACS", "WEAVE_DEF
 SPEED_FRACS = (1.0, 0.5, 0.1)
 #: the path programmes a plan runs unless it says, in the order they run
 PATH_KINDS = ("line", "circle_large", "circle_small", "rectangle_blend", "rectangle_fine")
-#: every path programme there is (reorientation and weaving on request)
-ALL_PATH_KINDS = PATH_KINDS + ("reorientation", "weaving")
+#: every path programme there is (the reorientations and the weave on request)
+ALL_PATH_KINDS = PATH_KINDS + ("reorientation", "weaving", "reorientation_held")
 #: the weave's parameters unless given: amplitude mm, frequency Hz, base speed mm/s, periods, vertices a period
 WEAVE_DEFAULTS = {"weave_amplitude_mm": 2.0, "weave_frequency_Hz": 1.0, "weave_speed_mm_s": 10.0,
                   "weave_periods": 10, "weave_points_per_period": 8}
@@ -162,6 +180,23 @@ def _reorientation(plane, quat, v_frac, turn_deg, dwell, tag):
     return start, body, {"kind": "line", "start_mm": a.tolist(), "end_mm": b.tolist()}
 
 
+def _abc_deg(quat) -> list[float]:
+    """Angles a, b, c of a tool orientation (``R = Rz(c) Ry(b) Rx(a)``), deg: the path file's convention."""
+    w, x, y, z = quat
+    return [float(v) for v in Rotation.from_quat([x, y, z, w]).as_euler("xyz", degrees=True)]
+
+
+def _reorientation_held(plane, quat, v_frac, turn_deg, ori_deg_s, dwell, tag):
+    """The tool turned about the base x axis through its point, held at the plane's centre."""
+    c = _pt(plane, 0.0, 0.0)
+    start, end = (_target(f"H{tag}_{n}", c, _turned(quat, d), f"held turn {n} ({d:+g} deg about x)")
+                  for n, d in (("A", -turn_deg), ("B", turn_deg)))
+    body = [Move(end, "linear", v_frac, ori_speed_deg_s=ori_deg_s), dwell,
+            Move(start, "linear", v_frac, ori_speed_deg_s=ori_deg_s), dwell, CycleMark()]
+    return start, body, {"kind": "reorientation", "point_mm": c.tolist(), "start_abc_deg": _abc_deg(start.quat_wxyz),
+                         "end_abc_deg": _abc_deg(end.quat_wxyz)}
+
+
 def _weaving(plane, quat, design, periods: int, dwell, rated_mm_s: float, tag):
     """The weave's targets along the plane's diagonal, centred, between a straight lead-in and lead-out of
     :data:`WEAVE_LEAD_MM`; its path file entry (kind weaving: the woven part)."""
@@ -220,7 +255,7 @@ def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_
         to no pass. An arm that is not calibrated is off by millimetres
         everywhere; a rectangle's rounded corners add ``blend / (2 sqrt 2)``.
     reorient_deg : float
-        The reorientation's turn either side of the middle, deg (0 < turn <= 90).
+        The reorientations' turn either side of the middle, deg (0 < turn <= 90).
     weave : dict, optional
         The weave's parameters (keys of :data:`WEAVE_DEFAULTS`; the others their default).
 
@@ -239,7 +274,7 @@ def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_
     if bad or not kinds:
         raise ConfigError(f"path kinds must be among {', '.join(ALL_PATH_KINDS)}, got {list(kinds)!r}")
     turn = check_number(reorient_deg, "reorient_deg", lo=0.0, hi=90.0)
-    if "reorientation" in kinds and turn <= 0:
+    if ("reorientation" in kinds or "reorientation_held" in kinds) and turn <= 0:
         raise ConfigError("reorient_deg must be > 0 (the reorientation turns the tool)")
     wv = dict(WEAVE_DEFAULTS)
     unknown = sorted(set(weave or {}) - set(WEAVE_DEFAULTS))
@@ -265,6 +300,9 @@ def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_
                 start, body, path = _line(plane, quat, f, cycles, dwell, tag)
             elif kind == "reorientation":
                 start, body, path = _reorientation(plane, quat, f, turn, dwell, tag)
+            elif kind == "reorientation_held":
+                start, body, path = _reorientation_held(plane, quat, f, turn, f * rated_ori_speed_deg_s(robot), dwell,
+                                                        tag)
             elif kind.startswith("circle"):
                 d = SPAN * side * (SMALL_CIRCLE if kind == "circle_small" else 1.0)
                 start, body, path = _circle(plane, quat, f, d, tag)
@@ -280,7 +318,8 @@ def iso_path_tests(robot, centre_mm, side_mm: float, *, cycles: int = 10, speed_
             if kind in ("line", "circle_large"):
                 path["velocity_mm_s"] = f * rated
             statements = [Move(start, "joint", min(approach_speed_frac, f)), dwell, Loop(cycles, tuple(body))]
-            program = _program(robot, f"ISO_{kind.upper()[:12]}_{pct}", statements, accel_frac=accel_frac,
+            short = "HELD_TURN" if kind == "reorientation_held" else kind.upper()[:12]
+            program = _program(robot, f"ISO_{short}_{pct}", statements, accel_frac=accel_frac,
                                title=f"ISO 9283 path {kind} at {pct} % of rated speed")
             out.append(PathTest(kind, f, program, path))
     return out

@@ -43,6 +43,18 @@ MAX_TEXT_LEN = 80
 MAX_CYCLES = 10000
 #: largest corner zone (blend radius), mm
 MAX_ZONE_MM = 500.0
+#: largest programmed speed of the tool's turn, deg/s
+MAX_ORI_SPEED_DEG_S = 3600.0
+#: the wrist's axes (joints 4-6, 0-based), whose slowest speed limit is the rated speed of the tool's turn
+WRIST_AXES = (3, 4, 5)
+
+
+def rated_ori_speed_deg_s(robot) -> float:
+    """Rated speed of the tool's turn, deg/s: the slowest wrist axis's speed limit (a turn of the tool about
+    its point takes at least the wrist's own turn; the station's convention, not a catalogue figure)."""
+    return float(np.degrees(np.min(np.asarray(robot.joint_speed_limits_rad_s, float)[list(WRIST_AXES)])))
+
+
 #: how a move gets to its target: joint-interpolated, straight line, arc through a via point
 INTERPOLATIONS = ("joint", "linear", "circular")
 
@@ -262,6 +274,12 @@ class Move:
     via : CartesianTarget or None
         The circle point of a ``"circular"`` move (the arc runs from where
         the move starts through ``via`` to ``target``).
+    ori_speed_deg_s : float or None
+        Programmed speed of the tool's turn on a linear move, deg/s (RAPID
+        ``speeddata``'s ``v_ori``, KRL ``$VEL.ORI1``; URScript's ``v`` of a
+        ``movel`` that only turns). None: the controller's default. It
+        times a move that only turns the tool (its point held), and any
+        linear move whose turn is slower than its line.
     """
 
     target: Target
@@ -270,6 +288,7 @@ class Move:
     source_line: int | None = None
     zone_mm: float = 0.0
     via: CartesianTarget | None = None
+    ori_speed_deg_s: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.target, (CartesianTarget, JointTarget)):
@@ -290,6 +309,13 @@ class Move:
         if z > 0 and self.interpolation == "joint":
             raise ConfigError(f"move to {self.target.name}: only linear and circular moves blend (zone_mm {z:g})")
         object.__setattr__(self, "zone_mm", z)
+        if self.ori_speed_deg_s is not None:
+            w = check_number(self.ori_speed_deg_s, f"move to {self.target.name} ori_speed_deg_s", lo=0.0,
+                             hi=MAX_ORI_SPEED_DEG_S)
+            if w <= 0.0 or self.interpolation != "linear":
+                raise ConfigError(f"move to {self.target.name}: ori_speed_deg_s must be > 0, and only on a linear "
+                                  f"move (got {w:g} on a {self.interpolation} move)")
+            object.__setattr__(self, "ori_speed_deg_s", w)
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ Conventions the controller (and the station's fake) rely on:
   closest to the current one, which is also what the safety gate assumes
   when it solves the inverse kinematics from the previous target;
 * speed is ``speeddata`` whose ``v_tcp`` is ``speed_frac`` x the rated TCP
-  speed; for joint moves the controller scales every joint's speed by the
+  speed and ``v_ori`` the move's ``ori_speed_deg_s`` (500 deg/s, RAPID's
+  predefined speeds' value, when it has none); for joint moves the controller scales every joint's speed by the
   same fraction;
 * ``AccSet`` takes the acceleration in percent (RAPID limits it to
   20..100 %, so a lower fraction is refused);
@@ -60,6 +61,7 @@ from station.programs.program import (
     Program,
     RenderedProgram,
     check_text,
+    iter_instructions,
     with_lines,
 )
 
@@ -67,6 +69,8 @@ from station.programs.program import (
 CYCLE_SIGNAL = "go_cycle_count"
 #: RAPID FOR loop counter
 LOOP_COUNTER = "n_cycle"
+#: speeddata's v_ori (the tool's turn, deg/s) of a move that programmes none: RAPID's predefined speeds' value
+DEFAULT_V_ORI = 500.0
 #: predefined RAPID external-axis value "not used"
 NO_EAX = "9E+09"
 INDENT = "    "
@@ -114,6 +118,15 @@ def _jointtarget(t: JointTarget) -> str:
     return f"CONST jointtarget {jointtarget_name(t)} := [[{q}],[{eax}]];"
 
 
+def _speeds(program: Program) -> list[tuple[float, float | None]]:
+    """Distinct ``(speed_frac, ori_speed_deg_s)`` of the program's moves, in first-use order (one speeddata each)."""
+    out: list[tuple[float, float | None]] = []
+    for ins in iter_instructions(program.statements):
+        if isinstance(ins, Move) and (ins.speed_frac, ins.ori_speed_deg_s) not in out:
+            out.append((ins.speed_frac, ins.ori_speed_deg_s))
+    return out
+
+
 def _speed_name(i: int) -> str:
     return f"v_{i + 1}"
 
@@ -150,7 +163,7 @@ def render_rapid(program: Program) -> RenderedProgram:
         raise ConfigError(
             f"program {program.name}: accel_frac {program.accel_frac:g} is below RAPID's AccSet minimum of 20 %"
         )
-    speeds = program.speed_fracs()
+    speeds = _speeds(program)
     zones = program.zones_mm()
     check_unique_identifiers(program.name, [
         (program.name, "the module"), ("main", "the main routine"), (LOOP_COUNTER, "the loop counter"),
@@ -175,11 +188,12 @@ def render_rapid(program: Program) -> RenderedProgram:
         if t.label:
             emit(rapid_comment(f"{t.name}: {t.label}"), 1)
         emit(_robtarget(t) if isinstance(t, CartesianTarget) else _jointtarget(t), 1)
-    for i, frac in enumerate(speeds):
+    for i, (frac, ori) in enumerate(speeds):
         v_tcp = frac * program.rated_tcp_speed_mm_s
+        turn = "" if ori is None else f", the tool's turn {fmt_num(ori, 3)} deg/s"
         emit(
-            f"CONST speeddata {_speed_name(i)} := [{fmt_num(v_tcp, 3)},500,5000,1000]; "
-            f"! {fmt_num(frac * 100, 3)} % of rated speed",
+            f"CONST speeddata {_speed_name(i)} := [{fmt_num(v_tcp, 3)},{fmt_num(DEFAULT_V_ORI if ori is None else ori, 3)},"
+            f"5000,1000]; ! {fmt_num(frac * 100, 3)} % of rated speed{turn}",
             1,
         )
     for i, r in enumerate(zones):
@@ -194,7 +208,7 @@ def render_rapid(program: Program) -> RenderedProgram:
 
     def instruction(ins, depth: int, counter: str | None) -> int:
         if isinstance(ins, Move):
-            speed = _speed_name(speeds.index(ins.speed_frac))
+            speed = _speed_name(speeds.index((ins.speed_frac, ins.ori_speed_deg_s)))
             t = ins.target
             if isinstance(t, JointTarget):
                 return emit(f"MoveAbsJ {jointtarget_name(t)}, {speed}, fine, tool0;", depth)

@@ -22,7 +22,10 @@ Conventions the driver (:class:`drivers.ur.URDriver`) and the fake rely on:
   own (``movel(p[x, y, z, rx, ry, rz])``, m and rotation vector);
 * ``movej``'s ``v`` and ``a`` are ``speed_frac`` (``accel_frac``) x the
   slowest joint's limits (rad/s, rad/s^2), ``movel``'s the rated TCP speed and
-  acceleration in m/s, m/s^2;
+  acceleration in m/s, m/s^2; a ``movel`` with an ``ori_speed_deg_s`` whose
+  TCP stays where the move before left it only turns the tool: its ``v`` is
+  that speed in rad/s and its ``a`` reaches it as soon as the line would
+  (rad/s^2), the way UR's controller reads a pure rotation;
 * a move ends in a stop (ISO 9283 measures poses at rest) unless it has a
   corner zone: then ``r`` is its blend radius in m (path tests); a circular
   move is ``movec(via, to, a, v, r, mode=0)`` (fixed orientation);
@@ -42,6 +45,8 @@ from station.errors import ConfigError, SafetyError
 from station.models import kinematics
 from station.programs.program import CycleMark, Dwell, Loop, Move, Program, RenderedProgram
 
+#: a linear move whose TCP moves less than this only turns the tool (its v and a in rad/s, rad/s^2), mm
+TURN_ONLY_MM = 1e-3
 #: registers after ``base``: started, finished, moves done, cycles done
 REG_STARTED, REG_FINISHED, REG_MOVES, REG_CYCLES = 0, 1, 2, 3
 
@@ -116,8 +121,12 @@ def render_urscript(program: Program, q_rad, *, robot, seq: int, register_base: 
             else:
                 T = getattr(s.target, "pose", None)
                 T = kinematics.fk(robot.dh_nominal, q[k]) if T is None else T
-                av = (f"a={_num(program.accel_frac * rated_accel / 1000.0)}, "
-                      f"v={_num(s.speed_frac * program.rated_tcp_speed_mm_s / 1000.0)}")
+                a_m, v_m = program.accel_frac * rated_accel / 1000.0, s.speed_frac * program.rated_tcp_speed_mm_s / 1000.0
+                if s.ori_speed_deg_s is not None and k > 0 and float(np.linalg.norm(
+                        np.asarray(T)[:3, 3] - kinematics.tool_position(robot.dh_nominal, q[k - 1]))) < TURN_ONLY_MM:
+                    w = math.radians(s.ori_speed_deg_s)  # only turns: rad/s, reaching it as soon as the line would
+                    a_m, v_m = w * a_m / v_m, w
+                av = f"a={_num(a_m)}, v={_num(v_m)}"
                 blend = f", r={_num(s.zone_mm / 1000.0)}" if s.zone_mm > 0 else ""
                 if s.interpolation == "circular":
                     lines.append(f"  movec({_pose(s.via.pose)}, {_pose(T)}, {av}{blend}, mode=0)")

@@ -94,3 +94,15 @@ def test_joint_knots_follow_the_path_and_an_unreachable_path_is_refused():
     with pytest.raises(DataError, match="reachable"):
         solve_knots(robot.dh_nominal, robot.home_q_rad, plan_path(T0, [Segment(far, 300.0)], accel_mm_s2=3000.0),
                     robot.joint_limits_rad, robot.joint_speed_limits_rad_s, robot.joint_accel_limits_rad_s2)
+
+
+def test_a_blended_run_that_only_turns_the_tool_is_refused_by_name(rng):
+    """A run whose moves all keep the tool point has no path to round or time: refused (the fine moves that only
+    turn are the linear move planner's, station.models.motion)."""
+    p = rng.uniform(-500, 500, 3)
+    turned = _pose(p)
+    turned[:3, :3] = _frame(rng)
+    if np.linalg.det(turned[:3, :3]) < 0:  # a rotation, not a reflection
+        turned[:3, 0] *= -1.0
+    with pytest.raises(DataError, match="does not move the tool point"):
+        plan_path(_pose(p), [Segment(turned, 100.0, 5.0), Segment(_pose(p), 100.0)], accel_mm_s2=1000.0)

@@ -27,6 +27,16 @@ def robot():
     return get_robot("industrial-3100")
 
 
+def _urscript(gate, robot, program) -> str:
+    """The URScript of ``program``, its moves' joints gated one after another from home (every loop pass)."""
+    qs, q = [], robot.home_q_rad
+    for m in executed(program):
+        if isinstance(m, Move):
+            q = gate.check_move(m, q, program)[0]
+            qs.append(q)
+    return render_urscript(program, np.array(qs), robot=robot, seq=3).text
+
+
 def _loop_moves(program):
     return [b for s in program.statements if isinstance(s, Loop) for b in s.body if isinstance(b, Move)]
 
@@ -198,12 +208,7 @@ def test_the_weave_is_a_sine_of_blended_vertices_in_every_dialect(robot, rng):
     assert len(re.findall(r"^\s*LIN p_\w+ C_DIS$", krl, re.M)) == periods * n + 1
     v_krl = float(re.search(r"\$VEL.CP = ([0-9.]+)", krl).group(1)) * 1000.0  # m/s
     assert v_krl == pytest.approx(moves[0].speed_frac * robot.max_tcp_speed_mm_s, abs=6e-4)
-    qs, q = [], robot.home_q_rad
-    for m in executed(t.program):
-        if isinstance(m, Move):
-            q = gate.check_move(m, q, t.program)[0]
-            qs.append(q)
-    ur = render_urscript(t.program, np.array(qs), robot=robot, seq=3).text
+    ur = _urscript(gate, robot, t.program)
     rs = [float(x) for x in re.findall(r"movel\(p\[[^\]]+\], a=[^,]+, v=[^,]+, r=([0-9.e-]+)\)", ur)]
     assert rs == pytest.approx(list(zones / 1000.0) * 2)
 
@@ -233,6 +238,50 @@ def test_the_reorientation_drives_the_line_while_the_tool_turns_about_x(robot, r
     assert sorted(abs(abs(b) - 180.0) for b in bs) == pytest.approx([0.0, turn, turn], abs=1e-4)
 
 
+def test_the_held_turn_turns_the_tool_about_its_point_at_the_programmed_turn_in_every_dialect(robot, rng):
+    """The held turn's two moves keep the point and turn the tool about the base x axis; RAPID writes the turn's
+    speed as v_ori, KRL as $VEL.ORI1/2, URScript as movel's v in rad/s; the controller's parser reads v_ori back;
+    the gate passes it, and refuses a turn faster than its cap."""
+    from dataclasses import replace
+
+    from station.analysis.iso9283.orientation import abc_of_matrices
+    from station.programs.program import rated_ori_speed_deg_s
+
+    turn = float(np.round(rng.uniform(5.0, 30.0), 2))
+    frac = float(rng.choice(SPEED_FRACS))
+    t = iso_path_tests(robot, CENTRE, 600.0, cycles=2, kinds=("reorientation_held",), speed_fracs=(frac,),
+                       reorient_deg=turn)[0]
+    w = frac * rated_ori_speed_deg_s(robot)
+    end, start = _loop_moves(t.program)
+    assert start.target.xyz_mm == end.target.xyz_mm == tuple(t.path["point_mm"])
+    assert (start.ori_speed_deg_s, end.ori_speed_deg_s) == (w, w)
+    rel = end.target.pose[:3, :3] @ start.target.pose[:3, :3].T
+    c, s = math.cos(math.radians(2 * turn)), math.sin(math.radians(2 * turn))
+    assert np.allclose(rel, [[1, 0, 0], [0, c, -s], [0, s, c]], atol=1e-6)
+    # the path file's angles are the targets' (R = Rz(c) Ry(b) Rx(a))
+    for key, m in (("start_abc_deg", start), ("end_abc_deg", end)):
+        assert np.allclose(t.path[key], np.degrees(abc_of_matrices(m.target.pose[:3, :3]))[0], atol=1e-6)
+    spec = parse_paths({"paths": [t.path]})[0]
+    assert spec.kind == "reorientation" and spec.geometry.length_mm == pytest.approx(2 * turn, abs=1e-6)
+    gate = SafetyGate(robot, default_limits(robot))
+    gate.check_program(t.program)
+    rapid = render_rapid(t.program).text
+    assert re.search(rf"speeddata v_\d := \[{frac * robot.max_tcp_speed_mm_s:g},{round(w, 3):g},", rapid), rapid
+    back = _loop_moves(compile_rapid(rapid, robot, gate).program)
+    assert [m.ori_speed_deg_s for m in back] == pytest.approx([w, w])
+    src = next(v for k, v in render_krl(t.program).files.items() if k.endswith(".src"))
+    assert [float(x) for x in re.findall(r"\$VEL\.ORI[12] = ([0-9.]+)", src)] == pytest.approx([w] * 2, abs=1e-3)
+    ur = _urscript(gate, robot, t.program)
+    vs = [float(x) for x in re.findall(r"movel\(p\[[^\]]+\], a=[^,]+, v=([0-9.e-]+)\)", ur)]
+    assert vs == pytest.approx([math.radians(w)] * 4)  # two cycles of two turns, each v in rad/s
+    # a gate capped at half the speed: the turn at the full speed is refused though its line speed is under the cap
+    tight = SafetyGate(robot, default_limits(robot).model_copy(update={"max_speed_frac": 0.5 * frac}))
+    q_start = tight.check_cartesian_target(start.target.pose, "start", q_seed=robot.home_q_rad)
+    tight.check_move(replace(end, speed_frac=0.4 * frac, ori_speed_deg_s=0.4 * w), q_start, t.program)
+    with pytest.raises(SafetyError, match="the tool's turn .* deg/s exceeds the cap"):
+        tight.check_move(replace(end, speed_frac=0.4 * frac), q_start, t.program)
+
+
 def test_bad_weave_and_reorientation_parameters_are_refused_by_name(robot):
     def build(**kw):
         return iso_path_tests(robot, CENTRE, 600.0, **kw)
@@ -250,3 +299,5 @@ def test_bad_weave_and_reorientation_parameters_are_refused_by_name(robot):
     for bad in (0.0, 120.0):
         with pytest.raises(ConfigError, match="reorient_deg"):
             build(kinds=("reorientation",), reorient_deg=bad)
+        with pytest.raises(ConfigError, match="reorient_deg"):
+            build(kinds=("reorientation_held",), reorient_deg=bad)
