@@ -18,7 +18,7 @@ Every approach window is predicted by the closed forms of
 
 Per move, ``a_m``, ``T_m`` and the cruise speed ``v_m`` are nuisances: they are fitted (Gauss-Newton,
 all moves at once) on the window's *timing part*, the samples more than
-:data:`TIMING_MM` short of the end, given the global parameters; the global
+:data:`TIMING_MM` and less than :data:`TIMING_FAR_MM` short of the end, given the global parameters; the global
 parameters are fitted on the *approach part* (the rest of the window) of the
 training moves with the nuisances so profiled out. A held-out move is
 predicted the same way: its own timing part sets its ``a_m, T_m, v_m``, its
@@ -43,6 +43,11 @@ from .windows import Windows
 
 #: samples more than this short of the end time the move (set a_m and T_m), mm
 TIMING_MM = 1.0
+#: ... and no further than this short of it, mm: far out, a joint move's chord is not its path (a circle of
+#: 500 mm radius: arc - chord = s^3 / (24 R^2), 1.3 um at 20 mm, 21 um at 50 mm) and the tool's deceleration
+#: varies along it, so one deceleration and end time fitted over the whole deceleration misplaced the end (by
+#: 76 um at 1 mm short on a look-alike of issue 42's UR arm, its draw 23), and the loop's fit took up the misfit
+TIMING_FAR_MM = 20.0
 #: most rounds of a fit (the nuisances' start re-profiled at each)
 FIT_ROUNDS = 6
 #: Gauss-Newton iterations of the nuisances inside the fit's objective (from the round's start)
@@ -123,10 +128,12 @@ def predict(w: Windows, p: Params, a, T, v=None) -> np.ndarray:
 
 
 def parts(w: Windows) -> tuple[np.ndarray, np.ndarray]:
-    """Masks (M, L) of the timing part and of the approach part."""
+    """Masks (M, L) of the timing part (from :data:`TIMING_FAR_MM` to :data:`TIMING_MM` short of the end) and
+    of the approach part (the rest of the window after it)."""
     fin = np.isfinite(w.x_mm)
-    timing = fin & (np.nan_to_num(w.x_mm, nan=0.0) < -TIMING_MM)
-    return timing, fin & ~timing
+    x = np.nan_to_num(w.x_mm, nan=0.0)
+    timing = fin & (x < -TIMING_MM) & (x > -TIMING_FAR_MM)
+    return timing, fin & (x >= -TIMING_MM)
 
 
 #: the cruise speed's prior sd as a fraction of the windows' estimate (holds it where the timing part has no cruise)
