@@ -691,11 +691,11 @@ def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, do
 
     The population mean by a t with ``dof`` (default n - 1, at least 3) degrees of freedom and scale
     ``s / sqrt(n)`` (with ``noise_sd`` > 0, the instrument's stated noise in each observation, its population
-    sd floored there: :func:`_mean_scalar_draws`); a common systematic error of sd ``systematic_sd`` (its component named
-    ``systematic_name``; a sd estimated with ``systematic_dof`` degrees of freedom is drawn as a scaled t,
-    GUM S1 6.4.9, with at least 3); a resolution ``resolution`` of each
-    observation (a difference of two time stamps: two rectangles; it also stands in for ``s`` when every
-    observation was the same, GUM F.2.2.1).  ``absolute``: the figure is ``|mean - reference|``.
+    sd floored there: :func:`_mean_scalar_draws`); a common systematic error of sd ``systematic_sd`` (its
+    component named ``systematic_name``; a sd estimated with ``systematic_dof`` degrees of freedom is drawn as
+    a scaled t, GUM S1 6.4.9, with at least 3); a resolution ``resolution`` of each observation (a difference
+    of two time stamps: two rectangles; it also stands in for ``s`` when every observation was the same,
+    GUM F.2.2.1).  ``absolute``: the figure is ``|mean - reference|``.
     """
     dof = n - 1 if dof is None else dof
     if n < 1 or dof < 3 or not math.isfinite(s):
