@@ -494,6 +494,27 @@ def _mean_t_draws(x: np.ndarray, M: int, rng, floor_var: float) -> np.ndarray:
     return x.mean(axis=0) + z * np.sqrt(nu / rng.chisquare(nu, size=M))[:, None]
 
 
+def _mean_scalar_draws(mean: float, s: float, n: int, dof: float, M: int, rng, noise_sd: float = 0.0) -> np.ndarray:
+    """Draws (M,) of the population mean behind n observations of mean ``mean`` and sd ``s``: the scaled t of
+    GUM S1 6.4.9 with ``dof`` degrees of freedom, drawn as ``mean + sigma / sqrt(n) z`` with the population sd
+    ``sigma = s sqrt(dof / chi^2_dof)``.  ``noise_sd`` > 0: the instrument's stated noise in each observation,
+    which the population sd cannot be below (the observations carry it): a draw of ``sigma`` under it is
+    raised to it.  A few stops that happen to agree then do not state the mean better than the instrument
+    reads; with ``noise_sd`` = 0 the draws are the plain t's."""
+    if noise_sd <= 0.0:
+        return mean + s / math.sqrt(n) * rng.standard_t(dof, size=M)
+    sigma = np.maximum(s * np.sqrt(dof / rng.chisquare(dof, size=M)), noise_sd)
+    return mean + sigma / math.sqrt(n) * rng.standard_normal(M)
+
+
+def _floored_sampling(s: float, n: int, dof: float, noise_sd: float) -> tuple[float, float | None]:
+    """First-order sampling term of a mean of n observations of sd ``s`` and its degrees of freedom: the
+    instrument's stated noise ``noise_sd`` where the scatter is below it (a specification: infinite dof)."""
+    if noise_sd > 0.0 and s < noise_sd:
+        return noise_sd / math.sqrt(n), None
+    return s / math.sqrt(n), dof
+
+
 def _sphere_dirs(n: int = _N_DIRS) -> np.ndarray:
     """Squared components (n, 3) of a Fibonacci lattice of unit vectors."""
     i = np.arange(n) + 0.5
@@ -664,15 +685,17 @@ def mean_uncertainty(ch, subject, values, value, budget: Budget, *, reference=0.
 
 def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, dof=None, reference=0.0,
                            systematic_sd=0.0, resolution=0.0, absolute=False,
-                           systematic_name: str = "systematic", systematic_dof=None) -> FigureUncertainty | None:
+                           systematic_name: str = "systematic", systematic_dof=None,
+                           noise_sd: float = 0.0) -> FigureUncertainty | None:
     """A figure that is the mean of n observations (mean ``mean``, sd ``s``) minus ``reference``.
 
     The population mean by a t with ``dof`` (default n - 1, at least 3) degrees of freedom and scale
-    ``s / sqrt(n)``; a common systematic error of sd ``systematic_sd`` (its component named
-    ``systematic_name``; a sd estimated with ``systematic_dof`` degrees of freedom is drawn as a scaled t,
-    GUM S1 6.4.9, with at least 3); a resolution ``resolution`` of each
-    observation (a difference of two time stamps: two rectangles; it also stands in for ``s`` when every
-    observation was the same, GUM F.2.2.1).  ``absolute``: the figure is ``|mean - reference|``.
+    ``s / sqrt(n)`` (with ``noise_sd`` > 0, the instrument's stated noise in each observation, its population
+    sd floored there: :func:`_mean_scalar_draws`); a common systematic error of sd ``systematic_sd`` (its
+    component named ``systematic_name``; a sd estimated with ``systematic_dof`` degrees of freedom is drawn as
+    a scaled t, GUM S1 6.4.9, with at least 3); a resolution ``resolution`` of each observation (a difference
+    of two time stamps: two rectangles; it also stands in for ``s`` when every observation was the same,
+    GUM F.2.2.1).  ``absolute``: the figure is ``|mean - reference|``.
     """
     dof = n - 1 if dof is None else dof
     if n < 1 or dof < 3 or not math.isfinite(s):
@@ -680,7 +703,7 @@ def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, do
     M = int(budget.trials)
     rng = _rng(budget, ch, subject)
     s_eff = s if s > 0 else resolution / math.sqrt(6.0)
-    mu = mean + s_eff / math.sqrt(n) * rng.standard_t(dof, size=M)
+    mu = _mean_scalar_draws(mean, s_eff, n, dof, M, rng, noise_sd)
     if systematic_sd > 0:
         mu = mu + systematic_sd * (rng.standard_normal(M) if systematic_dof is None
                                    else rng.standard_t(max(float(systematic_dof), 3.0), size=M))
@@ -689,13 +712,14 @@ def mean_uncertainty_stats(ch, subject, mean, s, n, value, budget: Budget, *, do
     truth = mu - reference
     if absolute:
         truth = np.abs(truth)
-    comp = {"sampling": s_eff / math.sqrt(n)}
+    sampling, sampling_dof = _floored_sampling(s_eff, n, dof if s > 0 else None, noise_sd)
+    comp = {"sampling": sampling}
     if systematic_sd:
         comp[systematic_name] = systematic_sd
     if resolution:
         comp["resolution"] = resolution / math.sqrt(6.0 * n)
     u_g = math.sqrt(sum(c ** 2 for c in comp.values()))
-    nu = welch_satterthwaite([(comp["sampling"], dof if s > 0 else None)]
+    nu = welch_satterthwaite([(comp["sampling"], sampling_dof)]
                              + [(c, systematic_dof if k == systematic_name else None)
                                 for k, c in comp.items() if k != "sampling"])
     return _summary(ch, subject, value, truth, budget, u_g, comp, n, dof=nu)
@@ -820,7 +844,8 @@ def angle_drift_uncertainty(first_deg, last_deg, budget: Budget, subject="") -> 
     for b and c; keys ``dAPa_deg`` ... ``dRPc_deg``.
 
     ``first_deg``, ``last_deg`` (n, 3): the stops' angles a, b, c less the commanded ones, deg (n >=
-    :data:`MIN_STOPS`). Each visit's mean by a t with n - 1 degrees of freedom, its scatter by the posterior
+    :data:`MIN_STOPS`). Each visit's mean by a t with n - 1 degrees of freedom, its population sd no lower than
+    the instrument's angle noise ``budget.angle_sd_deg`` (:func:`_mean_scalar_draws`), its scatter by the posterior
     of :func:`three_s_uncertainty_stats` (the instrument's angle noise ``budget.angle_sd_deg`` taken out). The
     frame's errors (the registration's rotation, the instrument's systematic angles) are common to the two
     visits of a pose and cancel.
@@ -836,9 +861,10 @@ def angle_drift_uncertainty(first_deg, last_deg, budget: Budget, subject="") -> 
         rng = _rng(budget, "angle drift", subject, ax)
         m0, m1 = float(a0[:, j].mean()), float(a1[:, j].mean())
         s0, s1 = float(np.std(a0[:, j], ddof=1)), float(np.std(a1[:, j], ddof=1))
-        mu0 = m0 + max(s0, 1e-12) / math.sqrt(n0) * rng.standard_t(n0 - 1, size=M)
-        mu1 = m1 + max(s1, 1e-12) / math.sqrt(n1) * rng.standard_t(n1 - 1, size=M)
-        parts = [(s0 / math.sqrt(n0), n0 - 1), (s1 / math.sqrt(n1), n1 - 1)]
+        mu0 = _mean_scalar_draws(m0, max(s0, 1e-12), n0, n0 - 1, M, rng, budget.angle_sd_deg)
+        mu1 = _mean_scalar_draws(m1, max(s1, 1e-12), n1, n1 - 1, M, rng, budget.angle_sd_deg)
+        parts = [_floored_sampling(s0, n0, n0 - 1, budget.angle_sd_deg),
+                 _floored_sampling(s1, n1, n1 - 1, budget.angle_sd_deg)]
         comp = {"sampling": math.hypot(parts[0][0], parts[1][0])}
         out[f"dAP{ax}_deg"] = _summary(f"dAP{ax}_deg", subject, abs(m1 - m0), np.abs(mu1 - mu0), budget,
                                        comp["sampling"], comp, n0 + n1, dof=welch_satterthwaite(parts))

@@ -7,10 +7,11 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from scipy import stats
 
 from station.analysis.iso9283.drift_programme import DRIFT_ANGLE_KEYS, drift_figures
-from station.analysis.uncertainty import Budget
+from station.analysis.uncertainty import Budget, angle_drift_uncertainty
 
 #: one-sided tail of each check on drawn data
 TAIL = 1e-5
@@ -110,3 +111,65 @@ def test_the_simulated_warm_up_changes_no_orientation(rng):
         poses.append(kin.fk(*eff.apply(robot.dh_nominal, q, ctx)))
     assert np.max(np.abs(poses[1][:, :3, :3] - poses[0][:, :3, :3])) < 1e-12
     assert np.min(np.linalg.norm(poses[1][:, :3, 3] - poses[0][:, :3, 3], axis=1)) > 1e-3  # the positions moved
+
+
+def _orientation_of(dev_rad, cmd_rad):
+    """The orientation figures of one pose's stops (their angles less the commanded ones, (n, 3), rad)."""
+    from station.analysis.iso9283.characteristics import OrientationAR
+
+    S, m = dev_rad.std(axis=0, ddof=1), dev_rad.mean(axis=0)
+    return OrientationAR(m, 3.0 * S, cmd_rad + m, S, dev_rad.shape[0], np.arange(dev_rad.shape[0]))
+
+
+def test_stops_that_agree_better_than_the_instrument_reads_do_not_state_the_mean_better_than_it(rng):
+    """Five stops whose angles happen to agree within a fraction of the T-Mac's stated angle noise: the
+    population sd behind them cannot be below that noise (each stop carries it), so AP's U and dAP's U are at
+    least k times the noise's sd of a mean (of one visit, of the difference of two). A plain t with 4 dof on the
+    small scatter would state them several times smaller."""
+    from station.analysis.iso9283.uncertainty import orientation_uncertainty
+
+    n, noise_deg = 5, 0.01
+    M = 20_000
+    budget = Budget(angle_sd_deg=noise_deg, trials=M, seed=int(rng.integers(2**31)))
+    cmd = np.array([math.pi, 0.0, 0.0])
+    frac = float(rng.uniform(0.2, 0.4))  # the stops' scatter, of the stated noise
+    dev = [np.radians(noise_deg * frac * rng.standard_normal((n, 3))) for _ in range(2)]
+    # the rms of M draws of sigma z with sigma >= the noise: within a few sd of the mean of z^2 (sd sqrt(2 / M))
+    low = 1.0 - stats.norm.isf(TAIL) * math.sqrt(2.0 / M)
+    fu = orientation_uncertainty(_orientation_of(dev[0], cmd), budget, "P1")
+    for ax in "abc":
+        assert fu[f"AP{ax}_deg"].U >= low * budget.k * noise_deg / math.sqrt(n), (ax, fu[f"AP{ax}_deg"])
+        assert fu[f"AP{ax}_deg"].components["sampling"] == pytest.approx(noise_deg / math.sqrt(n))
+    fd = angle_drift_uncertainty(np.degrees(dev[0]), np.degrees(dev[1]), budget, "P1")
+    for ax in "abc":  # the two visits' means: the noise's sd of their difference (|.| folds the draws)
+        assert fd[f"dAP{ax}_deg"].components["sampling"] == pytest.approx(noise_deg * math.sqrt(2.0 / n))
+    # stops that scatter well above the noise: their own scatter, by the t (the floor does not enter)
+    wide = np.radians(noise_deg * 3.0 * rng.standard_normal((n, 3)))
+    fw = orientation_uncertainty(_orientation_of(wide, cmd), budget, "P1")
+    for j, ax in enumerate("abc"):
+        s = math.degrees(float(wide[:, j].std(ddof=1)))
+        if s > noise_deg:
+            assert fw[f"AP{ax}_deg"].components["sampling"] == pytest.approx(s / math.sqrt(n))
+
+
+def test_orientation_ap_u_of_five_stops_read_with_the_instruments_noise_has_no_t_tail(rng):
+    """Many poses of 5 stops whose scatter is the instrument's angle noise (a still arm, as on the fake cell):
+    AP within U at least 95 % of the time, and beyond 2 U (k = 4) as rarely as a normal's 4 sd. The plain t
+    with 4 dof of the stops' own scatter puts about 0.5 % of the figures beyond 2 U (a few stops that agree by
+    chance); the instrument's stated noise as the floor of the population sd leaves it at the normal's rate."""
+    from station.analysis.iso9283.uncertainty import orientation_uncertainty
+
+    K, n, noise_deg = 1000, 5, 0.01
+    budget = Budget(angle_sd_deg=noise_deg, trials=2000, seed=int(rng.integers(2**31)))
+    cmd = np.array([math.pi, 0.0, 0.0])
+    outside = beyond = 0
+    for i in range(K):
+        dev = np.radians(noise_deg * rng.standard_normal((n, 3)))
+        fu = orientation_uncertainty(_orientation_of(dev, cmd), replace(budget, seed=budget.seed + i), "P1")
+        for ax in "abc":  # the truth: 0 (the arm stands still at the commanded angles)
+            e, U = abs(fu[f"AP{ax}_deg"].value), fu[f"AP{ax}_deg"].U
+            outside += e > U
+            beyond += e > 2.0 * U
+    print(f"outside U {outside}/{3 * K}, beyond 2 U {beyond}/{3 * K}")
+    assert outside <= stats.binom.isf(TAIL, 3 * K, 0.05)
+    assert beyond <= stats.binom.isf(TAIL, 3 * K, 2.0 * stats.norm.sf(4.0))

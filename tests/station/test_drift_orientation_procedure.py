@@ -107,8 +107,9 @@ def _stops_truth_deg(store, run_id: str, world, plan: IsoPlan, frame) -> dict[st
 def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_its_uncertainty(
         tmp_path, rng, test_seed):
     warmup = (float(rng.uniform(3.0, 6.0)), float(rng.uniform(900.0, 2400.0)))
-    # the wrist's warm-up: 0.05-0.1 deg on each of joints 4-6, either sign, its own time constant
-    theta = np.radians(rng.uniform(0.05, 0.1, 3) * rng.choice([-1.0, 1.0], 3))
+    # the wrist's warm-up: 0.1-0.2 deg on each of joints 4-6, either sign, its own time constant (its drift
+    # of the angles some times the U of a drift of 5 stops a visit read with the T-Mac's 0.01 deg)
+    theta = np.radians(rng.uniform(0.1, 0.2, 3) * rng.choice([-1.0, 1.0], 3))
     tau = float(rng.uniform(900.0, 2400.0))
     span, interval = 3600.0, 1200.0
     # the robot's limits of the orientation drift, drawn about what the wrist's warm-up gives: some pass, some fail
@@ -192,7 +193,7 @@ def test_the_drift_programme_with_a_6dof_target_finds_the_wrists_warm_up_within_
             assert first[f"U_AP{ax}_deg"] > 0 and last[f"U_RP{ax}_deg"] > 0
     # U covers the truth at least 95 % of the time: of 15 figures, more outside than that leaves with 1e-4 fails
     assert len(outside) <= stats.binom.isf(1e-4, checked, 0.05), outside
-    # the drawn warm-up of 0.05-0.1 deg a joint is found at most poses
+    # the drawn warm-up of 0.1-0.2 deg a joint is found at most poses
     assert found >= 5, found
     # the rows of the table, one per pose and figure, judged against the robot's limit of it, in the robot's
     # history and the console; a figure over its limit fails the run

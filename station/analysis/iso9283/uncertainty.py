@@ -124,7 +124,8 @@ def orientation_uncertainty(o, budget: Budget, subject: str) -> dict[str, Figure
     """``{"APa_deg": ..., "RPa_deg": ..., ...}``: the uncertainties of one pose's orientation figures
     (:class:`~station.analysis.iso9283.characteristics.OrientationAR`), the keys that could be computed.
 
-    AP per angle (the mean of the n stops' angle less the commanded one): the stops' scatter, and the
+    AP per angle (the mean of the n stops' angle less the commanded one): the stops' scatter (its population
+    sd no lower than the instrument's angle noise ``budget.angle_sd_deg``, which every stop carries), and the
     registered frame's rotation (:meth:`Budget.registration_angle_sd_deg` at the pose's mean orientation, with
     the degrees of freedom of its estimate), a systematic error common to the stops. RP per angle (3 S): the scatter's posterior less the instrument's
     angle noise (``budget.angle_sd_deg``); a fixed frame rotation does not change it."""
@@ -138,7 +139,8 @@ def orientation_uncertainty(o, budget: Budget, subject: str) -> dict[str, Figure
             v = math.degrees(float(o.AP_rad[j]))
             figs.append(mean_uncertainty_stats(f"AP{ax}_deg", subject, v, math.degrees(s), o.n, v, budget,
                                                systematic_sd=float(frame[j]), systematic_name="registration",
-                                               systematic_dof=budget.registration_rotation_dof))
+                                               systematic_dof=budget.registration_rotation_dof,
+                                               noise_sd=budget.angle_sd_deg))
         figs.append(three_s_uncertainty_stats(f"RP{ax}_deg", subject, math.degrees(s), o.n,
                                               math.degrees(float(o.RP_rad[j])), budget,
                                               noise_var=math.degrees(sd) ** 2))
