@@ -381,7 +381,7 @@ def test_watchdog_stops_a_program_when_the_station_falls_silent(start_controller
 def _stalling_run(start_controller, make_driver, robot, iso_poses, *, keepalive_max_s, stall_s=None):
     """A 20-cycle run (about 4.6 s of host time) whose caller stalls in its first ``on_status`` after the
     first move: ``stall_s`` seconds, or (None) until the controller has stopped the program (at most 10 s).
-    Returns (fake, driver, outcome, the stall's start and end on the host clock)."""
+    Returns (fake, driver, outcome, the stall's start and end on the host clock, the program's stops)."""
     program = render_rapid(iso_pose_program(robot, iso_poses, cycles=20))
     fake = start_controller()
     drv = make_driver(fake, watchdog_ms=600, keepalive_max_s=keepalive_max_s)
@@ -403,14 +403,14 @@ def _stalling_run(start_controller, make_driver, robot, iso_poses, *, keepalive_
         outcome = drv.run(program, timeout_s=120.0, on_status=on_status)
     except ControllerFault as exc:
         outcome = exc
-    return fake, drv, outcome, stall
+    return fake, drv, outcome, stall, len(expected_stops(program.program))
 
 
 def test_a_caller_busy_in_on_status_keeps_the_program_running(start_controller, make_driver, world, robot, iso_poses):
     """The keep-alive speaks for the caller: a 2 s stall (3x the 0.6 s watchdog) in ``on_status`` does not stop
     the program, which finishes every move."""
-    fake, drv, outcome, stall = _stalling_run(start_controller, make_driver, robot, iso_poses,
-                                              keepalive_max_s=60.0, stall_s=2.0)
+    fake, drv, outcome, stall, _ = _stalling_run(start_controller, make_driver, robot, iso_poses,
+                                                 keepalive_max_s=60.0, stall_s=2.0)
     assert not isinstance(outcome, ControllerFault), outcome
     assert outcome.state == State.FINISHED and fake.core.fault == Fault.NONE
     assert len(stall) == 1 and stall[0][1] - stall[0][0] >= 2.0
@@ -423,8 +423,8 @@ def test_a_caller_that_hangs_falls_silent_and_the_watchdog_stops_the_program(
 ):
     """Without a keep-alive, or once it has spoken its ``keepalive_max_s``, a hung caller is a silent station:
     the controller's watchdog stops the program, and the run ends in the COMM_WATCHDOG fault."""
-    fake, drv, outcome, stall = _stalling_run(start_controller, make_driver, robot, iso_poses,
-                                              keepalive_max_s=keepalive_max_s)
+    fake, drv, outcome, stall, stops = _stalling_run(start_controller, make_driver, robot, iso_poses,
+                                                     keepalive_max_s=keepalive_max_s)
     assert isinstance(outcome, ControllerFault), outcome
     assert outcome.status.fault == Fault.COMM_WATCHDOG and fake.core.fault == Fault.COMM_WATCHDOG
     t0, t1 = stall[0]
@@ -434,12 +434,8 @@ def test_a_caller_that_hangs_falls_silent_and_the_watchdog_stops_the_program(
         assert t1 - t0 >= keepalive_max_s and drv.keepalive_reads >= 1
     else:
         assert drv.keepalive_reads == 0
-    assert outcome.status.moves_done < len(expected_stops(program_of(robot, iso_poses)))
+    assert outcome.status.moves_done < stops
     assert_safe(fake, world, allowed=(State.FAULT,))
-
-
-def program_of(robot, iso_poses):
-    return iso_pose_program(robot, iso_poses, cycles=20)
 
 
 def test_unknown_fault_keys_are_refused(start_controller):
