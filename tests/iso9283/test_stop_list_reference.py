@@ -210,7 +210,7 @@ def test_finite_list_equals_round_on_halves_and_huge_numbers(rng, nd):
 def test_the_json_written_in_pieces_is_the_whole_dump(rng):
     for _ in range(10):  # loop over random stop lists
         args = _random_list(rng)
-        opts = _options(rng, args["names"])
+        opts = _options(rng, list(dict.fromkeys(args["pose"])) if args["commanded_mm"] is None else args["names"])
         try:
             res = analyze_stop_list(args["pose"], args["cycle"], args["points_mm"], commanded_mm=args["commanded_mm"],
                                     names=args["names"] if args["commanded_mm"] is not None else None,
