@@ -55,6 +55,10 @@ FIT_RATE_HZ = 150.0
 HELDOUT_RATE_HZ = 350.0
 #: starts of each candidate's refit (the best of a grid of starting values)
 STARTS = 2
+#: a winner's refit that lowers the current model's RSS by more than this share of the winner's gain shows
+#: the current fit stopped short (:func:`_polished_null`); at most MAX_POLISH such refits a diagnosis
+POLISH_SHARE = 0.1
+MAX_POLISH = 3
 #: fewest training and held-out moves
 MIN_TRAIN, MIN_HELDOUT = 3, 1
 
@@ -371,7 +375,8 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
     cur, r_cur, full_rms = base, r_sim, sim_rms
     steps, rounds = [], []
     n_app = int(np.count_nonzero(F.parts(tr)[1]))
-    for _ in range(max_steps + 1):
+    polished = 0
+    while True:  # rounds: one effect named per round, until none wins or max_steps are named
         tests = []
         rss0 = F.rss(tr, cur)
         for e in remaining:
@@ -386,6 +391,16 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
             tests.append(ct)
         rounds.append(tests)
         wins = [ct for ct in tests if ct.wins]
+        better = _polished_null(wins, tr, refit, rss0) if wins and polished < MAX_POLISH else None
+        if better is not None:  # the current model's own fit had stopped short: the round again, from there
+            polished += 1
+            rounds.pop()
+            cur = better
+            r_cur, _ = F.approach_residual(ho, cur)
+            full_rms = _rms(F.approach_residual(ho_full, cur)[0])
+            if not steps:  # the baseline itself
+                base, r_sim, sim_rms = cur, r_cur, full_rms
+            continue
         if not wins or len(steps) >= max_steps:
             break
         best = min(wins, key=lambda ct: ct.heldout_rms_after)
@@ -452,6 +467,27 @@ def _trained(e: str, tr: Windows, cur: F.Params, rss0: float, refit, label: str,
     ct.threshold = float(stats.f.isf(level, k, max(n_app - p_all, 1)))
     ct.params, ct.same_as = q, _same_pole(q)
     return ct
+
+
+def _polished_null(wins: list, tr: Windows, refit, rss0: float) -> F.Params | None:
+    """The current model refitted from each winning candidate's fit with the candidate's effect taken out;
+    the best of them when it lowers the training RSS ``rss0`` by more than :data:`POLISH_SHARE` of what its
+    candidate did, else None.
+
+    A candidate's refit moves the current model's parameters too; where the current fit had stopped short of
+    its optimum (a loop's jerk time held at 7 ms, truth 0, its RSS 6 % above what a second refit reached), the
+    candidate wins by that part alone: the clean stream of test seed 1771004305 named a tracker drift of
+    shrinkage 7e-6 (F 145 against 8.6, held-out z 3.3). The F test and the held-out test compare an effect
+    with the current model at its own optimum.
+    """
+    best, best_rss = None, rss0
+    for ct in wins:  # loop over winners: the current model from each one's fit
+        null = F.Params({k: v for k, v in ct.params.values.items() if k != ct.effect})
+        q = refit(null, f"polish of the current model from +{ct.effect}")
+        s = F.rss(tr, q)
+        if rss0 - s > POLISH_SHARE * max(rss0 - F.rss(tr, ct.params), 0.0) and s < best_rss:
+            best, best_rss = q, s
+    return best
 
 
 def _drift_sd(w: Windows) -> float:
