@@ -54,6 +54,8 @@ FIT_ROUNDS = 6
 OBJECTIVE_ITERATIONS = 3
 #: a round's end is the fit's when its objective's RSS and the fully profiled RSS agree within this fraction
 PROFILE_RTOL = 1e-2
+#: halvings of a per-move Gauss-Newton step that raises the move's cost (then no step for that move)
+NUISANCE_HALVINGS = 3
 #: Gauss-Newton iterations of the per-move nuisances
 NUISANCE_ITERATIONS = 15
 #: (name, lowest, highest) of each effect's parameters
@@ -175,12 +177,27 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
         step = np.zeros_like(g)
         if good.any():
             step[good] = np.linalg.solve(Hs[good], (g / scale)[good][:, :, None])[:, :, 0] / scale[good]
-        a = np.clip(a + step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
-        T = T + np.clip(step[:, 1], -0.05, 0.05)
-        v = np.clip(v + step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s)
-        if np.max(np.abs(step[:, 1])) < 1e-7:
+        step[:, 1] = np.clip(step[:, 1], -0.05, 0.05)
+        cost0 = _move_cost(r, v, w, prior)
+        f = np.ones(len(a))
+        for _h in range(NUISANCE_HALVINGS + 1):  # a move's step is halved while it raises the move's cost
+            a1 = np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
+            T1 = T + f * step[:, 1]
+            v1 = np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s)
+            worse = _move_cost(np.where(timing, X - predict(w, p, a1, T1, v1), 0.0), v1, w, prior) > cost0
+            if not worse.any():
+                break
+            f = np.where(worse, 0.5 * f if _h < NUISANCE_HALVINGS else 0.0, f)
+        a, T, v = (np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2), T + f * step[:, 1],
+                   np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s))
+        if np.max(np.abs(f * step[:, 1])) < 1e-7:
             break
     return a, T, v
+
+
+def _move_cost(r, v, w: Windows, prior) -> np.ndarray:
+    """Each move's timing-part residual sum of squares plus its speed prior's term."""
+    return np.einsum("ml,ml->m", r, r) + prior * (v - w.v_mm_s) ** 2
 
 
 def approach_residual(w: Windows, p: Params) -> tuple[np.ndarray, np.ndarray]:
