@@ -189,14 +189,15 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
         along = (xyz[w] - p_end) @ u
         x = np.where(d_w > PROJECT_MM, np.where(along > 0.0, d_w, -d_w), along)  # past the end: an overshoot
         tl = t[late]
-        late_along = (xyz[late] - p_end) @ u
         tm = tl.mean()
-        slope = float(np.sum((tl - tm) * late_along) / max(np.sum((tl - tm) ** 2), 1e-30))
+        # the late dwell's drift velocity (3-D: the previous rest's is compared with it, whatever the directions)
+        slope3 = (tl - tm) @ (xyz[late] - p_end) / max(float(np.sum((tl - tm) ** 2)), 1e-30)
+        slope = float(slope3 @ u)
         rows_t.append(t[w])
         rows_x.append(x)
         info.append((a0, T0, float(t[i0]), slope, float(tm), p_end, u, pose_of[mv.from_rest[k]],
                      pose_of[mv.to_rest[k]], k, float(tl[-1] - tl[0]), v_pk,
-                     float(np.linalg.norm(c - mv.centres_mm[mv.from_rest[k]]))))
+                     float(np.linalg.norm(c - mv.centres_mm[mv.from_rest[k]])), slope3))
     if not info:
         why = "; ".join(f"move {k + 1}: {r}" for k, r in skipped[:3])
         raise InsufficientDataError(f"no move of the stream can be diagnosed ({why})")
@@ -206,14 +207,15 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
     for j, (tt, xx) in enumerate(zip(rows_t, rows_x)):
         T[j, :tt.size], X[j, :xx.size] = tt, xx
     col = lambda i: np.array([row[i] for row in info])  # noqa: E731
-    # the reading's drift is the tracker's, the same at every pose: the rate measured at the previous rest
-    # (the move before, when it was usable) and at this one give its change over the move
+    # the reading's drift is the tracker's, the same at every pose: the drift velocity measured at the previous
+    # rest (the move before, when it was usable) and at this one give its change over the move, taken along this
+    # move's travel (the two velocities as vectors: the previous move ran along another direction)
     change = np.zeros(len(info))
     k_of = {int(r[9]): j for j, r in enumerate(info)}
     for j, r in enumerate(info):
         prev = k_of.get(int(r[9]) - 1)
         if prev is not None and r[4] > info[prev][4]:
-            change[j] = (r[3] - info[prev][3]) / (r[4] - info[prev][4])
+            change[j] = float((r[13] - info[prev][13]) @ r[6]) / (r[4] - info[prev][4])
     return Windows(T, X, col(0), col(1), col(11), col(12), col(2), col(3), col(4), col(10), change, np.array([r[5] for r in info]),
                    np.array([r[6] for r in info]), [r[7] for r in info], [r[8] for r in info],
                    col(9).astype(int), skipped, mv.noise_mm / math.sqrt(3.0), rate)
