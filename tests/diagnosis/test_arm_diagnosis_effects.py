@@ -124,25 +124,34 @@ def _rokae_with(rng, effect: str, joints_moving=None, noise_mm=0.05):
 @pytest.mark.parametrize("effect, rival", [("encoder_eccentricity", "joint_compliance"),
                                            ("joint_compliance", "encoder_eccentricity")])
 def test_eccentricity_and_compliance_told_apart_on_spread_poses(test_seed, effect, rival):
-    """On 240 spread poses the hidden one is chosen, with its joint, and the rival is not: neither on J2 (it may
-    be named as a candidate of the same residual, with the evidence, when the poses cannot tell them apart) nor
-    on another joint (issue 43: 0.04 deg of eccentricity on J2 was named as compliance on J2 and J3)."""
+    """On 240 spread poses the hidden one is chosen, with its joint, and the rival is not: neither on J2 nor on
+    another joint (issue 43: 0.04 deg of eccentricity on J2 was named as compliance on J2 and J3). Where the
+    poses cannot tell them apart (an eccentricity whose phase puts it within a few degrees of the once-per-turn
+    torque of the elbow's mass: what compliance cannot produce of it is, after the geometry, within the noise,
+    test seed 1422158423) either may go first, and the step names the other as a candidate with both
+    statistics, neither significant beyond the other (issue 43 item 4): the hidden one is never left out."""
     rng = np.random.default_rng(test_seed)
     res = _rokae_with(rng, effect)
-    assert (effect, 2) in res.selected, (test_seed, res.selected)
-    assert (rival, 2) not in res.selected, (test_seed, res.selected)
-    # beyond the geometry and the hidden term, at most one chance discovery at the diagnosis's alpha: 2 of 100
+    pair = {(effect, 2), (rival, 2)}
+    assert not pair <= set(res.selected), (test_seed, res.selected)
+    step = next((s for s in res.steps if (s.term.effect, s.term.joint) in pair), None)
+    assert step is not None, (test_seed, res.selected)
+    named = (step.term.effect, step.term.joint)
+    if named == (rival, 2):
+        hidden = [a for a in step.ambiguous_with if (a["effect"], a["joint"]) == (effect, 2)]
+        assert hidden and "cannot be told apart" in hidden[0]["note"], (test_seed, res.selected, step.ambiguous_with)
+        assert not (hidden[0]["beyond_it"] or 0.0) > 1.0 and not (hidden[0]["it_beyond"] or 0.0) > 1.0, hidden
+    # beyond the geometry and the pair's term, at most one chance discovery at the diagnosis's alpha: 2 of 100
     # draws named one (backlash on J3, J5), and once the rival on J3 at 1.04 times its threshold (test seed
     # 865806324), against the rival on J2 and J3 at once that issue 43 saw
-    extra = [s for s in res.selected if s not in {("geometric", None), (effect, 2)}]
+    extra = [s for s in res.selected if s not in {("geometric", None), named}]
     assert len(extra) <= 1, (test_seed, res.selected)
-    step = next(s for s in res.steps if (s.term.effect, s.term.joint) == (effect, 2))
     # the evidence is in the JSON: each rival told apart, or named as a candidate, with both statistics
-    doc = next(s for s in res.to_json()["steps"] if (s["effect"], s["joint"]) == (effect, 2))
+    doc = next(s for s in res.to_json()["steps"] if (s["effect"], s["joint"]) == named)
     for a in doc["told_apart_from"]:
         assert a["it_beyond"] > 1.0 and not (a["beyond_it"] or 0.0) > 1.0, a
     for a in step.ambiguous_with:
-        if a["effect"] == rival and "beyond_it" in a:
+        if (a["effect"], a["joint"]) in pair and "beyond_it" in a:
             assert not (a["beyond_it"] or 0.0) > 1.0 and not (a["it_beyond"] or 0.0) > 1.0, a
 
 
