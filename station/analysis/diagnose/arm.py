@@ -27,7 +27,8 @@
    residual left by the current model: the part of its Jacobian columns the
    model cannot already produce (Frisch-Waugh), least squares, and a
    cluster-robust Wald statistic ``W`` (poses are the clusters;
-   :func:`.arm_fit.robust_cov`) against the ``1 - alpha / m`` quantile of
+   :func:`.arm_fit.robust_cov`, never below the classical covariance in
+   any direction, :func:`.arm_fit.classical_floor`) against the ``1 - alpha / m`` quantile of
    ``F(k, n_train - p/3)`` (Bonferroni over the round's candidates).
 5. Choice (nested): of the significant candidates, those whose linearised
    refit lowers the K-fold cross-validated squared error *inside the
@@ -85,7 +86,7 @@ from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 from station.numeric import finite_or_none
 
-from .arm_fit import ModelState, fit_report, initial_state, jacobian, predict, robust_cov
+from .arm_fit import ModelState, classical_floor, fit_report, initial_state, jacobian, predict, robust_cov
 from .candidate_significance import model_basis, wald_block
 from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split
@@ -455,7 +456,11 @@ def _test_round(state: ModelState, q, meas, train, variants: list[Term], alpha: 
             continue
         Bf = B.reshape(-1, term.k)
         factor = (n - term.k / 3.0) / dof_poses
-        bt = wald_block(Bf, r, Q, lambda X, res, k=term.k: robust_cov(X.reshape(n, 3, k), res.reshape(n, 3)) * factor)
+        # the pose-robust covariance, floored at the classical one: with few poses for many parameters the
+        # sandwich alone is too small where a few poses of high leverage carry the candidate (issue 43: an
+        # effect-free 40-pose set named compliance on J4, another eccentricity on J2 at 2.5x its threshold)
+        bt = wald_block(Bf, r, Q, lambda X, res, k=term.k: classical_floor(
+            robust_cov(X.reshape(n, 3, k), res.reshape(n, 3)) * factor, X, res, 3 * n - p - k))
         if bt.why is not None:
             ct.testable, ct.reason = False, (
                 "it does not move the measured point in these poses" if bt.why == "no effect" else

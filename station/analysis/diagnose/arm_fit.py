@@ -27,7 +27,7 @@ from station.models.effects import LENGTH_PARAMS, scale_lengths
 
 from .terms import Term
 
-__all__ = ["ModelState", "predict", "jacobian", "fit", "fit_report", "robust_cov"]
+__all__ = ["ModelState", "predict", "jacobian", "fit", "fit_report", "robust_cov", "classical_floor"]
 
 _THETA_COLS = np.arange(6) * 5 + 3
 _LEN_COLS = LENGTH_PARAMS
@@ -235,3 +235,30 @@ def robust_cov(A: np.ndarray, resid: np.ndarray) -> np.ndarray:
     dof = max(n - p / 3.0, 1.0)
     cov = bread @ meat @ bread * (n / dof)
     return cov / np.outer(scale, scale)
+
+
+def classical_floor(V: np.ndarray, X: np.ndarray, resid: np.ndarray, dof: float) -> np.ndarray:
+    """``V`` raised, in every direction where it is smaller, to the classical covariance ``s^2 (X'X)^-1``
+    (``s^2 = resid'resid / dof``, every coordinate equally noisy and independent).
+
+    With few poses and many parameters the pose-robust sandwich of :func:`robust_cov` is too small where a few
+    poses of high leverage carry the direction (their residuals are pulled towards the fit); the classical
+    covariance pools the residual of every coordinate and is not. Where the poses' own scatter says more (the
+    coordinates of a pose share its error), the robust one stays. Whitened by the classical covariance, the
+    robust one's eigenvalues below 1 are set to 1.
+
+    Parameters
+    ----------
+    V : ndarray, shape (k, k)
+    X : ndarray, shape (rows, k)
+    resid : ndarray, shape (rows,)
+    """
+    s2 = float(resid @ resid) / max(dof, 1.0)
+    C = np.linalg.pinv(X.T @ X) * s2
+    w, U = np.linalg.eigh(C)
+    w = np.maximum(w, 1e-300)
+    half = U * np.sqrt(w)                       # C = half half'
+    inv_half = (U / np.sqrt(w)).T               # half^-1
+    Vw = inv_half @ V @ inv_half.T
+    ev, E = np.linalg.eigh((Vw + Vw.T) / 2.0)
+    return half @ (E * np.maximum(ev, 1.0)) @ E.T @ half.T
