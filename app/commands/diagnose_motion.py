@@ -16,7 +16,8 @@
     ``station analyze`` checks it (the program's ``dwell_s`` lets the dwells
     give the rate); a clock that fails states no time figure and writes no
     model. ``--model-out`` writes the extended motion model for
-    ``station simulate iso9283 --motion-model``. ``--hold`` takes a held-pose
+    ``station simulate iso9283 --motion-model`` (``--model-basis supported``:
+    the training-supported one, its unconfirmed effects listed). ``--hold`` takes a held-pose
     record of the same tracker: its noise is fitted (white, wander and its
     time constant, as ``station analyze hold --noise-out``) and the wander
     sets the drift the tracker can put into an approach window (JSON
@@ -49,6 +50,11 @@ def register_motion(dsub: argparse._SubParsersAction) -> None:
     m.add_argument("--json", metavar="D", help="write the result as JSON")
     m.add_argument("--report", metavar="R.html", help="write the HTML report (approach curves of held-out moves)")
     m.add_argument("--model-out", metavar="M.json", help="write the extended motion model")
+    m.add_argument("--model-basis", choices=("named", "supported"), default="named",
+                   help="what --model-out writes: the named model (default: effects confirmed on the held-out "
+                        "moves), or the training-supported one (those extended by the effects the training moves' "
+                        "F test supports, not confirmed on held-out moves: a dry run's best guess where few moves "
+                        "are held out; the file lists them under not_confirmed)")
     m.set_defaults(func=_motion)
 
 
@@ -106,7 +112,15 @@ def _motion(args: argparse.Namespace) -> int:
             print(f"error: the motion model is not written: its times rest on a clock that failed its check "
                   f"({si.refused})", file=sys.stderr)
             return 2
-        write_output(args.model_out, json.dumps(doc["extended_model"], indent=2), "--model-out")
+        model = doc["extended_model"]
+        if args.model_basis == "supported" and res.supported is not None:
+            model = {**res.motion_model(res.supported), "basis": "training_supported",
+                     "not_confirmed": list(res.supported_only)}
+        elif args.model_basis == "supported":
+            model = {**model, "basis": "training_supported", "not_confirmed": []}
+        else:
+            model = {**model, "basis": "named"}
+        write_output(args.model_out, json.dumps(model, indent=2), "--model-out")
     return 0
 
 

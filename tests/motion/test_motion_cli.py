@@ -102,7 +102,9 @@ def test_time_figures_only_on_a_checked_clock(tmp_path, lab, capsys):
     # a move of the look-alike takes 3.3-3.6 s (UR's 60 deg/s, 80 deg/s^2 over 140-170 deg): MPT from leaving
     assert all(3.0 < p["measured"]["MPT_s"] < 4.2 for p in doc["poses"])
     assert doc["steps"] == []  # nothing hidden in the look-alike
-    check_motion_model(json.loads(model.read_text()))
+    written = json.loads(model.read_text())
+    check_motion_model(written)
+    assert written["basis"] == "named" and written["effects"] == doc["extended_model"]["effects"]
     rc = main(["simulate", "iso9283", "--out", str(tmp_path / "sim"), "--robot", "ur5e", "--cycles", "1",
                "--dwell", "0.5", "--rate", "100", "--motion-model", str(model)])
     assert rc == 0 and (tmp_path / "sim" / "stream.csv").exists()

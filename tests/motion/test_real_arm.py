@@ -23,7 +23,7 @@ from app.cli import main
 from station.analysis.motion.figures import approach_figures, mean_figures
 from station.analysis.motion.windows import cut_windows
 
-from .real_arm import draw, make, write_export, write_program
+from .real_arm import draw, make, write_export, write_poses, write_program
 
 #: the issue's acceptance: held-out error of the extended model against the simulation's (baseline's)
 HELDOUT_RATIO = 0.7
@@ -69,8 +69,17 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
     params = res.supported
     # ... which extends the named model by effects not named
     assert params.active == res.final.active + res.supported_only and not set(res.named) & set(res.supported_only)
+    # written as the lab would: `diagnose motion` on the lab's export (its clock checked by the program's dwells)
     model = tmp_path / "m.json"
-    model.write_text(json.dumps(res.motion_model(params)))
+    capsys.readouterr()
+    assert main(["diagnose", "motion", "--stream", str(write_export(tmp_path / "lab.txt", ra)),
+                 "--poses", str(write_poses(tmp_path / "poses.csv", ra)),
+                 "--program", str(write_program(tmp_path / "prog.toml", ra)),
+                 "--model-out", str(model), "--model-basis", "supported"]) == 0
+    doc = json.loads(model.read_text())
+    # (the same diagnosis as above but on the export's clock: its marginal F tests need not fall the same way)
+    assert doc["basis"] == "training_supported" and set(doc["not_confirmed"]) <= set(doc["effects"])
+    print("the CLI's model:", json.dumps(doc["effects"]), "above:", res.supported_only, res.named)
     prog_rate = write_program(tmp_path / "prog_rate.toml", ra, rate_hz=1000.0 / 3.0)
     capsys.readouterr()
     assert main(["simulate", "iso9283", "--out", str(tmp_path / "sim"), "--program", str(prog_rate),
