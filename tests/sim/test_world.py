@@ -161,3 +161,20 @@ def test_a_configured_stop_scatter_reaches_the_fake_cell(tmp_path, rng):
     d["robots"]["r1"]["stop_scatter_mm"] = -1.0
     with pytest.raises(ConfigError, match="stop_scatter_mm"):
         config_from_dict(d)
+
+
+def test_a_ur_settles_after_a_linear_stop_as_a_ur_does(rng):
+    """After a linear move at UR's default tool speed and acceleration (250 mm/s, 1.2 m/s^2) the simulated UR is
+    within 10 um of its rest 0.1 s after the command's end (issue 42's UR settles within 0.03 s). A large arm's
+    loop (6-12 Hz, damping 0.6-0.9), which the simulated UR had before, takes about 0.2 s there on its slowest
+    axis and had rung through the vAP programme's 0.2 s pre-point dwells."""
+    w = make_world("ur5e", seed=int(rng.integers(2**31)), clock=ManualClock(), effects=None, stop_sigma_mm=None)
+    arm = w.arm
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    mv = arm.move_linear(arm.tool_position_mm(0.0) + 100.0 * u, speed_mm_s=250.0, accel_mm_s2=1200.0,
+                         profile="trapezoid")
+    t = mv.t_end + np.arange(0.0, 1.0, 0.002)
+    xyz = np.array([arm.tool_position_mm(ti) for ti in t])
+    off = t[np.flatnonzero(np.linalg.norm(xyz - xyz[-1], axis=1) > 0.010)]
+    assert off.size == 0 or off[-1] - mv.t_end < 0.1, (off[-1] - mv.t_end, arm.servo)
