@@ -112,14 +112,11 @@ def _motion(args: argparse.Namespace) -> int:
             print(f"error: the motion model is not written: its times rest on a clock that failed its check "
                   f"({si.refused})", file=sys.stderr)
             return 2
-        model = doc["extended_model"]
-        if args.model_basis == "supported" and res.supported is not None:
+        if args.model_basis == "supported":  # (without a supported model: the named one, nothing unconfirmed)
             model = {**res.motion_model(res.supported), "basis": "training_supported",
                      "not_confirmed": list(res.supported_only)}
-        elif args.model_basis == "supported":
-            model = {**model, "basis": "training_supported", "not_confirmed": []}
         else:
-            model = {**model, "basis": "named"}
+            model = {**doc["extended_model"], "basis": "named"}
         write_output(args.model_out, json.dumps(model, indent=2), "--model-out")
     return 0
 
