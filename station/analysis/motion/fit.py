@@ -179,17 +179,18 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
             step[good] = np.linalg.solve(Hs[good], (g / scale)[good][:, :, None])[:, :, 0] / scale[good]
         step[:, 1] = np.clip(step[:, 1], -0.05, 0.05)
         cost0 = _move_cost(r, v, w, prior)
+        def stepped(f):
+            return (np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2), T + f * step[:, 1],
+                    np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s))
+
         f = np.ones(len(a))
         for _h in range(NUISANCE_HALVINGS + 1):  # a move's step is halved while it raises the move's cost
-            a1 = np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2)
-            T1 = T + f * step[:, 1]
-            v1 = np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s)
+            a1, T1, v1 = stepped(f)
             worse = _move_cost(np.where(timing, X - predict(w, p, a1, T1, v1), 0.0), v1, w, prior) > cost0
             if not worse.any():
                 break
             f = np.where(worse, 0.5 * f if _h < NUISANCE_HALVINGS else 0.0, f)
-        a, T, v = (np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2), T + f * step[:, 1],
-                   np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s))
+        a, T, v = stepped(f)
         if np.max(np.abs(f * step[:, 1])) < 1e-7:
             break
     return a, T, v
