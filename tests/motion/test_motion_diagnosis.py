@@ -87,6 +87,10 @@ def test_a_mode_on_the_loops_own_pole_is_the_loop(rng):
     f, z = rng.uniform(6.0, 15.0), rng.uniform(0.15, 1.1)
     on = F.Params({"servo": np.array([f, z, 0.01]), "structural_mode": np.array([f * 1.01, z * 0.98, 1e-5])})
     assert "position loop" in _same_pole(on)
+    # at critical damping the poles' imaginary parts are ill-conditioned; the polynomials are not
+    zc = rng.uniform(0.97, 1.03)
+    crit = F.Params({"servo": np.array([f, zc, 0.01]), "structural_mode": np.array([f * 1.01, zc * 0.98, 1e-5])})
+    assert "position loop" in _same_pole(crit)
     # a lightly damped mode at the loop's frequency, the loop well damped: two poles, a mode to name
     off = F.Params({"servo": np.array([f, 0.8, 0.01]), "structural_mode": np.array([f, 0.07, 1e-5])})
     assert _same_pole(off) == ""
