@@ -18,8 +18,12 @@ What the lab's own sets look like, and these reproduce:
   the direction of the last motion; each with a tool-point RMS of
   U(0.5, 1.5) times the noise.
 
-The generator draws everything from the given ``rng``; a test prints the
-seed it made the ``rng`` from. Units: mm, rad inside; rows in measurement
+With ``n_unseen`` the set is followed by that many more poses of the same arm,
+instrument and hidden effects, measured after it (spread poses like the set's;
+for sweeps, one joint at a time within the sweeps' spans): a yardstick of
+unseen poses larger than a split's few (``LookalikeSet.n_set`` is the set's
+size, its first rows). The generator draws everything from the given ``rng``;
+a test prints the seed it made the ``rng`` from. Units: mm, rad inside; rows in measurement
 order with ``t`` in seconds.
 """
 
@@ -60,6 +64,13 @@ class LookalikeSet:
     target: str                      # "three reflectors" or "6-DoF target"
     hidden: list = field(default_factory=list)   # [(effect, joint)], what the generator put in
     joint_offsets_rad: np.ndarray | None = None  # the hidden effects' dq (N, 6)
+    n_set: int | None = None         # the calibration set's poses (the first rows); the rest: unseen checks
+
+    @property
+    def unseen(self) -> np.ndarray:
+        """Rows of the poses measured after the set (empty without ``n_unseen``)."""
+        n = self.q_rad.shape[0] if self.n_set is None else self.n_set
+        return np.arange(n, self.q_rad.shape[0])
 
     def true_points(self, rows=None) -> np.ndarray:
         rows = np.arange(self.q_rad.shape[0]) if rows is None else rows
@@ -108,8 +119,9 @@ def _link_mass_torques(dh, q) -> np.ndarray:
     return tau
 
 
-def _hidden(rng, q, dh_true, noise_mm, motion_order: bool, max_effects: int = 2):
-    """Random hidden joint effects: (list of (effect, joint), dq (N, 6))."""
+def _hidden(rng, q, dh_true, noise_mm, motion_order: bool, max_effects: int = 2, n_set: int | None = None):
+    """Random hidden joint effects: (list of (effect, joint), dq (N, 6)); each sized on the set's first
+    ``n_set`` poses (all without)."""
     n_eff = int(rng.integers(0, max_effects + 1))
     pool = [("joint_compliance", 2), ("joint_compliance", 3)]
     pool += [("encoder_eccentricity", j) for j in range(1, 6)]
@@ -131,7 +143,7 @@ def _hidden(rng, q, dh_true, noise_mm, motion_order: bool, max_effects: int = 2)
             shape[:, j - 1] = -dirs[:, j - 1]
         J = kin.joint_jacobian(dh_true, q)[:, :3, :]
         disp = np.einsum("nij,nj->ni", J, shape)
-        rms = float(np.sqrt(np.mean(np.sum(disp ** 2, axis=1))))
+        rms = float(np.sqrt(np.mean(np.sum(disp[:n_set] ** 2, axis=1))))
         if rms <= 1e-12:
             continue
         want = rng.uniform(0.5, 1.5) * noise_mm * math.sqrt(3.0)
@@ -147,54 +159,64 @@ def _measure(dh_true, q, dq, B, noise, target, rng):
     return p + rng.normal(0.0, noise, p.shape)
 
 
-def _sweeps(home_deg, limits_deg, n, rng, joint_order=(0, 1, 2, 3, 4, 5)) -> np.ndarray:
+def _sweeps(home_deg, limits_deg, n, rng, joint_order=(0, 1, 2, 3, 4, 5), n_unseen: int = 0) -> np.ndarray:
+    """``n`` poses moving one joint at a time from ``home_deg`` (evenly over a span per joint), then
+    ``n_unseen`` poses each moving one joint (drawn at random) to a random angle within that joint's span."""
     per = [n // 6 + (1 if k < n % 6 else 0) for k in range(6)]
-    rows = []
+    rows, spans = [], {}
     for k, j in enumerate(joint_order):
         lo, hi = limits_deg[j]
         span = min(hi - lo, 240.0) * rng.uniform(0.5, 0.8)
         mid = home_deg[j]
-        vals = np.linspace(max(lo + 5, mid - span / 2), min(hi - 5, mid + span / 2), per[k])
+        spans[j] = (max(lo + 5, mid - span / 2), min(hi - 5, mid + span / 2))
+        vals = np.linspace(*spans[j], per[k])
         for v in vals:
             qq = np.array(home_deg, dtype=float)
             qq[j] = v
             rows.append(qq)
+    for _ in range(n_unseen):
+        j = int(rng.choice(joint_order))
+        qq = np.array(home_deg, dtype=float)
+        qq[j] = rng.uniform(*spans[j])
+        rows.append(qq)
     return np.radians(np.array(rows))
 
 
 def fanuc_like(rng, *, n: int = 36, noise_mm: float | None = None, hidden: bool = True,
-               nominal_mm: tuple = (2.0, 3.0)) -> LookalikeSet:
+               nominal_mm: tuple = (2.0, 3.0), n_unseen: int = 0) -> LookalikeSet:
     """One joint at a time from a home pose, J1 to J6 (the J6 sweep last), three reflectors on the flange;
     ``nominal_mm``: range of the nominal model's RMS miss after a rigid fit."""
     dh_nom = kin.dh_from_degrees(FANUC_LIKE_DEG)
     lim = np.radians(FANUC_LIMITS_DEG)
     home = np.array([0.0, 10.0, 10.0, 0.0, -45.0, 0.0]) + rng.normal(0, 5, 6)
-    q = _sweeps(home, FANUC_LIMITS_DEG, n, rng)
+    q = _sweeps(home, FANUC_LIMITS_DEG, n, rng, n_unseen=n_unseen)
     return _finish("fanuc-like", dh_nom, lim, q, rng, noise_mm, "three reflectors", hidden, motion_order=True,
-                   nominal_mm=nominal_mm)
+                   nominal_mm=nominal_mm, n_set=n)
 
 
-def rokae_like(rng, *, n: int = 50, noise_mm: float | None = None, hidden: bool = True) -> LookalikeSet:
+def rokae_like(rng, *, n: int = 50, noise_mm: float | None = None, hidden: bool = True,
+               n_unseen: int = 0) -> LookalikeSet:
     """Poses spread over the joint space, a 6-DoF target, ~2.2-2.5 mm nominal error."""
     dh_nom = kin.dh_from_degrees(ROKAE_LIKE_DEG)
     lim = np.radians(ROKAE_LIMITS_DEG)
     span = np.radians([150, 70, 70, 150, 90, 170])
     centre = np.radians([0, 0, 20, 0, 30, 0])
-    q = centre + rng.uniform(-1, 1, (n, 6)) * span
+    q = centre + rng.uniform(-1, 1, (n + n_unseen, 6)) * span
     q = np.clip(q, lim[:, 0] + 0.05, lim[:, 1] - 0.05)
     return _finish("rokae-like", dh_nom, lim, q, rng, noise_mm, "6-DoF target", hidden, motion_order=True,
-                   nominal_mm=(2.2, 2.5))
+                   nominal_mm=(2.2, 2.5), n_set=n)
 
 
-def _finish(name, dh_nom, lim, q, rng, noise_mm, target, hidden, *, motion_order, nominal_mm=(2.0, 3.0)):
+def _finish(name, dh_nom, lim, q, rng, noise_mm, target, hidden, *, motion_order, nominal_mm=(2.0, 3.0),
+            n_set=None):
     noise = float(rng.uniform(0.05, 0.15)) if noise_mm is None else float(noise_mm)
     probe = np.radians(rng.uniform(-60, 60, (200, 6)))
     dh_true = _true_table(dh_nom, rng, nominal_mm, probe)
     B = instrument_frame(rng)
-    eff, dq = _hidden(rng, q, dh_true, noise, motion_order) if hidden else ([], np.zeros_like(q))
+    eff, dq = _hidden(rng, q, dh_true, noise, motion_order, n_set=n_set) if hidden else ([], np.zeros_like(q))
     xyz = _measure(dh_true, q, dq, B, noise, target, rng)
     t = np.cumsum(rng.uniform(20.0, 40.0, q.shape[0]))
-    return LookalikeSet(name, dh_nom, dh_true, lim, q, xyz, t, B, noise, target, eff, dq)
+    return LookalikeSet(name, dh_nom, dh_true, lim, q, xyz, t, B, noise, target, eff, dq, n_set)
 
 
 #: the hidden effects of a lab-shaped set (issue 43): gravity compliance or first-harmonic encoder eccentricity

@@ -43,10 +43,14 @@ def _inside(q_train, q_test, tol_rad: float = 1e-6) -> np.ndarray:
     return np.all((q_test >= lo) & (q_test <= hi), axis=1)
 
 
-def _issue_like_fanuc(rng, n):
+def _issue_like_fanuc(rng, n, **kw):
     """The public FANUC set's shape as issue 43 measured it: one-joint sweeps, about 1.3 mm nominal error and
     0.15-0.25 mm noise per reflector (a plain fit predicts unseen poses at about 0.3 mm)."""
-    return fanuc_like(rng, n=n, noise_mm=float(rng.uniform(0.15, 0.25)), nominal_mm=(1.1, 1.5))
+    return fanuc_like(rng, n=n, noise_mm=float(rng.uniform(0.15, 0.25)), nominal_mm=(1.1, 1.5), **kw)
+
+
+#: poses of the same arm measured after each set, added to every split's unseen 30 % (see the test's docstring)
+UNSEEN = 200
 
 
 @pytest.mark.timeout(900)  # six diagnoses and plain fits: slow on a shared machine
@@ -57,6 +61,10 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
     by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of six; the written
     model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of
     six splits: a single split's sweep ends beyond the training range make either fit extrapolate luckily).
+    The unseen poses are the split's 30 % and :data:`UNSEEN` more poses of the same arm measured after the set:
+    the split's own 3-9 poses inside the training range scatter by more than the 2 % the bound allows (the
+    ROKAE-like 30-pose case failed it on 11 of 150 test seeds, worst 1.111x, with geometry alone named and the
+    calibration 0.978x the plain fit on average); with them, at most 1.007x in 100 seeds.
     bench/bench_diagnosis_geometry.py, 150 diagnoses per shape: geometry named in all but one (the issue's FANUC
     shape, where the nominal model missed the unseen poses by only 1.15x the plain fit); the six-split ratio
     at most 1.010 in 100 replicates."""
@@ -67,9 +75,9 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
     ext, ref, named = [], [], 0
     for k in range(6):
         if k % 3 == 0:
-            d = make(rng, n=n)
+            d = make(rng, n=n, n_unseen=UNSEEN)
         sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
-        tr, te = sp.train, sp.test
+        tr, te = sp.train, np.concatenate([sp.test, d.unseen])
         # the comparison is on the unseen poses inside the angles the training poses span (what the diagnosis
         # states for sweeps: interpolation only): a random split of 36 sweep poses can leave the end of a sweep
         # 70 deg beyond the training range, where either fit extrapolates by luck (test seed 811884676: the
@@ -131,7 +139,9 @@ def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not
 
     seed = test_seed
     rng = np.random.default_rng(seed)
-    for _ in range(5):  # a draw whose held-out poses the offset does not move (the split is on q and x,y,z)
+    # a draw whose held-out poses the offset does not move (the split, k-means on q and x,y,z, keeps them): about
+    # half the draws do; five draws were too few for 1 test seed in 27 (CI seed 1149862016), thirty left none of 300
+    for _ in range(30):
         d = rokae_like(rng, n=60, noise_mm=0.05, hidden=False)
         order = np.argsort(d.t_s)
         q, t = d.q_rad[order], d.t_s[order]
@@ -145,7 +155,7 @@ def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not
         if np.array_equal(workspace_split(q, meas, 0.25)[1], heldout):
             break
     else:
-        pytest.fail(f"seed {seed}: the offset moved the held-out split in five draws")
+        pytest.fail(f"seed {seed}: the offset moved the held-out split in thirty draws")
     res = diagnose_arm(d.dh_nominal, q, meas, t_s=t)
     assert ("backlash", 2) in res.selected, (seed, res.selected)
     w = res.to_json()["written_model"]
