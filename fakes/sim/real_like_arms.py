@@ -22,9 +22,9 @@ With ``n_unseen`` the set is followed by that many more poses of the same arm,
 instrument and hidden effects, measured after it (spread poses like the set's;
 for sweeps, one joint at a time within the sweeps' spans): a yardstick of
 unseen poses larger than a split's few (``LookalikeSet.n_set`` is the set's
-size, its first rows). The generator draws everything from the given ``rng``;
-a test prints the seed it made the ``rng`` from. Units: mm, rad inside; rows in measurement
-order with ``t`` in seconds.
+size, its first rows). The generator draws everything from the given
+``rng``; a test prints the seed it made the ``rng`` from. Units: mm, rad
+inside; rows in measurement order with ``t`` in seconds.
 """
 
 from __future__ import annotations
