@@ -334,11 +334,11 @@ def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, ge
                               hold_geometry: bool) -> dict:
     """The written model's construction (from the calibration, the named effects fitted with the geometry held
     or re-identified with them, see :func:`diagnose_arm`) made on the training poses, against that calibration
-    alone, on the held-out poses: effects are written only when they predict those poses not clearly worse
-    (:func:`_clearly_worse`; issue 43: the written model is never worse than its own calibration on poses that
+    alone, on the held-out poses: effects are written only when they predict those poses no worse
+    (:func:`_worse_on_heldout`; issue 43: the written model is never worse than its own calibration on poses that
     did not choose it). The effects are
     taken in the order they were named: of the calibration with the first k of them (k = 1 .. all), the one
-    that predicts the held-out poses best is written, if it is not clearly worse than the calibration alone (a
+    that predicts the held-out poses best is written, if it is no worse than the calibration alone (a
     later step, named on a few training poses, may fit their noise where the first one holds: 40 lab poses,
     eccentricity on J3 named with a compliance on J3 after it, the two together 1.001x a plain fit on unseen
     poses, the first alone 0.81x). RMS of the 3-D error, mm; ``effects`` the keys written."""
@@ -356,7 +356,7 @@ def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, ge
         st, _, sol = fit_report(sub, q, meas, train, hold_geometry=hold_geometry)
         e_k = np.sum((meas[heldout] - predict(st, q, heldout)) ** 2, axis=1)
         tried.append((k, _rms(meas[heldout] - predict(st, q, heldout)), sol))
-        if sol.converged and not _clearly_worse(e_k, e_geo):
+        if sol.converged and not _worse_on_heldout(e_k, e_geo):
             ok_fits.append((tried[-1][1], -k, k))
     names = [start.terms[i].key for i in eff]
     k_all, rms_all, sol_all = tried[0]
@@ -373,7 +373,7 @@ def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, ge
         rms_eff, kept = rms_all, []
         note = (f"the written model is the calibration alone: the effects ({', '.join(names)}) added to the "
                 f"calibration of the training poses predict the {heldout.size} held-out poses at {rms_eff:.4g} mm "
-                f"RMS, clearly worse than the calibration alone ({rms_geo:.4g} mm)" if sol_all.converged else
+                f"RMS, worse than the calibration alone ({rms_geo:.4g} mm)" if sol_all.converged else
                 "the written model is the calibration alone: the effects could not be fitted on it "
                 f"({sol_all.message})")
     return {"effects_written": bool(kept), "effects": kept,
@@ -383,14 +383,14 @@ def _check_effects_on_heldout(state: ModelState, dh, q, meas, train, heldout, ge
             "heldout_rms_calibration_mm": finite_or_none(rms_geo), "note": note}
 
 
-def _clearly_worse(e_new: np.ndarray, e_old: np.ndarray) -> bool:
-    """Squared errors ``e_new`` of the held-out poses larger than ``e_old`` by more than one standard error of
-    their paired difference (the held-out poses are few: 10 of 40 lab poses; a true effect lost to their
-    scatter loses its gain on every unseen pose)."""
+def _worse_on_heldout(e_new: np.ndarray, e_old: np.ndarray) -> bool:
+    """Squared errors ``e_new`` of the held-out poses larger than ``e_old`` on average (issue 43 item 2: the
+    written model is never worse than its own calibration on the poses that did not choose it). An allowance of
+    one standard error of the paired difference let a backlash present in the training poses only be written
+    although it predicted the 15 held-out poses at 0.60 mm against the calibration's 0.52 (2 of 65 seeds of
+    the fall-back test); on effect-free lab sets the allowance made no difference (the same 1 of 100 failing)."""
     d = e_new - e_old
-    if d.size < 2:
-        return bool(d.sum() > 0)
-    return float(d.mean()) > CV_GAIN_SE * float(d.std(ddof=1)) / math.sqrt(d.size)
+    return bool(d.mean() > 0.0)
 
 
 def inner_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
