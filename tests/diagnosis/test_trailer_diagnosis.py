@@ -110,7 +110,13 @@ def test_physical_trailer_from_the_offline_simulator_has_hitch_dynamics(rng):
     # (5 cm at 10 Hz and 1 m/s, beyond this bound)
     lo, hi = step.ci["relaxation_m"]
     assert lo - 0.02 < L2 < hi + 0.02, (step.params, step.ci)
-    assert step.details["relaxation_expected_m"] == L2
+    # the ideal trailer's relaxation is the final model's L2: the configured one, or a fitted one where the link
+    # lengths were named too (a marginal chance discovery at ALPHA: 9 of 400 draws, e.g. F 9.4 against 7.8)
+    expected = step.details["relaxation_expected_m"]
+    if "link_lengths" in res.selected:
+        assert expected != L2 and abs(expected - L2) < 0.2, (res.selected, step.details)
+    else:
+        assert expected == L2, (res.selected, step.details)
 
 
 def _diagnose_simulated(hidden, seed, alpha):
