@@ -57,7 +57,8 @@ UNSEEN = 200
 @pytest.mark.parametrize("make, n", [(fanuc_like, 36), (_issue_like_fanuc, 36), (rokae_like, 30), (rokae_like, 50)])
 def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_fit(test_seed, make, n):
     """Issue 43: geometry is named, judged by the calibration against the nominal model on poses the folds held
-    out (interpolation folds on sweeps, said so): on every split where the nominal model misses the unseen poses
+    out (interpolation folds on sweeps, said so), or by its F test alone where the nominal model predicts the
+    folds' poses to the noise (the folds cannot tell, said so): on every split where the nominal model misses the unseen poses
     by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of six; the written
     model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of
     six splits: a single split's sweep ends beyond the training range make either fit extrapolate luckily).
@@ -91,13 +92,23 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
         B0 = rigid_fit(kin.tool_position(d.dh_nominal, d.q_rad[tr]), d.xyz_mm[tr])
         nominal = float(position_error(d.dh_nominal, B0, d.q_rad[te], d.xyz_mm[te]).mean()) if te.size else 0.0
         cv = res.geometry["cross_validation"]
+        blind = not cv["nominal_beyond_noise"]["seen"]
         if res.selected[:1] == [("geometric", None)]:
             named += 1
             # the folds that judged it: the calibration alone against the nominal model, or both with the named
-            # effects where their residual hid it (test seed 29: 0.272 mm alone against the nominal's 0.240)
+            # effects where their residual hid it (test seed 29: 0.272 mm alone against the nominal's 0.240);
+            # or none, where the nominal model predicts the folds' poses to the noise (harness seed 47, split 3:
+            # 8 interior sweep poses near home, the nominal model 0.212 mm there against a noise of 0.23 mm,
+            # the calibration 0.218; on the unseen poses the nominal model missed by 1.79x a plain fit)
             judged = cv.get("with_effects", cv)
-            assert judged["rms_geometry_mm"] < judged["rms_nominal_mm"], (seed, cv)
+            if "judged_by" in res.geometry:
+                assert blind and "partial F alone" in res.geometry["judged_by"], (seed, res.geometry)
+                assert cv["nominal_beyond_noise"]["statistic"] <= cv["nominal_beyond_noise"]["threshold"]
+            else:
+                assert judged["rms_geometry_mm"] < judged["rms_nominal_mm"], (seed, cv)
         else:
+            # not named: the folds saw geometry and found the calibration no better, or its F test failed
+            assert not blind or res.geometry["statistic"] <= res.geometry["threshold"], (seed, res.geometry)
             assert nominal <= 1.5 * ref[-1], (seed, nominal, ref[-1], res.geometry)
         if d.name == "fanuc-like":
             assert cv["kind"] == "interpolation" and "interpolation only" in cv["statement"], (seed, cv)
@@ -106,7 +117,9 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
             assert cv["kind"] == "random" and "extrapolation" not in cv, (seed, cv)
         # no step without gain: each chose itself by a lower cross-validated error, with a non-zero estimate
         for s in res.steps:
-            assert s.cv[1] < s.cv[0] and any(v != 0.0 for v in s.params.values()), (seed, s.term.key)
+            assert any(v != 0.0 for v in s.params.values()), (seed, s.term.key)
+            assert s.cv[1] < s.cv[0] or (s.term.effect == "geometric" and "judged_by" in res.geometry), (
+                seed, s.term.key, s.cv)
         # the noise floor is the geometric fit's residual (no repeats), within 2x of it
         assert 0.5 < res.noise_floor / res.fit_residual_floor < 2.0
         if te.size:

@@ -13,7 +13,9 @@
    residual passes and the calibration, fitted without each fold of the
    training poses, predicts that fold better than the nominal model does
    (:mod:`.geometry_cv`: the question the user asks, with the calibration
-   itself rather than a linearised refit). The folds respect the poses'
+   itself rather than a linearised refit), or the nominal model predicts the
+   folds' poses to the noise (they hold no geometric error: the folds cannot
+   tell and the F test judges alone, said so). The folds respect the poses'
    layout (:mod:`station.analysis.arm.pose_structure`): on one-joint sweeps
    every sweep's ends stay in training, the test is then interpolation only
    and says so, and the sweep ends held out give an extrapolation figure
@@ -90,7 +92,7 @@ from .arm_fit import ModelState, classical_floor, fit_report, initial_state, jac
 from .candidate_significance import model_basis, wald_block
 from station.analysis.arm.pose_structure import pose_structure, structured_folds, sweep_end_folds
 from station.analysis.arm.split import workspace_split
-from .geometry_cv import beats_nominal, fold_errors
+from .geometry_cv import beats_nominal, fold_errors, folds_see_geometry
 from .summary_json import core_json
 from station.models.effects import motion_directions
 
@@ -126,6 +128,9 @@ class CandidateTest:
     heldout_rms_after: float = math.nan   # cross-validated RMS inside the training poses with the candidate
     cv_gain: bool = False                 # lowers it by more than CV_GAIN_SE standard errors
     variant: Term | None = None
+    resid_var: float = math.nan           # geometry: residual variance per coordinate with it, mm^2
+    resid_dof: float = math.nan           # ... and its degrees of freedom
+    folds_blind: bool = False             # geometry: the folds' poses hold no error to predict (cannot judge)
 
     @property
     def significant(self) -> bool:
@@ -512,19 +517,24 @@ def _geometry_test(state: ModelState, q, meas, train, geo: Term, alpha: float) -
     rss0 = float(r @ r)
     rss1 = max(rss0 - bt.rss_reduction, 1e-300)
     ct.rss_reduction = bt.rss_reduction
+    ct.resid_var, ct.resid_dof = rss1 / dof, float(dof)
     ct.statistic = (bt.rss_reduction / k) / (rss1 / dof)
     ct.threshold = float(stats.f.isf(alpha, k, dof))
     return ct
 
 
-def _geometry_cv(dh, q, meas, train, ct: CandidateTest, structure, folds) -> tuple[float, dict]:
+def _geometry_cv(dh, q, meas, train, ct: CandidateTest, structure, folds, alpha: float) -> tuple[float, dict]:
     """The calibration and the nominal model, each fitted without a fold, predicting it (interpolation folds on
     sweeps); on sweeps the sweep ends held out give the extrapolation figure, reported only. Sets ``ct``'s
-    cross-validated RMS and gain; ``(nominal's cross-validated RMS, the JSON of both)``."""
+    cross-validated RMS and gain, and ``folds_blind`` where the nominal model predicts the folds' poses to the
+    noise (:func:`.geometry_cv.folds_see_geometry`: the folds cannot tell, they do not judge);
+    ``(nominal's cross-validated RMS, the JSON of both)``."""
     qt, mt = q[train], meas[train]
     fe = fold_errors(dh, qt, mt, folds)
     ct.heldout_rms_after = fe.rms_geometry
     ct.cv_gain = beats_nominal(fe)
+    sig = folds_see_geometry(fe, ct.resid_var, ct.resid_dof, alpha)
+    ct.folds_blind = bool(math.isfinite(sig.statistic) and not sig.seen)
     how = ("interpolation only: the poses are one-joint sweeps and every sweep's ends stay in training, so each "
            "held-out pose lies inside the range of the poses that calibrate it; beyond a sweep's range the model "
            "extrapolates and these folds do not test it" if structure.interpolation_only else
@@ -532,7 +542,13 @@ def _geometry_cv(dh, q, meas, train, ct: CandidateTest, structure, folds) -> tup
     doc = {"poses": structure.describe(), "folds": len(folds), "held_out_poses": int(fe.rows.size),
            "kind": "interpolation" if structure.interpolation_only else "random", "statement": how,
            "rms_nominal_mm": finite_or_none(fe.rms_nominal), "rms_geometry_mm": finite_or_none(fe.rms_geometry),
-           "folds_not_calibrated": fe.failed}
+           "folds_not_calibrated": fe.failed,
+           "nominal_beyond_noise": {
+               "what": "the nominal model's mean squared error on the held-out poses over three times the "
+                       "calibration's residual variance per coordinate, against F(3 n_held, dof) at 1 - alpha: "
+                       "below it the folds' poses hold no geometric error to predict and the folds do not judge",
+               "statistic": finite_or_none(sig.statistic), "threshold": finite_or_none(sig.threshold),
+               "seen": bool(sig.seen)}}
     if structure.interpolation_only:
         ex = fold_errors(dh, qt, mt, sweep_end_folds(structure))
         doc["extrapolation"] = {
@@ -718,7 +734,7 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
     else:
         ct = _geometry_test(state, q, meas, train, geo, alpha)
         rounds.append([ct])
-        cv_now, cv_doc = (_geometry_cv(dh, q, meas, train, ct, structure, folds_geo) if ct.testable
+        cv_now, cv_doc = (_geometry_cv(dh, q, meas, train, ct, structure, folds_geo, alpha) if ct.testable
                           else (math.nan, {}))
         geometry.update(statistic=finite_or_none(ct.statistic), threshold=finite_or_none(ct.threshold),
                         cv_rms_before=finite_or_none(cv_now), cv_rms_after=finite_or_none(ct.heldout_rms_after),
@@ -727,9 +743,11 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
         if not ct.testable:
             not_testable["geometric"] = ct.reason
             stop_why = f"geometry cannot be tested ({ct.reason}): nothing else is named"
-        elif ct.significant and ct.cv_gain:
+        elif ct.significant and (ct.cv_gain or ct.folds_blind):
             # geometry is the base of everything else: the calibration predicting the poses each fold held out
-            # better than the nominal model suffices (see .geometry_cv)
+            # better than the nominal model suffices (see .geometry_cv); where the nominal model predicts those
+            # poses to the noise the folds cannot tell, and the partial F judges alone (issue 43: one-joint
+            # sweeps whose interior poses lie near home)
             st = _with_geometry(state, geo, geo_res, dh)
             st, _, sol = fit_report(st, q, meas, train)
             fits.append(("geometric", sol))
@@ -739,11 +757,19 @@ def diagnose_arm(dh_nominal, q_rad, xyz_mm, *, t_s=None, temperature_c=None, loa
                               f"partial F of the {ct.k} geometric parameters against F({ct.k}, 3n-p) at 1 - {alpha:g}; "
                               f"the calibration fitted without each of {len(folds_geo)} folds of the training poses "
                               f"predicts them at {ct.heldout_rms_after:.4g} mm RMS, the nominal model at "
-                              f"{cv_now:.4g} mm ({cv_doc['kind']})",
+                              f"{cv_now:.4g} mm ({cv_doc['kind']})" + (
+                                  "; the nominal model predicts those poses to the noise (statistic "
+                                  f"{cv_doc['nominal_beyond_noise']['statistic']:.3g} against "
+                                  f"{cv_doc['nominal_beyond_noise']['threshold']:.3g}): they hold no geometric "
+                                  "error to predict, the folds cannot tell and the partial F judges alone"
+                                  if ct.folds_blind and not ct.cv_gain else ""),
                               resid_before=r_before, resid_after=r_after))
             steps[-1].cv = (cv_now, ct.heldout_rms_after)
             state = st
             geometry["named"] = True
+            if not ct.cv_gain:
+                geometry["judged_by"] = ("the partial F alone: the nominal model predicts the poses the folds "
+                                         "held out to the noise, the folds cannot tell")
         else:
             geometry["why_not"] = ("not significant" if not ct.significant else
                                    "significant, but every training pose ends a sweep: none can be held out without "

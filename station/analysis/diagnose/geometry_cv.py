@@ -11,6 +11,12 @@ The folds come from :mod:`station.analysis.arm.pose_structure`: on one-joint
 sweeps every sweep's ends stay in training (interpolation), and the sweep
 ends held out as a group give a separate extrapolation figure, reported and
 never used to judge.
+
+The folds can judge only where they see geometry: when the nominal model
+predicts the poses they held out to the noise (:func:`folds_see_geometry`:
+one-joint sweeps whose interior poses lie near the home pose, where a
+millimetre-size table error is at its smallest), neither model can be better
+there and the answer of the folds is "cannot tell", not "no".
 """
 
 from __future__ import annotations
@@ -19,12 +25,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from station.analysis.arm.identification import identify, rigid_fit
 from station.errors import DataError, InsufficientDataError
 from station.models import kinematics as kin
 
-__all__ = ["FoldErrors", "fold_errors", "beats_nominal"]
+__all__ = ["FoldErrors", "fold_errors", "beats_nominal", "folds_see_geometry", "FoldSignal"]
 
 
 @dataclass(frozen=True)
@@ -80,3 +87,33 @@ def beats_nominal(fe: FoldErrors) -> bool:
     other step, so a lower mean squared error suffices; the joint effects' one-standard-error rule would drop
     it where the folds are few)."""
     return fe.rows.size > 0 and float(np.mean(fe.geometry)) < float(np.mean(fe.nominal))
+
+
+@dataclass(frozen=True)
+class FoldSignal:
+    """Whether the nominal model misses the folds' held-out poses by more than the noise: ``statistic`` is the
+    mean squared 3-D error of the nominal model there over ``3 s^2`` (``s^2`` the calibration's residual variance
+    per coordinate), against ``threshold``, the ``1 - alpha`` quantile of ``F(3 n_held, dof)``."""
+
+    statistic: float
+    threshold: float
+
+    @property
+    def seen(self) -> bool:
+        return self.statistic > self.threshold
+
+
+def folds_see_geometry(fe: FoldErrors, s2_mm2: float, dof: float, alpha: float) -> FoldSignal:
+    """Do the folds' held-out poses hold any geometric error for the calibration to predict better?
+
+    Under a nominal model that is right on those poses, each held-out coordinate misses by the noise alone
+    (variance ``s2_mm2``, estimated with ``dof`` degrees of freedom by the calibration's residual), so the
+    nominal model's mean squared 3-D error over ``3 s^2`` follows ``F(3 n_held, dof)`` (its base transform,
+    fitted on the other poses, adds a little: the test leans towards "seen", which keeps the folds' veto).
+    Where it is not above the ``1 - alpha`` quantile, the folds cannot tell a calibration from the nominal
+    model and do not judge."""
+    n = int(fe.rows.size)
+    if n == 0 or not (s2_mm2 > 0.0) or not (dof > 0.0):
+        return FoldSignal(math.nan, math.nan)
+    stat = float(np.mean(fe.nominal)) / (3.0 * s2_mm2)
+    return FoldSignal(stat, float(stats.f.isf(alpha, 3 * n, dof)))
