@@ -77,7 +77,8 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
                  "--program", str(write_program(tmp_path / "prog.toml", ra)),
                  "--model-out", str(model), "--model-basis", "supported"]) == 0
     doc = json.loads(model.read_text())
-    # (the same diagnosis as above but on the export's clock: its marginal F tests need not fall the same way)
+    # (the same samples through the lab's files, the clock inferred and the coordinates rounded to 1 nm: a
+    # marginal F test need not fall the same way)
     assert doc["basis"] == "training_supported" and set(doc["not_confirmed"]) <= set(doc["effects"])
     print("the CLI's model:", json.dumps(doc["effects"]), "above:", res.supported_only, res.named)
     prog_rate = write_program(tmp_path / "prog_rate.toml", ra, rate_hz=1000.0 / 3.0)
