@@ -58,10 +58,11 @@ UNSEEN = 200
 def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_fit(test_seed, make, n):
     """Issue 43: geometry is named, judged by the calibration against the nominal model on poses the folds held
     out (interpolation folds on sweeps, said so), or by its F test alone where the nominal model predicts the
-    folds' poses to the noise (the folds cannot tell, said so): on every split where the nominal model misses the unseen poses
-    by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of six; the written
-    model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the same 70 % (mean of
-    six splits: a single split's sweep ends beyond the training range make either fit extrapolate luckily).
+    folds' poses to the noise (the folds cannot tell, said so): on every split where the nominal model misses
+    the unseen poses by more than 1.5x the plain fit (geometry is clearly the cause) and on at least five of
+    six; the written model predicts the 30 % it never saw within 1.02x of a plain full DH + Hayati fit of the
+    same 70 % (mean of six splits: a single split's sweep ends beyond the training range make either fit
+    extrapolate luckily).
     The unseen poses are the split's 30 % and :data:`UNSEEN` more poses of the same arm measured after the set:
     the split's own 3-9 poses inside the training range scatter by more than the 2 % the bound allows (the
     ROKAE-like 30-pose case failed it on 11 of 150 test seeds, worst 1.111x, with geometry alone named and the

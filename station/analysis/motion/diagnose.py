@@ -438,9 +438,10 @@ def _baseline(tr: Windows, fits: list) -> F.Params:
     stalled at 0 where its lab export (the same samples to 1 nm, the same clock) did not, or the other way
     round, and the two paths' baselines differed by up to 73 % in training RSS (draw 17 at 100 %: 27.8 Hz,
     damping 0.185 in memory against 27.6 Hz, 0.054 through the export; draw 23 at 50 %: held-out RMS 34.9 um
-    against 26.4 um); draw 11 at 50 % stalled on both, at 2.2 times the RSS the fit reaches off the bound. Off the bound, a baseline without the arm's creep and mode lies in a long, flat valley (the loop
-    at 12-28 Hz, damping at its floor, within 0.5 % of RSS): one start from the grid ended at 13.2 Hz on one
-    path and 15.9 Hz on the other; the best of four ended within 2 % on both in the draws measured.
+    against 26.4 um); draw 11 at 50 % stalled on both, at 2.2 times the RSS the fit reaches off the bound.
+    Off the bound, a baseline without the arm's creep and mode lies in a long, flat valley (the loop at
+    12-28 Hz, damping at its floor, within 0.5 % of RSS): one start from the grid ended at 13.2 Hz on one path
+    and 15.9 Hz on the other; the best of four ended within 2 % on both in the draws measured.
     """
     best, best_rss, n = None, math.inf, 0
     for start in F.best_starts(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})),
