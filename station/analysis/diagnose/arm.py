@@ -536,7 +536,7 @@ def _geometry_cv(dh, q, meas, train, ct: CandidateTest, structure, folds, alpha:
     ct.heldout_rms_after = fe.rms_geometry
     ct.cv_gain = beats_nominal(fe)
     sig = folds_see_geometry(fe, ct.resid_var, ct.resid_dof, alpha)
-    ct.folds_blind = bool(math.isfinite(sig.statistic) and not sig.seen)
+    ct.folds_blind = sig.blind
     how = ("interpolation only: the poses are one-joint sweeps and every sweep's ends stay in training, so each "
            "held-out pose lies inside the range of the poses that calibrate it; beyond a sweep's range the model "
            "extrapolates and these folds do not test it" if structure.interpolation_only else

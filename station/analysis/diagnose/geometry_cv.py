@@ -102,6 +102,11 @@ class FoldSignal:
     def seen(self) -> bool:
         return self.statistic > self.threshold
 
+    @property
+    def blind(self) -> bool:
+        """The folds cannot judge: the statistic is defined and not above its threshold."""
+        return math.isfinite(self.statistic) and not self.seen
+
 
 def folds_see_geometry(fe: FoldErrors, s2_mm2: float, dof: float, alpha: float) -> FoldSignal:
     """Do the folds' held-out poses hold any geometric error for the calibration to predict better?
