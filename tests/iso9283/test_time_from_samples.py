@@ -17,6 +17,7 @@ import pytest
 from app.cli import main
 from station.analysis.iso9283.motion_clock import (
     CLOCK_REL_U,
+    REST_RADIUS_MM,
     find_moves,
     identical_moves,
     rate_from_dwells,
@@ -68,9 +69,10 @@ def test_without_the_rate_every_time_figure_is_refused_with_the_reason(tmp_path,
     # the evidence: identical moves take the same samples, the stamps give them other durations
     groups = tb["motion_check"]["identical_moves"]
     assert len(groups) == 2 and all(g["n"] == 3 and g["steady"] for g in groups)
+    truth = la.samples_outside(REST_RADIUS_MM)  # the micrometre noise leaves the radius at 0.5 mm
     for g in groups:
         assert g["spread_samples"] <= 3
-        assert abs(np.median(g["samples"]) - la.move_s * RATE_HZ) < 0.05 * la.move_s * RATE_HZ
+        assert abs(np.median(g["samples"]) - np.median(truth)) <= 3 and np.median(g["samples"]) < la.move_s * RATE_HZ
     ev = tb["motion_check"]["stamps_against_moves"]
     assert ev["n_disagreeing"] >= 1 and ev["n_events"] == 2 * la.n_moves - 1
     # nothing on the console states a time on this clock
@@ -130,10 +132,13 @@ def test_moves_and_dwells_are_found_in_samples(rng):
     assert mv.leave_row.size == la.n_moves and mv.centres_mm.shape == (2, 3)
     groups = identical_moves(mv)
     assert [g.samples.size for g in groups] == [3, 3]
-    # a move from leaving one rest radius to entering the other: a little under the profile's samples
+    # a move from leaving one rest radius to entering the other: under the profile's samples by the slow ends of
+    # its ramps inside the radii (up to a tenth at half speed where the flange starts near an axis)
+    assert mv.radius_mm == REST_RADIUS_MM
+    truth = la.samples_outside(mv.radius_mm)
     for g in groups:
         assert g.spread <= 3
-        assert 0.9 * la.move_s * RATE_HZ < g.samples.min() <= la.move_s * RATE_HZ
+        assert np.all(np.abs(g.samples - np.median(truth)) <= 3) and g.samples.max() <= la.move_s * RATE_HZ
     # a dwell is the wait and overhead the tool stands still, give or take the ends of the ramps
     assert mv.dwell_rows.size == la.n_moves - 1
     assert np.all(np.abs(mv.dwell_rows - la.dwell_s * RATE_HZ) <= 0.1 * RATE_HZ)

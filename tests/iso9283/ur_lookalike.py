@@ -53,6 +53,22 @@ class LabLookalike:
     move_s: float  # duration of each move's profile
     dwell_s: np.ndarray  # true time of every stop between moves (wait + overhead), s
     n_moves: int
+    clean_mm: np.ndarray | None = None  # (N, 3) the path without the tracker's noise
+
+    def samples_outside(self, radius_mm: float) -> np.ndarray:
+        """Each move's samples from the last inside its start rest's radius to the first inside the next's, on
+        the noise-free path: what a move between rests takes in samples (the ends of the profile inside the radii
+        are slow where the flange starts near a joint's axis, so less than the profile's samples)."""
+        p = self.clean_mm
+        still = np.linalg.norm(np.diff(p, axis=0), axis=1) == 0.0
+        edges = np.flatnonzero(np.diff(still.astype(np.int8)))  # rows where the tool starts or stops moving
+        out = []
+        for a, b in zip(edges[0::2] + 1, edges[1::2] + 1):
+            seg = p[a - 1: b + 2]
+            first_b = int(np.flatnonzero(np.linalg.norm(seg - seg[-1], axis=1) <= radius_mm)[0])
+            last_a = int(np.flatnonzero(np.linalg.norm(seg[:first_b] - seg[0], axis=1) <= radius_mm)[-1])
+            out.append(first_b - last_a)
+        return np.array(out)
 
 
 def lab_lookalike(rng, *, cycles=3, wait_s=2.0, speed=1.0) -> LabLookalike:
@@ -84,7 +100,7 @@ def lab_lookalike(rng, *, cycles=3, wait_s=2.0, speed=1.0) -> LabLookalike:
     sigma = rng.uniform(0.3e-3, 1e-3)
     xyz = clean + rng.normal(0.0, sigma, clean.shape)
     cmd = tool_points(np.stack([q1, q1 + dq])) @ R.T + off + rng.uniform(-0.05, 0.05, (2, 3))
-    return LabLookalike(xyz, cmd, pc_stamps(rng, t.size), float(T), waits[:-1], 2 * cycles)
+    return LabLookalike(xyz, cmd, pc_stamps(rng, t.size), float(T), waits[:-1], 2 * cycles, clean)
 
 
 def pc_stamps(rng, n: int) -> np.ndarray:
