@@ -137,7 +137,10 @@ def _print(doc: dict) -> None:
               f"{s['heldout_rms_after'] * 1000:.2f} um ({100 * s['gain']:.1f} %), F {s['statistic']:.1f} > "
               f"{s['threshold']:.1f}, held-out z {s['heldout_t']:.1f} > {s['heldout_threshold']:.1f} (signed ranks)")
     if not doc["steps"]:
-        print("nothing named: the baseline explains the held-out approaches to the noise")
+        print("nothing named: no candidate passed both tests against the baseline")
+    for r in doc["remaining_structure"]:  # the last round's candidates that a test or a rule left out
+        if r.get("same_as"):
+            print(f"    {r['effect']} not named: {r['same_as']}")
     print(f"extended model held-out RMS {doc['final_heldout_rms'] * 1000:.2f} um ({doc['gain_percent']:.1f} % less); "
           f"noise floor {doc['noise_floor'] * 1000:.2f} um")
     if doc.get("time_refused"):

@@ -95,3 +95,33 @@ def test_a_mode_on_the_loops_own_pole_is_the_loop(rng):
     off = F.Params({"servo": np.array([f, 0.8, 0.01]), "structural_mode": np.array([f, 0.07, 1e-5])})
     assert _same_pole(off) == ""
     assert SAME_POLE < 0.5
+
+
+def test_a_creep_inside_the_loops_settling_is_the_loop(rng):
+    """A creep whose time constant is no longer than the loop's slowest is the loop's own approach reshaped
+    (CI seed 2659658909: a lab look-alike with no dynamics named a 'creep' of 10 ms under a 27.8 Hz loop of
+    damping 0.14); a creep slower than the loop is a creep, underdamped or overdamped loop alike."""
+    import math
+
+    from station.analysis.motion import fit as F
+    from station.analysis.motion.diagnose import _same_pole, loop_time_constant_s
+
+    f, z = rng.uniform(3.0, 12.0), rng.uniform(0.1, 0.9)  # settling in 15 ms or more: above the floor of 10 ms
+    assert loop_time_constant_s(f, z) == pytest.approx(1.0 / (z * 2.0 * math.pi * f))
+    zo = rng.uniform(1.2, 3.0)  # overdamped: the slow real pole of s^2 + 2 zeta w s + w^2
+    slow = max(np.roots([1.0, 2.0 * zo * 2.0 * math.pi * f, (2.0 * math.pi * f) ** 2]).real)
+    assert loop_time_constant_s(f, zo) == pytest.approx(-1.0 / slow, rel=1e-9)
+    for zz in (z, zo):
+        t_loop = loop_time_constant_s(f, zz)
+        inside = F.Params({"servo": np.array([f, zz, 0.01]),
+                           "creep": np.array([0.02, rng.uniform(0.011, 0.99 * t_loop)])})
+        assert "position loop" in _same_pole(inside, "creep")
+        assert _same_pole(inside, "structural_mode") == ""  # judged only as the candidate tested
+        after = F.Params({"servo": np.array([f, zz, 0.01]), "creep": np.array([0.02, t_loop * rng.uniform(1.01, 5)])})
+        assert _same_pole(after, "creep") == ""
+    # on its floor (the fit wanted it faster): no creep, whatever the loop
+    floor = F.EFFECT_PARAMS["creep"][1][1]
+    fast = np.array([rng.uniform(40.0, 80.0), 0.9, 0.0])  # a loop settled before the floor
+    assert loop_time_constant_s(fast[0], fast[1]) < 0.5 * floor
+    assert "floor" in _same_pole(F.Params({"servo": fast, "creep": np.array([0.02, floor])}), "creep")
+    assert _same_pole(F.Params({"servo": fast, "creep": np.array([0.02, 1.5 * floor])}), "creep") == ""
