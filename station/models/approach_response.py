@@ -86,6 +86,10 @@ def _mode_poles(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
 
 @functools.lru_cache(maxsize=256)
 def _mode_poles_cached(omega_s: float, zeta_s: float, omega_m: float, zeta_m: float):
+    if abs(zeta_s - 1.0) < _CRITICAL_EPS:  # a critically damped loop's double pole: the residues need it split
+        zeta_s = 1.0 + _CRITICAL_EPS
+    if abs(zeta_m - 1.0) < _CRITICAL_EPS:
+        zeta_m = 1.0 + _CRITICAL_EPS
     if abs(omega_s - omega_m) < 1e-6 * omega_m and abs(zeta_s - zeta_m) < 1e-6:
         omega_m *= 1.0 + 1e-5  # coincident poles: the closed form needs them distinct
     num = np.polymul([omega_m ** 2], [2.0 * zeta_s * omega_s, omega_s ** 2])

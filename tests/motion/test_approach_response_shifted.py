@@ -71,3 +71,19 @@ def test_a_pole_too_fast_for_the_shift_falls_back_to_the_direct_evaluation(rng):
     out = ar.decel_response(tau, a, v, D, tj, omega, zeta)
     assert np.all(np.isfinite(out[np.isfinite(tau)]))
     _close(out, ar._edges(tau, a, v, D, tj, lambda x: ar.ramp_response(x, omega, zeta, tj)))
+
+
+def test_a_critically_damped_loop_drives_a_mode_without_a_double_pole(rng):
+    """A loop at damping 1 (a start of the mode's scan) has a double pole, where the residues' closed form
+    divides by zero: the response is finite there and lies between those of damping 1 -/+ 1e-3."""
+    import warnings
+
+    tau = np.linspace(-0.5, 1.0, 301)
+    a, v, D, tj = rng.uniform(500, 2500), rng.uniform(200, 500), rng.uniform(100, 400), rng.uniform(0.0, 0.05)
+    w, mode = 2 * math.pi * rng.uniform(6, 20), (2 * math.pi * rng.uniform(8, 12), rng.uniform(0.05, 0.1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        x = ar.mode_response(tau, a, v, D, tj, (w, 1.0), mode)
+    lo, hi = (ar.mode_response(tau, a, v, D, tj, (w, z), mode) for z in (1.0 - 1e-3, 1.0 + 1e-3))
+    assert np.all(np.isfinite(x))
+    assert np.all(np.abs(x - 0.5 * (lo + hi)) <= np.abs(hi - lo) + 1e-9)
