@@ -15,6 +15,10 @@ Since the fits' convergence fixes (three Gauss-Newton steps of the per-move nuis
 halvings, up to six rounds) and the baseline's best of four starts: ``--minutes 60`` 468.5 s CPU beside a CI run,
 ``--minutes 5`` 266 s CPU at rest (the fits' cost hardly depends on the stream's length; cProfile: the
 finite-difference Jacobian's evaluations of that objective). Over the issue's minute.
+Since the objective's Jacobian by the implicit function theorem and the nuisances' steps on the timing columns
+(station/analysis/motion/fit.py), at rest: ``--minutes 60`` 51.5 s wall (51.3 s CPU; seeds 2 and 3, run side by
+side: 54.0 and 47.3 s), the same effects named, held-out RMS 8.77 -> 0.64 um; ``--minutes 5`` 39.0 s. Under
+the minute on an idle machine, not by much: beside a test run the hour took 58.8 s wall (52.5 s CPU).
 """
 
 from __future__ import annotations
