@@ -17,7 +17,8 @@
    falls: per block of :data:`BLOCK_S` of their approach parts, the
    reduction's one-sided Wilcoxon signed-rank test at ``alpha`` (stated as
    a normal quantile, :func:`_heldout_z`),
-   and the reduction at least ``(RELEVANCE * noise)^2``. Of those, the one
+   and the reduction at least ``(RELEVANCE * noise)^2``; a mode on the loop's own pole or a creep no slower
+   than the loop settles is the loop's response reshaped, never named (:func:`_same_pole`). Of those, the one
    with the lowest held-out RMS is named and the model refitted; again until
    none is left.
 4. Time figures per held-out pose (:mod:`.figures`): POS, time to band, PST,
