@@ -264,14 +264,15 @@ def _objective(w: Windows, p: Params):
         x = np.asarray(x, dtype=float)
         h = 1e-4 * np.maximum(1.0, np.abs(x))
         h = np.where(x + h > hi, -h, h)
-        dP = np.stack([(predict(w, p.from_vector(x + h[i] * np.eye(x.size)[i]), a, T, v) - P) / h[i]
-                       for i in range(x.size)], axis=2)  # (M, L, k)
+        dP = np.stack([(predict(w, p.from_vector(x + hk * e), a, T, v) - P) / hk
+                       for hk, e in zip(h, np.eye(x.size))], axis=2)  # (M, L, k)
         da, dv = 1e-4 * a, 1e-4 * v
         ja = (predict(w, q, a + da, T, v) - P) / da[:, None]
         jv = (predict(w, q, a, T, v + dv) - P) / dv[:, None]
         dT = 1e-5
         jT = (predict(w, q, a, T + dT, v) - P) / dT
-        Jn = np.nan_to_num(np.stack([ja, jT, jv], axis=2)) * mt[:, :, None]  # (M, L, 3) on the timing part
+        Jall = np.nan_to_num(np.stack([ja, jT, jv], axis=2))  # (M, L, 3)
+        Jn = Jall * mt[:, :, None]  # on the timing part
         H = np.einsum("mli,mlj->mij", Jn, Jn)
         H[:, 2, 2] += prior
         B = np.einsum("mli,mlk->mik", Jn, np.nan_to_num(dP) * mt[:, :, None])
@@ -281,8 +282,7 @@ def _objective(w: Windows, p: Params):
         dn = np.zeros((a.size, 3, x.size))
         if good.any():
             dn[good] = -np.linalg.solve(Hs[good], B[good] / scale[good][:, :, None]) / scale[good][:, :, None]
-        Jall = np.stack([ja, jT, jv], axis=2)
-        total = dP + np.einsum("mli,mik->mlk", np.nan_to_num(Jall), dn)
+        total = dP + np.einsum("mli,mik->mlk", Jall, dn)
         return -total[app]
 
     return f, jac
