@@ -159,8 +159,10 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
     X = np.nan_to_num(w.x_mm)
     dt = np.gradient(np.nan_to_num(w.t_s), axis=1)  # the same at every iteration
     prior = (max(w.noise_mm, 1e-6) / (V_PRIOR_FRACTION * w.v_mm_s)) ** 2
+    x0 = None  # the prediction at (a, T, v): the last step's accepted one, else computed
     for _ in range(iterations):
-        x0 = predict(w, p, a, T, v)
+        if x0 is None:
+            x0 = predict(w, p, a, T, v)
         r = np.where(timing, X - x0, 0.0)
         da, dv = 1e-4 * a, 1e-4 * v
         ja = np.where(timing, (predict(w, p, a + da, T, v) - x0) / da[:, None], 0.0)
@@ -180,15 +182,18 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
             step[good] = np.linalg.solve(Hs[good], (g / scale)[good][:, :, None])[:, :, 0] / scale[good]
         step[:, 1] = np.clip(step[:, 1], -0.05, 0.05)
         cost0 = _move_cost(r, v, w, prior)
+
         def stepped(f):
             return (np.clip(a + f * step[:, 0], 0.2 * w.a0_mm_s2, 5.0 * w.a0_mm_s2), T + f * step[:, 1],
                     np.clip(v + f * step[:, 2], 0.7 * w.v_mm_s, 1.3 * w.v_mm_s))
 
-        f = np.ones(len(a))
+        f, x0 = np.ones(len(a)), None
         for _h in range(NUISANCE_HALVINGS + 1):  # a move's step is halved while it raises the move's cost
             a1, T1, v1 = stepped(f)
-            worse = _move_cost(np.where(timing, X - predict(w, p, a1, T1, v1), 0.0), v1, w, prior) > cost0
+            x1 = predict(w, p, a1, T1, v1)
+            worse = _move_cost(np.where(timing, X - x1, 0.0), v1, w, prior) > cost0
             if not worse.any():
+                x0 = x1  # the next iteration's prediction
                 break
             f = np.where(worse, 0.5 * f if _h < NUISANCE_HALVINGS else 0.0, f)
         a, T, v = stepped(f)
