@@ -19,6 +19,10 @@ Since the objective's Jacobian by the implicit function theorem and the nuisance
 (station/analysis/motion/fit.py), at rest: ``--minutes 60`` 51.5 s wall (51.3 s CPU; seeds 2 and 3, run side by
 side: 54.0 and 47.3 s), the same effects named, held-out RMS 8.77 -> 0.64 um; ``--minutes 5`` 39.0 s. Under
 the minute on an idle machine, not by much: beside a test run the hour took 58.8 s wall (52.5 s CPU).
+With a structural mode refitted from three starts (a mode's refit that stalled away from the truth on one test
+stream in 18, station/analysis/motion/diagnose.py ``STARTS_OF``): ``--minutes 60`` at rest 62.1 s wall, 61.9 s
+CPU (63.9 s before the nuisances reused their accepted prediction). Over the minute by 2 s: the mode's third
+start was judged worth its 20 %.
 """
 
 from __future__ import annotations
