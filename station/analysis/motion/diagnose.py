@@ -331,7 +331,7 @@ def _creep_inside_loop(p: F.Params) -> str:
     f, z, _ = p.values["servo"]
     _, tc = p.values["creep"]
     t_loop = loop_time_constant_s(f, z)
-    floor = dict((n, lo) for n, lo, _ in F.EFFECT_PARAMS["creep"])["tau_s"]
+    floor = next(lo for name, lo, _ in F.EFFECT_PARAMS["creep"] if name == "tau_s")
     if tc <= floor * (1.0 + 1e-3):
         return (f"the creep's time constant ran to its floor ({1e3 * floor:.3g} ms): faster than any creep, a "
                 f"reshaping of the loop's approach ({f:.3g} Hz, damping {z:.2g})")

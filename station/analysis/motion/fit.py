@@ -158,7 +158,7 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
     m = timing.astype(float)
     X = np.nan_to_num(w.x_mm)
     dt = np.gradient(np.nan_to_num(w.t_s), axis=1)  # the same at every iteration
-    prior = (max(w.noise_mm, 1e-6) / (V_PRIOR_FRACTION * w.v_mm_s)) ** 2
+    prior = _speed_prior(w)
     x0 = None  # the prediction at (a, T, v): the last step's accepted one, else computed
     for _ in range(iterations):
         if x0 is None:
@@ -174,12 +174,7 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
         g = np.einsum("mli,ml->mi", J, r)
         H[:, 2, 2] += prior
         g[:, 2] -= prior * (v - w.v_mm_s)
-        scale = np.sqrt(np.maximum(np.einsum("mii->mi", H), 1e-300))
-        Hs = H / scale[:, :, None] / scale[:, None, :]
-        good = np.linalg.cond(Hs) < 1e10
-        step = np.zeros_like(g)
-        if good.any():
-            step[good] = np.linalg.solve(Hs[good], (g / scale)[good][:, :, None])[:, :, 0] / scale[good]
+        step = _solve_per_move(H, g[:, :, None])[:, :, 0]
         step[:, 1] = np.clip(step[:, 1], -0.05, 0.05)
         cost0 = _move_cost(r, v, w, prior)
 
@@ -200,6 +195,24 @@ def nuisances(w: Windows, p: Params, a=None, T=None, v=None, *, iterations: int 
         if np.max(np.abs(f * step[:, 1])) < 1e-7:
             break
     return a, T, v
+
+
+def _speed_prior(w: Windows) -> np.ndarray:
+    """The weight of each move's speed prior (sd :data:`V_PRIOR_FRACTION` of the windows' speed, in units of the
+    stream's noise)."""
+    return (max(w.noise_mm, 1e-6) / (V_PRIOR_FRACTION * w.v_mm_s)) ** 2
+
+
+def _solve_per_move(H: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``H^-1 B`` of each move's 3 x 3 normal equations (``H`` (M, 3, 3), ``B`` (M, 3, k)), scaled to a unit
+    diagonal; 0 for a move whose scaled ``H`` is singular (condition number 1e10 or more)."""
+    scale = np.sqrt(np.maximum(np.einsum("mii->mi", H), 1e-300))
+    Hs = H / scale[:, :, None] / scale[:, None, :]
+    good = np.linalg.cond(Hs) < 1e10
+    out = np.zeros(B.shape)
+    if good.any():
+        out[good] = np.linalg.solve(Hs[good], B[good] / scale[good][:, :, None]) / scale[good][:, :, None]
+    return out
 
 
 def _timing_columns(w: Windows) -> Windows:
@@ -248,7 +261,7 @@ def _objective(w: Windows, p: Params):
     lo, hi = p.bounds(w.rate_hz)
     X = np.nan_to_num(w.x_mm)
     mt = timing.astype(float)
-    prior = (max(w.noise_mm, 1e-6) / (V_PRIOR_FRACTION * w.v_mm_s)) ** 2
+    prior = _speed_prior(w)
     memo: dict = {}
 
     def state(x):
@@ -281,12 +294,7 @@ def _objective(w: Windows, p: Params):
         H = np.einsum("mli,mlj->mij", Jn, Jn)
         H[:, 2, 2] += prior
         B = np.einsum("mli,mlk->mik", Jn, np.nan_to_num(dP) * mt[:, :, None])
-        scale = np.sqrt(np.maximum(np.einsum("mii->mi", H), 1e-300))
-        Hs = H / scale[:, :, None] / scale[:, None, :]
-        good = np.linalg.cond(Hs) < 1e10
-        dn = np.zeros((a.size, 3, x.size))
-        if good.any():
-            dn[good] = -np.linalg.solve(Hs[good], B[good] / scale[good][:, :, None]) / scale[good][:, :, None]
+        dn = -_solve_per_move(H, B)
         total = dP + np.einsum("mli,mik->mlk", Jall, dn)
         return -total[app]
 
