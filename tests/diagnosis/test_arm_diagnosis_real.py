@@ -131,18 +131,27 @@ def test_trained_on_70_percent_names_geometry_and_predicts_the_rest_as_a_plain_f
 
 @pytest.mark.parametrize("n", [30, 50])
 def test_rokae_class_written_model_predicts_unseen_poses_below_0_15_mm(test_seed, n):
-    """Issue 43: the ROKAE sets' written model predicts the 30 % of a random split it never saw below 0.15 mm
-    (0.05 mm noise per coordinate: the noise alone leaves about 0.08 mm; 30 draws of each size: at most 0.119 mm
-    and 1.57x what the true geometry leaves on the same poses)."""
+    """Issue 43: the ROKAE class's written model predicts the 30 % of a random split it never saw below 0.15 mm,
+    as the issue measured it: the mean over three splits (here three sets of the class, one random split each),
+    with 0.05 mm noise per coordinate (the noise alone leaves about 0.08 mm on the unseen poses).
+
+    One split alone is no class figure: a plain full DH + Hayati fit of 21 poses leaves 0.16 mm on the unseen 9
+    of some draws (test seed 797920951: the written model 0.168 mm, the plain fit 0.161, the noise alone 0.086;
+    harness seed 75: 0.153 and 0.159), 2 of 200 single draws at 30 poses over 0.15 mm, 0 of 200 at 50. Over
+    three sets (harness seeds 0-299 at 30 poses, 0-199 at 50): the mean at most 0.131 and 0.105 mm, at most
+    1.75x and 1.28x what the true geometry leaves on the same poses."""
     seed = test_seed
     rng = np.random.default_rng(seed)
-    d = rokae_like(rng, n=n, noise_mm=0.05, hidden=False)
-    sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
-    res = diagnose_arm(d.dh_nominal, d.q_rad[sp.train], d.xyz_mm[sp.train], t_s=d.t_s[sp.train])
-    assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
-    truth = float(np.linalg.norm(d.true_points(sp.test) - d.xyz_mm[sp.test], axis=1).mean())   # the noise alone
-    e = _extended_error(res, d, sp.test)
-    assert e < 0.15 and e < 2.0 * truth, (seed, e, truth)
+    errors, truths = [], []
+    for _ in range(3):
+        d = rokae_like(rng, n=n, noise_mm=0.05, hidden=False)
+        sp = split_poses(n, 0.3, kind="random", seed=int(rng.integers(2 ** 31)))
+        res = diagnose_arm(d.dh_nominal, d.q_rad[sp.train], d.xyz_mm[sp.train], t_s=d.t_s[sp.train])
+        assert res.selected[:1] == [("geometric", None)], (seed, res.geometry)
+        truths.append(float(np.linalg.norm(d.true_points(sp.test) - d.xyz_mm[sp.test], axis=1).mean()))
+        errors.append(_extended_error(res, d, sp.test))
+    e, truth = float(np.mean(errors)), float(np.mean(truths))
+    assert e < 0.15 and e < 2.0 * truth, (seed, errors, truths)
 
 
 def test_the_written_model_falls_back_to_the_calibration_when_its_effects_do_not_reach_unseen_poses(test_seed):
