@@ -273,14 +273,17 @@ class _ShiftedEdges:
         with np.errstate(invalid="ignore"):
             if z < 1.0:
                 wd = omega * np.sqrt(1.0 - z * z)
-                E, C, S = np.exp(-z * omega * tb), np.cos(wd * tb), np.sin(wd * tb)
+                E = np.exp(-z * omega * tb)
+                Zr, Zi = E * np.cos(wd * tb), E * np.sin(wd * tb)  # e^(p tb), p = -z w + i wd
                 k, q = z * omega / wd, omega * omega / wd
+                pole = complex(-z * omega, wd)
 
                 def decay(s):
-                    e = E * np.exp(-z * omega * s)
-                    cs, ss = np.cos(wd * s), np.sin(wd * s)
-                    sn = S * cs + C * ss
-                    return e * ((C * cs - S * ss) + k * sn), -q * e * sn
+                    # e^(p (tb + s)) = Z W with W = e^(p s) per move: the cosine and sine of the decaying
+                    # oscillation at tb + s are Re(Z W) and Im(Z W), two products of the whole arrays each
+                    W = np.exp(pole * np.asarray(s, dtype=float))
+                    wr, wi = W.real, W.imag
+                    return Zr * (wr + k * wi) + Zi * (k * wr - wi), -q * (Zr * wi + Zi * wr)
             else:
                 r = omega * np.sqrt(z * z - 1.0)
                 l1, l2 = -z * omega + r, -z * omega - r
@@ -303,16 +306,22 @@ class _ShiftedEdges:
         """:func:`mode_response` of the poles ``p`` and residues ``R`` of :func:`_mode_poles`."""
         tb = self.tb
         with np.errstate(invalid="ignore"):
-            base = [(np.exp(pi.real * tb), np.cos(pi.imag * tb), np.sin(pi.imag * tb)) for pi in p]
+            base = []  # e^(p tb) of each pole, as its real and imaginary parts
+            for pi in p:
+                E = np.exp(pi.real * tb)
+                base.append((E * np.cos(pi.imag * tb), E * np.sin(pi.imag * tb)))
 
             def value(x, s, integral):
-                total = 0.0
-                for pi, Ri, (E, C, S) in zip(p, R, base):
+                # Re(c e^(p (tb + s))) = Re(Z (c W)), W = e^(p s) per move: two products of the whole arrays
+                total, const = 0.0, 0.0
+                s = np.asarray(s, dtype=float)
+                for pi, Ri, (Zr, Zi) in zip(p, R, base):
                     c = Ri / pi ** 2 if integral else Ri / pi
-                    e = E * np.exp(pi.real * s)
-                    cs, ss = np.cos(pi.imag * s), np.sin(pi.imag * s)
-                    re = e * (c.real * (C * cs - S * ss) - c.imag * (S * cs + C * ss))
-                    total = total + ((re - c.real) if integral else re)
+                    cW = c * np.exp(pi * s)
+                    total = total + (Zr * cW.real - Zi * cW.imag)
+                    const += c.real
+                if integral:
+                    total = total - const
                 after = x >= 0.0
                 return np.where(after, -total, x if integral else 1.0)
 
