@@ -34,7 +34,10 @@ import numpy as np
 
 from station.errors import DataError, InsufficientDataError
 
-#: the deceleration phase: speed below this fraction of the move's peak
+#: the deceleration phase: speed below this fraction of the move's peak, from the last sample above it on (a loop
+#: that rings after the acceleration's end lifts the peak and dips below the fraction during the cruise: test seed
+#: 288640465, a loop of 8.7 Hz, damping 0.21, peak 246 mm/s at a cruise of 211, a dip to 197 took the whole cruise
+#: into the deceleration's parabola and put the command's end past the next move's start)
 DECEL_SPEED_FRACTION = 0.8
 #: chord beyond which the position along the travel is the chord, mm
 PROJECT_MM = 1.0
@@ -153,7 +156,8 @@ def cut_windows(t_s, xyz_mm, poses_mm, names, valid=None) -> Windows:
         d = np.linalg.norm(xyz[seg] - c, axis=1)
         sp = np.abs(np.gradient(d, t[seg]))
         ipk = int(np.argmax(sp))
-        sel = np.flatnonzero((np.arange(seg.size) > ipk) & (sp <= DECEL_SPEED_FRACTION * sp[ipk]) & (d > PROJECT_MM))
+        last_fast = int(np.flatnonzero(sp > DECEL_SPEED_FRACTION * sp[ipk])[-1])  # ipk or after it
+        sel = np.flatnonzero((np.arange(seg.size) > last_fast) & (d > PROJECT_MM))
         if sel.size < MIN_DECEL_SAMPLES:
             skipped.append((k, "no deceleration phase to fit (too few samples beyond 1 mm from the rest)"))
             continue
