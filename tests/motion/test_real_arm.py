@@ -2,9 +2,11 @@
 closed forms): the creep predicts the held-out moves at 0.7x the simulation's error or better, and a dry run with
 its model (``simulate iso9283 --program ... --motion-model M``) gives MPT within 20 % of the recording's (PST:
 not reliably, see the test).
-(That the creep is also *named* is not asserted per draw: on the lab's two held-out moves the held-out test
-passes on 7 of 8 draws at 100 % speed (bench/bench_real_arm_naming.py); where one of the two moves disagrees
-(the reading's wander of 3 um over the late dwell) it cannot.)
+A cause is named on every draw, and the named model predicts the held-out moves at 0.7x the simulation's error
+or better: on the lab's six moves a speed the held-out test is cross-fitted (every fold of moves held out once,
+station/analysis/motion/diagnose.py ``_CrossFit``); with the two held-out moves alone it passed on 7 of 8 draws
+at 100 % speed. bench/bench_real_arm_naming.py and the harness of the closing note: draws 200-211, a cause named
+on all 24 (the creep first on all 12 at 100 %).
 
 "Measured" and "dry run" figures come from one analysis: the diagnosis's windows and approach figures
 (:mod:`station.analysis.motion.windows`, :mod:`station.analysis.motion.figures`: PST and MPT into a 0.02 mm band,
@@ -57,12 +59,15 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
     res = diagnose_motion(ra.t_s, ra.xyz_mm, ra.poses_mm, ["P1", "P2"])
     # the creep, tested first against the refitted baseline, predicts the held-out moves at 0.7x the
     # simulation's error or better, and passes the training moves' F test
-    # (it is NAMED only when the held-out signed-rank test also passes: on 7 of 8 draws; not asserted here)
     creep = next(ct for ct in res.rounds[0] if ct.effect == "creep")
     assert creep.significant, (ra.truth, creep.to_json())
     assert creep.heldout_rms_after <= HELDOUT_RATIO * res.simulation_heldout_rms, (
         creep.heldout_rms_after, res.simulation_heldout_rms)
-    assert set(res.named) <= {"creep", "structural_mode", "tracker_drift"}
+    # a cause is named, and the named model predicts the held-out moves at 0.7x the simulation's error or better
+    assert res.named and set(res.named) <= {"creep", "structural_mode", "tracker_drift"}, (
+        ra.truth, [ct.to_json() for ct in res.rounds[0]])
+    assert res.final_heldout_rms <= HELDOUT_RATIO * res.simulation_heldout_rms, (
+        res.final_heldout_rms, res.simulation_heldout_rms)
     # the dry run: the lab's program replayed on the simulated UR5e with the model the training moves support
     # (the named effects and those significant on training alone: the creep alone left the ring to the loop,
     # which then overshot into the band)
