@@ -135,7 +135,10 @@ def _print(doc: dict) -> None:
         par = ", ".join(f"{n} {v:.4g}" for n, v in s["params"].items())
         print(f"{k:>2}. {s['effect']} ({par}): held-out {s['heldout_rms_before'] * 1000:.2f} -> "
               f"{s['heldout_rms_after'] * 1000:.2f} um ({100 * s['gain']:.1f} %), F {s['statistic']:.1f} > "
-              f"{s['threshold']:.1f}, held-out z {s['heldout_t']:.1f} > {s['heldout_threshold']:.1f} (signed ranks)")
+              f"{s['threshold']:.1f}, held-out z {s['heldout_t']:.1f} > {s['heldout_threshold']:.1f} (signed ranks"
+              + (f" over {s['details']['heldout_blocks']} blocks" if s["details"].get("heldout_blocks") else "")
+              + (", cross-fitted: every fold of moves held out once" if s["details"].get("heldout_cross_fitted")
+                 else "") + ")")
     if not doc["steps"]:
         print("nothing named: no candidate passed both tests against the baseline")
     for r in doc["remaining_structure"]:  # the last round's candidates that a test or a rule left out

@@ -68,6 +68,11 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
         ra.truth, [ct.to_json() for ct in res.rounds[0]])
     assert res.final_heldout_rms <= HELDOUT_RATIO * res.simulation_heldout_rms, (
         res.final_heldout_rms, res.simulation_heldout_rms)
+    # ... judged cross-fitted: the held-out moves and the other folds' cover every move once, per pair a fold
+    folds = [[m - 1 for m in f["heldout_moves"]] for f in res.cross_fit["folds"]]
+    every = sorted(int(res.windows.move_index[i]) for i in res.heldout) + [m for f in folds for m in f]
+    assert sorted(every) == sorted(int(k) for k in res.windows.move_index), res.cross_fit
+    assert all(len(f) == 2 for f in folds) and creep.cross_fitted
     # the dry run: the lab's program replayed on the simulated UR5e with the model the training moves support
     # (the named effects and those significant on training alone: the creep alone left the ring to the loop,
     # which then overshot into the band)

@@ -484,7 +484,8 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
         r_new, _ = F.approach_residual(ho, best.params)
         full_new = _rms(F.approach_residual(ho_full, best.params)[0])
         steps.append(MotionStep(best.effect, best.params.named(best.effect), full_rms, full_new,
-                                best.statistic, best.threshold, best.heldout_t, best.heldout_threshold))
+                                best.statistic, best.threshold, best.heldout_t, best.heldout_threshold,
+                                {"heldout_blocks": best.heldout_blocks, "heldout_cross_fitted": best.cross_fitted}))
         cur, r_cur, full_rms = best.params, r_new, full_new
         remaining = [e for e in remaining if e != best.effect]
         if not remaining:
