@@ -20,7 +20,8 @@
    :data:`CROSS_FIT_BELOW` held-out moves, cross-fitted: every fold of the
    moves held out in turn, :class:`_CrossFit`),
    and the reduction at least ``(RELEVANCE * noise)^2``; a mode on the loop's own pole or a creep no slower
-   than the loop settles is the loop's response reshaped, never named (:func:`_same_pole`). Of those, the one
+   than the loop settles and no larger than its lag is the loop's response reshaped, never named
+   (:func:`_same_pole`). Of those, the one
    with the lowest held-out RMS is named and the model refitted; again until
    none is left.
 4. Time figures per held-out pose (:mod:`.figures`): POS, time to band, PST,
@@ -545,9 +546,10 @@ class _CrossFit:
     def to_json(self, w: Windows) -> dict:
         return {"folds": [{"fold": k, "heldout_moves": [int(w.move_index[i]) + 1 for i in held]}
                           for k, held, _, _ in self.parts],
-                "rule": "per pair of poses, the 1st, 4th ... move (fold 0) and the 3rd, 6th ... (fold 2) held out "
-                        "in turn as the 2nd, 5th ... are: the current model and each candidate that could win "
-                        "refitted without the fold predict it; the held-out test pools the blocks of every fold",
+                "rule": "per pair of poses, the 1st, 4th ... move (fold 0) and the 3rd, 6th ... (fold 2; where "
+                        "every pair occurs once, the moves' order modulo 3) held out in turn as the 2nd, 5th ... "
+                        "are: the current model and each candidate that could win refitted without the fold "
+                        "predict it; the held-out test pools the blocks of every fold",
                 "used_below_heldout_moves": CROSS_FIT_BELOW}
 
 
