@@ -79,6 +79,8 @@ def iso_at_rt(cross):
     """The standard's AT, RT of crossings (n, m, 3) against commanded points at the origin of each plane's offsets."""
     bary = cross.mean(axis=0)
     at = np.linalg.norm(bary, axis=1).max()
+    if cross.shape[0] < 2:  # one cycle: no spread to state (RT undefined)
+        return float(at), float("nan")
     l = np.linalg.norm(cross - bary, axis=2)
     return float(at), float((l.mean(axis=0) + 3 * l.std(axis=0, ddof=1)).max())
 
@@ -99,7 +101,8 @@ def _velocity_truth(cycles, L, v_c, window=(0.25, 0.75)):
         means.append(v[w].mean())
         ranges.append(np.ptp(v[w]))
     means = np.array(means)
-    return {"AV_percent": (means.mean() - v_c) / v_c * 100, "RV_percent": 3 * means.std(ddof=1) / v_c * 100,
+    rv = 3 * means.std(ddof=1) / v_c * 100 if means.size > 1 else float("nan")  # one cycle: no spread
+    return {"AV_percent": (means.mean() - v_c) / v_c * 100, "RV_percent": rv,
             "FV_percent": max(ranges) / v_c * 100}
 
 
