@@ -118,9 +118,9 @@ def test_a_creep_inside_the_loops_settling_is_the_loop(rng):
         assert "position loop" in _same_pole(inside, "creep")
         assert _same_pole(inside, "structural_mode") == ""  # judged only as the candidate tested
         # ... unless it is larger than the loop's whole lag behind the command (a / w^2): then it is a creep
-        lag_of = lambda a: a / (2.0 * math.pi * f) ** 2  # noqa: E731
-        assert "position loop" in _same_pole(inside, "creep", 0.02 / lag_of(1.0) * rng.uniform(1.01, 10))
-        assert _same_pole(inside, "creep", 0.02 / lag_of(1.0) * rng.uniform(0.1, 0.99)) == ""
+        decel_for = lambda lag_mm: lag_mm * (2.0 * math.pi * f) ** 2  # noqa: E731  (the loop's lag a / w^2)
+        assert "position loop" in _same_pole(inside, "creep", decel_for(0.02 * rng.uniform(1.01, 10)))
+        assert _same_pole(inside, "creep", decel_for(0.02 * rng.uniform(0.1, 0.99))) == ""
         after = F.Params({"servo": np.array([f, zz, 0.01]), "creep": np.array([0.02, t_loop * rng.uniform(1.01, 5)])})
         assert _same_pole(after, "creep") == ""
     # on its floor (the fit wanted it faster): no creep, whatever the loop

@@ -5,8 +5,8 @@ not reliably, see the test).
 A cause is named on every draw, and the named model predicts the held-out moves at 0.7x the simulation's error
 or better: on the lab's six moves a speed the held-out test is cross-fitted (every fold of moves held out once,
 station/analysis/motion/diagnose.py ``_CrossFit``); with the two held-out moves alone it passed on 7 of 8 draws
-at 100 % speed. bench/bench_real_arm_naming.py and the harness of the closing note: draws 200-211, a cause named
-on all 24 (the creep first on all 12 at 100 %).
+at 100 % speed. bench/bench_real_arm_naming.py: the creep first on 8 of 8 draws at each speed; the harness of the
+closing note, draws 200-211: a cause named on all 23 diagnosed (the creep first on all 12 at 100 %).
 
 "Measured" and "dry run" figures come from one analysis: the diagnosis's windows and approach figures
 (:mod:`station.analysis.motion.windows`, :mod:`station.analysis.motion.figures`: PST and MPT into a 0.02 mm band,
