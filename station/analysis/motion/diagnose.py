@@ -67,6 +67,11 @@ STARTS = 2
 #: 5.6 Hz, damping 0.49, held-out z 0.90, nothing named; the fourth start reached a held-out RMS of 1.06 um at a
 #: noise of 1.01 um (z 5.6)
 STARTS_OF = {"structural_mode": 4}
+#: ... but a refit's later starts are skipped once one has left no more than the noise on the training moves:
+#: a mean square within (1 + RELEVANCE^2) of the noise's (:func:`_at_noise`). Another start could lower it by no
+#: more than the margin a named effect must gain on held-out moves (RELEVANCE), so it could not change what is
+#: named. The hour's bench: the mode's three later starts after the creep, none of which converged (about 6 s
+#: each, at 58 to 64 times the first's RSS), skipped
 #: a winner's refit that lowers the current model's RSS by more than this share of the winner's gain shows
 #: the current fit stopped short (:func:`_polished_null`); at most MAX_POLISH such refits a diagnosis
 POLISH_SHARE = 0.1
@@ -562,6 +567,15 @@ JERK_LIFT_S = 0.02
 BASELINE_STARTS = 4
 
 
+def _at_noise(tr: Windows, rss: float, p: F.Params) -> bool:
+    """Whether a fit's training RSS ``rss`` is the noise's alone: its mean square over the approach samples'
+    degrees of freedom no more than ``(1 + RELEVANCE^2)`` times the stream's white noise squared (the noise is
+    estimated from the whole stream's second differences, so a tracker's wander or an effect not in ``p`` keeps
+    the mean square above it and every start is fitted)."""
+    dof = int(np.count_nonzero(F.parts(tr)[1])) - p.vector().size
+    return dof > 0 and rss <= dof * (1.0 + RELEVANCE ** 2) * tr.noise_mm ** 2
+
+
 def _baseline(tr: Windows, fits: list) -> F.Params:
     """The baseline (the loop and the profile's jerk time) refitted on the training moves from the
     :data:`BASELINE_STARTS` best starts of the grid (a start with the jerk time on its bound 0 also from
@@ -580,16 +594,24 @@ def _baseline(tr: Windows, fits: list) -> F.Params:
     and 15.9 Hz on the other; the best of four ended within 2 % on both in the draws measured.
     """
     best, best_rss, n = None, math.inf, 0
-    for start in F.best_starts(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})),
-                               n=BASELINE_STARTS):
+    starts = F.best_starts(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})), n=BASELINE_STARTS)
+    for start in starts:
         f, z, tj = start.values["servo"]
         for s in [start] + ([start.with_("servo", (f, z, JERK_LIFT_S))] if tj <= 0.0 else []):
             q, ok, msg = F.fit(tr, s)
             r, n = F.rss(tr, q), n + 1
             if r < best_rss:
                 best, best_rss, status = q, r, (ok, msg)
-    fits.append({"fit": f"baseline (the best of {n} starts)", "converged": status[0], "message": status[1]})
+        if _at_noise(tr, best_rss, best):
+            break
+    fits.append({"fit": f"baseline (the best of {n} starts{_noise_note(tr, best_rss, best, n, len(starts))})",
+                 "converged": status[0], "message": status[1]})
     return best
+
+
+def _noise_note(tr: Windows, rss: float, p: F.Params, n: int, of: int) -> str:
+    """``fits``' word on starts skipped because a fit had reached the noise (:func:`_at_noise`)."""
+    return f"; the rest of {of} skipped: it left the noise alone" if n < of and _at_noise(tr, rss, p) else ""
 
 
 def _training_supported(last: list, remaining: list, steps: list, max_steps: int, refit, tr: Windows,
@@ -631,6 +653,8 @@ def _trained(e: str, tr: Windows, cur: F.Params, rss0: float, refit, label: str,
         s1 = F.rss(tr, qq)
         if s1 < best_rss:
             q, best_rss = qq, s1
+        if _at_noise(tr, best_rss, q):  # later starts could not gain what the held-out test would count
+            break
     k, p_all = len(F.EFFECT_PARAMS[e]), q.vector().size
     ct.statistic = ((rss0 - best_rss) / k) / max(best_rss / max(n_app - p_all, 1), 1e-300)
     ct.threshold = float(stats.f.isf(level, k, max(n_app - p_all, 1)))
