@@ -10,9 +10,12 @@ noise per axis.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from station.analysis.motion import fit as F
 from station.analysis.motion.diagnose import diagnose_motion
 
 from .motion_stream import draw, make_stream
@@ -129,3 +132,26 @@ def test_a_creep_inside_the_loops_settling_is_the_loop(rng):
     assert loop_time_constant_s(fast[0], fast[1]) < 0.5 * floor
     assert "floor" in _same_pole(F.Params({"servo": fast, "creep": np.array([0.02, floor])}), "creep")
     assert _same_pole(F.Params({"servo": fast, "creep": np.array([0.02, 1.5 * floor])}), "creep") == ""
+
+
+@pytest.mark.timeout(600)
+def test_later_starts_are_skipped_only_at_the_noise(rng):
+    """A refit stops at the first start that leaves the noise alone (diagnose.py ``_at_noise``): the baseline of
+    a clean stream does, the baseline of the same stream with a creep or a mode in it does not (their structure
+    is far above the relevance margin), and neither does a model with the white noise's estimate halved."""
+    from station.analysis.motion import diagnose as D
+    from station.analysis.motion.windows import cut_windows, decimated
+
+    d = draw(rng)
+    for effects, at_noise in (((), True), (("creep",), False), (("structural_mode",), False)):
+        s = make_stream(dict(d, effects=effects))
+        w = cut_windows(s.t_s, s.xyz_mm, s.poses_mm, s.names)
+        train, _ = D.split(w)
+        tr = decimated(w.select(D._spread(train, D.MAX_FIT_MOVES)), D.FIT_RATE_HZ)
+        fits: list = []
+        base = D._baseline(tr, fits)
+        rss = F.rss(tr, base)
+        assert D._at_noise(tr, rss, base) is at_noise, (effects, rss, tr.noise_mm, fits)
+        assert ("skipped" in fits[0]["fit"]) is at_noise, fits
+        if at_noise:  # the same fit against a noise estimate half the stream's: structure left, starts go on
+            assert not D._at_noise(dataclasses.replace(tr, noise_mm=tr.noise_mm / 2.0), rss, base)
