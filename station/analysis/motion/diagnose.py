@@ -598,25 +598,20 @@ def _baseline(tr: Windows, fits: list) -> F.Params:
     12-28 Hz, damping at its floor, within 0.5 % of RSS): one start from the grid ended at 13.2 Hz on one path
     and 15.9 Hz on the other; the best of four ended within 2 % on both in the draws measured.
     """
-    best, best_rss, n = None, math.inf, 0
+    best, best_rss, n, skipped = None, math.inf, 0, ""
     starts = F.best_starts(tr, F.Params({}), "servo", F.start_grid("servo", tr, F.Params({})), n=BASELINE_STARTS)
-    for start in starts:
+    for i, start in enumerate(starts):
         f, z, tj = start.values["servo"]
         for s in [start] + ([start.with_("servo", (f, z, JERK_LIFT_S))] if tj <= 0.0 else []):
             q, ok, msg = F.fit(tr, s)
             r, n = F.rss(tr, q), n + 1
             if r < best_rss:
                 best, best_rss, status = q, r, (ok, msg)
-        if _at_noise(tr, best_rss, best):
+        if i + 1 < len(starts) and _at_noise(tr, best_rss, best):
+            skipped = f"; the other {len(starts) - i - 1} of the grid's best skipped: it left the noise alone"
             break
-    fits.append({"fit": f"baseline (the best of {n} starts{_noise_note(tr, best_rss, best, n, len(starts))})",
-                 "converged": status[0], "message": status[1]})
+    fits.append({"fit": f"baseline (the best of {n} starts{skipped})", "converged": status[0], "message": status[1]})
     return best
-
-
-def _noise_note(tr: Windows, rss: float, p: F.Params, n: int, of: int) -> str:
-    """``fits``' word on starts skipped because a fit had reached the noise (:func:`_at_noise`)."""
-    return f"; the rest of {of} skipped: it left the noise alone" if n < of and _at_noise(tr, rss, p) else ""
 
 
 def _training_supported(last: list, remaining: list, steps: list, max_steps: int, refit, tr: Windows,
