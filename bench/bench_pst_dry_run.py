@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from app.cli import main as station  # noqa: E402
 from station.analysis.motion.figures import approach_figures  # noqa: E402
 from station.analysis.motion.windows import cut_windows  # noqa: E402
-from tests.motion.real_arm import draw, make, write_export, write_poses, write_program  # noqa: E402
+from tests.motion.real_arm import draw, make, read_dry_run, write_export, write_poses, write_program  # noqa: E402
 
 NAMES = ["P1", "P2"]
 
@@ -52,13 +52,6 @@ def pst_ms(t, xyz, poses, names) -> dict:
             per.setdefault(w.to_pose[i], []).append(f["PST_s"])
     return {p: (1e3 * float(np.mean(v)), 1e3 * float(np.std(v, ddof=1) / np.sqrt(len(v))) if len(v) > 1 else float("nan"))
             for p, v in sorted(per.items())}
-
-
-def _read_sim(out: Path):
-    a = np.loadtxt(out / "stream.csv", delimiter=",", skiprows=1)
-    rows = [ln.split(",") for ln in (out / "poses.csv").read_text().splitlines()[1:]]
-    ok = a[:, 4] == 0
-    return a[ok, 0], a[ok, 1:4], np.array([[float(v) for v in r[1:4]] for r in rows]), [r[0] for r in rows]
 
 
 def show(label: str, d: dict) -> str:
@@ -89,7 +82,7 @@ def main() -> None:
         print(f"seed {seed} at {100 * a.speed:g} %: the model {json.dumps(json.loads(model.read_text())['effects'])}")
         print("  PST, ms:", show("recording (3 cycles)", pst_ms(ra.t_s, ra.xyz_mm, ra.poses_mm, NAMES)), "|",
               show(f"the arm ({a.cycles} cycles)", pst_ms(arm.t_s, arm.xyz_mm, arm.poses_mm, NAMES)), "|",
-              show("dry run", pst_ms(*_read_sim(tmp / "dry"))), flush=True)
+              show("dry run", pst_ms(*read_dry_run(tmp / "dry"))), flush=True)
         for label, key, k in (("creep's time constant x1.03", "creep_tau_s", 1.03), ("ring x1.1", "ring_mm", 1.1)):
             v = make(dict(dl, **{key: d[key] * k}))
             print("  the arm with its", show(label, pst_ms(v.t_s, v.xyz_mm, v.poses_mm, NAMES)), flush=True)

@@ -190,3 +190,12 @@ def write_program(path, ra: RealArm, *, rate_hz: float | None = None):
             + f"[poses.P1]\njoints_deg = {j(ra.q_deg[0])}\n[poses.P2]\njoints_deg = {j(ra.q_deg[1])}\n")
     path.write_text(text)
     return path
+
+
+def read_dry_run(out):
+    """A ``simulate iso9283 --out OUT`` run as the diagnosis reads a stream: the valid samples' times and
+    positions, the commanded poses and their names."""
+    a = np.loadtxt(out / "stream.csv", delimiter=",", skiprows=1)
+    rows = [ln.split(",") for ln in (out / "poses.csv").read_text().splitlines()[1:]]
+    ok = a[:, 4] == 0
+    return a[ok, 0], a[ok, 1:4], np.array([[float(v) for v in r[1:4]] for r in rows]), [r[0] for r in rows]

@@ -140,14 +140,14 @@ def test_later_starts_are_skipped_only_at_the_noise(rng):
     a clean stream does, the baseline of the same stream with a creep or a mode in it does not (their structure
     is far above the relevance margin), and neither does a model with the white noise's estimate halved."""
     from station.analysis.motion import diagnose as D
-    from station.analysis.motion.windows import cut_windows, decimated
+    from station.analysis.motion.windows import cut_windows
 
     d = draw(rng)
     for effects, at_noise in (((), True), (("creep",), False), (("structural_mode",), False)):
         s = make_stream(dict(d, effects=effects))
         w = cut_windows(s.t_s, s.xyz_mm, s.poses_mm, s.names)
         train, _ = D.split(w)
-        tr = decimated(w.select(D._spread(train, D.MAX_FIT_MOVES)), D.FIT_RATE_HZ)
+        tr = D.training_windows(w, train)
         fits: list = []
         base = D._baseline(tr, fits)
         rss = F.rss(tr, base)

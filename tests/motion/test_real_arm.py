@@ -25,7 +25,7 @@ from app.cli import main
 from station.analysis.motion.figures import approach_figures, mean_figures
 from station.analysis.motion.windows import cut_windows
 
-from .real_arm import draw, make, write_export, write_poses, write_program
+from .real_arm import draw, make, read_dry_run, write_export, write_poses, write_program
 
 #: the issue's acceptance: held-out error of the extended model against the simulation's (baseline's)
 HELDOUT_RATIO = 0.7
@@ -41,13 +41,6 @@ def figures(t, xyz, poses, names) -> dict:
         m = np.isfinite(w.x_mm[i])
         per.setdefault(w.to_pose[i], []).append(approach_figures(w.t_s[i][m], w.x_mm[i][m], w.t_leave_s[i]))
     return {k: mean_figures(v) for k, v in per.items()}
-
-
-def _read_sim(out):
-    a = np.loadtxt(out / "stream.csv", delimiter=",", skiprows=1)
-    rows = [ln.split(",") for ln in (out / "poses.csv").read_text().splitlines()[1:]]
-    ok = a[:, 4] == 0
-    return a[ok, 0], a[ok, 1:4], np.array([[float(v) for v in r[1:4]] for r in rows]), [r[0] for r in rows]
 
 
 @pytest.mark.timeout(1500)  # a diagnosis and a simulation: slow on a shared machine
@@ -96,7 +89,7 @@ def test_real_arm_lookalike(tmp_path, rng, test_seed, speed, capsys):
     assert main(["simulate", "iso9283", "--out", str(tmp_path / "sim"), "--program", str(prog_rate),
                  "--motion-model", str(model), "--seed", str(test_seed)]) == 0
     meas = figures(ra.t_s, ra.xyz_mm, ra.poses_mm, ["P1", "P2"])
-    dry = figures(*_read_sim(tmp_path / "sim"))
+    dry = figures(*read_dry_run(tmp_path / "sim"))
     for pose in ("P1", "P2"):
         m, s = meas[pose], dry[pose]
         assert m["MPT_s"] is not None and s["MPT_s"] is not None, (meas, dry)

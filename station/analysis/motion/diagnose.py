@@ -265,6 +265,12 @@ def _spread(idx: np.ndarray, k: int) -> np.ndarray:
     return idx[np.unique(np.round(np.linspace(0, idx.size - 1, k)).astype(int))]
 
 
+def training_windows(w: Windows, train: np.ndarray) -> Windows:
+    """The windows a fit uses of the moves ``train``: at most :data:`MAX_FIT_MOVES` of them, evenly spread,
+    decimated to :data:`FIT_RATE_HZ` or below."""
+    return decimated(w.select(_spread(train, MAX_FIT_MOVES)), FIT_RATE_HZ)
+
+
 def _rms(r) -> float:
     v = r[np.isfinite(r)]
     return float(np.sqrt(np.mean(v * v))) if v.size else math.nan
@@ -433,7 +439,7 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
         raise DataError(f"`alpha` must be in (0, 0.5), got {alpha!r}")
     w = cut_windows(t_s, xyz_mm, poses_mm, names, valid)
     train, held = split(w)
-    tr = decimated(w.select(_spread(train, MAX_FIT_MOVES)), FIT_RATE_HZ)
+    tr = training_windows(w, train)
     ho_full = w.select(held)
     ho = decimated(ho_full, HELDOUT_RATE_HZ)
     noise = w.noise_mm
@@ -536,7 +542,7 @@ class _CrossFit:
             held, train = np.flatnonzero(fold == k), np.flatnonzero(fold != k)
             if k == 1 or held.size < MIN_HELDOUT or train.size < MIN_TRAIN:
                 continue
-            tr = decimated(w.select(_spread(train, MAX_FIT_MOVES)), FIT_RATE_HZ)
+            tr = training_windows(w, train)
             self.parts.append((k, held, tr, decimated(w.select(held), HELDOUT_RATE_HZ)))
 
     def pairs(self, cur: F.Params, ct: MotionTest) -> list:
