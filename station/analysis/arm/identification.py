@@ -321,7 +321,9 @@ def _absolute_normal(dh, x_base, q, meas, *, r_cols=None):
             filled += 3 * k
     Rc = None
     if r_cols is not None:
-        Rc = np.linalg.qr(W[:filled], mode="r") if filled > len(r_cols) else W[:filled].copy()
+        # the last block's rows always follow the last QR, so one more is due whatever the row count: with
+        # fewer rows than columns (a few poses, many open columns) the rows as stacked are not triangular
+        Rc = np.linalg.qr(W[:filled], mode="r")
     return r.reshape(-1), Normal(JtJ, Jtr), Rc
 
 
