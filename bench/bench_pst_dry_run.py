@@ -54,6 +54,19 @@ def pst_ms(t, xyz, poses, names) -> dict:
             for p, v in sorted(per.items())}
 
 
+def rp_um(t, xyz, poses, names) -> dict:
+    """Per pose: ISO 9283's RP (mean distance of the attained positions from their barycentre plus three of its
+    standard deviations) over its rests (the late dwells' means), um."""
+    w = cut_windows(t, xyz, poses, names)
+    to = np.asarray(w.to_pose, dtype=object)
+    out = {}
+    for p in sorted(set(w.to_pose)):
+        e = w.p_end_mm[to == p]
+        ll = np.linalg.norm(e - e.mean(axis=0), axis=1)
+        out[p] = 1e3 * float(ll.mean() + 3.0 * ll.std(ddof=1))
+    return out
+
+
 def show(label: str, d: dict) -> str:
     return f"{label} " + ", ".join(f"{p} {m:.1f} +- {se:.1f}" for p, (m, se) in d.items())
 
@@ -83,6 +96,10 @@ def main() -> None:
         print("  PST, ms:", show("recording (3 cycles)", pst_ms(ra.t_s, ra.xyz_mm, ra.poses_mm, NAMES)), "|",
               show(f"the arm ({a.cycles} cycles)", pst_ms(arm.t_s, arm.xyz_mm, arm.poses_mm, NAMES)), "|",
               show("dry run", pst_ms(*read_dry_run(tmp / "dry"))), flush=True)
+        print("  RP, um:", ", ".join(f"{lab} " + " ".join(f"{p} {v:.1f}" for p, v in rp.items()) for lab, rp in (
+            ("recording", rp_um(ra.t_s, ra.xyz_mm, ra.poses_mm, NAMES)),
+            ("the arm", rp_um(arm.t_s, arm.xyz_mm, arm.poses_mm, NAMES)),
+            ("dry run", rp_um(*read_dry_run(tmp / "dry"))))), flush=True)
         for label, key, k in (("creep's time constant x1.03", "creep_tau_s", 1.03), ("ring x1.1", "ring_mm", 1.1)):
             v = make(dict(dl, **{key: d[key] * k}))
             print("  the arm with its", show(label, pst_ms(v.t_s, v.xyz_mm, v.poses_mm, NAMES)), flush=True)

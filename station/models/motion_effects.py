@@ -7,7 +7,7 @@ A model file is JSON::
      "deceleration_mm_s2": A,
      "effects": {"creep": {"amplitude_mm": .., "tau_s": ..},
                  "structural_mode": {"frequency_hz": .., "damping": .., "gain_s2": ..},
-                 "tracker_drift": {"shrinkage": .., "rate_sd_mm_per_s": ..}},
+                 "tracker_drift": {"shrinkage": .., "rate_sd_mm_per_s": .., "level_sd_mm": ..}},
      ...}
 
 Every number is range-checked like an arm's model file
@@ -46,10 +46,12 @@ LIMITS = {
     ("structural_mode", "gain_s2"): (-0.1, 0.1, "s^2"),
     ("tracker_drift", "shrinkage"): (0.0, 10.0, ""),
     ("tracker_drift", "rate_sd_mm_per_s"): (0.0, 10.0, "mm/s"),
+    ("tracker_drift", "level_sd_mm"): (0.0, 1.0, "mm"),
 }
 EFFECT_KEYS = {"creep": ("amplitude_mm", "tau_s"), "structural_mode": ("frequency_hz", "damping", "gain_s2"),
-               "tracker_drift": ("shrinkage", "rate_sd_mm_per_s")}
-#: periods of the simulated reading's wander, s
+               "tracker_drift": ("shrinkage", "rate_sd_mm_per_s", "level_sd_mm")}
+#: periods of the simulated reading's drift, s: their spread always, their scale only for a model without
+#: ``level_sd_mm`` (written before it was measured), where the rate alone sizes the drift
 DRIFT_PERIODS_S = (10.0, 40.0)
 
 
@@ -118,8 +120,7 @@ def approach_offsets_mm(t_s, moves, model: MotionModel, seed: int = 0) -> np.nda
     ``moves``: dicts with ``t_start_s``, ``t_end_s`` (the command's start and end), ``from_mm`` and
     ``to_mm`` (3,) in the frame of the offsets. Along each move's travel: the creep (short while it moves,
     creeping in after the end) and the structural mode (driven by the loop's acceleration of a trapezoid at
-    the model's deceleration). The tracker's drift: a wander of three sinusoids per axis, periods
-    :data:`DRIFT_PERIODS_S`, seeded by ``seed``, its rate's standard deviation the model's.
+    the model's deceleration). The tracker's drift: :func:`_drift_mm`.
     """
     t = np.asarray(t_s, dtype=float)
     out = np.zeros((t.size, 3))
@@ -143,13 +144,36 @@ def approach_offsets_mm(t_s, moves, model: MotionModel, seed: int = 0) -> np.nda
             along += sm["gain_s2"] * a * ar.mode_response(tau, a, v, D, model.jerk_time_s, loop,
                                                           (2.0 * math.pi * sm["frequency_hz"], sm["damping"]))
         out += along[:, None] * u
-    if "tracker_drift" in eff and eff["tracker_drift"].get("rate_sd_mm_per_s", 0.0) > 0.0:
-        rng = np.random.default_rng(seed)
-        per = rng.uniform(*DRIFT_PERIODS_S, (3, 3))
-        ph = rng.uniform(0.0, 2.0 * math.pi, (3, 3))
-        w = 2.0 * math.pi / per
-        # three sinusoids of amplitude A: rate variance 3 (A w)^2 / 2 per axis
-        amp = eff["tracker_drift"]["rate_sd_mm_per_s"] * math.sqrt(2.0 / 3.0) / w
-        for j in range(3):
-            out[:, j] += np.sum(amp[j][:, None] * np.sin(w[j][:, None] * t[None, :] + ph[j][:, None]), axis=0)
+    if "tracker_drift" in eff:
+        out += _drift_mm(t, eff["tracker_drift"], seed)
+    return out
+
+
+def _drift_mm(t: np.ndarray, drift: dict, seed: int) -> np.ndarray:
+    """The reading's drift (N, 3) mm: three sinusoids per axis, phases and relative periods seeded by ``seed``.
+
+    Its size per axis is the model's ``level_sd_mm`` (what consecutive rests of the measured stream shared:
+    :func:`station.analysis.motion.diagnose.drift_level_sd`) and its periods are scaled so that its rate's
+    standard deviation is the model's ``rate_sd_mm_per_s``: a drift of the measured size and time scale. The
+    simulated tracker's own wander is not in it (a wander that decorrelates between rests is not shared), so
+    it is counted once. A model without ``level_sd_mm`` (older files) keeps the periods
+    :data:`DRIFT_PERIODS_S` and the rate alone sizes the drift.
+    """
+    out = np.zeros((t.size, 3))
+    rate = float(drift.get("rate_sd_mm_per_s", 0.0))
+    level = drift.get("level_sd_mm")
+    if (rate <= 0.0 and level is None) or (level is not None and level <= 0.0):
+        return out
+    rng = np.random.default_rng(seed)
+    per = rng.uniform(*DRIFT_PERIODS_S, (3, 3))
+    ph = rng.uniform(0.0, 2.0 * math.pi, (3, 3))
+    w = 2.0 * math.pi / per
+    # three sinusoids of amplitude A per axis: position variance 3 A^2 / 2, rate variance A^2 sum(w^2) / 2
+    if level is None:
+        amp = np.broadcast_to(rate * math.sqrt(2.0 / 3.0) / w, w.shape)
+    else:
+        amp = np.full(w.shape, float(level) * math.sqrt(2.0 / 3.0))
+        w = w * (rate / float(level)) / np.sqrt(np.mean(w * w, axis=1, keepdims=True))
+    for j in range(3):
+        out[:, j] = np.sum(amp[j][:, None] * np.sin(w[j][:, None] * t[None, :] + ph[j][:, None]), axis=0)
     return out

@@ -11,6 +11,7 @@ noise per axis.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -76,6 +77,11 @@ def test_hidden_effect_is_named_first(rng, effect):
         # the drift is carried into the approach (1: all of the rest's measured drift); its estimate scatters
         # widely over draws (0.6-1.44 seen), so asked only to be well away from none and inside the fit's range
         assert 0.5 < p["shrinkage"] < 1.5
+        # the model's drift for a dry run has the drift's size (tests/motion/test_drift_level.py): per axis, three
+        # sinusoids of amplitude drift_mm have the spread drift_mm sqrt(3/2) (over 30-90 s periods the stream's
+        # rests see 0.9-1.3x of it)
+        level = res.motion_model()["effects"]["tracker_drift"]["level_sd_mm"]
+        assert 0.5 < level / (s.truth.drift_mm * math.sqrt(1.5)) < 2.0, (level, s.truth.drift_mm)
     # the time figures of the extended model are the measured ones' (the baseline's need not be)
     for pose in res.poses:
         m, e = pose["measured"], pose["extended"]

@@ -171,6 +171,8 @@ class MotionDiagnosis:
     poses: list
     curves: list
     drift_rate_sd_mm_s: float
+    #: the rests' scatter consecutive rests share (:func:`drift_level_sd`), per axis, mm
+    drift_level_sd_mm: float
     fits: list
     time_refused: str = ""
     alpha: float = 0.01
@@ -198,6 +200,7 @@ class MotionDiagnosis:
         effects = {e: p.named(e) for e in p.active if e != "servo"}
         if "tracker_drift" in effects:
             effects["tracker_drift"]["rate_sd_mm_per_s"] = self.drift_rate_sd_mm_s
+            effects["tracker_drift"]["level_sd_mm"] = self.drift_level_sd_mm
         return {"kind": "station motion model", "version": 1,
                 "units": "mm, s, Hz; gain_s2 is mm of deflection per mm/s^2 of deceleration",
                 "servo": p.named("servo"),
@@ -507,12 +510,13 @@ def diagnose_motion(t_s, xyz_mm, poses_mm, names, *, valid=None, alpha: float = 
             break
     supported, extra = _training_supported(rounds[-1] if rounds else [], remaining, steps, max_steps, refit, tr,
                                            alpha, n_app, cur)
-    sd_drift = _drift_sd(w)
+    sd_drift, level_drift = _drift_sd(w), drift_level_sd(w)
     if "tracker_drift" in cur.active:
-        steps[[s.effect for s in steps].index("tracker_drift")].details["rate_sd_mm_per_s"] = sd_drift
+        steps[[s.effect for s in steps].index("tracker_drift")].details.update(
+            rate_sd_mm_per_s=sd_drift, level_sd_mm=level_drift)
     poses, curves = _figures(ho_full, base, cur, time_refused)
     return MotionDiagnosis(steps, rounds, not_testable, sim_rms, full_rms, noise, base, cur, w, train, held,
-                           poses, curves, sd_drift, fits, time_refused, alpha, time.perf_counter() - t0, hd,
+                           poses, curves, sd_drift, level_drift, fits, time_refused, alpha, time.perf_counter() - t0, hd,
                            supported, extra, xf.to_json(w) if xf is not None else None)
 
 
@@ -687,6 +691,32 @@ def _polished_null(wins: list, tr: Windows, refit, rss0: float) -> F.Params | No
         if rss0 - s > POLISH_SHARE * max(rss0 - F.rss(tr, ct.params), 0.0) and s < best_rss:
             best, best_rss = q, s
     return best
+
+
+def drift_level_sd(w: Windows) -> float:
+    """The part of the rests' scatter that consecutive rests share, per axis, mm: the reading's slow drift.
+
+    Each rest's attained position (``p_end_mm``) less its pose's mean over the stream; the mean over pairs of
+    consecutive moves' rests of the dot product of those deviations, over 3. A stop's scatter is its own, and a
+    wander much shorter than the time between two rests (the tracker's, ~1 s) decorrelates between them: neither
+    is shared, and both leave this near 0. A drift slower than the time between rests moves both alike (the
+    tracker's reading drifts at every pose): it is its variance. Negative sums (noise) give 0. This sets the
+    size of the dry run's drift (:func:`station.models.motion_effects.approach_offsets_mm`); the rests' drift
+    rates (:func:`_drift_sd`) set its time scale. 0 when fewer than two poses are visited twice.
+    """
+    dev = np.full((w.n, 3), np.nan)
+    to = np.asarray(w.to_pose, dtype=object)
+    for pose in set(w.to_pose):
+        i = np.flatnonzero(to == pose)
+        if i.size >= 2:
+            dev[i] = w.p_end_mm[i] - np.mean(w.p_end_mm[i], axis=0)
+    o = np.argsort(w.move_index, kind="stable")
+    a, b = dev[o][:-1], dev[o][1:]
+    ok = (np.diff(w.move_index[o]) == 1) & np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    if not ok.any():
+        return 0.0
+    c = float(np.mean(np.sum(a[ok] * b[ok], axis=1))) / 3.0
+    return math.sqrt(c) if c > 0.0 else 0.0
 
 
 def _drift_sd(w: Windows) -> float:
