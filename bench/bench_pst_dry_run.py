@@ -19,6 +19,13 @@ staircase (the creep, the ring) levels out within a few micrometres of it. The a
 own PST to 16.8 and 14.7 ms (+28 %, +34 %), its creep's time constant 3 % longer lowered it to 12.2 and 9.0 ms
 (over 100 cycles, both poses together: 13.8 -> 9.9 ms). The 3-cycle fit had the time constant 5.5 % short
 (0.1475 against 0.156 s) and the ring's damping 5 % low.
+
+It also prints each pose's RP over the rests. With the dry run's tracker_drift sized by what consecutive rests
+shared (``level_sd_mm``; 0 on seed 23, 2 um on seed 1), the dry run's RP is the arm's: seed 23 25.4 / 25.5 um
+against 24.9 / 23.8, seed 1 19.6 / 20.9 against 19.1 / 20.5 (when the rests' drift rate alone sized it over 10-40 s
+periods: 60-72 um against 24). The dry runs' PST stays about twice the arm's (seed 23 28.4 / 25.3 ms, seed 1
+7.0 / 7.8 against 3.6 / 2.3); run with the look-alike's own tracker noise (``--tracker-noise``) it is 27.1 / 21.5
+and 6.2 / 7.2 ms: not the noise model, the fitted creep and ring.
 """
 
 from __future__ import annotations

@@ -170,7 +170,7 @@ def _drift_mm(t: np.ndarray, drift: dict, seed: int) -> np.ndarray:
     w = 2.0 * math.pi / per
     # three sinusoids of amplitude A per axis: position variance 3 A^2 / 2, rate variance A^2 sum(w^2) / 2
     if level is None:
-        amp = np.broadcast_to(rate * math.sqrt(2.0 / 3.0) / w, w.shape)
+        amp = rate * math.sqrt(2.0 / 3.0) / w
     else:
         amp = np.full(w.shape, float(level) * math.sqrt(2.0 / 3.0))
         w = w * (rate / float(level)) / np.sqrt(np.mean(w * w, axis=1, keepdims=True))

@@ -702,7 +702,7 @@ def drift_level_sd(w: Windows) -> float:
     is shared, and both leave this near 0. A drift slower than the time between rests moves both alike (the
     tracker's reading drifts at every pose): it is its variance. Negative sums (noise) give 0. This sets the
     size of the dry run's drift (:func:`station.models.motion_effects.approach_offsets_mm`); the rests' drift
-    rates (:func:`_drift_sd`) set its time scale. 0 when fewer than two poses are visited twice.
+    rates (:func:`_drift_sd`) set its time scale. 0 when no two consecutive rests are at poses visited twice.
     """
     dev = np.full((w.n, 3), np.nan)
     to = np.asarray(w.to_pose, dtype=object)
