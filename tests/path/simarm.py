@@ -187,15 +187,18 @@ def _rounded_rectangle(C, rho, amp, lam, step=0.02):
     return np.concatenate(pts)
 
 
-def rectangle(rng, *, n_cycles=10, noise=0.01, v_c=None, blend=None, origin=None):
-    a, b = rng.uniform(100, 300), rng.uniform(100, 300)
+def rectangle(rng, *, n_cycles=10, noise=0.01, v_c=None, blend=None, origin=None, sides_mm=(100, 300),
+              blend_mm=(1.0, 5.0)):
+    """A rectangle's cycles, each from the end of its start corner's blend (no lead-in): sides drawn in
+    ``sides_mm``, a blended corner's radius in ``blend_mm`` (5 % from corner to corner)."""
+    a, b = rng.uniform(*sides_mm), rng.uniform(*sides_mm)
     v_c = v_c or rng.uniform(100, 400)
     blend = bool(rng.integers(2)) if blend is None else blend
     o = np.array([700.0, 0, 200]) if origin is None else origin
     _, e1, e2 = _frame(rng.standard_normal(3))
     C = np.stack([o, o + a * e1, o + a * e1 + b * e2, o + b * e2])
     lam = rng.uniform(2, 10)
-    base_rho = rng.uniform(1.0, 5.0) if blend else rng.uniform(0.05, 0.3)
+    base_rho = rng.uniform(*blend_mm) if blend else rng.uniform(0.05, 0.3)
     base_amp = rng.uniform(0.0, 0.05) if blend else rng.uniform(0.05, 0.5)
     cr, co, parts = [], [], []
     for j in range(n_cycles):  # loop over cycles

@@ -38,6 +38,18 @@ def test_figures_within_U_of_truth(kind, rng):
     assert all(v >= MIN_INSIDE for v in inside.values()), inside
 
 
+def test_a_rectangle_from_the_end_of_its_start_blend_counts_every_cycle(rng):
+    """A stream that begins where the start corner's blend ends (no lead-in), on a small rectangle: every cycle
+    counts and nothing is reported broken. The cycle's mark once sat at 1 % of the length (4-4.4 mm here, inside
+    the 6-8 mm blend): the first turn was lost and the last reported broken (CI, session seed 2262091302)."""
+    sim = simarm.rectangle(rng, n_cycles=5, noise=0.01, blend=True, sides_mm=(100, 110), blend_mm=(6.0, 8.0))
+    spec = parse_paths({"paths": [sim.path]})[0]
+    r = analyze_path(spec, sim.t, sim.meas, np.ones(sim.t.size, bool), noise_sd_mm=0.01, trials=30,
+                     seed=int(rng.integers(2**31)))
+    assert r.n_cycles == 5 and not r.broken, r.notes
+    assert r.figures["CR_mm"] is not None and r.figures["CO_mm"] is not None
+
+
 def test_beam_break_mid_path_leaves_that_cycle_out_with_the_reason(rng):
     sim = simarm.line(rng, n_cycles=5, noise=0.01)
     valid = np.ones(sim.t.size, bool)

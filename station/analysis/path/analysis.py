@@ -249,8 +249,13 @@ def analyze_path(spec: PathSpec, t_s, xyz_mm, valid, *, abc_deg=None, noise_sd_m
     s[rows], off[rows] = project(g, xyz[rows], None if abc_deg is None else np.asarray(abc_deg, float)[rows])
     sp = spec.plane_s_mm()
     lo, hi = sp[0], sp[-1]
-    if isinstance(g, Rectangle):  # a cycle from just after the start corner to just before it again
-        lo, hi = 0.01 * g.length_mm, 0.99 * g.length_mm
+    if isinstance(g, Rectangle):
+        # a cycle is marked a quarter along its first edge and a quarter before the end of its last: clear of
+        # the start corner and its blend, and of the measured corners' windows (half an edge either side). At 1 %
+        # of the length, a stream that began at the end of a 4.8 mm blend on a 440 mm rectangle began past the
+        # mark: its first turn was lost and its last reported broken
+        edges = np.diff(np.append(g.corner_s_mm, g.length_mm))
+        lo, hi = 0.25 * edges[0], g.length_mm - 0.25 * edges[-1]
     passes, broken = find_passes(s, off, ok, length=g.length_mm, closed=bool(getattr(g, "closed", False)),
                                  s_lo=lo, s_hi=hi, tube_mm=tube, in_window=near)
     res = PathResult(spec.name, spec.kind, len(passes), {f: None for f in figures_of(spec)}, broken=broken)
