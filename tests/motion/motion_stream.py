@@ -98,6 +98,13 @@ def draw(rng, *, effects=(), underdamped=False, cycles=8, dwell_s=2.0, rate_hz=R
     return d
 
 
+def drift_at(d: dict, t) -> np.ndarray:
+    """The drawn tracker drift (``draw(..., effects=("tracker_drift",))``) at times ``t``: (len(t), 3) mm."""
+    t = np.asarray(t, dtype=float)
+    arg = 2 * np.pi * t[:, None, None] / d["drift_periods"][None] + d["drift_phase"][None]
+    return d["drift_mm"] * np.sin(arg).sum(axis=2)
+
+
 def make_stream(d: dict, fine_hz: float = FINE_HZ) -> Stream:
     eff = set(d["effects"])
     truth = Truth(d["servo_hz"], d["servo_zeta"], noise_mm=d["noise_mm"], effects=sorted(eff))
@@ -150,8 +157,6 @@ def make_stream(d: dict, fine_hz: float = FINE_HZ) -> Stream:
     xyz = np.stack([np.interp(t, tf, pf[:, j]) for j in range(3)], axis=1)
     if "tracker_drift" in eff:
         truth.drift_mm = d["drift_mm"]
-        for j in range(3):
-            for m in range(3):
-                xyz[:, j] += d["drift_mm"] * np.sin(2 * np.pi * t / d["drift_periods"][j, m] + d["drift_phase"][j, m])
+        xyz += drift_at(d, t)
     xyz += np.random.default_rng(d["noise_seed"]).normal(0.0, d["noise_mm"], xyz.shape)
     return Stream(t, xyz, d["poses"], names, truth, d["dwell_s"], v, a)

@@ -23,7 +23,7 @@ from station.analysis.motion.diagnose import drift_level_sd
 from station.analysis.motion.windows import cut_windows
 from station.models.motion_effects import KIND, approach_offsets_mm, check_motion_model
 
-from .motion_stream import draw, make_stream
+from .motion_stream import draw, drift_at, make_stream
 from .real_arm import draw as arm_draw, make as arm_make
 
 #: standard deviations of the shared sum's noise allowed
@@ -38,16 +38,6 @@ def _scatter_and_pairs(w) -> tuple[float, int]:
     return float(np.sqrt(np.mean(dev ** 2))), pairs
 
 
-def _sum_of_sines(d: dict, t) -> np.ndarray:
-    """motion_stream's drawn drift at times ``t`` (len(t), 3), mm."""
-    t = np.asarray(t, dtype=float)
-    out = np.zeros((t.size, 3))
-    for j in range(3):
-        for m in range(3):
-            out[:, j] += d["drift_mm"] * np.sin(2 * np.pi * t / d["drift_periods"][j, m] + d["drift_phase"][j, m])
-    return out
-
-
 def test_a_slow_drift_is_what_consecutive_rests_share(rng):
     """A hidden drift of 30-90 s periods: the estimate is the drift's own shared variance at the rests (the
     estimator applied to the drift alone), within the noise the stops' scatter and wander add to the sum."""
@@ -58,7 +48,7 @@ def test_a_slow_drift_is_what_consecutive_rests_share(rng):
     w0 = cut_windows(clean.t_s, clean.xyz_mm, clean.poses_mm, clean.names)
     sigma_s, n = _scatter_and_pairs(w0)           # the stops' own scatter and wander
     # the drift alone at the rests (the late dwells' mean times), through the same estimator
-    wd = replace(w, p_end_mm=_sum_of_sines(d, w.t_late_s))
+    wd = replace(w, p_end_mm=drift_at(d, w.t_late_s))
     c_true = drift_level_sd(wd) ** 2
     sigma_d = math.sqrt(c_true)
     c = drift_level_sd(w) ** 2

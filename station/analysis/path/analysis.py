@@ -170,8 +170,7 @@ def _velocity(res, spec, t, xyz, passes, noise, kw, clock_refused, jump_rows):
 
 def _cornering(res, spec, t, xyz, passes, noise, kw):
     g = spec.geometry
-    cs = g.corner_s_mm
-    edges = np.diff(np.append(cs, g.length_mm))
+    cs, edges = g.corner_s_mm, g.edges_mm
     c = np.asarray(g.corners_mm, dtype=float)
     wins = []
     for ps in passes:  # loop over cycles
@@ -254,8 +253,7 @@ def analyze_path(spec: PathSpec, t_s, xyz_mm, valid, *, abc_deg=None, noise_sd_m
         # the start corner and its blend, and of the measured corners' windows (half an edge either side). At 1 %
         # of the length, a stream that began at the end of a 4.8 mm blend on a 440 mm rectangle began past the
         # mark: its first turn was lost and its last reported broken
-        edges = np.diff(np.append(g.corner_s_mm, g.length_mm))
-        lo, hi = 0.25 * edges[0], g.length_mm - 0.25 * edges[-1]
+        lo, hi = 0.25 * g.edges_mm[0], g.length_mm - 0.25 * g.edges_mm[-1]
     passes, broken = find_passes(s, off, ok, length=g.length_mm, closed=bool(getattr(g, "closed", False)),
                                  s_lo=lo, s_hi=hi, tube_mm=tube, in_window=near)
     res = PathResult(spec.name, spec.kind, len(passes), {f: None for f in figures_of(spec)}, broken=broken)

@@ -147,6 +147,11 @@ class Rectangle:
         """Arc length of each corner (the first at 0 and again at the length)."""
         return self._cum[:4]
 
+    @property
+    def edges_mm(self) -> np.ndarray:
+        """Length of each edge (4,), from each corner to the next."""
+        return np.diff(self._cum)
+
     def _edge(self, s):
         s = np.atleast_1d(np.asarray(s, dtype=float)) % self.length_mm
         k = np.clip(np.searchsorted(self._cum, s, side="right") - 1, 0, 3)
