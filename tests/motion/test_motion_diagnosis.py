@@ -107,31 +107,52 @@ def test_a_mode_on_the_loops_own_pole_is_the_loop(rng):
 
 
 def test_a_creep_inside_the_loops_settling_is_the_loop(rng):
-    """A creep whose time constant is no longer than the loop's slowest is the loop's own approach reshaped
+    """A creep whose time constant is no longer than the loop's approach is the loop's own approach reshaped
     (CI seed 2659658909: a lab look-alike with no dynamics named a 'creep' of 10 ms under a 27.8 Hz loop of
-    damping 0.14); a creep slower than the loop is a creep, underdamped or overdamped loop alike."""
+    damping 0.14); a creep slower than the loop is a creep, underdamped or overdamped loop alike. Near
+    critical damping the loop's approach is its double pole's, ``(1 + w t) exp(-w t)`` falling to 1/e at
+    ``2.15 / w`` (CI seed 1118271384: a 10.4 ms 'creep' of 23.0 um beside a loop refitted to 23.7 Hz at
+    damping 0.997, whose pole is 6.7 ms and whose lag was 23.2 um)."""
     import math
 
     from station.analysis.motion import fit as F
-    from station.analysis.motion.diagnose import _same_pole, loop_time_constant_s
+    from station.analysis.motion.diagnose import LAG_SHARE, _same_pole, loop_settling_s, loop_time_constant_s
 
     f, z = rng.uniform(3.0, 12.0), rng.uniform(0.1, 0.9)  # settling in 15 ms or more: above the floor of 10 ms
     assert loop_time_constant_s(f, z) == pytest.approx(1.0 / (z * 2.0 * math.pi * f))
     zo = rng.uniform(1.2, 3.0)  # overdamped: the slow real pole of s^2 + 2 zeta w s + w^2
     slow = max(np.roots([1.0, 2.0 * zo * 2.0 * math.pi * f, (2.0 * math.pi * f) ** 2]).real)
     assert loop_time_constant_s(f, zo) == pytest.approx(-1.0 / slow, rel=1e-9)
-    for zz in (z, zo):
-        t_loop = loop_time_constant_s(f, zz)
+    # the settling: a ringing loop's envelope, a critically damped loop's (1 + x) exp(-x) = 1/e at x = 2.146,
+    # an overdamped loop's error (p2 exp(-p1 t) - p1 exp(-p2 t)) / (p2 - p1) = 1/e found by bisection here
+    w = 2.0 * math.pi * f
+    zr = rng.uniform(0.05, 0.45)  # peaks of 1 / sqrt(1 - zeta^2) on the envelope: 1/e at most ln of that later
+    ratio = loop_settling_s(f, zr) / loop_time_constant_s(f, zr)
+    assert 1.0 <= ratio <= 1.0 + 0.5 * math.log(1.0 / (1.0 - zr * zr)) + 1e-3
+    assert loop_settling_s(f, 1.0) == pytest.approx(2.1462 / w, rel=2e-3)
+    p1, p2 = -slow, w * (zo + math.sqrt(zo * zo - 1.0))
+    lo, hi = 0.0, 50.0 / p1
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if (p2 * math.exp(-p1 * mid) - p1 * math.exp(-p2 * mid)) / (p2 - p1) > math.exp(-1) else (lo, mid)
+    assert loop_settling_s(f, zo) == pytest.approx(lo, rel=2e-3)
+    for zz in (z, zo, rng.uniform(0.95, 1.05)):
+        t_loop = loop_settling_s(f, zz)
+        assert t_loop >= loop_time_constant_s(f, zz)
         inside = F.Params({"servo": np.array([f, zz, 0.01]),
                            "creep": np.array([0.02, rng.uniform(0.011, 0.99 * t_loop)])})
         assert "position loop" in _same_pole(inside, "creep")
         assert _same_pole(inside, "structural_mode") == ""  # judged only as the candidate tested
-        # ... unless it is larger than the loop's whole lag behind the command (a / w^2): then it is a creep
+        # ... unless it is larger than the loop's whole lag behind the command (a / w^2), with the margin: a creep
         decel_for = lambda lag_mm: lag_mm * (2.0 * math.pi * f) ** 2  # noqa: E731  (the loop's lag a / w^2)
-        assert "position loop" in _same_pole(inside, "creep", decel_for(0.02 * rng.uniform(1.01, 10)))
-        assert _same_pole(inside, "creep", decel_for(0.02 * rng.uniform(0.1, 0.99))) == ""
+        assert "position loop" in _same_pole(inside, "creep", decel_for(0.02 / LAG_SHARE * rng.uniform(1.01, 10)))
+        assert _same_pole(inside, "creep", decel_for(0.02 / LAG_SHARE * rng.uniform(0.1, 0.99))) == ""
         after = F.Params({"servo": np.array([f, zz, 0.01]), "creep": np.array([0.02, t_loop * rng.uniform(1.01, 5)])})
         assert _same_pole(after, "creep") == ""
+    # the CI draw: the loop's pole (6.7 ms) is faster than the creep, its approach (14.4 ms) is not
+    ci = F.Params({"servo": np.array([23.66, 0.997, 0.0076]), "creep": np.array([0.02298, 0.01037])})
+    assert loop_time_constant_s(23.66, 0.997) < 0.01037 < loop_settling_s(23.66, 0.997)
+    assert "position loop" in _same_pole(ci, "creep", 511.6)
     # on its floor (the fit wanted it faster): no creep, whatever the loop
     floor = F.EFFECT_PARAMS["creep"][1][1]
     fast = np.array([rng.uniform(40.0, 80.0), 0.9, 0.0])  # a loop settled before the floor
