@@ -43,7 +43,7 @@ def main() -> None:
             r = fakerun.run(world, pt)
             spec = parse_paths({"paths": [pt.path]})[0]
             ok = np.ones(r.t.size, bool)
-            m = analyze_path(spec, r.t, r.measured, ok, noise_sd_mm=r.noise_sd_mm, trials=100, seed=seed)
+            m = analyze_path(spec, r.t, r.measured, ok, noise_sd_mm=r.noise, trials=100, seed=seed)
             tr = analyze_path(spec, r.t, r.read_truth, ok, noise_sd_mm=1e-6, trials=10, seed=seed)
             for fig, v in m.figures.items():
                 U = m.uncertainty[fig].U

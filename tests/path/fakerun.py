@@ -22,7 +22,8 @@ class PathRun:
     true: np.ndarray  # the arm's true TCP, base frame, mm
     measured: np.ndarray  # the tracker's stream, taken back into the base frame by the true registration
     read_truth: np.ndarray  # what the tracker reads of the true TCP, its noise aside (base frame)
-    noise_sd_mm: float
+    noise_sd_mm: float  # one reading's sd about the truth (white and wander together)
+    noise: object  # the tracker's noise model (TrackerNoise: white, wander and its time)
 
 
 def run(world, path_test) -> PathRun:
@@ -42,4 +43,4 @@ def run(world, path_test) -> PathRun:
     read = tr.reading(tr.to_tracker_frame(world.arm.tool_position_mm(t - tr.latency_s)))
     noise = float(np.hypot(tr.noise.white_um, tr.noise.wander_um)) * 1e-3
     return PathRun(t, kin.tool_position(world.robot.dh_nominal, world.arm.commanded_q_rad(t)),
-                   world.arm.tool_position_mm(t), back(xyz), back(read), noise)
+                   world.arm.tool_position_mm(t), back(xyz), back(read), noise, tr.noise)

@@ -28,7 +28,7 @@ def _figures(world, pt, seed) -> str:
     ok = np.ones(r.t.size, bool)
     out = []
     for label, xyz, noise in (("cmd", r.commanded, 1e-6), ("truth", r.read_truth, 1e-6),
-                              ("stream", r.measured, r.noise_sd_mm)):
+                              ("stream", r.measured, r.noise)):
         res = analyze_path(spec, r.t, xyz, ok, noise_sd_mm=noise, trials=60, seed=seed)
         figs = " ".join(f"{k} {v:+.4f}" + (f" (U {res.uncertainty[k].U:.4f})" if label == "stream" else "")
                         for k, v in res.figures.items())

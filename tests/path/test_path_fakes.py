@@ -99,7 +99,7 @@ def test_the_tracker_stream_gives_each_figure_within_U_of_the_truth(kind, test_s
     r = fakerun.run(world, pt)
     spec = parse_paths({"paths": [pt.path]})[0]
     ok = np.ones(r.t.size, bool)
-    measured = analyze_path(spec, r.t, r.measured, ok, noise_sd_mm=r.noise_sd_mm, trials=60, seed=test_seed)
+    measured = analyze_path(spec, r.t, r.measured, ok, noise_sd_mm=r.noise, trials=60, seed=test_seed)
     truth = analyze_path(spec, r.t, r.read_truth, ok, noise_sd_mm=1e-6, trials=10, seed=test_seed)
     assert measured.n_cycles == truth.n_cycles == 3, measured.notes
     assert set(measured.figures) == set(truth.figures) and measured.figures

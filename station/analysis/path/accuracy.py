@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.analysis.path.mc import DEFAULT_TRIALS, from_draws
+from station.analysis.path.noise import PathNoise
+from station.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -50,21 +52,35 @@ def _batched(c, commanded):
 
 
 def at_rt_uncertainty(crossings_mm, commanded_mm, normals, noise_sd_mm, acc: PathAccuracy, subject: str, *,
-                      sampling_mm: float = 0.0, trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
+                      sampling_mm: float = 0.0, t_s=None, trials: int = DEFAULT_TRIALS, seed: int = 0,
+                      k: float = 2.0) -> dict:
     """u and U of AT and RT: the crossings re-measured with the instrument's noise in their planes; both are
     taken back to no noise (:func:`~station.analysis.path.mc.from_draws` with ``draws2``).
 
     ``normals`` (m, 3) unit normals of the planes (None: noise in all three axes, e.g. a held point);
-    ``noise_sd_mm`` per-coordinate sd (scalar or (n, m)); ``sampling_mm``: the standard uncertainty a
-    crossing takes from the interpolation between samples.
+    ``noise_sd_mm`` per-coordinate sd (scalar or (n, m)), or a :class:`~station.analysis.path.noise.PathNoise`
+    (white and wander); ``t_s`` (n, m) the crossings' times, along which a wander is drawn (the crossings of
+    one cycle's neighbouring planes share most of it); ``sampling_mm``: the standard uncertainty a crossing
+    takes from the interpolation between samples.
     """
     c = np.asarray(crossings_mm, dtype=float)
     rng = np.random.default_rng([seed, 44, 82])
-    sd = np.broadcast_to(np.asarray(noise_sd_mm, float), c.shape[:2])[None, :, :, None]
+    pn = noise_sd_mm if isinstance(noise_sd_mm, PathNoise) else None
+    if pn is not None and pn.has_wander and t_s is None:
+        raise DataError("a noise with a wander needs the crossings' times (t_s)")
+    sd = np.broadcast_to(np.asarray(pn.white_mm if pn else noise_sd_mm, float), c.shape[:2])[None, :, :, None]
     nn = None if normals is None else np.asarray(normals, dtype=float)
+    if pn is not None and pn.has_wander:
+        tt = np.asarray(t_s, dtype=float).reshape(-1)
+        order = np.argsort(tt, kind="stable")
 
     def noise():
-        e = rng.standard_normal((trials, *c.shape)) * sd
+        if pn is not None and pn.has_wander:  # one timeline: every crossing at its time
+            d = np.empty((trials, tt.size, c.shape[2]))
+            d[:, order] = pn.draw(rng, (trials,), tt[order], c.shape[2])
+            e = d.reshape(trials, *c.shape)
+        else:
+            e = rng.standard_normal((trials, *c.shape)) * sd
         if nn is not None:
             e -= np.einsum("tnmk,mk->tnm", e, nn)[..., None] * nn[None, None]
         return e

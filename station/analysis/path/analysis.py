@@ -20,6 +20,7 @@ from station.analysis.path.commanded import Arc, Line, PathSpec, Rectangle, Reor
 from station.analysis.path.cornering import CornerWindow, cornering, cornering_uncertainty
 from station.analysis.path.figures import NAMES, SIGNED
 from station.analysis.path.mc import DEFAULT_TRIALS
+from station.analysis.path.noise import PathNoise
 from station.analysis.path.passes import crossings, find_passes, project
 from station.analysis.path.velocity import curvature_bias, path_velocity, speed, velocity_uncertainty
 from station.analysis.path.weaving import fit_sine, weaving
@@ -72,10 +73,10 @@ class PathResult:
         return d
 
 
-def _noise(noise_sd_mm, points) -> float:
+def _noise(noise_sd_mm, points) -> PathNoise:
     if callable(noise_sd_mm):
-        return float(np.mean(noise_sd_mm(points)))
-    return float(noise_sd_mm)
+        return PathNoise(float(np.mean(noise_sd_mm(points))))
+    return PathNoise.of(noise_sd_mm)
 
 
 def _dt_ok(t) -> tuple[float, str]:
@@ -94,7 +95,7 @@ def _window_rows(ps, a: float, b: float) -> slice:
     return slice(int(np.searchsorted(mx, a)), int(np.searchsorted(mx, b)))
 
 
-def _accuracy(res, spec, xyz, passes, noise, kw, ds_mm):
+def _accuracy(res, spec, t, xyz, passes, noise, kw, ds_mm):
     g = spec.geometry
     sp = spec.plane_s_mm()
     c = crossings(xyz, passes, sp)
@@ -102,7 +103,9 @@ def _accuracy(res, spec, xyz, passes, noise, kw, ds_mm):
     acc = at_rt(c, cmd)
     normals = None if isinstance(g, Reorientation) else g.tangent_at(sp)
     sag = ds_mm ** 2 / (8 * g.radius_mm) / np.sqrt(3) if isinstance(g, Arc) else 0.0
-    res.uncertainty.update(at_rt_uncertainty(c, cmd, normals, noise, acc, spec.name, sampling_mm=sag, **kw))
+    times = crossings(np.asarray(t, dtype=float)[:, None], passes, sp)[:, :, 0]
+    res.uncertainty.update(at_rt_uncertainty(c, cmd, normals, noise, acc, spec.name, sampling_mm=sag, t_s=times,
+                                             **kw))
     # AT, RT taken back to no noise (the ISO formula on the noisy crossings kept beside them)
     res.detail["as_measured"] = {"AT_mm": acc.AT_mm, "RT_mm": acc.RT_mm}
     res.figures["AT_mm"] = res.uncertainty["AT_mm"].value
@@ -144,7 +147,7 @@ def _velocity(res, spec, t, xyz, passes, noise, kw, clock_refused, jump_rows):
         if why:
             res.notes.append(f"cycle {ps.cycle}: left out of the path velocity: {why}")
             continue
-        v = speed(xyz[ps.rows], dt, noise)
+        v = speed(xyz[ps.rows], dt, noise.white_mm)
         if isinstance(spec.geometry, Arc):  # the filter's bias on the arc, at this cycle's own speed
             bias = curvature_bias(spec.geometry.radius_mm, float(np.mean(v)), dt)
             v = v / (1.0 + bias)
@@ -181,7 +184,8 @@ def _cornering(res, spec, t, xyz, passes, noise, kw):
                 res.notes.append(f"cycle {ps.cycle}, corner {k + 1}: fewer than 3 samples; left out")
                 continue
             t1, t2 = g.tangent_at(cs[k] - 0.5 * edges[k - 1])[0], g.tangent_at(cs[k] + 0.5 * edges[k])[0]
-            wins.append(CornerWindow(k + 1, ps.cycle, p, c[k], t1, t2, float(edges[k])))
+            wins.append(CornerWindow(k + 1, ps.cycle, p, c[k], t1, t2, float(edges[k]),
+                                     t[ps.i0:ps.i1 + 1][rows]))
     if not wins:
         res.refused.update(CR_mm="no corner with samples", CO_mm="no corner with samples")
         return
@@ -227,8 +231,11 @@ def _weaving(res, spec, t, xyz, passes, kw, clock_refused, jump_rows):
 
 def analyze_path(spec: PathSpec, t_s, xyz_mm, valid, *, abc_deg=None, noise_sd_mm=0.0075, clock_refused: str = "",
                  jump_rows=(), trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> PathResult:
-    """One path's figures. ``noise_sd_mm``: the instrument's per-coordinate sd (a number, or a function of
-    points (n, 3) -> sd (n,), e.g. ``Budget.instrument_sd_mm``)."""
+    """One path's figures. ``noise_sd_mm``: the instrument's per-coordinate reading noise: a white sd (a
+    number, or a function of points (n, 3) -> sd (n,), e.g. ``Budget.instrument_sd_mm``), or white noise and a
+    wander (a :class:`~station.models.tracker_noise.TrackerNoise` or
+    :class:`~station.analysis.path.noise.PathNoise`), which the figures' re-measurement draws give its
+    correlation in time."""
     t = np.asarray(t_s, dtype=float)
     xyz = np.asarray(xyz_mm, dtype=float)
     ok = np.asarray(valid, dtype=bool) & np.all(np.isfinite(xyz), axis=1)
@@ -274,10 +281,12 @@ def analyze_path(spec: PathSpec, t_s, xyz_mm, valid, *, abc_deg=None, noise_sd_m
         _weaving(res, spec, t, xyz, passes, kw, clock_refused, jump_rows)
     else:
         ds = float(np.median(np.concatenate([np.abs(np.diff(p.s_mm)) for p in passes])))
-        _accuracy(res, spec, xyz, passes, noise, kw, ds)
+        _accuracy(res, spec, t, xyz, passes, noise, kw, ds)
         if spec.velocity_mm_s and isinstance(g, (Line, Arc)):
             _velocity(res, spec, t, xyz, passes, noise, kw, clock_refused, jump_rows)
-    res.detail["noise_sd_mm"] = noise
+    res.detail["noise_sd_mm"] = noise.total_mm
+    res.detail["noise"] = {"white_mm": noise.white_mm, "wander_mm": noise.wander_mm,
+                           "wander_tau_s": noise.wander_tau_s}
     return res
 
 

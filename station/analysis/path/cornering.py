@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from station.analysis.path.mc import DEFAULT_TRIALS, from_draws
+from station.analysis.path.noise import PathNoise
+from station.errors import DataError
 
 @dataclass(frozen=True)
 class CornerWindow:
@@ -35,6 +37,7 @@ class CornerWindow:
     t1: np.ndarray
     t2: np.ndarray
     edge2_mm: float
+    t_s: np.ndarray | None = None  # (w,) the samples' times (a wander is drawn along them)
 
 
 @dataclass(frozen=True)
@@ -92,29 +95,37 @@ def _sampling_bound(w: CornerWindow, cr: float) -> float:
     return float(min(apex, d * d / (8.0 * rho)))
 
 
-def cornering_uncertainty(windows: list[CornerWindow], noise_sd_mm: float, res: Cornering, subject: str, *,
+def cornering_uncertainty(windows: list[CornerWindow], noise_sd_mm, res: Cornering, subject: str, *,
                           trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
     """u, U of CR and CO: each corner's samples re-measured with the instrument noise (3-D), once and twice.
 
-    Only what can make the largest is drawn: the corners within 8 noise sd of the largest CR_j (CO_j), and
-    for CO the samples within 8 sd of each one's largest outward deviation.
+    ``noise_sd_mm``: a white sd or a :class:`~station.analysis.path.noise.PathNoise` (white and a wander, drawn
+    along the windows' sample times ``t_s``, which a wander needs). Only what can make the largest
+    is drawn: the corners within 8 noise sd of the largest CR_j (CO_j), and for CO the samples within 8 sd of
+    each one's largest outward deviation.
     """
+    pn = PathNoise.of(noise_sd_mm)
     rng = np.random.default_rng([seed, 44, 84])
-    reach = 8.0 * noise_sd_mm
+    reach = 8.0 * pn.total_mm
     pick_cr = np.flatnonzero(res.CR_jc_mm >= res.CR_mm - reach - res.h_jc_mm.max())
     pick_co = np.flatnonzero(res.CO_jc_mm >= res.CO_mm - reach)
     cr = np.full((2, trials, pick_cr.size), -np.inf)
     co = np.zeros((2, trials, pick_co.size))
 
-    def twice(shape):
-        e1 = rng.standard_normal((trials, *shape)) * noise_sd_mm
-        return np.stack([e1, e1 + rng.standard_normal((trials, *shape)) * noise_sd_mm])
+    if pn.has_wander and any(w.t_s is None for w in windows):
+        raise DataError("a noise with a wander needs the corner windows' sample times (t_s)")
+
+    def twice(shape, t):
+        d = pn.draw(rng, (2, trials), np.zeros(shape[0]) if t is None else t, shape[1])
+        d[1] += d[0]  # twice the noise: the first draw plus a fresh one
+        return d
 
     for c, i in enumerate(pick_cr):  # loop over candidate corners
         w = windows[i]
         j = int(np.argmin(np.linalg.norm(w.xyz_mm - w.point_mm, axis=1)))
         near = w.xyz_mm[max(j - 25, 0):j + 26]
-        cr[:, :, c] = _polyline_distance(near[None, None] + twice(near.shape), w.point_mm)
+        tn = None if w.t_s is None else w.t_s[max(j - 25, 0):j + 26]
+        cr[:, :, c] = _polyline_distance(near[None, None] + twice(near.shape, tn), w.point_mm)
     for c, i in enumerate(pick_co):  # loop over candidate corners
         w = windows[i]
         n = w.t1 - np.dot(w.t1, w.t2) * w.t2
@@ -125,7 +136,7 @@ def cornering_uncertainty(windows: list[CornerWindow], noise_sd_mm: float, res: 
         if idx.size == 0:
             continue
         seg = w.xyz_mm[idx]
-        co[:, :, c] = _outward(seg[None, None] + twice(seg.shape), w)
+        co[:, :, c] = _outward(seg[None, None] + twice(seg.shape, None if w.t_s is None else w.t_s[idx]), w)
     n = len(windows)
     h = {"sampling (the path between samples at the corner)": float(res.h_jc_mm[int(np.argmax(res.CR_jc_mm))])
          / np.sqrt(3.0)}

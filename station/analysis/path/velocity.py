@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from station.analysis.path.mc import DEFAULT_TRIALS, from_draws
+from station.analysis.path.noise import PathNoise
 
 #: draws of the range (the costly part: a filtered noise per draw); u(FV) to about 10 %
 FV_TRIALS = 50
@@ -78,17 +79,20 @@ def path_velocity(speeds: list[np.ndarray], v_c: float) -> PathVelocity:
     return PathVelocity(float(av), None if rv is None else float(rv), float(fv), means, ranges)
 
 
-def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noise_sd_mm: float,
-                         pv: PathVelocity, subject: str, *, trials: int = DEFAULT_TRIALS, seed: int = 0,
-                         k: float = 2.0) -> dict:
+def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noise_sd_mm, pv: PathVelocity, subject: str, *,
+                         trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
     """u, U of AV, RV, FV: each cycle's speed re-measured with the instrument noise along the path.
 
-    ``pieces``: per cycle ``(speed samples in the window, dt_s)``. The noise's derivative is the filter's
-    kernel h applied to white noise. A window's mean takes the noise e . g / n (g = h * ones(n)): drawn
-    directly. The range is drawn, once and twice the noise, only where it can be made: the cycles whose range
-    is within reach of the largest and their samples within reach of their max and min (reach: 5 sd of the
-    filtered noise, every w/8-th sample: both are smooth over the filter's w samples).
+    ``pieces``: per cycle ``(speed samples in the window, dt_s)``; ``noise_sd_mm`` a
+    white sd or a :class:`~station.analysis.path.noise.PathNoise` (white and wander). The noise's derivative
+    is the filter's kernel h applied to the noise. A window's mean takes the noise e . g / n (g = h * ones(n)):
+    drawn directly, with variance ``g^T C g / n^2`` (C the noise's covariance: white on the diagonal, the
+    wander's ``wander^2 exp(-|t_i - t_j| / tau)``; a wander slower than the window moves its two ends apart
+    and the mean with them). The range is drawn, once and twice the noise, only where it can be made: the
+    cycles whose range is within reach of the largest and their samples within reach of their max and min
+    (reach: 5 sd of the filtered noise, every w/8-th sample: both are smooth over the filter's w samples).
     """
+    pn = PathNoise.of(noise_sd_mm)
     rng = np.random.default_rng([seed, 44, 85])
     K = len(pieces)
     u_mean = np.empty(K)
@@ -97,20 +101,26 @@ def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noi
     for j, (v, dt) in enumerate(pieces):  # loop over cycles
         h = savgol_coeffs(_window(dt, 10 ** 9), 3, deriv=1, delta=dt, use="dot")
         kernels.append(h)
-        u_mean[j] = noise_sd_mm * float(np.linalg.norm(np.convolve(h, np.ones(v.size)))) / v.size
-        sd_v[j] = noise_sd_mm * float(np.linalg.norm(h))
+        g = np.convolve(h, np.ones(v.size))
+        var = (pn.white_mm * float(np.linalg.norm(g)) / v.size) ** 2
+        if pn.has_wander:
+            tg = dt * np.arange(g.size)
+            var += float(g @ pn.wander_covariance(tg) @ g) / v.size ** 2
+        u_mean[j] = np.sqrt(var)
+        sd_v[j] = pn.total_mm * float(np.linalg.norm(h))
     means = pv.mean_speed_mm_s[None] + rng.standard_normal((trials, K)) * u_mean[None]
     reach = 5.0 * sd_v.max()
     tr = min(trials, FV_TRIALS)
     ranges = np.broadcast_to(pv.range_mm_s, (2, tr, K)).copy()
     for j in np.flatnonzero(pv.range_mm_s >= pv.range_mm_s.max() - 2.0 * reach):  # loop over candidate cycles
         v, h = pieces[j][0], kernels[j]
+        dt = pieces[j][1]
         # every (w/8)th of them: the filtered noise and the speed are smooth over the filter's span
         idx = np.flatnonzero((v >= v.max() - reach) | (v <= v.min() + reach))[::max(h.size // 8, 1)]
         taps = idx[:, None] + np.arange(h.size)[None] - h.size // 2  # the noise samples each speed sample takes
         used, inv = np.unique(taps, return_inverse=True)
-        e = rng.standard_normal((2, tr, used.size)) * noise_sd_mm
-        e[1] += e[0]
+        e = pn.draw(rng, (2, tr), dt * used, 1)[..., 0]
+        e[1] += e[0]  # twice the noise: the first draw plus a fresh one
         dv = e[:, :, inv.reshape(taps.shape)] @ h
         x = v[idx][None, None] + dv
         # relative to the full range: the thinned samples' own range is what the draws move from
