@@ -182,9 +182,29 @@ def test_eccentricity_and_compliance_both_named_where_the_poses_cannot_tell(test
 ROBOT = get_robot("industrial-3100")
 
 
+def _rival_goes_first(res, effect: str, joint: int | None) -> bool:
+    """Issue 43 item 4: a hidden eccentricity whose rival, compliance on the same joint, was chosen, and the step
+    names it as a candidate that cannot be told apart, with both statistics and neither significant beyond the
+    other (as :func:`test_eccentricity_and_compliance_told_apart_on_spread_poses` accepts)."""
+    if effect != "encoder_eccentricity":
+        return False
+    step = next((s for s in res.steps if (s.term.effect, s.term.joint) == ("joint_compliance", joint)), None)
+    if step is None:
+        return False
+    return any((a["effect"], a["joint"]) == (effect, joint) and "cannot be told apart" in a["note"]
+               and a.get("beyond_it") is not None and a.get("it_beyond") is not None
+               and not a["beyond_it"] > 1.0 and not a["it_beyond"] > 1.0 for a in step.ambiguous_with)
+
+
 @pytest.mark.parametrize("effect", ["backlash", "encoder_eccentricity", "joint_compliance", "thermal_drift"])
 def test_hidden_effect_named_with_its_joint_on_240_spread_poses(rng, effect):
-    """The earlier diagnosis tests' hidden effects on 240 spread poses: each named with its joint again."""
+    """The earlier diagnosis tests' hidden effects on 240 spread poses: each named with its joint again. An
+    eccentricity may go second to compliance on its joint only where the step says the poses cannot tell the two
+    apart (:func:`_rival_goes_first`). Session seed 1049860001: eccentricity on J2, whose columns beyond the
+    geometry the compliance's lie within at a cosine of 0.95; what the hidden one holds beyond the compliance had a
+    noncentrality of 15 against the 15.5 its threshold needs (classical variance: told apart on about half such
+    draws); on the draw its statistic beyond the compliance was 0.07 of its threshold and the compliance's beyond
+    it 0.25, the compliance fitted as well, went first and names the eccentricity with it."""
     from tests.diagnosis.hidden import compliance_joints
 
     joint = None if effect == "thermal_drift" else int(
@@ -192,4 +212,5 @@ def test_hidden_effect_named_with_its_joint_on_240_spread_poses(rng, effect):
     d = make_case(ROBOT, [(effect, joint)], rng, n=240, strength=(0.8, 1.2))
     res = diagnose_arm(ROBOT.dh_nominal, d.q_rad, d.xyz_mm, t_s=d.t_s, robot=ROBOT, alpha=0.01)
     assert found(res, effect, joint), (effect, joint, res.selected)
-    assert (effect, joint) in res.selected or effect == "joint_compliance", (effect, joint, res.selected)
+    assert (effect, joint) in res.selected or effect == "joint_compliance" or _rival_goes_first(res, effect, joint), (
+        effect, joint, res.selected, [s.ambiguous_with for s in res.steps])
