@@ -4,8 +4,9 @@ A tracker's reading error per coordinate is white noise of sd ``white_mm`` plus 
 that decorrelates over ``wander_tau_s`` (eq. (N1); its semivariogram is eq. (N2),
 :class:`~station.models.tracker_noise.TrackerNoise`). A figure that averages samples over less than the
 wander's time (a window's mean speed, a cycle's crossings of neighbouring planes) does not average the wander
-away: drawn as white noise of the total sd, its spread was too small by a third (mean speeds over 0.2 s of a
-Leica-like 0.6 um white, 2 um wander over 1 s), and as white noise of the white sd far too small. The draws
+away: drawn as white noise of the total sd, the spread of three 0.3 s windows' mean speed came out 0.55 of
+what repeated measurements show (a Leica-like 0.6 um white, 2 um wander over 1 s), and drawn as white noise of
+the white sd alone, 0.16 of it. The draws
 here give the wander its correlation: a stationary first-order Gauss-Markov process at the samples' times.
 """
 
