@@ -132,9 +132,12 @@ def test_a_creep_inside_the_loops_settling_is_the_loop(rng):
     assert loop_settling_s(f, 1.0) == pytest.approx(2.1462 / w, rel=2e-3)
     p1, p2 = -slow, w * (zo + math.sqrt(zo * zo - 1.0))
     lo, hi = 0.0, 50.0 / p1
+    def error(t):  # the overdamped loop's step error
+        return (p2 * math.exp(-p1 * t) - p1 * math.exp(-p2 * t)) / (p2 - p1)
+
     for _ in range(80):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if (p2 * math.exp(-p1 * mid) - p1 * math.exp(-p2 * mid)) / (p2 - p1) > math.exp(-1) else (lo, mid)
+        lo, hi = (mid, hi) if error(mid) > math.exp(-1) else (lo, mid)
     assert loop_settling_s(f, zo) == pytest.approx(lo, rel=2e-3)
     for zz in (z, zo, rng.uniform(0.95, 1.05)):
         t_loop = loop_settling_s(f, zz)

@@ -390,21 +390,20 @@ def _creep_inside_loop(p: F.Params, decel_mm_s2: float | None = None) -> str:
     """Why a fitted creep is the position loop's own approach ("" when it is not).
 
     A creep creeps in *after* the loop has settled: its time constant is longer than the loop's approach
-    (:func:`loop_settling_s`). An exponential that dies out while the loop still rings or converges, and
-    is no larger than :data:`LAG_SHARE` times the loop's own lag behind the command (``a / w^2`` at the moves'
-    median deceleration ``decel_mm_s2``; not checked without it), only reshapes the loop's transient: it stands for a misfit of the
-    loop's form (an approach faster than the fit's loop can follow, a deceleration's ramp), not for a second
-    physical cause. On a lab look-alike with no dynamics at all (the profile's stop exact, test seed 1442964155
-    of the CLI's test), a baseline loop of 27.8 Hz, damping 0.14 (decaying in 42 ms) took a "creep" of 16 um in
-    10 ms, on its bound, which lowered the held-out RMS from 0.93 to 0.60 um (refitted with it, the loop's
-    damping rose to 1.2: 10.1 ms). A time constant on its floor is no creep either way: the fit wanted it faster
-    still. The lag matters where a loop without the arm's dynamics runs to the damping's floor and rings for
-    longer than any creep: a look-alike of issue 42's UR arm at 50 % (draw 203) fitted a creep of 213 um in
-    185 ms under a loop of 18.7 Hz at damping 0.03 (284 ms), whose lag at 149 mm/s^2 is 11 um: a creep twenty
-    times the loop's whole transient reshapes nothing. Where the fit trades the creep against the loop, the
-    creep takes the lag back: a look-alike with no dynamics (CI seed 1118271384, test seed 1049121489) named a
-    "creep" of 23.0 um in 10.4 ms beside a loop refitted to 23.7 Hz at damping 0.997, whose lag was 23.2 um
-    and whose error falls to 1/e in 14.5 ms (its pole's 6.7 ms was the old measure); candidates of that kind
+    (:func:`loop_settling_s`). An exponential that dies out while the loop still rings or converges, and is no larger
+    than :data:`LAG_SHARE` times the loop's own lag behind the command (``a / w^2`` at the moves' median deceleration
+    ``decel_mm_s2``; not checked without it), only reshapes the loop's transient: it stands for a misfit of the loop's
+    form (an approach faster than the fit's loop can follow, a deceleration's ramp), not for a second physical cause. On
+    a lab look-alike with no dynamics at all (the profile's stop exact, test seed 1442964155 of the CLI's test), a
+    baseline loop of 27.8 Hz, damping 0.14 (decaying in 42 ms) took a "creep" of 16 um in 10 ms, on its bound, which
+    lowered the held-out RMS from 0.93 to 0.60 um (refitted with it, the loop's damping rose to 1.2: 10.1 ms). A time
+    constant on its floor is no creep either way: the fit wanted it faster still. The lag matters where a loop without
+    the arm's dynamics runs to the damping's floor and rings for longer than any creep: a look-alike of issue 42's UR
+    arm at 50 % (draw 203) fitted a creep of 213 um in 185 ms under a loop of 18.7 Hz at damping 0.03 (284 ms), whose
+    lag at 149 mm/s^2 is 11 um: a creep twenty times the loop's whole transient reshapes nothing. Where the fit trades
+    the creep against the loop, the creep takes the lag back: a look-alike with no dynamics (CI seed 1118271384, test
+    seed 1049121489) named a "creep" of 23.0 um in 10.4 ms beside a loop refitted to 23.7 Hz at damping 0.997, whose lag
+    was 23.2 um and whose error falls to 1/e in 14.5 ms (its pole's 6.7 ms was the old measure); candidates of that kind
     sat at 0.99-1.03 of the lag on other look-alike draws, hence the margin of :data:`LAG_SHARE`.
     """
     f, z, _ = p.values["servo"]
@@ -418,8 +417,8 @@ def _creep_inside_loop(p: F.Params, decel_mm_s2: float | None = None) -> str:
     if tc <= t_loop and abs(A) <= LAG_SHARE * lag:
         return (f"the creep's time constant ({1e3 * tc:.3g} ms) is within the position loop's ({1e3 * t_loop:.3g} ms, "
                 f"{f:.3g} Hz, damping {z:.2g}) and its amplitude ({1e3 * abs(A):.3g} um) within the loop's lag"
-                + (f" ({1e3 * lag:.3g} um, x{LAG_SHARE:g})" if math.isfinite(lag) else "") + ": it reshapes the loop's approach, "
-                "no creep after it")
+                + (f" ({1e3 * lag:.3g} um, x{LAG_SHARE:g})" if math.isfinite(lag) else "")
+                + ": it reshapes the loop's approach, no creep after it")
     return ""
 
 

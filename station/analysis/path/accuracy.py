@@ -65,17 +65,18 @@ def at_rt_uncertainty(crossings_mm, commanded_mm, normals, noise_sd_mm, acc: Pat
     """
     c = np.asarray(crossings_mm, dtype=float)
     rng = np.random.default_rng([seed, 44, 82])
-    pn = noise_sd_mm if isinstance(noise_sd_mm, PathNoise) else None
-    if pn is not None and pn.has_wander and t_s is None:
+    pn = noise_sd_mm if isinstance(noise_sd_mm, PathNoise) else None  # else a white sd, scalar or (n, m)
+    wander = pn is not None and pn.has_wander
+    if wander and t_s is None:
         raise DataError("a noise with a wander needs the crossings' times (t_s)")
     sd = np.broadcast_to(np.asarray(pn.white_mm if pn else noise_sd_mm, float), c.shape[:2])[None, :, :, None]
     nn = None if normals is None else np.asarray(normals, dtype=float)
-    if pn is not None and pn.has_wander:
+    if wander:
         tt = np.asarray(t_s, dtype=float).reshape(-1)
         order = np.argsort(tt, kind="stable")
 
     def noise():
-        if pn is not None and pn.has_wander:  # one timeline: every crossing at its time
+        if wander:  # one timeline: every crossing at its time
             d = np.empty((trials, tt.size, c.shape[2]))
             d[:, order] = pn.draw(rng, (trials,), tt[order], c.shape[2])
             e = d.reshape(trials, *c.shape)

@@ -79,12 +79,12 @@ def path_velocity(speeds: list[np.ndarray], v_c: float) -> PathVelocity:
     return PathVelocity(float(av), None if rv is None else float(rv), float(fv), means, ranges)
 
 
-def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noise_sd_mm, pv: PathVelocity, subject: str, *,
-                         trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
+def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noise_sd_mm, pv: PathVelocity,
+                         subject: str, *, trials: int = DEFAULT_TRIALS, seed: int = 0, k: float = 2.0) -> dict:
     """u, U of AV, RV, FV: each cycle's speed re-measured with the instrument noise along the path.
 
-    ``pieces``: per cycle ``(speed samples in the window, dt_s)``; ``noise_sd_mm`` a
-    white sd or a :class:`~station.analysis.path.noise.PathNoise` (white and wander). The noise's derivative
+    ``pieces``: per cycle ``(speed samples in the window, dt_s)``; ``noise_sd_mm`` a white sd or a
+    :class:`~station.analysis.path.noise.PathNoise` (white and wander). The noise's derivative
     is the filter's kernel h applied to the noise. A window's mean takes the noise e . g / n (g = h * ones(n)):
     drawn directly, with variance ``g^T C g / n^2`` (C the noise's covariance: white on the diagonal, the
     wander's ``wander^2 exp(-|t_i - t_j| / tau)``; a wander slower than the window moves its two ends apart
@@ -113,8 +113,7 @@ def velocity_uncertainty(pieces: list[tuple[np.ndarray, float]], v_c: float, noi
     tr = min(trials, FV_TRIALS)
     ranges = np.broadcast_to(pv.range_mm_s, (2, tr, K)).copy()
     for j in np.flatnonzero(pv.range_mm_s >= pv.range_mm_s.max() - 2.0 * reach):  # loop over candidate cycles
-        v, h = pieces[j][0], kernels[j]
-        dt = pieces[j][1]
+        (v, dt), h = pieces[j], kernels[j]
         # every (w/8)th of them: the filtered noise and the speed are smooth over the filter's span
         idx = np.flatnonzero((v >= v.max() - reach) | (v <= v.min() + reach))[::max(h.size // 8, 1)]
         taps = idx[:, None] + np.arange(h.size)[None] - h.size // 2  # the noise samples each speed sample takes
